@@ -1,0 +1,2 @@
+//! The `tissue` command-line tool.
+fn main() {}

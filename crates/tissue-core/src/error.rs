@@ -1,0 +1,164 @@
+//! Errors of the core crate: one enum per concern, one top-level wrapper.
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+/// A parameter out of its range.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("parameter `{name}` is {value}, expected {expected}")]
+pub struct ParamError {
+    /// The parameter's name, as in `SamplingParams`.
+    pub name: &'static str,
+    /// The value given.
+    pub value: f64,
+    /// What it should be.
+    pub expected: &'static str,
+}
+
+/// A surface mesh that cannot be used: what is wrong, how often, and one place.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MeshError {
+    /// The mesh has no triangles (or no vertices).
+    #[error("the surface is empty: {vertices} vertices, {triangles} triangles")]
+    Empty {
+        /// Vertices read.
+        vertices: usize,
+        /// Triangles read.
+        triangles: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("{count} vertices have non-finite coordinates, e.g. vertex {example} = {value:?}")]
+    NonFinite {
+        /// How many vertices.
+        count: usize,
+        /// One such vertex index.
+        example: usize,
+        /// Its coordinates.
+        value: [f32; 3],
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error(
+        "{count} triangles refer to missing vertices, e.g. triangle {example} uses vertex {vertex} of {vertices}"
+    )]
+    IndexOutOfRange {
+        /// How many triangles.
+        count: usize,
+        /// One such triangle.
+        example: usize,
+        /// The bad index.
+        vertex: u32,
+        /// Number of vertices.
+        vertices: usize,
+    },
+    /// A triangle with (near) zero area or repeated corners.
+    #[error(
+        "{count} degenerate triangles (zero area or repeated corners), e.g. triangle {example} at {at:?}"
+    )]
+    Degenerate {
+        /// How many triangles.
+        count: usize,
+        /// One such triangle.
+        example: usize,
+        /// Its centroid.
+        at: [f32; 3],
+    },
+    /// Edges used by only one triangle: the surface has holes.
+    #[error("the surface is open: {count} boundary edges, e.g. the edge between {at:?} and {to:?}")]
+    Open {
+        /// How many boundary edges.
+        count: usize,
+        /// One end of one such edge.
+        at: [f32; 3],
+        /// Its other end.
+        to: [f32; 3],
+    },
+    /// Edges shared by more than two triangles.
+    #[error(
+        "the surface is non-manifold: {count} edges are shared by more than two triangles, e.g. the edge between {at:?} and {to:?}"
+    )]
+    NonManifold {
+        /// How many such edges.
+        count: usize,
+        /// One end of one such edge.
+        at: [f32; 3],
+        /// Its other end.
+        to: [f32; 3],
+    },
+    /// Neighbouring triangles wind in opposite directions.
+    #[error(
+        "the surface is inconsistently oriented: {count} edges are traversed in the same direction by both their triangles, e.g. the edge between {at:?} and {to:?}"
+    )]
+    InconsistentOrientation {
+        /// How many such edges.
+        count: usize,
+        /// One end of one such edge.
+        at: [f32; 3],
+        /// Its other end.
+        to: [f32; 3],
+    },
+    /// More than one connected piece.
+    #[error(
+        "the surface has {count} disconnected shells (expected one closed surface); the second starts at triangle {example} at {at:?}"
+    )]
+    SeveralShells {
+        /// Number of shells.
+        count: usize,
+        /// First triangle of the second shell.
+        example: usize,
+        /// Its centroid.
+        at: [f32; 3],
+    },
+    /// The closed surface encloses no volume.
+    #[error("the surface encloses no volume (signed volume {volume})")]
+    ZeroVolume {
+        /// The signed volume.
+        volume: f64,
+    },
+}
+
+/// Everything that can go wrong in tissue's core.
+#[derive(Debug, Error)]
+pub enum Error {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A file could be read but not understood.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A file extension tissue does not know.
+    #[error("{path}: unsupported file type (expected one of {expected})")]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+        /// The extensions that would work.
+        expected: &'static str,
+    },
+    /// A surface that cannot be sampled.
+    #[error("{path}: {source}")]
+    Mesh {
+        /// The file (empty when the mesh did not come from a file).
+        path: PathBuf,
+        /// The defect.
+        source: MeshError,
+    },
+    /// A parameter out of range.
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    /// Sampling could not produce a model.
+    #[error("sampling failed: {0}")]
+    Sampling(String),
+}
+
+/// Result with tissue's core error.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,18 @@
+//! Core types of **tissue**: surface meshes, particle models, parameters,
+//! reports, errors and file formats. Backend-agnostic: the CPU path
+//! (`tissue-cpu`) and the GPU path build on these types.
+
+pub mod error;
+pub mod mesh;
+pub mod model;
+pub mod params;
+pub mod report;
+
+pub use error::{Error, MeshError, ParamError};
+pub use mesh::SurfaceMesh;
+pub use model::{Attachment, Connections, ParticleModel};
+pub use params::{SamplingParams, SurfaceMode};
+pub use report::{ConnectionStats, SamplingReport};
+
+/// The vector type used throughout (glam, the version parry3d re-exports).
+pub use glam::Vec3;

@@ -1,0 +1,39 @@
+//! The quality report of a sampling run.
+
+use serde::{Deserialize, Serialize};
+
+/// Percentiles of the number of connections over interior particles.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ConnectionStats {
+    /// Median.
+    pub median: f32,
+    /// 5th percentile.
+    pub p5: f32,
+    /// 95th percentile.
+    pub p95: f32,
+}
+
+/// How well a sampling run went; written as JSON by `tissue sample --report`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SamplingReport {
+    /// Number of particles.
+    pub particles: usize,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Wall-clock seconds of the whole sampling (setup included).
+    pub seconds: f64,
+    /// Whether the convergence test held before the iteration cap.
+    pub converged: bool,
+    /// Standard deviation over mean of the nearest-neighbour distance, interior particles.
+    pub nn_cv: f32,
+    /// Connections per interior particle.
+    pub connections: ConnectionStats,
+    /// Number of surface particles (control points).
+    pub surface_particles: usize,
+    /// Largest distance from a surface point to its nearest surface particle, in mean spacings.
+    pub coverage: f32,
+    /// Largest distance of a particle outside the surface, in mean spacings.
+    pub max_outside: f32,
+    /// Mean nearest-neighbour distance (the "mean spacing"), in the mesh's units.
+    pub mean_spacing: f32,
+}
