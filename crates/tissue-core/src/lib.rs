@@ -3,10 +3,13 @@
 //! (`tissue-cpu`) and the GPU path build on these types.
 
 pub mod error;
+pub mod io;
 pub mod mesh;
 pub mod model;
 pub mod params;
+pub mod phantom;
 pub mod report;
+pub mod validate;
 
 pub use error::{Error, MeshError, ParamError};
 pub use mesh::SurfaceMesh;

@@ -1,0 +1,4 @@
+//! File formats: surfaces in (STL, OBJ, PLY, legacy VTK), models and points out.
+
+pub mod model;
+pub mod surface;

@@ -1,0 +1,1 @@
+//! Particle model files (VTK XML PolyData) and point files (CSV, PLY).

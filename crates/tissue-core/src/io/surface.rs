@@ -1,0 +1,1 @@
+//! Surface mesh files: reading, welding, writing.

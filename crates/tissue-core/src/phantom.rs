@@ -1,0 +1,1 @@
+//! The bundled breast-like phantom, made by code.

@@ -1,0 +1,1 @@
+//! Checks that a surface is one closed, consistently oriented, outward shell.
