@@ -3,6 +3,7 @@
 //! (`tissue-cpu`) and the GPU path build on these types.
 
 pub mod error;
+pub mod field;
 pub mod io;
 pub mod mesh;
 pub mod model;

@@ -1,0 +1,239 @@
+//! The uniform grid neighbour structure: cell index, counts, prefix sum,
+//! scatter into cell order (the same four steps as the GPU grid), and the
+//! neighbour rows read from it.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// Particles sorted into the cells of a uniform grid.
+#[derive(Debug, Clone)]
+pub struct Grid {
+    /// Corner of cell `(0, 0, 0)`.
+    pub origin: Vec3,
+    /// Cell edge length (at least the search distance it was built for).
+    pub cell: f32,
+    /// Cells along x, y, z.
+    pub dims: [u32; 3],
+    /// Particles of cell `c` are `particles[cell_start[c]..cell_start[c + 1]]`.
+    pub cell_start: Vec<u32>,
+    /// Particle indices in cell order, ascending within a cell.
+    pub particles: Vec<u32>,
+}
+
+/// More cells than this per particle means a sparse cloud: the cell grows.
+const MAX_CELLS_PER_PARTICLE: f64 = 8.0;
+
+impl Grid {
+    fn coords(&self, p: Vec3) -> [u32; 3] {
+        let g = (p - self.origin) / self.cell;
+        [0, 1, 2].map(|k| (g[k].max(0.0) as u32).min(self.dims[k] - 1))
+    }
+
+    fn index(&self, [x, y, z]: [u32; 3]) -> usize {
+        (z as usize * self.dims[1] as usize + y as usize) * self.dims[0] as usize + x as usize
+    }
+
+    /// Calls `f` for every particle in the cells within `span` cells of `p`'s
+    /// cell, in a fixed order (so results do not depend on threads).
+    pub fn for_each_near(&self, p: Vec3, span: u32, mut f: impl FnMut(u32)) {
+        let [x, y, z] = self.coords(p);
+        for cz in z.saturating_sub(span)..=(z + span).min(self.dims[2] - 1) {
+            for cy in y.saturating_sub(span)..=(y + span).min(self.dims[1] - 1) {
+                let row = self.index([0, cy, cz]);
+                let lo = row + x.saturating_sub(span) as usize;
+                let hi = row + (x + span).min(self.dims[0] - 1) as usize;
+                let span = self.cell_start[lo] as usize..self.cell_start[hi + 1] as usize;
+                self.particles[span].iter().for_each(|&j| f(j));
+            }
+        }
+    }
+}
+
+/// Builds the grid of `positions` with cells of at least `cell`.
+pub fn grid_build(positions: &[Vec3], cell: f32) -> Grid {
+    let (lo, hi) = positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let (lo, hi) = if positions.is_empty() {
+        (Vec3::ZERO, Vec3::ZERO)
+    } else {
+        (lo, hi)
+    };
+    let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
+    let mut cell = cell.max(extent.max_element() * 1e-6);
+    let cap = (positions.len() as f64 * MAX_CELLS_PER_PARTICLE).max(64.0);
+    let cells_for = |cell: f32| {
+        let d = (extent / cell).floor() + 1.0;
+        f64::from(d.x) * f64::from(d.y) * f64::from(d.z)
+    };
+    while cells_for(cell) > cap {
+        cell *= 1.25;
+    }
+    let d = (extent / cell).floor() + 1.0;
+    let dims = [d.x as u32, d.y as u32, d.z as u32];
+    let mut grid = Grid {
+        origin: lo,
+        cell,
+        dims,
+        cell_start: Vec::new(),
+        particles: Vec::new(),
+    };
+    // Cell index of every particle, then counts, prefix sum and a stable scatter.
+    let cell_of: Vec<u32> = positions
+        .par_iter()
+        .map(|&p| grid.index(grid.coords(p)) as u32)
+        .collect();
+    let cells = dims.iter().map(|&n| n as usize).product::<usize>();
+    let mut start = vec![0u32; cells + 1];
+    for &c in &cell_of {
+        start[c as usize + 1] += 1;
+    }
+    for c in 0..cells {
+        start[c + 1] += start[c];
+    }
+    let mut fill = start.clone();
+    let mut particles = vec![0u32; positions.len()];
+    for (i, &c) in cell_of.iter().enumerate() {
+        particles[fill[c as usize] as usize] = i as u32;
+        fill[c as usize] += 1;
+    }
+    grid.cell_start = start;
+    grid.particles = particles;
+    grid
+}
+
+/// Neighbour rows (CSR, ascending): `j != i` with
+/// `|p_i - p_j| < factor (r_i + r_j) + skin`.
+pub fn neighbour_rows(
+    positions: &[Vec3],
+    radii: &[f32],
+    factor: f32,
+    skin: f32,
+) -> (Vec<u32>, Vec<u32>) {
+    let r_max = radii.iter().copied().fold(0.0f32, f32::max);
+    let reach = factor * 2.0 * r_max + skin;
+    // Cells of half the reach, searched two cells out: 15.6 reach^3 of
+    // volume scanned per particle instead of 27 reach^3 with full cells.
+    let grid = grid_build(positions, 0.5 * reach);
+    let span = if grid.cell < reach { 2 } else { 1 };
+    let rows: Vec<Vec<u32>> = positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            let mut row = Vec::with_capacity(32);
+            grid.for_each_near(p, span, |j| {
+                if j as usize != i {
+                    let limit = factor * (radii[i] + radii[j as usize]) + skin;
+                    if (positions[j as usize] - p).length_squared() < limit * limit {
+                        row.push(j);
+                    }
+                }
+            });
+            row.sort_unstable();
+            row
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(positions.len() + 1);
+    offsets.push(0u32);
+    let mut indices = Vec::with_capacity(rows.iter().map(Vec::len).sum());
+    for row in rows {
+        indices.extend_from_slice(&row);
+        offsets.push(indices.len() as u32);
+    }
+    (offsets, indices)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(n: usize, seed: u64, scale: Vec3) -> (Vec<Vec3>, Vec<f32>) {
+        let mut s = seed.wrapping_mul(0x9e3779b97f4a7c15) | 1;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let p = (0..n)
+            .map(|_| Vec3::new(next(), next(), next()) * scale)
+            .collect();
+        let r = (0..n).map(|_| 0.02 + 0.03 * next()).collect();
+        (p, r)
+    }
+
+    fn brute(positions: &[Vec3], radii: &[f32], factor: f32, skin: f32) -> Vec<Vec<u32>> {
+        (0..positions.len())
+            .map(|i| {
+                (0..positions.len() as u32)
+                    .filter(|&j| {
+                        let limit = factor * (radii[i] + radii[j as usize]) + skin;
+                        j as usize != i
+                            && (positions[j as usize] - positions[i]).length_squared()
+                                < limit * limit
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn neighbour_rows_match_brute_force_at_awkward_counts() {
+        for (n, scale) in [
+            (1, Vec3::ONE),
+            (2, Vec3::ONE),
+            (15, Vec3::ONE),
+            (257, Vec3::new(1.0, 0.1, 3.0)),
+            (1531, Vec3::ONE),
+            (2049, Vec3::new(0.2, 0.2, 0.2)),
+        ] {
+            let (p, r) = cloud(n, n as u64, scale);
+            let (offsets, indices) = neighbour_rows(&p, &r, 0.9, 0.01);
+            let expect = brute(&p, &r, 0.9, 0.01);
+            for i in 0..n {
+                let row = &indices[offsets[i] as usize..offsets[i + 1] as usize];
+                assert_eq!(row, expect[i].as_slice(), "particle {i} of {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn all_particles_in_one_cell_and_far_outliers() {
+        let mut p = vec![Vec3::splat(0.5); 40];
+        p.push(Vec3::splat(1e4));
+        p.push(Vec3::splat(-1e4));
+        let r = vec![0.1; p.len()];
+        let (offsets, indices) = neighbour_rows(&p, &r, 1.0, 0.0);
+        let expect = brute(&p, &r, 1.0, 0.0);
+        for (i, want) in expect.iter().enumerate() {
+            assert_eq!(
+                &indices[offsets[i] as usize..offsets[i + 1] as usize],
+                want.as_slice()
+            );
+        }
+        // The outliers must not make the grid huge.
+        let grid = grid_build(&p, 0.2);
+        assert!(grid.cell_start.len() <= 8 * p.len() + 65);
+    }
+
+    #[test]
+    fn grid_is_a_stable_counting_sort() {
+        let (p, _) = cloud(999, 7, Vec3::ONE);
+        let grid = grid_build(&p, 0.1);
+        let mut seen = vec![false; p.len()];
+        for c in 0..grid.cell_start.len() - 1 {
+            let members =
+                &grid.particles[grid.cell_start[c] as usize..grid.cell_start[c + 1] as usize];
+            assert!(
+                members.windows(2).all(|w| w[0] < w[1]),
+                "cell {c} not ascending"
+            );
+            for &i in members {
+                assert_eq!(grid.index(grid.coords(p[i as usize])), c);
+                seen[i as usize] = true;
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+    }
+}

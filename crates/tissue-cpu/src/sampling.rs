@@ -1,0 +1,529 @@
+//! Stage 1, uniform sampling (the paper's Section 2), on the CPU.
+//!
+//! Every iteration is Jacobi-style: each particle's update reads only the
+//! previous state, so the result does not depend on the thread count. The
+//! stages, each a function below with the GPU shader's name:
+//! `imf_force` (eqs. (4)-(6), with the surface force of eq. (3)),
+//! `radius_update` (eqs. (7)-(8)), `integrate` (eq. (1) and the surface constraint).
+
+use std::time::Instant;
+
+use glam::{Vec3, Vec4};
+use rand::{Rng, SeedableRng, seq::index};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+use tissue_core::field::{Side, SurfaceField};
+use tissue_core::params::InitialPlacement;
+use tissue_core::{
+    Attachment, Connections, Error, ParticleModel, SamplingParams, SamplingReport, SurfaceMesh,
+    SurfaceMode,
+};
+
+use crate::grid::neighbour_rows;
+use crate::quality::quality_report;
+
+/// Field cells per initial radius `r0`: cells of `2 r0` keep the band thin
+/// and the grid small (about one cell per three particles).
+const FIELD_CELL_IN_R0: f32 = 2.0;
+/// Verlet skin of the neighbour rows, in `r0`: rows are rebuilt when a particle
+/// moved (or its radius grew) by more than half of it.
+const SKIN_IN_R0: f32 = 0.4;
+/// A particle within this distance of the surface (in `r0`) after its move is
+/// held by the wall. Without a tolerance a particle sliding along the wall
+/// would flip in and out of contact every iteration, and its balloon with it.
+const CONTACT_IN_R0: f32 = 0.01;
+/// Per-axis jitter of the initial lattice, in lattice spacings.
+const LATTICE_JITTER: f32 = 0.1;
+
+/// Where a sampling run is; passed to the progress callback every iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    /// Iterations done.
+    pub iteration: usize,
+    /// The iteration cap.
+    pub max_iterations: usize,
+    /// RMS step of interior particles in the last iteration, in `r0`.
+    pub step_rms: f32,
+    /// RMS change of `ln r` in the last iteration.
+    pub radius_rms: f32,
+}
+
+/// The state stage 1 iterates on.
+#[derive(Debug, Clone)]
+pub struct SamplingState {
+    /// Particle positions.
+    pub positions: Vec<Vec3>,
+    /// Balloon radii.
+    pub radii: Vec<f32>,
+    /// Wall contact from the last move: outward normal in `xyz`, `w = 1` while
+    /// the surface holds the particle (it was moved back onto it), else zero.
+    pub contact: Vec<Vec4>,
+}
+
+/// Force on each particle and the compression of its balloon.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ForceOut {
+    /// Net force `F_i` of eq. (2) (wall reaction removed in projection mode).
+    pub force: Vec3,
+    /// `|F_compress,i|` of eq. (6).
+    pub compression: f32,
+}
+
+/// The initial radius `r0 = (sqrt(2) V / N)^(1/3) / 1.5`: N close-packed spheres
+/// at `d = 0.75 (r_i + r_j)` fill the volume V.
+pub fn initial_radius(volume: f64, particles: usize) -> f32 {
+    ((2f64.sqrt() * volume / particles as f64).cbrt() / 1.5) as f32
+}
+
+/// Pair force of eqs. (4)-(5) on `i` from `j`, as a signed magnitude along the
+/// unit vector from `j` to `i` (positive repels).
+#[inline]
+pub fn imf_pair(distance: f32, radius_sum: f32, alpha: f32) -> f32 {
+    let h = 1.0 / (alpha * distance / radius_sum + (1.0 - alpha));
+    let h3 = h * h * h;
+    h3 * h3 - h3
+}
+
+/// Eqs. (2)-(6): the IMF pair forces over a particle's neighbour row, the
+/// surface's force or reaction, and the balloon's compression.
+pub fn imf_force(
+    state: &SamplingState,
+    offsets: &[u32],
+    neighbours: &[u32],
+    field: &SurfaceField,
+    params: &SamplingParams,
+) -> Vec<ForceOut> {
+    let cutoff = params.force_cutoff;
+    (0..state.positions.len())
+        .into_par_iter()
+        .map(|i| {
+            let p = state.positions[i];
+            let r = state.radii[i];
+            let mut force = Vec3::ZERO;
+            let mut magnitudes = 0.0f32;
+            for &j in &neighbours[offsets[i] as usize..offsets[i + 1] as usize] {
+                let offset = p - state.positions[j as usize];
+                let radius_sum = r + state.radii[j as usize];
+                let d2 = offset.length_squared();
+                if d2 >= (cutoff * radius_sum) * (cutoff * radius_sum) || d2 == 0.0 {
+                    continue;
+                }
+                let d = d2.sqrt();
+                let f = imf_pair(d, radius_sum, params.alpha);
+                force += offset * (f / d);
+                magnitudes += f.abs();
+            }
+            // eq. (6): |F_compress| = sum |F_j| - |sum F_j|. When counted, the
+            // surface's force is one more term on both sides.
+            let wall = match params.surface_mode {
+                // The wall takes the outward part of the force (its reaction).
+                SurfaceMode::Projection if state.contact[i].w > 0.0 => {
+                    let n = state.contact[i].truncate();
+                    -force.dot(n).max(0.0) * n
+                }
+                // eq. (3): -n while outside, weighted by mu in eq. (2).
+                SurfaceMode::PaperForce { mu } => match field.query(p) {
+                    Side::Near(nearest) if nearest.distance > 0.0 => -mu * nearest.normal,
+                    Side::DeepOutside => -mu * field.nearest(p).normal,
+                    _ => Vec3::ZERO,
+                },
+                _ => Vec3::ZERO,
+            };
+            let compression = if params.wall_in_compression {
+                magnitudes + wall.length() - (force + wall).length()
+            } else {
+                magnitudes - force.length()
+            };
+            ForceOut {
+                force: force + wall,
+                compression: compression.max(0.0),
+            }
+        })
+        .collect()
+}
+
+/// Eqs. (7)-(8): each balloon inflates when under-compressed and deflates when
+/// over-compressed. `dr` of eq. (8) is read as a change of `ln r`, its `ln`
+/// argument clamped to `[exp(-x), exp(x)]`, `x = max_log_radius_step`.
+pub fn radius_update(radii: &[f32], forces: &[ForceOut], params: &SamplingParams) -> Vec<f32> {
+    let ideal = params.ideal_compression();
+    let bound = params.max_log_radius_step.exp();
+    radii
+        .par_iter()
+        .zip(forces)
+        .map(|(&r, out)| {
+            let argument = (1.0 + params.eta * (out.compression - ideal)).clamp(1.0 / bound, bound);
+            r / argument
+        })
+        .collect()
+}
+
+/// Eq. (1), `dp = F / m` with `m = m~ / r0` and the step capped at
+/// `max_step r0`; in projection mode a particle that ends outside is moved
+/// back onto the surface by its penetration depth. Returns the new positions
+/// and contacts (a particle within a small tolerance of the wall stays in contact).
+pub fn integrate(
+    state: &SamplingState,
+    forces: &[ForceOut],
+    field: &SurfaceField,
+    params: &SamplingParams,
+    r0: f32,
+) -> (Vec<Vec3>, Vec<Vec4>) {
+    let max_step = params.max_step * r0;
+    state
+        .positions
+        .par_iter()
+        .zip(forces)
+        .map(|(&p, out)| {
+            let step = (out.force * (r0 / params.mass)).clamp_length_max(max_step);
+            let moved = p + step;
+            if params.surface_mode != SurfaceMode::Projection {
+                return (moved, Vec4::ZERO);
+            }
+            match field.query(moved) {
+                Side::DeepOutside => {
+                    let n = field.nearest(moved);
+                    (n.point, n.normal.extend(1.0))
+                }
+                Side::Near(n) if n.distance > 0.0 => (n.point, n.normal.extend(1.0)),
+                Side::Near(n) if n.distance > -CONTACT_IN_R0 * r0 => (moved, n.normal.extend(1.0)),
+                _ => (moved, Vec4::ZERO),
+            }
+        })
+        .unzip()
+}
+
+/// Initial particles inside the surface, by `params.initial`.
+pub fn initial_positions(
+    mesh: &SurfaceMesh,
+    field: &SurfaceField,
+    params: &SamplingParams,
+    r0: f32,
+) -> Result<Vec<Vec3>, Error> {
+    let mut rng = Pcg64::seed_from_u64(params.seed);
+    let (lo, hi) = mesh
+        .bounds()
+        .ok_or_else(|| Error::Sampling("the surface has no vertices".into()))?;
+    match params.initial {
+        InitialPlacement::Random => {
+            let mut points = Vec::with_capacity(params.particles);
+            let attempts = 1000 * params.particles;
+            for _ in 0..attempts {
+                let p = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random());
+                if field.is_inside(p) {
+                    points.push(p);
+                    if points.len() == params.particles {
+                        return Ok(points);
+                    }
+                }
+            }
+            Err(Error::Sampling(format!(
+                "only {} of {attempts} random points fell inside the surface",
+                points.len()
+            )))
+        }
+        InitialPlacement::Lattice => lattice(field, lo, hi, params, r0, &mut rng),
+    }
+}
+
+/// A jittered face-centred cubic lattice at the density of `r0`, its spacing
+/// adjusted until at least `N` points fall inside, then the surplus dropped at
+/// random (the kept points stay in lattice order, which is spatially coherent).
+fn lattice(
+    field: &SurfaceField,
+    lo: Vec3,
+    hi: Vec3,
+    params: &SamplingParams,
+    r0: f32,
+    rng: &mut Pcg64,
+) -> Result<Vec<Vec3>, Error> {
+    let n = params.particles;
+    let shift = Vec3::new(rng.random(), rng.random(), rng.random());
+    let seed: u64 = rng.random();
+    let points_at = |edge: f32| -> Vec<Vec3> {
+        let spacing = edge / 2f32.sqrt();
+        let cells = ((hi - lo) / edge).ceil().as_uvec3() + 1;
+        let basis = [
+            Vec3::ZERO,
+            Vec3::new(0.5, 0.5, 0.0),
+            Vec3::new(0.5, 0.0, 0.5),
+            Vec3::new(0.0, 0.5, 0.5),
+        ];
+        (0..cells.z)
+            .into_par_iter()
+            .flat_map_iter(|z| {
+                let mut local =
+                    Pcg64::seed_from_u64(seed ^ u64::from(z).wrapping_mul(0x9e3779b97f4a7c15));
+                let mut out = Vec::new();
+                for y in 0..cells.y {
+                    for x in 0..cells.x {
+                        for b in basis {
+                            let jitter = Vec3::new(
+                                local.random::<f32>() - 0.5,
+                                local.random::<f32>() - 0.5,
+                                local.random::<f32>() - 0.5,
+                            ) * (2.0 * LATTICE_JITTER * spacing);
+                            let cell = Vec3::new(x as f32, y as f32, z as f32);
+                            let p = lo + (cell + b + shift - 0.5) * edge + jitter;
+                            if field.is_inside(p) {
+                                out.push(p);
+                            }
+                        }
+                    }
+                }
+                out
+            })
+            .collect()
+    };
+    // Close packing at d = 1.5 r0 is a face-centred cubic lattice of cube edge d sqrt(2).
+    let mut edge = 1.5 * r0 * 2f32.sqrt();
+    let mut best: Option<Vec<Vec3>> = None;
+    for _ in 0..12 {
+        let points = points_at(edge);
+        let count = points.len();
+        if count >= n {
+            let done = count <= n + n / 100 + 1;
+            if best.as_ref().is_none_or(|b| count < b.len()) {
+                best = Some(points);
+            }
+            if done {
+                break;
+            }
+        }
+        // Density goes as edge^-3: aim a little above N.
+        let ratio = (count.max(1) as f32 / (n as f32 * 1.005)).cbrt();
+        edge *= ratio.clamp(0.7, 1.3);
+    }
+    let Some(points) = best else {
+        return Err(Error::Sampling(format!(
+            "could not place {n} lattice points inside the surface; is it closed and large enough?"
+        )));
+    };
+    let mut keep = index::sample(rng, points.len(), n).into_vec();
+    keep.sort_unstable();
+    Ok(keep.into_iter().map(|i| points[i]).collect())
+}
+
+/// The outcome of stage 1.
+#[derive(Debug, Clone)]
+pub struct Sampled {
+    /// The relaxed particle model.
+    pub model: ParticleModel,
+    /// Its quality numbers.
+    pub report: SamplingReport,
+}
+
+/// Stage 1: fills a closed, outward surface (validated by the caller) with
+/// `params.particles` particles and relaxes them to the paper's uniform state.
+pub fn sample(
+    mesh: &SurfaceMesh,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Sampled, Error> {
+    let started = Instant::now();
+    params.validate()?;
+    let volume = mesh.signed_volume();
+    if !(volume.is_finite() && volume > 0.0) {
+        return Err(Error::Sampling(format!(
+            "the surface encloses no positive volume ({volume}); validate it first"
+        )));
+    }
+    let r0 = initial_radius(volume, params.particles);
+    let field = SurfaceField::new(mesh, FIELD_CELL_IN_R0 * r0).map_err(Error::Sampling)?;
+    let positions = initial_positions(mesh, &field, params, r0)?;
+    let n = positions.len();
+    let mut state = SamplingState {
+        positions,
+        radii: vec![r0; n],
+        contact: vec![Vec4::ZERO; n],
+    };
+
+    let skin = SKIN_IN_R0 * r0;
+    let mut rows = neighbour_rows(&state.positions, &state.radii, params.force_cutoff, skin);
+    let mut built_at = (state.positions.clone(), state.radii.clone());
+    let mut iterations = 0;
+    let mut converged = false;
+    while iterations < params.max_iterations {
+        let forces = imf_force(&state, &rows.0, &rows.1, &field, params);
+        let radii = radius_update(&state.radii, &forces, params);
+        let (positions, contact) = integrate(&state, &forces, &field, params, r0);
+        let (step_rms, radius_rms) = change(&state, &positions, &contact, &radii, r0);
+        if !(step_rms.is_finite() && radius_rms.is_finite()) {
+            return Err(Error::Sampling(format!(
+                "the particle state became non-finite at iteration {iterations}; \
+                 the parameters make the system unstable"
+            )));
+        }
+        state = SamplingState {
+            positions,
+            radii,
+            contact,
+        };
+        iterations += 1;
+        progress(&Progress {
+            iteration: iterations,
+            max_iterations: params.max_iterations,
+            step_rms,
+            radius_rms,
+        });
+        if step_rms < params.step_tolerance && radius_rms < params.radius_tolerance {
+            converged = true;
+            break;
+        }
+        if needs_rebuild(&state, &built_at, params.force_cutoff, skin) {
+            rows = neighbour_rows(&state.positions, &state.radii, params.force_cutoff, skin);
+            built_at = (state.positions.clone(), state.radii.clone());
+        }
+    }
+
+    let model = finish(mesh, &field, state, params);
+    let report = quality_report(
+        &model,
+        &field,
+        iterations,
+        converged,
+        started.elapsed().as_secs_f64(),
+    );
+    Ok(Sampled { model, report })
+}
+
+/// RMS step of particles not held by the wall (in `r0`) and RMS change of `ln r`.
+/// Summed in index order, so the result does not depend on threads.
+fn change(
+    old: &SamplingState,
+    positions: &[Vec3],
+    contact: &[Vec4],
+    radii: &[f32],
+    r0: f32,
+) -> (f32, f32) {
+    let mut steps = 0.0f64;
+    let mut free = 0usize;
+    let mut logs = 0.0f64;
+    for i in 0..positions.len() {
+        if contact[i].w == 0.0 && old.contact[i].w == 0.0 {
+            steps += f64::from((positions[i] - old.positions[i]).length_squared());
+            free += 1;
+        }
+        logs += f64::from((radii[i] / old.radii[i]).ln()).powi(2);
+    }
+    let step_rms = (steps / free.max(1) as f64).sqrt() as f32 / r0;
+    let radius_rms = (logs / positions.len().max(1) as f64).sqrt() as f32;
+    (step_rms, radius_rms)
+}
+
+/// True when the neighbour rows may miss a pair within the force cutoff: some
+/// particle moved, or its radius grew, by more than half the skin since they were built.
+fn needs_rebuild(
+    state: &SamplingState,
+    built_at: &(Vec<Vec3>, Vec<f32>),
+    cutoff: f32,
+    skin: f32,
+) -> bool {
+    let drift = state
+        .positions
+        .par_iter()
+        .zip(&state.radii)
+        .zip(built_at.0.par_iter().zip(&built_at.1))
+        .map(|((&p, &r), (&p0, &r0))| (p - p0).length() + cutoff * (r - r0).max(0.0))
+        .reduce(|| 0.0, f32::max);
+    drift > 0.5 * skin
+}
+
+/// Surface particles (within `surface_band` radii of the surface, or outside)
+/// are placed exactly on it and attached; connections are built (eq. (9)).
+fn finish(
+    mesh: &SurfaceMesh,
+    field: &SurfaceField,
+    state: SamplingState,
+    params: &SamplingParams,
+) -> ParticleModel {
+    let SamplingState {
+        positions, radii, ..
+    } = state;
+    let placed: Vec<(Vec3, Option<Attachment>)> = positions
+        .par_iter()
+        .zip(&radii)
+        .map(|(&p, &r)| match field.query(p) {
+            Side::DeepOutside => {
+                let n = field.nearest(p);
+                (
+                    n.point,
+                    Some(Attachment {
+                        triangle: n.triangle,
+                        barycentric: n.barycentric,
+                    }),
+                )
+            }
+            Side::Near(n) if n.distance > -params.surface_band * r => (
+                n.point,
+                Some(Attachment {
+                    triangle: n.triangle,
+                    barycentric: n.barycentric,
+                }),
+            ),
+            _ => (p, None),
+        })
+        .collect();
+    let (positions, attachments): (Vec<Vec3>, Vec<Option<Attachment>>) = placed.into_iter().unzip();
+    let (offsets, indices) = neighbour_rows(&positions, &radii, params.connection_ratio, 0.0);
+    ParticleModel {
+        positions,
+        radii,
+        attachments,
+        connections: Connections { offsets, indices },
+        surface: mesh.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pair_force_is_zero_at_contact_repulsive_inside_attractive_outside() {
+        let alpha = 0.5;
+        assert!(imf_pair(1.0, 1.0, alpha).abs() < 1e-6);
+        for d in [0.05, 0.3, 0.6, 0.75, 0.99] {
+            assert!(imf_pair(d, 1.0, alpha) > 0.0, "d = {d} should repel");
+        }
+        for d in [1.01, 1.2, 2.0, 5.0] {
+            assert!(imf_pair(d, 1.0, alpha) < 0.0, "d = {d} should attract");
+        }
+        // Decays towards zero far away (the attraction tail).
+        assert!(imf_pair(50.0, 1.0, alpha).abs() < 1e-3);
+        // At d = 0 it is 2^6 - 2^3 = 56 for alpha = 0.5.
+        assert!((imf_pair(0.0, 1.0, alpha) - 56.0).abs() < 1e-4);
+    }
+
+    fn forces_with(compression: f32) -> Vec<ForceOut> {
+        vec![ForceOut {
+            force: Vec3::ZERO,
+            compression,
+        }]
+    }
+
+    #[test]
+    fn radius_grows_when_under_compressed_and_shrinks_when_over_compressed() {
+        let params = SamplingParams::default();
+        let ideal = params.ideal_compression();
+        let r = [1.0f32];
+        assert!(radius_update(&r, &forces_with(ideal - 3.0), &params)[0] > 1.0);
+        assert!(radius_update(&r, &forces_with(ideal + 3.0), &params)[0] < 1.0);
+        assert!((radius_update(&r, &forces_with(ideal), &params)[0] - 1.0).abs() < 1e-6);
+        // A huge compression cannot make the ln argument non-positive: the
+        // change is clamped to max_log_radius_step.
+        let squeezed = radius_update(&r, &forces_with(1e9), &params)[0];
+        assert!((squeezed.ln() + params.max_log_radius_step).abs() < 1e-5);
+        let freed = radius_update(&r, &forces_with(-1e9), &params)[0];
+        assert!((freed.ln() - params.max_log_radius_step).abs() < 1e-5);
+    }
+
+    #[test]
+    fn initial_radius_fills_the_volume_at_close_packing() {
+        // N spheres of close packing at spacing 1.5 r0 occupy d^3 / sqrt(2) each.
+        let r0 = initial_radius(1000.0, 500);
+        let d = 1.5 * r0;
+        let volume = 500.0 * d.powi(3) / 2f32.sqrt();
+        assert!((volume - 1000.0).abs() < 1e-2, "{volume}");
+    }
+}
