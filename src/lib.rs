@@ -1,7 +1,79 @@
 //! **tissue**: track where the inside of a soft organ goes when its surface moves.
 //!
-//! The organ's interior is filled with particles (stage 1, uniform sampling);
-//! surface particles then follow an observed surface and the interior follows
-//! them (stage 2). This crate is the public, backend-agnostic entry point.
+//! The organ's interior is filled with particles (stage 1, uniform sampling,
+//! Zhou et al. Section 2); surface particles then follow an observed surface
+//! and the interior follows them (stage 2). This crate is the public,
+//! backend-agnostic entry point; `docs/ARCHITECTURE.md` maps the crates.
+//!
+//! ```
+//! use tissue::{SamplingParams, phantom};
+//!
+//! // The bundled breast phantom (millimetres), filled with 2,000 particles.
+//! let skin = phantom::default_breast();
+//! let sampled = tissue::sample(&skin, &SamplingParams::with_particles(2_000))?;
+//! assert_eq!(sampled.model.len(), 2_000);
+//! assert!(sampled.report.converged);
+//! assert!(sampled.report.nn_cv < 0.05);
+//! # Ok::<(), tissue::Error>(())
+//! ```
 
+use std::path::Path;
+
+pub use tissue_core::io::model::{export_model, load_model, load_points, save_model, save_points};
+pub use tissue_core::io::surface::{load_closed_surface, load_surface, save_surface, weld};
+pub use tissue_core::validate::{Validation, validate};
 pub use tissue_core::*;
+pub use tissue_cpu::{Progress, Sampled};
+
+/// Stage 1: fills a closed surface with `params.particles` particles relaxed
+/// to the paper's uniform state, and reports their quality.
+///
+/// The surface is validated first (one closed, consistently oriented shell;
+/// an inward-facing one is turned around), so any mesh gets a clear error
+/// rather than garbage.
+///
+/// ```
+/// use tissue::{SamplingParams, SurfaceMesh, Vec3};
+///
+/// // An open surface (a single triangle) is refused with the defect named.
+/// let open = SurfaceMesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![[0, 1, 2]]);
+/// let err = tissue::sample(&open, &SamplingParams::with_particles(100)).unwrap_err();
+/// assert!(err.to_string().contains("open"), "{err}");
+/// ```
+pub fn sample(surface: &SurfaceMesh, params: &SamplingParams) -> Result<Sampled, Error> {
+    sample_with_progress(surface, params, &mut |_| {})
+}
+
+/// [`sample`], calling `progress` after every iteration.
+pub fn sample_with_progress(
+    surface: &SurfaceMesh,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Sampled, Error> {
+    params.validate()?;
+    let mut surface = surface.clone();
+    // `validate` logs a warning itself when it turns an inward surface around.
+    let _checked = validate(&mut surface).map_err(|source| Error::Mesh {
+        path: Default::default(),
+        source,
+    })?;
+    tissue_cpu::sample(&surface, params, progress)
+}
+
+/// Loads a surface file (STL, OBJ, PLY, legacy VTK), welds, validates and samples it.
+///
+/// ```
+/// use tissue::{SamplingParams, phantom, save_surface};
+///
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("breast.obj");
+/// save_surface(&phantom::default_breast(), &path)?;
+/// let sampled = tissue::sample_file(&path, &SamplingParams::with_particles(1_000))?;
+/// assert_eq!(sampled.model.len(), 1_000);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn sample_file(path: &Path, params: &SamplingParams) -> Result<Sampled, Error> {
+    params.validate()?;
+    let surface = load_closed_surface(path)?;
+    tissue_cpu::sample(&surface, params, &mut |_| {})
+}

@@ -6,7 +6,7 @@
 //! microseconds; the field answers most particles from one cell lookup.
 //!
 //! A uniform grid covers the surface's bounds. Every cell is one of:
-//! - **inside** or **outside**: the surface is at least one cell away from any
+//! - **inside** or **outside**: the surface is at least `margin` away from any
 //!   point of the cell, so only the side is needed;
 //! - **band**: the surface passes near; the cell lists exactly the triangles
 //!   that can hold the nearest surface point of any point in the cell, and the
@@ -21,6 +21,7 @@ use std::collections::HashMap;
 use glam::Vec3;
 use parry3d::query::PointQuery;
 use parry3d::shape::{TriMesh, TriMeshFlags};
+use rayon::prelude::*;
 
 use crate::mesh::SurfaceMesh;
 
@@ -49,9 +50,9 @@ pub struct Nearest {
 /// Answer of a field query.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Side {
-    /// Inside, at least one cell width (`SurfaceField::cell`) from the surface.
+    /// Inside, at least `SurfaceField::margin` from the surface.
     DeepInside,
-    /// Outside, at least one cell width from the surface (or beyond the grid).
+    /// Outside, at least `SurfaceField::margin` from the surface (or beyond the grid).
     /// [`SurfaceField::nearest`] finds the nearest point, slowly.
     DeepOutside,
     /// Near the surface or outside: the exact nearest point.
@@ -118,6 +119,8 @@ pub struct SurfaceField {
     pub origin: Vec3,
     /// Cell edge length.
     pub cell: f32,
+    /// Points of inside and outside cells are at least this far from the surface.
+    pub margin: f32,
     /// Cells along x, y, z.
     pub dims: [u32; 3],
     /// Per cell: [`CELL_BAND`], [`CELL_INSIDE`] or [`CELL_OUTSIDE`].
@@ -140,16 +143,22 @@ pub struct SurfaceField {
 
 impl SurfaceField {
     /// Builds the field of a closed, consistently oriented, outward surface
-    /// (validate it first) with cells of edge `cell`.
+    /// (validate it first) with cells of edge `cell`; queries closer than
+    /// `margin` to the surface are answered exactly.
     ///
     /// Fails with a message when the grid would be absurdly large or the
     /// surface cannot be oriented.
-    pub fn new(mesh: &SurfaceMesh, cell: f32) -> Result<Self, String> {
+    pub fn new(mesh: &SurfaceMesh, cell: f32, margin: f32) -> Result<Self, String> {
         let (lo, hi) = mesh.bounds().ok_or("the surface has no vertices")?;
         if !(cell.is_finite() && cell > 0.0) {
             return Err(format!("field cell size {cell} is not a positive number"));
         }
-        let pad = 2.0 * cell;
+        if !(margin.is_finite() && margin >= 0.0) {
+            return Err(format!(
+                "field margin {margin} is not a non-negative number"
+            ));
+        }
+        let pad = 2.0 * cell + margin;
         let origin = lo - Vec3::splat(pad);
         let extent = hi - lo + Vec3::splat(2.0 * pad);
         let dims_f = (extent / cell).ceil();
@@ -168,6 +177,7 @@ impl SurfaceField {
         let mut field = Self {
             origin,
             cell,
+            margin,
             dims,
             cell_state: Vec::new(),
             cell_start: Vec::new(),
@@ -177,7 +187,9 @@ impl SurfaceField {
             normals,
         };
         let binned = field.bin_triangles();
-        let band = field.dilate(&binned);
+        let band: Vec<bool> = (0..field.cell_count())
+            .map(|i| binned.start[i] < binned.start[i + 1])
+            .collect();
         let outside = field.flood_outside(&band);
 
         let parry_mesh = TriMesh::with_flags(
@@ -188,42 +200,50 @@ impl SurfaceField {
         .map_err(|e| format!("the surface cannot be oriented: {e:?}"))?;
 
         let cells = field.cell_count();
-        let mut cell_state = vec![CELL_BAND; cells];
-        let mut cell_start = Vec::with_capacity(cells + 1);
-        let mut candidates = Vec::new();
-        let mut candidate_distance = Vec::new();
-        let mut near = Vec::new();
         let diagonal = cell * 3f32.sqrt();
-        let mut scratch = Vec::new();
-        for index in 0..cells {
-            cell_start.push(candidates.len() as u32);
-            if !band[index] {
-                cell_state[index] = if outside[index] {
-                    CELL_OUTSIDE
-                } else {
-                    CELL_INSIDE
-                };
-                continue;
-            }
-            let centre = field.cell_centre(index);
-            let projection = parry_mesh.project_local_point(centre, false);
-            let reach = (projection.point - centre).length() + diagonal;
-            // Any triangle nearest to some point of this cell lies within
-            // |d(centre)| + diagonal of the centre (triangle inequality twice).
-            scratch.clear();
-            field.triangles_near(&binned, centre, reach, &mut scratch);
-            near.clear();
-            near.extend(scratch.iter().filter_map(|&t| {
-                let [a, b, c] = field.corners[t as usize];
-                let (q, _, _) = closest_on_triangle(centre, a, b, c);
-                let d = (q - centre).length();
-                (d <= reach * (1.0 + 1e-5) + 1e-6 * cell).then_some((d, t))
-            }));
-            near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        // Per band cell, its candidates sorted by distance from the centre:
+        // any triangle nearest to some point of the cell lies within
+        // |d(centre)| + diagonal of the centre (triangle inequality twice).
+        let per_cell: Vec<Vec<(f32, u32)>> = (0..cells)
+            .into_par_iter()
+            .map(|index| {
+                if !band[index] {
+                    return Vec::new();
+                }
+                let centre = field.cell_centre(index);
+                let projection = parry_mesh.project_local_point(centre, false);
+                let reach = (projection.point - centre).length() + diagonal;
+                let mut near: Vec<(f32, u32)> = field
+                    .triangles_near(&binned, centre, reach)
+                    .into_iter()
+                    .filter_map(|t| {
+                        let [a, b, c] = field.corners[t as usize];
+                        let (q, _, _) = closest_on_triangle(centre, a, b, c);
+                        let d = (q - centre).length();
+                        (d <= reach * (1.0 + 1e-5) + 1e-6 * cell).then_some((d, t))
+                    })
+                    .collect();
+                near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                near
+            })
+            .collect();
+        let cell_state: Vec<u32> = (0..cells)
+            .map(|i| match (band[i], outside[i]) {
+                (true, _) => CELL_BAND,
+                (false, true) => CELL_OUTSIDE,
+                (false, false) => CELL_INSIDE,
+            })
+            .collect();
+        let mut cell_start = Vec::with_capacity(cells + 1);
+        cell_start.push(0u32);
+        let total: usize = per_cell.iter().map(Vec::len).sum();
+        let mut candidates = Vec::with_capacity(total);
+        let mut candidate_distance = Vec::with_capacity(total);
+        for near in &per_cell {
             candidates.extend(near.iter().map(|&(_, t)| t));
             candidate_distance.extend(near.iter().map(|&(d, _)| d));
+            cell_start.push(candidates.len() as u32);
         }
-        cell_start.push(candidates.len() as u32);
         field.cell_state = cell_state;
         field.cell_start = cell_start;
         field.candidate_distance = candidate_distance;
@@ -373,11 +393,12 @@ impl SurfaceField {
     }
 
     /// Bins every triangle into the cells whose centre lies within half a cell
-    /// diagonal of it (CSR): every cell the triangle passes through, and a few
-    /// more, but not the whole bounding box of a large triangle. A triangle's
-    /// nearest point to any point lies in a cell it is binned in.
+    /// diagonal plus `margin` of it (CSR): every cell the triangle passes
+    /// through or comes within `margin` of, but not the whole bounding box of
+    /// a large triangle. These are the band cells; a point of any other cell
+    /// is at least `margin` from the surface.
     fn bin_triangles(&self) -> Binned {
-        let half_diagonal = 0.5 * self.cell * 3f32.sqrt();
+        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
         let cells_of = |t: usize| {
             let [a, b, c] = self.corners[t];
             let range = self.cell_range(
@@ -395,7 +416,10 @@ impl SurfaceField {
             });
             cells
         };
-        let per_triangle: Vec<Vec<u32>> = (0..self.corners.len()).map(cells_of).collect();
+        let per_triangle: Vec<Vec<u32>> = (0..self.corners.len())
+            .into_par_iter()
+            .map(cells_of)
+            .collect();
         let mut start = vec![0u32; self.cell_count() + 1];
         for &cell in per_triangle.iter().flatten() {
             start[cell as usize + 1] += 1;
@@ -421,22 +445,6 @@ impl SurfaceField {
             [0, 1, 2].map(|k| g[k].clamp(0.0, (self.dims[k] - 1) as f32) as u32)
         };
         [clamp(lo), clamp(hi)]
-    }
-
-    /// Band = cells whose 3x3x3 neighbourhood holds a binned triangle. A point
-    /// of any other cell is at least one cell width from the surface.
-    fn dilate(&self, binned: &Binned) -> Vec<bool> {
-        let mut band = vec![false; self.cell_count()];
-        for index in 0..self.cell_count() {
-            if binned.start[index] == binned.start[index + 1] {
-                continue;
-            }
-            let [x, y, z] = self.cell_coords(index);
-            let lo = [x, y, z].map(|v| v.saturating_sub(1));
-            let hi = [0, 1, 2].map(|k| ([x, y, z][k] + 1).min(self.dims[k] - 1));
-            for_each_cell([lo, hi], |c| band[self.cell_index(c)] = true);
-        }
-        band
     }
 
     /// Non-band cells reachable from the grid's border through non-band cells
@@ -477,8 +485,10 @@ impl SurfaceField {
         outside
     }
 
-    /// Triangles binned in cells that the ball `(centre, reach)` can touch.
-    fn triangles_near(&self, binned: &Binned, centre: Vec3, reach: f32, out: &mut Vec<u32>) {
+    /// Triangles binned in cells that the ball `(centre, reach)` can touch:
+    /// a triangle's nearest point to `centre` lies in a cell it is binned in.
+    fn triangles_near(&self, binned: &Binned, centre: Vec3, reach: f32) -> Vec<u32> {
+        let mut out = Vec::new();
         let range = self.cell_range(centre - Vec3::splat(reach), centre + Vec3::splat(reach));
         for_each_cell(range, |c| {
             let i = self.cell_index(c);
@@ -488,6 +498,7 @@ impl SurfaceField {
         });
         out.sort_unstable();
         out.dedup();
+        out
     }
 }
 
@@ -596,7 +607,7 @@ mod tests {
     fn closest_point_matches_parry_and_sign_matches_containment() {
         let mesh = octahedron();
         assert!(mesh.signed_volume() > 0.0);
-        let field = SurfaceField::new(&mesh, 0.13).unwrap();
+        let field = SurfaceField::new(&mesh, 0.13, 0.02).unwrap();
         let oracle = TriMesh::with_flags(
             mesh.vertices.clone(),
             mesh.triangles.clone(),
@@ -623,15 +634,22 @@ mod tests {
     }
 
     #[test]
-    fn deep_inside_cells_are_at_least_one_cell_from_the_surface() {
+    fn deep_cells_are_at_least_the_margin_from_the_surface() {
         let mesh = octahedron();
-        let field = SurfaceField::new(&mesh, 0.05).unwrap();
+        let field = SurfaceField::new(&mesh, 0.05, 0.05).unwrap();
         let mut deep = 0;
         for p in points(20_000, 1.2) {
-            if let Side::DeepInside = field.query(p) {
-                deep += 1;
-                let d = field.nearest_of_all(p).distance;
-                assert!(d <= -field.cell * 0.999, "{p} is only {d} inside");
+            match field.query(p) {
+                Side::DeepInside => {
+                    deep += 1;
+                    let d = field.nearest_of_all(p).distance;
+                    assert!(d <= -field.margin * 0.999, "{p} is only {d} inside");
+                }
+                Side::DeepOutside => {
+                    let d = field.nearest_of_all(p).distance;
+                    assert!(d >= field.margin * 0.999, "{p} is only {d} outside");
+                }
+                Side::Near(_) => {}
             }
         }
         // About 55% of the ~1,900 interior points lie more than two cells deep.
@@ -643,7 +661,7 @@ mod tests {
 
     #[test]
     fn absurd_cell_counts_are_refused() {
-        let err = SurfaceField::new(&octahedron(), 1e-4).unwrap_err();
+        let err = SurfaceField::new(&octahedron(), 1e-4, 0.0).unwrap_err();
         assert!(err.contains("cells"), "{err}");
     }
 }

@@ -16,7 +16,7 @@ pub use error::{Error, MeshError, ParamError};
 pub use mesh::SurfaceMesh;
 pub use model::{Attachment, Connections, ParticleModel};
 pub use params::{SamplingParams, SurfaceMode};
-pub use report::{ConnectionStats, SamplingReport};
+pub use report::{ConnectionStats, SamplingReport, StageSeconds};
 
 /// The vector type used throughout (glam, the version parry3d re-exports).
 pub use glam::Vec3;

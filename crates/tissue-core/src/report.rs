@@ -13,6 +13,23 @@ pub struct ConnectionStats {
     pub p95: f32,
 }
 
+/// Where the time of a sampling run went, in seconds.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct StageSeconds {
+    /// Building the surface field.
+    pub field: f64,
+    /// Placing the initial particles.
+    pub initial: f64,
+    /// The relaxation iterations.
+    pub iterations: f64,
+    /// Of which rebuilding neighbour rows.
+    pub neighbours: f64,
+    /// Placing surface particles and building connections.
+    pub connections: f64,
+    /// Computing this report.
+    pub report: f64,
+}
+
 /// How well a sampling run went; written as JSON by `tissue sample --report`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SamplingReport {
@@ -36,4 +53,8 @@ pub struct SamplingReport {
     pub max_outside: f32,
     /// Mean nearest-neighbour distance (the "mean spacing"), in the mesh's units.
     pub mean_spacing: f32,
+    /// How many times the neighbour rows were rebuilt.
+    pub neighbour_rebuilds: usize,
+    /// Where the time went.
+    pub stage_seconds: StageSeconds,
 }

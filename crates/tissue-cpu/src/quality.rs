@@ -187,6 +187,8 @@ pub fn quality_report(
         coverage,
         max_outside,
         mean_spacing,
+        neighbour_rebuilds: 0,
+        stage_seconds: Default::default(),
     }
 }
 

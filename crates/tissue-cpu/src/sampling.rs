@@ -12,26 +12,26 @@ use glam::{Vec3, Vec4};
 use rand::{Rng, SeedableRng, seq::index};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
-use tissue_core::field::{Side, SurfaceField};
+use tissue_core::field::{Nearest, Side, SurfaceField};
 use tissue_core::params::InitialPlacement;
 use tissue_core::{
-    Attachment, Connections, Error, ParticleModel, SamplingParams, SamplingReport, SurfaceMesh,
-    SurfaceMode,
+    Attachment, Connections, Error, ParticleModel, SamplingParams, SamplingReport, StageSeconds,
+    SurfaceMesh, SurfaceMode,
 };
 
-use crate::grid::neighbour_rows;
+use crate::grid::{grid_build, neighbour_rows};
 use crate::quality::quality_report;
 
-/// Field cells per initial radius `r0`: cells of `2 r0` keep the band thin
-/// and the grid small (about one cell per three particles).
-const FIELD_CELL_IN_R0: f32 = 2.0;
+/// Field cell edge in initial radii `r0`: about 2.4 cells per particle inside.
+/// Smaller cells mean fewer candidate triangles per query (the hot path);
+/// `2 r0` made a query 3x slower on the phantom, `r0` costs a slower build.
+const FIELD_CELL_IN_R0: f32 = 1.0;
 /// Verlet skin of the neighbour rows, in `r0`: rows are rebuilt when a particle
-/// moved (or its radius grew) by more than half of it.
-const SKIN_IN_R0: f32 = 0.4;
-/// A particle within this distance of the surface (in `r0`) after its move is
-/// held by the wall. Without a tolerance a particle sliding along the wall
-/// would flip in and out of contact every iteration, and its balloon with it.
-const CONTACT_IN_R0: f32 = 0.01;
+/// moved (or its radius grew) by more than half of it. 0.4 rebuilt twice
+/// as often on the phantom; 1.0 made the force pass slower than it saved.
+const SKIN_IN_R0: f32 = 0.8;
+/// Smallest exact-query margin of the surface field, in `r0`.
+const FIELD_MARGIN_IN_R0: f32 = 0.25;
 /// Per-axis jitter of the initial lattice, in lattice spacings.
 const LATTICE_JITTER: f32 = 0.1;
 
@@ -55,15 +55,17 @@ pub struct SamplingState {
     pub positions: Vec<Vec3>,
     /// Balloon radii.
     pub radii: Vec<f32>,
-    /// Wall contact from the last move: outward normal in `xyz`, `w = 1` while
-    /// the surface holds the particle (it was moved back onto it), else zero.
+    /// The wall's reaction in the last move: outward normal in `xyz`, and in
+    /// `w` the force the wall took away by moving the particle back onto the
+    /// surface (penetration depth times `m / r0`), zero when it stayed inside.
     pub contact: Vec<Vec4>,
 }
 
 /// Force on each particle and the compression of its balloon.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ForceOut {
-    /// Net force `F_i` of eq. (2) (wall reaction removed in projection mode).
+    /// Force `F_i` of eq. (2) that moves the particle (in projection mode the
+    /// wall acts in `integrate` instead).
     pub force: Vec3,
     /// `|F_compress,i|` of eq. (6).
     pub compression: f32,
@@ -115,19 +117,18 @@ pub fn imf_force(
             }
             // eq. (6): |F_compress| = sum |F_j| - |sum F_j|. When counted, the
             // surface's force is one more term on both sides.
-            let wall = match params.surface_mode {
-                // The wall takes the outward part of the force (its reaction).
-                SurfaceMode::Projection if state.contact[i].w > 0.0 => {
-                    let n = state.contact[i].truncate();
-                    -force.dot(n).max(0.0) * n
+            let (wall, moves) = match params.surface_mode {
+                // The wall's reaction from the last move: it counts in the
+                // compression, but the move itself is left to the projection.
+                SurfaceMode::Projection => {
+                    (-state.contact[i].w * state.contact[i].truncate(), false)
                 }
                 // eq. (3): -n while outside, weighted by mu in eq. (2).
                 SurfaceMode::PaperForce { mu } => match field.query(p) {
-                    Side::Near(nearest) if nearest.distance > 0.0 => -mu * nearest.normal,
-                    Side::DeepOutside => -mu * field.nearest(p).normal,
-                    _ => Vec3::ZERO,
+                    Side::Near(nearest) if nearest.distance > 0.0 => (-mu * nearest.normal, true),
+                    Side::DeepOutside => (-mu * field.nearest(p).normal, true),
+                    _ => (Vec3::ZERO, true),
                 },
-                _ => Vec3::ZERO,
             };
             let compression = if params.wall_in_compression {
                 magnitudes + wall.length() - (force + wall).length()
@@ -135,7 +136,7 @@ pub fn imf_force(
                 magnitudes - force.length()
             };
             ForceOut {
-                force: force + wall,
+                force: if moves { force + wall } else { force },
                 compression: compression.max(0.0),
             }
         })
@@ -161,7 +162,7 @@ pub fn radius_update(radii: &[f32], forces: &[ForceOut], params: &SamplingParams
 /// Eq. (1), `dp = F / m` with `m = m~ / r0` and the step capped at
 /// `max_step r0`; in projection mode a particle that ends outside is moved
 /// back onto the surface by its penetration depth. Returns the new positions
-/// and contacts (a particle within a small tolerance of the wall stays in contact).
+/// and the wall's reactions.
 pub fn integrate(
     state: &SamplingState,
     forces: &[ForceOut],
@@ -180,13 +181,15 @@ pub fn integrate(
             if params.surface_mode != SurfaceMode::Projection {
                 return (moved, Vec4::ZERO);
             }
+            // What the projection takes away is the wall's reaction, in force
+            // units (dp = F r0 / m): zero as soon as the particle stays inside.
+            let held = |n: Nearest| {
+                let reaction = n.distance * params.mass / r0;
+                (n.point, n.normal.extend(reaction))
+            };
             match field.query(moved) {
-                Side::DeepOutside => {
-                    let n = field.nearest(moved);
-                    (n.point, n.normal.extend(1.0))
-                }
-                Side::Near(n) if n.distance > 0.0 => (n.point, n.normal.extend(1.0)),
-                Side::Near(n) if n.distance > -CONTACT_IN_R0 * r0 => (moved, n.normal.extend(1.0)),
+                Side::DeepOutside => held(field.nearest(moved)),
+                Side::Near(n) if n.distance > 0.0 => held(n),
                 _ => (moved, Vec4::ZERO),
             }
         })
@@ -329,8 +332,26 @@ pub fn sample(
         )));
     }
     let r0 = initial_radius(volume, params.particles);
-    let field = SurfaceField::new(mesh, FIELD_CELL_IN_R0 * r0).map_err(Error::Sampling)?;
+    let mut stages = StageSeconds::default();
+    let mut clock = Instant::now();
+    let mut lap = |slot: &mut f64| {
+        *slot += clock.elapsed().as_secs_f64();
+        clock = Instant::now();
+    };
+    // Exact answers are needed within the contact tolerance and the surface
+    // band of the final placement; a wider margin costs build time.
+    let margin = (2.0 * params.surface_band).max(FIELD_MARGIN_IN_R0) * r0;
+    let field = SurfaceField::new(mesh, FIELD_CELL_IN_R0 * r0, margin).map_err(Error::Sampling)?;
+    lap(&mut stages.field);
     let positions = initial_positions(mesh, &field, params, r0)?;
+    // Particles in grid-cell order: neighbours then sit close in memory, which
+    // makes every pass over neighbour rows cache-friendly.
+    let positions: Vec<Vec3> = grid_build(&positions, 2.0 * r0)
+        .particles
+        .iter()
+        .map(|&i| positions[i as usize])
+        .collect();
+    lap(&mut stages.initial);
     let n = positions.len();
     let mut state = SamplingState {
         positions,
@@ -339,9 +360,16 @@ pub fn sample(
     };
 
     let skin = SKIN_IN_R0 * r0;
-    let mut rows = neighbour_rows(&state.positions, &state.radii, params.force_cutoff, skin);
+    let mut rows = neighbour_rows(
+        &state.positions,
+        &state.radii,
+        params.force_cutoff,
+        skin,
+        false,
+    );
     let mut built_at = (state.positions.clone(), state.radii.clone());
     let mut iterations = 0;
+    let mut rebuilds = 0;
     let mut converged = false;
     while iterations < params.max_iterations {
         let forces = imf_force(&state, &rows.0, &rows.1, &field, params);
@@ -371,19 +399,28 @@ pub fn sample(
             break;
         }
         if needs_rebuild(&state, &built_at, params.force_cutoff, skin) {
-            rows = neighbour_rows(&state.positions, &state.radii, params.force_cutoff, skin);
+            let rebuild = Instant::now();
+            rows = neighbour_rows(
+                &state.positions,
+                &state.radii,
+                params.force_cutoff,
+                skin,
+                false,
+            );
             built_at = (state.positions.clone(), state.radii.clone());
+            rebuilds += 1;
+            stages.neighbours += rebuild.elapsed().as_secs_f64();
         }
     }
+    lap(&mut stages.iterations);
 
     let model = finish(mesh, &field, state, params);
-    let report = quality_report(
-        &model,
-        &field,
-        iterations,
-        converged,
-        started.elapsed().as_secs_f64(),
-    );
+    lap(&mut stages.connections);
+    let mut report = quality_report(&model, &field, iterations, converged, 0.0);
+    lap(&mut stages.report);
+    report.neighbour_rebuilds = rebuilds;
+    report.stage_seconds = stages;
+    report.seconds = started.elapsed().as_secs_f64();
     Ok(Sampled { model, report })
 }
 
@@ -401,6 +438,8 @@ fn change(
     let mut logs = 0.0f64;
     for i in 0..positions.len() {
         if contact[i].w == 0.0 && old.contact[i].w == 0.0 {
+            // Particles the wall holds slide along it; their steps are not the
+            // interior's relaxation.
             steps += f64::from((positions[i] - old.positions[i]).length_squared());
             free += 1;
         }
@@ -444,6 +483,21 @@ fn finish(
         .par_iter()
         .zip(&radii)
         .map(|(&p, &r)| match field.query(p) {
+            // A balloon grown beyond the field's margin: ask exactly.
+            Side::DeepInside if params.surface_band * r > field.margin => {
+                let n = field.nearest(p);
+                if n.distance > -params.surface_band * r {
+                    (
+                        n.point,
+                        Some(Attachment {
+                            triangle: n.triangle,
+                            barycentric: n.barycentric,
+                        }),
+                    )
+                } else {
+                    (p, None)
+                }
+            }
             Side::DeepOutside => {
                 let n = field.nearest(p);
                 (
@@ -465,7 +519,7 @@ fn finish(
         })
         .collect();
     let (positions, attachments): (Vec<Vec3>, Vec<Option<Attachment>>) = placed.into_iter().unzip();
-    let (offsets, indices) = neighbour_rows(&positions, &radii, params.connection_ratio, 0.0);
+    let (offsets, indices) = neighbour_rows(&positions, &radii, params.connection_ratio, 0.0, true);
     ParticleModel {
         positions,
         radii,

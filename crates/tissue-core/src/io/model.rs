@@ -1,1 +1,1460 @@
 //! Particle model files (VTK XML PolyData) and point files (CSV, PLY).
+//!
+//! A model is written as a `.vtp` that ParaView opens directly: one piece
+//! whose points are the particles followed by the rest surface's vertices,
+//! with a vertex cell per particle, a line per connection and the surface's
+//! triangles. Every number is ASCII in Rust's shortest round-trip formatting,
+//! so what [`load_model`] reads back is bit-identical to what [`save_model`]
+//! wrote. The layout is described in `docs/FORMATS.md`.
+
+use std::fmt::Display;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+use std::str::FromStr;
+
+use glam::Vec3;
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{DefaultElement, Property};
+use quick_xml::events::Event;
+
+use crate::error::Error;
+use crate::mesh::SurfaceMesh;
+use crate::model::{Attachment, Connections, ParticleModel};
+
+/// Name of the field-data array that marks a `.vtp` as a tissue model and
+/// carries its format version.
+pub const MODEL_VERSION_ARRAY: &str = "tissue_model_version";
+
+/// The model format version this build writes and reads.
+pub const MODEL_VERSION: i64 = 1;
+
+/// Name of the field-data array holding the number of particles: the first
+/// that many points are particles, the rest are rest-surface vertices.
+pub const PARTICLES_ARRAY: &str = "tissue_particles";
+
+/// Writes `model` to `path` as a VTK XML PolyData file (`.vtp`).
+///
+/// The model is checked first (lengths agree, values finite, radii positive,
+/// indices in range, connections symmetric) so that everything written can be
+/// read back by [`load_model`]; an inconsistent model is refused with
+/// [`Error::Format`] and nothing is written. The extension is not checked;
+/// use `.vtp` so that ParaView recognises the file.
+///
+/// # Example
+///
+/// ```
+/// use tissue_core::io::model::{load_model, save_model};
+/// use tissue_core::{Connections, ParticleModel, SurfaceMesh, Vec3};
+///
+/// let model = ParticleModel {
+///     positions: vec![Vec3::ZERO, Vec3::X],
+///     radii: vec![0.5, 0.5],
+///     attachments: vec![None, None],
+///     connections: Connections::from_pairs(2, [(0, 1)]),
+///     surface: SurfaceMesh::default(),
+/// };
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("model.vtp");
+/// save_model(&model, &path)?;
+/// assert_eq!(load_model(&path)?, model);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn save_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
+    check_model(model)
+        .map_err(|message| format_error(path, format!("cannot write the model: {message}")))?;
+    write_file(path, |w| write_model(model, w))
+}
+
+/// Reads a model written by [`save_model`].
+///
+/// The connections are rebuilt from the line cells with
+/// [`Connections::from_pairs`]. A file that is not a tissue model, or that is
+/// truncated or inconsistent (array lengths, indices out of range, non-finite
+/// values, non-positive radii), is an [`Error::Format`] naming the problem.
+///
+/// # Example
+///
+/// ```
+/// use tissue_core::io::model::{load_model, save_model};
+/// use tissue_core::{Attachment, Connections, ParticleModel, SurfaceMesh, Vec3};
+///
+/// let surface = SurfaceMesh::new(
+///     vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+///     vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+/// );
+/// let model = ParticleModel {
+///     positions: vec![Vec3::splat(0.2), Vec3::new(0.25, 0.25, 0.0)],
+///     radii: vec![0.1, 0.1],
+///     attachments: vec![
+///         None,
+///         Some(Attachment { triangle: 0, barycentric: [0.5, 0.25, 0.25] }),
+///     ],
+///     connections: Connections::from_pairs(2, [(0, 1)]),
+///     surface,
+/// };
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("model.vtp");
+/// save_model(&model, &path)?;
+/// let loaded = load_model(&path)?;
+/// assert_eq!(loaded.connections.of(1), &[0]);
+/// assert!(loaded.is_surface(1));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn load_model(path: &Path) -> Result<ParticleModel, Error> {
+    let text = read_text(path)?;
+    parse_model(&text).map_err(|message| format_error(path, message))
+}
+
+/// Writes particle positions to `path`, in the format its extension names:
+/// `.csv` (header `x,y,z`, one row per point) or `.ply` (ASCII, vertices
+/// only). Other extensions are [`Error::UnsupportedFormat`]; an empty slice or
+/// a non-finite coordinate is refused with [`Error::Format`], since
+/// [`load_points`] would not read the file back.
+///
+/// # Example
+///
+/// ```
+/// use tissue_core::Vec3;
+/// use tissue_core::io::model::{load_points, save_points};
+///
+/// let points = vec![Vec3::new(0.1, 0.2, 0.3), Vec3::new(-1.0, 2.5, 1e-30)];
+/// let dir = tempfile::tempdir()?;
+/// for name in ["points.csv", "points.ply"] {
+///     let path = dir.path().join(name);
+///     save_points(&points, &path)?;
+///     assert_eq!(load_points(&path)?, points);
+/// }
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn save_points(points: &[Vec3], path: &Path) -> Result<(), Error> {
+    let kind = PointFormat::of(path)?;
+    check_points(points)
+        .map_err(|message| format_error(path, format!("cannot write the points: {message}")))?;
+    match kind {
+        PointFormat::Csv => write_file(path, |w| write_csv(points, w)),
+        PointFormat::Ply => write_file(path, |w| write_ply(points, w)),
+    }
+}
+
+/// Reads points from a `.csv` or `.ply` file (by extension).
+///
+/// CSV: three comma-separated numbers per line, optionally after a header
+/// line `x,y,z`; blank lines are skipped. A row with the wrong number of
+/// columns, a value that is not a number, or a non-finite value is an
+/// [`Error::Format`] naming the line. PLY (ASCII or binary): the `x`, `y`, `z`
+/// properties of the `vertex` element; other elements are ignored. A file with
+/// no points is an error, as is any other extension
+/// ([`Error::UnsupportedFormat`]).
+///
+/// # Example
+///
+/// ```
+/// use tissue_core::Vec3;
+/// use tissue_core::io::model::load_points;
+///
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("targets.csv");
+/// std::fs::write(&path, "x,y,z\n1,2,3\n4.5,-6,0.25\n")?;
+/// assert_eq!(
+///     load_points(&path)?,
+///     vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(4.5, -6.0, 0.25)]
+/// );
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn load_points(path: &Path) -> Result<Vec<Vec3>, Error> {
+    match PointFormat::of(path)? {
+        PointFormat::Csv => {
+            let text = read_text(path)?;
+            parse_csv(&text).map_err(|message| format_error(path, message))
+        }
+        PointFormat::Ply => {
+            let bytes = std::fs::read(path).map_err(|source| io_error(path, source))?;
+            parse_ply(&bytes).map_err(|message| format_error(path, message))
+        }
+    }
+}
+
+/// Writes a model in the format the extension of `path` names: `.vtp` is the
+/// full model ([`save_model`]); `.csv` and `.ply` are the particle positions
+/// alone ([`save_points`]), for tools that only want a point cloud. Any other
+/// extension is [`Error::UnsupportedFormat`].
+pub fn export_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
+    match extension(path).as_deref() {
+        Some("vtp") => save_model(model, path),
+        Some("csv" | "ply") => save_points(&model.positions, path),
+        _ => Err(Error::UnsupportedFormat {
+            path: path.to_path_buf(),
+            expected: ".vtp (model), .csv, .ply (positions)",
+        }),
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Shared helpers
+
+fn format_error(path: &Path, message: impl Into<String>) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+fn io_error(path: &Path, source: io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn extension(path: &Path) -> Option<String> {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+}
+
+fn read_text(path: &Path) -> Result<String, Error> {
+    let bytes = std::fs::read(path).map_err(|source| io_error(path, source))?;
+    String::from_utf8(bytes).map_err(|e| {
+        format_error(
+            path,
+            format!(
+                "not a text file (invalid UTF-8 at byte {})",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })
+}
+
+fn write_file(
+    path: &Path,
+    body: impl FnOnce(&mut dyn Write) -> io::Result<()>,
+) -> Result<(), Error> {
+    let file = File::create(path).map_err(|source| io_error(path, source))?;
+    let mut w = BufWriter::new(file);
+    body(&mut w)
+        .and_then(|()| w.flush())
+        .map_err(|source| io_error(path, source))
+}
+
+// ---------------------------------------------------------------------------
+// Model consistency: what save refuses and load rejects
+
+/// Everything [`load_model`] would reject in a model, as a message.
+fn check_model(model: &ParticleModel) -> Result<(), String> {
+    let n = model.positions.len();
+    if n == 0 {
+        return Err("the model has no particles".into());
+    }
+    if model.radii.len() != n {
+        return Err(format!("{n} positions but {} radii", model.radii.len()));
+    }
+    if model.attachments.len() != n {
+        return Err(format!(
+            "{n} positions but {} attachments",
+            model.attachments.len()
+        ));
+    }
+    for (i, &p) in model.positions.iter().enumerate() {
+        if !p.is_finite() {
+            return Err(format!("particle {i}: position {p} is not finite"));
+        }
+    }
+    for (i, &r) in model.radii.iter().enumerate() {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(format!(
+                "particle {i}: radius {r} is not a positive finite number"
+            ));
+        }
+    }
+    check_surface(&model.surface)?;
+    let triangles = model.surface.triangles.len();
+    for (i, a) in model.attachments.iter().enumerate() {
+        let Some(a) = a else { continue };
+        if a.triangle as usize >= triangles {
+            return Err(format!(
+                "particle {i}: attached to triangle {} but the surface has {triangles} triangles",
+                a.triangle
+            ));
+        }
+        if !a.barycentric.iter().all(|b| b.is_finite()) {
+            return Err(format!(
+                "particle {i}: barycentric coordinates {:?} are not finite",
+                a.barycentric
+            ));
+        }
+    }
+    check_connections(&model.connections, n)
+}
+
+fn check_surface(surface: &SurfaceMesh) -> Result<(), String> {
+    let vertices = surface.vertices.len();
+    for (v, &p) in surface.vertices.iter().enumerate() {
+        if !p.is_finite() {
+            return Err(format!("surface vertex {v}: position {p} is not finite"));
+        }
+    }
+    if surface.triangles.len() > i32::MAX as usize {
+        return Err(format!(
+            "the surface has {} triangles; the `triangle` array holds at most {}",
+            surface.triangles.len(),
+            i32::MAX
+        ));
+    }
+    for (t, tri) in surface.triangles.iter().enumerate() {
+        if let Some(&v) = tri.iter().find(|&&v| v as usize >= vertices) {
+            return Err(format!(
+                "surface triangle {t} uses vertex {v} but the surface has {vertices} vertices"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The CSR invariants of [`Connections`]: `n + 1` monotone offsets, rows
+/// sorted strictly ascending, no self-connections, and symmetry. The file
+/// stores each pair once, so an asymmetric row would not survive the trip.
+fn check_connections(c: &Connections, n: usize) -> Result<(), String> {
+    if c.offsets.len() != n + 1 {
+        return Err(format!(
+            "connections have {} row offsets, expected {} (particles + 1)",
+            c.offsets.len(),
+            n + 1
+        ));
+    }
+    if c.offsets[0] != 0 || c.offsets[n] as usize != c.indices.len() {
+        return Err(format!(
+            "connection offsets run from {} to {}, expected 0 to {} (the number of indices)",
+            c.offsets[0],
+            c.offsets[n],
+            c.indices.len()
+        ));
+    }
+    if let Some(i) = c.offsets.windows(2).position(|w| w[0] > w[1]) {
+        return Err(format!("connection offsets decrease at particle {i}"));
+    }
+    for i in 0..n {
+        let row = c.of(i);
+        for (k, &j) in row.iter().enumerate() {
+            if j as usize >= n {
+                return Err(format!("particle {i} is connected to particle {j} of {n}"));
+            }
+            if j as usize == i {
+                return Err(format!("particle {i} is connected to itself"));
+            }
+            if k > 0 && row[k - 1] >= j {
+                return Err(format!(
+                    "the connections of particle {i} are not sorted ascending without repeats"
+                ));
+            }
+            if c.of(j as usize).binary_search(&(i as u32)).is_err() {
+                return Err(format!(
+                    "particle {i} is connected to {j} but {j} is not connected to {i}"
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn check_points(points: &[Vec3]) -> Result<(), String> {
+    if points.is_empty() {
+        return Err("there are no points".into());
+    }
+    match points.iter().position(|&p| !p.is_finite()) {
+        Some(i) => Err(format!("point {i} = {} is not finite", points[i])),
+        None => Ok(()),
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Writing the .vtp
+
+/// Value of the `surface` array at rest-surface vertices, so that colouring
+/// by `surface` tells the rest surface apart from both kinds of particle.
+const REST_SURFACE_FLAG: u8 = 2;
+
+/// One piece holding particles and rest surface together. Two pieces would be
+/// the natural layout, but VTK 9's XML reader builds a cell array that first
+/// appears in a later piece without offsetting its point ids, so ParaView
+/// would draw the surface's triangles between particles.
+fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
+    let n = model.len();
+    let pairs = model.connections.pair_list();
+    let surface = &model.surface;
+    let v = surface.vertices.len();
+    let first_vertex = n as u64;
+
+    writeln!(w, r#"<?xml version="1.0"?>"#)?;
+    writeln!(
+        w,
+        "<!-- tissue particle model: particles, then rest-surface vertices; see docs/FORMATS.md -->"
+    )?;
+    writeln!(
+        w,
+        r#"<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">"#
+    )?;
+    writeln!(w, "  <PolyData>")?;
+    writeln!(w, "    <FieldData>")?;
+    writeln!(
+        w,
+        r#"      <DataArray type="Int32" Name="{MODEL_VERSION_ARRAY}" NumberOfTuples="1" format="ascii">{MODEL_VERSION}</DataArray>"#
+    )?;
+    writeln!(
+        w,
+        r#"      <DataArray type="Int64" Name="{PARTICLES_ARRAY}" NumberOfTuples="1" format="ascii">{n}</DataArray>"#
+    )?;
+    writeln!(w, "    </FieldData>")?;
+    writeln!(
+        w,
+        r#"    <Piece NumberOfPoints="{}" NumberOfVerts="{n}" NumberOfLines="{}" NumberOfStrips="0" NumberOfPolys="{}">"#,
+        n + v,
+        pairs.len(),
+        surface.triangles.len()
+    )?;
+
+    writeln!(w, r#"      <PointData Scalars="surface">"#)?;
+    let radius = model.radii.iter().copied();
+    write_array(
+        w,
+        "Float32",
+        "radius",
+        1,
+        radius.chain(std::iter::repeat_n(0.0_f32, v)),
+    )?;
+    let flags = model.attachments.iter().map(|a| u8::from(a.is_some()));
+    write_array(
+        w,
+        "UInt8",
+        "surface",
+        1,
+        flags.chain(std::iter::repeat_n(REST_SURFACE_FLAG, v)),
+    )?;
+    let triangle = model
+        .attachments
+        .iter()
+        .map(|a| a.map_or(-1, |a| i64::from(a.triangle)));
+    write_array(
+        w,
+        "Int32",
+        "triangle",
+        1,
+        triangle.chain(std::iter::repeat_n(-1, v)),
+    )?;
+    let barycentric = model
+        .attachments
+        .iter()
+        .flat_map(|a| a.map_or([0.0; 3], |a| a.barycentric));
+    write_array(
+        w,
+        "Float32",
+        "barycentric",
+        3,
+        barycentric.chain(std::iter::repeat_n(0.0_f32, 3 * v)),
+    )?;
+    writeln!(w, "      </PointData>")?;
+
+    writeln!(w, "      <Points>")?;
+    let points = model.positions.iter().chain(&surface.vertices);
+    write_array(w, "Float32", "Points", 3, points.flat_map(|p| p.to_array()))?;
+    writeln!(w, "      </Points>")?;
+
+    write_cells(w, "Verts", 1, 0..first_vertex)?;
+    if !pairs.is_empty() {
+        let ends = pairs.iter().flat_map(|&(i, j)| [i, j]);
+        write_cells(w, "Lines", 2, ends)?;
+    }
+    if !surface.triangles.is_empty() {
+        let corners = surface.triangles.iter().flatten();
+        write_cells(w, "Polys", 3, corners.map(|&c| first_vertex + u64::from(c)))?;
+    }
+    writeln!(w, "    </Piece>")?;
+    writeln!(w, "  </PolyData>")?;
+    writeln!(w, "</VTKFile>")
+}
+
+/// A cell section of cells with `size` points each (VTK XML offsets are the
+/// end of each cell, without a leading zero).
+fn write_cells<T: Display>(
+    w: &mut dyn Write,
+    section: &str,
+    size: usize,
+    connectivity: impl Iterator<Item = T>,
+) -> io::Result<()> {
+    writeln!(w, "      <{section}>")?;
+    let mut cells = 0;
+    let counted = connectivity.inspect(|_| cells += 1);
+    // One cell a line, except for vertex cells.
+    let per_line = if size > 1 { size } else { 12 };
+    write_values(w, "Int64", "connectivity", 1, per_line, counted)?;
+    let cells = cells / size;
+    write_array(w, "Int64", "offsets", 1, (1..=cells).map(|c| c * size))?;
+    writeln!(w, "      </{section}>")
+}
+
+/// One ASCII `DataArray`, one tuple per line for vectors and a dozen values a
+/// line for scalars.
+fn write_array<T: Display>(
+    w: &mut dyn Write,
+    ty: &str,
+    name: &str,
+    components: usize,
+    values: impl Iterator<Item = T>,
+) -> io::Result<()> {
+    let per_line = if components > 1 { components } else { 12 };
+    write_values(w, ty, name, components, per_line, values)
+}
+
+/// One ASCII `DataArray` with `per_line` values a line. `{}` is Rust's
+/// shortest round-trip formatting, so floats read back bit-exactly.
+fn write_values<T: Display>(
+    w: &mut dyn Write,
+    ty: &str,
+    name: &str,
+    components: usize,
+    per_line: usize,
+    values: impl Iterator<Item = T>,
+) -> io::Result<()> {
+    write!(w, r#"        <DataArray type="{ty}" Name="{name}""#)?;
+    if components > 1 {
+        write!(w, r#" NumberOfComponents="{components}""#)?;
+    }
+    write!(w, r#" format="ascii">"#)?;
+    for (k, value) in values.enumerate() {
+        if k % per_line == 0 {
+            write!(w, "\n          {value}")?;
+        } else {
+            write!(w, " {value}")?;
+        }
+    }
+    writeln!(w, "\n        </DataArray>")
+}
+
+// ---------------------------------------------------------------------------
+// Reading the .vtp: a small element tree, then the layout on top of it
+
+/// An XML element with its attributes, text and children.
+#[derive(Debug, Default)]
+struct Element {
+    name: String,
+    attributes: Vec<(String, String)>,
+    text: String,
+    children: Vec<Element>,
+}
+
+impl Element {
+    fn attribute(&self, key: &str) -> Option<&str> {
+        self.attributes
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+
+    fn child(&self, name: &str) -> Option<&Element> {
+        self.children.iter().find(|c| c.name == name)
+    }
+
+    fn children_named<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Element> {
+        self.children.iter().filter(move |c| c.name == name)
+    }
+
+    /// The child `DataArray` whose `Name` is `name`.
+    fn data_array(&self, name: &str) -> Option<&Element> {
+        self.children_named("DataArray")
+            .find(|a| a.attribute("Name") == Some(name))
+    }
+}
+
+/// 1-based line of byte offset `pos` in `text`.
+fn line_of(text: &str, pos: u64) -> usize {
+    let end = usize::try_from(pos).unwrap_or(usize::MAX).min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+fn parse_xml(text: &str) -> Result<Element, String> {
+    let mut reader = quick_xml::Reader::from_str(text);
+    reader.config_mut().expand_empty_elements = true;
+    let mut stack: Vec<Element> = Vec::new();
+    let mut root: Option<Element> = None;
+    loop {
+        let event = reader.read_event().map_err(|e| {
+            format!(
+                "malformed XML at line {}: {e}",
+                line_of(text, reader.error_position())
+            )
+        })?;
+        match event {
+            Event::Start(start) => {
+                let mut element = Element {
+                    name: String::from_utf8_lossy(start.name().as_ref()).into_owned(),
+                    ..Element::default()
+                };
+                for attribute in start.attributes() {
+                    let attribute = attribute.map_err(|e| {
+                        format!(
+                            "malformed XML attribute at line {}: {e}",
+                            line_of(text, reader.buffer_position())
+                        )
+                    })?;
+                    let value = attribute.unescape_value().map_err(|e| {
+                        format!(
+                            "malformed XML attribute at line {}: {e}",
+                            line_of(text, reader.buffer_position())
+                        )
+                    })?;
+                    element.attributes.push((
+                        String::from_utf8_lossy(attribute.key.as_ref()).into_owned(),
+                        value.into_owned(),
+                    ));
+                }
+                if root.is_some() && stack.is_empty() {
+                    return Err(format!(
+                        "malformed XML at line {}: a second root element <{}>",
+                        line_of(text, reader.buffer_position()),
+                        element.name
+                    ));
+                }
+                stack.push(element);
+            }
+            Event::End(_) => {
+                // quick-xml checks that the end tag matches its start tag.
+                let Some(element) = stack.pop() else {
+                    return Err("malformed XML: an end tag without a start tag".into());
+                };
+                match stack.last_mut() {
+                    Some(parent) => parent.children.push(element),
+                    None => root = Some(element),
+                }
+            }
+            Event::Text(t) => {
+                let content = t.unescape().map_err(|e| {
+                    format!(
+                        "malformed XML text at line {}: {e}",
+                        line_of(text, reader.buffer_position())
+                    )
+                })?;
+                match stack.last_mut() {
+                    Some(element) => element.text.push_str(&content),
+                    None if content.trim().is_empty() => {}
+                    None => {
+                        return Err(format!(
+                            "malformed XML at line {}: text outside the root element",
+                            line_of(text, reader.buffer_position())
+                        ));
+                    }
+                }
+            }
+            Event::CData(data) => {
+                if let Some(element) = stack.last_mut() {
+                    element.text.push_str(&String::from_utf8_lossy(&data));
+                }
+            }
+            Event::Eof => break,
+            Event::Empty(_)
+            | Event::Comment(_)
+            | Event::Decl(_)
+            | Event::PI(_)
+            | Event::DocType(_) => {}
+        }
+    }
+    if let Some(open) = stack.last() {
+        return Err(format!(
+            "the file is truncated: element <{}> is never closed",
+            open.name
+        ));
+    }
+    root.ok_or_else(|| "no XML element found".to_string())
+}
+
+/// The numbers of an ASCII `DataArray`: exactly `tuples` tuples of
+/// `components` values, each parsed as `T`.
+fn values<T: FromStr>(
+    array: &Element,
+    what: &str,
+    components: usize,
+    tuples: usize,
+) -> Result<Vec<T>, String> {
+    match array.attribute("format") {
+        None | Some("ascii") => {}
+        Some(other) => {
+            return Err(format!(
+                "{what} is stored as format=\"{other}\"; tissue reads only ASCII arrays \
+                 (to re-save from ParaView, choose Data Mode \"Ascii\")"
+            ));
+        }
+    }
+    let declared = array.attribute("NumberOfComponents").unwrap_or("1");
+    if declared.trim().parse::<usize>().ok() != Some(components) {
+        return Err(format!(
+            "{what} has NumberOfComponents=\"{declared}\", expected {components}"
+        ));
+    }
+    let expected = components
+        .checked_mul(tuples)
+        .ok_or_else(|| format!("{what}: {tuples} tuples is beyond any real file"))?;
+    let mut out = Vec::with_capacity(expected.min(1 << 24));
+    for (k, token) in array.text.split_ascii_whitespace().enumerate() {
+        if k == expected {
+            return Err(format!(
+                "{what} has more than the {expected} values expected ({tuples} × {components})"
+            ));
+        }
+        let value = token
+            .parse()
+            .map_err(|_| format!("{what}: value {k} (`{token}`) is not a valid number"))?;
+        out.push(value);
+    }
+    if out.len() != expected {
+        return Err(format!(
+            "{what} has {} values, expected {expected} ({tuples} × {components})",
+            out.len()
+        ));
+    }
+    Ok(out)
+}
+
+/// A non-negative count attribute of the piece, if present.
+fn count_attribute(piece: &Element, key: &str) -> Result<Option<usize>, String> {
+    piece
+        .attribute(key)
+        .map(|s| {
+            s.trim()
+                .parse()
+                .map_err(|_| format!("the piece's {key}=\"{s}\" is not a count"))
+        })
+        .transpose()
+}
+
+/// The points of the piece, `NumberOfPoints` of them.
+fn piece_points(piece: &Element) -> Result<Vec<Vec3>, String> {
+    let n = count_attribute(piece, "NumberOfPoints")?
+        .ok_or("the piece's NumberOfPoints attribute is missing")?;
+    let array = piece
+        .child("Points")
+        .and_then(|p| p.child("DataArray"))
+        .ok_or("the <Points> array is missing")?;
+    let flat: Vec<f32> = values(array, "Points", 3, n)?;
+    Ok(flat
+        .chunks_exact(3)
+        .map(|c| Vec3::new(c[0], c[1], c[2]))
+        .collect())
+}
+
+/// Cells of `section` (`Verts`, `Lines`, `Polys`), each with exactly `K`
+/// points, all indices below `points`.
+fn piece_cells<const K: usize>(
+    piece: &Element,
+    section: &str,
+    points: usize,
+) -> Result<Vec<[u32; K]>, String> {
+    let attribute = format!("NumberOf{section}");
+    let declared = count_attribute(piece, &attribute)?;
+    let Some(element) = piece.child(section) else {
+        return match declared {
+            Some(d) if d > 0 => Err(format!(
+                "{attribute}=\"{d}\" but there is no <{section}> element"
+            )),
+            _ => Ok(Vec::new()),
+        };
+    };
+    let what = |name: &str| format!("{section} {name}");
+    let offsets_array = element
+        .data_array("offsets")
+        .ok_or_else(|| format!("the {} array is missing", what("offsets")))?;
+    let cells = match declared {
+        Some(d) => d,
+        None => offsets_array.text.split_ascii_whitespace().count(),
+    };
+    let offsets: Vec<i64> = values(offsets_array, &what("offsets"), 1, cells)?;
+    let connectivity_array = element
+        .data_array("connectivity")
+        .ok_or_else(|| format!("the {} array is missing", what("connectivity")))?;
+    let corners = cells
+        .checked_mul(K)
+        .ok_or_else(|| format!("{attribute}=\"{cells}\" is beyond any real file"))?;
+    let connectivity: Vec<i64> = values(connectivity_array, &what("connectivity"), 1, corners)?;
+    let kind = match section {
+        "Verts" => "vertex",
+        "Lines" => "line",
+        _ => "polygon",
+    };
+    let mut out = Vec::with_capacity(cells);
+    for (c, &offset) in offsets.iter().enumerate() {
+        if offset != ((c + 1) * K) as i64 {
+            return Err(format!(
+                "{kind} cell {c} does not have {K} points (offset {offset}); \
+                 a tissue model has only {kind} cells of {K} points"
+            ));
+        }
+        let mut cell = [0_u32; K];
+        for (slot, &index) in cell.iter_mut().zip(&connectivity[c * K..(c + 1) * K]) {
+            *slot = u32::try_from(index)
+                .ok()
+                .filter(|&i| (i as usize) < points)
+                .ok_or_else(|| format!("{kind} cell {c} refers to point {index} of {points}"))?;
+        }
+        out.push(cell);
+    }
+    Ok(out)
+}
+
+/// The `FieldData` array `name`, if present.
+fn field_array<'a>(poly_data: &'a Element, name: &str) -> Option<&'a Element> {
+    poly_data.child("FieldData")?.data_array(name)
+}
+
+/// The single integer in field-data array `array`.
+fn field_integer(array: &Element, name: &str) -> Result<i64, String> {
+    let value: Vec<i64> = values(array, &format!("`{name}`"), 1, 1)?;
+    Ok(value[0])
+}
+
+fn point_array<T: FromStr>(
+    point_data: &Element,
+    name: &str,
+    components: usize,
+    n: usize,
+) -> Result<Vec<T>, String> {
+    let array = point_data
+        .data_array(name)
+        .ok_or_else(|| format!("the PointData array `{name}` is missing"))?;
+    values(array, &format!("`{name}`"), components, n)
+}
+
+fn parse_model(text: &str) -> Result<ParticleModel, String> {
+    if text.trim().is_empty() {
+        return Err("the file is empty; expected a tissue model (.vtp)".into());
+    }
+    let root = parse_xml(text)?;
+    if root.name != "VTKFile" || root.attribute("type") != Some("PolyData") {
+        return Err(format!(
+            "not a VTK PolyData file (root element <{}> of type {:?}); expected a tissue model (.vtp)",
+            root.name,
+            root.attribute("type").unwrap_or("")
+        ));
+    }
+    let poly_data = root
+        .child("PolyData")
+        .ok_or("the <PolyData> element is missing")?;
+
+    let version = field_array(poly_data, MODEL_VERSION_ARRAY).ok_or_else(|| {
+        format!(
+            "a VTK PolyData file but not a tissue model: the field data array \
+             `{MODEL_VERSION_ARRAY}` is missing"
+        )
+    })?;
+    let version = field_integer(version, MODEL_VERSION_ARRAY)?;
+    if version != MODEL_VERSION {
+        return Err(format!(
+            "tissue model version {version} is not supported; this build reads version {MODEL_VERSION}"
+        ));
+    }
+
+    let pieces: Vec<&Element> = poly_data.children_named("Piece").collect();
+    let [piece] = pieces[..] else {
+        return Err(format!("expected one <Piece>, found {}", pieces.len()));
+    };
+    let mut positions = piece_points(piece)?;
+    let total = positions.len();
+    let particles = field_array(poly_data, PARTICLES_ARRAY)
+        .ok_or_else(|| format!("the field data array `{PARTICLES_ARRAY}` is missing"))?;
+    let particles = field_integer(particles, PARTICLES_ARRAY)?;
+    let n = usize::try_from(particles)
+        .ok()
+        .filter(|&n| n <= total)
+        .ok_or_else(|| {
+            format!(
+                "`{PARTICLES_ARRAY}` is {particles}, expected 0..={total} (the number of points)"
+            )
+        })?;
+    let vertices = positions.split_off(n);
+
+    piece_cells::<1>(piece, "Verts", total)?;
+    let lines = piece_cells::<2>(piece, "Lines", total)?;
+    if let Some((c, &[i, j])) = lines
+        .iter()
+        .enumerate()
+        .find(|(_, l)| l.iter().any(|&p| p as usize >= n))
+    {
+        return Err(format!(
+            "line cell {c} connects points {i} and {j}, but only the first {n} points are particles"
+        ));
+    }
+    if let Some(&[i, _]) = lines.iter().find(|[i, j]| i == j) {
+        return Err(format!("particle {i} is connected to itself"));
+    }
+    let polys = piece_cells::<3>(piece, "Polys", total)?;
+    let mut triangles = Vec::with_capacity(polys.len());
+    for (c, corners) in polys.iter().enumerate() {
+        if let Some(&p) = corners.iter().find(|&&p| (p as usize) < n) {
+            return Err(format!(
+                "polygon cell {c} uses point {p}, a particle; triangles must use rest-surface vertices (points {n} onwards)"
+            ));
+        }
+        triangles.push(corners.map(|p| p - n as u32));
+    }
+    let strips = piece
+        .child("Strips")
+        .and_then(|s| s.data_array("offsets"))
+        .is_some_and(|a| !a.text.trim().is_empty());
+    if strips || count_attribute(piece, "NumberOfStrips")?.unwrap_or(0) > 0 {
+        return Err("the piece has triangle strips, which a tissue model does not use".into());
+    }
+    let surface = SurfaceMesh::new(vertices, triangles);
+
+    let point_data = piece
+        .child("PointData")
+        .ok_or("the <PointData> element is missing")?;
+    let radii: Vec<f32> = point_array(point_data, "radius", 1, total)?;
+    let flags: Vec<u8> = point_array(point_data, "surface", 1, total)?;
+    let triangle: Vec<i64> = point_array(point_data, "triangle", 1, total)?;
+    let barycentric: Vec<f32> = point_array(point_data, "barycentric", 3, total)?;
+    if let Some(k) = barycentric.iter().position(|b| !b.is_finite()) {
+        return Err(format!("point {}: `barycentric` is not finite", k / 3));
+    }
+    if let Some(v) = flags[n..].iter().position(|&f| f != REST_SURFACE_FLAG) {
+        return Err(format!(
+            "point {} is a rest-surface vertex (after the {n} particles) but has `surface` {}, expected {REST_SURFACE_FLAG}",
+            n + v,
+            flags[n + v]
+        ));
+    }
+
+    let mut attachments = Vec::with_capacity(n);
+    for i in 0..n {
+        let t = triangle[i];
+        let attachment = match flags[i] {
+            0 if t == -1 => None,
+            0 => {
+                return Err(format!(
+                    "particle {i} is interior (`surface` 0) but has `triangle` {t}, expected -1"
+                ));
+            }
+            1 => {
+                let triangle = u32::try_from(t)
+                    .ok()
+                    .filter(|&t| (t as usize) < surface.triangles.len())
+                    .ok_or_else(|| {
+                        format!(
+                            "particle {i} is a surface particle but `triangle` is {t}, \
+                             expected 0..{} (the rest surface's triangles)",
+                            surface.triangles.len()
+                        )
+                    })?;
+                Some(Attachment {
+                    triangle,
+                    barycentric: [
+                        barycentric[3 * i],
+                        barycentric[3 * i + 1],
+                        barycentric[3 * i + 2],
+                    ],
+                })
+            }
+            f => {
+                return Err(format!(
+                    "particle {i} has `surface` {f}, expected 0 (interior) or 1 (surface)"
+                ));
+            }
+        };
+        attachments.push(attachment);
+    }
+
+    let model = ParticleModel {
+        positions,
+        radii: radii[..n].to_vec(),
+        attachments,
+        connections: Connections::from_pairs(n, lines.iter().map(|&[i, j]| (i, j))),
+        surface,
+    };
+    check_model(&model)?;
+    Ok(model)
+}
+
+// ---------------------------------------------------------------------------
+// Point files
+
+#[derive(Debug, Clone, Copy)]
+enum PointFormat {
+    Csv,
+    Ply,
+}
+
+impl PointFormat {
+    fn of(path: &Path) -> Result<Self, Error> {
+        match extension(path).as_deref() {
+            Some("csv") => Ok(Self::Csv),
+            Some("ply") => Ok(Self::Ply),
+            _ => Err(Error::UnsupportedFormat {
+                path: path.to_path_buf(),
+                expected: ".csv, .ply",
+            }),
+        }
+    }
+}
+
+fn write_csv(points: &[Vec3], w: &mut dyn Write) -> io::Result<()> {
+    writeln!(w, "x,y,z")?;
+    for p in points {
+        writeln!(w, "{},{},{}", p.x, p.y, p.z)?;
+    }
+    Ok(())
+}
+
+fn write_ply(points: &[Vec3], w: &mut dyn Write) -> io::Result<()> {
+    writeln!(w, "ply")?;
+    writeln!(w, "format ascii 1.0")?;
+    writeln!(w, "comment written by tissue")?;
+    writeln!(w, "element vertex {}", points.len())?;
+    for axis in ["x", "y", "z"] {
+        writeln!(w, "property float {axis}")?;
+    }
+    writeln!(w, "end_header")?;
+    for p in points {
+        writeln!(w, "{} {} {}", p.x, p.y, p.z)?;
+    }
+    Ok(())
+}
+
+/// Three numbers from one CSV line, or why not.
+fn csv_row(line: &str) -> Result<Vec3, String> {
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    if fields.len() != 3 {
+        return Err(format!(
+            "expected 3 comma-separated values (x,y,z), found {}",
+            fields.len()
+        ));
+    }
+    let mut xyz = [0.0_f32; 3];
+    for (slot, field) in xyz.iter_mut().zip(&fields) {
+        let value: f32 = field
+            .parse()
+            .map_err(|_| format!("`{field}` is not a number"))?;
+        if !value.is_finite() {
+            return Err(format!("`{field}` is not a finite number"));
+        }
+        *slot = value;
+    }
+    Ok(Vec3::from_array(xyz))
+}
+
+fn parse_csv(text: &str) -> Result<Vec<Vec3>, String> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut points = Vec::new();
+    let mut seen_row = false;
+    for (k, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let first = !seen_row;
+        seen_row = true;
+        match csv_row(line) {
+            Ok(p) => points.push(p),
+            Err(_) if first && is_csv_header(line) => {}
+            Err(message) => return Err(format!("line {}: {message}", k + 1)),
+        }
+    }
+    if points.is_empty() {
+        return Err("no points in the file".into());
+    }
+    Ok(points)
+}
+
+fn is_csv_header(line: &str) -> bool {
+    let fields: Vec<String> = line
+        .split(',')
+        .map(|f| f.trim().trim_matches('"').to_ascii_lowercase())
+        .collect();
+    fields == ["x", "y", "z"]
+}
+
+fn ply_scalar(property: &Property) -> Option<f32> {
+    Some(match *property {
+        Property::Float(v) => v,
+        Property::Double(v) => v as f32,
+        Property::Char(v) => f32::from(v),
+        Property::UChar(v) => f32::from(v),
+        Property::Short(v) => f32::from(v),
+        Property::UShort(v) => f32::from(v),
+        Property::Int(v) => v as f32,
+        Property::UInt(v) => v as f32,
+        _ => return None,
+    })
+}
+
+fn parse_ply(bytes: &[u8]) -> Result<Vec<Vec3>, String> {
+    let ply = Parser::<DefaultElement>::new()
+        .read_ply(&mut &bytes[..])
+        .map_err(|e| format!("not a readable PLY file: {e}"))?;
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or("the PLY file has no `vertex` element")?;
+    let mut points = Vec::with_capacity(vertices.len());
+    for (i, vertex) in vertices.iter().enumerate() {
+        let mut xyz = [0.0_f32; 3];
+        for (slot, axis) in xyz.iter_mut().zip(["x", "y", "z"]) {
+            let property = vertex
+                .get(axis)
+                .ok_or_else(|| format!("vertex {i} has no `{axis}` property"))?;
+            *slot = ply_scalar(property)
+                .ok_or_else(|| format!("vertex {i}: `{axis}` is a list, not a number"))?;
+        }
+        let p = Vec3::from_array(xyz);
+        if !p.is_finite() {
+            return Err(format!("vertex {i} = {p} is not finite"));
+        }
+        points.push(p);
+    }
+    if points.is_empty() {
+        return Err("no points in the file".into());
+    }
+    Ok(points)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+
+    use super::*;
+
+    /// A tetrahedron with two interior particles and two attached ones.
+    fn small_model() -> ParticleModel {
+        let surface = SurfaceMesh::new(
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        );
+        ParticleModel {
+            positions: vec![
+                Vec3::splat(0.2),
+                Vec3::new(0.1, 0.15, 0.1),
+                Vec3::new(0.25, 0.25, 0.0),
+                Vec3::new(0.3, 0.0, 0.3),
+            ],
+            radii: vec![0.1, 0.1, 0.05, 0.05],
+            attachments: vec![
+                None,
+                None,
+                Some(Attachment {
+                    triangle: 0,
+                    barycentric: [0.5, 0.25, 0.25],
+                }),
+                Some(Attachment {
+                    triangle: 1,
+                    barycentric: [0.4, 0.3, 0.3],
+                }),
+            ],
+            connections: Connections::from_pairs(4, [(0, 1), (0, 2), (1, 3), (2, 3)]),
+            surface,
+        }
+    }
+
+    fn model_text(model: &ParticleModel) -> String {
+        let mut bytes = Vec::new();
+        write_model(model, &mut bytes).unwrap();
+        String::from_utf8(bytes).unwrap()
+    }
+
+    /// Parses `text` after replacing the first `from` with `to`, expecting an
+    /// error that contains `needle`.
+    fn rejects(from: &str, to: &str, needle: &str) {
+        let text = model_text(&small_model());
+        assert!(text.contains(from), "fixture lacks {from:?}");
+        let edited = text.replacen(from, to, 1);
+        let err = parse_model(&edited).unwrap_err();
+        assert!(
+            err.contains(needle),
+            "error {err:?} does not mention {needle:?}"
+        );
+    }
+
+    #[test]
+    fn written_text_parses_back_to_the_same_model() {
+        let model = small_model();
+        assert_eq!(parse_model(&model_text(&model)).unwrap(), model);
+    }
+
+    #[test]
+    fn newer_version_is_rejected() {
+        rejects(
+            r#"NumberOfTuples="1" format="ascii">1<"#,
+            r#"NumberOfTuples="1" format="ascii">2<"#,
+            "version 2 is not supported",
+        );
+    }
+
+    #[test]
+    fn line_to_a_missing_particle_is_rejected() {
+        rejects(
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          0 1",
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          0 9",
+            "line cell 0 refers to point 9 of 8",
+        );
+    }
+
+    #[test]
+    fn connection_to_itself_is_rejected() {
+        rejects(
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          0 1",
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          1 1",
+            "particle 1 is connected to itself",
+        );
+    }
+
+    #[test]
+    fn attachment_to_a_missing_triangle_is_rejected() {
+        rejects(
+            "Name=\"triangle\" format=\"ascii\">\n          -1 -1 0 1",
+            "Name=\"triangle\" format=\"ascii\">\n          -1 -1 0 4",
+            "particle 3 is a surface particle but `triangle` is 4",
+        );
+    }
+
+    #[test]
+    fn interior_particle_with_a_triangle_is_rejected() {
+        rejects(
+            "Name=\"triangle\" format=\"ascii\">\n          -1 -1 0 1",
+            "Name=\"triangle\" format=\"ascii\">\n          -1 0 0 1",
+            "particle 1 is interior",
+        );
+    }
+
+    #[test]
+    fn non_positive_radius_is_rejected() {
+        rejects(
+            "Name=\"radius\" format=\"ascii\">\n          0.1 0.1",
+            "Name=\"radius\" format=\"ascii\">\n          0.1 -0.1",
+            "particle 1: radius -0.1",
+        );
+    }
+
+    #[test]
+    fn short_array_is_rejected() {
+        rejects(
+            "Name=\"radius\" format=\"ascii\">\n          0.1 0.1 0.05 0.05",
+            "Name=\"radius\" format=\"ascii\">\n          0.1 0.1 0.05",
+            "`radius` has 7 values, expected 8",
+        );
+    }
+
+    #[test]
+    fn triangle_with_a_missing_vertex_is_rejected() {
+        rejects(
+            "<Polys>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          4 6 5",
+            "<Polys>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          4 6 11",
+            "polygon cell 0 refers to point 11 of 8",
+        );
+    }
+
+    #[test]
+    fn triangle_on_a_particle_is_rejected() {
+        rejects(
+            "<Polys>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          4 6 5",
+            "<Polys>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          4 6 2",
+            "polygon cell 0 uses point 2, a particle",
+        );
+    }
+
+    #[test]
+    fn connection_to_a_surface_vertex_is_rejected() {
+        rejects(
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          0 1",
+            "<Lines>\n        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n          0 5",
+            "line cell 0 connects points 0 and 5, but only the first 4 points are particles",
+        );
+    }
+
+    #[test]
+    fn particle_count_beyond_the_points_is_rejected() {
+        rejects(
+            r#"Name="tissue_particles" NumberOfTuples="1" format="ascii">4<"#,
+            r#"Name="tissue_particles" NumberOfTuples="1" format="ascii">9<"#,
+            "`tissue_particles` is 9, expected 0..=8",
+        );
+    }
+
+    #[test]
+    fn wrong_particle_count_is_rejected() {
+        rejects(
+            r#"Name="tissue_particles" NumberOfTuples="1" format="ascii">4<"#,
+            r#"Name="tissue_particles" NumberOfTuples="1" format="ascii">3<"#,
+            "only the first 3 points are particles",
+        );
+    }
+
+    #[test]
+    fn rest_surface_vertex_flagged_as_a_particle_is_rejected() {
+        rejects(
+            "0 0 1 1 2 2 2 2",
+            "0 0 1 1 2 0 2 2",
+            "point 5 is a rest-surface vertex (after the 4 particles) but has `surface` 0",
+        );
+    }
+
+    #[test]
+    fn quad_is_rejected() {
+        rejects(
+            "Name=\"offsets\" format=\"ascii\">\n          3 6 9 12",
+            "Name=\"offsets\" format=\"ascii\">\n          4 6 9 12",
+            "polygon cell 0 does not have 3 points",
+        );
+    }
+
+    #[test]
+    fn absurd_counts_are_rejected_without_overflow() {
+        rejects(
+            r#"<Piece NumberOfPoints="8""#,
+            r#"<Piece NumberOfPoints="18446744073709551615""#,
+            "Points: 18446744073709551615 tuples is beyond any real file",
+        );
+        rejects(
+            r#"NumberOfPolys="4""#,
+            r#"NumberOfPolys="6148914691236517206""#,
+            "Polys offsets has 4 values",
+        );
+        rejects(
+            r#"NumberOfLines="4""#,
+            r#"NumberOfLines="-4""#,
+            r#"NumberOfLines="-4" is not a count"#,
+        );
+    }
+
+    #[test]
+    fn binary_arrays_are_rejected_with_a_hint() {
+        rejects(
+            "Name=\"radius\" format=\"ascii\"",
+            "Name=\"radius\" format=\"binary\"",
+            "only ASCII arrays",
+        );
+    }
+
+    #[test]
+    fn random_corruptions_never_panic() {
+        // A fixed linear congruential generator: the same edits every run.
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move |bound: usize| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) as usize % bound
+        };
+        let text = model_text(&small_model());
+        let alphabet = b"0129-. \n<>/=\"aeE+";
+        for _ in 0..3000 {
+            let mut bytes = text.clone().into_bytes();
+            for _ in 0..=next(3) {
+                let at = next(bytes.len());
+                match next(3) {
+                    0 => bytes[at] = alphabet[next(alphabet.len())],
+                    1 => {
+                        let end = (at + next(40)).min(bytes.len());
+                        bytes.drain(at..end);
+                    }
+                    _ => {
+                        let end = (at + next(40)).min(bytes.len());
+                        let copy = bytes[at..end].to_vec();
+                        let to = next(bytes.len());
+                        bytes.splice(to..to, copy);
+                    }
+                }
+                if bytes.is_empty() {
+                    break;
+                }
+            }
+            // Only ASCII bytes are inserted, so the text stays UTF-8.
+            let edited = String::from_utf8(bytes).unwrap();
+            if let Ok(model) = parse_model(&edited) {
+                check_model(&model).unwrap();
+            }
+        }
+    }
+
+    #[test]
+    fn inconsistent_models_are_refused_before_writing() {
+        let mut model = small_model();
+        model.radii.pop();
+        assert!(
+            check_model(&model)
+                .unwrap_err()
+                .contains("4 positions but 3 radii")
+        );
+
+        let mut model = small_model();
+        model.connections.indices[0] = 3; // row 0 becomes [3, 2]: unsorted, asymmetric
+        assert!(check_model(&model).is_err());
+
+        let mut model = small_model();
+        model.attachments[2] = Some(Attachment {
+            triangle: 9,
+            barycentric: [1.0, 0.0, 0.0],
+        });
+        assert!(check_model(&model).unwrap_err().contains("triangle 9"));
+
+        assert!(
+            check_model(&ParticleModel::default())
+                .unwrap_err()
+                .contains("no particles")
+        );
+    }
+
+    #[test]
+    fn csv_header_is_optional_and_blank_lines_are_skipped() {
+        let expected = vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(-4.0, 0.5, 6.0)];
+        assert_eq!(parse_csv("x,y,z\n1,2,3\n\n-4, 0.5 ,6\n").unwrap(), expected);
+        assert_eq!(parse_csv("1,2,3\r\n-4,0.5,6\r\n").unwrap(), expected);
+        assert_eq!(
+            parse_csv("\u{feff}\"X\",\"Y\",\"Z\"\n1,2,3\n-4,0.5,6").unwrap(),
+            expected
+        );
+    }
+
+    #[test]
+    fn csv_errors_name_the_line() {
+        assert_eq!(
+            parse_csv("x,y,z\n1,2,3\n1,2\n").unwrap_err(),
+            "line 3: expected 3 comma-separated values (x,y,z), found 2"
+        );
+        assert_eq!(
+            parse_csv("x,y,z\n1,2,3\n1,two,3\n").unwrap_err(),
+            "line 3: `two` is not a number"
+        );
+        assert_eq!(
+            parse_csv("1,2,3\n1,2,NaN\n").unwrap_err(),
+            "line 2: `NaN` is not a finite number"
+        );
+        assert_eq!(
+            parse_csv("a,b,c\n1,2,3\n").unwrap_err(),
+            "line 1: `a` is not a number"
+        );
+        assert_eq!(parse_csv("x,y,z\n").unwrap_err(), "no points in the file");
+    }
+
+    #[test]
+    fn ply_with_doubles_and_extra_properties_is_read() {
+        let text = "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\n\
+                    property double y\nproperty double z\nproperty uchar red\n\
+                    element face 0\nproperty list uchar int vertex_indices\nend_header\n\
+                    1 2 3 255\n0.5 -1 0 0\n";
+        assert_eq!(
+            parse_ply(text.as_bytes()).unwrap(),
+            vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.5, -1.0, 0.0)]
+        );
+    }
+
+    #[test]
+    fn ply_without_vertices_is_rejected() {
+        let text = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\n\
+                    property float y\nproperty float z\nend_header\n";
+        assert_eq!(
+            parse_ply(text.as_bytes()).unwrap_err(),
+            "no points in the file"
+        );
+        let truncated = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n\
+                         property float y\nproperty float z\nend_header\n1 2 3\n";
+        assert!(parse_ply(truncated.as_bytes()).is_err());
+    }
+}
