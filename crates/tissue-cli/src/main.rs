@@ -69,14 +69,20 @@ struct SampleArgs {
     /// Iteration cap.
     #[arg(long)]
     max_iterations: Option<usize>,
+    /// When the surface has several closed shells, sample only the largest
+    /// (by volume) and drop the rest with a warning.
+    #[arg(long)]
+    largest_shell: bool,
     /// Print nothing but errors.
     #[arg(long, short)]
     quiet: bool,
 }
 
 fn main() -> ExitCode {
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    let quiet = matches!(&cli.command, Command::Sample(args) if args.quiet);
+    let level = if quiet { "error" } else { "warn" };
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level)).init();
     let outcome = match cli.command {
         Command::Sample(args) => sample(&args),
         Command::Phantom { output_dir } => write_phantom(&output_dir),
@@ -143,14 +149,13 @@ fn params_of(args: &SampleArgs) -> Result<SamplingParams> {
 fn sample(args: &SampleArgs) -> Result<()> {
     let params = params_of(args)?;
     check_output(&args.output, &["vtp", "csv", "ply"])?;
-    let (surface, validation) =
-        tissue::io::surface::load_closed_surface_with_report(&args.surface)?;
-    if validation.flipped && !args.quiet {
-        eprintln!(
-            "warning: {} faced inward; its triangles were turned around",
-            args.surface.display()
-        );
-    }
+    let options = tissue::io::surface::LoadOptions {
+        largest_shell: args.largest_shell,
+    };
+    let (surface, validation, dropped) =
+        tissue::io::surface::load_closed_surface_with(&args.surface, &options)?;
+    // The library logs a flipped surface and dropped shells as warnings.
+    let _ = (validation, dropped);
     let started = Instant::now();
     let mut bar: Option<ProgressBar> = None;
     let sampled = tissue_cpu::sample(&surface, &params, &mut |p| {

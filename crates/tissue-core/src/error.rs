@@ -99,7 +99,7 @@ pub enum MeshError {
     },
     /// More than one connected piece.
     #[error(
-        "the surface has {count} disconnected shells (expected one closed surface); the second starts at triangle {example} at {at:?}"
+        "the surface has {count} disconnected shells (expected one closed surface); the second starts at triangle {example} at {at:?}; to sample only the largest shell, use --largest-shell (`LoadOptions::largest_shell`)"
     )]
     SeveralShells {
         /// Number of shells.

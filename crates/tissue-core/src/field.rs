@@ -190,14 +190,13 @@ impl SurfaceField {
         let band: Vec<bool> = (0..field.cell_count())
             .map(|i| binned.start[i] < binned.start[i + 1])
             .collect();
-        let outside = field.flood_outside(&band);
-
         let parry_mesh = TriMesh::with_flags(
             mesh.vertices.clone(),
             mesh.triangles.clone(),
             TriMeshFlags::ORIENTED,
         )
         .map_err(|e| format!("the surface cannot be oriented: {e:?}"))?;
+        let outside = field.sides(&band, &parry_mesh);
 
         let cells = field.cell_count();
         let diagonal = cell * 3f32.sqrt();
@@ -206,26 +205,33 @@ impl SurfaceField {
         // |d(centre)| + diagonal of the centre (triangle inequality twice).
         let per_cell: Vec<Vec<(f32, u32)>> = (0..cells)
             .into_par_iter()
-            .map(|index| {
-                if !band[index] {
-                    return Vec::new();
-                }
-                let centre = field.cell_centre(index);
-                let projection = parry_mesh.project_local_point(centre, false);
-                let reach = (projection.point - centre).length() + diagonal;
-                let mut near: Vec<(f32, u32)> = field
-                    .triangles_near(&binned, centre, reach)
-                    .into_iter()
-                    .filter_map(|t| {
+            .map_init(
+                // Per thread: the last cell that gathered each triangle, so a
+                // triangle binned in many cells is measured once per cell.
+                || vec![usize::MAX; field.corners.len()],
+                |seen, index| {
+                    if !band[index] {
+                        return Vec::new();
+                    }
+                    let centre = field.cell_centre(index);
+                    let projection = parry_mesh.project_local_point(centre, false);
+                    let reach = (projection.point - centre).length() + diagonal;
+                    let mut near = Vec::new();
+                    field.for_each_binned_near(&binned, centre, reach, |t| {
+                        if std::mem::replace(&mut seen[t as usize], index) == index {
+                            return;
+                        }
                         let [a, b, c] = field.corners[t as usize];
                         let (q, _, _) = closest_on_triangle(centre, a, b, c);
                         let d = (q - centre).length();
-                        (d <= reach * (1.0 + 1e-5) + 1e-6 * cell).then_some((d, t))
-                    })
-                    .collect();
-                near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                near
-            })
+                        if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
+                            near.push((d, t));
+                        }
+                    });
+                    near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                    near
+                },
+            )
             .collect();
         let cell_state: Vec<u32> = (0..cells)
             .map(|i| match (band[i], outside[i]) {
@@ -405,10 +411,15 @@ impl SurfaceField {
                 a.min(b).min(c) - Vec3::splat(half_diagonal),
                 a.max(b).max(c) + Vec3::splat(half_diagonal),
             );
+            let normal = (b - a).cross(c - a).normalize_or_zero();
             let mut cells = Vec::new();
             for_each_cell(range, |cell| {
                 let index = self.cell_index(cell);
                 let centre = self.cell_centre(index);
+                // Far from the triangle's plane means far from the triangle.
+                if normal.dot(centre - a).abs() > half_diagonal * (1.0 + 1e-5) {
+                    return;
+                }
                 let (q, _, _) = closest_on_triangle(centre, a, b, c);
                 if (q - centre).length() <= half_diagonal * (1.0 + 1e-5) {
                     cells.push(index as u32);
@@ -447,37 +458,43 @@ impl SurfaceField {
         [clamp(lo), clamp(hi)]
     }
 
-    /// Non-band cells reachable from the grid's border through non-band cells
-    /// (6-connected). The band is watertight around a closed surface, so the
-    /// rest is inside.
-    fn flood_outside(&self, band: &[bool]) -> Vec<bool> {
+    /// The side of every non-band cell (`true` outside). The surface never
+    /// crosses a region of face-connected non-band cells, so one exact
+    /// inside test of one cell centre decides the whole region. (A flood fill
+    /// from the border alone would call an outside pocket enclosed by the
+    /// band, between two lobes say, inside.)
+    fn sides(&self, band: &[bool], mesh: &TriMesh) -> Vec<bool> {
         let mut outside = vec![false; self.cell_count()];
+        let mut seen = band.to_vec();
         let mut stack = Vec::new();
         let [nx, ny, nz] = self.dims;
-        for index in 0..self.cell_count() {
-            let [x, y, z] = self.cell_coords(index);
-            let border = x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1;
-            if border && !band[index] {
-                outside[index] = true;
-                stack.push(index);
+        for seed in 0..self.cell_count() {
+            if seen[seed] {
+                continue;
             }
-        }
-        while let Some(index) = stack.pop() {
-            let [x, y, z] = self.cell_coords(index);
-            let steps: [(u32, u32, u32, bool); 6] = [
-                (x.wrapping_sub(1), y, z, x > 0),
-                (x + 1, y, z, x + 1 < nx),
-                (x, y.wrapping_sub(1), z, y > 0),
-                (x, y + 1, z, y + 1 < ny),
-                (x, y, z.wrapping_sub(1), z > 0),
-                (x, y, z + 1, z + 1 < nz),
-            ];
-            for (a, b, c, ok) in steps {
-                if ok {
-                    let next = self.cell_index([a, b, c]);
-                    if !band[next] && !outside[next] {
-                        outside[next] = true;
-                        stack.push(next);
+            let side = !mesh
+                .project_local_point(self.cell_centre(seed), false)
+                .is_inside;
+            seen[seed] = true;
+            stack.push(seed);
+            while let Some(index) = stack.pop() {
+                outside[index] = side;
+                let [x, y, z] = self.cell_coords(index);
+                let steps: [(u32, u32, u32, bool); 6] = [
+                    (x.wrapping_sub(1), y, z, x > 0),
+                    (x + 1, y, z, x + 1 < nx),
+                    (x, y.wrapping_sub(1), z, y > 0),
+                    (x, y + 1, z, y + 1 < ny),
+                    (x, y, z.wrapping_sub(1), z > 0),
+                    (x, y, z + 1, z + 1 < nz),
+                ];
+                for (a, b, c, ok) in steps {
+                    if ok {
+                        let next = self.cell_index([a, b, c]);
+                        if !seen[next] {
+                            seen[next] = true;
+                            stack.push(next);
+                        }
                     }
                 }
             }
@@ -485,20 +502,23 @@ impl SurfaceField {
         outside
     }
 
-    /// Triangles binned in cells that the ball `(centre, reach)` can touch:
-    /// a triangle's nearest point to `centre` lies in a cell it is binned in.
-    fn triangles_near(&self, binned: &Binned, centre: Vec3, reach: f32) -> Vec<u32> {
-        let mut out = Vec::new();
+    /// Calls `f` for the triangles binned in cells that the ball `(centre,
+    /// reach)` can touch (a triangle's nearest point to `centre` lies in a
+    /// cell it is binned in); a triangle may come more than once.
+    fn for_each_binned_near(
+        &self,
+        binned: &Binned,
+        centre: Vec3,
+        reach: f32,
+        mut f: impl FnMut(u32),
+    ) {
         let range = self.cell_range(centre - Vec3::splat(reach), centre + Vec3::splat(reach));
         for_each_cell(range, |c| {
             let i = self.cell_index(c);
-            out.extend_from_slice(
-                &binned.items[binned.start[i] as usize..binned.start[i + 1] as usize],
-            );
+            binned.items[binned.start[i] as usize..binned.start[i + 1] as usize]
+                .iter()
+                .for_each(|&t| f(t));
         });
-        out.sort_unstable();
-        out.dedup();
-        out
     }
 }
 
@@ -657,6 +677,73 @@ mod tests {
             deep > 800,
             "only {deep} points were answered from one lookup"
         );
+    }
+
+    /// The closed surface of a set of unit voxels (faces between filled and
+    /// empty voxels, outward).
+    fn voxels(filled: impl Fn([i32; 3]) -> bool, size: i32) -> SurfaceMesh {
+        let mut vertices = Vec::new();
+        let mut triangles = Vec::new();
+        let mut index = HashMap::new();
+        let corners: [([i32; 3], [[i32; 3]; 4]); 6] = [
+            ([-1, 0, 0], [[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 1, 0]]),
+            ([1, 0, 0], [[1, 0, 0], [1, 1, 0], [1, 1, 1], [1, 0, 1]]),
+            ([0, -1, 0], [[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]]),
+            ([0, 1, 0], [[0, 1, 0], [0, 1, 1], [1, 1, 1], [1, 1, 0]]),
+            ([0, 0, -1], [[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]]),
+            ([0, 0, 1], [[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]),
+        ];
+        for x in 0..size {
+            for y in 0..size {
+                for z in 0..size {
+                    if !filled([x, y, z]) {
+                        continue;
+                    }
+                    for (d, quad) in corners {
+                        if filled([x + d[0], y + d[1], z + d[2]]) {
+                            continue;
+                        }
+                        let q = quad.map(|c| {
+                            let v = [x + c[0], y + c[1], z + c[2]];
+                            *index.entry(v).or_insert_with(|| {
+                                vertices.push(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32));
+                                (vertices.len() - 1) as u32
+                            })
+                        });
+                        triangles.push([q[0], q[1], q[2]]);
+                        triangles.push([q[0], q[2], q[3]]);
+                    }
+                }
+            }
+        }
+        SurfaceMesh::new(vertices, triangles)
+    }
+
+    /// A hollow block whose cavity reaches the outside only through a narrow
+    /// tunnel: the band fills the tunnel and seals the cavity off from the
+    /// grid's border. A flood fill from the border called that outside pocket
+    /// inside (seen on liver.vtk, between two lobes).
+    #[test]
+    fn an_outside_pocket_sealed_by_the_band_is_still_outside() {
+        let inside = |v: [i32; 3]| v.iter().all(|&c| (0..5).contains(&c));
+        let cavity = |v: [i32; 3]| v.iter().all(|&c| (1..4).contains(&c));
+        let tunnel = |v: [i32; 3]| v == [2, 2, 4];
+        let mesh = voxels(|v| inside(v) && !cavity(v) && !tunnel(v), 5);
+        assert!(
+            (mesh.signed_volume() - 97.0).abs() < 1e-9,
+            "{}",
+            mesh.signed_volume()
+        );
+        let field = SurfaceField::new(&mesh, 0.45, 0.3).unwrap();
+        let centre = Vec3::splat(2.5);
+        assert!(
+            matches!(field.query(centre), Side::DeepOutside),
+            "{:?}",
+            field.query(centre)
+        );
+        assert!(!field.is_inside(centre));
+        assert!(field.is_inside(Vec3::new(0.5, 2.5, 2.5)));
+        assert!(!field.is_inside(Vec3::new(2.5, 2.5, 4.5)), "in the tunnel");
     }
 
     #[test]

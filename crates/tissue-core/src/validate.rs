@@ -20,6 +20,10 @@
 //!
 //! Not checked: self-intersections and vertices where two sheets touch at a
 //! single point (both keep the inside well defined for point sampling).
+//!
+//! A surface with stray pieces beside the organ (scanner specks, a detached
+//! fragment) fails check 8; [`keep_largest_shell`] drops all but the piece
+//! enclosing the most volume, for a caller who asks for that explicitly.
 
 use glam::{DVec3, Vec3};
 
@@ -45,6 +49,128 @@ pub struct Validation {
     pub volume: f64,
     /// Surface area.
     pub area: f64,
+}
+
+/// What [`keep_largest_shell`] removed.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ShellsDropped {
+    /// Shells removed: all but one, or 0 when the mesh was one shell already.
+    pub count: usize,
+    /// Triangles in the removed shells, together.
+    pub triangles: usize,
+    /// The largest `|signed volume|` among the removed shells (0 when none
+    /// was removed), to set against the kept one: a value close to it means
+    /// the file held two organs rather than an organ and some debris.
+    pub largest_other_volume: f64,
+}
+
+/// Keeps the edge-connected shell of `mesh` that encloses the most volume
+/// and drops the others, with the vertices only they used.
+///
+/// Shells are ranked by `|signed volume|` (winding either way counts; a
+/// volume that is not a number ranks last), then by triangle count, then by
+/// lowest first triangle. Triangles keep their order and corners; kept
+/// vertices keep their order and are renumbered from 0.
+///
+/// A mesh of one shell (or none) comes back unchanged, with
+/// [`ShellsDropped::count`] 0; so does one whose triangles name missing
+/// vertices, for [`validate`] to report. Nothing else is checked: run
+/// [`validate`] on the result.
+///
+/// # Examples
+///
+/// ```
+/// use tissue_core::{SurfaceMesh, Vec3, validate::{keep_largest_shell, validate}};
+///
+/// // A unit tetrahedron, then one twice its size beside it.
+/// let small = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+/// let big = small.map(|v| 2.0 * v + Vec3::splat(5.0));
+/// let faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+/// let mesh = SurfaceMesh::new(
+///     [small, big].concat(),
+///     faces.iter().chain(&faces.map(|t| t.map(|i| i + 4))).copied().collect(),
+/// );
+/// assert!(validate(&mut mesh.clone()).is_err()); // two shells
+///
+/// let (mut kept, dropped) = keep_largest_shell(&mesh);
+/// assert_eq!(kept.vertices, big);
+/// assert_eq!(kept.triangles, faces);
+/// assert_eq!((dropped.count, dropped.triangles), (1, 4));
+/// assert!((dropped.largest_other_volume - 1.0 / 6.0).abs() < 1e-9);
+/// assert!((validate(&mut kept)?.volume - 8.0 / 6.0).abs() < 1e-6);
+/// # Ok::<(), tissue_core::MeshError>(())
+/// ```
+pub fn keep_largest_shell(mesh: &SurfaceMesh) -> (SurfaceMesh, ShellsDropped) {
+    let unchanged = || (mesh.clone(), ShellsDropped::default());
+    if check_indices(mesh).is_err() {
+        return unchanged();
+    }
+    let shells = Shells::new(mesh.triangles.len(), &sorted_half_edges(mesh));
+    if shells.count() <= 1 {
+        return unchanged();
+    }
+
+    let centre = bounding_centre(mesh);
+    let mut volume = vec![0.0; shells.count()];
+    let mut triangles = vec![0usize; shells.count()];
+    for (t, &shell) in shells.of_triangle.iter().enumerate() {
+        volume[shell] += six_cone_volume(mesh, t, centre) / 6.0;
+        triangles[shell] += 1;
+    }
+    let size = |shell: usize| {
+        let v = volume[shell];
+        if v.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            v.abs()
+        }
+    };
+    // Shells are numbered by first triangle, so keeping the earlier on a tie
+    // breaks it by lowest first triangle.
+    let kept = (1..shells.count()).fold(0, |best, shell| {
+        let larger = size(shell)
+            .total_cmp(&size(best))
+            .then(triangles[shell].cmp(&triangles[best]))
+            .is_gt();
+        if larger { shell } else { best }
+    });
+
+    let mut kept_triangles: Vec<[u32; 3]> = mesh
+        .triangles
+        .iter()
+        .zip(&shells.of_triangle)
+        .filter(|&(_, &shell)| shell == kept)
+        .map(|(&t, _)| t)
+        .collect();
+    let mut used = vec![false; mesh.vertices.len()];
+    for &i in kept_triangles.iter().flatten() {
+        used[i as usize] = true;
+    }
+    let mut vertices = Vec::new();
+    let renumbered: Vec<u32> = used
+        .iter()
+        .zip(&mesh.vertices)
+        .map(|(&used, &v)| {
+            if !used {
+                return u32::MAX;
+            }
+            vertices.push(v);
+            vertices.len() as u32 - 1
+        })
+        .collect();
+    for t in &mut kept_triangles {
+        *t = t.map(|i| renumbered[i as usize]);
+    }
+
+    let dropped = ShellsDropped {
+        count: shells.count() - 1,
+        triangles: mesh.triangles.len() - triangles[kept],
+        largest_other_volume: (0..shells.count())
+            .filter(|&shell| shell != kept)
+            .map(|shell| volume[shell].abs())
+            .fold(0.0, f64::max),
+    };
+    (SurfaceMesh::new(vertices, kept_triangles), dropped)
 }
 
 /// Checks that `mesh` is a single closed, consistently oriented surface
@@ -223,10 +349,9 @@ impl EdgeTally {
     }
 }
 
-/// Manifoldness, closedness, orientation and connectivity, from one sort of
-/// all half-edges: a closed oriented manifold has every undirected edge
-/// exactly twice, walked in opposite directions.
-fn check_edges(mesh: &SurfaceMesh) -> Result<(), MeshError> {
+/// The three half-edges of every triangle, sorted so that the sides of one
+/// undirected edge are adjacent.
+fn sorted_half_edges(mesh: &SurfaceMesh) -> Vec<HalfEdge> {
     let mut half_edges: Vec<HalfEdge> = mesh
         .triangles
         .iter()
@@ -240,11 +365,17 @@ fn check_edges(mesh: &SurfaceMesh) -> Result<(), MeshError> {
         })
         .collect();
     half_edges.sort_unstable();
+    half_edges
+}
 
+/// Manifoldness, closedness, orientation and connectivity, from one sort of
+/// all half-edges: a closed oriented manifold has every undirected edge
+/// exactly twice, walked in opposite directions.
+fn check_edges(mesh: &SurfaceMesh) -> Result<(), MeshError> {
+    let half_edges = sorted_half_edges(mesh);
     let mut non_manifold = EdgeTally::default();
     let mut open = EdgeTally::default();
     let mut inconsistent = EdgeTally::default();
-    let mut shells = UnionFind::new(mesh.triangles.len());
     for run in half_edges.chunk_by(|x, y| x.key == y.key) {
         match *run {
             [edge] => open.add(edge),
@@ -252,7 +383,6 @@ fn check_edges(mesh: &SurfaceMesh) -> Result<(), MeshError> {
                 if first.reversed() == second.reversed() {
                     inconsistent.add(first);
                 }
-                shells.union(first.triangle(), second.triangle());
             }
             _ => non_manifold.add(run[0]),
         }
@@ -280,18 +410,59 @@ fn check_edges(mesh: &SurfaceMesh) -> Result<(), MeshError> {
             to: point(to),
         });
     }
-    let first_shell = shells.find(0);
-    if let Some(example) = (1..mesh.triangles.len()).find(|&t| shells.find(t) != first_shell) {
-        let count = (0..mesh.triangles.len())
-            .filter(|&t| shells.find(t) == t)
-            .count();
+    let shells = Shells::new(mesh.triangles.len(), &half_edges);
+    if let Some(&example) = shells.first_triangle.get(1) {
         return Err(MeshError::SeveralShells {
-            count,
+            count: shells.count(),
             example,
             at: centroid(mesh, example),
         });
     }
     Ok(())
+}
+
+/// The edge-connected pieces of a surface: triangles that share an edge
+/// (with each other or through a third) are in one shell, however many
+/// triangles meet at the edge.
+struct Shells {
+    /// The shell of each triangle; shells are numbered in order of their
+    /// first triangle, so triangle 0 is in shell 0.
+    of_triangle: Vec<usize>,
+    /// The first (lowest-numbered) triangle of each shell.
+    first_triangle: Vec<usize>,
+}
+
+impl Shells {
+    /// The shells of `triangles` triangles whose half-edges, from
+    /// [`sorted_half_edges`], are `half_edges`.
+    fn new(triangles: usize, half_edges: &[HalfEdge]) -> Self {
+        let mut sets = UnionFind::new(triangles);
+        for run in half_edges.chunk_by(|x, y| x.key == y.key) {
+            for pair in run.windows(2) {
+                sets.union(pair[0].triangle(), pair[1].triangle());
+            }
+        }
+        let mut shell_of_root = vec![usize::MAX; triangles];
+        let mut first_triangle = Vec::new();
+        let of_triangle = (0..triangles)
+            .map(|t| {
+                let shell = &mut shell_of_root[sets.find(t)];
+                if *shell == usize::MAX {
+                    *shell = first_triangle.len();
+                    first_triangle.push(t);
+                }
+                *shell
+            })
+            .collect();
+        Self {
+            of_triangle,
+            first_triangle,
+        }
+    }
+
+    fn count(&self) -> usize {
+        self.first_triangle.len()
+    }
 }
 
 /// Disjoint sets over triangle indices (union by size, path halving).
@@ -344,16 +515,24 @@ fn centroid(mesh: &SurfaceMesh, t: usize) -> [f32; 3] {
 /// Signed volume about the bounding-box centre (rather than the origin), so
 /// that a mesh far from the origin does not lose digits to cancellation.
 fn signed_volume(mesh: &SurfaceMesh) -> f64 {
-    let centre = mesh.bounds().map_or(DVec3::ZERO, |(lo, hi)| {
-        0.5 * (lo.as_dvec3() + hi.as_dvec3())
-    });
+    let centre = bounding_centre(mesh);
     (0..mesh.triangles.len())
-        .map(|t| {
-            let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3() - centre);
-            a.dot(b.cross(c))
-        })
+        .map(|t| six_cone_volume(mesh, t, centre))
         .sum::<f64>()
         / 6.0
+}
+
+fn bounding_centre(mesh: &SurfaceMesh) -> DVec3 {
+    mesh.bounds().map_or(DVec3::ZERO, |(lo, hi)| {
+        0.5 * (lo.as_dvec3() + hi.as_dvec3())
+    })
+}
+
+/// Six times the signed volume of the tetrahedron from `centre` to
+/// triangle `t`; summed over a closed surface, six times its volume.
+fn six_cone_volume(mesh: &SurfaceMesh, t: usize, centre: DVec3) -> f64 {
+    let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3() - centre);
+    a.dot(b.cross(c))
 }
 
 #[cfg(test)]
@@ -395,6 +574,28 @@ mod tests {
         assert_eq!(forward.ends(), (3, 7));
         assert_eq!((forward.triangle(), forward.reversed()), (5, false));
         assert_eq!((backward.triangle(), backward.reversed()), (6, true));
+    }
+
+    #[test]
+    fn shells_are_numbered_by_first_triangle_and_joined_through_any_edge() {
+        // Triangles 0 and 2 share edge 0-1; 1 and 3 share edge 5-6; 5 and 6
+        // join 0's shell through edge 1-2, which three triangles share; 4
+        // touches 6 only at vertex 10, so it stands alone.
+        let mesh = SurfaceMesh::new(
+            vec![Vec3::ZERO; 12],
+            vec![
+                [0, 1, 2],
+                [4, 5, 6],
+                [1, 0, 3],
+                [6, 5, 7],
+                [8, 9, 10],
+                [2, 1, 11],
+                [1, 2, 10],
+            ],
+        );
+        let shells = Shells::new(mesh.triangles.len(), &sorted_half_edges(&mesh));
+        assert_eq!(shells.of_triangle, [0, 1, 0, 1, 2, 0, 0]);
+        assert_eq!(shells.first_triangle, [0, 1, 4]);
     }
 
     #[test]

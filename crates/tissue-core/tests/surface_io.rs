@@ -12,10 +12,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use tissue_core::io::surface::{
-    RELATIVE_WELD_TOLERANCE, load_closed_surface, load_closed_surface_with_report, load_surface,
-    save_surface, weld,
+    LoadOptions, RELATIVE_WELD_TOLERANCE, load_closed_surface, load_closed_surface_with,
+    load_closed_surface_with_report, load_surface, save_surface, weld,
 };
-use tissue_core::validate::validate;
+use tissue_core::validate::{ShellsDropped, keep_largest_shell, validate};
 use tissue_core::{Error, MeshError, SurfaceMesh, Vec3};
 
 // --- helpers -------------------------------------------------------------
@@ -812,6 +812,180 @@ fn a_million_triangles_validate_quickly() {
     assert!(validate_time.as_secs_f64() < 3.0, "{validate_time:?}");
 }
 
+// --- keeping the largest shell -------------------------------------------------
+
+/// `mesh` moved by `offset` and scaled by `scale` about the origin.
+fn placed(mesh: &SurfaceMesh, scale: f32, offset: Vec3) -> SurfaceMesh {
+    SurfaceMesh::new(
+        mesh.vertices.iter().map(|&v| scale * v + offset).collect(),
+        mesh.triangles.clone(),
+    )
+}
+
+/// The pieces side by side in one mesh, vertices and triangles in order.
+fn joined(pieces: &[SurfaceMesh]) -> SurfaceMesh {
+    let mut mesh = SurfaceMesh::default();
+    for piece in pieces {
+        let base = mesh.vertices.len() as u32;
+        mesh.vertices.extend(&piece.vertices);
+        mesh.triangles
+            .extend(piece.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+    mesh
+}
+
+const LARGEST_SHELL: LoadOptions = LoadOptions {
+    largest_shell: true,
+};
+
+#[test]
+fn keep_largest_shell_keeps_the_bigger_tetrahedron_and_renumbers() {
+    // Two tetrahedra with their vertices and triangles interleaved, and two
+    // vertices no triangle uses: the small one on 0, 2, 4, 6, the big one
+    // (edge 3) on 1, 3, 5, 7.
+    let s = 0.5;
+    let b = 3.0;
+    let mesh = SurfaceMesh::new(
+        vec![
+            Vec3::ZERO,
+            Vec3::splat(10.0),
+            Vec3::new(s, 0.0, 0.0),
+            Vec3::new(10.0 + b, 10.0, 10.0),
+            Vec3::new(0.0, s, 0.0),
+            Vec3::new(10.0, 10.0 + b, 10.0),
+            Vec3::new(0.0, 0.0, s),
+            Vec3::new(10.0, 10.0, 10.0 + b),
+            Vec3::splat(-7.0),
+            Vec3::splat(77.0),
+        ],
+        vec![
+            [0, 4, 2],
+            [1, 5, 3],
+            [1, 3, 7],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 7, 5],
+            [3, 5, 7],
+            [2, 4, 6],
+        ],
+    );
+    let (mut kept, dropped) = keep_largest_shell(&mesh);
+    assert_eq!(
+        kept.vertices,
+        [
+            mesh.vertices[1],
+            mesh.vertices[3],
+            mesh.vertices[5],
+            mesh.vertices[7]
+        ]
+    );
+    assert_eq!(kept.triangles, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]);
+    assert_eq!((dropped.count, dropped.triangles), (1, 4));
+    let small = f64::from(s).powi(3) / 6.0;
+    assert!(
+        (dropped.largest_other_volume - small).abs() < 1e-6 * small,
+        "{dropped:?}"
+    );
+    let validation = validate(&mut kept).unwrap();
+    assert!(!validation.flipped);
+    assert!((validation.volume - f64::from(b).powi(3) / 6.0).abs() < 1e-5);
+}
+
+#[test]
+fn keep_largest_shell_ranks_by_volume_before_triangle_count() {
+    // The octahedron has twice the triangles but a thousandth of the volume.
+    let mesh = joined(&[
+        placed(&octahedron(), 0.1, Vec3::splat(-5.0)),
+        tetrahedron(),
+        placed(&tetrahedron(), 0.2, Vec3::splat(5.0)),
+    ]);
+    let (kept, dropped) = keep_largest_shell(&mesh);
+    assert_eq!(kept, tetrahedron());
+    assert_eq!((dropped.count, dropped.triangles), (2, 12));
+    // The larger dropped piece is the small tetrahedron: 0.008 / 6 > 0.004 / 3.
+    let tetra = 0.2f64.powi(3) / 6.0;
+    assert!(
+        (dropped.largest_other_volume - tetra).abs() < 1e-6,
+        "{dropped:?}"
+    );
+}
+
+#[test]
+fn keep_largest_shell_breaks_a_tie_by_first_triangle() {
+    // A tetrahedron and its point reflection through the bounding-box centre
+    // (the origin): the same |volume| to the last bit, one facing inward.
+    let outward = placed(&tetrahedron(), 1.0, Vec3::ONE);
+    let inward = placed(&outward, -1.0, Vec3::ZERO);
+    for (first, second) in [(&outward, &inward), (&inward, &outward)] {
+        let (kept, dropped) = keep_largest_shell(&joined(&[first.clone(), second.clone()]));
+        assert_eq!(&kept, first);
+        assert_eq!((dropped.count, dropped.triangles), (1, 4));
+        assert!((dropped.largest_other_volume - 1.0 / 6.0).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn keep_largest_shell_leaves_one_shell_unchanged() {
+    let mut mesh = octahedron();
+    // Even a vertex no triangle uses stays.
+    mesh.vertices.push(Vec3::splat(9.0));
+    let (kept, dropped) = keep_largest_shell(&mesh);
+    assert_eq!(kept, mesh);
+    assert_eq!(dropped, ShellsDropped::default());
+    assert_eq!(dropped.count, 0);
+
+    let empty = SurfaceMesh::default();
+    assert_eq!(
+        keep_largest_shell(&empty),
+        (empty, ShellsDropped::default())
+    );
+}
+
+#[test]
+fn keep_largest_shell_leaves_bad_indices_for_validate() {
+    let mut mesh = joined(&[tetrahedron(), placed(&tetrahedron(), 2.0, Vec3::splat(5.0))]);
+    mesh.triangles[1][2] = 99;
+    let (mut kept, dropped) = keep_largest_shell(&mesh);
+    assert_eq!((&kept, dropped.count), (&mesh, 0));
+    assert!(matches!(
+        validate(&mut kept),
+        Err(MeshError::IndexOutOfRange { vertex: 99, .. })
+    ));
+}
+
+#[test]
+fn keep_largest_shell_never_keeps_a_shell_with_a_nan_vertex() {
+    let mut speck = placed(&tetrahedron(), 0.1, Vec3::splat(5.0));
+    speck.vertices[3].x = f32::NAN;
+    let (kept, dropped) = keep_largest_shell(&joined(&[speck, tetrahedron()]));
+    assert_eq!(kept, tetrahedron());
+    assert_eq!((dropped.count, dropped.triangles), (1, 4));
+}
+
+#[test]
+fn several_shells_error_names_the_largest_shell_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two.obj");
+    let two = joined(&[tetrahedron(), placed(&tetrahedron(), 2.0, Vec3::splat(5.0))]);
+    save_surface(&two, &path).unwrap();
+    let err = load_closed_surface(&path).unwrap_err();
+    assert!(err.to_string().contains("--largest-shell"), "{err}");
+    let (kept, validation, dropped) = load_closed_surface_with(&path, &LARGEST_SHELL).unwrap();
+    assert_eq!(kept.triangles.len(), 4);
+    assert!((validation.volume - 8.0 / 6.0).abs() < 1e-5);
+    assert_eq!(dropped.count, 1);
+}
+
+#[test]
+fn load_options_default_to_one_shell_only() {
+    assert_eq!(
+        LoadOptions::default(),
+        LoadOptions {
+            largest_shell: false
+        }
+    );
+}
+
 // --- the shared real-world meshes ---------------------------------------------
 
 #[test]
@@ -914,4 +1088,60 @@ fn dragon_stl_is_rejected_as_non_manifold() {
         matches!(err, MeshError::NonManifold { count: 97, .. }),
         "{err:?}"
     );
+}
+
+#[test]
+fn liver_vtk_with_largest_shell_is_the_liver_turned_outward() {
+    let Some(path) = shared_mesh("liver.vtk") else {
+        return;
+    };
+    let err =
+        mesh_error(load_closed_surface_with(&path, &LoadOptions::default()).map(|(mesh, ..)| mesh));
+    assert!(
+        matches!(err, MeshError::SeveralShells { count: 4, .. }),
+        "{err:?}"
+    );
+
+    let (mesh, validation, dropped) = load_closed_surface_with(&path, &LARGEST_SHELL).unwrap();
+    assert_eq!(mesh.triangles.len(), 9988);
+    assert!(validation.flipped);
+    assert!(mesh.signed_volume() > 0.0);
+    assert!(
+        (validation.volume - 1.477e6).abs() < 0.01 * 1.477e6,
+        "{}",
+        validation.volume
+    );
+    assert_eq!((dropped.count, dropped.triangles), (3, 12));
+    assert!(
+        dropped.largest_other_volume < 1e-3 * validation.volume,
+        "{dropped:?}"
+    );
+
+    // The same shell as an independent grouping of the triangles finds.
+    let loaded = load_surface(&path).unwrap();
+    let (kept, _) = keep_largest_shell(&loaded);
+    assert_eq!(kept, shells(&loaded)[0]);
+}
+
+#[test]
+fn largest_shell_changes_nothing_for_a_single_shell() {
+    let Some(path) = shared_mesh("Bunny.stl") else {
+        return;
+    };
+    let (mesh, validation, dropped) = load_closed_surface_with(&path, &LARGEST_SHELL).unwrap();
+    assert_eq!(dropped, ShellsDropped::default());
+    assert_eq!(
+        (mesh, validation),
+        load_closed_surface_with_report(&path).unwrap()
+    );
+}
+
+#[test]
+fn dragon_stl_with_largest_shell_is_still_refused() {
+    let Some(path) = shared_mesh("dragon.stl") else {
+        return;
+    };
+    // Its largest piece is itself broken; the option drops pieces, it mends nothing.
+    let err = mesh_error(load_closed_surface_with(&path, &LARGEST_SHELL).map(|(mesh, ..)| mesh));
+    assert!(matches!(err, MeshError::NonManifold { .. }), "{err:?}");
 }

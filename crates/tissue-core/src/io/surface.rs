@@ -26,7 +26,7 @@ use glam::Vec3;
 
 use crate::error::{Error, MeshError};
 use crate::mesh::SurfaceMesh;
-use crate::validate::{self, Validation};
+use crate::validate::{self, ShellsDropped, Validation};
 
 /// The surface file extensions [`load_surface`] and [`save_surface`] accept.
 pub const SURFACE_EXTENSIONS: &str = "stl, obj, ply, vtk";
@@ -36,6 +36,19 @@ pub const SURFACE_EXTENSIONS: &str = "stl, obj, ply, vtk";
 /// enough to absorb rounding in files written by other tools, far too small
 /// to merge vertices that are meant to be apart.
 pub const RELATIVE_WELD_TOLERANCE: f32 = 1e-7;
+
+/// Choices for [`load_closed_surface_with`]; the default accepts only a
+/// surface that is one closed shell as it stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LoadOptions {
+    /// Keep only the shell enclosing the most volume and drop the others
+    /// ([`validate::keep_largest_shell`]) instead of refusing a surface of
+    /// several shells with [`MeshError::SeveralShells`]. For files with stray
+    /// specks beside the organ; what was dropped is logged and returned.
+    /// Default `false`: a second shell may be a second organ, and sampling
+    /// one of two without being asked would hide that.
+    pub largest_shell: bool,
+}
 
 /// The surface formats, by extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -148,7 +161,8 @@ pub fn load_surface(path: &Path) -> Result<SurfaceMesh, Error> {
 /// [`validate::validate`], which turns an inward-facing surface outward.
 ///
 /// A flip is only logged (`log::warn!`); use
-/// [`load_closed_surface_with_report`] to see it, the volume and the area.
+/// [`load_closed_surface_with_report`] to see it, the volume and the area,
+/// and [`load_closed_surface_with`] to accept a surface of several shells.
 ///
 /// # Errors
 ///
@@ -211,6 +225,53 @@ pub fn load_closed_surface(path: &Path) -> Result<SurfaceMesh, Error> {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn load_closed_surface_with_report(path: &Path) -> Result<(SurfaceMesh, Validation), Error> {
+    load_closed_surface_with(path, &LoadOptions::default())
+        .map(|(mesh, validation, _)| (mesh, validation))
+}
+
+/// [`load_closed_surface_with_report`] with [`LoadOptions`]: reads, welds
+/// with [`RELATIVE_WELD_TOLERANCE`], keeps the largest shell if
+/// [`LoadOptions::largest_shell`] asks for it (logging what it drops with
+/// `log::warn!`), then validates. Also returns what was dropped
+/// ([`ShellsDropped::count`] 0 when nothing was).
+///
+/// # Errors
+///
+/// As [`load_closed_surface`]; with `largest_shell` the defects of the kept
+/// shell, never [`MeshError::SeveralShells`].
+///
+/// # Examples
+///
+/// ```
+/// use tissue_core::{MeshError, SurfaceMesh, Vec3, Error};
+/// use tissue_core::io::surface::{LoadOptions, load_closed_surface_with, save_surface};
+///
+/// // A tetrahedron and a speck of a quarter its size far away.
+/// let tetrahedron = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+/// let speck = tetrahedron.map(|v| 0.25 * v + Vec3::splat(9.0));
+/// let faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+/// let mesh = SurfaceMesh::new(
+///     [speck, tetrahedron].concat(),
+///     faces.iter().chain(&faces.map(|t| t.map(|i| i + 4))).copied().collect(),
+/// );
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("with_speck.ply"); // PLY keeps vertex order
+/// save_surface(&mesh, &path)?;
+///
+/// let refused = load_closed_surface_with(&path, &LoadOptions::default());
+/// assert!(matches!(refused, Err(Error::Mesh { source: MeshError::SeveralShells { .. }, .. })));
+///
+/// let options = LoadOptions { largest_shell: true };
+/// let (surface, validation, dropped) = load_closed_surface_with(&path, &options)?;
+/// assert_eq!(surface.vertices, tetrahedron);
+/// assert!((validation.volume - 1.0 / 6.0).abs() < 1e-6);
+/// assert_eq!((dropped.count, dropped.triangles), (1, 4));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn load_closed_surface_with(
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<(SurfaceMesh, Validation, ShellsDropped), Error> {
     let loaded = load_surface(path)?;
     let mut mesh = weld(&loaded, RELATIVE_WELD_TOLERANCE * diagonal(&loaded));
     let merged = loaded.vertices.len() - mesh.vertices.len();
@@ -220,11 +281,26 @@ pub fn load_closed_surface_with_report(path: &Path) -> Result<(SurfaceMesh, Vali
             path.display()
         );
     }
-    let report = validate::validate(&mut mesh).map_err(|source| Error::Mesh {
+    let mut dropped = ShellsDropped::default();
+    if options.largest_shell {
+        (mesh, dropped) = validate::keep_largest_shell(&mesh);
+        if dropped.count > 0 {
+            log::warn!(
+                "{}: kept the largest of {} shells ({} triangles); dropped {} shells of {} triangles, the largest of them enclosing {}",
+                path.display(),
+                dropped.count + 1,
+                mesh.triangles.len(),
+                dropped.count,
+                dropped.triangles,
+                dropped.largest_other_volume
+            );
+        }
+    }
+    let validation = validate::validate(&mut mesh).map_err(|source| Error::Mesh {
         path: path.to_path_buf(),
         source,
     })?;
-    Ok((mesh, report))
+    Ok((mesh, validation, dropped))
 }
 
 /// Merges vertices closer than `tolerance` (in the mesh's units), remaps

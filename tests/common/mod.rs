@@ -1,0 +1,89 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code, reason = "each test file uses a different subset")]
+
+use std::path::PathBuf;
+
+use tissue::{ParticleModel, SamplingReport};
+
+/// A mesh from `../shared/meshes/`, or `None` (printing why) when that folder
+/// is absent. Under `CI=true` its absence is a failure, not a skip.
+pub fn shared_mesh(name: &str) -> Option<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes");
+    let path = dir.join(name);
+    if path.exists() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI=true but the shared test mesh {} is missing",
+        path.display()
+    );
+    eprintln!("SKIPPED: {} not found", path.display());
+    None
+}
+
+/// The acceptance numbers of stage 1 (issue 2), with the failing value named.
+pub fn assert_quality(what: &str, r: &SamplingReport) {
+    assert!(
+        r.converged,
+        "{what}: not converged after {} iterations",
+        r.iterations
+    );
+    assert!(
+        r.max_outside <= 0.01,
+        "{what}: max_outside {} > 0.01",
+        r.max_outside
+    );
+    assert!(r.nn_cv <= 0.04, "{what}: nn_cv {} > 0.04", r.nn_cv);
+    let c = r.connections;
+    assert!(
+        (10.0..=14.0).contains(&c.median),
+        "{what}: median connections {}",
+        c.median
+    );
+    assert!(c.p5 >= 6.0, "{what}: p5 connections {} < 6", c.p5);
+    assert!(
+        r.coverage <= 1.5,
+        "{what}: coverage {} > 1.5 spacings",
+        r.coverage
+    );
+}
+
+/// Structural invariants every model must hold.
+pub fn assert_consistent(what: &str, model: &ParticleModel, spacing: f32) {
+    let n = model.len();
+    assert_eq!(model.radii.len(), n);
+    assert_eq!(model.attachments.len(), n);
+    assert_eq!(model.connections.particles(), n);
+    for i in 0..n {
+        assert!(
+            model.positions[i].is_finite() && model.radii[i] > 0.0,
+            "{what}: particle {i}"
+        );
+        let row = model.connections.of(i);
+        assert!(
+            row.windows(2).all(|w| w[0] < w[1]),
+            "{what}: row {i} not ascending"
+        );
+        for &j in row {
+            assert!(
+                model
+                    .connections
+                    .of(j as usize)
+                    .binary_search(&(i as u32))
+                    .is_ok(),
+                "{what}: connection {i}-{j} is not symmetric"
+            );
+        }
+        if let Some(a) = model.attachments[i] {
+            let on = model.surface.point_on(a.triangle as usize, a.barycentric);
+            let off = (on - model.positions[i]).length();
+            assert!(
+                off <= 1e-4 * spacing,
+                "{what}: surface particle {i} is {off} from its attachment point"
+            );
+            let sum: f32 = a.barycentric.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-4, "{what}: barycentric sum {sum}");
+        }
+    }
+}
