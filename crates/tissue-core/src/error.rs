@@ -10,8 +10,8 @@ use thiserror::Error;
 pub struct ParamError {
     /// The parameter's name, as in `SamplingParams`.
     pub name: &'static str,
-    /// The value given.
-    pub value: f64,
+    /// The value given, as written by Rust's shortest round-trip formatting.
+    pub value: String,
     /// What it should be.
     pub expected: &'static str,
 }

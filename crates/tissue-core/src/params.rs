@@ -140,7 +140,7 @@ impl SamplingParams {
         fn check(
             ok: bool,
             name: &'static str,
-            value: f64,
+            value: impl std::fmt::Display,
             expected: &'static str,
         ) -> Result<(), ParamError> {
             if ok {
@@ -148,7 +148,7 @@ impl SamplingParams {
             } else {
                 Err(ParamError {
                     name,
-                    value,
+                    value: value.to_string(),
                     expected,
                 })
             }
@@ -157,19 +157,19 @@ impl SamplingParams {
         check(
             (4..=50_000_000).contains(&self.particles),
             "particles",
-            self.particles as f64,
+            self.particles,
             "between 4 and 50,000,000",
         )?;
         check(
             self.alpha.is_finite() && self.alpha > 0.0 && self.alpha <= 1.0,
             "alpha",
-            self.alpha.into(),
+            self.alpha,
             "in (0, 1]",
         )?;
         check(
             finite_pos(self.ideal_neighbours),
             "ideal_neighbours",
-            self.ideal_neighbours.into(),
+            self.ideal_neighbours,
             "positive",
         )?;
         check(
@@ -177,26 +177,26 @@ impl SamplingParams {
                 && self.equilibrium_ratio > 0.0
                 && self.equilibrium_ratio < 1.0,
             "equilibrium_ratio",
-            self.equilibrium_ratio.into(),
+            self.equilibrium_ratio,
             "in (0, 1): the pair force must still repel at equilibrium",
         )?;
         check(
             finite_pos(self.eta) && self.eta <= 1.0,
             "eta",
-            self.eta.into(),
+            self.eta,
             "in (0, 1]",
         )?;
         check(
             finite_pos(self.max_log_radius_step) && self.max_log_radius_step <= 1.0,
             "max_log_radius_step",
-            self.max_log_radius_step.into(),
+            self.max_log_radius_step,
             "in (0, 1]",
         )?;
-        check(finite_pos(self.mass), "mass", self.mass.into(), "positive")?;
+        check(finite_pos(self.mass), "mass", self.mass, "positive")?;
         check(
             finite_pos(self.max_step) && self.max_step <= 2.0,
             "max_step",
-            self.max_step.into(),
+            self.max_step,
             "in (0, 2]",
         )?;
         check(
@@ -204,40 +204,40 @@ impl SamplingParams {
                 && self.force_cutoff >= self.equilibrium_ratio
                 && self.force_cutoff <= 3.0,
             "force_cutoff",
-            self.force_cutoff.into(),
+            self.force_cutoff,
             "between equilibrium_ratio and 3",
         )?;
         check(
             finite_pos(self.connection_ratio) && self.connection_ratio <= 3.0,
             "connection_ratio",
-            self.connection_ratio.into(),
+            self.connection_ratio,
             "in (0, 3]",
         )?;
         if let SurfaceMode::PaperForce { mu } = self.surface_mode {
-            check(finite_pos(mu), "mu", mu.into(), "positive")?;
+            check(finite_pos(mu), "mu", mu, "positive")?;
         }
         check(
             (1..=1_000_000).contains(&self.max_iterations),
             "max_iterations",
-            self.max_iterations as f64,
+            self.max_iterations,
             "between 1 and 1,000,000",
         )?;
         check(
             finite_pos(self.step_tolerance),
             "step_tolerance",
-            self.step_tolerance.into(),
+            self.step_tolerance,
             "positive",
         )?;
         check(
             finite_pos(self.radius_tolerance),
             "radius_tolerance",
-            self.radius_tolerance.into(),
+            self.radius_tolerance,
             "positive",
         )?;
         check(
             finite_pos(self.surface_band) && self.surface_band < 1.0,
             "surface_band",
-            self.surface_band.into(),
+            self.surface_band,
             "in (0, 1)",
         )?;
         Ok(())

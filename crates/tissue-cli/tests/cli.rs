@@ -1,0 +1,221 @@
+//! The `tissue` binary as a user runs it.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn tissue(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(args)
+        .output()
+        .expect("the tissue binary runs")
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn assets() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn the_bundled_phantom_is_what_the_code_makes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = tissue(&["phantom", "--output-dir", s(dir.path())]);
+    assert!(out.status.success(), "{}", text(&out));
+    for name in ["phantom-breast.obj", "phantom-tumour.obj"] {
+        let made = std::fs::read(dir.path().join(name)).unwrap();
+        let bundled = std::fs::read(assets().join(name)).unwrap();
+        assert!(
+            made == bundled,
+            "assets/{name} is stale: rerun `tissue phantom --output-dir assets`"
+        );
+    }
+}
+
+#[test]
+fn sample_writes_a_model_that_reads_back_and_a_json_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.vtp");
+    let report = dir.path().join("report.json");
+    let breast = assets().join("phantom-breast.obj");
+    let out = tissue(&[
+        "sample",
+        s(&breast),
+        "--particles",
+        "2000",
+        "--seed",
+        "3",
+        "--output",
+        s(&model),
+        "--report",
+        s(&report),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        text(&out).contains("sampled 2000 particles in"),
+        "{}",
+        text(&out)
+    );
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    for key in [
+        "particles",
+        "iterations",
+        "seconds",
+        "converged",
+        "nn_cv",
+        "connections",
+        "surface_particles",
+        "coverage",
+        "max_outside",
+    ] {
+        assert!(json.get(key).is_some(), "report lacks {key}: {json}");
+    }
+    assert_eq!(json["particles"], 2000);
+    assert!(json["connections"]["median"].as_f64().unwrap() >= 10.0);
+
+    let loaded = tissue::load_model(&model).unwrap();
+    assert_eq!(loaded.len(), 2000);
+    assert_eq!(
+        loaded.attachments.iter().filter(|a| a.is_some()).count() as u64,
+        json["surface_particles"].as_u64().unwrap()
+    );
+
+    // Positions alone as CSV: a header and one row per particle.
+    let csv = dir.path().join("points.csv");
+    let out = tissue(&["sample", s(&breast), "-n", "500", "-o", s(&csv), "--quiet"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(out.stdout.is_empty(), "--quiet printed {}", text(&out));
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(rows.lines().next(), Some("x,y,z"));
+    assert_eq!(rows.lines().count(), 501);
+}
+
+#[test]
+fn bad_input_fails_with_a_message_and_no_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_file = dir.path().join("m.vtp");
+    let breast = assets().join("phantom-breast.obj");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec![
+                "sample".into(),
+                "/no/such/file.obj".into(),
+                "-n".into(),
+                "100".into(),
+                "-o".into(),
+                s(&out_file).into(),
+            ],
+            "/no/such/file.obj",
+        ),
+        (
+            vec![
+                "sample".into(),
+                s(&breast).into(),
+                "-n".into(),
+                "100".into(),
+                "-o".into(),
+                "model.xyz".into(),
+            ],
+            "cannot write",
+        ),
+        (
+            vec![
+                "sample".into(),
+                s(&breast).into(),
+                "-n".into(),
+                "1".into(),
+                "-o".into(),
+                s(&out_file).into(),
+            ],
+            "particles",
+        ),
+        (
+            vec![
+                "sample".into(),
+                s(&breast).into(),
+                "-n".into(),
+                "100".into(),
+                "-o".into(),
+                s(&out_file).into(),
+                "--connection-ratio".into(),
+                "NaN".into(),
+            ],
+            "connection_ratio",
+        ),
+    ];
+    for (args, expect) in cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = tissue(&args);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        let message = text(&out);
+        assert!(
+            message.contains(expect),
+            "{args:?}: expected `{expect}` in {message}"
+        );
+        assert!(
+            !message.contains("panicked"),
+            "{args:?} panicked: {message}"
+        );
+    }
+
+    let empty = dir.path().join("empty.stl");
+    std::fs::write(&empty, b"").unwrap();
+    let out = tissue(&["sample", s(&empty), "-n", "100", "-o", s(&out_file)]);
+    assert!(!out.status.success());
+    assert!(text(&out).contains("empty.stl"), "{}", text(&out));
+
+    let params = dir.path().join("params.json");
+    std::fs::write(&params, r#"{"not_a_parameter": 1}"#).unwrap();
+    let out = tissue(&[
+        "sample",
+        s(&breast),
+        "-n",
+        "100",
+        "-o",
+        s(&out_file),
+        "--params",
+        s(&params),
+    ]);
+    assert!(!out.status.success());
+    assert!(text(&out).contains("not_a_parameter"), "{}", text(&out));
+}
+
+#[test]
+fn params_file_and_presets_reach_the_sampler() {
+    let dir = tempfile::tempdir().unwrap();
+    let breast = assets().join("phantom-breast.obj");
+    let report = dir.path().join("r.json");
+    let params = dir.path().join("p.json");
+    std::fs::write(&params, r#"{"connection_ratio": 0.6}"#).unwrap();
+    let out = tissue(&[
+        "sample",
+        s(&breast),
+        "-n",
+        "1000",
+        "-o",
+        s(&dir.path().join("m.csv")),
+        "--params",
+        s(&params),
+        "--report",
+        s(&report),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(
+        json["connections"]["median"], 0.0,
+        "the paper's 0.6 threshold connects nothing"
+    );
+}
