@@ -1,0 +1,568 @@
+//! Stage 2, deformation (the paper's Section 3), on the CPU.
+//!
+//! Surface particles (control points) follow the deformed surface through
+//! their triangle + barycentric attachment; every other particle moves by
+//! `q += F / m` until the residual force vanishes. Stage functions, each the
+//! twin of a GPU shader of the same name:
+//! - `local_rotations`: per particle, the rotation `R_i` that best maps its
+//!   rest offsets `p_j - p_i` onto its current ones `q_j - q_i` (Procrustes
+//!   through a 3x3 SVD). The paper writes `R_i^T (p_j - p_i)` for the rotated
+//!   rest offset because its `R_i = U V^T` comes from `svd(A_relax^T A_current)`;
+//!   our `R_i` is that matrix's transpose, so the offset is `R_i (p_j - p_i)`.
+//! - `deformation_force`: the force on each particle, gathered over its
+//!   connections (no atomics), in one of two forms:
+//!   - **paper**: `F_j = sigma sum_i [R_i (p_j - p_i) - (q_j - q_i)]`, the
+//!     paper's one-sided `F_{i->j}` summed over `j`'s connections;
+//!   - **symmetric**: `F_j = sigma sum_i [(R_i + R_j)(p_j - p_i) - 2 (q_j - q_i)]`,
+//!     exactly `-1/2` the gradient of `E = sum_i sum_j |q_j - q_i - R_i (p_j - p_i)|^2`.
+//! - `integrate`: `q += alpha F` for free particles, optionally Chebyshev-accelerated.
+
+use std::time::Instant;
+
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
+
+use crate::svd3::rotation_of;
+
+/// Which force model stage 2 uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ForceModel {
+    /// The paper's one-sided force (not the gradient of an energy).
+    Paper,
+    /// The symmetric variant, the exact gradient of the rotation-aware energy.
+    Symmetric,
+}
+
+/// Parameters of stage 2; `docs/METHOD.md` explains the defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DeformParams {
+    /// Force model.
+    pub force: ForceModel,
+    /// Step as a fraction of the largest stable step (`2 / lambda_max` for the
+    /// paper's force, `1 / lambda_max` for the symmetric one).
+    pub step_fraction: f32,
+    /// Chebyshev semi-iterative acceleration (Wang 2015).
+    pub chebyshev: bool,
+    /// Plain iterations before Chebyshev starts. `rho` comes from the
+    /// Laplacian's spectrum, so none are needed; 0 measured best.
+    pub warm_up: usize,
+    /// Stop when the error estimate `step / (1 - rho)` of every free particle is
+    /// below this fraction of the model's size.
+    pub tolerance: f32,
+    /// Iteration cap.
+    pub max_iterations: usize,
+}
+
+impl Default for DeformParams {
+    fn default() -> Self {
+        Self {
+            force: ForceModel::Symmetric,
+            step_fraction: 0.9,
+            chebyshev: true,
+            warm_up: 0,
+            tolerance: 1e-5,
+            max_iterations: 5_000,
+        }
+    }
+}
+
+impl DeformParams {
+    /// Checks every parameter, naming the first that is out of range.
+    pub fn validate(&self) -> Result<(), Error> {
+        let bad = |what: &str| Err(Error::Sampling(format!("deformation parameter {what}")));
+        if !(self.step_fraction > 0.0 && self.step_fraction < 1.0) {
+            return bad(&format!(
+                "step_fraction is {}, expected in (0, 1)",
+                self.step_fraction
+            ));
+        }
+        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
+            return bad(&format!(
+                "tolerance is {}, expected a positive number",
+                self.tolerance
+            ));
+        }
+        if self.max_iterations == 0 || self.max_iterations > 10_000_000 {
+            return bad(&format!(
+                "max_iterations is {}, expected 1 to 10,000,000",
+                self.max_iterations
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// How a solve went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DeformReport {
+    /// Iterations run.
+    pub iterations: usize,
+    /// The error estimate at the end, as a fraction of the model's size.
+    pub residual: f32,
+    /// The error estimate after every iteration.
+    pub residual_history: Vec<f32>,
+    /// Whether the stopping rule held before the cap.
+    pub converged: bool,
+    /// Wall-clock seconds of the solve.
+    pub seconds: f64,
+}
+
+/// Stage 2 state for one particle model: rest shape, connections, control
+/// points, and the current positions, kept between frames (warm start).
+#[derive(Debug, Clone)]
+pub struct Deformer {
+    rest: Vec<Vec3>,
+    connections: Connections,
+    surface: SurfaceMesh,
+    /// `Some(k)`: particle is control point `k` (index into `attachments`).
+    attachments: Vec<Option<(u32, [f32; 3])>>,
+    free: Vec<bool>,
+    current: Vec<Vec3>,
+    rotations: Vec<Mat3>,
+    lambda_min: f32,
+    lambda_max: f32,
+    size: f32,
+    params: DeformParams,
+}
+
+impl Deformer {
+    /// Prepares stage 2 for `model`: checks it, and estimates the largest
+    /// eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn new(model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
+        params.validate()?;
+        let n = model.len();
+        if n == 0 {
+            return Err(Error::Sampling("the model has no particles".into()));
+        }
+        if model.connections.particles() != n {
+            return Err(Error::Sampling(format!(
+                "the model's connections describe {} particles, it has {n}",
+                model.connections.particles()
+            )));
+        }
+        let attachments: Vec<Option<(u32, [f32; 3])>> = model
+            .attachments
+            .iter()
+            .map(|a| a.map(|a| (a.triangle, a.barycentric)))
+            .collect();
+        if attachments.iter().all(Option::is_none) {
+            return Err(Error::Sampling(
+                "the model has no surface particles to follow the surface".into(),
+            ));
+        }
+        if let Some(bad) = attachments
+            .iter()
+            .flatten()
+            .find(|(t, _)| *t as usize >= model.surface.triangles.len())
+        {
+            return Err(Error::Sampling(format!(
+                "a surface particle is attached to triangle {}, the surface has {}",
+                bad.0,
+                model.surface.triangles.len()
+            )));
+        }
+        let free: Vec<bool> = attachments.iter().map(Option::is_none).collect();
+        let (lo, hi) = model.positions.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let (lambda_min, lambda_max) = laplacian_extremes(&model.connections, &free);
+        Ok(Self {
+            rest: model.positions.clone(),
+            connections: model.connections.clone(),
+            surface: model.surface.clone(),
+            attachments,
+            free,
+            current: model.positions.clone(),
+            rotations: vec![Mat3::IDENTITY; n],
+            lambda_min,
+            lambda_max,
+            size: (hi - lo).length(),
+            params,
+        })
+    }
+
+    /// Current particle positions.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.current
+    }
+
+    /// Rest particle positions.
+    pub fn rest(&self) -> &[Vec3] {
+        &self.rest
+    }
+
+    /// Each particle's rotation (rest offsets onto current offsets) from the last iteration.
+    pub fn rotations(&self) -> &[Mat3] {
+        &self.rotations
+    }
+
+    /// The model's size (bounding-box diagonal at rest).
+    pub fn size(&self) -> f32 {
+        self.size
+    }
+
+    /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_min(&self) -> f32 {
+        self.lambda_min
+    }
+
+    /// Largest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_max(&self) -> f32 {
+        self.lambda_max
+    }
+
+    /// Back to the rest shape (no warm start).
+    pub fn reset(&mut self) {
+        self.current.clone_from(&self.rest);
+        self.rotations.fill(Mat3::IDENTITY);
+    }
+
+    /// Places the control points on `deformed`, which must be the rest surface
+    /// with moved vertices (same vertex count, same triangles).
+    pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
+        check_same_topology(&self.surface, deformed)?;
+        for (q, a) in self.current.iter_mut().zip(&self.attachments) {
+            if let Some((t, bary)) = *a {
+                *q = deformed.point_on(t as usize, bary);
+            }
+        }
+        Ok(())
+    }
+
+    /// Iterates until the stopping rule holds or the cap is reached.
+    ///
+    /// Stopping rule: the error estimate `max step / (1 - rho)`, with `rho` the
+    /// plain iteration's contraction rate from the Laplacian's spectrum, is
+    /// below `tolerance` times the model's size; or the step is below what
+    /// `f32` can resolve at the model's coordinates.
+    pub fn solve(&mut self) -> DeformReport {
+        let started = Instant::now();
+        let p = &self.params;
+        let limit = match p.force {
+            ForceModel::Paper => 2.0,
+            ForceModel::Symmetric => 1.0,
+        };
+        let alpha = p.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE);
+        // Steps below this are rounding: f32 resolves about EPSILON * |x|.
+        let floor = 4.0
+            * f32::EPSILON
+            * self
+                .rest
+                .iter()
+                .map(|q| q.abs().max_element())
+                .fold(0.0, f32::max);
+        let mut history = Vec::new();
+        let mut rms_steps: Vec<f32> = Vec::new();
+        let mut previous = self.current.clone();
+        let mut omega = 1.0f32;
+        // The plain iteration is q <- (I - c alpha L) q + b with c = 2 for the
+        // symmetric force and 1 for the paper's, so its contraction rate is
+        // 1 - 2 step_fraction lambda_min / lambda_max for both.
+        let rho =
+            (1.0 - 2.0 * p.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999);
+        let mut converged = false;
+        let mut iterations = 0;
+        while iterations < p.max_iterations {
+            self.rotations = local_rotations(&self.rest, &self.current, &self.connections);
+            let force = deformation_force(
+                &self.rest,
+                &self.current,
+                &self.rotations,
+                &self.connections,
+                p.force,
+            );
+            let plain = integrate(&self.current, &force, &self.free, alpha);
+            let (step, rms) = steps(&self.current, &plain);
+            rms_steps.push(rms);
+            iterations += 1;
+            if !p.chebyshev || iterations <= p.warm_up {
+                previous = std::mem::replace(&mut self.current, plain);
+            } else {
+                // Wang 2015: omega_2 = 2 / (2 - rho^2), omega_{k+1} = 4 / (4 - rho^2 omega_k).
+                omega = if omega == 1.0 {
+                    2.0 / (2.0 - rho * rho)
+                } else {
+                    4.0 / (4.0 - rho * rho * omega)
+                };
+                let next: Vec<Vec3> = plain
+                    .par_iter()
+                    .zip(&previous)
+                    .map(|(&q_hat, &q_old)| omega * (q_hat - q_old) + q_old)
+                    .collect();
+                previous = std::mem::replace(&mut self.current, next);
+            }
+            // For fixed rotations the plain step is (B - I) e for the error e,
+            // so |e| <= |step| / (1 - rho), Chebyshev or not. Re-fitting the
+            // rotations adds slower modes (a twist of the interior against its
+            // surface); the observed contraction over the last five iterations
+            // catches them.
+            let n = rms_steps.len();
+            let observed = if n > 5 {
+                geometric_rate(rms_steps[n - 6], rms_steps[n - 1], 5)
+            } else {
+                0.0
+            };
+            let rate = rho.max(observed.min(0.999));
+            let error = step / (1.0 - rate) / self.size;
+            history.push(error);
+            if !error.is_finite() {
+                break;
+            }
+            if (error < p.tolerance || step < floor) && iterations > 1 {
+                converged = true;
+                break;
+            }
+        }
+        DeformReport {
+            iterations,
+            residual: history.last().copied().unwrap_or(0.0),
+            residual_history: history,
+            converged,
+            seconds: started.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// `(last / first)^(1 / count)`: the mean contraction per iteration.
+fn geometric_rate(first: f32, last: f32, count: usize) -> f32 {
+    if first <= 0.0 || count == 0 {
+        return 0.0;
+    }
+    (last / first).powf(1.0 / count as f32)
+}
+
+/// Largest and RMS plain step over all particles.
+fn steps(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
+    let squares: Vec<f32> = old
+        .par_iter()
+        .zip(new)
+        .map(|(a, b)| (*b - *a).length_squared())
+        .collect();
+    let max = squares.iter().copied().fold(0.0, f32::max).sqrt();
+    let mean = squares.iter().map(|&x| f64::from(x)).sum::<f64>() / squares.len().max(1) as f64;
+    (max, mean.sqrt() as f32)
+}
+
+/// The deformed surface must be the rest surface with moved vertices.
+pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result<(), Error> {
+    if deformed.vertices.len() != rest.vertices.len()
+        || deformed.triangles.len() != rest.triangles.len()
+    {
+        return Err(Error::Sampling(format!(
+            "the deformed surface has {} vertices and {} triangles; the model's rest surface has {} and {} \
+             (it must be the same mesh with moved vertices)",
+            deformed.vertices.len(),
+            deformed.triangles.len(),
+            rest.vertices.len(),
+            rest.triangles.len()
+        )));
+    }
+    if let Some(t) = (0..rest.triangles.len()).find(|&t| rest.triangles[t] != deformed.triangles[t])
+    {
+        return Err(Error::Sampling(format!(
+            "triangle {t} of the deformed surface is {:?}, in the rest surface {:?} \
+             (it must be the same mesh with moved vertices)",
+            deformed.triangles[t], rest.triangles[t]
+        )));
+    }
+    if let Some(v) = deformed.vertices.iter().position(|v| !v.is_finite()) {
+        return Err(Error::Sampling(format!(
+            "vertex {v} of the deformed surface is not finite: {}",
+            deformed.vertices[v]
+        )));
+    }
+    Ok(())
+}
+
+/// Per particle, the rotation that best maps rest offsets onto current
+/// offsets: the polar rotation of `M_i = sum_j (q_j - q_i)(p_j - p_i)^T`.
+pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connections) -> Vec<Mat3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut m = Mat3::ZERO;
+            for &j in connections.of(i) {
+                let d = rest[j as usize] - rest[i];
+                let c = current[j as usize] - current[i];
+                m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+            }
+            rotation_of(m)
+        })
+        .collect()
+}
+
+/// The force on every particle, gathered over its connections.
+pub fn deformation_force(
+    rest: &[Vec3],
+    current: &[Vec3],
+    rotations: &[Mat3],
+    connections: &Connections,
+    model: ForceModel,
+) -> Vec<Vec3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|j| {
+            let mut f = Vec3::ZERO;
+            for &i in connections.of(j) {
+                let i = i as usize;
+                let d = rest[j] - rest[i];
+                let c = current[j] - current[i];
+                f += match model {
+                    ForceModel::Paper => rotations[i] * d - c,
+                    ForceModel::Symmetric => (rotations[i] + rotations[j]) * d - 2.0 * c,
+                };
+            }
+            f
+        })
+        .collect()
+}
+
+/// `q += alpha F` for free particles (the stiffness `sigma` and mass `m`
+/// fold into `alpha = sigma / m`); control points stay where the surface put them.
+pub fn integrate(current: &[Vec3], force: &[Vec3], free: &[bool], alpha: f32) -> Vec<Vec3> {
+    current
+        .par_iter()
+        .zip(force)
+        .zip(free)
+        .map(|((&q, &f), &free)| if free { q + alpha * f } else { q })
+        .collect()
+}
+
+/// The smallest and largest eigenvalues of the graph Laplacian restricted to
+/// free particles (control points fixed: Dirichlet rows), by 40 Lanczos steps
+/// in `f64`. The Ritz values bracket the spectrum from inside: `lambda_min`
+/// comes out slightly high (so the Chebyshev `rho` slightly low, which still
+/// converges) and `lambda_max` slightly low (so it gets a 2% margin).
+pub fn laplacian_extremes(connections: &Connections, free: &[bool]) -> (f32, f32) {
+    const STEPS: usize = 40;
+    let n = free.len();
+    let apply = |v: &[f64]| -> Vec<f64> {
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                if !free[i] {
+                    return 0.0;
+                }
+                let row = connections.of(i);
+                let mut s = row.len() as f64 * v[i];
+                for &j in row {
+                    if free[j as usize] {
+                        s -= v[j as usize];
+                    }
+                }
+                s
+            })
+            .collect()
+    };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    // A deterministic start with every mode in it.
+    let mut v: Vec<f64> = (0..n)
+        .map(|i| {
+            if free[i] {
+                1.0 + 0.5 * ((i as f64) * 0.618_033_988_7).fract()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let norm = dot(&v, &v).sqrt();
+    if norm == 0.0 {
+        return (1.0, 1.0);
+    }
+    v.iter_mut().for_each(|x| *x /= norm);
+    let mut previous = vec![0.0; n];
+    let (mut alphas, mut betas) = (Vec::new(), Vec::new());
+    let mut beta = 0.0f64;
+    for _ in 0..STEPS {
+        let mut w = apply(&v);
+        for i in 0..n {
+            w[i] -= beta * previous[i];
+        }
+        let alpha = dot(&w, &v);
+        for i in 0..n {
+            w[i] -= alpha * v[i];
+        }
+        alphas.push(alpha);
+        beta = dot(&w, &w).sqrt();
+        if beta < 1e-10 {
+            break;
+        }
+        betas.push(beta);
+        previous = std::mem::replace(&mut v, w.iter().map(|x| x / beta).collect());
+    }
+    betas.truncate(alphas.len().saturating_sub(1));
+    let lo = tridiagonal_eigenvalue(&alphas, &betas, 0);
+    let hi = tridiagonal_eigenvalue(&alphas, &betas, alphas.len() - 1);
+    (lo as f32, (hi * 1.02) as f32)
+}
+
+/// The `k`-th smallest eigenvalue of the symmetric tridiagonal matrix with
+/// diagonal `a` and off-diagonal `b`, by bisection on Sturm counts.
+fn tridiagonal_eigenvalue(a: &[f64], b: &[f64], k: usize) -> f64 {
+    // Gershgorin bounds.
+    let mut lo = f64::MAX;
+    let mut hi = f64::MIN;
+    for i in 0..a.len() {
+        let r = b.get(i).map_or(0.0, |x| x.abs()) + if i > 0 { b[i - 1].abs() } else { 0.0 };
+        lo = lo.min(a[i] - r);
+        hi = hi.max(a[i] + r);
+    }
+    // Number of eigenvalues below x.
+    let below = |x: f64| {
+        let mut count = 0;
+        let mut d = 1.0f64;
+        for i in 0..a.len() {
+            let off = if i > 0 { b[i - 1] * b[i - 1] } else { 0.0 };
+            d = a[i] - x - if i > 0 { off / d } else { 0.0 };
+            if d == 0.0 {
+                d = -1e-300;
+            }
+            if d < 0.0 {
+                count += 1;
+            }
+        }
+        count
+    };
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if below(mid) > k {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A path of `n` free nodes between two fixed ends: eigenvalues
+    /// `2 - 2 cos(k pi / (n + 1))`, k = 1..n.
+    #[test]
+    fn lanczos_finds_the_extreme_eigenvalues_of_a_dirichlet_path() {
+        let n = 30;
+        let total = n + 2;
+        let pairs = (0..total - 1).map(|i| (i as u32, i as u32 + 1));
+        let connections = Connections::from_pairs(total, pairs);
+        let free: Vec<bool> = (0..total).map(|i| i != 0 && i != total - 1).collect();
+        let (lo, hi) = laplacian_extremes(&connections, &free);
+        let exact = |k: f64| 2.0 - 2.0 * (k * std::f64::consts::PI / (n as f64 + 1.0)).cos();
+        assert!(
+            (f64::from(lo) - exact(1.0)).abs() < 1e-4,
+            "{lo} vs {}",
+            exact(1.0)
+        );
+        assert!(
+            (f64::from(hi) / 1.02 - exact(n as f64)).abs() < 1e-3,
+            "{hi} vs {}",
+            exact(n as f64)
+        );
+    }
+}

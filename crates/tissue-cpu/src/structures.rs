@@ -1,0 +1,219 @@
+//! Internal structures (a tumour, a vessel) and landmark points, carried by
+//! the particles around them.
+//!
+//! - **Deformable**: every point is carried by its `K` nearest particles at
+//!   rest: `x' = sum_k w_k (q_k + R_k (x - p_k)) / sum_k w_k`, with `R_k` the
+//!   particle's rotation and weights `w_k = (1 - (d_k / h)^2)^2`, `h` a little
+//!   beyond the farthest of the `K`. A rigid motion of all particles
+//!   (`q = R p + t`, `R_k = R`) moves every point by exactly that motion.
+//! - **Rigid** (the paper's tumour): the structure's centre is carried as a
+//!   deformable point; its rotation is the Procrustes fit over the particles
+//!   nearest the centre. The centre is passive: it does not push back.
+
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::grid::{Grid, grid_build};
+use crate::svd3::rotation_of;
+
+/// Particles carrying each point.
+pub const CARRIERS: usize = 8;
+/// Particles whose fit gives a rigid structure's rotation.
+pub const RIGID_NEIGHBOURS: usize = 16;
+
+/// Points bound to particles at rest, ready to be moved with them.
+#[derive(Debug, Clone)]
+pub struct Embedding {
+    /// Rest positions of the points.
+    pub points: Vec<Vec3>,
+    /// Per point, `(particle, weight)`, weights summing to one.
+    pub carriers: Vec<Vec<(u32, f32)>>,
+}
+
+/// The `k` nearest particles of `p` (fewer when there are fewer), nearest first,
+/// ties by index.
+pub fn k_nearest(grid: &Grid, positions: &[Vec3], p: Vec3, k: usize) -> Vec<(u32, f32)> {
+    let k = k.min(positions.len());
+    let g = ((p - grid.origin) / grid.cell).floor();
+    let centre = [0, 1, 2].map(|a| (g[a].max(0.0) as i64).min(i64::from(grid.dims[a]) - 1));
+    let max_shell = i64::from(grid.dims.iter().copied().max().unwrap_or(1));
+    let mut best: Vec<(u32, f32)> = Vec::with_capacity(4 * k);
+    for shell in 0..=max_shell {
+        for z in centre[2] - shell..=centre[2] + shell {
+            for y in centre[1] - shell..=centre[1] + shell {
+                for x in centre[0] - shell..=centre[0] + shell {
+                    let on_shell = [x - centre[0], y - centre[1], z - centre[2]]
+                        .iter()
+                        .any(|d| d.abs() == shell);
+                    let inside = [x, y, z]
+                        .iter()
+                        .zip(grid.dims)
+                        .all(|(&c, n)| c >= 0 && c < i64::from(n));
+                    if !on_shell || !inside {
+                        continue;
+                    }
+                    let c = (z as usize * grid.dims[1] as usize + y as usize)
+                        * grid.dims[0] as usize
+                        + x as usize;
+                    for &j in &grid.particles
+                        [grid.cell_start[c] as usize..grid.cell_start[c + 1] as usize]
+                    {
+                        best.push((j, (positions[j as usize] - p).length()));
+                    }
+                }
+            }
+        }
+        best.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        best.truncate(k);
+        // Everything outside shells 0..=shell is at least shell cells away.
+        if best.len() == k && best.last().is_some_and(|b| b.1 <= shell as f32 * grid.cell) {
+            break;
+        }
+    }
+    best
+}
+
+impl Embedding {
+    /// Binds `points` to the `CARRIERS` nearest of the rest `particles`.
+    pub fn new(particles: &[Vec3], points: &[Vec3]) -> Self {
+        let spacing = typical_spacing(particles);
+        let grid = grid_build(particles, spacing);
+        let carriers = points
+            .par_iter()
+            .map(|&x| {
+                let near = k_nearest(&grid, particles, x, CARRIERS);
+                let h = near.last().map_or(1.0, |n| n.1) * 1.1 + 1e-12;
+                let mut weights: Vec<(u32, f32)> = near
+                    .iter()
+                    .map(|&(j, d)| (j, (1.0 - (d / h).powi(2)).powi(2)))
+                    .collect();
+                let total: f32 = weights.iter().map(|w| w.1).sum();
+                for w in &mut weights {
+                    w.1 /= total;
+                }
+                weights
+            })
+            .collect();
+        Self {
+            points: points.to_vec(),
+            carriers,
+        }
+    }
+
+    /// Where the points are when the particles are at `current` with `rotations`.
+    pub fn moved(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> Vec<Vec3> {
+        self.points
+            .par_iter()
+            .zip(&self.carriers)
+            .map(|(&x, carriers)| {
+                carriers
+                    .iter()
+                    .map(|&(k, w)| {
+                        let k = k as usize;
+                        w * (current[k] + rotations[k] * (x - rest[k]))
+                    })
+                    .sum()
+            })
+            .collect()
+    }
+}
+
+/// A rigid structure's motion: `x -> rotation (x - rest_centre) + moved_centre`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RigidMotion {
+    /// Centroid of the structure at rest.
+    pub rest_centre: Vec3,
+    /// Where that centroid went.
+    pub moved_centre: Vec3,
+    /// Rotation (rows of the 3x3 matrix).
+    pub rotation: [[f32; 3]; 3],
+}
+
+impl RigidMotion {
+    /// The rotation matrix.
+    pub fn matrix(&self) -> Mat3 {
+        Mat3::from_cols_array_2d(&self.rotation).transpose()
+    }
+
+    /// Applies the motion to a point.
+    pub fn apply(&self, x: Vec3) -> Vec3 {
+        self.matrix() * (x - self.rest_centre) + self.moved_centre
+    }
+
+    /// The 4x4 homogeneous matrix (row-major), as 3D Slicer and ITK expect.
+    pub fn homogeneous(&self) -> [[f32; 4]; 4] {
+        let r = self.rotation;
+        let t = self.moved_centre - self.matrix() * self.rest_centre;
+        [
+            [r[0][0], r[0][1], r[0][2], t.x],
+            [r[1][0], r[1][1], r[1][2], t.y],
+            [r[2][0], r[2][1], r[2][2], t.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    }
+}
+
+/// A rigid structure bound at rest: its centre's carriers and the particles
+/// whose fit gives its rotation.
+#[derive(Debug, Clone)]
+pub struct RigidBinding {
+    centre: Embedding,
+    neighbours: Vec<u32>,
+}
+
+impl RigidBinding {
+    /// Binds the structure with rest `vertices` (its centroid is the centre).
+    pub fn new(particles: &[Vec3], vertices: &[Vec3]) -> Self {
+        let centre = vertices.iter().copied().sum::<Vec3>() / vertices.len().max(1) as f32;
+        let grid = grid_build(particles, typical_spacing(particles));
+        let neighbours = k_nearest(&grid, particles, centre, RIGID_NEIGHBOURS)
+            .into_iter()
+            .map(|(j, _)| j)
+            .collect();
+        Self {
+            centre: Embedding::new(particles, &[centre]),
+            neighbours,
+        }
+    }
+
+    /// The structure's motion for the particles at `current`.
+    pub fn motion(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> RigidMotion {
+        let moved_centre = self.centre.moved(rest, current, rotations)[0];
+        let n = self.neighbours.len().max(1) as f32;
+        let rest_mean = self
+            .neighbours
+            .iter()
+            .map(|&j| rest[j as usize])
+            .sum::<Vec3>()
+            / n;
+        let current_mean = self
+            .neighbours
+            .iter()
+            .map(|&j| current[j as usize])
+            .sum::<Vec3>()
+            / n;
+        let mut m = Mat3::ZERO;
+        for &j in &self.neighbours {
+            let d = rest[j as usize] - rest_mean;
+            let c = current[j as usize] - current_mean;
+            m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+        }
+        let rotation = rotation_of(m);
+        RigidMotion {
+            rest_centre: self.centre.points[0],
+            moved_centre,
+            rotation: rotation.transpose().to_cols_array_2d(),
+        }
+    }
+}
+
+/// About the mean spacing of a particle cloud, for grid cells.
+fn typical_spacing(particles: &[Vec3]) -> f32 {
+    let (lo, hi) = particles.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let volume = (hi - lo).max(Vec3::splat(1e-12)).element_product();
+    (volume / particles.len().max(1) as f32).cbrt()
+}

@@ -1,0 +1,343 @@
+//! Stage 2 against exact answers: rigid motion, an affine map, the torsion of
+//! a circular cylinder; the force's invariants; frame-to-frame tracking.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+use std::f32::consts::PI;
+use std::sync::OnceLock;
+
+use glam::{Mat3, Quat, Vec3};
+use tissue::deform::{Affine, PointMap, Rigid, Twist, deform_surface, interpolate};
+use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue_cpu::deformation::{
+    DeformParams, Deformer, ForceModel, deformation_force, local_rotations,
+};
+use tissue_cpu::structures::{Embedding, RigidBinding};
+
+/// The phantom at 5,000 particles, sampled once for all tests.
+fn breast_model() -> &'static ParticleModel {
+    static MODEL: OnceLock<ParticleModel> = OnceLock::new();
+    MODEL.get_or_init(|| {
+        tissue::sample(
+            &phantom::default_breast(),
+            &SamplingParams::with_particles(5_000),
+        )
+        .unwrap()
+        .model
+    })
+}
+
+/// A closed circular cylinder along z: radius 1, height 4, base at z = 0.
+fn cylinder() -> SurfaceMesh {
+    let (segments, rings) = (48u32, 40u32);
+    let (radius, height) = (1.0f32, 4.0f32);
+    let mut vertices = Vec::new();
+    for r in 0..=rings {
+        let z = height * r as f32 / rings as f32;
+        for s in 0..segments {
+            let a = 2.0 * PI * s as f32 / segments as f32;
+            vertices.push(Vec3::new(radius * a.cos(), radius * a.sin(), z));
+        }
+    }
+    let ring = |r: u32, s: u32| r * segments + s % segments;
+    let mut triangles = Vec::new();
+    for r in 0..rings {
+        for s in 0..segments {
+            triangles.push([ring(r, s), ring(r, s + 1), ring(r + 1, s + 1)]);
+            triangles.push([ring(r, s), ring(r + 1, s + 1), ring(r + 1, s)]);
+        }
+    }
+    // Caps: concentric rings towards a centre vertex, so cap triangles are not slivers.
+    for (z, top) in [(0.0f32, false), (height, true)] {
+        let edge_ring = if top { rings } else { 0 };
+        let mut outer: Vec<u32> = (0..segments).map(|s| ring(edge_ring, s)).collect();
+        for k in 1..8u32 {
+            let rr = radius * (1.0 - k as f32 / 8.0);
+            let inner: Vec<u32> = (0..segments)
+                .map(|s| {
+                    let a = 2.0 * PI * s as f32 / segments as f32;
+                    vertices.push(Vec3::new(rr * a.cos(), rr * a.sin(), z));
+                    (vertices.len() - 1) as u32
+                })
+                .collect();
+            for s in 0..segments as usize {
+                let (o0, o1) = (outer[s], outer[(s + 1) % segments as usize]);
+                let (i0, i1) = (inner[s], inner[(s + 1) % segments as usize]);
+                if top {
+                    triangles.push([o0, o1, i1]);
+                    triangles.push([o0, i1, i0]);
+                } else {
+                    triangles.push([o0, i1, o1]);
+                    triangles.push([o0, i0, i1]);
+                }
+            }
+            outer = inner;
+        }
+        vertices.push(Vec3::new(0.0, 0.0, z));
+        let centre = (vertices.len() - 1) as u32;
+        for s in 0..segments as usize {
+            let (o0, o1) = (outer[s], outer[(s + 1) % segments as usize]);
+            triangles.push(if top {
+                [o0, o1, centre]
+            } else {
+                [o0, centre, o1]
+            });
+        }
+    }
+    SurfaceMesh::new(vertices, triangles)
+}
+
+fn solve(model: &ParticleModel, deformed: &SurfaceMesh, params: DeformParams) -> Deformer {
+    let mut deformer = Deformer::new(model, params).unwrap();
+    deformer.set_surface(deformed).unwrap();
+    let report = deformer.solve();
+    assert!(
+        report.converged,
+        "did not converge: {:?}",
+        &report.residual_history[report.residual_history.len().saturating_sub(5)..]
+    );
+    deformer
+}
+
+/// Errors of interior particles against an exact map, relative to `scale`.
+fn errors(model: &ParticleModel, deformer: &Deformer, map: &impl PointMap) -> (f32, f32) {
+    let interior: Vec<usize> = (0..model.len()).filter(|&i| !model.is_surface(i)).collect();
+    let e: Vec<f32> = interior
+        .iter()
+        .map(|&i| (deformer.positions()[i] - map.apply(model.positions[i])).length())
+        .collect();
+    let rms = (e.iter().map(|x| x * x).sum::<f32>() / e.len() as f32).sqrt();
+    (rms, e.iter().copied().fold(0.0, f32::max))
+}
+
+fn max_displacement(model: &ParticleModel, map: &impl PointMap) -> f32 {
+    model
+        .positions
+        .iter()
+        .map(|&p| (map.apply(p) - p).length())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn rigid_motion_moves_every_particle_and_point_rigidly() {
+    let model = breast_model();
+    let rigid = Rigid::about_axis(
+        Vec3::new(1.0, 2.0, 0.5),
+        30f32.to_radians(),
+        Vec3::new(0.0, 0.0, 25.0),
+        Vec3::new(7.0, -3.0, 4.0),
+    );
+    let deformed = deform_surface(&model.surface, &rigid);
+    let deformer = solve(model, &deformed, DeformParams::default());
+    let size = deformer.size();
+    for i in 0..model.len() {
+        let err = (deformer.positions()[i] - rigid.apply(model.positions[i])).length();
+        assert!(
+            err <= 1e-4 * size,
+            "particle {i}: error {err} > {} (1e-4 of size)",
+            1e-4 * size
+        );
+    }
+    let tumour = phantom::default_tumour();
+    let embedding = Embedding::new(deformer.rest(), &tumour.vertices);
+    let moved = embedding.moved(deformer.rest(), deformer.positions(), deformer.rotations());
+    for (k, (&x, &y)) in tumour.vertices.iter().zip(&moved).enumerate() {
+        let err = (y - rigid.apply(x)).length();
+        assert!(err <= 1e-4 * size, "tumour vertex {k}: error {err}");
+    }
+    let binding = RigidBinding::new(deformer.rest(), &tumour.vertices);
+    let motion = binding.motion(deformer.rest(), deformer.positions(), deformer.rotations());
+    for &x in &tumour.vertices {
+        assert!((motion.apply(x) - rigid.apply(x)).length() <= 1e-4 * size);
+    }
+}
+
+#[test]
+fn an_affine_map_is_reproduced_in_the_interior() {
+    let model = breast_model();
+    let affine = Affine {
+        matrix: Mat3::from_cols(
+            Vec3::new(1.2, 0.0, 0.05),
+            Vec3::new(0.1, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 0.85),
+        ),
+        translation: Vec3::new(2.0, 0.0, -1.0),
+        centre: Vec3::new(0.0, 0.0, 20.0),
+    };
+    let deformed = deform_surface(&model.surface, &affine);
+    let deformer = solve(model, &deformed, DeformParams::default());
+    let (rms, max) = errors(model, &deformer, &affine);
+    let scale = max_displacement(model, &affine);
+    eprintln!(
+        "affine: rms {:.4}%, max {:.4}% of the largest displacement {scale}",
+        100.0 * rms / scale,
+        100.0 * max / scale
+    );
+    assert!(rms <= 0.01 * scale, "rms {rms} > 1% of {scale}");
+    assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
+}
+
+#[test]
+fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
+    let surface = cylinder();
+    let model = tissue::sample(&surface, &SamplingParams::with_particles(5_000))
+        .unwrap()
+        .model;
+    let twist = Twist {
+        axis_origin: Vec3::ZERO,
+        axis: Vec3::Z,
+        angle_per_length: 30f32.to_radians() / 4.0,
+    };
+    let deformed = deform_surface(&model.surface, &twist);
+    let deformer = solve(&model, &deformed, DeformParams::default());
+    let (rms, max) = errors(&model, &deformer, &twist);
+    let scale = max_displacement(&model, &twist);
+    eprintln!(
+        "twist: rms {:.3}%, max {:.3}% of the largest displacement {scale}",
+        100.0 * rms / scale,
+        100.0 * max / scale
+    );
+    assert!(rms <= 0.02 * scale, "rms {rms} > 2% of {scale}");
+    assert!(max <= 0.05 * scale, "max {max} > 5% of {scale}");
+}
+
+#[test]
+fn the_force_vanishes_under_rigid_motion_for_both_models() {
+    let model = breast_model();
+    let rotation = Mat3::from_quat(Quat::from_axis_angle(
+        Vec3::new(0.3, -1.0, 0.2).normalize(),
+        1.1,
+    ));
+    let current: Vec<Vec3> = model
+        .positions
+        .iter()
+        .map(|&p| rotation * p + Vec3::new(5.0, 1.0, -2.0))
+        .collect();
+    let rotations = local_rotations(&model.positions, &current, &model.connections);
+    for (i, r) in rotations.iter().enumerate() {
+        let off = (*r - rotation)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f32, |m, x| m.max(x.abs()));
+        assert!(off < 1e-5, "particle {i}: rotation off by {off}");
+    }
+    for force in [ForceModel::Paper, ForceModel::Symmetric] {
+        let f = deformation_force(
+            &model.positions,
+            &current,
+            &rotations,
+            &model.connections,
+            force,
+        );
+        let worst = f.iter().map(|v| v.length()).fold(0.0, f32::max);
+        assert!(
+            worst < 1e-3,
+            "{force:?}: largest force {worst} under a rigid motion"
+        );
+    }
+}
+
+/// The symmetric force is -1/2 the gradient of the energy (rotations held at
+/// their optimum): checked by central differences.
+#[test]
+fn the_symmetric_force_is_the_energy_gradient() {
+    let model = breast_model();
+    let affine = Affine {
+        matrix: Mat3::from_diagonal(Vec3::new(1.1, 0.95, 1.0)),
+        translation: Vec3::ZERO,
+        centre: Vec3::ZERO,
+    };
+    let current: Vec<Vec3> = model
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| affine.apply(p) + Vec3::splat(0.05 * ((i % 7) as f32 - 3.0)))
+        .collect();
+    let rotations = local_rotations(&model.positions, &current, &model.connections);
+    let energy = |q: &[Vec3]| -> f64 {
+        let mut e = 0.0f64;
+        for i in 0..q.len() {
+            for &j in model.connections.of(i) {
+                let j = j as usize;
+                let r = q[j] - q[i] - rotations[i] * (model.positions[j] - model.positions[i]);
+                e += f64::from(r.length_squared());
+            }
+        }
+        e
+    };
+    let force = deformation_force(
+        &model.positions,
+        &current,
+        &rotations,
+        &model.connections,
+        ForceModel::Symmetric,
+    );
+    for k in [0usize, 17, 1234, 4321] {
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            let h = 1e-2f32;
+            let mut plus = current.clone();
+            plus[k] += h * axis;
+            let mut minus = current.clone();
+            minus[k] -= h * axis;
+            let gradient = (energy(&plus) - energy(&minus)) / (2.0 * f64::from(h));
+            let expected = f64::from(force[k].dot(axis));
+            assert!(
+                (-0.5 * gradient - expected).abs() <= 1e-2 * (1.0 + expected.abs()),
+                "particle {k} {axis}: -grad/2 {} vs force {expected}",
+                -0.5 * gradient
+            );
+        }
+    }
+}
+
+/// Tracking starts each frame from the last solution: a small change then
+/// costs far fewer iterations than solving from rest. (The target of
+/// at most 10 iterations for a change of up to 2% of the size is not met yet:
+/// this takes about 35; see the closing note.)
+#[test]
+fn a_warm_start_converges_much_faster_than_a_cold_one() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+    deformer.set_surface(&sagged).unwrap();
+    let cold = deformer.solve();
+    assert!(cold.converged);
+    // Frames 1% of the sag apart (0.12 mm at the apex).
+    for k in 1..=3 {
+        let frame = interpolate(&sagged, &model.surface, k as f32 * 0.01).unwrap();
+        deformer.set_surface(&frame).unwrap();
+        let warm = deformer.solve();
+        assert!(warm.converged);
+        eprintln!(
+            "frame {k}: {} iterations warm, {} cold",
+            warm.iterations, cold.iterations
+        );
+        assert!(
+            2 * warm.iterations < cold.iterations,
+            "warm {} vs cold {}",
+            warm.iterations,
+            cold.iterations
+        );
+    }
+}
+
+#[test]
+fn a_surface_that_is_not_the_rest_surface_is_refused() {
+    let model = breast_model();
+    let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+    let err = deformer
+        .set_surface(&phantom::default_tumour())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("vertices") && err.contains("same mesh"),
+        "{err}"
+    );
+    let mut shuffled = model.surface.clone();
+    shuffled.triangles.swap(0, 1);
+    let err = deformer.set_surface(&shuffled).unwrap_err().to_string();
+    assert!(err.contains("triangle 0"), "{err}");
+    let mut nan = model.surface.clone();
+    nan.vertices[3].x = f32::NAN;
+    let err = deformer.set_surface(&nan).unwrap_err().to_string();
+    assert!(err.contains("not finite"), "{err}");
+}
