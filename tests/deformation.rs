@@ -9,7 +9,7 @@ use glam::{Mat3, Quat, Vec3};
 use tissue::deform::{Affine, PointMap, Rigid, Twist, deform_surface, interpolate};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::{
-    DeformParams, Deformer, ForceModel, deformation_force, local_rotations,
+    DeformParams, Deformer, ForceModel, RotationMethod, deformation_force, local_rotations,
 };
 use tissue_cpu::structures::{Embedding, RigidBinding};
 
@@ -174,6 +174,31 @@ fn an_affine_map_is_reproduced_in_the_interior() {
     );
     assert!(rms <= 0.01 * scale, "rms {rms} > 1% of {scale}");
     assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
+}
+
+#[test]
+fn svd_and_warm_polar_rotations_reach_the_same_solution() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let solve_with = |rotations| {
+        let params = DeformParams {
+            rotations,
+            tolerance: 1e-6,
+            ..DeformParams::default()
+        };
+        solve(model, &sagged, params).positions().to_vec()
+    };
+    let svd = solve_with(RotationMethod::Svd);
+    let warm = solve_with(RotationMethod::WarmPolar);
+    let size = Deformer::new(model, DeformParams::default())
+        .unwrap()
+        .size();
+    for (i, (a, b)) in svd.iter().zip(&warm).enumerate() {
+        assert!(
+            (*a - *b).length() <= 1e-4 * size,
+            "particle {i}: {a} vs {b}"
+        );
+    }
 }
 
 #[test]

@@ -36,12 +36,27 @@ pub enum ForceModel {
     Symmetric,
 }
 
+/// How each particle's rotation is found every iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RotationMethod {
+    /// A full 3x3 SVD of `M_i` (`svd3::rotation_of`) every iteration.
+    Svd,
+    /// The polar rotation of `M_i` by Müller et al. 2016 ("A Robust Method to
+    /// Extract the Rotational Part of Deformations"), warm-started from the
+    /// last iteration's rotation: the same rotation at convergence, a few
+    /// cross products instead of an SVD.
+    WarmPolar,
+}
+
 /// Parameters of stage 2; `docs/METHOD.md` explains the defaults.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DeformParams {
     /// Force model.
     pub force: ForceModel,
+    /// How rotations are found.
+    pub rotations: RotationMethod,
     /// Step as a fraction of the largest stable step (`2 / lambda_max` for the
     /// paper's force, `1 / lambda_max` for the symmetric one).
     pub step_fraction: f32,
@@ -61,6 +76,7 @@ impl Default for DeformParams {
     fn default() -> Self {
         Self {
             force: ForceModel::Symmetric,
+            rotations: RotationMethod::WarmPolar,
             step_fraction: 0.9,
             chebyshev: true,
             warm_up: 0,
@@ -268,7 +284,17 @@ impl Deformer {
         let mut converged = false;
         let mut iterations = 0;
         while iterations < p.max_iterations {
-            self.rotations = local_rotations(&self.rest, &self.current, &self.connections);
+            self.rotations = match p.rotations {
+                RotationMethod::Svd => {
+                    local_rotations(&self.rest, &self.current, &self.connections)
+                }
+                RotationMethod::WarmPolar => local_rotations_warm(
+                    &self.rest,
+                    &self.current,
+                    &self.connections,
+                    &self.rotations,
+                ),
+            };
             let force = deformation_force(
                 &self.rest,
                 &self.current,
@@ -394,6 +420,72 @@ pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connection
             rotation_of(m)
         })
         .collect()
+}
+
+/// Iterations of the warm-started polar update per solver iteration; the
+/// solver's own iterations refine it further.
+const POLAR_ITERATIONS: usize = 3;
+
+/// [`local_rotations`] by Müller et al.'s polar iteration, warm-started
+/// from `previous` (rest offsets onto current offsets, like `local_rotations`).
+pub fn local_rotations_warm(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    previous: &[Mat3],
+) -> Vec<Mat3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut m = Mat3::ZERO;
+            for &j in connections.of(i) {
+                let d = rest[j as usize] - rest[i];
+                let c = current[j as usize] - current[i];
+                m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+            }
+            warm_rotation(m, previous[i])
+        })
+        .collect()
+}
+
+/// The polar rotation of `m` from `start` by the warm update; where that has
+/// not settled (far from `start`, or near a saddle of `trace(R^T m)`), the SVD.
+pub fn warm_rotation(m: Mat3, start: Mat3) -> Mat3 {
+    match polar_rotation(m, start, POLAR_ITERATIONS) {
+        (r, true) => r,
+        (_, false) => rotation_of(m),
+    }
+}
+
+/// The last turn of a settled polar update is below this (radians).
+const POLAR_SETTLED: f32 = 1e-3;
+
+/// Rotates `start` towards the polar rotation of `m` (the rotation `R`
+/// maximising `trace(R^T m)`): each step turns `R` about
+/// `sum_c r_c x m_c / |sum_c r_c . m_c|` (Müller et al. 2016, eq. 13).
+/// Returns the rotation and whether it settled: its last turn was below
+/// `POLAR_SETTLED` while `trace(R^T m) > 0` (so not at a saddle).
+pub fn polar_rotation(m: Mat3, start: Mat3, iterations: usize) -> (Mat3, bool) {
+    let scale = m.to_cols_array().iter().fold(0.0f32, |a, x| a.max(x.abs()));
+    if scale == 0.0 || !scale.is_finite() {
+        return (start, true);
+    }
+    let m = m * (1.0 / scale);
+    let mut q = glam::Quat::from_mat3(&start).normalize();
+    let mut settled = false;
+    for _ in 0..iterations {
+        let r = Mat3::from_quat(q);
+        let cross = r.x_axis.cross(m.x_axis) + r.y_axis.cross(m.y_axis) + r.z_axis.cross(m.z_axis);
+        let dot = r.x_axis.dot(m.x_axis) + r.y_axis.dot(m.y_axis) + r.z_axis.dot(m.z_axis);
+        let omega = cross * (1.0 / (dot.abs() + 1e-9));
+        let angle = omega.length();
+        settled = dot > 0.0 && angle < POLAR_SETTLED;
+        if angle < 1e-9 {
+            break;
+        }
+        q = (glam::Quat::from_axis_angle(omega / angle, angle) * q).normalize();
+    }
+    (Mat3::from_quat(q), settled)
 }
 
 /// The force on every particle, gathered over its connections.
@@ -542,6 +634,67 @@ fn tridiagonal_eigenvalue(a: &[f64], b: &[f64], k: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::svd3::rotation_of;
+
+    /// Deterministic matrices with entries in [-1, 1].
+    fn matrices(count: usize) -> Vec<Mat3> {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+        };
+        (0..count)
+            .map(|_| Mat3::from_cols_array(&[(); 9].map(|_| next())))
+            .collect()
+    }
+
+    #[test]
+    fn a_warm_rotation_is_the_svd_rotation_from_any_start() {
+        let mut checked = 0;
+        let starts = [
+            Mat3::IDENTITY,
+            Mat3::from_rotation_x(3.1),
+            Mat3::from_axis_angle(Vec3::new(1.0, 1.0, 0.0).normalize(), 1.5),
+        ];
+        for (k, m) in matrices(3_000).into_iter().enumerate() {
+            let svd = crate::svd3::svd3(m);
+            // Where the two smallest singular values nearly cancel the
+            // maximum is nearly flat and any nearby rotation is as good.
+            if (svd.sigma.y + svd.sigma.z).abs() < 0.05 {
+                continue;
+            }
+            let r = warm_rotation(m, starts[k % 3]);
+            let exact = rotation_of(m);
+            let off = (r - exact)
+                .to_cols_array()
+                .iter()
+                .fold(0.0f32, |a, x| a.max(x.abs()));
+            assert!(off < 1e-3, "{m:?}: off by {off}");
+            assert!((r.determinant() - 1.0).abs() < 1e-5);
+            checked += 1;
+        }
+        assert!(checked > 1_000);
+    }
+
+    #[test]
+    fn the_warm_polar_update_keeps_a_rotation_that_is_already_right() {
+        for m in matrices(500) {
+            let exact = rotation_of(m);
+            let (r, settled) = polar_rotation(m, exact, 3);
+            assert!(settled);
+            let off = (r - exact)
+                .to_cols_array()
+                .iter()
+                .fold(0.0f32, |a, x| a.max(x.abs()));
+            assert!(off < 1e-4, "drifted by {off}");
+        }
+        assert_eq!(
+            polar_rotation(Mat3::ZERO, Mat3::IDENTITY, 3).0,
+            Mat3::IDENTITY
+        );
+    }
 
     /// A path of `n` free nodes between two fixed ends: eigenvalues
     /// `2 - 2 cos(k pi / (n + 1))`, k = 1..n.
