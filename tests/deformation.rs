@@ -345,6 +345,38 @@ fn a_warm_start_converges_much_faster_than_a_cold_one() {
     }
 }
 
+/// On a smooth sequence of frames, starting each from the last solution moved
+/// on at constant velocity beats starting from the last solution.
+#[test]
+fn constant_velocity_prediction_cuts_tracking_iterations() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let run = |extrapolate| {
+        let params = DeformParams {
+            extrapolate,
+            ..DeformParams::default()
+        };
+        let mut deformer = Deformer::new(model, params).unwrap();
+        (0..8)
+            .map(|k| {
+                let frame = interpolate(&model.surface, &sagged, 0.5 + 0.02 * k as f32).unwrap();
+                deformer.set_surface(&frame).unwrap();
+                let report = deformer.solve();
+                assert!(report.converged);
+                report.iterations
+            })
+            .collect::<Vec<_>>()
+    };
+    let plain = run(false);
+    let predicted = run(true);
+    eprintln!("iterations per frame: {plain:?} without, {predicted:?} with prediction");
+    let tail = |v: &[usize]| v[3..].iter().sum::<usize>();
+    assert!(
+        2 * tail(&predicted) < tail(&plain),
+        "{predicted:?} vs {plain:?}"
+    );
+}
+
 #[test]
 fn a_surface_that_is_not_the_rest_surface_is_refused() {
     let model = breast_model();

@@ -70,6 +70,10 @@ pub struct DeformParams {
     pub tolerance: f32,
     /// Iteration cap.
     pub max_iterations: usize,
+    /// Tracking: start a new frame from the last solution moved on by the
+    /// change between the last two solutions (constant velocity), when both
+    /// converged.
+    pub extrapolate: bool,
 }
 
 impl Default for DeformParams {
@@ -82,6 +86,7 @@ impl Default for DeformParams {
             warm_up: 0,
             tolerance: 1e-5,
             max_iterations: 5_000,
+            extrapolate: true,
         }
     }
 }
@@ -138,6 +143,10 @@ pub struct Deformer {
     attachments: Vec<Option<(u32, [f32; 3])>>,
     free: Vec<bool>,
     current: Vec<Vec3>,
+    /// The solution before the last one, when the last two solves converged.
+    earlier: Option<Vec<Vec3>>,
+    /// The last converged solution.
+    last: Option<Vec<Vec3>>,
     rotations: Vec<Mat3>,
     lambda_min: f32,
     lambda_max: f32,
@@ -194,6 +203,8 @@ impl Deformer {
             attachments,
             free,
             current: model.positions.clone(),
+            earlier: None,
+            last: None,
             rotations: vec![Mat3::IDENTITY; n],
             lambda_min,
             lambda_max,
@@ -236,12 +247,23 @@ impl Deformer {
     pub fn reset(&mut self) {
         self.current.clone_from(&self.rest);
         self.rotations.fill(Mat3::IDENTITY);
+        self.earlier = None;
+        self.last = None;
     }
 
     /// Places the control points on `deformed`, which must be the rest surface
     /// with moved vertices (same vertex count, same triangles).
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
         check_same_topology(&self.surface, deformed)?;
+        if let (true, Some(earlier), Some(last)) =
+            (self.params.extrapolate, &self.earlier, &self.last)
+        {
+            for i in 0..self.current.len() {
+                if self.free[i] {
+                    self.current[i] = last[i] + (last[i] - earlier[i]);
+                }
+            }
+        }
         for (q, a) in self.current.iter_mut().zip(&self.attachments) {
             if let Some((t, bary)) = *a {
                 *q = deformed.point_on(t as usize, bary);
@@ -343,6 +365,13 @@ impl Deformer {
                 converged = true;
                 break;
             }
+        }
+        if converged {
+            self.earlier = self.last.take();
+            self.last = Some(self.current.clone());
+        } else {
+            self.earlier = None;
+            self.last = None;
         }
         DeformReport {
             iterations,
