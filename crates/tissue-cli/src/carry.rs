@@ -1,0 +1,353 @@
+//! What the particles carry: internal structures (deformable or rigid) and
+//! landmark points, bound to the rest particles once and moved after every solve.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use glam::{Mat3, Vec3};
+use serde::Serialize;
+use tissue::SurfaceMesh;
+use tissue_cpu::deformation::Deformer;
+use tissue_cpu::structures::{Embedding, RigidBinding, RigidMotion};
+
+use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
+
+/// Options naming what to carry, shared by `deform` and `track`.
+#[derive(Debug, clap::Args)]
+pub struct CarryArgs {
+    /// Landmark points to carry (.csv or .ply); the moved points are written
+    /// as `points.csv`, in input order.
+    #[arg(long, value_name = "FILE")]
+    pub points: Option<PathBuf>,
+    /// An internal structure that deforms with the tissue (any surface file);
+    /// every vertex is carried. Written under its own file name. Repeatable.
+    #[arg(long = "structure", value_name = "FILE")]
+    pub structures: Vec<PathBuf>,
+    /// An internal structure that moves rigidly (a stiff tumour); its motion
+    /// is fitted to the particles around its centroid. Written under its own
+    /// file name, or `<stem>-rigid.<ext>` when that name is taken. Repeatable.
+    #[arg(long = "rigid-structure", value_name = "FILE")]
+    pub rigid_structures: Vec<PathBuf>,
+}
+
+/// How a structure moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Kind {
+    /// Vertex by vertex with the particles around it.
+    Deformable,
+    /// As one rigid body.
+    Rigid,
+}
+
+impl Kind {
+    fn word(self) -> &'static str {
+        match self {
+            Kind::Deformable => "deformable",
+            Kind::Rigid => "rigid",
+        }
+    }
+}
+
+/// How the structure is bound to the rest particles.
+#[derive(Debug, Clone)]
+enum Binding {
+    Deformable(Embedding),
+    Rigid(RigidBinding),
+}
+
+/// One internal structure, bound at rest.
+#[derive(Debug, Clone)]
+pub struct Structure {
+    /// The file name it is written under, e.g. `tumour.obj`.
+    pub name: String,
+    /// Where it came from: a path, or a description for a built-in one.
+    pub source: String,
+    rest: SurfaceMesh,
+    binding: Binding,
+}
+
+/// Landmark points bound at rest.
+#[derive(Debug, Clone)]
+pub struct Points {
+    /// Where they came from.
+    pub source: String,
+    embedding: Embedding,
+}
+
+/// Everything the particles carry.
+#[derive(Debug, Clone, Default)]
+pub struct Carried {
+    /// Landmark points, if any.
+    pub points: Option<Points>,
+    /// Structures, deformable ones first, each in the order given.
+    pub structures: Vec<Structure>,
+}
+
+/// Where one structure went, as the JSON report holds it.
+#[derive(Debug, Clone, Serialize)]
+pub struct StructureReport {
+    /// The output file name.
+    pub name: String,
+    /// How it moved.
+    pub kind: Kind,
+    /// The file it was read from.
+    pub source: String,
+    /// Mean of its rest vertices.
+    pub rest_centroid: [f32; 3],
+    /// Mean of its moved vertices (for a rigid one, where the motion takes the rest centroid).
+    pub moved_centroid: [f32; 3],
+    /// Distance between the two centroids, in the model's units (mm for the phantom).
+    pub displacement_mm: f32,
+    /// Largest distance any vertex moved.
+    pub max_vertex_displacement_mm: f32,
+    /// For a rigid structure, the angle of its rotation in degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation_degrees: Option<f32>,
+    /// For a rigid structure, the 4x4 homogeneous transform (row-major)
+    /// taking rest coordinates to moved ones.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transform: Option<[[f32; 4]; 4]>,
+}
+
+/// A structure after a solve.
+#[derive(Debug, Clone)]
+pub struct MovedStructure {
+    /// The structure at its new place: same vertices, same triangles.
+    pub mesh: SurfaceMesh,
+    /// Where it went.
+    pub report: StructureReport,
+}
+
+impl Carried {
+    /// Reads and binds what `args` names to the rest particles `rest`.
+    pub fn load(args: &CarryArgs, rest: &[Vec3]) -> Result<Self> {
+        let names = output_names(&args.structures, &args.rigid_structures)?;
+        let points = match &args.points {
+            Some(path) => {
+                let points = tissue::load_points(path)?;
+                Some(Points {
+                    source: path.display().to_string(),
+                    embedding: Embedding::new(rest, &points),
+                })
+            }
+            None => None,
+        };
+        let mut named = Vec::new();
+        for path in &args.structures {
+            named.push((Kind::Deformable, path.display().to_string(), load(path)?));
+        }
+        for path in &args.rigid_structures {
+            named.push((Kind::Rigid, path.display().to_string(), load(path)?));
+        }
+        let structures = named
+            .into_iter()
+            .zip(names)
+            .map(|((kind, source, mesh), name)| Structure::bind(name, source, kind, mesh, rest))
+            .collect();
+        Ok(Self { points, structures })
+    }
+
+    /// Where the points and structures are for the deformer's current state.
+    pub fn moved(&self, deformer: &Deformer) -> (Option<Vec<Vec3>>, Vec<MovedStructure>) {
+        let (rest, current, rotations) =
+            (deformer.rest(), deformer.positions(), deformer.rotations());
+        let points = self
+            .points
+            .as_ref()
+            .map(|p| p.embedding.moved(rest, current, rotations));
+        let structures = self
+            .structures
+            .iter()
+            .map(|s| s.moved(rest, current, rotations))
+            .collect();
+        (points, structures)
+    }
+}
+
+impl Points {
+    /// The points at rest, in input order.
+    pub fn rest(&self) -> &[Vec3] {
+        &self.embedding.points
+    }
+}
+
+impl Structure {
+    /// Binds `mesh` (rest coordinates) to the rest particles.
+    pub fn bind(
+        name: String,
+        source: String,
+        kind: Kind,
+        mesh: SurfaceMesh,
+        rest: &[Vec3],
+    ) -> Self {
+        let binding = match kind {
+            Kind::Deformable => Binding::Deformable(Embedding::new(rest, &mesh.vertices)),
+            Kind::Rigid => Binding::Rigid(RigidBinding::new(rest, &mesh.vertices)),
+        };
+        Self {
+            name,
+            source,
+            rest: mesh,
+            binding,
+        }
+    }
+
+    /// How the structure moves.
+    pub fn kind(&self) -> Kind {
+        match self.binding {
+            Binding::Deformable(_) => Kind::Deformable,
+            Binding::Rigid(_) => Kind::Rigid,
+        }
+    }
+
+    fn moved(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> MovedStructure {
+        let rest_centroid = centroid(&self.rest.vertices);
+        let (vertices, moved_centroid, motion) = match &self.binding {
+            Binding::Deformable(embedding) => {
+                let vertices = embedding.moved(rest, current, rotations);
+                let c = centroid(&vertices);
+                (vertices, c, None)
+            }
+            Binding::Rigid(binding) => {
+                let motion = binding.motion(rest, current, rotations);
+                let vertices = self
+                    .rest
+                    .vertices
+                    .iter()
+                    .map(|&x| motion.apply(x))
+                    .collect();
+                (vertices, motion.moved_centre, Some(motion))
+            }
+        };
+        let max_vertex_displacement_mm = self
+            .rest
+            .vertices
+            .iter()
+            .zip(&vertices)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0, f32::max);
+        let mesh = SurfaceMesh::new(vertices, self.rest.triangles.clone());
+        MovedStructure {
+            mesh,
+            report: StructureReport {
+                name: self.name.clone(),
+                kind: self.kind(),
+                source: self.source.clone(),
+                rest_centroid: rest_centroid.to_array(),
+                moved_centroid: moved_centroid.to_array(),
+                displacement_mm: rest_centroid.distance(moved_centroid),
+                max_vertex_displacement_mm,
+                rotation_degrees: motion.as_ref().map(rotation_degrees),
+                transform: motion.as_ref().map(RigidMotion::homogeneous),
+            },
+        }
+    }
+}
+
+impl StructureReport {
+    /// One line for the terminal, e.g.
+    /// `tumour.obj (rigid): centroid moved 2.31 mm (+0.05, -2.20, -0.70), turned 1.2°`.
+    pub fn line(&self) -> String {
+        let d = Vec3::from_array(self.moved_centroid) - Vec3::from_array(self.rest_centroid);
+        let mut line = format!(
+            "{} ({}): centroid moved {:.2} mm ({:+.2}, {:+.2}, {:+.2})",
+            self.name,
+            self.kind.word(),
+            self.displacement_mm,
+            d.x,
+            d.y,
+            d.z
+        );
+        if let Some(angle) = self.rotation_degrees {
+            line += &format!(", turned {angle:.2}°");
+        }
+        line
+    }
+}
+
+/// Reads a structure's surface and refuses non-finite coordinates.
+fn load(path: &Path) -> Result<SurfaceMesh> {
+    let mesh = tissue::load_surface(path)?;
+    if let Some((v, p)) = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .find(|(_, p)| !p.is_finite())
+    {
+        bail!(
+            "{}: vertex {v} is not finite: {p} (a structure must have finite coordinates)",
+            path.display()
+        );
+    }
+    Ok(mesh)
+}
+
+/// Output file names: each structure's own, a rigid one whose name a
+/// deformable one already has gets `-rigid` before its extension; two of the
+/// same kind with the same name are an error.
+fn output_names(deformable: &[PathBuf], rigid: &[PathBuf]) -> Result<Vec<String>> {
+    let mut taken: HashMap<String, &Path> = HashMap::new();
+    let mut names = Vec::new();
+    for (path, is_rigid) in deformable
+        .iter()
+        .map(|p| (p, false))
+        .chain(rigid.iter().map(|p| (p, true)))
+    {
+        let mut name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .map(str::to_owned)
+            .with_context(|| format!("{}: not a file name", path.display()))?;
+        if is_rigid && taken.contains_key(&name) {
+            name = rigid_name(path);
+        }
+        if let Some(other) = taken.get(&name) {
+            bail!(
+                "{} and {} would both be written as {name}; give them different file names",
+                other.display(),
+                path.display()
+            );
+        }
+        if [PARTICLES_FILE, POINTS_FILE, REPORT_FILE].contains(&name.as_str()) {
+            bail!(
+                "{}: a structure may not be called {name}, the name of another output file",
+                path.display()
+            );
+        }
+        taken.insert(name.clone(), path);
+        names.push(name);
+    }
+    Ok(names)
+}
+
+/// `tumour.obj` -> `tumour-rigid.obj`.
+fn rigid_name(path: &Path) -> String {
+    let stem = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("structure");
+    match path.extension().and_then(|e| e.to_str()) {
+        Some(ext) => format!("{stem}-rigid.{ext}"),
+        None => format!("{stem}-rigid"),
+    }
+}
+
+/// Vertex mean, summed in `f64`.
+fn centroid(points: &[Vec3]) -> Vec3 {
+    let sum = points
+        .iter()
+        .fold(glam::DVec3::ZERO, |s, p| s + p.as_dvec3());
+    (sum / points.len().max(1) as f64).as_vec3()
+}
+
+/// The angle of a rotation: `atan2(sin, cos)` with `2 sin` the length of the
+/// skew part's axial vector and `2 cos + 1` the trace, accurate for small angles
+/// (unlike `acos` of the trace alone).
+fn rotation_degrees(motion: &RigidMotion) -> f32 {
+    let r = motion.rotation;
+    let axial = Vec3::new(r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]);
+    let cos = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0);
+    (0.5 * axial.length()).atan2(cos).to_degrees()
+}

@@ -1,0 +1,196 @@
+//! What one solve writes: `particles.vtp`, `points.csv`, the moved
+//! structures, and `report.json`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use tissue::{ParticleModel, SurfaceMesh};
+use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
+
+use crate::carry::{Carried, StructureReport};
+use crate::vtp::save_moved_particles;
+
+/// The moved particles and the deformed surface.
+pub const PARTICLES_FILE: &str = "particles.vtp";
+/// The moved landmark points.
+pub const POINTS_FILE: &str = "points.csv";
+/// The JSON report of a solve.
+pub const REPORT_FILE: &str = "report.json";
+
+/// Landmark points in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct PointsReport {
+    /// The file they were read from.
+    pub source: String,
+    /// How many.
+    pub count: usize,
+    /// Largest distance a point moved.
+    pub max_displacement_mm: f32,
+}
+
+/// The JSON report of one solve (`report.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct SolveReport {
+    /// The model file (or what the demo wrote).
+    pub model: String,
+    /// The deformed surface file.
+    pub surface: String,
+    /// Number of particles.
+    pub particles: usize,
+    /// The stage-2 parameters used.
+    pub params: DeformParams,
+    /// Iterations run.
+    pub iterations: usize,
+    /// The error estimate at the end, as a fraction of the model's size.
+    pub residual: f32,
+    /// Wall-clock seconds of the solve.
+    pub seconds: f64,
+    /// Whether the stopping rule held before the iteration cap.
+    pub converged: bool,
+    /// Largest distance a particle moved from rest.
+    pub max_displacement_mm: f32,
+    /// Where each structure went.
+    pub structures: Vec<StructureReport>,
+    /// The landmark points, when given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub points: Option<PointsReport>,
+    /// The files written, report included.
+    pub files: Vec<String>,
+    /// The error estimate after every iteration.
+    pub residual_history: Vec<f32>,
+}
+
+/// Where a solve's files go, and what to call its inputs in the report.
+#[derive(Debug, Clone, Copy)]
+pub struct Destination<'a> {
+    /// The folder for everything but (possibly) the report.
+    pub dir: &'a Path,
+    /// Where the report goes; `dir/report.json` when `None`.
+    pub report: Option<&'a Path>,
+    /// The model, as named in the report.
+    pub model: &'a str,
+    /// The deformed surface, as named in the report.
+    pub surface: &'a str,
+}
+
+/// Carries everything along with the solved particles and writes the results.
+pub fn write_solution(
+    to: Destination<'_>,
+    model: &ParticleModel,
+    deformer: &Deformer,
+    deformed: &SurfaceMesh,
+    carried: &Carried,
+    params: &DeformParams,
+    solve: DeformReport,
+) -> Result<SolveReport> {
+    let current = deformer.positions();
+    if let Some(i) = current.iter().position(|p| !p.is_finite()) {
+        bail!(
+            "the solve diverged: particle {i} is at {} after {} iterations \
+             (try the default --force symmetric)",
+            current[i],
+            solve.iterations
+        );
+    }
+    std::fs::create_dir_all(to.dir).with_context(|| format!("creating {}", to.dir.display()))?;
+    let mut files: Vec<PathBuf> = Vec::new();
+
+    let particles = to.dir.join(PARTICLES_FILE);
+    save_moved_particles(&particles, model, current, deformed)?;
+    files.push(particles);
+
+    let (points, structures) = carried.moved(deformer);
+    let points = match (points, &carried.points) {
+        (Some(moved), Some(source)) => {
+            let path = to.dir.join(POINTS_FILE);
+            tissue::save_points(&moved, &path)?;
+            files.push(path);
+            Some(PointsReport {
+                source: source.source.clone(),
+                count: moved.len(),
+                max_displacement_mm: source
+                    .rest()
+                    .iter()
+                    .zip(&moved)
+                    .map(|(a, b)| a.distance(*b))
+                    .fold(0.0, f32::max),
+            })
+        }
+        _ => None,
+    };
+    for structure in &structures {
+        let path = to.dir.join(&structure.report.name);
+        tissue::save_surface(&structure.mesh, &path)?;
+        files.push(path);
+    }
+    let report_path = to
+        .report
+        .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf);
+    files.push(report_path.clone());
+
+    let max_displacement_mm = current
+        .iter()
+        .zip(deformer.rest())
+        .map(|(q, p)| q.distance(*p))
+        .fold(0.0, f32::max);
+    let report = SolveReport {
+        model: to.model.to_owned(),
+        surface: to.surface.to_owned(),
+        particles: model.len(),
+        params: params.clone(),
+        iterations: solve.iterations,
+        residual: solve.residual,
+        seconds: solve.seconds,
+        converged: solve.converged,
+        max_displacement_mm,
+        structures: structures.into_iter().map(|s| s.report).collect(),
+        points,
+        files: files.iter().map(|p| p.display().to_string()).collect(),
+        residual_history: solve.residual_history,
+    };
+    write_json(&report_path, &report)?;
+    Ok(report)
+}
+
+/// Pretty JSON with a final newline.
+pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
+    let json = serde_json::to_string_pretty(value)?;
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
+    std::fs::write(path, json + "\n").with_context(|| format!("writing {}", path.display()))
+}
+
+impl SolveReport {
+    /// The solve in a few lines for the terminal, indented by `indent`.
+    pub fn summary(&self, indent: &str) -> Vec<String> {
+        let mut lines = vec![format!(
+            "{indent}{} iterations in {:.3} s, {}; particles moved up to {:.2} mm",
+            self.iterations,
+            self.seconds,
+            convergence(self.converged, self.residual),
+            self.max_displacement_mm
+        )];
+        for s in &self.structures {
+            lines.push(format!("{indent}{}", s.line()));
+        }
+        if let Some(p) = &self.points {
+            lines.push(format!(
+                "{indent}{} points from {}: moved up to {:.2} mm",
+                p.count, p.source, p.max_displacement_mm
+            ));
+        }
+        lines
+    }
+}
+
+/// `converged` or why not.
+pub fn convergence(converged: bool, residual: f32) -> String {
+    if converged {
+        "converged".into()
+    } else {
+        format!("NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations")
+    }
+}

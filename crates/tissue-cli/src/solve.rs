@@ -1,0 +1,173 @@
+//! `tissue deform`: one deformed surface, one solve; and what `track` and
+//! `demo` share with it (parameters, loading, error wording).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::ValueEnum;
+use tissue::{Error, ParticleModel, SurfaceMesh};
+use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
+
+use crate::carry::{Carried, CarryArgs};
+use crate::output::{Destination, write_solution};
+
+/// The force of stage 2.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Force {
+    /// The paper's one-sided force (slower; not the gradient of an energy).
+    Paper,
+    /// The symmetric force, the gradient of the rotation-aware energy (docs/METHOD.md).
+    Symmetric,
+}
+
+/// Stage-2 options shared by `deform` and `track`.
+#[derive(Debug, clap::Args)]
+pub struct SolveArgs {
+    /// Force model.
+    #[arg(long, value_enum, default_value_t = Force::Symmetric)]
+    pub force: Force,
+    /// Iteration cap per solve.
+    #[arg(long, default_value_t = DeformParams::default().max_iterations)]
+    pub max_iterations: usize,
+    /// Stop when every particle's error estimate is below this fraction of the model's size.
+    #[arg(long, default_value_t = DeformParams::default().tolerance)]
+    pub tolerance: f32,
+}
+
+impl SolveArgs {
+    /// The stage-2 parameters, checked.
+    pub fn params(&self) -> Result<DeformParams> {
+        let params = DeformParams {
+            force: match self.force {
+                Force::Paper => ForceModel::Paper,
+                Force::Symmetric => ForceModel::Symmetric,
+            },
+            max_iterations: self.max_iterations,
+            tolerance: self.tolerance,
+            ..DeformParams::default()
+        };
+        params.validate().map_err(stage2_error)?;
+        Ok(params)
+    }
+}
+
+/// Options of `tissue deform`.
+#[derive(Debug, clap::Args)]
+pub struct DeformArgs {
+    /// The particle model (.vtp from `tissue sample`).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The deformed surface: the model's rest surface with moved vertices
+    /// (same vertices in the same order, same triangles).
+    #[arg(long)]
+    pub surface: PathBuf,
+    #[command(flatten)]
+    pub carry: CarryArgs,
+    /// Folder for the results (created if missing).
+    #[arg(long, short = 'o')]
+    pub output_dir: PathBuf,
+    /// Write the JSON report here instead of `<output-dir>/report.json`.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    #[command(flatten)]
+    pub solve: SolveArgs,
+    /// Print nothing but errors.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// A stage-2 library error in the CLI's words: stage 2 reports through
+/// `Error::Sampling`, whose "sampling failed" prefix would mislead here.
+pub fn stage2_error(err: Error) -> anyhow::Error {
+    match err {
+        Error::Sampling(message) => anyhow!(message),
+        other => other.into(),
+    }
+}
+
+/// Reads a model and prepares stage 2 on it.
+pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, Deformer)> {
+    let vtp = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("vtp"));
+    if !vtp {
+        bail!(
+            "{}: a model is the .vtp file `tissue sample --output model.vtp` writes",
+            path.display()
+        );
+    }
+    let model = tissue::load_model(path)?;
+    let deformer = Deformer::new(&model, params)
+        .map_err(stage2_error)
+        .with_context(|| format!("{}: cannot deform this model", path.display()))?;
+    Ok((model, deformer))
+}
+
+/// Reads a deformed surface and places the control points on it.
+///
+/// `load_surface` keeps the file's winding, while sampling turns an
+/// inward-facing surface outward; a deformed surface whose every triangle is
+/// the rest triangle reversed is the same mesh, and is turned the same way.
+pub fn load_deformed(
+    path: &Path,
+    deformer: &mut Deformer,
+    rest: &SurfaceMesh,
+) -> Result<SurfaceMesh> {
+    let mut deformed = tissue::load_surface(path)?;
+    let reversed = deformed.triangles.len() == rest.triangles.len()
+        && deformed
+            .triangles
+            .iter()
+            .zip(&rest.triangles)
+            .all(|(d, r)| [d[0], d[2], d[1]] == *r);
+    if reversed && !deformed.triangles.is_empty() {
+        log::info!(
+            "{}: reversed the winding of every triangle, as sampling did to the rest surface",
+            path.display()
+        );
+        for t in &mut deformed.triangles {
+            t.swap(1, 2);
+        }
+    }
+    deformer
+        .set_surface(&deformed)
+        .map_err(|err| anyhow!("{}: {}", path.display(), stage2_error(err)))?;
+    Ok(deformed)
+}
+
+/// `tissue deform`.
+pub fn deform(args: &DeformArgs) -> Result<()> {
+    let params = args.solve.params()?;
+    let (model, mut deformer) = load_model(&args.model, params.clone())?;
+    let deformed = load_deformed(&args.surface, &mut deformer, &model.surface)?;
+    let carried = Carried::load(&args.carry, deformer.rest())?;
+    std::fs::create_dir_all(&args.output_dir)
+        .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    let solve = deformer.solve();
+    let destination = Destination {
+        dir: &args.output_dir,
+        report: args.report.as_deref(),
+        model: &args.model.display().to_string(),
+        surface: &args.surface.display().to_string(),
+    };
+    let report = write_solution(
+        destination,
+        &model,
+        &deformer,
+        &deformed,
+        &carried,
+        &params,
+        solve,
+    )?;
+    if !args.quiet {
+        println!(
+            "deformed {} particles to follow {}",
+            report.particles, report.surface
+        );
+        for line in report.summary("  ") {
+            println!("{line}");
+        }
+        println!("  wrote {}", report.files.join(", "));
+    }
+    Ok(())
+}

@@ -1,0 +1,174 @@
+//! `tissue track`: a sequence of deformed surfaces, each solve starting from
+//! the previous solution (warm start), one output folder per frame.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+
+use crate::carry::{Carried, CarryArgs, StructureReport};
+use crate::frames::expand;
+use crate::output::{Destination, convergence, write_json, write_solution};
+use crate::solve::{SolveArgs, load_deformed, load_model};
+
+/// The summary of a tracking run.
+pub const TRACK_FILE: &str = "track.json";
+
+/// Options of `tissue track`.
+#[derive(Debug, clap::Args)]
+pub struct TrackArgs {
+    /// The particle model (.vtp from `tissue sample`).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The deformed surfaces, as a pattern (quote it: 'frames/*.obj'); solved
+    /// in name order, numbers compared as numbers.
+    #[arg(long)]
+    pub frames: String,
+    #[command(flatten)]
+    pub carry: CarryArgs,
+    /// Folder for the results: `frame-0001/`, ... and `track.json`.
+    #[arg(long, short = 'o')]
+    pub output_dir: PathBuf,
+    #[command(flatten)]
+    pub solve: SolveArgs,
+    /// Print nothing but errors.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// One frame in `track.json`.
+#[derive(Debug, Serialize)]
+struct FrameReport {
+    /// The deformed surface.
+    frame: String,
+    /// Its output folder.
+    folder: String,
+    iterations: usize,
+    seconds: f64,
+    converged: bool,
+    residual: f32,
+    structures: Vec<StructureReport>,
+}
+
+/// Totals over all frames.
+#[derive(Debug, Serialize)]
+struct Totals {
+    frames: usize,
+    iterations: usize,
+    /// Seconds in the solves.
+    solve_seconds: f64,
+    /// Seconds of the whole run: loading, solving and writing.
+    seconds: f64,
+    /// Whether every frame converged.
+    converged: bool,
+}
+
+/// `track.json`.
+#[derive(Debug, Serialize)]
+struct TrackReport {
+    model: String,
+    frames: Vec<FrameReport>,
+    totals: Totals,
+}
+
+/// `tissue track`.
+pub fn track(args: &TrackArgs) -> Result<()> {
+    let started = Instant::now();
+    let params = args.solve.params()?;
+    let frames = expand(&args.frames)?;
+    let (model, mut deformer) = load_model(&args.model, params.clone())?;
+    let carried = Carried::load(&args.carry, deformer.rest())?;
+    std::fs::create_dir_all(&args.output_dir)
+        .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    let model_name = args.model.display().to_string();
+    let mut reports = Vec::new();
+    for (k, frame) in frames.iter().enumerate() {
+        let deformed = load_deformed(frame, &mut deformer, &model.surface)?;
+        let solve = deformer.solve();
+        let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
+        let surface = frame.display().to_string();
+        let destination = Destination {
+            dir: &dir,
+            report: None,
+            model: &model_name,
+            surface: &surface,
+        };
+        let report = write_solution(
+            destination,
+            &model,
+            &deformer,
+            &deformed,
+            &carried,
+            &params,
+            solve,
+        )?;
+        if !args.quiet {
+            let moved: Vec<String> = report
+                .structures
+                .iter()
+                .map(|s| format!("{} moved {:.2} mm", s.name, s.displacement_mm))
+                .collect();
+            let mut line = format!(
+                "frame {}/{} {}: {} iterations, {:.1} ms, {}",
+                k + 1,
+                frames.len(),
+                surface,
+                report.iterations,
+                1e3 * report.seconds,
+                convergence(report.converged, report.residual)
+            );
+            if !moved.is_empty() {
+                line = format!("{line}; {}", moved.join(", "));
+            }
+            println!("{line}");
+        }
+        reports.push(FrameReport {
+            frame: surface,
+            folder: dir.display().to_string(),
+            iterations: report.iterations,
+            seconds: report.seconds,
+            converged: report.converged,
+            residual: report.residual,
+            structures: report.structures,
+        });
+    }
+    let totals = Totals {
+        frames: reports.len(),
+        iterations: reports.iter().map(|f| f.iterations).sum(),
+        solve_seconds: reports.iter().map(|f| f.seconds).sum(),
+        seconds: started.elapsed().as_secs_f64(),
+        converged: reports.iter().all(|f| f.converged),
+    };
+    let path = args.output_dir.join(TRACK_FILE);
+    let summary = format!(
+        "tracked {} frames: {} iterations, {:.3} s solving, {:.3} s in all, {}",
+        totals.frames,
+        totals.iterations,
+        totals.solve_seconds,
+        totals.seconds,
+        if totals.converged {
+            "all converged"
+        } else {
+            "NOT all converged: raise --max-iterations"
+        }
+    );
+    let count = totals.frames;
+    write_json(
+        &path,
+        &TrackReport {
+            model: model_name,
+            frames: reports,
+            totals,
+        },
+    )?;
+    if !args.quiet {
+        println!("{summary}");
+        println!(
+            "  wrote {} (frame-0001 .. frame-{count:04}) and {}",
+            args.output_dir.display(),
+            path.display()
+        );
+    }
+    Ok(())
+}
