@@ -13,7 +13,6 @@ use tissue_cpu::deformation::{DeformParams, Deformer};
 use crate::carry::{Carried, Kind, Structure, StructureReport};
 use crate::output::{Destination, write_json, write_solution};
 use crate::sample::{print_report, sample_with_bar};
-use crate::solve::stage2_error;
 
 /// The demo's summary.
 pub const DEMO_FILE: &str = "demo.json";
@@ -106,7 +105,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     tissue::save_surface(&tumour, &out.join("tumour.obj"))?;
 
     let deform_params = DeformParams::default();
-    let mut deformer = Deformer::new(&model, deform_params.clone()).map_err(stage2_error)?;
+    let mut deformer = Deformer::new(&model, deform_params.clone())?;
     let rest = deformer.rest();
     let carried = Carried {
         points: None,
@@ -143,7 +142,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         let skin_path = out.join(case.skin_file);
         tissue::save_surface(&case.skin, &skin_path)?;
         deformer.reset();
-        deformer.set_surface(&case.skin).map_err(stage2_error)?;
+        deformer.set_surface(&case.skin)?;
         let solve = deformer.solve();
         let dir = out.join(case.name);
         let skin = skin_path.display().to_string();

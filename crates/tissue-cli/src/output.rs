@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
+use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, StopReason};
 
 use crate::carry::{Carried, StructureReport};
 use crate::vtp::save_moved_particles;
@@ -48,6 +48,8 @@ pub struct SolveReport {
     pub seconds: f64,
     /// Whether the stopping rule held before the iteration cap.
     pub converged: bool,
+    /// Which rule ended the solve.
+    pub stopped_by: StopReason,
     /// Largest distance a particle moved from rest.
     pub max_displacement_mm: f32,
     /// Where each structure went.
@@ -143,6 +145,7 @@ pub fn write_solution(
         residual: solve.residual,
         seconds: solve.seconds,
         converged: solve.converged,
+        stopped_by: solve.stopped_by,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
         points,
@@ -170,7 +173,7 @@ impl SolveReport {
             "{indent}{} iterations in {:.3} s, {}; particles moved up to {:.2} mm",
             self.iterations,
             self.seconds,
-            convergence(self.converged, self.residual),
+            convergence(self.stopped_by, self.residual),
             self.max_displacement_mm
         )];
         for s in &self.structures {
@@ -186,11 +189,16 @@ impl SolveReport {
     }
 }
 
-/// `converged` or why not.
-pub fn convergence(converged: bool, residual: f32) -> String {
-    if converged {
-        "converged".into()
-    } else {
-        format!("NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations")
+/// `converged`, or how far and why not.
+pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
+    match stopped_by {
+        StopReason::Tolerance => "converged".into(),
+        StopReason::FloatPrecision => format!(
+            "converged to single precision (error estimate {residual:.1e} of the size, above --tolerance)"
+        ),
+        StopReason::IterationCap => format!(
+            "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
+        ),
+        StopReason::Diverged => "DIVERGED: the state became non-finite".into(),
     }
 }

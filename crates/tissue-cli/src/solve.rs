@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
-use tissue::{Error, ParticleModel, SurfaceMesh};
+use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
 
 use crate::carry::{Carried, CarryArgs};
@@ -46,7 +46,7 @@ impl SolveArgs {
             tolerance: self.tolerance,
             ..DeformParams::default()
         };
-        params.validate().map_err(stage2_error)?;
+        params.validate()?;
         Ok(params)
     }
 }
@@ -76,15 +76,6 @@ pub struct DeformArgs {
     pub quiet: bool,
 }
 
-/// A stage-2 library error in the CLI's words: stage 2 reports through
-/// `Error::Sampling`, whose "sampling failed" prefix would mislead here.
-pub fn stage2_error(err: Error) -> anyhow::Error {
-    match err {
-        Error::Sampling(message) => anyhow!(message),
-        other => other.into(),
-    }
-}
-
 /// Reads a model and prepares stage 2 on it.
 pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, Deformer)> {
     let vtp = path
@@ -98,7 +89,6 @@ pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, D
     }
     let model = tissue::load_model(path)?;
     let deformer = Deformer::new(&model, params)
-        .map_err(stage2_error)
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
     Ok((model, deformer))
 }
@@ -131,7 +121,7 @@ pub fn load_deformed(
     }
     deformer
         .set_surface(&deformed)
-        .map_err(|err| anyhow!("{}: {}", path.display(), stage2_error(err)))?;
+        .map_err(|err| anyhow!("{}: {}", path.display(), err))?;
     Ok(deformed)
 }
 

@@ -116,7 +116,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 surface,
                 report.iterations,
                 1e3 * report.seconds,
-                convergence(report.converged, report.residual)
+                convergence(report.stopped_by, report.residual)
             );
             if !moved.is_empty() {
                 line = format!("{line}; {}", moved.join(", "));

@@ -158,6 +158,10 @@ pub enum Error {
     /// Sampling could not produce a model.
     #[error("sampling failed: {0}")]
     Sampling(String),
+    /// Stage 2 cannot run: a surface that is not the model's, a model without
+    /// control points, parameters out of range.
+    #[error("{0}")]
+    Deformation(String),
 }
 
 /// Result with tissue's core error.

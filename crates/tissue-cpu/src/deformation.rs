@@ -94,7 +94,7 @@ impl Default for DeformParams {
 impl DeformParams {
     /// Checks every parameter, naming the first that is out of range.
     pub fn validate(&self) -> Result<(), Error> {
-        let bad = |what: &str| Err(Error::Sampling(format!("deformation parameter {what}")));
+        let bad = |what: &str| Err(Error::Deformation(format!("deformation parameter {what}")));
         if !(self.step_fraction > 0.0 && self.step_fraction < 1.0) {
             return bad(&format!(
                 "step_fraction is {}, expected in (0, 1)",
@@ -117,6 +117,21 @@ impl DeformParams {
     }
 }
 
+/// Which rule ended a solve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The error estimate fell below the tolerance.
+    Tolerance,
+    /// The steps fell to what `f32` resolves at the model's coordinates: the
+    /// tolerance is finer than single precision can reach for this model.
+    FloatPrecision,
+    /// The iteration cap.
+    IterationCap,
+    /// The state became non-finite.
+    Diverged,
+}
+
 /// How a solve went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DeformReport {
@@ -128,6 +143,8 @@ pub struct DeformReport {
     pub residual_history: Vec<f32>,
     /// Whether the stopping rule held before the cap.
     pub converged: bool,
+    /// Which rule ended the solve.
+    pub stopped_by: StopReason,
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
 }
@@ -161,10 +178,10 @@ impl Deformer {
         params.validate()?;
         let n = model.len();
         if n == 0 {
-            return Err(Error::Sampling("the model has no particles".into()));
+            return Err(Error::Deformation("the model has no particles".into()));
         }
         if model.connections.particles() != n {
-            return Err(Error::Sampling(format!(
+            return Err(Error::Deformation(format!(
                 "the model's connections describe {} particles, it has {n}",
                 model.connections.particles()
             )));
@@ -175,7 +192,7 @@ impl Deformer {
             .map(|a| a.map(|a| (a.triangle, a.barycentric)))
             .collect();
         if attachments.iter().all(Option::is_none) {
-            return Err(Error::Sampling(
+            return Err(Error::Deformation(
                 "the model has no surface particles to follow the surface".into(),
             ));
         }
@@ -184,7 +201,7 @@ impl Deformer {
             .flatten()
             .find(|(t, _)| *t as usize >= model.surface.triangles.len())
         {
-            return Err(Error::Sampling(format!(
+            return Err(Error::Deformation(format!(
                 "a surface particle is attached to triangle {}, the surface has {}",
                 bad.0,
                 model.surface.triangles.len()
@@ -286,8 +303,10 @@ impl Deformer {
             ForceModel::Symmetric => 1.0,
         };
         let alpha = p.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE);
-        // Steps below this are rounding: f32 resolves about EPSILON * |x|.
-        let floor = 4.0
+        // Steps below this are rounding: f32 resolves about EPSILON * |x|,
+        // and a force summed over a dozen offsets carries a few of those. At
+        // 100k particles on the phantom a tolerance of 1e-5 lies below it.
+        let floor = 16.0
             * f32::EPSILON
             * self
                 .rest
@@ -304,6 +323,7 @@ impl Deformer {
         let rho =
             (1.0 - 2.0 * p.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999);
         let mut converged = false;
+        let mut stopped_by = StopReason::IterationCap;
         let mut iterations = 0;
         while iterations < p.max_iterations {
             self.rotations = match p.rotations {
@@ -359,10 +379,16 @@ impl Deformer {
             let error = step / (1.0 - rate) / self.size;
             history.push(error);
             if !error.is_finite() {
+                stopped_by = StopReason::Diverged;
                 break;
             }
-            if (error < p.tolerance || step < floor) && iterations > 1 {
+            if iterations > 1 && (error < p.tolerance || step < floor) {
                 converged = true;
+                stopped_by = if error < p.tolerance {
+                    StopReason::Tolerance
+                } else {
+                    StopReason::FloatPrecision
+                };
                 break;
             }
         }
@@ -378,6 +404,7 @@ impl Deformer {
             residual: history.last().copied().unwrap_or(0.0),
             residual_history: history,
             converged,
+            stopped_by,
             seconds: started.elapsed().as_secs_f64(),
         }
     }
@@ -408,7 +435,7 @@ pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result
     if deformed.vertices.len() != rest.vertices.len()
         || deformed.triangles.len() != rest.triangles.len()
     {
-        return Err(Error::Sampling(format!(
+        return Err(Error::Deformation(format!(
             "the deformed surface has {} vertices and {} triangles; the model's rest surface has {} and {} \
              (it must be the same mesh with moved vertices)",
             deformed.vertices.len(),
@@ -419,14 +446,14 @@ pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result
     }
     if let Some(t) = (0..rest.triangles.len()).find(|&t| rest.triangles[t] != deformed.triangles[t])
     {
-        return Err(Error::Sampling(format!(
+        return Err(Error::Deformation(format!(
             "triangle {t} of the deformed surface is {:?}, in the rest surface {:?} \
              (it must be the same mesh with moved vertices)",
             deformed.triangles[t], rest.triangles[t]
         )));
     }
     if let Some(v) = deformed.vertices.iter().position(|v| !v.is_finite()) {
-        return Err(Error::Sampling(format!(
+        return Err(Error::Deformation(format!(
             "vertex {v} of the deformed surface is not finite: {}",
             deformed.vertices[v]
         )));
@@ -554,13 +581,24 @@ pub fn integrate(current: &[Vec3], force: &[Vec3], free: &[bool], alpha: f32) ->
         .collect()
 }
 
+/// Lanczos steps for the Laplacian's extreme eigenvalues.
+const LANCZOS_STEPS: usize = 40;
+
 /// The smallest and largest eigenvalues of the graph Laplacian restricted to
 /// free particles (control points fixed: Dirichlet rows), by 40 Lanczos steps
 /// in `f64`. The Ritz values bracket the spectrum from inside: `lambda_min`
 /// comes out slightly high (so the Chebyshev `rho` slightly low, which still
 /// converges) and `lambda_max` slightly low (so it gets a 2% margin).
 pub fn laplacian_extremes(connections: &Connections, free: &[bool]) -> (f32, f32) {
-    const STEPS: usize = 40;
+    laplacian_extremes_with(connections, free, LANCZOS_STEPS)
+}
+
+/// [`laplacian_extremes`] with `steps` Lanczos steps.
+pub fn laplacian_extremes_with(
+    connections: &Connections,
+    free: &[bool],
+    steps: usize,
+) -> (f32, f32) {
     let n = free.len();
     let apply = |v: &[f64]| -> Vec<f64> {
         (0..n)
@@ -599,7 +637,7 @@ pub fn laplacian_extremes(connections: &Connections, free: &[bool]) -> (f32, f32
     let mut previous = vec![0.0; n];
     let (mut alphas, mut betas) = (Vec::new(), Vec::new());
     let mut beta = 0.0f64;
-    for _ in 0..STEPS {
+    for _ in 0..steps.max(2) {
         let mut w = apply(&v);
         for i in 0..n {
             w[i] -= beta * previous[i];
