@@ -14,7 +14,5 @@ cargo clippy --workspace --all-targets --release -- -D warnings
 echo "== cargo test (release)"
 cargo test --workspace --release
 
-echo "== the bundled example, end to end"
-cargo run --release --quiet -p tissue-cli -- \
-    sample assets/phantom-breast.obj --particles 10000 \
-    --output target/ci-model.vtp --report target/ci-report.json
+echo "== the README's first command: the whole pipeline on the bundled phantom"
+cargo run --release --quiet -p tissue-cli -- demo --output-dir target/ci-demo
