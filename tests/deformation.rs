@@ -129,6 +129,7 @@ fn rigid_motion_moves_every_particle_and_point_rigidly() {
     let deformed = deform_surface(&model.surface, &rigid);
     let deformer = solve(model, &deformed, DeformParams::default());
     let size = deformer.size();
+    let mut worst = 0.0f32;
     for i in 0..model.len() {
         let err = (deformer.positions()[i] - rigid.apply(model.positions[i])).length();
         assert!(
@@ -136,14 +137,25 @@ fn rigid_motion_moves_every_particle_and_point_rigidly() {
             "particle {i}: error {err} > {} (1e-4 of size)",
             1e-4 * size
         );
+        worst = worst.max(err);
     }
+    eprintln!(
+        "rigid: worst particle error {:.2e} of the size",
+        worst / size
+    );
     let tumour = phantom::default_tumour();
     let embedding = Embedding::new(deformer.rest(), &tumour.vertices);
     let moved = embedding.moved(deformer.rest(), deformer.positions(), deformer.rotations());
+    let mut worst = 0.0f32;
     for (k, (&x, &y)) in tumour.vertices.iter().zip(&moved).enumerate() {
         let err = (y - rigid.apply(x)).length();
         assert!(err <= 1e-4 * size, "tumour vertex {k}: error {err}");
+        worst = worst.max(err);
     }
+    eprintln!(
+        "rigid: worst tumour vertex error {:.2e} of the size",
+        worst / size
+    );
     let binding = RigidBinding::new(deformer.rest(), &tumour.vertices);
     let motion = binding.motion(deformer.rest(), deformer.positions(), deformer.rotations());
     for &x in &tumour.vertices {
