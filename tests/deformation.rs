@@ -410,3 +410,63 @@ fn a_surface_that_is_not_the_rest_surface_is_refused() {
     let err = deformer.set_surface(&nan).unwrap_err().to_string();
     assert!(err.contains("not finite"), "{err}");
 }
+
+/// Particles with too few connections for a rotation (0, 1 or 2, or all in
+/// one plane) and a particle cut off from the surface: the solve stays finite,
+/// converges, and the cut-off particle stays where it was.
+#[test]
+fn degenerate_neighbourhoods_do_not_break_the_solve() {
+    let model = breast_model();
+    let interior: Vec<u32> = (0..model.len() as u32)
+        .filter(|&i| !model.is_surface(i as usize))
+        .collect();
+    let (isolated, lonely, pair) = (interior[100], interior[200], interior[300]);
+    let keep_one = model.connections.of(lonely as usize)[0];
+    let keep_two = &model.connections.of(pair as usize)[..2];
+    let pairs = model.connections.pair_list().into_iter().filter(|&(a, b)| {
+        let touches = |p: u32| a == p || b == p;
+        if touches(isolated) {
+            return false;
+        }
+        if touches(lonely) {
+            return a == keep_one || b == keep_one;
+        }
+        if touches(pair) {
+            return keep_two.contains(&a) || keep_two.contains(&b);
+        }
+        true
+    });
+    let mut degenerate = model.clone();
+    degenerate.connections = tissue::Connections::from_pairs(model.len(), pairs);
+    assert!(degenerate.connections.of(isolated as usize).is_empty());
+    assert_eq!(degenerate.connections.of(lonely as usize).len(), 1);
+    assert_eq!(degenerate.connections.of(pair as usize).len(), 2);
+
+    let mut deformer = Deformer::new(&degenerate, DeformParams::default()).unwrap();
+    deformer
+        .set_surface(&tissue::deform::sagged_breast())
+        .unwrap();
+    let report = deformer.solve();
+    assert!(report.converged, "{:?}", report.stopped_by);
+    assert!(deformer.positions().iter().all(|q| q.is_finite()));
+    assert!(
+        deformer
+            .rotations()
+            .iter()
+            .all(|r| (r.determinant() - 1.0).abs() < 1e-4)
+    );
+    assert_eq!(
+        deformer.positions()[isolated as usize],
+        model.positions[isolated as usize]
+    );
+    let mut intact = Deformer::new(model, DeformParams::default()).unwrap();
+    intact
+        .set_surface(&tissue::deform::sagged_breast())
+        .unwrap();
+    let normal = intact.solve().iterations;
+    assert!(
+        report.iterations <= 2 * normal,
+        "a floating particle must not stall the acceleration: {} iterations",
+        report.iterations
+    );
+}

@@ -207,7 +207,21 @@ impl Deformer {
                 model.surface.triangles.len()
             )));
         }
-        let free: Vec<bool> = attachments.iter().map(Option::is_none).collect();
+        let mut free: Vec<bool> = attachments.iter().map(Option::is_none).collect();
+        // A free particle with no path of connections to a control point has
+        // nothing to follow: it would stay put anyway, and its zero Laplacian
+        // eigenvalue would stall the acceleration for everyone. Hold it.
+        let floating = floating_particles(&model.connections, &free);
+        if floating > 0 {
+            log::warn!(
+                "{floating} particles are not connected to the surface through any path of connections; \
+                 they stay where they are"
+            );
+        }
+        let anchored = anchored(&model.connections, &free);
+        for (f, a) in free.iter_mut().zip(&anchored) {
+            *f = *f && *a;
+        }
         let (lo, hi) = model.positions.iter().fold(
             (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
             |(lo, hi), &p| (lo.min(p), hi.max(p)),
@@ -428,6 +442,26 @@ fn steps(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
     let max = squares.iter().copied().fold(0.0, f32::max).sqrt();
     let mean = squares.iter().map(|&x| f64::from(x)).sum::<f64>() / squares.len().max(1) as f64;
     (max, mean.sqrt() as f32)
+}
+
+/// Per particle: reachable from a control point through connections.
+fn anchored(connections: &Connections, free: &[bool]) -> Vec<bool> {
+    let mut reached: Vec<bool> = free.iter().map(|f| !f).collect();
+    let mut stack: Vec<usize> = (0..free.len()).filter(|&i| reached[i]).collect();
+    while let Some(i) = stack.pop() {
+        for &j in connections.of(i) {
+            if !reached[j as usize] {
+                reached[j as usize] = true;
+                stack.push(j as usize);
+            }
+        }
+    }
+    reached
+}
+
+/// Free particles with no path of connections to a control point.
+fn floating_particles(connections: &Connections, free: &[bool]) -> usize {
+    anchored(connections, free).iter().filter(|a| !**a).count()
 }
 
 /// The deformed surface must be the rest surface with moved vertices.
