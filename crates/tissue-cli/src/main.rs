@@ -7,7 +7,6 @@ mod output;
 mod sample;
 mod solve;
 mod track;
-mod vtp;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

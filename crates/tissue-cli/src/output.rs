@@ -9,7 +9,6 @@ use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, StopReason};
 
 use crate::carry::{Carried, StructureReport};
-use crate::vtp::save_moved_particles;
 
 /// The moved particles and the deformed surface.
 pub const PARTICLES_FILE: &str = "particles.vtp";
@@ -99,7 +98,7 @@ pub fn write_solution(
     let mut files: Vec<PathBuf> = Vec::new();
 
     let particles = to.dir.join(PARTICLES_FILE);
-    save_moved_particles(&particles, model, current, deformed)?;
+    tissue::io::model::save_moved_particles(model, current, deformed, &particles)?;
     files.push(particles);
 
     let (points, structures) = carried.moved(deformer);

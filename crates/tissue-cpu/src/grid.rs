@@ -33,6 +33,43 @@ impl Grid {
         (z as usize * self.dims[1] as usize + y as usize) * self.dims[0] as usize + x as usize
     }
 
+    /// The cell holding `p` (clamped into the grid), as signed coordinates.
+    pub fn cell_of(&self, p: Vec3) -> [i64; 3] {
+        self.coords(p).map(i64::from)
+    }
+
+    /// Calls `f` for every particle in the cells exactly `shell` cells (in
+    /// the max norm) from cell `centre`: shell 0 is the cell itself. Any
+    /// particle outside shells `0..=shell` is at least `shell * cell` from
+    /// every point of the centre cell. Fixed order.
+    pub fn for_each_in_shell(&self, centre: [i64; 3], shell: i64, mut f: impl FnMut(u32)) {
+        let dims = self.dims.map(i64::from);
+        for z in centre[2] - shell..=centre[2] + shell {
+            for y in centre[1] - shell..=centre[1] + shell {
+                for x in centre[0] - shell..=centre[0] + shell {
+                    let on_shell = (x - centre[0]).abs() == shell
+                        || (y - centre[1]).abs() == shell
+                        || (z - centre[2]).abs() == shell;
+                    let inside = (0..dims[0]).contains(&x)
+                        && (0..dims[1]).contains(&y)
+                        && (0..dims[2]).contains(&z);
+                    if !on_shell || !inside {
+                        continue;
+                    }
+                    let c = self.index([x as u32, y as u32, z as u32]);
+                    self.particles[self.cell_start[c] as usize..self.cell_start[c + 1] as usize]
+                        .iter()
+                        .for_each(|&j| f(j));
+                }
+            }
+        }
+    }
+
+    /// How many shells cover the whole grid from any cell.
+    pub fn max_shell(&self) -> i64 {
+        i64::from(self.dims.iter().copied().max().unwrap_or(1))
+    }
+
     /// Calls `f` with the position in `particles` (the cell-order slot) of
     /// every particle in the cells within `span` cells of `p`'s cell, in a
     /// fixed order (so results do not depend on threads).

@@ -38,42 +38,18 @@ fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
 /// Nearest point of `grid` to `p` (excluding `skip`), searching shells of
 /// cells outward until no closer point can exist. Returns `(index, distance)`.
 pub fn nearest_in_grid(grid: &Grid, positions: &[Vec3], p: Vec3, skip: Option<u32>) -> (u32, f32) {
-    let g = ((p - grid.origin) / grid.cell).floor();
-    let centre = [0, 1, 2].map(|k| (g[k].max(0.0) as i64).min(i64::from(grid.dims[k]) - 1));
-    let max_shell = grid.dims.iter().copied().max().unwrap_or(1) as i64;
+    let centre = grid.cell_of(p);
     let mut best = (u32::MAX, f32::INFINITY);
-    for shell in 0..=max_shell {
-        for z in centre[2] - shell..=centre[2] + shell {
-            for y in centre[1] - shell..=centre[1] + shell {
-                for x in centre[0] - shell..=centre[0] + shell {
-                    let on_shell = [x - centre[0], y - centre[1], z - centre[2]]
-                        .iter()
-                        .any(|d| d.abs() == shell);
-                    let inside = [x, y, z]
-                        .iter()
-                        .zip(grid.dims)
-                        .all(|(&c, n)| c >= 0 && c < i64::from(n));
-                    if !on_shell || !inside {
-                        continue;
-                    }
-                    let c = ((z as usize * grid.dims[1] as usize) + y as usize)
-                        * grid.dims[0] as usize
-                        + x as usize;
-                    for &j in &grid.particles
-                        [grid.cell_start[c] as usize..grid.cell_start[c + 1] as usize]
-                    {
-                        if Some(j) == skip {
-                            continue;
-                        }
-                        let d = (positions[j as usize] - p).length();
-                        if d < best.1 || (d == best.1 && j < best.0) {
-                            best = (j, d);
-                        }
-                    }
-                }
+    for shell in 0..=grid.max_shell() {
+        grid.for_each_in_shell(centre, shell, |j| {
+            if Some(j) == skip {
+                return;
             }
-        }
-        // Every point outside shells 0..=shell is at least shell cells away.
+            let d = (positions[j as usize] - p).length();
+            if d < best.1 || (d == best.1 && j < best.0) {
+                best = (j, d);
+            }
+        });
         if best.1 <= shell as f32 * grid.cell {
             break;
         }

@@ -35,35 +35,12 @@ pub struct Embedding {
 /// ties by index.
 pub fn k_nearest(grid: &Grid, positions: &[Vec3], p: Vec3, k: usize) -> Vec<(u32, f32)> {
     let k = k.min(positions.len());
-    let g = ((p - grid.origin) / grid.cell).floor();
-    let centre = [0, 1, 2].map(|a| (g[a].max(0.0) as i64).min(i64::from(grid.dims[a]) - 1));
-    let max_shell = i64::from(grid.dims.iter().copied().max().unwrap_or(1));
+    let centre = grid.cell_of(p);
     let mut best: Vec<(u32, f32)> = Vec::with_capacity(4 * k);
-    for shell in 0..=max_shell {
-        for z in centre[2] - shell..=centre[2] + shell {
-            for y in centre[1] - shell..=centre[1] + shell {
-                for x in centre[0] - shell..=centre[0] + shell {
-                    let on_shell = [x - centre[0], y - centre[1], z - centre[2]]
-                        .iter()
-                        .any(|d| d.abs() == shell);
-                    let inside = [x, y, z]
-                        .iter()
-                        .zip(grid.dims)
-                        .all(|(&c, n)| c >= 0 && c < i64::from(n));
-                    if !on_shell || !inside {
-                        continue;
-                    }
-                    let c = (z as usize * grid.dims[1] as usize + y as usize)
-                        * grid.dims[0] as usize
-                        + x as usize;
-                    for &j in &grid.particles
-                        [grid.cell_start[c] as usize..grid.cell_start[c + 1] as usize]
-                    {
-                        best.push((j, (positions[j as usize] - p).length()));
-                    }
-                }
-            }
-        }
+    for shell in 0..=grid.max_shell() {
+        grid.for_each_in_shell(centre, shell, |j| {
+            best.push((j, (positions[j as usize] - p).length()))
+        });
         best.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
         best.truncate(k);
         // Everything outside shells 0..=shell is at least shell cells away.
@@ -216,4 +193,42 @@ fn typical_spacing(particles: &[Vec3]) -> f32 {
     );
     let volume = (hi - lo).max(Vec3::splat(1e-12)).element_product();
     (volume / particles.len().max(1) as f32).cbrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn k_nearest_matches_brute_force_and_orders_ties_by_index() {
+        let mut s = 99u64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut points: Vec<Vec3> = (0..1_531)
+            .map(|_| Vec3::new(next(), next() * 0.2, next()))
+            .collect();
+        points.push(Vec3::splat(30.0)); // a far outlier widens the search
+        points.push(points[5]); // an exact tie
+        let grid = grid_build(&points, typical_spacing(&points));
+        for q in [
+            points[5],
+            Vec3::splat(0.5),
+            Vec3::new(-3.0, 0.1, 0.4),
+            Vec3::splat(29.0),
+        ] {
+            for k in [1, 8, 16] {
+                let got = k_nearest(&grid, &points, q, k);
+                let mut brute: Vec<(u32, f32)> = (0..points.len() as u32)
+                    .map(|j| (j, (points[j as usize] - q).length()))
+                    .collect();
+                brute.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                brute.truncate(k);
+                assert_eq!(got, brute, "k = {k} at {q}");
+            }
+        }
+    }
 }

@@ -193,6 +193,81 @@ pub fn export_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
 // ---------------------------------------------------------------------------
 // Shared helpers
 
+/// Writes a stage-2 result: the particles of `model` where stage 2 moved them
+/// (`current`) and the `deformed` surface, laid out like the model file, with
+/// a `displacement` array (from rest, per particle and per surface vertex).
+/// It carries no model marker: `load_model` refuses it, since it is a
+/// result, not a rest state to deform again.
+///
+/// # Errors
+///
+/// [`Error::Format`] when `current` or `deformed` do not match `model`, or a
+/// position is not finite; [`Error::Io`] when the file cannot be written.
+///
+/// # Examples
+///
+/// ```
+/// use tissue_core::io::model::{load_model, save_moved_particles};
+/// use tissue_core::{Connections, ParticleModel, SurfaceMesh, Vec3};
+///
+/// let surface = SurfaceMesh::new(
+///     vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+///     vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+/// );
+/// let model = ParticleModel {
+///     positions: vec![Vec3::splat(0.1), Vec3::splat(0.2)],
+///     radii: vec![0.05; 2],
+///     attachments: vec![None; 2],
+///     connections: Connections::from_pairs(2, [(0, 1)]),
+///     surface: surface.clone(),
+/// };
+/// let moved = [Vec3::splat(0.15), Vec3::splat(0.25)];
+/// let dir = tempfile::tempdir()?;
+/// let path = dir.path().join("particles.vtp");
+/// save_moved_particles(&model, &moved, &surface, &path)?;
+/// assert!(std::fs::read_to_string(&path)?.contains(r#"Name="displacement""#));
+/// assert!(load_model(&path).is_err(), "a result is not a model");
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn save_moved_particles(
+    model: &ParticleModel,
+    current: &[Vec3],
+    deformed: &SurfaceMesh,
+    path: &Path,
+) -> Result<(), Error> {
+    if current.len() != model.len() || deformed.vertices.len() != model.surface.vertices.len() {
+        return Err(format_error(
+            path,
+            format!(
+                "{} moved particles and {} surface vertices for a model of {} and {}",
+                current.len(),
+                deformed.vertices.len(),
+                model.len(),
+                model.surface.vertices.len()
+            ),
+        ));
+    }
+    if let Some(i) = current.iter().position(|p| !p.is_finite()) {
+        return Err(format_error(
+            path,
+            format!("particle {i} is at {} (the solve diverged)", current[i]),
+        ));
+    }
+    let moved = ParticleModel {
+        positions: current.to_vec(),
+        surface: deformed.clone(),
+        ..model.clone()
+    };
+    check_model(&moved).map_err(|message| format_error(path, message))?;
+    let displacement: Vec<Vec3> = current
+        .iter()
+        .zip(&model.positions)
+        .chain(deformed.vertices.iter().zip(&model.surface.vertices))
+        .map(|(now, rest)| *now - *rest)
+        .collect();
+    write_file(path, |w| write_poly_data(&moved, Some(&displacement), w))
+}
+
 fn format_error(path: &Path, message: impl Into<String>) -> Error {
     Error::Format {
         path: path.to_path_buf(),
@@ -379,6 +454,17 @@ const REST_SURFACE_FLAG: u8 = 2;
 /// appears in a later piece without offsetting its point ids, so ParaView
 /// would draw the surface's triangles between particles.
 fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
+    write_poly_data(model, None, w)
+}
+
+/// The model file's layout; with `displacement` (one per particle, then one
+/// per surface vertex) the file is a stage-2 result instead: it gets a
+/// `displacement` array and no model marker, so `load_model` refuses it.
+fn write_poly_data(
+    model: &ParticleModel,
+    displacement: Option<&[Vec3]>,
+    w: &mut dyn Write,
+) -> io::Result<()> {
     let n = model.len();
     let pairs = model.connections.pair_list();
     let surface = &model.surface;
@@ -386,20 +472,24 @@ fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
     let first_vertex = n as u64;
 
     writeln!(w, r#"<?xml version="1.0"?>"#)?;
-    writeln!(
-        w,
-        "<!-- tissue particle model: particles, then rest-surface vertices; see docs/FORMATS.md -->"
-    )?;
+    let what = if displacement.is_some() {
+        "tissue stage-2 result: moved particles, then deformed-surface vertices"
+    } else {
+        "tissue particle model: particles, then rest-surface vertices"
+    };
+    writeln!(w, "<!-- {what}; see docs/FORMATS.md -->")?;
     writeln!(
         w,
         r#"<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">"#
     )?;
     writeln!(w, "  <PolyData>")?;
     writeln!(w, "    <FieldData>")?;
-    writeln!(
-        w,
-        r#"      <DataArray type="Int32" Name="{MODEL_VERSION_ARRAY}" NumberOfTuples="1" format="ascii">{MODEL_VERSION}</DataArray>"#
-    )?;
+    if displacement.is_none() {
+        writeln!(
+            w,
+            r#"      <DataArray type="Int32" Name="{MODEL_VERSION_ARRAY}" NumberOfTuples="1" format="ascii">{MODEL_VERSION}</DataArray>"#
+        )?;
+    }
     writeln!(
         w,
         r#"      <DataArray type="Int64" Name="{PARTICLES_ARRAY}" NumberOfTuples="1" format="ascii">{n}</DataArray>"#
@@ -414,6 +504,10 @@ fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
     )?;
 
     writeln!(w, r#"      <PointData Scalars="surface">"#)?;
+    if let Some(displacement) = displacement {
+        let values = displacement.iter().flat_map(|d| d.to_array());
+        write_array(w, "Float32", "displacement", 3, values)?;
+    }
     let radius = model.radii.iter().copied();
     write_array(
         w,
