@@ -1,31 +1,9 @@
 //! The `tissue` binary as a user runs it.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn tissue(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(args)
-        .output()
-        .expect("the tissue binary runs")
-}
-
-fn text(out: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
-}
-
-fn assets() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use common::{assets, s, text, tissue};
 
 #[test]
 fn the_bundled_phantom_is_what_the_code_makes() {

@@ -1,35 +1,15 @@
 //! `tissue deform`, `track` and `demo` as a user runs them.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+use common::{assets, s, text, tissue};
 
 use serde_json::Value;
 use tissue::deform::{Rigid, Sag, deform_surface, interpolate};
 use tissue::{ParticleModel, SurfaceMesh, Vec3, phantom};
-
-fn tissue(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(args)
-        .output()
-        .expect("the tissue binary runs")
-}
-
-fn text(out: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn assets() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
-}
 
 fn json(path: &Path) -> Value {
     let text =

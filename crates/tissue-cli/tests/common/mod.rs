@@ -1,0 +1,33 @@
+//! Helpers shared by the CLI test files.
+#![allow(dead_code, reason = "each test file uses a different subset")]
+#![allow(clippy::expect_used, clippy::unwrap_used, reason = "tests")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Runs the `tissue` binary.
+pub fn tissue(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(args)
+        .output()
+        .expect("the tissue binary runs")
+}
+
+/// Its stdout and stderr together.
+pub fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// The bundled assets folder.
+pub fn assets() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
+}
+
+/// A path as `&str`.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
