@@ -1,0 +1,225 @@
+//! `tissue_cpu::deformation::Deformer::solve` on the GPU.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use tissue_core::{ParticleModel, SurfaceMesh};
+use tissue_cpu::deformation::{
+    Chebyshev, DeformParams, DeformReport, Plan, StopReason, StoppingRule, check_same_topology,
+};
+
+use crate::state::SLOTS;
+use crate::{DeformState, GpuError, Pipelines};
+
+/// Stage 2 on the GPU for one particle model: the same step `alpha` from
+/// `lambda_max`, the same spectral Chebyshev `rho` and the same stopping rule
+/// as the CPU [`tissue_cpu::deformation::Deformer`], with rotations always by
+/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted) and no
+/// constant-velocity prediction between frames (a new frame starts from the
+/// last solution). The step norms are read back once per [`SLOTS`]
+/// iterations; when the rule held inside a batch, the batch is replayed up
+/// to that iteration, so the iteration count equals the CPU rule's.
+#[derive(Debug)]
+pub struct GpuDeformer {
+    pipelines: Pipelines,
+    state: DeformState,
+    surface: SurfaceMesh,
+    /// Triangle and barycentric coordinates of each control point, in particle order.
+    attachments: Vec<(u32, [f32; 3])>,
+    /// Free particles, spectrum, size and float floor, as the CPU path has them.
+    plan: Plan,
+    params: DeformParams,
+    backup_current: wgpu::Buffer,
+    backup_previous: wgpu::Buffer,
+}
+
+impl GpuDeformer {
+    /// Checks `model` and `params`, estimates the Laplacian's extreme
+    /// eigenvalues (on the CPU, as the CPU path does), compiles the kernels
+    /// and uploads the model.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &ParticleModel,
+        params: DeformParams,
+    ) -> Result<Self, GpuError> {
+        params.validate()?;
+        let plan = Plan::new(model)?;
+        let attachments: Vec<(u32, [f32; 3])> = model
+            .attachments
+            .iter()
+            .flatten()
+            .map(|a| (a.triangle, a.barycentric))
+            .collect();
+        let pipelines = Pipelines::new(device)?;
+        let state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+        let backup = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: state.len() as u64 * 16,
+                usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        Ok(Self {
+            backup_current: backup("backup current"),
+            backup_previous: backup("backup previous"),
+            pipelines,
+            state,
+            surface: model.surface.clone(),
+            attachments,
+            plan,
+            params,
+        })
+    }
+
+    /// The kernels.
+    pub fn pipelines(&self) -> &Pipelines {
+        &self.pipelines
+    }
+
+    /// The buffers.
+    pub fn state(&self) -> &DeformState {
+        &self.state
+    }
+
+    /// The model's size (bounding-box diagonal at rest).
+    pub fn size(&self) -> f32 {
+        self.plan.size
+    }
+
+    /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_min(&self) -> f32 {
+        self.plan.lambda_min
+    }
+
+    /// Largest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_max(&self) -> f32 {
+        self.plan.lambda_max
+    }
+
+    /// Places the control points on `deformed`, the rest surface with moved
+    /// vertices, and uploads them (a frame boundary).
+    pub fn set_surface(
+        &mut self,
+        queue: &wgpu::Queue,
+        deformed: &SurfaceMesh,
+    ) -> Result<(), GpuError> {
+        check_same_topology(&self.surface, deformed)?;
+        let points: Vec<Vec3> = self
+            .attachments
+            .iter()
+            .map(|&(t, bary)| deformed.point_on(t as usize, bary))
+            .collect();
+        self.state.set_control_points(queue, &points)
+    }
+
+    /// Reads the current positions back (a frame boundary).
+    pub fn positions(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        self.state.read_positions(device, queue)
+    }
+
+    /// Back to the rest shape.
+    pub fn reset(&mut self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(), GpuError> {
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("reset"),
+        });
+        encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
+        queue.submit([encoder.finish()]);
+        crate::wait(device)
+    }
+
+    /// Iterates until the stopping rule of `Deformer::solve` holds or the cap
+    /// is reached (see the type's doc for what differs).
+    pub fn solve(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<DeformReport, GpuError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let report = self.iterate(device, queue);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(e.into());
+        }
+        report
+    }
+
+    fn iterate(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<DeformReport, GpuError> {
+        let started = Instant::now();
+        let p = &self.params;
+        let alpha = self.plan.alpha(p);
+        let mut chebyshev = Chebyshev::new(&self.plan, p);
+        let mut rule = StoppingRule::new(&self.plan, p);
+        let state = &self.state;
+        let n = state.len() as f64;
+        let mut stopped_by = StopReason::IterationCap;
+        let mut iterations = 0;
+
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("solve start"),
+        });
+        encoder.copy_buffer_to_buffer(&state.current, 0, &state.previous, 0, None);
+        queue.submit([encoder.finish()]);
+
+        while iterations < p.max_iterations {
+            let batch = SLOTS.min((p.max_iterations - iterations) as u32);
+            // The batch replays exactly, so omega may advance ahead of the rule.
+            let mut lookahead = chebyshev.clone();
+            for slot in 0..batch {
+                let omega = lookahead.omega(iterations + slot as usize + 1);
+                state.write_params(queue, slot, state.params(p.force, alpha, omega, slot));
+            }
+            chebyshev = lookahead;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("solve batch"),
+            });
+            encoder.copy_buffer_to_buffer(&state.current, 0, &self.backup_current, 0, None);
+            encoder.copy_buffer_to_buffer(&state.previous, 0, &self.backup_previous, 0, None);
+            self.pipelines.record_iterations(&mut encoder, state, batch);
+            queue.submit([encoder.finish()]);
+            let partials = state.read_partials(device, queue, batch)?;
+
+            let mut stop_after = None;
+            for (k, row) in partials.iter().enumerate() {
+                let step = row.iter().map(|x| x[0]).fold(0.0f32, f32::max).sqrt();
+                let sum: f64 = row.iter().map(|x| f64::from(x[1])).sum();
+                iterations += 1;
+                if let Some(reason) = rule.after(step, (sum / n).sqrt() as f32) {
+                    stopped_by = reason;
+                    stop_after = Some(k as u32 + 1);
+                    break;
+                }
+            }
+            if let Some(done) = stop_after {
+                if done < batch {
+                    // Replay the batch up to the iteration where the rule held.
+                    let mut encoder =
+                        device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                            label: Some("solve replay"),
+                        });
+                    encoder.copy_buffer_to_buffer(&self.backup_current, 0, &state.current, 0, None);
+                    encoder.copy_buffer_to_buffer(
+                        &self.backup_previous,
+                        0,
+                        &state.previous,
+                        0,
+                        None,
+                    );
+                    self.pipelines.record_iterations(&mut encoder, state, done);
+                    queue.submit([encoder.finish()]);
+                    crate::wait(device)?;
+                }
+                break;
+            }
+        }
+        Ok(rule.report(iterations, stopped_by, started.elapsed().as_secs_f64()))
+    }
+}

@@ -1,0 +1,239 @@
+//! The GPU path of tissue: stage 2 (deformation) as WGSL compute shaders
+//! through wgpu, each kernel the twin of a `tissue_cpu::deformation` function
+//! of the same name with the same inputs in the same order.
+//!
+//! - [`Pipelines`]: the compiled kernels, built once from a `&Device`.
+//! - [`DeformState`]: the buffers of one particle model.
+//! - [`Pipelines::record_iterations`]: the step, rotations → force →
+//!   integrate → step norms → Chebyshev, K times into one command buffer.
+//! - [`GpuDeformer`]: `tissue_cpu::deformation::Deformer::solve` on the GPU.
+//!
+//! The library takes `&Device, &Queue` and chooses no adapter; asks for no
+//! optional features and only default limits.
+
+mod deformer;
+mod pipelines;
+pub mod shaders;
+mod state;
+
+pub use deformer::GpuDeformer;
+pub use pipelines::{Kernel, Pipelines};
+pub use state::{DeformState, SLOTS};
+
+use bytemuck::{Pod, Zeroable};
+
+/// Errors of the GPU path.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter (GPU or software rasteriser) was found.
+    #[error("no GPU adapter: {0}")]
+    NoAdapter(String),
+    /// The adapter would not open a device.
+    #[error("the adapter refused a device: {0}")]
+    RequestDevice(String),
+    /// A buffer or dispatch is larger than a device limit allows.
+    #[error("{what} needs {asked}, above the device's {limit} of {allowed}")]
+    LimitExceeded {
+        /// The `wgpu::Limits` field.
+        limit: &'static str,
+        /// What asked for it.
+        what: String,
+        /// The size asked for.
+        asked: u64,
+        /// The device's limit.
+        allowed: u64,
+    },
+    /// A shader failed to preprocess, parse or validate.
+    #[error("shader {name}: {message}")]
+    Shader {
+        /// The shader or entry point.
+        name: String,
+        /// naga's report.
+        message: String,
+    },
+    /// The device ran out of memory.
+    #[error("the GPU ran out of memory: {0}")]
+    OutOfMemory(String),
+    /// wgpu rejected a call (a bug in this crate, reported instead of panicking).
+    #[error("wgpu validation error: {0}")]
+    Validation(String),
+    /// wgpu reported an internal error.
+    #[error("wgpu internal error: {0}")]
+    Internal(String),
+    /// The device was lost or did not finish the work.
+    #[error("the device was lost or stopped responding: {0}")]
+    DeviceLost(String),
+    /// Mapping a buffer for readback failed.
+    #[error("reading a buffer back failed: {0}")]
+    Map(String),
+    /// The model, the surface or the parameters were refused.
+    #[error(transparent)]
+    Model(#[from] tissue_core::Error),
+    /// An input slice has the wrong length.
+    #[error("{what}: expected {expected} entries, got {got}")]
+    Length {
+        /// Which input.
+        what: &'static str,
+        /// Entries expected.
+        expected: usize,
+        /// Entries given.
+        got: usize,
+    },
+}
+
+impl From<wgpu::Error> for GpuError {
+    fn from(e: wgpu::Error) -> Self {
+        match e {
+            wgpu::Error::OutOfMemory { source } => Self::OutOfMemory(source.to_string()),
+            wgpu::Error::Validation { description, .. } => Self::Validation(description),
+            wgpu::Error::Internal { description, .. } => Self::Internal(description),
+        }
+    }
+}
+
+/// Mirror of WGSL `Params` (`shaders/shared/layout.wgsl`): one iteration's
+/// parameters, one slot per iteration of a batch.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Params {
+    /// Number of particles.
+    pub count: u32,
+    /// Force model: 0 the paper's, 1 symmetric.
+    pub model: u32,
+    /// Step `alpha = sigma / m`.
+    pub alpha: f32,
+    /// Chebyshev weight; exactly 1 is a plain step.
+    pub omega: f32,
+    /// Which row of the partials `step_norms` writes.
+    pub slot: u32,
+    /// Workgroups of a `step_norms` dispatch: the length of a partials row.
+    pub groups: u32,
+}
+
+/// Mirror of WGSL `Rotation` (`shaders/shared/layout.wgsl`): three columns,
+/// each padded to a `vec4`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Rotation {
+    /// First column (w unused).
+    pub x_axis: [f32; 4],
+    /// Second column (w unused).
+    pub y_axis: [f32; 4],
+    /// Third column (w unused).
+    pub z_axis: [f32; 4],
+}
+
+impl From<glam::Mat3> for Rotation {
+    fn from(m: glam::Mat3) -> Self {
+        Self {
+            x_axis: m.x_axis.extend(0.0).to_array(),
+            y_axis: m.y_axis.extend(0.0).to_array(),
+            z_axis: m.z_axis.extend(0.0).to_array(),
+        }
+    }
+}
+
+impl From<Rotation> for glam::Mat3 {
+    fn from(r: Rotation) -> Self {
+        let column = |c: [f32; 4]| glam::Vec3::new(c[0], c[1], c[2]);
+        Self::from_cols(column(r.x_axis), column(r.y_axis), column(r.z_axis))
+    }
+}
+
+/// For the CLI, the benchmark and tests (the library itself takes a device):
+/// the adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the default
+/// one, and a device with default limits and no optional features.
+pub fn device_from_env() -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), GpuError> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle().with_env());
+    // wgpu's own `initialize_adapter_from_env` panics when the named adapter
+    // is missing; the same choice here returns an error instead.
+    let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
+        Ok(wanted) => {
+            let wanted = wanted.to_lowercase();
+            let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+            let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+            adapters
+                .into_iter()
+                .find(|a| a.get_info().name.to_lowercase().contains(&wanted))
+                .ok_or_else(|| {
+                    GpuError::NoAdapter(format!(
+                        "WGPU_ADAPTER_NAME={wanted} matches none of {names:?}"
+                    ))
+                })?
+        }
+        Err(_) => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?,
+    };
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("tissue"),
+        required_limits: wgpu::Limits::default(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
+    Ok((adapter, device, queue))
+}
+
+/// Waits for the queue, turning a lost device or a timeout into an error.
+pub(crate) fn wait(device: &wgpu::Device) -> Result<(), GpuError> {
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| GpuError::DeviceLost(e.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Size and offsets of a Rust mirror must equal naga's layout of the WGSL struct.
+    fn check_layout(name: &str, rust_size: usize, rust_offsets: &[(&str, usize)]) {
+        let module = shaders::module("local_rotations").map_err(|e| e.to_string());
+        let layout = module
+            .ok()
+            .and_then(|m| shaders::struct_layout(&m, name))
+            .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
+        assert_eq!(layout.0 as usize, rust_size, "size of {name}");
+        let naga: Vec<(String, usize)> =
+            layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
+        let rust: Vec<(String, usize)> = rust_offsets
+            .iter()
+            .map(|(n, o)| ((*n).to_owned(), *o))
+            .collect();
+        assert_eq!(naga, rust, "member names and offsets of {name}");
+    }
+
+    #[test]
+    fn params_matches_the_wgsl_layout() {
+        use std::mem::{offset_of, size_of};
+        check_layout(
+            "Params",
+            size_of::<Params>(),
+            &[
+                ("count", offset_of!(Params, count)),
+                ("model", offset_of!(Params, model)),
+                ("alpha", offset_of!(Params, alpha)),
+                ("omega", offset_of!(Params, omega)),
+                ("slot", offset_of!(Params, slot)),
+                ("groups", offset_of!(Params, groups)),
+            ],
+        );
+    }
+
+    #[test]
+    fn rotation_matches_the_wgsl_layout() {
+        use std::mem::{offset_of, size_of};
+        check_layout(
+            "Rotation",
+            size_of::<Rotation>(),
+            &[
+                ("x_axis", offset_of!(Rotation, x_axis)),
+                ("y_axis", offset_of!(Rotation, y_axis)),
+                ("z_axis", offset_of!(Rotation, z_axis)),
+            ],
+        );
+    }
+}

@@ -1,0 +1,239 @@
+//! WGSL sources, the `#import` step, and naga reflection.
+//!
+//! Every shader is compiled into the binary (`include_str!`), so nothing is
+//! read from disk at run time. `#import shared/NAME` on a line of its own is
+//! replaced by `shaders/shared/NAME.wgsl`, once per shader however often it
+//! is imported.
+
+use std::collections::HashSet;
+
+use crate::GpuError;
+
+/// Shared WGSL pulled in by `#import`: `(name, source)`.
+pub const SHARED: &[(&str, &str)] = &[
+    (
+        "shared/layout",
+        include_str!("../../../shaders/shared/layout.wgsl"),
+    ),
+    (
+        "shared/svd3",
+        include_str!("../../../shaders/shared/svd3.wgsl"),
+    ),
+];
+
+/// Shader files with entry points: `(name, source before #import expansion)`.
+/// `tests/svd3` is the test-only kernel behind the SVD invariant tests.
+pub const SHADERS: &[(&str, &str)] = &[
+    (
+        "local_rotations",
+        include_str!("../../../shaders/local_rotations.wgsl"),
+    ),
+    (
+        "deformation_force",
+        include_str!("../../../shaders/deformation_force.wgsl"),
+    ),
+    ("integrate", include_str!("../../../shaders/integrate.wgsl")),
+    (
+        "step_norms",
+        include_str!("../../../shaders/step_norms.wgsl"),
+    ),
+    (
+        "tests/svd3",
+        include_str!("../../../shaders/tests/svd3.wgsl"),
+    ),
+];
+
+/// Expands every `#import shared/NAME` line of `source`.
+pub fn preprocess(source: &str) -> Result<String, GpuError> {
+    let mut imported = HashSet::new();
+    expand(source, &mut imported)
+}
+
+fn expand(source: &str, imported: &mut HashSet<&'static str>) -> Result<String, GpuError> {
+    let mut out = String::with_capacity(source.len());
+    for line in source.lines() {
+        if let Some(name) = line.trim().strip_prefix("#import") {
+            let name = name.trim();
+            let Some(&(found, text)) = SHARED.iter().find(|(n, _)| *n == name) else {
+                return Err(GpuError::Shader {
+                    name: name.to_owned(),
+                    message: format!(
+                        "unknown #import; known: {}",
+                        SHARED
+                            .iter()
+                            .map(|(n, _)| *n)
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                });
+            };
+            if imported.insert(found) {
+                out.push_str(&expand(text, imported)?);
+            }
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    Ok(out)
+}
+
+/// The WGSL of shader `name` (a [`SHADERS`] entry) with its imports expanded.
+pub fn source(name: &str) -> Result<String, GpuError> {
+    let Some((_, text)) = SHADERS.iter().find(|(n, _)| *n == name) else {
+        return Err(GpuError::Shader {
+            name: name.to_owned(),
+            message: "no such shader".into(),
+        });
+    };
+    preprocess(text)
+}
+
+/// Parses and validates expanded WGSL with naga; errors carry naga's report.
+pub fn module_from_source(name: &str, source: &str) -> Result<naga::Module, GpuError> {
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| GpuError::Shader {
+        name: name.to_owned(),
+        message: e.emit_to_string(source),
+    })?;
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::default(),
+    )
+    .validate(&module)
+    .map_err(|e| GpuError::Shader {
+        name: name.to_owned(),
+        message: e.emit_to_string(source),
+    })?;
+    Ok(module)
+}
+
+/// Parses and validates shader `name` (a [`SHADERS`] entry).
+pub fn module(name: &str) -> Result<naga::Module, GpuError> {
+    module_from_source(name, &source(name)?)
+}
+
+/// The workgroup size of entry point `entry`, as the module declares it.
+pub fn workgroup_size(module: &naga::Module, entry: &str) -> Result<[u32; 3], GpuError> {
+    module
+        .entry_points
+        .iter()
+        .find(|e| e.name == entry)
+        .map(|e| e.workgroup_size)
+        .ok_or_else(|| GpuError::Shader {
+            name: entry.to_owned(),
+            message: "no such entry point".into(),
+        })
+}
+
+/// Size and member offsets of WGSL struct `name` in `module`, by naga's layouter.
+pub fn struct_layout(module: &naga::Module, name: &str) -> Option<(u32, Vec<(String, u32)>)> {
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).ok()?;
+    module.types.iter().find_map(|(handle, ty)| {
+        if ty.name.as_deref() != Some(name) {
+            return None;
+        }
+        match &ty.inner {
+            naga::TypeInner::Struct { members, .. } => Some((
+                layouter[handle].size,
+                members
+                    .iter()
+                    .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+                    .collect(),
+            )),
+            _ => None,
+        }
+    })
+}
+
+/// A buffer binding of group 0 as the module declares it.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Binding {
+    /// Binding number.
+    pub binding: u32,
+    /// The WGSL variable's name, which is also the buffer's name in Rust.
+    pub name: String,
+    /// A uniform (bound with a dynamic offset, one slot per iteration).
+    pub uniform: bool,
+    /// Read-only storage.
+    pub read_only: bool,
+}
+
+/// The buffer bindings `module` declares, by binding number.
+pub fn bindings(module: &naga::Module) -> Vec<Binding> {
+    let mut out: Vec<Binding> = module
+        .global_variables
+        .iter()
+        .filter_map(|(_, var)| {
+            let binding = var.binding.as_ref()?.binding;
+            let name = var.name.clone().unwrap_or_default();
+            match var.space {
+                naga::AddressSpace::Uniform => Some(Binding {
+                    binding,
+                    name,
+                    uniform: true,
+                    read_only: true,
+                }),
+                naga::AddressSpace::Storage { access } => Some(Binding {
+                    binding,
+                    name,
+                    uniform: false,
+                    read_only: !access.contains(naga::StorageAccess::STORE),
+                }),
+                _ => None,
+            }
+        })
+        .collect();
+    out.sort_unstable();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_shader_parses_and_validates_after_import_expansion() {
+        for (name, _) in SHADERS {
+            if let Err(e) = module(name) {
+                panic!("{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn shared_files_validate_on_their_own() {
+        for (name, text) in SHARED {
+            if let Err(e) = module_from_source(name, &preprocess(text).unwrap_or_default()) {
+                panic!("{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_import_is_expanded_once_and_an_unknown_one_is_refused() {
+        let twice =
+            preprocess("#import shared/layout\n#import shared/layout\n").unwrap_or_default();
+        assert_eq!(twice.matches("struct Params").count(), 1);
+        assert!(preprocess("#import shared/nothing\n").is_err());
+    }
+
+    #[test]
+    fn workgroup_sizes_come_from_the_modules() {
+        for (shader, entry) in [
+            ("local_rotations", "local_rotations"),
+            ("deformation_force", "deformation_force"),
+            ("integrate", "integrate"),
+            ("integrate", "chebyshev"),
+            ("step_norms", "step_norms"),
+        ] {
+            let module = module(shader).map_err(|e| e.to_string());
+            let size = module.and_then(|m| workgroup_size(&m, entry).map_err(|e| e.to_string()));
+            // step_norms halves its workgroup in a tree: a power of two.
+            assert!(
+                matches!(size, Ok([x, 1, 1]) if x.is_power_of_two()),
+                "{shader}::{entry}: {size:?}"
+            );
+        }
+    }
+}

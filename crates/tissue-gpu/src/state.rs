@@ -1,0 +1,523 @@
+//! The buffers of one particle model on the GPU.
+
+use glam::{Mat3, Vec3};
+use tissue_core::ParticleModel;
+use tissue_cpu::deformation::ForceModel;
+use wgpu::util::DeviceExt;
+
+use crate::pipelines::{Kernel, Pipelines};
+use crate::{GpuError, Params, Rotation};
+
+/// Iterations one command buffer records: one uniform slot and one row of
+/// step-norm partials each; the host reads the partials back once per batch.
+pub const SLOTS: u32 = 8;
+
+/// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused),
+/// rotations three `vec4` columns ([`Rotation`]).
+#[derive(Debug)]
+pub struct DeformState {
+    pub(crate) count: u32,
+    params_stride: u64,
+    /// Workgroups `[x, y]` of each kernel's dispatch, in [`Kernel::ALL`] order.
+    workgroups: [[u32; 2]; 5],
+    /// `x * y` of the step_norms dispatch: the length of a partials row.
+    pub(crate) step_groups: u32,
+    pub(crate) params: wgpu::Buffer,
+    pub(crate) rest: wgpu::Buffer,
+    pub(crate) current: wgpu::Buffer,
+    pub(crate) previous: wgpu::Buffer,
+    pub(crate) plain: wgpu::Buffer,
+    pub(crate) rotations: wgpu::Buffer,
+    pub(crate) force: wgpu::Buffer,
+    pub(crate) free: wgpu::Buffer,
+    pub(crate) offsets: wgpu::Buffer,
+    pub(crate) indices: wgpu::Buffer,
+    pub(crate) partials: wgpu::Buffer,
+    bind_groups: Vec<wgpu::BindGroup>,
+    /// The particle of each control point, in particle order.
+    controls: Vec<u32>,
+    /// Runs of consecutive control particles: `(first particle, first control, length)`.
+    control_runs: Vec<(u32, usize, usize)>,
+}
+
+fn vec4s(points: &[Vec3]) -> Vec<[f32; 4]> {
+    points.iter().map(|p| p.extend(0.0).to_array()).collect()
+}
+
+/// Workgroups `[x, y]` covering `count` threads in groups of `size`; beyond
+/// `per_dimension` workgroups the dispatch is two-dimensional.
+pub fn workgroups(count: u32, size: u32, per_dimension: u32) -> Result<[u32; 2], GpuError> {
+    let groups = count.div_ceil(size.max(1)).max(1);
+    let x = groups.min(per_dimension.max(1));
+    let y = groups.div_ceil(x);
+    if y > per_dimension {
+        return Err(GpuError::LimitExceeded {
+            limit: "max_compute_workgroups_per_dimension",
+            what: format!("a dispatch over {count} particles ({groups} workgroups of {size})"),
+            asked: u64::from(y),
+            allowed: u64::from(per_dimension),
+        });
+    }
+    Ok([x, y])
+}
+
+impl DeformState {
+    /// Uploads `model` (rest = current = previous = the rest positions,
+    /// identity rotations), with `free` marking the particles the solve moves
+    /// (`tissue_cpu::deformation::Plan::free`), and binds it to `pipelines`' kernels.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipelines: &Pipelines,
+        model: &ParticleModel,
+        free: &[bool],
+    ) -> Result<Self, GpuError> {
+        let n = model.len();
+        if free.len() != n {
+            return Err(GpuError::Length {
+                what: "free flags (one per particle)",
+                expected: n,
+                got: free.len(),
+            });
+        }
+        if n == 0 || model.connections.particles() != n {
+            return Err(GpuError::Length {
+                what: "connection rows (one per particle, at least one particle)",
+                expected: n.max(1),
+                got: model.connections.particles(),
+            });
+        }
+        let limits = device.limits();
+        let count = u32::try_from(n).map_err(|_| GpuError::LimitExceeded {
+            limit: "u32 particle index",
+            what: "the particle count".into(),
+            asked: n as u64,
+            allowed: u64::from(u32::MAX),
+        })?;
+        let mut workgroups_of = [[0u32; 2]; 5];
+        for (k, kernel) in Kernel::ALL.into_iter().enumerate() {
+            workgroups_of[k] = workgroups(
+                count,
+                pipelines.workgroup_size(kernel),
+                limits.max_compute_workgroups_per_dimension,
+            )?;
+        }
+        let [sx, sy] = workgroups_of[3];
+        let step_groups = sx * sy;
+        let params_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
+            .max(std::mem::size_of::<Params>() as u64);
+
+        let scope_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let scope_valid = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let storage = |label: &'static str, contents: &[u8]| -> Result<wgpu::Buffer, GpuError> {
+            // Zero-sized bindings are invalid: an empty array still gets 16 bytes.
+            let padded;
+            let contents = if contents.is_empty() {
+                padded = [0u8; 16];
+                &padded[..]
+            } else {
+                contents
+            };
+            let size = contents.len() as u64;
+            for (limit, allowed) in [
+                (
+                    "max_storage_buffer_binding_size",
+                    limits.max_storage_buffer_binding_size,
+                ),
+                ("max_buffer_size", limits.max_buffer_size),
+            ] {
+                if size > allowed {
+                    return Err(GpuError::LimitExceeded {
+                        limit,
+                        what: format!("the {label} buffer ({n} particles)"),
+                        asked: size,
+                        allowed,
+                    });
+                }
+            }
+            Ok(
+                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage: wgpu::BufferUsages::STORAGE
+                        | wgpu::BufferUsages::COPY_DST
+                        | wgpu::BufferUsages::COPY_SRC,
+                }),
+            )
+        };
+        let rest_positions = vec4s(&model.positions);
+        let rest_bytes: &[u8] = bytemuck::cast_slice(&rest_positions);
+        let identity = vec![Rotation::from(Mat3::IDENTITY); n];
+        let free: Vec<u32> = free.iter().map(|&f| u32::from(f)).collect();
+        let zeros = vec![0u8; rest_bytes.len()];
+        let partials = vec![[0.0f32; 2]; (SLOTS * step_groups) as usize];
+        let built = (|| {
+            Ok::<_, GpuError>((
+                storage("rest", rest_bytes)?,
+                storage("current", rest_bytes)?,
+                storage("previous", rest_bytes)?,
+                storage("plain", rest_bytes)?,
+                storage("rotations", bytemuck::cast_slice(&identity))?,
+                storage("force", &zeros)?,
+                storage("free", bytemuck::cast_slice(&free))?,
+                storage("offsets", bytemuck::cast_slice(&model.connections.offsets))?,
+                storage("indices", bytemuck::cast_slice(&model.connections.indices))?,
+                storage("partials", bytemuck::cast_slice(&partials))?,
+            ))
+        })();
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: params_stride * u64::from(SLOTS),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let valid = pollster::block_on(scope_valid.pop());
+        let memory = pollster::block_on(scope_memory.pop());
+        if let Some(e) = memory.or(valid) {
+            return Err(e.into());
+        }
+        let (rest, current, previous, plain, rotations, force, free, offsets, indices, partials) =
+            built?;
+
+        let controls: Vec<u32> = (0..count)
+            .filter(|&i| model.attachments[i as usize].is_some())
+            .collect();
+        let mut control_runs: Vec<(u32, usize, usize)> = Vec::new();
+        for (k, &i) in controls.iter().enumerate() {
+            match control_runs.last_mut() {
+                Some((first, _, len)) if *first + *len as u32 == i => *len += 1,
+                _ => control_runs.push((i, k, 1)),
+            }
+        }
+        let mut state = Self {
+            count,
+            params_stride,
+            workgroups: workgroups_of,
+            step_groups,
+            params,
+            rest,
+            current,
+            previous,
+            plain,
+            rotations,
+            force,
+            free,
+            offsets,
+            indices,
+            partials,
+            bind_groups: Vec::new(),
+            controls,
+            control_runs,
+        };
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
+            .into_iter()
+            .map(|kernel| state.make_bind_group(device, pipelines, kernel))
+            .collect();
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(e.into());
+        }
+        state.bind_groups = groups?;
+        for slot in 0..SLOTS {
+            state.write_params(
+                queue,
+                slot,
+                state.params(ForceModel::Symmetric, 0.0, 1.0, slot),
+            );
+        }
+        Ok(state)
+    }
+
+    fn buffer(&self, name: &str) -> Option<&wgpu::Buffer> {
+        Some(match name {
+            "params" => &self.params,
+            "rest" => &self.rest,
+            "current" => &self.current,
+            "previous" => &self.previous,
+            "plain" => &self.plain,
+            "rotations" => &self.rotations,
+            "force" => &self.force,
+            "free" => &self.free,
+            "offsets" => &self.offsets,
+            "indices" => &self.indices,
+            "partials" => &self.partials,
+            _ => return None,
+        })
+    }
+
+    fn make_bind_group(
+        &self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        kernel: Kernel,
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let compiled = pipelines.kernel(kernel);
+        let mut entries = Vec::new();
+        for b in &compiled.bindings {
+            let buffer = self.buffer(&b.name).ok_or_else(|| GpuError::Shader {
+                name: kernel.entry().0.to_owned(),
+                message: format!("binding {} `{}` names no stage-2 buffer", b.binding, b.name),
+            })?;
+            let resource = if b.uniform {
+                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer,
+                    offset: 0,
+                    size: std::num::NonZeroU64::new(std::mem::size_of::<Params>() as u64),
+                })
+            } else {
+                buffer.as_entire_binding()
+            };
+            entries.push(wgpu::BindGroupEntry {
+                binding: b.binding,
+                resource,
+            });
+        }
+        Ok(device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.entry().1),
+            layout: &compiled.layout,
+            entries: &entries,
+        }))
+    }
+
+    pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {
+        &self.bind_groups[kernel_index(kernel)]
+    }
+
+    pub(crate) fn workgroups(&self, kernel: Kernel) -> [u32; 2] {
+        self.workgroups[kernel_index(kernel)]
+    }
+
+    pub(crate) fn params_offset(&self, slot: u32) -> u32 {
+        // Bounded by SLOTS * min_uniform_buffer_offset_alignment.
+        (u64::from(slot.min(SLOTS - 1)) * self.params_stride) as u32
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// Always false: a state holds at least one particle.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Number of control points (surface particles).
+    pub fn control_count(&self) -> usize {
+        self.controls.len()
+    }
+
+    /// The parameters of one iteration in `slot`, for this model.
+    pub fn params(&self, model: ForceModel, alpha: f32, omega: f32, slot: u32) -> Params {
+        Params {
+            count: self.count,
+            model: match model {
+                ForceModel::Paper => 0,
+                ForceModel::Symmetric => 1,
+            },
+            alpha,
+            omega,
+            slot: slot.min(SLOTS - 1),
+            groups: self.step_groups,
+        }
+    }
+
+    /// Writes the parameters of `slot` (taking effect at the next submit).
+    pub fn write_params(&self, queue: &wgpu::Queue, slot: u32, params: Params) {
+        queue.write_buffer(
+            &self.params,
+            u64::from(self.params_offset(slot)),
+            bytemuck::bytes_of(&params),
+        );
+    }
+
+    fn check_len(&self, what: &'static str, got: usize) -> Result<(), GpuError> {
+        if got == self.len() {
+            Ok(())
+        } else {
+            Err(GpuError::Length {
+                what,
+                expected: self.len(),
+                got,
+            })
+        }
+    }
+
+    /// Uploads the placed control points (one per surface particle, in
+    /// particle order) into the current positions; at frame boundaries.
+    pub fn set_control_points(&self, queue: &wgpu::Queue, points: &[Vec3]) -> Result<(), GpuError> {
+        if points.len() != self.controls.len() {
+            return Err(GpuError::Length {
+                what: "control points",
+                expected: self.controls.len(),
+                got: points.len(),
+            });
+        }
+        let stride = std::mem::size_of::<[f32; 4]>() as u64;
+        for &(first, from, len) in &self.control_runs {
+            let run = vec4s(&points[from..from + len]);
+            queue.write_buffer(
+                &self.current,
+                u64::from(first) * stride,
+                bytemuck::cast_slice(&run),
+            );
+        }
+        Ok(())
+    }
+
+    /// Overwrites every current position (tests, or a fresh start).
+    pub fn write_current(&self, queue: &wgpu::Queue, positions: &[Vec3]) -> Result<(), GpuError> {
+        self.check_len("current positions", positions.len())?;
+        queue.write_buffer(&self.current, 0, bytemuck::cast_slice(&vec4s(positions)));
+        Ok(())
+    }
+
+    /// Overwrites every rotation (tests of the force kernel).
+    pub fn write_rotations(&self, queue: &wgpu::Queue, rotations: &[Mat3]) -> Result<(), GpuError> {
+        self.check_len("rotations", rotations.len())?;
+        let data: Vec<Rotation> = rotations.iter().map(|&r| Rotation::from(r)).collect();
+        queue.write_buffer(&self.rotations, 0, bytemuck::cast_slice(&data));
+        Ok(())
+    }
+
+    /// Overwrites every force (tests of the integrate kernel).
+    pub fn write_force(&self, queue: &wgpu::Queue, force: &[Vec3]) -> Result<(), GpuError> {
+        self.check_len("forces", force.len())?;
+        queue.write_buffer(&self.force, 0, bytemuck::cast_slice(&vec4s(force)));
+        Ok(())
+    }
+
+    /// Reads the current positions back (stalls until the GPU is done: frame boundaries only).
+    pub fn read_positions(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        self.read_points(device, queue, &self.current)
+    }
+
+    /// Reads the last plain step `q̂` back.
+    pub fn read_plain(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        self.read_points(device, queue, &self.plain)
+    }
+
+    /// Reads the last forces back.
+    pub fn read_force(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        self.read_points(device, queue, &self.force)
+    }
+
+    /// Reads the last rotations back.
+    pub fn read_rotations(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Mat3>, GpuError> {
+        let bytes = read_buffer(
+            device,
+            queue,
+            &self.rotations,
+            self.len() * std::mem::size_of::<Rotation>(),
+        )?;
+        Ok(bytemuck::pod_collect_to_vec::<u8, Rotation>(&bytes)
+            .into_iter()
+            .map(Mat3::from)
+            .collect())
+    }
+
+    /// Reads the step-norm partials of the first `slots` slots: per slot,
+    /// per workgroup, `(max |q̂ − q|², sum |q̂ − q|²)`.
+    pub fn read_partials(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        slots: u32,
+    ) -> Result<Vec<Vec<[f32; 2]>>, GpuError> {
+        let row = self.step_groups as usize;
+        let rows = slots.min(SLOTS) as usize;
+        let bytes = read_buffer(device, queue, &self.partials, rows * row * 8)?;
+        let all: Vec<[f32; 2]> = bytemuck::pod_collect_to_vec(&bytes);
+        Ok(all.chunks(row.max(1)).map(<[_]>::to_vec).collect())
+    }
+
+    fn read_points(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        buffer: &wgpu::Buffer,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        let bytes = read_buffer(device, queue, buffer, self.len() * 16)?;
+        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
+            .into_iter()
+            .map(|p| Vec3::new(p[0], p[1], p[2]))
+            .collect())
+    }
+}
+
+fn kernel_index(kernel: Kernel) -> usize {
+    Kernel::ALL.iter().position(|&k| k == kernel).unwrap_or(0)
+}
+
+/// Copies the first `size` bytes of `buffer` to a mapped staging buffer and reads them.
+pub(crate) fn read_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    buffer: &wgpu::Buffer,
+    size: usize,
+) -> Result<Vec<u8>, GpuError> {
+    let size = (size as u64).div_ceil(4) * 4;
+    if size == 0 {
+        return Ok(Vec::new());
+    }
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+        label: Some("readback"),
+    });
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+    queue.submit([encoder.finish()]);
+    let (sender, receiver) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |result| {
+        // The receiver waits below; a failed send only means it gave up.
+        let _ = sender.send(result);
+    });
+    crate::wait(device)?;
+    receiver
+        .recv()
+        .map_err(|e| GpuError::Map(e.to_string()))?
+        .map_err(|e| GpuError::Map(e.to_string()))?;
+    let bytes = staging
+        .get_mapped_range(..)
+        .map_err(|e| GpuError::Map(e.to_string()))?
+        .to_vec();
+    staging.unmap();
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dispatches_beyond_the_per_dimension_limit_become_two_dimensional() {
+        assert_eq!(workgroups(3_001, 64, 65_535).ok(), Some([47, 1]));
+        assert_eq!(workgroups(1, 64, 65_535).ok(), Some([1, 1]));
+        // 100 workgroups with at most 30 per dimension: 30 x 4 (the last row partly idle).
+        assert_eq!(workgroups(6_400, 64, 30).ok(), Some([30, 4]));
+        assert!(matches!(
+            workgroups(64 * 1_000, 64, 30),
+            Err(GpuError::LimitExceeded { .. })
+        ));
+    }
+}

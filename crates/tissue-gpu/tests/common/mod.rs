@@ -1,0 +1,75 @@
+//! The one place GPU tests get a device: from the environment
+//! (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`). No adapter: the test reports
+//! itself skipped, unless `CI=true`, where that is a failure.
+
+#![allow(dead_code, reason = "each test binary uses a different part")]
+
+use std::sync::OnceLock;
+
+use tissue_core::ParticleModel;
+use tissue_core::SamplingParams;
+
+/// A device and queue, or `None` after printing "SKIPPED: no GPU adapter".
+pub fn gpu(test: &str) -> Option<(wgpu::Device, wgpu::Queue)> {
+    match tissue_gpu::device_from_env() {
+        Ok((adapter, device, queue)) => {
+            eprintln!("{test}: adapter {:?}", adapter.get_info());
+            Some((device, queue))
+        }
+        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
+            if std::env::var("CI").as_deref() == Ok("true") {
+                panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
+            }
+            eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
+            None
+        }
+        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
+    }
+}
+
+/// The bundled phantom sampled to `n` particles (cached per size).
+pub fn phantom(n: usize) -> &'static ParticleModel {
+    static MODELS: OnceLock<std::sync::Mutex<Vec<(usize, &'static ParticleModel)>>> =
+        OnceLock::new();
+    let models = MODELS.get_or_init(Default::default);
+    let mut models = models.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, m)) = models.iter().find(|(k, _)| *k == n) {
+        return m;
+    }
+    let sampled = tissue_cpu::sample(
+        &tissue_core::phantom::default_breast(),
+        &SamplingParams::with_particles(n),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("sampling the phantom at {n}: {e}"));
+    let model: &'static ParticleModel = Box::leak(Box::new(sampled.model));
+    models.push((n, model));
+    model
+}
+
+/// Reads a whole buffer back through a staging copy.
+pub fn read(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -> Vec<u8> {
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("test readback"),
+        size: buffer.size(),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, None);
+    queue.submit([encoder.finish()]);
+    staging.map_async(wgpu::MapMode::Read, .., |r| {
+        if let Err(e) = r {
+            panic!("map failed: {e}");
+        }
+    });
+    if let Err(e) = device.poll(wgpu::PollType::wait_indefinitely()) {
+        panic!("poll failed: {e}");
+    }
+    let bytes = match staging.get_mapped_range(..) {
+        Ok(view) => view.to_vec(),
+        Err(e) => panic!("mapped range: {e}"),
+    };
+    staging.unmap();
+    bytes
+}

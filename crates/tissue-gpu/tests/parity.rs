@@ -1,0 +1,293 @@
+//! Each stage-2 kernel against its CPU twin in `tissue_cpu::deformation`, on
+//! identical inputs: the phantom sampled to 2,000 particles and to 3,001
+//! (not a multiple of the workgroup size), deformed by a smooth twist plus
+//! ripples. Tolerances are explicit; a failure names the particle, both
+//! values and the tolerance.
+
+mod common;
+
+use glam::{Mat3, Vec3};
+use tissue_core::ParticleModel;
+use tissue_cpu::deformation::{ForceModel, deformation_force, integrate, local_rotations};
+use tissue_gpu::{DeformState, Kernel, Pipelines};
+
+const SIZES: [usize; 2] = [2_000, 3_001];
+
+/// A smooth non-rigid deformation of the rest shape: a twist about z and ripples.
+fn deformed(model: &ParticleModel) -> Vec<Vec3> {
+    let (lo, hi) = model.positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let size = (hi - lo).length();
+    let centre = 0.5 * (lo + hi);
+    model
+        .positions
+        .iter()
+        .map(|&p| {
+            let r = p - centre;
+            let twist = Mat3::from_rotation_z(0.4 * r.z / size);
+            let ripple = Vec3::new(
+                (6.0 * r.y / size).sin(),
+                (5.0 * r.z / size).cos(),
+                (7.0 * r.x / size).sin(),
+            );
+            centre + twist * r + 0.01 * size * ripple
+        })
+        .collect()
+}
+
+fn setup(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    model: &ParticleModel,
+) -> (Pipelines, DeformState) {
+    let pipelines = Pipelines::new(device).unwrap_or_else(|e| panic!("{e}"));
+    let state = DeformState::new(device, queue, &pipelines, model, &free_of(model))
+        .unwrap_or_else(|e| panic!("{e}"));
+    (pipelines, state)
+}
+
+fn run(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    pipelines: &Pipelines,
+    state: &DeformState,
+    kernel: Kernel,
+) {
+    let mut encoder = device.create_command_encoder(&Default::default());
+    pipelines.dispatch(&mut encoder, state, kernel, 0);
+    queue.submit([encoder.finish()]);
+}
+
+#[test]
+fn local_rotations_matches_the_cpu_twin() {
+    let Some((device, queue)) = common::gpu("local_rotations parity") else {
+        return;
+    };
+    for n in SIZES {
+        let model = common::phantom(n);
+        let current = deformed(model);
+        let expected = local_rotations(&model.positions, &current, &model.connections);
+        let (pipelines, state) = setup(&device, &queue, model);
+        state
+            .write_current(&queue, &current)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state.write_params(&queue, 0, state.params(ForceModel::Symmetric, 0.0, 1.0, 0));
+        run(&device, &queue, &pipelines, &state, Kernel::LocalRotations);
+        let got = state
+            .read_rotations(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // Rotation entries are O(1); an f32 SVD of a well-conditioned M agrees to ~1e-6.
+        let tolerance = 1e-4;
+        let mut worst = 0.0f32;
+        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+            let off = (*g - *e)
+                .to_cols_array()
+                .iter()
+                .fold(0.0f32, |a, x| a.max(x.abs()));
+            worst = worst.max(off);
+            assert!(
+                off <= tolerance,
+                "n = {n}, particle {i}: GPU rotation {g} vs CPU {e}, max entry difference {off:e} > tolerance {tolerance:e}"
+            );
+        }
+        eprintln!("local_rotations, n = {n}: worst entry difference {worst:e}");
+    }
+}
+
+#[test]
+fn deformation_force_matches_the_cpu_twin_for_both_models() {
+    let Some((device, queue)) = common::gpu("deformation_force parity") else {
+        return;
+    };
+    for n in SIZES {
+        let model = common::phantom(n);
+        let current = deformed(model);
+        let rotations = local_rotations(&model.positions, &current, &model.connections);
+        let (pipelines, state) = setup(&device, &queue, model);
+        state
+            .write_current(&queue, &current)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state
+            .write_rotations(&queue, &rotations)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // Each of ~12 terms is an offset of about one spacing; rounding is a
+        // few ulp of that per term.
+        let tolerance = 4e-6 * model.mean_connection_length();
+        for force_model in [ForceModel::Paper, ForceModel::Symmetric] {
+            let expected = deformation_force(
+                &model.positions,
+                &current,
+                &rotations,
+                &model.connections,
+                force_model,
+            );
+            state.write_params(&queue, 0, state.params(force_model, 0.0, 1.0, 0));
+            run(
+                &device,
+                &queue,
+                &pipelines,
+                &state,
+                Kernel::DeformationForce,
+            );
+            let got = state
+                .read_force(&device, &queue)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut worst = 0.0f32;
+            for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+                let off = (*g - *e).abs().max_element();
+                worst = worst.max(off);
+                assert!(
+                    off <= tolerance,
+                    "n = {n}, {force_model:?}, particle {i}: GPU force {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
+                );
+            }
+            eprintln!(
+                "deformation_force {force_model:?}, n = {n}: worst {worst:e} (tolerance {tolerance:e})"
+            );
+        }
+    }
+}
+
+#[test]
+fn integrate_and_step_norms_match_the_cpu_twins() {
+    let Some((device, queue)) = common::gpu("integrate parity") else {
+        return;
+    };
+    for n in SIZES {
+        let model = common::phantom(n);
+        let current = deformed(model);
+        let rotations = local_rotations(&model.positions, &current, &model.connections);
+        let force = deformation_force(
+            &model.positions,
+            &current,
+            &rotations,
+            &model.connections,
+            ForceModel::Symmetric,
+        );
+        let free = free_of(model);
+        let alpha = 0.07;
+        let expected = integrate(&current, &force, &free, alpha);
+        let (pipelines, state) = setup(&device, &queue, model);
+        state
+            .write_current(&queue, &current)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state
+            .write_force(&queue, &force)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state.write_params(
+            &queue,
+            0,
+            state.params(ForceModel::Symmetric, alpha, 1.0, 0),
+        );
+        run(&device, &queue, &pipelines, &state, Kernel::Integrate);
+        let got = state
+            .read_plain(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // q + alpha F: a fused multiply-add may differ by an ulp or two of |q|.
+        let largest = current
+            .iter()
+            .map(|q| q.abs().max_element())
+            .fold(0.0, f32::max);
+        let tolerance = 4.0 * f32::EPSILON * largest;
+        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+            let off = (*g - *e).abs().max_element();
+            assert!(
+                off <= tolerance,
+                "n = {n}, particle {i} (free: {}): GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}",
+                free[i]
+            );
+            if !free[i] {
+                assert_eq!(*g, current[i], "n = {n}, control point {i} moved");
+            }
+        }
+        // The reduction: max and RMS of |q̂ - q| over all particles.
+        run(&device, &queue, &pipelines, &state, Kernel::StepNorms);
+        let rows = state
+            .read_partials(&device, &queue, 1)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let gpu_max = rows[0].iter().map(|x| x[0]).fold(0.0f32, f32::max).sqrt();
+        let gpu_rms = (rows[0].iter().map(|x| f64::from(x[1])).sum::<f64>() / n as f64).sqrt();
+        let squares: Vec<f32> = current
+            .iter()
+            .zip(&got)
+            .map(|(a, b)| (*b - *a).length_squared())
+            .collect();
+        let cpu_max = squares.iter().copied().fold(0.0, f32::max).sqrt();
+        let cpu_rms = (squares.iter().map(|&x| f64::from(x)).sum::<f64>() / n as f64).sqrt();
+        assert!(
+            (gpu_max - cpu_max).abs() <= 1e-6 * cpu_max,
+            "n = {n}: max step GPU {gpu_max:e} vs CPU {cpu_max:e}, tolerance 1e-6 relative"
+        );
+        assert!(
+            (gpu_rms - cpu_rms).abs() <= 1e-5 * cpu_rms,
+            "n = {n}: RMS step GPU {gpu_rms:e} vs CPU {cpu_rms:e}, tolerance 1e-5 relative"
+        );
+    }
+}
+
+#[test]
+fn chebyshev_matches_the_cpu_combine() {
+    let Some((device, queue)) = common::gpu("chebyshev parity") else {
+        return;
+    };
+    let n = 3_001;
+    let model = common::phantom(n);
+    let old = model.positions.clone();
+    let current = deformed(model);
+    let rotations = local_rotations(&model.positions, &current, &model.connections);
+    let force = deformation_force(
+        &model.positions,
+        &current,
+        &rotations,
+        &model.connections,
+        ForceModel::Symmetric,
+    );
+    let free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
+    let alpha = 0.07;
+    let plain = integrate(&current, &force, &free, alpha);
+    let omega = 1.83f32;
+    let expected: Vec<Vec3> = plain
+        .iter()
+        .zip(&old)
+        .map(|(&q_hat, &q_old)| omega * (q_hat - q_old) + q_old)
+        .collect();
+    // State starts with previous = rest = `old`.
+    let (pipelines, state) = setup(&device, &queue, model);
+    state
+        .write_current(&queue, &current)
+        .unwrap_or_else(|e| panic!("{e}"));
+    state
+        .write_force(&queue, &force)
+        .unwrap_or_else(|e| panic!("{e}"));
+    state.write_params(
+        &queue,
+        0,
+        state.params(ForceModel::Symmetric, alpha, omega, 0),
+    );
+    run(&device, &queue, &pipelines, &state, Kernel::Integrate);
+    run(&device, &queue, &pipelines, &state, Kernel::Chebyshev);
+    let got = state
+        .read_positions(&device, &queue)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let largest = current
+        .iter()
+        .map(|q| q.abs().max_element())
+        .fold(0.0, f32::max);
+    let tolerance = 8.0 * f32::EPSILON * largest;
+    for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+        let off = (*g - *e).abs().max_element();
+        assert!(
+            off <= tolerance,
+            "particle {i}: GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
+        );
+    }
+}
+
+/// The particles the solve moves, as both paths take them.
+fn free_of(model: &ParticleModel) -> Vec<bool> {
+    tissue_cpu::deformation::Plan::new(model)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .free
+}

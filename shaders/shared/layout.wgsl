@@ -1,0 +1,37 @@
+// Structs and indexing shared by every stage-2 kernel. Rust mirrors:
+// `tissue_gpu::Params`, `tissue_gpu::Rotation` (layout-tested against naga).
+
+// Threads per workgroup of every stage-2 kernel; Rust reads it from the module.
+const WORKGROUP_SIZE: u32 = 64u;
+
+// Per-iteration parameters (one slot per iteration of a batch, dynamic offset).
+struct Params {
+    // Number of particles.
+    count: u32,
+    // Force model: 0 the paper's, 1 symmetric.
+    model: u32,
+    // Step alpha = sigma / m.
+    alpha: f32,
+    // Chebyshev weight of this iteration; exactly 1 means a plain step.
+    omega: f32,
+    // Which row of `partials` step_norms writes.
+    slot: u32,
+    // Workgroups per dispatch (x times y), the length of a `partials` row.
+    groups: u32,
+}
+
+// A particle's rotation as three columns (no bare vec3 in storage).
+struct Rotation {
+    x_axis: vec4<f32>,
+    y_axis: vec4<f32>,
+    z_axis: vec4<f32>,
+}
+
+// Beyond 65,535 workgroups the dispatch is two-dimensional, row by row.
+fn flat_workgroup(workgroup: vec3<u32>, groups: vec3<u32>) -> u32 {
+    return workgroup.x + workgroup.y * groups.x;
+}
+
+fn particle_index(workgroup: vec3<u32>, groups: vec3<u32>, local: u32) -> u32 {
+    return flat_workgroup(workgroup, groups) * WORKGROUP_SIZE + local;
+}
