@@ -165,7 +165,7 @@ pub struct Plan {
     pub lambda_max: f32,
     /// The model's bounding-box diagonal at rest.
     pub size: f32,
-    /// Steps below this are `f32` rounding at the model's coordinates.
+    /// An RMS step below this is `f32` rounding at the model's coordinates.
     pub floor: f32,
 }
 
@@ -223,9 +223,9 @@ impl Plan {
             (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
             |(lo, hi), &p| (lo.min(p), hi.max(p)),
         );
-        // f32 resolves about EPSILON * |x|; a step is a whole number of those,
-        // and the largest of a hundred thousand rounding flips is several.
-        // 4 ulp never stopped the phantom at 100k; 16 stopped 10k early.
+        // f32 resolves about EPSILON * |x|: at single precision most particles
+        // no longer move and a few flip by an ulp, so the RMS step (unlike the
+        // largest, which grows with the particle count) settles below one ulp.
         let largest = model
             .positions
             .iter()
@@ -236,7 +236,7 @@ impl Plan {
             lambda_min,
             lambda_max,
             size: (hi - lo).length(),
-            floor: 8.0 * f32::EPSILON * largest,
+            floor: FLOOR_ULPS * f32::EPSILON * largest,
         })
     }
 
@@ -257,6 +257,10 @@ impl Plan {
         (1.0 - 2.0 * params.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999)
     }
 }
+
+/// The RMS step, in ulps of the largest coordinate, below which a solve has
+/// reached single precision.
+const FLOOR_ULPS: f32 = 2.0;
 
 /// The Chebyshev weights of Wang 2015, iteration by iteration:
 /// `omega_2 = 2 / (2 - rho^2)`, `omega_{k+1} = 4 / (4 - rho^2 omega_k)`, and 1
@@ -301,7 +305,7 @@ impl Chebyshev {
 /// adds slower modes (a twist of the interior against its surface); the
 /// contraction observed over the last five iterations catches them. Stop when
 /// `max step / (1 - rate)` is below `tolerance` times the size, or when the
-/// step is below what `f32` resolves.
+/// RMS step is below what `f32` resolves.
 #[derive(Debug, Clone)]
 pub struct StoppingRule {
     tolerance: f32,
@@ -342,7 +346,8 @@ impl StoppingRule {
             Some(StopReason::Diverged)
         } else if n > 1 && error < self.tolerance {
             Some(StopReason::Tolerance)
-        } else if n > 1 && max_step < self.floor {
+        } else if n > 1 && rms_step < self.floor {
+            // Rounding noise: most particles no longer move, a few flip by an ulp.
             Some(StopReason::FloatPrecision)
         } else {
             None
