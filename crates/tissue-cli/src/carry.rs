@@ -8,9 +8,9 @@ use anyhow::{Context, Result, bail};
 use glam::{Mat3, Vec3};
 use serde::Serialize;
 use tissue::SurfaceMesh;
-use tissue_cpu::deformation::Deformer;
 use tissue_cpu::structures::{Embedding, RigidBinding, RigidMotion};
 
+use crate::backend::Solver;
 use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
 
 /// Options naming what to carry, shared by `deform` and `track`.
@@ -149,10 +149,9 @@ impl Carried {
         Ok(Self { points, structures })
     }
 
-    /// Where the points and structures are for the deformer's current state.
-    pub fn moved(&self, deformer: &Deformer) -> (Option<Vec<Vec3>>, Vec<MovedStructure>) {
-        let (rest, current, rotations) =
-            (deformer.rest(), deformer.positions(), deformer.rotations());
+    /// Where the points and structures are for the solver's current state.
+    pub fn moved(&self, solver: &Solver) -> (Option<Vec<Vec3>>, Vec<MovedStructure>) {
+        let (rest, current, rotations) = (solver.rest(), solver.positions(), solver.rotations());
         let points = self
             .points
             .as_ref()

@@ -8,8 +8,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
-use tissue_cpu::deformation::{DeformParams, Deformer};
+use tissue_cpu::deformation::DeformParams;
 
+use crate::backend::{BackendArgs, Device, Solver};
 use crate::carry::{Carried, Kind, Structure, StructureReport};
 use crate::output::{Destination, write_json, write_solution};
 use crate::sample::{print_report, sample_with_bar};
@@ -26,6 +27,8 @@ pub struct DemoArgs {
     /// Particles to fill the phantom with.
     #[arg(long, short = 'n', default_value_t = 10_000)]
     pub particles: usize,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Print nothing but errors.
     #[arg(long, short)]
     pub quiet: bool,
@@ -52,6 +55,9 @@ struct CaseReport {
 #[derive(Debug, Serialize)]
 struct DemoReport {
     particles: usize,
+    /// Where stage 2 ran: `cpu`, or the GPU adapter's name and graphics
+    /// backend (stage 1, sampling, runs on the CPU).
+    backend: String,
     sampling: SamplingReport,
     cases: Vec<CaseReport>,
     /// The whole demo, writing included.
@@ -94,6 +100,8 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         path: "the bundled phantom".into(),
         source,
     })?;
+    // Before sampling, so that a missing GPU fails at once.
+    let device = Device::pick(args.backend.backend, quiet)?;
     let sampled = sample_with_bar(&breast, &params, quiet)?;
     if !quiet {
         print_report(&sampled.report);
@@ -105,8 +113,8 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     tissue::save_surface(&tumour, &out.join("tumour.obj"))?;
 
     let deform_params = DeformParams::default();
-    let mut deformer = Deformer::new(&model, deform_params.clone())?;
-    let rest = deformer.rest();
+    let mut solver = Solver::new(device, &model, deform_params.clone())?;
+    let rest = solver.rest();
     let carried = Carried {
         points: None,
         structures: [Kind::Deformable, Kind::Rigid]
@@ -141,9 +149,9 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     for case in cases {
         let skin_path = out.join(case.skin_file);
         tissue::save_surface(&case.skin, &skin_path)?;
-        deformer.reset();
-        deformer.set_surface(&case.skin)?;
-        let solve = deformer.solve();
+        solver.reset()?;
+        solver.set_surface(&case.skin)?;
+        let solve = solver.solve()?;
         let dir = out.join(case.name);
         let skin = skin_path.display().to_string();
         let destination = Destination {
@@ -155,7 +163,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         let report = write_solution(
             destination,
             &model,
-            &deformer,
+            &solver,
             &case.skin,
             &carried,
             &deform_params,
@@ -181,6 +189,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
 
     let summary = DemoReport {
         particles: model.len(),
+        backend: solver.backend(),
         sampling: sampled.report,
         cases: reports,
         seconds: started.elapsed().as_secs_f64(),

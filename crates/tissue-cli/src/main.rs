@@ -1,5 +1,6 @@
 //! The `tissue` command-line tool.
 
+mod backend;
 mod carry;
 mod demo;
 mod frames;

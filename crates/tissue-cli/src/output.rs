@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, StopReason};
+use tissue_cpu::deformation::{DeformParams, DeformReport, StopReason};
 
+use crate::backend::Solver;
 use crate::carry::{Carried, StructureReport};
 
 /// The moved particles and the deformed surface.
@@ -37,6 +38,8 @@ pub struct SolveReport {
     pub surface: String,
     /// Number of particles.
     pub particles: usize,
+    /// Where stage 2 ran: `cpu`, or the GPU adapter's name and graphics backend.
+    pub backend: String,
     /// The stage-2 parameters used.
     pub params: DeformParams,
     /// Iterations run.
@@ -79,13 +82,13 @@ pub struct Destination<'a> {
 pub fn write_solution(
     to: Destination<'_>,
     model: &ParticleModel,
-    deformer: &Deformer,
+    solver: &Solver,
     deformed: &SurfaceMesh,
     carried: &Carried,
     params: &DeformParams,
     solve: DeformReport,
 ) -> Result<SolveReport> {
-    let current = deformer.positions();
+    let current = solver.positions();
     if let Some(i) = current.iter().position(|p| !p.is_finite()) {
         bail!(
             "the solve diverged: particle {i} is at {} after {} iterations \
@@ -101,7 +104,7 @@ pub fn write_solution(
     tissue::io::model::save_moved_particles(model, current, deformed, &particles)?;
     files.push(particles);
 
-    let (points, structures) = carried.moved(deformer);
+    let (points, structures) = carried.moved(solver);
     let points = match (points, &carried.points) {
         (Some(moved), Some(source)) => {
             let path = to.dir.join(POINTS_FILE);
@@ -132,13 +135,14 @@ pub fn write_solution(
 
     let max_displacement_mm = current
         .iter()
-        .zip(deformer.rest())
+        .zip(solver.rest())
         .map(|(q, p)| q.distance(*p))
         .fold(0.0, f32::max);
     let report = SolveReport {
         model: to.model.to_owned(),
         surface: to.surface.to_owned(),
         particles: model.len(),
+        backend: solver.backend(),
         params: params.clone(),
         iterations: solve.iterations,
         residual: solve.residual,

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
+use tissue_cpu::deformation::{DeformParams, ForceModel};
 
+use crate::backend::{BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{Destination, write_solution};
 
@@ -71,13 +72,19 @@ pub struct DeformArgs {
     pub report: Option<PathBuf>,
     #[command(flatten)]
     pub solve: SolveArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Print nothing but errors.
     #[arg(long, short)]
     pub quiet: bool,
 }
 
-/// Reads a model and prepares stage 2 on it.
-pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, Deformer)> {
+/// Reads a model and prepares stage 2 on it on `device`.
+pub fn load_model(
+    path: &Path,
+    params: DeformParams,
+    device: Device,
+) -> Result<(ParticleModel, Solver)> {
     let vtp = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("vtp"));
@@ -88,9 +95,9 @@ pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, D
         );
     }
     let model = tissue::load_model(path)?;
-    let deformer = Deformer::new(&model, params)
+    let solver = Solver::new(device, &model, params)
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
-    Ok((model, deformer))
+    Ok((model, solver))
 }
 
 /// Reads a deformed surface and places the control points on it.
@@ -98,11 +105,7 @@ pub fn load_model(path: &Path, params: DeformParams) -> Result<(ParticleModel, D
 /// `load_surface` keeps the file's winding, while sampling turns an
 /// inward-facing surface outward; a deformed surface whose every triangle is
 /// the rest triangle reversed is the same mesh, and is turned the same way.
-pub fn load_deformed(
-    path: &Path,
-    deformer: &mut Deformer,
-    rest: &SurfaceMesh,
-) -> Result<SurfaceMesh> {
+pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
     let mut deformed = tissue::load_surface(path)?;
     let reversed = deformed.triangles.len() == rest.triangles.len()
         && deformed
@@ -119,7 +122,7 @@ pub fn load_deformed(
             t.swap(1, 2);
         }
     }
-    deformer
+    solver
         .set_surface(&deformed)
         .map_err(|err| anyhow!("{}: {}", path.display(), err))?;
     Ok(deformed)
@@ -128,12 +131,13 @@ pub fn load_deformed(
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let params = args.solve.params()?;
-    let (model, mut deformer) = load_model(&args.model, params.clone())?;
-    let deformed = load_deformed(&args.surface, &mut deformer, &model.surface)?;
-    let carried = Carried::load(&args.carry, deformer.rest())?;
+    let device = Device::pick(args.backend.backend, args.quiet)?;
+    let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
+    let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
+    let carried = Carried::load(&args.carry, solver.rest())?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
-    let solve = deformer.solve();
+    let solve = solver.solve()?;
     let destination = Destination {
         dir: &args.output_dir,
         report: args.report.as_deref(),
@@ -143,7 +147,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let report = write_solution(
         destination,
         &model,
-        &deformer,
+        &solver,
         &deformed,
         &carried,
         &params,

@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::Serialize;
 
+use crate::backend::{BackendArgs, Device};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{Destination, convergence, write_json, write_solution};
@@ -32,6 +33,8 @@ pub struct TrackArgs {
     pub output_dir: PathBuf,
     #[command(flatten)]
     pub solve: SolveArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Print nothing but errors.
     #[arg(long, short)]
     pub quiet: bool,
@@ -68,6 +71,8 @@ struct Totals {
 #[derive(Debug, Serialize)]
 struct TrackReport {
     model: String,
+    /// Where stage 2 ran: `cpu`, or the GPU adapter's name and graphics backend.
+    backend: String,
     frames: Vec<FrameReport>,
     totals: Totals,
 }
@@ -77,15 +82,16 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
     let params = args.solve.params()?;
     let frames = expand(&args.frames)?;
-    let (model, mut deformer) = load_model(&args.model, params.clone())?;
-    let carried = Carried::load(&args.carry, deformer.rest())?;
+    let device = Device::pick(args.backend.backend, args.quiet)?;
+    let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
+    let carried = Carried::load(&args.carry, solver.rest())?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
     let model_name = args.model.display().to_string();
     let mut reports = Vec::new();
     for (k, frame) in frames.iter().enumerate() {
-        let deformed = load_deformed(frame, &mut deformer, &model.surface)?;
-        let solve = deformer.solve();
+        let deformed = load_deformed(frame, &mut solver, &model.surface)?;
+        let solve = solver.solve()?;
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let surface = frame.display().to_string();
         let destination = Destination {
@@ -97,7 +103,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         let report = write_solution(
             destination,
             &model,
-            &deformer,
+            &solver,
             &deformed,
             &carried,
             &params,
@@ -158,6 +164,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         &path,
         &TrackReport {
             model: model_name,
+            backend: solver.backend(),
             frames: reports,
             totals,
         },

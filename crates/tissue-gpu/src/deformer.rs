@@ -123,6 +123,19 @@ impl GpuDeformer {
         self.state.read_positions(device, queue)
     }
 
+    /// Reads back each particle's rotation (rest offsets onto current
+    /// offsets) from the last iteration, as
+    /// `tissue_cpu::deformation::Deformer::rotations` has them: what
+    /// `Embedding::moved` and `RigidBinding::motion` need. Stalls until the
+    /// GPU is done: frame boundaries only.
+    pub fn read_rotations(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<glam::Mat3>, GpuError> {
+        self.state.read_rotations(device, queue)
+    }
+
     /// Back to the rest shape.
     pub fn reset(&mut self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(), GpuError> {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {

@@ -1,0 +1,271 @@
+//! `--backend auto|gpu|cpu` on `demo`, `deform` and `track`: the GPU and the
+//! CPU put the tumour in the same place, `auto` says what it took, and a
+//! missing adapter is an error message, not a panic. Without an adapter the
+//! GPU tests print "SKIPPED: no GPU adapter", and fail under `CI=true`.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{assets, s, text, tissue};
+use serde_json::Value;
+use tissue::Vec3;
+
+/// Whether a GPU adapter exists; `false` after printing "SKIPPED: no GPU
+/// adapter" (as `crates/tissue-gpu/tests/common` does), a panic under `CI=true`.
+fn gpu(test: &str) -> bool {
+    match tissue_gpu::device_from_env() {
+        Ok((adapter, _, _)) => {
+            eprintln!("{test}: adapter {:?}", adapter.get_info());
+            true
+        }
+        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
+            if std::env::var("CI").as_deref() == Ok("true") {
+                panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
+            }
+            eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
+            false
+        }
+        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
+    }
+}
+
+fn json(path: &Path) -> Value {
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn vec3(v: &Value) -> Vec3 {
+    let a: Vec<f32> = v
+        .as_array()
+        .unwrap_or_else(|| panic!("not an array: {v}"))
+        .iter()
+        .map(|x| x.as_f64().unwrap() as f32)
+        .collect();
+    Vec3::new(a[0], a[1], a[2])
+}
+
+/// Bounding-box diagonal of the bundled breast phantom (~190 mm).
+fn phantom_size() -> f32 {
+    let breast = tissue::load_surface(&assets().join("phantom-breast.obj")).unwrap();
+    let (lo, hi) = breast.vertices.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    (hi - lo).length()
+}
+
+/// `tissue demo -n 2000 --backend <backend>` into `dir`, and its `demo.json`.
+fn demo(dir: &Path, backend: &str) -> (String, Value) {
+    let out = tissue(&[
+        "demo",
+        "--particles",
+        "2000",
+        "--backend",
+        backend,
+        "-o",
+        s(dir),
+    ]);
+    let printed = text(&out);
+    assert!(out.status.success(), "--backend {backend}: {printed}");
+    assert!(!printed.contains("panicked"), "{printed}");
+    (printed, json(&dir.join("demo.json")))
+}
+
+/// The moved centroid of each (case, structure kind) in `demo.json`.
+fn centroids(demo: &Value) -> Vec<(String, Vec3)> {
+    let mut all = Vec::new();
+    for case in demo["cases"].as_array().unwrap() {
+        for structure in case["structures"].as_array().unwrap() {
+            let key = format!(
+                "{} {}",
+                case["name"].as_str().unwrap(),
+                structure["kind"].as_str().unwrap()
+            );
+            all.push((key, vec3(&structure["moved_centroid"])));
+        }
+    }
+    all
+}
+
+#[test]
+fn demo_on_the_gpu_puts_the_tumour_where_the_cpu_does() {
+    if !gpu("demo --backend gpu") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (_, cpu) = demo(&dir.path().join("cpu"), "cpu");
+    let (printed, gpu) = demo(&dir.path().join("gpu"), "gpu");
+    assert!(printed.contains("backend: gpu ("), "{printed}");
+    assert_eq!(cpu["backend"], "cpu");
+    let name = gpu["backend"].as_str().unwrap();
+    assert!(!name.is_empty() && name != "cpu", "GPU backend {name:?}");
+    let sag = json(&dir.path().join("gpu/sag/report.json"));
+    assert_eq!(sag["backend"], name, "report.json names the adapter too");
+
+    let (cpu, gpu) = (centroids(&cpu), centroids(&gpu));
+    let keys: Vec<&str> = cpu.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(
+        keys,
+        [
+            "sag deformable",
+            "sag rigid",
+            "indentation deformable",
+            "indentation rigid"
+        ]
+    );
+    let tolerance = 1e-3 * phantom_size();
+    for ((key, c), (_, g)) in cpu.iter().zip(&gpu) {
+        let off = c.distance(*g);
+        eprintln!("{key}: CPU {c}, GPU {g}, {off:.2e} mm apart");
+        assert!(
+            off <= tolerance,
+            "{key}: tumour centroid on the GPU {g} vs the CPU {c}: {off:e} mm > tolerance {tolerance:e} mm (1e-3 of the size)"
+        );
+    }
+}
+
+#[test]
+fn auto_says_which_backend_it_took() {
+    let dir = tempfile::tempdir().unwrap();
+    let (printed, report) = demo(dir.path(), "auto");
+    let line = printed
+        .lines()
+        .find(|l| l.starts_with("backend: "))
+        .unwrap_or_else(|| panic!("no `backend:` line in {printed}"));
+    eprintln!("{line}");
+    let took_gpu = line.starts_with("backend: gpu (");
+    assert!(took_gpu || line.starts_with("backend: cpu ("), "{line}");
+    assert_eq!(report["backend"] == "cpu", !took_gpu, "{line} vs {report}");
+}
+
+#[test]
+fn quiet_prints_no_backend_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = tissue(&[
+        "demo",
+        "-n",
+        "2000",
+        "--backend",
+        "auto",
+        "--quiet",
+        "-o",
+        s(dir.path()),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.trim().is_empty(), "--quiet printed: {stdout}");
+}
+
+#[test]
+fn a_missing_adapter_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args([
+            "demo",
+            "-n",
+            "2000",
+            "--backend",
+            "gpu",
+            "-o",
+            s(dir.path()),
+        ])
+        .env("WGPU_ADAPTER_NAME", "no-such-adapter")
+        .output()
+        .unwrap();
+    let printed = text(&out);
+    assert!(!out.status.success(), "{printed}");
+    assert!(!printed.contains("panicked"), "{printed}");
+    assert!(
+        printed.contains("error: --backend gpu: no GPU adapter")
+            && printed.contains("no-such-adapter"),
+        "{printed}"
+    );
+    assert!(
+        !dir.path().join("model.vtp").exists(),
+        "it failed before sampling"
+    );
+}
+
+#[test]
+fn deform_and_track_on_the_gpu_match_the_cpu() {
+    if !gpu("deform and track --backend gpu") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.vtp");
+    let breast = assets().join("phantom-breast.obj");
+    let out = tissue(&["sample", s(&breast), "-n", "2000", "-o", s(&model), "-q"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let (sag, tumour) = (
+        assets().join("phantom-sag.obj"),
+        assets().join("phantom-tumour.obj"),
+    );
+    let tolerance = 1e-3 * phantom_size();
+    let mut moved = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let out_dir = dir.path().join(format!("deform-{backend}"));
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model),
+            "--surface",
+            s(&sag),
+            "--rigid-structure",
+            s(&tumour),
+            "--backend",
+            backend,
+            "-o",
+            s(&out_dir),
+        ]);
+        assert!(
+            out.status.success(),
+            "deform --backend {backend}: {}",
+            text(&out)
+        );
+        let report = json(&out_dir.join("report.json"));
+        assert_eq!(report["backend"] == "cpu", backend == "cpu", "{report}");
+        moved.push(vec3(&report["structures"][0]["moved_centroid"]));
+
+        let frames = dir.path().join("frames");
+        std::fs::create_dir_all(&frames).unwrap();
+        std::fs::copy(&sag, frames.join("f1.obj")).unwrap();
+        std::fs::copy(
+            assets().join("phantom-indentation.obj"),
+            frames.join("f2.obj"),
+        )
+        .unwrap();
+        let out_dir = dir.path().join(format!("track-{backend}"));
+        let pattern = frames.join("*.obj");
+        let out = tissue(&[
+            "track",
+            "--model",
+            s(&model),
+            "--frames",
+            s(&pattern),
+            "--backend",
+            backend,
+            "-q",
+            "-o",
+            s(&out_dir),
+        ]);
+        assert!(
+            out.status.success(),
+            "track --backend {backend}: {}",
+            text(&out)
+        );
+        let track = json(&out_dir.join("track.json"));
+        assert_eq!(track["backend"] == "cpu", backend == "cpu", "{track}");
+        assert_eq!(track["totals"]["converged"], true, "{track}");
+    }
+    let off = moved[0].distance(moved[1]);
+    assert!(
+        off <= tolerance,
+        "deform: rigid tumour centroid on the CPU {} vs the GPU {}: {off:e} mm > {tolerance:e} mm",
+        moved[0],
+        moved[1]
+    );
+}
