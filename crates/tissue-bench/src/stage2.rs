@@ -1,0 +1,254 @@
+//! Stage-2 measurements, the same on both backends: one iteration, solves to
+//! convergence from rest, and a tracking loop.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use glam::Vec3;
+use serde::Serialize;
+use tissue_core::deform::interpolate;
+use tissue_core::{ParticleModel, SurfaceMesh};
+use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, RotationMethod};
+use tissue_gpu::GpuDeformer;
+
+use crate::memory::GpuStateBytes;
+use crate::stats::Summary;
+
+/// An opened GPU device and its queue.
+#[derive(Debug)]
+pub struct Gpu {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+}
+
+/// Stage 2 on one backend.
+enum Solver<'a> {
+    Cpu(Box<Deformer>),
+    Gpu(&'a Gpu, Box<GpuDeformer>),
+}
+
+impl<'a> Solver<'a> {
+    fn new(gpu: Option<&'a Gpu>, model: &ParticleModel, params: DeformParams) -> Result<Self> {
+        Ok(match gpu {
+            None => Self::Cpu(Box::new(Deformer::new(model, params)?)),
+            Some(gpu) => Self::Gpu(
+                gpu,
+                Box::new(GpuDeformer::new(&gpu.device, &gpu.queue, model, params)?),
+            ),
+        })
+    }
+
+    fn reset(&mut self) -> Result<()> {
+        match self {
+            Self::Cpu(cpu) => cpu.reset(),
+            Self::Gpu(gpu, deformer) => deformer.reset(&gpu.device, &gpu.queue)?,
+        }
+        Ok(())
+    }
+
+    fn set_surface(&mut self, surface: &SurfaceMesh) -> Result<()> {
+        match self {
+            Self::Cpu(cpu) => cpu.set_surface(surface)?,
+            Self::Gpu(gpu, deformer) => deformer.set_surface(&gpu.queue, surface)?,
+        }
+        Ok(())
+    }
+
+    /// Solves; the GPU solve submits its batches and waits on each one's step
+    /// norms, so the wall clock around it covers the device's work.
+    fn solve(&mut self) -> Result<DeformReport> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.solve()),
+            Self::Gpu(gpu, deformer) => Ok(deformer.solve(&gpu.device, &gpu.queue)?),
+        }
+    }
+
+    /// The positions on the host: a copy on the CPU, a readback on the GPU.
+    fn positions(&self) -> Result<Vec<Vec3>> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.positions().to_vec()),
+            Self::Gpu(gpu, deformer) => Ok(deformer.positions(&gpu.device, &gpu.queue)?),
+        }
+    }
+}
+
+/// How many times to measure.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Repeats {
+    /// Timed solves of `iterations_per_solve` fixed iterations.
+    pub iteration_solves: usize,
+    /// Iterations in each of those solves.
+    pub iterations_per_solve: usize,
+    /// Tracking frames.
+    pub frames: usize,
+}
+
+/// The surfaces stage 2 is measured on, all the rest surface with moved vertices.
+#[derive(Debug)]
+pub struct Cases {
+    /// The rest surface.
+    pub rest: SurfaceMesh,
+    /// Named targets solved to convergence from rest.
+    pub targets: Vec<(String, SurfaceMesh)>,
+    /// The target the iteration timing and the tracking loop follow (the sag).
+    pub track: SurfaceMesh,
+}
+
+/// One iteration's wall time.
+#[derive(Debug, Clone, Serialize)]
+pub struct IterationTiming {
+    /// Per-iteration wall time over the timed solves (solve time / iterations).
+    pub per_iteration: Summary,
+    /// Iterations each timed solve ran (the stopping rule is disabled, so
+    /// all of `iterations_per_solve` unless the state stopped changing).
+    pub iterations_run: Vec<usize>,
+}
+
+/// A solve to convergence from rest.
+#[derive(Debug, Clone, Serialize)]
+pub struct Converge {
+    /// Which target.
+    pub case: String,
+    /// Iterations.
+    pub iterations: usize,
+    /// Wall-clock seconds of the solve (from rest, surface set).
+    pub seconds: f64,
+    /// Whether the stopping rule held before the cap.
+    pub converged: bool,
+    /// Which rule ended it.
+    pub stopped_by: String,
+}
+
+/// Frames of a sequence, each starting from the last solution.
+#[derive(Debug, Clone, Serialize)]
+pub struct Tracking {
+    /// The sequence.
+    pub description: String,
+    /// Per-frame latency: set_surface (upload), solve, positions readback.
+    pub latency: Summary,
+    /// Iterations of each frame.
+    pub iterations: Vec<usize>,
+}
+
+/// Everything measured on one backend for one model.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stage2 {
+    /// How rotations are found on this backend.
+    pub rotations: String,
+    /// One iteration.
+    pub iteration: IterationTiming,
+    /// Solves to convergence from rest.
+    pub converge: Vec<Converge>,
+    /// The tracking loop.
+    pub tracking: Tracking,
+    /// The GPU buffers (GPU only).
+    pub gpu_state_bytes: Option<GpuStateBytes>,
+}
+
+/// Measures stage 2 for `model` on the CPU (`gpu` `None`) or the GPU.
+pub fn measure(
+    gpu: Option<&Gpu>,
+    model: &ParticleModel,
+    cases: &Cases,
+    repeats: Repeats,
+) -> Result<Stage2> {
+    let defaults = DeformParams::default();
+    let iteration = {
+        // The stopping rule off: the smallest positive tolerance never holds
+        // while the sag is still being followed.
+        let fixed = DeformParams {
+            tolerance: f32::MIN_POSITIVE,
+            max_iterations: repeats.iterations_per_solve,
+            extrapolate: false,
+            ..defaults.clone()
+        };
+        let mut solver = Solver::new(gpu, model, fixed).context("stage 2, fixed iterations")?;
+        let mut per_iteration = Vec::new();
+        let mut iterations_run = Vec::new();
+        // One untimed solve first: shader compilation, first-touch of memory.
+        for run in 0..=repeats.iteration_solves {
+            solver.reset()?;
+            solver.set_surface(&cases.track)?;
+            let started = Instant::now();
+            let report = solver.solve()?;
+            let seconds = started.elapsed().as_secs_f64();
+            if run > 0 && report.iterations > 0 {
+                per_iteration.push(seconds / report.iterations as f64);
+                iterations_run.push(report.iterations);
+            }
+        }
+        IterationTiming {
+            per_iteration: Summary::of_seconds(&per_iteration)
+                .context("no timed iteration solve ran")?,
+            iterations_run,
+        }
+    };
+
+    let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
+    let gpu_state_bytes = match &solver {
+        Solver::Cpu(_) => None,
+        Solver::Gpu(gpu, deformer) => {
+            Some(GpuStateBytes::of(model, &gpu.device, deformer.pipelines()))
+        }
+    };
+    let mut converge = Vec::new();
+    for (case, target) in &cases.targets {
+        solver.reset()?;
+        solver.set_surface(target)?;
+        let started = Instant::now();
+        let report = solver.solve()?;
+        converge.push(Converge {
+            case: case.clone(),
+            iterations: report.iterations,
+            seconds: started.elapsed().as_secs_f64(),
+            converged: report.converged,
+            stopped_by: format!("{:?}", report.stopped_by),
+        });
+    }
+
+    // Tracking: reach half the sag, then frames of 2 % of it each.
+    solver.reset()?;
+    let half = interpolate(&cases.rest, &cases.track, 0.5).map_err(anyhow::Error::msg)?;
+    solver.set_surface(&half)?;
+    solver.solve()?;
+    let frames: Vec<SurfaceMesh> = (1..=repeats.frames)
+        .map(|k| interpolate(&cases.rest, &cases.track, 0.5 + 0.02 * k as f32))
+        .collect::<Result<_, _>>()
+        .map_err(anyhow::Error::msg)?;
+    let mut latency = Vec::new();
+    let mut iterations = Vec::new();
+    for frame in &frames {
+        let started = Instant::now();
+        solver.set_surface(frame)?;
+        let report = solver.solve()?;
+        let positions = solver.positions()?;
+        latency.push(started.elapsed().as_secs_f64());
+        iterations.push(report.iterations);
+        anyhow::ensure!(
+            positions.len() == model.len(),
+            "read back {} positions for {} particles",
+            positions.len(),
+            model.len()
+        );
+    }
+    let rotations = match (gpu, defaults.rotations) {
+        (Some(_), _) | (None, RotationMethod::Svd) => "svd",
+        (None, RotationMethod::WarmPolar) => "warm_polar",
+    };
+    Ok(Stage2 {
+        rotations: rotations.to_owned(),
+        iteration,
+        converge,
+        tracking: Tracking {
+            description: format!(
+                "{} frames from 50 % of the sag in steps of 2 % of it",
+                repeats.frames
+            ),
+            latency: Summary::of_seconds(&latency).context("no tracking frame ran")?,
+            iterations,
+        },
+        gpu_state_bytes,
+    })
+}

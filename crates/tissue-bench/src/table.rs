@@ -1,0 +1,148 @@
+//! The markdown summary printed on stdout.
+
+use std::fmt::Write;
+
+use crate::{BackendName, Report};
+
+/// Stage 1, stage 2 and memory tables, and the machine.
+pub fn markdown(report: &Report) -> String {
+    let mut out = String::new();
+    let m = &report.machine;
+    // Writing to a String cannot fail.
+    let _ = writeln!(
+        out,
+        "machine: {} ({} logical processors, {} rayon threads), commit {}",
+        m.cpu_model, m.cpu_logical_processors, m.rayon_threads, m.git_commit
+    );
+    if let Some(gpu) = &report.gpu {
+        match (&gpu.adapter, &gpu.reason) {
+            (Some(a), _) => {
+                let _ = writeln!(
+                    out,
+                    "gpu: {} ({}, {}, driver {} {})",
+                    a.name, a.backend, a.device_type, a.driver, a.driver_info
+                );
+            }
+            (None, reason) => {
+                let _ = writeln!(
+                    out,
+                    "gpu: skipped ({})",
+                    reason.as_deref().unwrap_or("no adapter")
+                );
+            }
+        }
+    }
+    let _ = writeln!(out, "mesh: {}\n", report.mesh);
+
+    let _ = writeln!(out, "## Stage 1: sampling (CPU)\n");
+    let _ = writeln!(
+        out,
+        "| particles | seconds | iterations | nn_cv | connections median | coverage |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|");
+    for s in &report.sizes {
+        let p = &s.sampling;
+        let _ = writeln!(
+            out,
+            "| {} | {:.2} | {}{} | {:.3} | {} | {:.2} |",
+            s.particles,
+            p.seconds,
+            p.iterations,
+            if p.converged { "" } else { " (cap)" },
+            p.nn_cv,
+            p.connections_median,
+            p.coverage
+        );
+    }
+
+    let _ = writeln!(out, "\n## Stage 2: deformation\n");
+    let mut header = String::from(
+        "| particles | backend | ms / iteration median (min-max) | floor MB / iteration | effective GB/s |",
+    );
+    let mut rule = String::from("|---|---|---|---|---|");
+    for case in &report.cases {
+        let _ = write!(header, " {case}: iterations, s |");
+        rule.push_str("---|");
+    }
+    header.push_str(" tracking ms / frame p50 / p99 (iterations) |");
+    rule.push_str("---|");
+    let _ = writeln!(out, "{header}\n{rule}");
+    for s in &report.sizes {
+        for b in &s.backends {
+            let name = match b.backend {
+                BackendName::Cpu => "cpu",
+                BackendName::Gpu => "gpu",
+            };
+            let (Some(stage2), Some(floor)) = (&b.stage2, &b.floor) else {
+                let _ = writeln!(
+                    out,
+                    "| {} | {name} | {}: {} |",
+                    s.particles,
+                    b.status,
+                    b.reason.as_deref().unwrap_or("")
+                );
+                continue;
+            };
+            let it = &stage2.iteration.per_iteration;
+            let _ = write!(
+                out,
+                "| {} | {name} ({}) | {:.3} ({:.3}-{:.3}) | {:.2} | {:.2} |",
+                s.particles,
+                stage2.rotations,
+                it.median_ms,
+                it.min_ms,
+                it.max_ms,
+                floor.bytes.bytes_per_iteration / 1e6,
+                floor.effective_gb_per_s
+            );
+            for c in &stage2.converge {
+                let mark = if c.converged { "" } else { " (not converged)" };
+                let _ = write!(out, " {}, {:.3}{mark} |", c.iterations, c.seconds);
+            }
+            let t = &stage2.tracking;
+            let (low, high) = (
+                t.iterations.iter().min().copied().unwrap_or(0),
+                t.iterations.iter().max().copied().unwrap_or(0),
+            );
+            let _ = writeln!(
+                out,
+                " {:.2} / {:.2} ({low}-{high}) |",
+                t.latency.median_ms, t.latency.p99_ms
+            );
+        }
+    }
+
+    let _ = writeln!(out, "\n## Memory\n");
+    let _ = writeln!(
+        out,
+        "| particles | CPU model B / particle | GPU state B / particle | GPU with deformer backups B / particle | peak RSS MB (process so far) |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|");
+    for s in &report.sizes {
+        let gpu = s
+            .backends
+            .iter()
+            .find_map(|b| b.stage2.as_ref()?.gpu_state_bytes);
+        let (state, all) = gpu.map_or(("-".to_owned(), "-".to_owned()), |g| {
+            (
+                format!("{:.1}", g.state_per_particle),
+                format!("{:.1}", g.deformer_per_particle),
+            )
+        });
+        let rss = s
+            .peak_resident_bytes
+            .map_or("-".to_owned(), |b| format!("{:.0}", b as f64 / 1e6));
+        let _ = writeln!(
+            out,
+            "| {} | {:.1} | {state} | {all} | {rss} |",
+            s.particles, s.cpu_model_bytes.per_particle
+        );
+    }
+    let _ = writeln!(
+        out,
+        "\nfloor per particle: {}\ntotal {:.1} s",
+        crate::FLOOR_FORMULA,
+        report.total_seconds
+    );
+    out
+}
