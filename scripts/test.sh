@@ -38,5 +38,8 @@ cargo test --workspace --release --exclude tissue-gpu
 echo "== GPU tests (release; the output names the adapter)"
 cargo test -p tissue-gpu --release -- --show-output
 
+echo "== criterion micro-benchmarks, smoke mode (each kernel once)"
+cargo bench --bench kernels -- --test
+
 echo "== the README's first command: the whole pipeline on the bundled phantom"
 cargo run --release --quiet -p tissue-cli -- demo --output-dir target/ci-demo
