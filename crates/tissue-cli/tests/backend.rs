@@ -9,7 +9,7 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{assets, s, text, tissue};
+use common::{assets, json, s, text, tissue, vec3};
 use serde_json::Value;
 use tissue::Vec3;
 
@@ -30,22 +30,6 @@ fn gpu(test: &str) -> bool {
         }
         Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
     }
-}
-
-fn json(path: &Path) -> Value {
-    let text =
-        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn vec3(v: &Value) -> Vec3 {
-    let a: Vec<f32> = v
-        .as_array()
-        .unwrap_or_else(|| panic!("not an array: {v}"))
-        .iter()
-        .map(|x| x.as_f64().unwrap() as f32)
-        .collect();
-    Vec3::new(a[0], a[1], a[2])
 }
 
 /// Bounding-box diagonal of the bundled breast phantom (~190 mm).

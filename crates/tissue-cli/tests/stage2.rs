@@ -5,27 +5,11 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assets, s, text, tissue};
+use common::{assets, json, s, text, tissue, vec3};
 
 use serde_json::Value;
 use tissue::deform::{Rigid, Sag, deform_surface, interpolate};
 use tissue::{ParticleModel, SurfaceMesh, Vec3, phantom};
-
-fn json(path: &Path) -> Value {
-    let text =
-        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn vec3(v: &Value) -> Vec3 {
-    let a: Vec<f32> = v
-        .as_array()
-        .unwrap_or_else(|| panic!("not an array: {v}"))
-        .iter()
-        .map(|x| x.as_f64().unwrap() as f32)
-        .collect();
-    Vec3::new(a[0], a[1], a[2])
-}
 
 /// The bundled phantom sampled by `tissue sample` at 2,000 particles, read back.
 fn sampled_model(dir: &Path) -> (PathBuf, ParticleModel) {

@@ -7,7 +7,7 @@
 mod common;
 
 use glam::Mat3;
-use tissue_cpu::deformation::{DeformParams, Deformer, RotationMethod, local_rotations};
+use tissue_cpu::deformation::{DeformParams, RotationMethod, local_rotations};
 use tissue_gpu::GpuDeformer;
 
 /// Largest entry difference over all particles, with its particle.
@@ -67,19 +67,12 @@ fn read_rotations_after_a_solve_matches_the_cpu_deformer() {
         return;
     };
     let model = common::phantom(2_000);
-    let sagged = tissue_core::deform::sagged_breast();
     let params = DeformParams {
         rotations: RotationMethod::Svd,
         ..DeformParams::default()
     };
-    let mut cpu = Deformer::new(model, params.clone()).unwrap_or_else(|e| panic!("{e}"));
-    cpu.set_surface(&sagged).unwrap_or_else(|e| panic!("{e}"));
-    let cpu_report = cpu.solve();
-    let mut gpu =
-        GpuDeformer::new(&device, &queue, model, params).unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(&queue, &sagged)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let gpu_report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params);
     assert_eq!(
         gpu_report.iterations, cpu_report.iterations,
         "the same stopping rule, so the rotations come from the same iteration"

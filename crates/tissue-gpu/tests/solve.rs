@@ -4,8 +4,7 @@
 
 mod common;
 
-use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel, RotationMethod};
-use tissue_gpu::GpuDeformer;
+use tissue_cpu::deformation::{DeformParams, ForceModel, RotationMethod};
 
 #[test]
 fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
@@ -13,21 +12,14 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         return;
     };
     let model = common::phantom(2_000);
-    let sagged = tissue_core::deform::sagged_breast();
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
         let params = DeformParams {
             force,
             rotations: RotationMethod::Svd,
             ..DeformParams::default()
         };
-        let mut cpu = Deformer::new(model, params.clone()).unwrap_or_else(|e| panic!("{e}"));
-        cpu.set_surface(&sagged).unwrap_or_else(|e| panic!("{e}"));
-        let cpu_report = cpu.solve();
-        let mut gpu =
-            GpuDeformer::new(&device, &queue, model, params).unwrap_or_else(|e| panic!("{e}"));
-        gpu.set_surface(&queue, &sagged)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let gpu_report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+        let (cpu, cpu_report, gpu, gpu_report) =
+            common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
             "{force:?}: CPU {} iterations, {:?}, {:.3} s; GPU {} iterations, {:?}, {:.3} s",
             cpu_report.iterations,

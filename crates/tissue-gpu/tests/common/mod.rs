@@ -73,3 +73,29 @@ pub fn read(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -
     staging.unmap();
     bytes
 }
+
+/// The phantom's sag solved from rest by the CPU and the GPU path with the
+/// same parameters: `(cpu, cpu report, gpu, gpu report)`.
+pub fn solve_sag_on_both(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    model: &ParticleModel,
+    params: tissue_cpu::deformation::DeformParams,
+) -> (
+    tissue_cpu::deformation::Deformer,
+    tissue_cpu::deformation::DeformReport,
+    tissue_gpu::GpuDeformer,
+    tissue_cpu::deformation::DeformReport,
+) {
+    let sagged = tissue_core::deform::sagged_breast();
+    let mut cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
+        .unwrap_or_else(|e| panic!("{e}"));
+    cpu.set_surface(&sagged).unwrap_or_else(|e| panic!("{e}"));
+    let cpu_report = cpu.solve();
+    let mut gpu = tissue_gpu::GpuDeformer::new(device, queue, model, params)
+        .unwrap_or_else(|e| panic!("{e}"));
+    gpu.set_surface(queue, &sagged)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
+    (cpu, cpu_report, gpu, gpu_report)
+}
