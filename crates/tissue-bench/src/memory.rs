@@ -5,7 +5,7 @@ use std::mem::size_of;
 
 use serde::Serialize;
 use tissue_core::{Attachment, ParticleModel};
-use tissue_gpu::{Kernel, Pipelines, SLOTS};
+use tissue_gpu::GpuDeformer;
 
 /// Bytes of a [`ParticleModel`] on the CPU (the surface mesh excluded).
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -46,74 +46,32 @@ impl CpuModelBytes {
     }
 }
 
-/// Bytes of the GPU buffers of one model.
-///
-/// `DeformState` keeps its buffers private, so these are computed from the
-/// same formulas `tissue_gpu::DeformState::new` and `GpuDeformer::new` size
-/// them with (`crates/tissue-gpu/src/{state,deformer}.rs`); a change there
-/// must be mirrored here.
+/// Bytes of the GPU buffers of one model, as `tissue-gpu` allocated them.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct GpuStateBytes {
-    /// rest, current, previous, plain and force: `vec4<f32>` per particle each.
-    pub positions: u64,
-    /// Rotations: three `vec4<f32>` columns per particle.
-    pub rotations: u64,
-    /// Free flags, `u32` per particle.
-    pub free: u64,
-    /// Connection offsets and indices, `u32` each.
-    pub connections: u64,
-    /// Step-norm partials: `SLOTS` rows of one `vec2<f32>` per step_norms workgroup.
-    pub partials: u64,
-    /// Uniform parameters: `SLOTS` slots at the device's uniform offset alignment.
-    pub params: u64,
-    /// `DeformState`'s total: the sum of the above.
+    /// `DeformState`'s buffers (positions, rotations, forces, flags,
+    /// connections, step-norm partials, parameters).
     pub state_total: u64,
     /// `state_total` over the particle count.
     pub state_per_particle: f64,
-    /// `GpuDeformer`'s two backup buffers (current, previous) for replaying a batch.
-    pub deformer_backups: u64,
-    /// Everything the deformer allocates, over the particle count.
+    /// Everything the deformer holds: the state and the two backups a batch
+    /// is replayed from.
+    pub deformer_total: u64,
+    /// `deformer_total` over the particle count.
     pub deformer_per_particle: f64,
 }
 
 impl GpuStateBytes {
-    /// The buffers `DeformState::new` allocates for `model` on `device`.
-    pub fn of(model: &ParticleModel, device: &wgpu::Device, pipelines: &Pipelines) -> Self {
-        let n = model.len() as u64;
-        let vec4 = 16;
-        // Empty arrays are padded to 16 bytes (zero-sized bindings are invalid).
-        let padded = |bytes: u64| bytes.max(16);
-        let positions = 5 * padded(n * vec4);
-        let rotations = padded(n * size_of::<tissue_gpu::Rotation>() as u64);
-        let free = padded(n * 4);
-        let connections = padded(model.connections.offsets.len() as u64 * 4)
-            + padded(model.connections.indices.len() as u64 * 4);
-        let limits = device.limits();
-        let groups = u64::from(
-            (n as u32)
-                .div_ceil(pipelines.workgroup_size(Kernel::StepNorms).max(1))
-                .max(1),
-        );
-        let per_dimension = u64::from(limits.max_compute_workgroups_per_dimension.max(1));
-        let x = groups.min(per_dimension);
-        let step_groups = x * groups.div_ceil(x);
-        let partials = padded(u64::from(SLOTS) * step_groups * 8);
-        let params = u64::from(SLOTS)
-            * u64::from(limits.min_uniform_buffer_offset_alignment)
-                .max(size_of::<tissue_gpu::Params>() as u64);
-        let state_total = positions + rotations + free + connections + partials + params;
-        let deformer_backups = 2 * n * vec4;
+    /// The buffers `deformer` holds for a model of `particles` particles.
+    pub fn of(deformer: &GpuDeformer, particles: usize) -> Self {
+        let state_total = deformer.state().buffer_bytes();
+        let deformer_total = deformer.buffer_bytes();
+        let n = particles.max(1) as f64;
         Self {
-            positions,
-            rotations,
-            free,
-            connections,
-            partials,
-            params,
             state_total,
-            state_per_particle: state_total as f64 / n.max(1) as f64,
-            deformer_backups,
-            deformer_per_particle: (state_total + deformer_backups) as f64 / n.max(1) as f64,
+            state_per_particle: state_total as f64 / n,
+            deformer_total,
+            deformer_per_particle: deformer_total as f64 / n,
         }
     }
 }

@@ -189,9 +189,7 @@ pub fn measure(
     let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
     let gpu_state_bytes = match &solver {
         Solver::Cpu(_) => None,
-        Solver::Gpu(gpu, deformer) => {
-            Some(GpuStateBytes::of(model, &gpu.device, deformer.pipelines()))
-        }
+        Solver::Gpu(_, deformer) => Some(GpuStateBytes::of(deformer, model.len())),
     };
     let mut converge = Vec::new();
     for (case, target) in &cases.targets {

@@ -83,6 +83,12 @@ impl GpuDeformer {
         &self.state
     }
 
+    /// Bytes of every GPU buffer the deformer holds: the state's, and the two
+    /// backups a batch is replayed from.
+    pub fn buffer_bytes(&self) -> u64 {
+        self.state.buffer_bytes() + self.backup_current.size() + self.backup_previous.size()
+    }
+
     /// The model's size (bounding-box diagonal at rest).
     pub fn size(&self) -> f32 {
         self.plan.size

@@ -62,6 +62,26 @@ pub fn workgroups(count: u32, size: u32, per_dimension: u32) -> Result<[u32; 2],
 }
 
 impl DeformState {
+    /// Bytes of every GPU buffer this state holds, as allocated.
+    pub fn buffer_bytes(&self) -> u64 {
+        [
+            &self.params,
+            &self.rest,
+            &self.current,
+            &self.previous,
+            &self.plain,
+            &self.rotations,
+            &self.force,
+            &self.free,
+            &self.offsets,
+            &self.indices,
+            &self.partials,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum()
+    }
+
     /// Uploads `model` (rest = current = previous = the rest positions,
     /// identity rotations), with `free` marking the particles the solve moves
     /// (`tissue_cpu::deformation::Plan::free`), and binds it to `pipelines`' kernels.
