@@ -10,7 +10,12 @@ fn the_bundled_phantom_is_what_the_code_makes() {
     let dir = tempfile::tempdir().unwrap();
     let out = tissue(&["phantom", "--output-dir", s(dir.path())]);
     assert!(out.status.success(), "{}", text(&out));
-    for name in ["phantom-breast.obj", "phantom-tumour.obj"] {
+    for name in [
+        "phantom-breast.obj",
+        "phantom-tumour.obj",
+        "phantom-sag.obj",
+        "phantom-indentation.obj",
+    ] {
         let made = std::fs::read(dir.path().join(name)).unwrap();
         let bundled = std::fs::read(assets().join(name)).unwrap();
         assert!(
