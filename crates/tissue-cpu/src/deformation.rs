@@ -19,7 +19,7 @@
 
 use std::time::Instant;
 
-use glam::{Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
@@ -71,9 +71,10 @@ pub struct DeformParams {
     pub tolerance: f32,
     /// Iteration cap.
     pub max_iterations: usize,
-    /// Tracking: start a new frame from the last solution moved on by the
-    /// change between the last two solutions (constant velocity), when both
-    /// converged.
+    /// Tracking: start a new frame from the current state carried by the
+    /// least-squares affine map of the surface's move, plus the last frame's
+    /// non-affine change again when the last two solves converged (see
+    /// [`predict`]).
     pub extrapolate: bool,
 }
 
@@ -448,6 +449,19 @@ impl Deformer {
         self.plan.lambda_max
     }
 
+    /// The parameters of the next solves.
+    pub fn params(&self) -> &DeformParams {
+        &self.params
+    }
+
+    /// Changes the parameters of the next solves (the tolerance between
+    /// frames, say); the current state is kept.
+    pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
+        params.validate()?;
+        self.params = params;
+        Ok(())
+    }
+
     /// Back to the rest shape (no warm start).
     pub fn reset(&mut self) {
         self.current.clone_from(&self.rest);
@@ -460,19 +474,30 @@ impl Deformer {
     /// with moved vertices (same vertex count, same triangles).
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
         check_same_topology(&self.surface, deformed)?;
-        if let (true, Some(earlier), Some(last)) =
-            (self.params.extrapolate, &self.earlier, &self.last)
-        {
-            for i in 0..self.current.len() {
+        let controls: Vec<(usize, Vec3)> = self
+            .attachments
+            .iter()
+            .enumerate()
+            .filter_map(|(i, a)| a.map(|(t, bary)| (i, deformed.point_on(t as usize, bary))))
+            .collect();
+        if self.params.extrapolate {
+            let (prediction, linear) = predict(
+                &self.current,
+                self.earlier.as_deref().zip(self.last.as_deref()),
+                &controls,
+                self.params.tolerance * self.plan.size,
+            );
+            for (i, q) in prediction.into_iter().enumerate() {
                 if self.plan.free[i] {
-                    self.current[i] = last[i] + (last[i] - earlier[i]);
+                    self.current[i] = q;
                 }
             }
+            // The warm-started rotations turn with the surface too.
+            let turn = rotation_of(linear);
+            self.rotations.par_iter_mut().for_each(|r| *r = turn * *r);
         }
-        for (q, a) in self.current.iter_mut().zip(&self.attachments) {
-            if let Some((t, bary)) = *a {
-                *q = deformed.point_on(t as usize, bary);
-            }
+        for (i, q) in controls {
+            self.current[i] = q;
         }
         Ok(())
     }
@@ -536,6 +561,91 @@ impl Deformer {
         }
         report
     }
+}
+
+/// Where a new frame's solve starts: the current state carried along by the
+/// surface's move. `controls` are the control particles' new positions.
+///
+/// With `A` the least-squares affine map of the control points from where
+/// they are in `current` to where they go, every particle starts at
+/// `A(q)`: exact for a rigid or affine move, of the sequence or of the frame.
+/// When the last two solves converged (`history = (earlier, last)`,
+/// `last == current`), the part of the last frame's change that the affine
+/// map between those frames did not explain, `d = last - A'(earlier)`, is
+/// added once more, carried by `A`'s linear part: constant velocity for the
+/// non-affine rest of the motion (a sag growing frame after frame), unless
+/// no particle's `d` reaches `noise` (the solve's tolerance, as a length):
+/// then `d` is what the last solves left undone, and extrapolating it would
+/// only grow it frame after frame. Returns the predicted positions and `A`'s linear part (the identity when
+/// the control points do not determine `A`, and nothing moves).
+pub fn predict(
+    current: &[Vec3],
+    history: Option<(&[Vec3], &[Vec3])>,
+    controls: &[(usize, Vec3)],
+    noise: f32,
+) -> (Vec<Vec3>, Mat3) {
+    let from: Vec<Vec3> = controls.iter().map(|&(i, _)| current[i]).collect();
+    let to: Vec<Vec3> = controls.iter().map(|&(_, q)| q).collect();
+    let Some((linear, shift)) = affine_fit(&from, &to) else {
+        return (current.to_vec(), Mat3::IDENTITY);
+    };
+    let carried = |q: Vec3| linear * q + shift;
+    let residual: Option<Vec<Vec3>> = history.and_then(|(earlier, last)| {
+        let before: Vec<Vec3> = controls.iter().map(|&(i, _)| earlier[i]).collect();
+        let after: Vec<Vec3> = controls.iter().map(|&(i, _)| last[i]).collect();
+        let (l, t) = affine_fit(&before, &after)?;
+        let d: Vec<Vec3> = earlier
+            .par_iter()
+            .zip(last)
+            .map(|(&e, &q)| q - (l * e + t))
+            .collect();
+        d.iter().any(|d| d.length() >= noise).then_some(d)
+    });
+    let predicted = match residual {
+        Some(d) => current
+            .par_iter()
+            .zip(&d)
+            .map(|(&q, &d)| carried(q) + linear * d)
+            .collect(),
+        None => current.par_iter().map(|&q| carried(q)).collect(),
+    };
+    (predicted, linear)
+}
+
+/// The affine map `x -> L x + t` that moves the points `from` closest to
+/// `to` in least squares, in `f64`; `None` when the points do not span 3D
+/// well enough to determine it (fewer than four, or nearly coplanar).
+pub fn affine_fit(from: &[Vec3], to: &[Vec3]) -> Option<(Mat3, Vec3)> {
+    if from.len() != to.len() || from.len() < 4 {
+        return None;
+    }
+    let count = from.len() as f64;
+    let mean = |points: &[Vec3]| points.iter().map(|p| p.as_dvec3()).sum::<DVec3>() / count;
+    let (from_mean, to_mean) = (mean(from), mean(to));
+    let mut spread = DMat3::ZERO;
+    let mut cross = DMat3::ZERO;
+    for (a, b) in from.iter().zip(to) {
+        let a = a.as_dvec3() - from_mean;
+        let b = b.as_dvec3() - to_mean;
+        spread += outer(a, a);
+        cross += outer(b, a);
+    }
+    // Nearly coplanar points leave the map along the normal undetermined:
+    // a condition number of 1e8 in the spread is about 1e4 in distances.
+    let trace = spread.x_axis.x + spread.y_axis.y + spread.z_axis.z;
+    let determinant = spread.determinant();
+    if !(trace > 0.0 && determinant > 1e-24 * trace * trace * trace) {
+        return None;
+    }
+    let linear = cross * spread.inverse();
+    let shift = to_mean - linear * from_mean;
+    let linear = linear.as_mat3();
+    let shift = shift.as_vec3();
+    (linear.is_finite() && shift.is_finite()).then_some((linear, shift))
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
 /// The Chebyshev step: `omega (q_hat - q_old) + q_old`.
@@ -917,6 +1027,58 @@ mod tests {
 
     /// A path of `n` free nodes between two fixed ends: eigenvalues
     /// `2 - 2 cos(k pi / (n + 1))`, k = 1..n.
+    #[test]
+    fn an_affine_fit_recovers_an_affine_map_and_refuses_flat_points() {
+        let linear = Mat3::from_cols(
+            Vec3::new(1.1, 0.2, -0.1),
+            Vec3::new(-0.3, 0.9, 0.05),
+            Vec3::new(0.0, 0.4, 1.3),
+        );
+        let shift = Vec3::new(5.0, -2.0, 30.0);
+        let from: Vec<Vec3> = (0..50)
+            .map(|k| {
+                let k = k as f32;
+                Vec3::new((k * 1.3).sin(), (k * 0.7).cos(), (k * 0.37).sin()) * 40.0
+            })
+            .collect();
+        let to: Vec<Vec3> = from.iter().map(|&p| linear * p + shift).collect();
+        let Some((l, t)) = affine_fit(&from, &to) else {
+            panic!("no fit through 50 points in general position");
+        };
+        assert!(l.abs_diff_eq(linear, 1e-5), "{l} vs {linear}");
+        assert!(t.abs_diff_eq(shift, 1e-3), "{t} vs {shift}");
+        let flat: Vec<Vec3> = from.iter().map(|p| Vec3::new(p.x, p.y, 0.0)).collect();
+        assert_eq!(affine_fit(&flat, &to), None);
+        assert_eq!(affine_fit(&from[..3], &to[..3]), None);
+    }
+
+    #[test]
+    fn a_prediction_extrapolates_a_non_affine_change_only_above_the_noise() {
+        // Five particles: four control points moved by a translation, and
+        // particle 4 also drifting by `drift` a frame on its own. A drift
+        // below the noise (1e-3) is not extrapolated.
+        let base = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z, Vec3::splat(0.25)];
+        let frame = |k: f32, drift: f32| -> Vec<Vec3> {
+            let mut q: Vec<Vec3> = base.iter().map(|&p| p + Vec3::X * k).collect();
+            q[4] += Vec3::Y * drift * k;
+            q
+        };
+        for (drift, expected) in [(0.1, 0.3), (1e-4, 2e-4)] {
+            let earlier = frame(1.0, drift);
+            let last = frame(2.0, drift);
+            let controls: Vec<(usize, Vec3)> =
+                (0..4).map(|i| (i, base[i] + Vec3::X * 3.0)).collect();
+            let (predicted, linear) = predict(&last, Some((&earlier, &last)), &controls, 1e-3);
+            assert!(linear.abs_diff_eq(Mat3::IDENTITY, 1e-6));
+            let want = base[4] + Vec3::X * 3.0 + Vec3::Y * expected;
+            assert!(
+                predicted[4].abs_diff_eq(want, 1e-5),
+                "drift {drift}: {} vs {want}",
+                predicted[4]
+            );
+        }
+    }
+
     #[test]
     fn lanczos_finds_the_extreme_eigenvalues_of_a_dirichlet_path() {
         let n = 30;
