@@ -21,7 +21,15 @@ pub struct Grid {
 }
 
 /// More cells than this per particle means a sparse cloud: the cell grows.
-const MAX_CELLS_PER_PARTICLE: f64 = 8.0;
+pub const MAX_CELLS_PER_PARTICLE: u64 = 8;
+
+/// The most cells a grid of `count` particles may have: the GPU sizes its
+/// cell buffers for this many, so it never reads the layout back.
+pub fn max_cells(count: usize) -> u64 {
+    (count as u64)
+        .saturating_mul(MAX_CELLS_PER_PARTICLE)
+        .max(64)
+}
 
 impl Grid {
     fn coords(&self, p: Vec3) -> [u32; 3] {
@@ -86,6 +94,26 @@ impl Grid {
     }
 }
 
+/// The layout of a grid over `count` particles bounded by `lo`, `hi`, with
+/// cells of at least `cell`: `(origin, cell, dims)`. The cell grows by 1.25
+/// while there are more than [`max_cells`]. Twin of `grid_layout` in
+/// `shaders/grid_build.wgsl` (one invocation), which must pick the same cell.
+pub fn grid_layout(lo: Vec3, hi: Vec3, count: usize, cell: f32) -> (Vec3, f32, [u32; 3]) {
+    let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
+    let mut cell = cell.max(extent.max_element() * 1e-6);
+    // Exact: the counts and the product are integers below 2^53.
+    let cap = max_cells(count) as f64;
+    let cells_for = |cell: f32| {
+        let d = (extent / cell).floor() + 1.0;
+        f64::from(d.x) * f64::from(d.y) * f64::from(d.z)
+    };
+    while cells_for(cell) > cap {
+        cell *= 1.25;
+    }
+    let d = (extent / cell).floor() + 1.0;
+    (lo, cell, [d.x as u32, d.y as u32, d.z as u32])
+}
+
 /// Builds the grid of `positions` with cells of at least `cell`.
 pub fn grid_build(positions: &[Vec3], cell: f32) -> Grid {
     let (lo, hi) = positions.iter().fold(
@@ -97,20 +125,9 @@ pub fn grid_build(positions: &[Vec3], cell: f32) -> Grid {
     } else {
         (lo, hi)
     };
-    let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
-    let mut cell = cell.max(extent.max_element() * 1e-6);
-    let cap = (positions.len() as f64 * MAX_CELLS_PER_PARTICLE).max(64.0);
-    let cells_for = |cell: f32| {
-        let d = (extent / cell).floor() + 1.0;
-        f64::from(d.x) * f64::from(d.y) * f64::from(d.z)
-    };
-    while cells_for(cell) > cap {
-        cell *= 1.25;
-    }
-    let d = (extent / cell).floor() + 1.0;
-    let dims = [d.x as u32, d.y as u32, d.z as u32];
+    let (origin, cell, dims) = grid_layout(lo, hi, positions.len(), cell);
     let mut grid = Grid {
-        origin: lo,
+        origin,
         cell,
         dims,
         cell_start: Vec::new(),

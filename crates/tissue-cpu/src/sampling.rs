@@ -25,14 +25,14 @@ use crate::quality::quality_report;
 /// Field cell edge in initial radii `r0`: about 2.4 cells per particle inside.
 /// Smaller cells mean fewer candidate triangles per query (the hot path);
 /// `2 r0` made a query 3x slower on the phantom, `r0` costs a slower build.
-const FIELD_CELL_IN_R0: f32 = 1.0;
+pub const FIELD_CELL_IN_R0: f32 = 1.0;
 /// Verlet skin of the neighbour rows, in `r0`: rows are rebuilt when a particle
 /// moved (or its radius grew) by more than half of it. On the phantom at 10k,
 /// 0.8 rebuilt 21 times, 1.2 13 times, 1.6 9 times for a 3% gain in total time
 /// and rows a third longer; 1.2 keeps the rows short for the GPU path.
-const SKIN_IN_R0: f32 = 1.2;
+pub const SKIN_IN_R0: f32 = 1.2;
 /// Smallest exact-query margin of the surface field, in `r0`.
-const FIELD_MARGIN_IN_R0: f32 = 0.25;
+pub const FIELD_MARGIN_IN_R0: f32 = 0.25;
 /// Per-axis jitter of the initial lattice, in lattice spacings.
 const LATTICE_JITTER: f32 = 0.1;
 
@@ -317,14 +317,22 @@ pub struct Sampled {
     pub report: SamplingReport,
 }
 
-/// Stage 1: fills a closed, outward surface (validated by the caller) with
-/// `params.particles` particles and relaxes them to the paper's uniform state.
-pub fn sample(
-    mesh: &SurfaceMesh,
-    params: &SamplingParams,
-    progress: &mut dyn FnMut(&Progress),
-) -> Result<Sampled, Error> {
-    let started = Instant::now();
+/// What the iterations of stage 1 start from: shared by the CPU and GPU paths.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// The initial radius.
+    pub r0: f32,
+    /// The surface field the iterations query.
+    pub field: SurfaceField,
+    /// Initial positions in grid-cell order, radii `r0`, no contact.
+    pub state: SamplingState,
+    /// Seconds spent on the field and the initial placement.
+    pub stages: StageSeconds,
+}
+
+/// Checks the parameters and the volume, builds the surface field and places
+/// the initial particles (the part of [`sample`] before the iterations).
+pub fn prepare(mesh: &SurfaceMesh, params: &SamplingParams) -> Result<Prepared, Error> {
     params.validate()?;
     let volume = mesh.signed_volume();
     if !(volume.is_finite() && volume > 0.0) {
@@ -354,10 +362,36 @@ pub fn sample(
         .collect();
     lap(&mut stages.initial);
     let n = positions.len();
-    let mut state = SamplingState {
-        positions,
-        radii: vec![r0; n],
-        contact: vec![Vec4::ZERO; n],
+    Ok(Prepared {
+        r0,
+        field,
+        state: SamplingState {
+            positions,
+            radii: vec![r0; n],
+            contact: vec![Vec4::ZERO; n],
+        },
+        stages,
+    })
+}
+
+/// Stage 1: fills a closed, outward surface (validated by the caller) with
+/// `params.particles` particles and relaxes them to the paper's uniform state.
+pub fn sample(
+    mesh: &SurfaceMesh,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Sampled, Error> {
+    let started = Instant::now();
+    let Prepared {
+        r0,
+        field,
+        mut state,
+        mut stages,
+    } = prepare(mesh, params)?;
+    let mut clock = Instant::now();
+    let mut lap = |slot: &mut f64| {
+        *slot += clock.elapsed().as_secs_f64();
+        clock = Instant::now();
     };
 
     let skin = SKIN_IN_R0 * r0;
@@ -427,7 +461,7 @@ pub fn sample(
 
 /// RMS step of particles not held by the wall (in `r0`) and RMS change of `ln r`.
 /// Summed in index order, so the result does not depend on threads.
-fn change(
+pub fn change(
     old: &SamplingState,
     positions: &[Vec3],
     contact: &[Vec4],
@@ -453,7 +487,7 @@ fn change(
 
 /// True when the neighbour rows may miss a pair within the force cutoff: some
 /// particle moved, or its radius grew, by more than half the skin since they were built.
-fn needs_rebuild(
+pub fn needs_rebuild(
     state: &SamplingState,
     built_at: &(Vec<Vec3>, Vec<f32>),
     cutoff: f32,
@@ -471,18 +505,36 @@ fn needs_rebuild(
 
 /// Surface particles (within `surface_band` radii of the surface, or outside)
 /// are placed exactly on it and attached; connections are built (eq. (9)).
-fn finish(
+pub fn finish(
     mesh: &SurfaceMesh,
     field: &SurfaceField,
     state: SamplingState,
     params: &SamplingParams,
 ) -> ParticleModel {
-    let SamplingState {
-        positions, radii, ..
-    } = state;
-    let placed: Vec<(Vec3, Option<Attachment>)> = positions
+    let (positions, attachments) = place_surface_particles(field, &state, params);
+    let radii = state.radii;
+    let (offsets, indices) = neighbour_rows(&positions, &radii, params.connection_ratio, 0.0, true);
+    ParticleModel {
+        positions,
+        radii,
+        attachments,
+        connections: Connections { offsets, indices },
+        surface: mesh.clone(),
+    }
+}
+
+/// The placement step of [`finish`]: each particle within `surface_band` of
+/// its radius of the surface (or outside) moved onto its nearest surface
+/// point and attached there; the others stay where they are.
+pub fn place_surface_particles(
+    field: &SurfaceField,
+    state: &SamplingState,
+    params: &SamplingParams,
+) -> (Vec<Vec3>, Vec<Option<Attachment>>) {
+    let placed: Vec<(Vec3, Option<Attachment>)> = state
+        .positions
         .par_iter()
-        .zip(&radii)
+        .zip(&state.radii)
         .map(|(&p, &r)| match field.query(p) {
             // A balloon grown beyond the field's margin: ask exactly.
             Side::DeepInside if params.surface_band * r > field.margin => {
@@ -519,15 +571,7 @@ fn finish(
             _ => (p, None),
         })
         .collect();
-    let (positions, attachments): (Vec<Vec3>, Vec<Option<Attachment>>) = placed.into_iter().unzip();
-    let (offsets, indices) = neighbour_rows(&positions, &radii, params.connection_ratio, 0.0, true);
-    ParticleModel {
-        positions,
-        radii,
-        attachments,
-        connections: Connections { offsets, indices },
-        surface: mesh.clone(),
-    }
+    placed.into_iter().unzip()
 }
 
 #[cfg(test)]

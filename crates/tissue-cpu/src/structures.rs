@@ -80,20 +80,32 @@ impl Embedding {
 
     /// Where the points are when the particles are at `current` with `rotations`.
     pub fn moved(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> Vec<Vec3> {
-        self.points
-            .par_iter()
-            .zip(&self.carriers)
-            .map(|(&x, carriers)| {
-                carriers
-                    .iter()
-                    .map(|&(k, w)| {
-                        let k = k as usize;
-                        w * (current[k] + rotations[k] * (x - rest[k]))
-                    })
-                    .sum()
-            })
-            .collect()
+        embedding_moved(&self.points, &self.carriers, rest, current, rotations)
     }
+}
+
+/// Where embedded `points` go: `x' = sum_k w_k (q_k + R_k (x - p_k))` over
+/// each point's `carriers`. The twin of `embedding_moved.wgsl`.
+pub fn embedding_moved(
+    points: &[Vec3],
+    carriers: &[Vec<(u32, f32)>],
+    rest: &[Vec3],
+    current: &[Vec3],
+    rotations: &[Mat3],
+) -> Vec<Vec3> {
+    points
+        .par_iter()
+        .zip(carriers)
+        .map(|(&x, carriers)| {
+            carriers
+                .iter()
+                .map(|&(k, w)| {
+                    let k = k as usize;
+                    w * (current[k] + rotations[k] * (x - rest[k]))
+                })
+                .sum()
+        })
+        .collect()
 }
 
 /// A rigid structure's motion: `x -> rotation (x - rest_centre) + moved_centre`.
@@ -157,6 +169,17 @@ impl RigidBinding {
     /// The structure's motion for the particles at `current`.
     pub fn motion(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> RigidMotion {
         let moved_centre = self.centre.moved(rest, current, rotations)[0];
+        self.motion_from(moved_centre, rest, current)
+    }
+
+    /// The centre, embedded like a landmark (one point).
+    pub fn centre(&self) -> &Embedding {
+        &self.centre
+    }
+
+    /// The motion when the centre has gone to `moved_centre` (carried
+    /// elsewhere, on the GPU say) and the particles are at `current`.
+    pub fn motion_from(&self, moved_centre: Vec3, rest: &[Vec3], current: &[Vec3]) -> RigidMotion {
         let n = self.neighbours.len().max(1) as f32;
         let rest_mean = self
             .neighbours

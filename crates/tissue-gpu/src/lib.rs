@@ -7,18 +7,33 @@
 //! - [`Pipelines::record_iterations`]: the step, rotations → force →
 //!   integrate → step norms → Chebyshev, K times into one command buffer.
 //! - [`GpuDeformer`]: `tissue_cpu::deformation::Deformer::solve` on the GPU.
+//! - [`GridPipelines`]: stage 1's uniform grid and neighbour rows
+//!   (`tissue_cpu::grid`) on the GPU, [`GpuGrid`] and [`GpuRows`].
+//! - [`sampler::sample`]: stage 1 (`tissue_cpu::sample`) with its iterations
+//!   on the GPU, kernels in [`SamplingPipelines`], buffers in
+//!   [`sampler::SamplingBuffers`].
+//! - [`timing::KernelTimer`]: each stage-2 kernel's GPU time by timestamp
+//!   queries, for a caller whose device has `TIMESTAMP_QUERY` (the benchmark).
 //!
 //! The library takes `&Device, &Queue` and chooses no adapter; asks for no
 //! optional features and only default limits.
 
 mod deformer;
+pub mod grid;
 mod pipelines;
+pub mod sampler;
 pub mod shaders;
 mod state;
+pub mod structures;
+mod support;
+pub mod timing;
 
 pub use deformer::GpuDeformer;
+pub use grid::{GpuGrid, GpuRows, GridPipelines};
 pub use pipelines::{Kernel, Pipelines};
+pub use sampler::SamplingPipelines;
 pub use state::{DeformState, SLOTS};
+pub use structures::{EmbeddingKernel, GpuEmbedding};
 
 use bytemuck::{Pod, Zeroable};
 
@@ -144,6 +159,19 @@ impl From<Rotation> for glam::Mat3 {
 /// the adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the default
 /// one, and a device with default limits and no optional features.
 pub fn device_from_env() -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), GpuError> {
+    let adapter = adapter_from_env()?;
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("tissue"),
+        required_limits: wgpu::Limits::default(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
+    Ok((adapter, device, queue))
+}
+
+/// The adapter [`device_from_env`] opens, for a caller that asks for its own
+/// device (the benchmark adds `TIMESTAMP_QUERY` where the adapter has it).
+pub fn adapter_from_env() -> Result<wgpu::Adapter, GpuError> {
     let instance =
         wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle().with_env());
     // wgpu's own `initialize_adapter_from_env` panics when the named adapter
@@ -168,13 +196,7 @@ pub fn device_from_env() -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), G
         }))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?,
     };
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: Some("tissue"),
-        required_limits: wgpu::Limits::default(),
-        ..Default::default()
-    }))
-    .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
-    Ok((adapter, device, queue))
+    Ok(adapter)
 }
 
 /// Waits for the queue, turning a lost device or a timeout into an error.

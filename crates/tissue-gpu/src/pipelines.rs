@@ -1,7 +1,5 @@
 //! The compiled kernels and the step that records them.
 
-use std::borrow::Cow;
-
 use crate::state::DeformState;
 use crate::{GpuError, shaders};
 
@@ -105,9 +103,23 @@ impl Pipelines {
         kernel: Kernel,
         slot: u32,
     ) {
+        self.dispatch_timed(encoder, state, kernel, slot, None);
+    }
+
+    /// [`Pipelines::dispatch`] in a pass of its own that writes `timestamps`
+    /// at its start and end (the benchmark's per-kernel timing; the device
+    /// must have been opened with `wgpu::Features::TIMESTAMP_QUERY`).
+    pub fn dispatch_timed(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        state: &DeformState,
+        kernel: Kernel,
+        slot: u32,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("tissue stage 2"),
-            timestamp_writes: None,
+            timestamp_writes: timestamps,
         });
         self.dispatch_in(&mut pass, state, kernel, slot);
     }
@@ -149,54 +161,5 @@ impl Pipelines {
 
 fn compile(device: &wgpu::Device, kernel: Kernel) -> Result<CompiledKernel, GpuError> {
     let (file, entry) = kernel.entry();
-    let source = shaders::source(file)?;
-    let module = shaders::module_from_source(file, &source)?;
-    let [workgroup_size, ..] = shaders::workgroup_size(&module, entry)?;
-    let bindings = shaders::bindings(&module);
-    let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
-        .iter()
-        .map(|b| wgpu::BindGroupLayoutEntry {
-            binding: b.binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: if b.uniform {
-                    wgpu::BufferBindingType::Uniform
-                } else {
-                    wgpu::BufferBindingType::Storage {
-                        read_only: b.read_only,
-                    }
-                },
-                has_dynamic_offset: b.uniform,
-                min_binding_size: None,
-            },
-            count: None,
-        })
-        .collect();
-    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some(entry),
-        entries: &entries,
-    });
-    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some(entry),
-        bind_group_layouts: &[Some(&layout)],
-        immediate_size: 0,
-    });
-    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(file),
-        source: wgpu::ShaderSource::Wgsl(Cow::Owned(source)),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(entry),
-        layout: Some(&pipeline_layout),
-        module: &shader,
-        entry_point: Some(entry),
-        compilation_options: wgpu::PipelineCompilationOptions::default(),
-        cache: None,
-    });
-    Ok(CompiledKernel {
-        pipeline,
-        layout,
-        bindings,
-        workgroup_size,
-    })
+    crate::support::compile(device, file, entry, true)
 }

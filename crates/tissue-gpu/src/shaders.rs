@@ -19,6 +19,18 @@ pub const SHARED: &[(&str, &str)] = &[
         "shared/svd3",
         include_str!("../../../shaders/shared/svd3.wgsl"),
     ),
+    (
+        "shared/sampling",
+        include_str!("../../../shaders/shared/sampling.wgsl"),
+    ),
+    (
+        "shared/surface_field",
+        include_str!("../../../shaders/shared/surface_field.wgsl"),
+    ),
+    (
+        "shared/grid",
+        include_str!("../../../shaders/shared/grid.wgsl"),
+    ),
 ];
 
 /// Shader files with entry points: `(name, source before #import expansion)`.
@@ -40,6 +52,39 @@ pub const SHADERS: &[(&str, &str)] = &[
     (
         "tests/svd3",
         include_str!("../../../shaders/tests/svd3.wgsl"),
+    ),
+    ("imf_force", include_str!("../../../shaders/imf_force.wgsl")),
+    (
+        "radius_update",
+        include_str!("../../../shaders/radius_update.wgsl"),
+    ),
+    (
+        "sampling_integrate",
+        include_str!("../../../shaders/sampling_integrate.wgsl"),
+    ),
+    (
+        "sampling_change",
+        include_str!("../../../shaders/sampling_change.wgsl"),
+    ),
+    (
+        "needs_rebuild",
+        include_str!("../../../shaders/needs_rebuild.wgsl"),
+    ),
+    (
+        "tests/surface_field",
+        include_str!("../../../shaders/tests/surface_field.wgsl"),
+    ),
+    (
+        "grid_build",
+        include_str!("../../../shaders/grid_build.wgsl"),
+    ),
+    (
+        "neighbour_rows",
+        include_str!("../../../shaders/neighbour_rows.wgsl"),
+    ),
+    (
+        "embedding_moved",
+        include_str!("../../../shaders/embedding_moved.wgsl"),
     ),
 ];
 
@@ -123,6 +168,39 @@ pub fn workgroup_size(module: &naga::Module, entry: &str) -> Result<[u32; 3], Gp
             name: entry.to_owned(),
             message: "no such entry point".into(),
         })
+}
+
+/// Names of the bound globals entry point `entry` of `module` uses (naga's
+/// per-entry-point analysis); `source` is the module's WGSL, for errors.
+pub fn used_globals(
+    module: &naga::Module,
+    source: &str,
+    entry: &str,
+) -> Result<Vec<String>, GpuError> {
+    let info = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::default(),
+    )
+    .validate(module)
+    .map_err(|e| GpuError::Shader {
+        name: entry.to_owned(),
+        message: e.emit_to_string(source),
+    })?;
+    let index = module
+        .entry_points
+        .iter()
+        .position(|e| e.name == entry)
+        .ok_or_else(|| GpuError::Shader {
+            name: entry.to_owned(),
+            message: "no such entry point".into(),
+        })?;
+    let uses = info.get_entry_point(index);
+    Ok(module
+        .global_variables
+        .iter()
+        .filter(|&(handle, var)| var.binding.is_some() && !uses[handle].is_empty())
+        .filter_map(|(_, var)| var.name.clone())
+        .collect())
 }
 
 /// Size and member offsets of WGSL struct `name` in `module`, by naga's layouter.
@@ -226,6 +304,14 @@ mod tests {
             ("integrate", "integrate"),
             ("integrate", "chebyshev"),
             ("step_norms", "step_norms"),
+            ("imf_force", "imf_force"),
+            ("radius_update", "radius_update"),
+            ("sampling_integrate", "integrate"),
+            ("sampling_change", "change"),
+            ("needs_rebuild", "needs_rebuild"),
+            ("grid_build", "grid_bounds"),
+            ("grid_build", "scan_blocks"),
+            ("neighbour_rows", "count_rows"),
         ] {
             let module = module(shader).map_err(|e| e.to_string());
             let size = module.and_then(|m| workgroup_size(&m, entry).map_err(|e| e.to_string()));

@@ -1,0 +1,766 @@
+//! Stage 1's uniform grid and neighbour rows on the GPU: twins of
+//! `tissue_cpu::grid::grid_build` (`shaders/grid_build.wgsl`) and
+//! `tissue_cpu::grid::neighbour_rows` (`shaders/neighbour_rows.wgsl`).
+//!
+//! - [`GridPipelines`]: the compiled kernels, built once from a `&Device`.
+//! - [`GridPipelines::grid_build`]: particles sorted into cells, [`GpuGrid`].
+//! - [`GridPipelines::neighbour_rows`]: the CSR rows, [`GpuRows`].
+//!
+//! Particles are `array<vec4<f32>>` on the GPU: xyz the position, w the radius.
+//!
+//! **The layout never leaves the GPU.** The bounds (and the largest radius)
+//! are reduced by `atomicMax` on order-preserving u32 keys (exact, so the
+//! same as the CPU's fold), and one invocation, `grid_layout`, applies
+//! `tissue_cpu::grid::grid_layout`'s rule with the same f32 operations in
+//! the same order, writing [`GridLayout`] into a storage buffer that later
+//! kernels read. The cell buffers are sized for the most cells the rule
+//! allows ([`tissue_cpu::grid::max_cells`]: 8 per particle, at least 64),
+//! and the prefix sum runs over all of them (cells past the grid's are
+//! empty), so a grid build needs no readback at all. Bit-equal grids rely on
+//! the device rounding `/` correctly, as lavapipe does; WGSL allows 2.5 ULP,
+//! which on other hardware can move a particle lying within an ULP of a
+//! cell face into the next cell (a different grid, but the same rows up to
+//! pairs at their limit).
+//!
+//! **The prefix sum** is a multi-level exclusive scan: each level scans
+//! blocks of one workgroup and scans the blocks' totals at the next level,
+//! until one block remains; any length, up to the storage binding limit.
+//!
+//! **Stable order.** Counting uses `atomicAdd`, which serves particles in
+//! any order; `cell_sort` then places each particle by the number of its
+//! cell mates with a smaller index, which is the CPU's stable scatter.
+//!
+//! **One readback per neighbour-row build**: the total entry count (and the
+//! layout's status word), to size the index buffer. Rebuilds are rare.
+//! A non-finite position or radius sets that status word; every later
+//! kernel then does nothing, and the host returns an error when it reads
+//! the count ([`GpuGrid::read`] likewise).
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use tissue_cpu::grid::Grid;
+use wgpu::util::DeviceExt;
+
+use crate::state::{read_buffer, workgroups};
+use crate::support::{Scopes, compile};
+use crate::{GpuError, shaders};
+
+/// Mirror of WGSL `GridParams` (`shaders/shared/grid.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GridParams {
+    /// Number of particles.
+    pub count: u32,
+    /// Cells the cell buffers hold.
+    pub capacity: u32,
+    /// The smallest cell edge asked for (a grid build).
+    pub cell: f32,
+    /// 1: the cell is half the neighbour reach, from the largest radius.
+    pub rows: u32,
+    /// Neighbour rows: the factor on `r_i + r_j`.
+    pub factor: f32,
+    /// Neighbour rows: the skin added to the limit.
+    pub skin: f32,
+    /// 1: rows ascending.
+    pub sorted: u32,
+    /// Elements of one prefix-sum level.
+    pub len: u32,
+}
+
+/// Mirror of WGSL `GridLayout` (`shaders/shared/grid.wgsl`): the grid the
+/// `grid_layout` kernel chose.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GridLayout {
+    /// Corner of cell `(0, 0, 0)`; w unused.
+    pub origin: [f32; 4],
+    /// Cells along x, y, z; w the number of cells.
+    pub dims: [u32; 4],
+    /// Cell edge length.
+    pub cell: f32,
+    /// Neighbour rows: the largest pair limit.
+    pub reach: f32,
+    /// Neighbour rows: cells searched on each side.
+    pub span: u32,
+    /// 0, or why the grid is unusable (1: a non-finite position or radius).
+    pub status: u32,
+}
+
+/// A kernel of the grid: pipeline, its own bind group layout (only the
+/// bindings its entry point uses, from naga's analysis) and workgroup size.
+#[derive(Debug)]
+struct GridKernel {
+    entry: &'static str,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    bindings: Vec<shaders::Binding>,
+    workgroup_size: u32,
+}
+
+/// The compiled grid and neighbour-row kernels, one field per kernel.
+#[derive(Debug)]
+pub struct GridPipelines {
+    grid_bounds: GridKernel,
+    grid_layout: GridKernel,
+    cell_count: GridKernel,
+    scan_blocks: GridKernel,
+    scan_add: GridKernel,
+    cell_scatter: GridKernel,
+    cell_sort: GridKernel,
+    reorder: GridKernel,
+    count_rows: GridKernel,
+    fill_rows: GridKernel,
+    sort_rows: GridKernel,
+}
+
+/// A grid on the GPU. Valid once the queue has run the build (the buffers
+/// are used in submission order); the layout is only on the GPU.
+#[derive(Debug)]
+pub struct GpuGrid {
+    /// One [`GridLayout`].
+    pub layout: wgpu::Buffer,
+    /// `capacity + 1` u32: cell `c` holds `particles[cell_start[c]..cell_start[c + 1]]`.
+    pub cell_start: wgpu::Buffer,
+    /// `count` u32: particle indices in cell order, ascending within a cell.
+    pub particles: wgpu::Buffer,
+    /// Number of particles.
+    pub count: u32,
+    /// Cells the buffers hold (the grid uses the first `layout.dims.w`).
+    pub capacity: u32,
+}
+
+/// Neighbour rows on the GPU: row `i` is `indices[offsets[i]..offsets[i + 1]]`.
+#[derive(Debug)]
+pub struct GpuRows {
+    /// `count + 1` u32.
+    pub offsets: wgpu::Buffer,
+    /// `entries` u32 (at least one slot, so that it can be bound).
+    pub indices: wgpu::Buffer,
+    /// Number of particles.
+    pub count: u32,
+    /// Entries over all rows.
+    pub entries: u32,
+}
+
+/// Buffers of one dispatch, by the WGSL variable's name.
+type Named<'a> = [(&'a str, &'a wgpu::Buffer)];
+
+/// One recorded dispatch: kernel, its bind group, workgroups `[x, y]`.
+type Step<'a> = (&'a GridKernel, wgpu::BindGroup, [u32; 2]);
+
+impl GridPipelines {
+    /// Compiles every grid kernel for `device`; wgpu errors are returned.
+    pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let built = (|| {
+            let grid = Compiler::new(device, "grid_build")?;
+            let rows = Compiler::new(device, "neighbour_rows")?;
+            Ok::<_, GpuError>(Self {
+                grid_bounds: grid.kernel("grid_bounds")?,
+                grid_layout: grid.kernel("grid_layout")?,
+                cell_count: grid.kernel("cell_count")?,
+                scan_blocks: grid.kernel("scan_blocks")?,
+                scan_add: grid.kernel("scan_add")?,
+                cell_scatter: grid.kernel("cell_scatter")?,
+                cell_sort: grid.kernel("cell_sort")?,
+                reorder: rows.kernel("reorder")?,
+                count_rows: rows.kernel("count_rows")?,
+                fill_rows: rows.kernel("fill_rows")?,
+                sort_rows: rows.kernel("sort_rows")?,
+            })
+        })();
+        if let Some(error) = pollster::block_on(scope.pop()) {
+            return Err(error.into());
+        }
+        built
+    }
+
+    /// Levels of the prefix sum over `len` elements (one workgroup's block
+    /// per element of the next level, until one block remains).
+    pub fn scan_levels(&self, len: u32) -> u32 {
+        scan_lengths(len, self.scan_blocks.workgroup_size).len() as u32
+    }
+
+    /// Sorts the first `count` particles of `positions` (`vec4`: xyz
+    /// position, w unused here) into a grid with cells of at least `cell`:
+    /// `tissue_cpu::grid::grid_build`. Submits the work and returns without
+    /// waiting.
+    pub fn grid_build(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        positions: &wgpu::Buffer,
+        count: u32,
+        cell: f32,
+    ) -> Result<GpuGrid, GpuError> {
+        if !cell.is_finite() {
+            return Err(invalid(format!("the grid cell must be finite, not {cell}")));
+        }
+        let empty = placeholder_for(device, positions);
+        let positions = empty.as_ref().unwrap_or(positions);
+        let params = GridParams {
+            cell,
+            ..GridParams::default()
+        };
+        let scopes = Scopes::push(device);
+        let built = (|| {
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("grid_build"),
+            });
+            let grid = self.record_grid(device, &mut encoder, positions, count, params)?;
+            queue.submit([encoder.finish()]);
+            Ok(grid)
+        })();
+        scopes.pop()?;
+        built
+    }
+
+    /// Neighbour rows of the first `count` particles of `positions` (`vec4`:
+    /// xyz position, w radius): `j != i` with
+    /// `|p_i - p_j| < factor (r_i + r_j) + skin`, each row in grid order or
+    /// ascending when `sorted`; `tissue_cpu::grid::neighbour_rows`. Waits
+    /// once, for the number of entries; the fill is submitted, not awaited.
+    ///
+    /// Errors: a non-finite position, radius, factor or skin is
+    /// [`GpuError::Model`]; buffers or dispatches beyond the device's limits
+    /// are [`GpuError::LimitExceeded`]; a short `positions` buffer is
+    /// [`GpuError::Length`].
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the CPU twin's inputs in its order, plus device, queue and count"
+    )]
+    pub fn neighbour_rows(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        positions: &wgpu::Buffer,
+        count: u32,
+        factor: f32,
+        skin: f32,
+        sorted: bool,
+    ) -> Result<GpuRows, GpuError> {
+        if !factor.is_finite() || !skin.is_finite() {
+            return Err(invalid(format!(
+                "the neighbour limit needs a finite factor and skin, not {factor} and {skin}"
+            )));
+        }
+        let empty = placeholder_for(device, positions);
+        let positions = empty.as_ref().unwrap_or(positions);
+        let params = GridParams {
+            rows: 1,
+            factor,
+            skin,
+            sorted: u32::from(sorted),
+            ..GridParams::default()
+        };
+        let limits = device.limits();
+        let scopes = Scopes::push(device);
+        let counted = (|| {
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("neighbour_rows count"),
+            });
+            let grid = self.record_grid(device, &mut encoder, positions, count, params)?;
+            let params = GridParams {
+                capacity: grid.capacity,
+                count,
+                ..params
+            };
+            let uniform = uniform(device, &params);
+            let in_cell_order = storage(device, "in_cell_order", u64::from(count) * 16, &limits)?;
+            let offsets = storage(device, "offsets", (u64::from(count) + 1) * 4, &limits)?;
+            let summary = storage(device, "neighbour_rows summary", 8, &limits)?;
+            // `count_rows` and `fill_rows` share one search, which names
+            // `indices`; counting never writes it, so a placeholder binds.
+            let placeholder = storage(device, "indices placeholder", 4, &limits)?;
+            let named: &Named = &[
+                ("params", &uniform),
+                ("positions", positions),
+                ("grid", &grid.layout),
+                ("cell_start", &grid.cell_start),
+                ("particles", &grid.particles),
+                ("in_cell_order", &in_cell_order),
+                ("offsets", &offsets),
+                ("indices", &placeholder),
+            ];
+            let mut steps = Vec::new();
+            for kernel in [&self.reorder, &self.count_rows] {
+                steps.push(self.step(device, kernel, named, count, &limits)?);
+            }
+            let scan = self.scan_steps(device, &offsets, count + 1, &limits)?;
+            encoder.clear_buffer(&offsets, 0, None);
+            record(
+                &mut encoder,
+                "neighbour_rows count",
+                steps.into_iter().chain(scan),
+            );
+            // The total is the last offset; the status tells whether there was a grid.
+            encoder.copy_buffer_to_buffer(&offsets, u64::from(count) * 4, &summary, 0, 4);
+            let status = std::mem::offset_of!(GridLayout, status) as u64;
+            encoder.copy_buffer_to_buffer(&grid.layout, status, &summary, 4, 4);
+            queue.submit([encoder.finish()]);
+            Ok::<_, GpuError>((grid, uniform, in_cell_order, offsets, summary))
+        })();
+        scopes.pop()?;
+        let (grid, uniform, in_cell_order, offsets, summary) = counted?;
+        let words: Vec<u32> =
+            bytemuck::pod_collect_to_vec(&read_buffer(device, queue, &summary, 8)?);
+        let [entries, status] = [words[0], words[1]];
+        check_status(status)?;
+
+        let scopes = Scopes::push(device);
+        let filled = (|| {
+            let indices = storage(device, "indices", u64::from(entries.max(1)) * 4, &limits)?;
+            let named: &Named = &[
+                ("params", &uniform),
+                ("positions", positions),
+                ("grid", &grid.layout),
+                ("cell_start", &grid.cell_start),
+                ("particles", &grid.particles),
+                ("in_cell_order", &in_cell_order),
+                ("offsets", &offsets),
+                ("indices", &indices),
+            ];
+            let mut steps = vec![self.step(device, &self.fill_rows, named, count, &limits)?];
+            if sorted {
+                steps.push(self.step(device, &self.sort_rows, named, count, &limits)?);
+            }
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("neighbour_rows fill"),
+            });
+            record(&mut encoder, "neighbour_rows fill", steps);
+            queue.submit([encoder.finish()]);
+            Ok::<_, GpuError>(indices)
+        })();
+        scopes.pop()?;
+        Ok(GpuRows {
+            offsets,
+            indices: filled?,
+            count,
+            entries,
+        })
+    }
+
+    /// The exclusive prefix sum of `values` on the GPU, read back: the scan
+    /// the grid and the rows use, for tests and tools.
+    pub fn exclusive_scan(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        values: &[u32],
+    ) -> Result<Vec<u32>, GpuError> {
+        let len = u32::try_from(values.len()).map_err(|_| GpuError::LimitExceeded {
+            limit: "u32 index",
+            what: "a prefix sum".into(),
+            asked: values.len() as u64,
+            allowed: u64::from(u32::MAX),
+        })?;
+        let limits = device.limits();
+        let scopes = Scopes::push(device);
+        let built = (|| {
+            let data = storage(device, "scan", values.len() as u64 * 4, &limits)?;
+            queue.write_buffer(&data, 0, bytemuck::cast_slice(values));
+            let steps = self.scan_steps(device, &data, len, &limits)?;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("exclusive_scan"),
+            });
+            record(&mut encoder, "exclusive_scan", steps);
+            queue.submit([encoder.finish()]);
+            Ok::<_, GpuError>(data)
+        })();
+        scopes.pop()?;
+        let data = built?;
+        Ok(bytemuck::pod_collect_to_vec(&read_buffer(
+            device,
+            queue,
+            &data,
+            values.len() * 4,
+        )?))
+    }
+
+    /// Records the grid build of `positions` into `encoder`.
+    fn record_grid(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        positions: &wgpu::Buffer,
+        count: u32,
+        params: GridParams,
+    ) -> Result<GpuGrid, GpuError> {
+        let limits = device.limits();
+        let needed = u64::from(count) * 16;
+        if positions.size() < needed {
+            return Err(GpuError::Length {
+                what: "bytes of the particle buffer (16 per particle)",
+                expected: needed as usize,
+                got: positions.size() as usize,
+            });
+        }
+        if positions.size() > limits.max_storage_buffer_binding_size {
+            return Err(GpuError::LimitExceeded {
+                limit: "max_storage_buffer_binding_size",
+                what: "the particle buffer".into(),
+                asked: positions.size(),
+                allowed: limits.max_storage_buffer_binding_size,
+            });
+        }
+        let capacity = tissue_cpu::grid::max_cells(count as usize);
+        let starts = u32::try_from(capacity + 1).map_err(|_| GpuError::LimitExceeded {
+            limit: "u32 cell index",
+            what: format!("the grid of {count} particles"),
+            asked: capacity + 1,
+            allowed: u64::from(u32::MAX),
+        })?;
+        let params = GridParams {
+            count,
+            capacity: starts - 1,
+            ..params
+        };
+        let uniform = uniform(device, &params);
+        let bytes = |n: u32| u64::from(n) * 4;
+        let bounds = storage(device, "bounds", 32, &limits)?;
+        let layout = storage(device, "grid", size_of::<GridLayout>() as u64, &limits)?;
+        let cell_of = storage(device, "cell_of", bytes(count), &limits)?;
+        let cell_start = storage(device, "cell_start", bytes(starts), &limits)?;
+        let arrival = storage(device, "arrival", bytes(count), &limits)?;
+        let arrived = storage(device, "arrived", bytes(count), &limits)?;
+        let particles = storage(device, "particles", bytes(count), &limits)?;
+        let named: &Named = &[
+            ("params", &uniform),
+            ("positions", positions),
+            ("bounds", &bounds),
+            ("grid", &layout),
+            ("cell_of", &cell_of),
+            ("cell_counts", &cell_start),
+            ("cell_start", &cell_start),
+            ("arrival", &arrival),
+            ("arrived", &arrived),
+            ("particles", &particles),
+        ];
+        let mut steps = vec![
+            self.step(device, &self.grid_bounds, named, count, &limits)?,
+            self.step(device, &self.grid_layout, named, 1, &limits)?,
+            self.step(device, &self.cell_count, named, count, &limits)?,
+        ];
+        steps.extend(self.scan_steps(device, &cell_start, starts, &limits)?);
+        steps.push(self.step(device, &self.cell_scatter, named, count, &limits)?);
+        steps.push(self.step(device, &self.cell_sort, named, count, &limits)?);
+        encoder.clear_buffer(&bounds, 0, None);
+        encoder.clear_buffer(&cell_start, 0, None);
+        record(encoder, "grid_build", steps);
+        Ok(GpuGrid {
+            layout,
+            cell_start,
+            particles,
+            count,
+            capacity: starts - 1,
+        })
+    }
+
+    /// The dispatches of an in-place exclusive prefix sum of `data[..len]`:
+    /// every level's blocks upwards, then the offsets added downwards.
+    fn scan_steps(
+        &self,
+        device: &wgpu::Device,
+        data: &wgpu::Buffer,
+        len: u32,
+        limits: &wgpu::Limits,
+    ) -> Result<Vec<Step<'_>>, GpuError> {
+        let lengths = scan_lengths(len, self.scan_blocks.workgroup_size);
+        // Level k's data is level k - 1's block totals; the last level's
+        // single total goes to a spare word.
+        let mut levels = vec![data.clone()];
+        for &n in &lengths[1..] {
+            levels.push(storage(device, "scan level", u64::from(n) * 4, limits)?);
+        }
+        levels.push(storage(device, "scan total", 4, limits)?);
+        let uniforms: Vec<wgpu::Buffer> = lengths
+            .iter()
+            .map(|&len| {
+                uniform(
+                    device,
+                    &GridParams {
+                        len,
+                        ..GridParams::default()
+                    },
+                )
+            })
+            .collect();
+        let mut steps = Vec::new();
+        for (k, &n) in lengths.iter().enumerate() {
+            let named: &Named = &[
+                ("params", &uniforms[k]),
+                ("scan_data", &levels[k]),
+                ("scan_sums", &levels[k + 1]),
+            ];
+            steps.push(self.step(device, &self.scan_blocks, named, n, limits)?);
+        }
+        for (k, &n) in lengths.iter().enumerate().rev().skip(1) {
+            let named: &Named = &[
+                ("params", &uniforms[k]),
+                ("scan_data", &levels[k]),
+                ("scan_sums", &levels[k + 1]),
+            ];
+            steps.push(self.step(device, &self.scan_add, named, n, limits)?);
+        }
+        Ok(steps)
+    }
+
+    /// One dispatch of `kernel` over `threads` threads, bound by name.
+    fn step<'a>(
+        &self,
+        device: &wgpu::Device,
+        kernel: &'a GridKernel,
+        named: &Named,
+        threads: u32,
+        limits: &wgpu::Limits,
+    ) -> Result<Step<'a>, GpuError> {
+        let mut entries = Vec::with_capacity(kernel.bindings.len());
+        for b in &kernel.bindings {
+            let Some((_, buffer)) = named.iter().find(|(name, _)| *name == b.name) else {
+                return Err(GpuError::Shader {
+                    name: kernel.entry.to_owned(),
+                    message: format!("binding {} `{}` was given no buffer", b.binding, b.name),
+                });
+            };
+            entries.push(wgpu::BindGroupEntry {
+                binding: b.binding,
+                resource: buffer.as_entire_binding(),
+            });
+        }
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.entry),
+            layout: &kernel.layout,
+            entries: &entries,
+        });
+        let dispatch = workgroups(
+            threads,
+            kernel.workgroup_size,
+            limits.max_compute_workgroups_per_dimension,
+        )?;
+        Ok((kernel, group, dispatch))
+    }
+}
+
+impl GpuGrid {
+    /// Reads the grid back as the CPU's [`Grid`] (waits for the GPU). A
+    /// non-finite position gives an error.
+    pub fn read(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Grid, GpuError> {
+        let layout: GridLayout = bytemuck::pod_read_unaligned(&read_buffer(
+            device,
+            queue,
+            &self.layout,
+            size_of::<GridLayout>(),
+        )?);
+        check_status(layout.status)?;
+        let cells = layout.dims[3].min(self.capacity) as usize;
+        let cell_start = read_buffer(device, queue, &self.cell_start, (cells + 1) * 4)?;
+        let particles = read_buffer(device, queue, &self.particles, self.count as usize * 4)?;
+        Ok(Grid {
+            origin: Vec3::new(layout.origin[0], layout.origin[1], layout.origin[2]),
+            cell: layout.cell,
+            dims: [layout.dims[0], layout.dims[1], layout.dims[2]],
+            cell_start: bytemuck::pod_collect_to_vec(&cell_start),
+            particles: bytemuck::pod_collect_to_vec(&particles),
+        })
+    }
+}
+
+impl GpuRows {
+    /// Reads the rows back as `(offsets, indices)`, the CPU twin's result
+    /// (waits for the GPU).
+    pub fn read(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
+        let offsets = read_buffer(device, queue, &self.offsets, (self.count as usize + 1) * 4)?;
+        let indices = read_buffer(device, queue, &self.indices, self.entries as usize * 4)?;
+        Ok((
+            bytemuck::pod_collect_to_vec(&offsets),
+            bytemuck::pod_collect_to_vec(&indices),
+        ))
+    }
+}
+
+/// Lengths of the prefix-sum levels over `len` elements in blocks of `block`.
+fn scan_lengths(len: u32, block: u32) -> Vec<u32> {
+    let mut lengths = vec![len.max(1)];
+    while let Some(&last) = lengths.last().filter(|&&n| n > block.max(2)) {
+        lengths.push(last.div_ceil(block.max(2)));
+    }
+    lengths
+}
+
+fn record<'a>(
+    encoder: &mut wgpu::CommandEncoder,
+    label: &str,
+    steps: impl IntoIterator<Item = Step<'a>>,
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    });
+    for (kernel, group, [x, y]) in steps {
+        pass.set_pipeline(&kernel.pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+}
+
+fn check_status(status: u32) -> Result<(), GpuError> {
+    match status {
+        0 => Ok(()),
+        _ => Err(invalid(
+            "a particle's position or radius is not finite: no grid".into(),
+        )),
+    }
+}
+
+fn invalid(message: String) -> GpuError {
+    GpuError::Model(tissue_core::Error::Sampling(message))
+}
+
+fn uniform(device: &wgpu::Device, params: &GridParams) -> wgpu::Buffer {
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("grid params"),
+        contents: bytemuck::bytes_of(params),
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
+
+/// A zero-sized buffer (no particles) cannot be bound: a placeholder for one.
+fn placeholder_for(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Option<wgpu::Buffer> {
+    (buffer.size() == 0).then(|| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("no particles"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        })
+    })
+}
+
+/// A zeroed storage buffer of `bytes` (at least 16, so that it binds),
+/// refused beyond the device's limits.
+fn storage(
+    device: &wgpu::Device,
+    label: &'static str,
+    bytes: u64,
+    limits: &wgpu::Limits,
+) -> Result<wgpu::Buffer, GpuError> {
+    let size = bytes.max(16).next_multiple_of(4);
+    for (limit, allowed) in [
+        (
+            "max_storage_buffer_binding_size",
+            limits.max_storage_buffer_binding_size,
+        ),
+        ("max_buffer_size", limits.max_buffer_size),
+    ] {
+        if size > allowed {
+            return Err(GpuError::LimitExceeded {
+                limit,
+                what: format!("the {label} buffer"),
+                asked: size,
+                allowed,
+            });
+        }
+    }
+    Ok(device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    }))
+}
+
+/// Compiles the entry points of one shader file.
+struct Compiler<'d> {
+    device: &'d wgpu::Device,
+    file: &'static str,
+}
+
+impl<'d> Compiler<'d> {
+    fn new(device: &'d wgpu::Device, file: &'static str) -> Result<Self, GpuError> {
+        Ok(Self { device, file })
+    }
+
+    fn kernel(&self, entry: &'static str) -> Result<GridKernel, GpuError> {
+        let compiled = compile(self.device, self.file, entry, false)?;
+        Ok(GridKernel {
+            entry,
+            pipeline: compiled.pipeline,
+            layout: compiled.layout,
+            bindings: compiled.bindings,
+            workgroup_size: compiled.workgroup_size,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Size and offsets of a Rust mirror must equal naga's layout of the WGSL struct.
+    fn check_layout(name: &str, rust_size: usize, rust_offsets: &[(&str, usize)]) {
+        let module = shaders::module("grid_build").map_err(|e| e.to_string());
+        let layout = module
+            .ok()
+            .and_then(|m| shaders::struct_layout(&m, name))
+            .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
+        assert_eq!(layout.0 as usize, rust_size, "size of {name}");
+        let naga: Vec<(String, usize)> =
+            layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
+        let rust: Vec<(String, usize)> = rust_offsets
+            .iter()
+            .map(|(n, o)| ((*n).to_owned(), *o))
+            .collect();
+        assert_eq!(naga, rust, "member names and offsets of {name}");
+    }
+
+    #[test]
+    fn grid_params_matches_the_wgsl_layout() {
+        use std::mem::offset_of;
+        check_layout(
+            "GridParams",
+            size_of::<GridParams>(),
+            &[
+                ("count", offset_of!(GridParams, count)),
+                ("capacity", offset_of!(GridParams, capacity)),
+                ("cell", offset_of!(GridParams, cell)),
+                ("rows", offset_of!(GridParams, rows)),
+                ("factor", offset_of!(GridParams, factor)),
+                ("skin", offset_of!(GridParams, skin)),
+                ("sorted", offset_of!(GridParams, sorted)),
+                ("len", offset_of!(GridParams, len)),
+            ],
+        );
+    }
+
+    #[test]
+    fn grid_layout_matches_the_wgsl_layout() {
+        use std::mem::offset_of;
+        check_layout(
+            "GridLayout",
+            size_of::<GridLayout>(),
+            &[
+                ("origin", offset_of!(GridLayout, origin)),
+                ("dims", offset_of!(GridLayout, dims)),
+                ("cell", offset_of!(GridLayout, cell)),
+                ("reach", offset_of!(GridLayout, reach)),
+                ("span", offset_of!(GridLayout, span)),
+                ("status", offset_of!(GridLayout, status)),
+            ],
+        );
+    }
+
+    #[test]
+    fn scan_levels_shrink_by_a_block_until_one_remains() {
+        assert_eq!(scan_lengths(1, 64), vec![1]);
+        assert_eq!(scan_lengths(64, 64), vec![64]);
+        assert_eq!(scan_lengths(65, 64), vec![65, 2]);
+        assert_eq!(scan_lengths(100_003, 64), vec![100_003, 1_563, 25]);
+        assert_eq!(scan_lengths(8_000_001, 64).len(), 4);
+    }
+}

@@ -1,0 +1,1197 @@
+//! Stage 1 (uniform sampling) on the GPU: `tissue_cpu::sample` with the
+//! iteration loop on the device.
+//!
+//! - [`SamplingPipelines`]: the compiled stage-1 kernels, built once per device.
+//! - [`SamplingBuffers`]: the buffers of one run: two particle states
+//!   (`vec4`: xyz position, w radius) and two contact arrays used in turn,
+//!   forces, the neighbour rows (CSR), the surface field, the convergence
+//!   partials and the rebuild flag.
+//! - [`sample`]: the whole stage. The field, the initial positions, `finish`
+//!   and the quality report stay on the CPU (one upload, one readback); the
+//!   iterations run on the GPU, [`BATCH`] to a command buffer, their change
+//!   partials read back once per batch and finished in `f64`.
+//!
+//! The neighbour rows, and at the end the connections, are built on the GPU
+//! by [`GridPipelines::neighbour_rows`]; the kernels only see CSR buffers
+//! ([`SamplingBuffers::set_rows`] uploads rows built on the CPU instead).
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec3, Vec4};
+use tissue_core::field::{Nearest, Side, SurfaceField};
+use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh, SurfaceMode};
+use tissue_cpu::quality::quality_report;
+use tissue_cpu::sampling::{
+    ForceOut, Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, place_surface_particles,
+    prepare,
+};
+use wgpu::util::DeviceExt;
+
+use crate::pipelines::CompiledKernel;
+use crate::state::{read_buffer, workgroups};
+use crate::{GpuError, GridPipelines};
+
+/// Iterations one command buffer records: one uniform slot and one row of
+/// change partials each.
+pub const BATCH: u32 = 16;
+
+/// One stage-1 kernel (a WGSL entry point), in the order of an iteration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SamplingKernel {
+    /// `imf_force.wgsl`: eqs. (2)-(6).
+    ImfForce,
+    /// `radius_update.wgsl`: eqs. (7)-(8).
+    RadiusUpdate,
+    /// `sampling_integrate.wgsl::integrate`: eq. (1) and the projection.
+    Integrate,
+    /// `sampling_change.wgsl::change`: per-workgroup partials of the change.
+    Change,
+    /// `needs_rebuild.wgsl`: the Verlet check; halts the batch when it holds.
+    NeedsRebuild,
+}
+
+impl SamplingKernel {
+    /// Every kernel, in the order of one iteration.
+    pub const ALL: [SamplingKernel; 5] = [
+        SamplingKernel::ImfForce,
+        SamplingKernel::RadiusUpdate,
+        SamplingKernel::Integrate,
+        SamplingKernel::Change,
+        SamplingKernel::NeedsRebuild,
+    ];
+
+    /// `(shader file, entry point)`.
+    pub fn entry(self) -> (&'static str, &'static str) {
+        match self {
+            SamplingKernel::ImfForce => ("imf_force", "imf_force"),
+            SamplingKernel::RadiusUpdate => ("radius_update", "radius_update"),
+            SamplingKernel::Integrate => ("sampling_integrate", "integrate"),
+            SamplingKernel::Change => ("sampling_change", "change"),
+            SamplingKernel::NeedsRebuild => ("needs_rebuild", "needs_rebuild"),
+        }
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Mirror of WGSL `Sampling` (`shaders/shared/sampling.wgsl`): one
+/// iteration's parameters, one slot per iteration of a batch.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct SamplingUniforms {
+    /// Field grid corner (xyz) and cell edge (w).
+    pub field_origin: [f32; 4],
+    /// Field cells along x, y, z; w the triangle count.
+    pub field_dims: [u32; 4],
+    /// Where `field_cells` holds the CSR starts, candidates and candidate distances.
+    pub field_layout: [u32; 4],
+    /// Number of particles.
+    pub count: u32,
+    /// 0 projection, 1 paper force.
+    pub surface_mode: u32,
+    /// 1 when the wall counts in the compression.
+    pub wall_in_compression: u32,
+    /// Row of the partials `change` writes.
+    pub slot: u32,
+    /// Workgroups of a dispatch, the length of a partials row.
+    pub groups: u32,
+    /// `alpha` of eq. (4).
+    pub alpha: f32,
+    /// Force cutoff in `r_i + r_j`.
+    pub cutoff: f32,
+    /// `mu` of eq. (2).
+    pub mu: f32,
+    /// Ideal compression, eq. (7).
+    pub ideal: f32,
+    /// `eta` of eq. (8).
+    pub eta: f32,
+    /// `exp(max_log_radius_step)`.
+    pub radius_bound: f32,
+    /// `1 / radius_bound`.
+    pub radius_bound_inv: f32,
+    /// `r0 / m~`.
+    pub step_scale: f32,
+    /// `max_step r0`.
+    pub max_step: f32,
+    /// `m~`.
+    pub mass: f32,
+    /// Initial radius.
+    pub r0: f32,
+    /// Half the Verlet skin.
+    pub half_skin: f32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+impl SamplingUniforms {
+    /// The parameters for `count` particles of initial radius `r0` on
+    /// `field`, derived values computed as the CPU twins compute them.
+    pub fn new(field: &FieldBuffers, params: &SamplingParams, r0: f32, count: u32) -> Self {
+        let bound = params.max_log_radius_step.exp();
+        let (surface_mode, mu) = match params.surface_mode {
+            SurfaceMode::Projection => (0, 0.0),
+            SurfaceMode::PaperForce { mu } => (1, mu),
+        };
+        Self {
+            field_origin: field.origin,
+            field_dims: field.dims,
+            field_layout: field.layout,
+            count,
+            surface_mode,
+            wall_in_compression: u32::from(params.wall_in_compression),
+            slot: 0,
+            groups: 1,
+            alpha: params.alpha,
+            cutoff: params.force_cutoff,
+            mu,
+            ideal: params.ideal_compression(),
+            eta: params.eta,
+            radius_bound: bound,
+            radius_bound_inv: 1.0 / bound,
+            step_scale: r0 / params.mass,
+            max_step: params.max_step * r0,
+            mass: params.mass,
+            r0,
+            half_skin: 0.5 * (SKIN_IN_R0 * r0),
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
+        }
+    }
+}
+
+/// The compiled stage-1 kernels, one field per kernel, built once per device.
+#[derive(Debug)]
+pub struct SamplingPipelines {
+    kernels: Vec<CompiledKernel>,
+}
+
+impl SamplingPipelines {
+    /// Compiles every stage-1 kernel for `device`; wgpu errors are returned.
+    pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let built: Result<Vec<CompiledKernel>, GpuError> = SamplingKernel::ALL
+            .into_iter()
+            .map(|k| {
+                let (file, entry) = k.entry();
+                compile(device, file, entry)
+            })
+            .collect();
+        if let Some(error) = pollster::block_on(scope.pop()) {
+            return Err(error.into());
+        }
+        Ok(Self { kernels: built? })
+    }
+
+    fn kernel(&self, kernel: SamplingKernel) -> &CompiledKernel {
+        &self.kernels[kernel.index()]
+    }
+
+    /// Threads per workgroup of `kernel`, as its module declares.
+    pub fn workgroup_size(&self, kernel: SamplingKernel) -> u32 {
+        self.kernel(kernel).workgroup_size
+    }
+}
+
+/// A compute pipeline of `file::entry`, uniforms bound with a dynamic offset.
+fn compile(device: &wgpu::Device, file: &str, entry: &str) -> Result<CompiledKernel, GpuError> {
+    crate::support::compile(device, file, entry, true)
+}
+
+/// A storage buffer holding `contents` (an empty one gets 16 zero bytes: zero-sized
+/// bindings are invalid), checked against the device's limits.
+fn storage(
+    device: &wgpu::Device,
+    label: &str,
+    contents: &[u8],
+    what: &dyn Fn() -> String,
+) -> Result<wgpu::Buffer, GpuError> {
+    let limits = device.limits();
+    let padded;
+    let contents = if contents.is_empty() {
+        padded = [0u8; 16];
+        &padded[..]
+    } else {
+        contents
+    };
+    let size = contents.len() as u64;
+    for (limit, allowed) in [
+        (
+            "max_storage_buffer_binding_size",
+            limits.max_storage_buffer_binding_size,
+        ),
+        ("max_buffer_size", limits.max_buffer_size),
+    ] {
+        if size > allowed {
+            return Err(GpuError::LimitExceeded {
+                limit,
+                what: format!("the {label} buffer ({})", what()),
+                asked: size,
+                allowed,
+            });
+        }
+    }
+    Ok(
+        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
+        }),
+    )
+}
+
+/// Runs `f` inside validation and out-of-memory error scopes.
+fn scoped<T>(
+    device: &wgpu::Device,
+    f: impl FnOnce() -> Result<T, GpuError>,
+) -> Result<T, GpuError> {
+    let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let valid = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let out = f();
+    let valid = pollster::block_on(valid.pop());
+    let memory = pollster::block_on(memory.pop());
+    if let Some(e) = memory.or(valid) {
+        return Err(e.into());
+    }
+    out
+}
+
+/// The surface field on the GPU: the same data as [`SurfaceField`], packed
+/// into the two buffers `shaders/shared/surface_field.wgsl` reads.
+#[derive(Debug)]
+pub struct FieldBuffers {
+    /// Cell states, CSR starts, candidates, candidate distances (f32 bits).
+    pub(crate) cells: wgpu::Buffer,
+    /// Per triangle: three corners and seven normals, `vec4` each.
+    pub(crate) triangles: wgpu::Buffer,
+    origin: [f32; 4],
+    dims: [u32; 4],
+    layout: [u32; 4],
+}
+
+impl FieldBuffers {
+    /// Uploads `field`.
+    pub fn new(device: &wgpu::Device, field: &SurfaceField) -> Result<Self, GpuError> {
+        let cells = field.cell_state.len();
+        let total = 2 * cells + 1 + 2 * field.candidates.len();
+        let too_many = |what: &str, asked: usize| GpuError::LimitExceeded {
+            limit: "u32 index",
+            what: format!("the surface field's {what}"),
+            asked: asked as u64,
+            allowed: u64::from(u32::MAX),
+        };
+        let index = |n: usize, what: &str| u32::try_from(n).map_err(|_| too_many(what, n));
+        let starts = index(cells, "cells")?;
+        let candidates = index(2 * cells + 1, "cells")?;
+        let distances = index(2 * cells + 1 + field.candidates.len(), "candidates")?;
+        index(total, "candidates")?;
+        let triangles = index(field.corners.len(), "triangles")?;
+        let mut packed: Vec<u32> = Vec::with_capacity(total);
+        packed.extend_from_slice(&field.cell_state);
+        packed.extend_from_slice(&field.cell_start);
+        packed.extend_from_slice(&field.candidates);
+        packed.extend(field.candidate_distance.iter().map(|d| d.to_bits()));
+        let geometry: Vec<[f32; 4]> = field
+            .corners
+            .iter()
+            .zip(&field.normals)
+            .flat_map(|(corners, normals)| {
+                corners
+                    .iter()
+                    .chain(normals.iter())
+                    .map(|v| v.extend(0.0).to_array())
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        let what = || format!("{cells} cells, {} triangles", field.corners.len());
+        let (cells_buffer, triangles_buffer) = scoped(device, || {
+            Ok((
+                storage(device, "field_cells", bytemuck::cast_slice(&packed), &what)?,
+                storage(
+                    device,
+                    "field_triangles",
+                    bytemuck::cast_slice(&geometry),
+                    &what,
+                )?,
+            ))
+        })?;
+        Ok(Self {
+            cells: cells_buffer,
+            triangles: triangles_buffer,
+            origin: field.origin.extend(field.cell).to_array(),
+            dims: [field.dims[0], field.dims[1], field.dims[2], triangles],
+            layout: [starts, candidates, distances, 0],
+        })
+    }
+}
+
+/// The buffers of one stage-1 run. States and contacts come in pairs used in
+/// turn: an iteration of parity `p` reads `states[p]`, `contacts[p]` and
+/// writes `states[1 - p]`, `contacts[1 - p]`.
+#[derive(Debug)]
+pub struct SamplingBuffers {
+    count: u32,
+    uniforms_stride: u64,
+    uniforms: wgpu::Buffer,
+    states: [wgpu::Buffer; 2],
+    contacts: [wgpu::Buffer; 2],
+    forces: wgpu::Buffer,
+    offsets: wgpu::Buffer,
+    neighbours: wgpu::Buffer,
+    halt: wgpu::Buffer,
+    partials: wgpu::Buffer,
+    built: wgpu::Buffer,
+    field: FieldBuffers,
+    /// Workgroups `[x, y]` per kernel, in [`SamplingKernel::ALL`] order.
+    workgroups: [[u32; 2]; 5],
+    /// Length of a partials row (workgroups of `change`).
+    change_groups: u32,
+    /// Per kernel, per parity.
+    bind_groups: Vec<[wgpu::BindGroup; 2]>,
+}
+
+fn vec4s(positions: &[Vec3], w: &[f32]) -> Vec<[f32; 4]> {
+    positions
+        .iter()
+        .zip(w)
+        .map(|(p, &w)| p.extend(w).to_array())
+        .collect()
+}
+
+impl SamplingBuffers {
+    /// Uploads `field` and `state` (into parity 0, which is also the
+    /// rows' build state) for particles of initial radius `r0`, and binds
+    /// them to `pipelines`' kernels. The neighbour rows start empty: set
+    /// them with [`SamplingBuffers::set_rows`] or [`SamplingBuffers::set_row_buffers`].
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipelines: &SamplingPipelines,
+        field: &SurfaceField,
+        state: &SamplingState,
+        params: &SamplingParams,
+        r0: f32,
+    ) -> Result<Self, GpuError> {
+        let n = state.positions.len();
+        for (what, got) in [
+            ("radii (one per particle)", state.radii.len()),
+            ("contacts (one per particle)", state.contact.len()),
+        ] {
+            if got != n {
+                return Err(GpuError::Length {
+                    what,
+                    expected: n,
+                    got,
+                });
+            }
+        }
+        let count = u32::try_from(n)
+            .ok()
+            .filter(|&c| c > 0 && c < u32::MAX)
+            .ok_or(GpuError::Length {
+                what: "particles (at least one, below u32::MAX)",
+                expected: 1,
+                got: n,
+            })?;
+        let limits = device.limits();
+        let mut workgroups_of = [[0u32; 2]; 5];
+        for kernel in SamplingKernel::ALL {
+            workgroups_of[kernel.index()] = workgroups(
+                count,
+                pipelines.workgroup_size(kernel),
+                limits.max_compute_workgroups_per_dimension,
+            )?;
+        }
+        let [cx, cy] = workgroups_of[SamplingKernel::Change.index()];
+        let change_groups = cx * cy;
+        let uniforms_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
+            .max(std::mem::size_of::<SamplingUniforms>() as u64);
+        let field = FieldBuffers::new(device, field)?;
+        let what = || format!("{n} particles");
+        let current = vec4s(&state.positions, &state.radii);
+        let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
+        let zeros = vec![0u8; n * 16];
+        let partials = vec![0u8; (BATCH * change_groups) as usize * 16];
+        let (states, contacts, forces, offsets, neighbours, halt, partials, built) =
+            scoped(device, || {
+                let s = |label, bytes: &[u8]| storage(device, label, bytes, &what);
+                Ok((
+                    [
+                        s("state 0", bytemuck::cast_slice(&current))?,
+                        s("state 1", bytemuck::cast_slice(&current))?,
+                    ],
+                    [
+                        s("contact 0", bytemuck::cast_slice(&contact))?,
+                        s("contact 1", bytemuck::cast_slice(&contact))?,
+                    ],
+                    s("forces", &zeros)?,
+                    s("offsets", &vec![0u8; (n + 1) * 4])?,
+                    s("neighbours", &[])?,
+                    s("halt", &[0u8; 16])?,
+                    s("partials", &partials)?,
+                    s("built", bytemuck::cast_slice(&current))?,
+                ))
+            })?;
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("sampling uniforms"),
+            size: uniforms_stride * u64::from(BATCH),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut buffers = Self {
+            count,
+            uniforms_stride,
+            uniforms,
+            states,
+            contacts,
+            forces,
+            offsets,
+            neighbours,
+            halt,
+            partials,
+            built,
+            field,
+            workgroups: workgroups_of,
+            change_groups,
+            bind_groups: Vec::new(),
+        };
+        let mut uniforms = SamplingUniforms::new(&buffers.field, params, r0, count);
+        uniforms.groups = change_groups;
+        for slot in 0..BATCH {
+            uniforms.slot = slot;
+            queue.write_buffer(
+                &buffers.uniforms,
+                u64::from(slot) * uniforms_stride,
+                bytemuck::bytes_of(&uniforms),
+            );
+        }
+        buffers.bind(device, pipelines)?;
+        Ok(buffers)
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// Always false: the buffers hold at least one particle.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    fn buffer(&self, name: &str, parity: usize) -> Option<&wgpu::Buffer> {
+        Some(match name {
+            "sampling" => &self.uniforms,
+            "current" => &self.states[parity],
+            "next" => &self.states[1 - parity],
+            "contact" => &self.contacts[parity],
+            "contact_next" => &self.contacts[1 - parity],
+            "forces" => &self.forces,
+            "offsets" => &self.offsets,
+            "neighbours" => &self.neighbours,
+            "halt" => &self.halt,
+            "partials" => &self.partials,
+            "built" => &self.built,
+            "field_cells" => &self.field.cells,
+            "field_triangles" => &self.field.triangles,
+            _ => return None,
+        })
+    }
+
+    fn bind(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+    ) -> Result<(), GpuError> {
+        let groups = scoped(device, || {
+            SamplingKernel::ALL
+                .into_iter()
+                .map(|kernel| {
+                    Ok([
+                        self.bind_group(device, pipelines, kernel, 0)?,
+                        self.bind_group(device, pipelines, kernel, 1)?,
+                    ])
+                })
+                .collect::<Result<Vec<_>, GpuError>>()
+        })?;
+        self.bind_groups = groups;
+        Ok(())
+    }
+
+    fn bind_group(
+        &self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+        kernel: SamplingKernel,
+        parity: usize,
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let compiled = pipelines.kernel(kernel);
+        let mut entries = Vec::new();
+        for b in &compiled.bindings {
+            let buffer = self
+                .buffer(&b.name, parity)
+                .ok_or_else(|| GpuError::Shader {
+                    name: kernel.entry().0.to_owned(),
+                    message: format!("binding {} `{}` names no stage-1 buffer", b.binding, b.name),
+                })?;
+            let resource = if b.uniform {
+                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer,
+                    offset: 0,
+                    size: std::num::NonZeroU64::new(std::mem::size_of::<SamplingUniforms>() as u64),
+                })
+            } else {
+                buffer.as_entire_binding()
+            };
+            entries.push(wgpu::BindGroupEntry {
+                binding: b.binding,
+                resource,
+            });
+        }
+        Ok(device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.entry().1),
+            layout: &compiled.layout,
+            entries: &entries,
+        }))
+    }
+
+    /// Uploads neighbour rows (CSR, as `tissue_cpu::grid::neighbour_rows` returns them).
+    pub fn set_rows(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+        offsets: &[u32],
+        neighbours: &[u32],
+    ) -> Result<(), GpuError> {
+        if offsets.len() != self.len() + 1 {
+            return Err(GpuError::Length {
+                what: "row offsets (particles + 1)",
+                expected: self.len() + 1,
+                got: offsets.len(),
+            });
+        }
+        let last = offsets.last().copied().unwrap_or(0) as usize;
+        if last != neighbours.len() {
+            return Err(GpuError::Length {
+                what: "neighbour indices (the last row offset)",
+                expected: last,
+                got: neighbours.len(),
+            });
+        }
+        let what = || format!("{} particles", self.len());
+        let (o, i) = scoped(device, || {
+            Ok((
+                storage(device, "offsets", bytemuck::cast_slice(offsets), &what)?,
+                storage(
+                    device,
+                    "neighbours",
+                    bytemuck::cast_slice(neighbours),
+                    &what,
+                )?,
+            ))
+        })?;
+        self.set_row_buffers(device, pipelines, o, i)
+    }
+
+    /// Takes neighbour rows already on the GPU: `offsets` (`count + 1` u32)
+    /// and `neighbours` (u32), as a GPU grid builds them.
+    pub fn set_row_buffers(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+        offsets: wgpu::Buffer,
+        neighbours: wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        self.offsets = offsets;
+        self.neighbours = neighbours;
+        self.bind(device, pipelines)
+    }
+
+    /// Overwrites the state of `parity` (tests, or a fresh start).
+    pub fn write_state(
+        &self,
+        queue: &wgpu::Queue,
+        parity: usize,
+        state: &SamplingState,
+    ) -> Result<(), GpuError> {
+        for (what, got) in [
+            ("positions", state.positions.len()),
+            ("radii", state.radii.len()),
+            ("contacts", state.contact.len()),
+        ] {
+            if got != self.len() {
+                return Err(GpuError::Length {
+                    what,
+                    expected: self.len(),
+                    got,
+                });
+            }
+        }
+        let parity = parity & 1;
+        queue.write_buffer(
+            &self.states[parity],
+            0,
+            bytemuck::cast_slice(&vec4s(&state.positions, &state.radii)),
+        );
+        let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
+        queue.write_buffer(&self.contacts[parity], 0, bytemuck::cast_slice(&contact));
+        Ok(())
+    }
+
+    /// Overwrites the forces (tests of `radius_update` and `integrate`).
+    pub fn write_forces(&self, queue: &wgpu::Queue, forces: &[ForceOut]) -> Result<(), GpuError> {
+        if forces.len() != self.len() {
+            return Err(GpuError::Length {
+                what: "forces",
+                expected: self.len(),
+                got: forces.len(),
+            });
+        }
+        let data: Vec<[f32; 4]> = forces
+            .iter()
+            .map(|f| f.force.extend(f.compression).to_array())
+            .collect();
+        queue.write_buffer(&self.forces, 0, bytemuck::cast_slice(&data));
+        Ok(())
+    }
+
+    /// Reads the state of `parity` back (stalls until the GPU is done).
+    pub fn read_state(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        parity: usize,
+    ) -> Result<SamplingState, GpuError> {
+        let parity = parity & 1;
+        let bytes = read_buffer(device, queue, &self.states[parity], self.len() * 16)?;
+        let states: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let bytes = read_buffer(device, queue, &self.contacts[parity], self.len() * 16)?;
+        let contact: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        Ok(SamplingState {
+            positions: states.iter().map(|s| Vec3::new(s[0], s[1], s[2])).collect(),
+            radii: states.iter().map(|s| s[3]).collect(),
+            contact: contact.into_iter().map(Vec4::from_array).collect(),
+        })
+    }
+
+    /// Reads the last forces back.
+    pub fn read_forces(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<ForceOut>, GpuError> {
+        let bytes = read_buffer(device, queue, &self.forces, self.len() * 16)?;
+        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
+            .into_iter()
+            .map(|f| ForceOut {
+                force: Vec3::new(f[0], f[1], f[2]),
+                compression: f[3],
+            })
+            .collect())
+    }
+
+    /// Records, in one compute pass, `kernels` of iteration `slot` on the state
+    /// of `parity`.
+    pub fn record(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipelines: &SamplingPipelines,
+        kernels: &[SamplingKernel],
+        slot: u32,
+        parity: usize,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("tissue stage 1"),
+            timestamp_writes: None,
+        });
+        self.record_in(&mut pass, pipelines, kernels, slot, parity);
+    }
+
+    fn record_in(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pipelines: &SamplingPipelines,
+        kernels: &[SamplingKernel],
+        slot: u32,
+        parity: usize,
+    ) {
+        let offset = (u64::from(slot.min(BATCH - 1)) * self.uniforms_stride) as u32;
+        for &kernel in kernels {
+            let [x, y] = self.workgroups[kernel.index()];
+            pass.set_pipeline(&pipelines.kernel(kernel).pipeline);
+            pass.set_bind_group(0, &self.bind_groups[kernel.index()][parity & 1], &[offset]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+    }
+
+    /// Records `iterations` (at most [`BATCH`]) full iterations from the
+    /// state of `parity`, iteration `k` in slot `k`, after clearing the halt
+    /// flag: force, radius, move, change, rebuild check.
+    pub fn record_iterations(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipelines: &SamplingPipelines,
+        iterations: u32,
+        parity: usize,
+    ) {
+        encoder.clear_buffer(&self.halt, 0, None);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("tissue stage 1 iterations"),
+            timestamp_writes: None,
+        });
+        for slot in 0..iterations.min(BATCH) {
+            self.record_in(
+                &mut pass,
+                pipelines,
+                &SamplingKernel::ALL,
+                slot,
+                parity + slot as usize,
+            );
+        }
+    }
+
+    /// Reads the change partials of the first `slots` slots and the halt flag
+    /// (0, or the slot + 1 of the first iteration that needed a rebuild). Per
+    /// slot: (sum of squared free steps, free particles, sum of ln² r change), f64.
+    pub fn read_change(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        slots: u32,
+    ) -> Result<(Vec<[f64; 3]>, u32), GpuError> {
+        let row = self.change_groups as usize;
+        let rows = slots.min(BATCH) as usize;
+        let bytes = read_buffer(device, queue, &self.partials, rows * row * 16)?;
+        let all: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let sums = all
+            .chunks(row.max(1))
+            .map(|r| {
+                r.iter().fold([0.0f64; 3], |a, x| {
+                    [
+                        a[0] + f64::from(x[0]),
+                        a[1] + f64::from(x[1]),
+                        a[2] + f64::from(x[2]),
+                    ]
+                })
+            })
+            .collect();
+        let halt = read_buffer(device, queue, &self.halt, 4)?;
+        let halt = halt
+            .get(..4)
+            .map(bytemuck::pod_read_unaligned::<u32>)
+            .ok_or_else(|| GpuError::Map("the halt flag came back empty".into()))?;
+        Ok((sums, halt))
+    }
+
+    /// Copies the state of `parity` into the rows' build state.
+    fn mark_built(&self, encoder: &mut wgpu::CommandEncoder, parity: usize) {
+        encoder.copy_buffer_to_buffer(&self.states[parity & 1], 0, &self.built, 0, None);
+    }
+}
+
+/// The change of one iteration as `tissue_cpu::sampling::change` finishes it:
+/// RMS step of particles not held by the wall (in `r0`), RMS change of `ln r`.
+fn finish_change(sums: [f64; 3], count: usize, r0: f32) -> (f32, f32) {
+    let free = sums[1].round().max(1.0);
+    let step_rms = (sums[0] / free).sqrt() as f32 / r0;
+    let radius_rms = (sums[2] / count.max(1) as f64).sqrt() as f32;
+    (step_rms, radius_rms)
+}
+
+/// Stage 1 on the GPU: `tissue_cpu::sample` with the iterations on `device`.
+/// The same preparation, the same Jacobi iteration, the same convergence test
+/// (partials finished in `f64`) and the same rebuild rule; rows and
+/// connections by [`GridPipelines::neighbour_rows`]. When the
+/// test holds inside a batch, the batch is replayed up to that iteration,
+/// so the iteration count is the rule's.
+pub fn sample(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    mesh: &SurfaceMesh,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Sampled, GpuError> {
+    let started = Instant::now();
+    let Prepared {
+        r0,
+        field,
+        state,
+        mut stages,
+    } = prepare(mesh, params)?;
+    let pipelines = SamplingPipelines::new(device)?;
+    let grid = GridPipelines::new(device)?;
+    let clock = Instant::now();
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let run = iterate(
+        device, queue, &pipelines, &grid, &field, state, params, r0, progress,
+    );
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(e.into());
+    }
+    let (state, iterations, converged, rebuilds, neighbour_seconds) = run?;
+    stages.iterations += clock.elapsed().as_secs_f64() - neighbour_seconds;
+    stages.neighbours += neighbour_seconds;
+
+    // `tissue_cpu::sampling::finish`, its connections (eq. (9)) on the GPU.
+    let clock = Instant::now();
+    let (positions, attachments) = place_surface_particles(&field, &state, params);
+    let connections = connections(
+        device,
+        queue,
+        &grid,
+        &positions,
+        &state.radii,
+        params.connection_ratio,
+    )?;
+    let model = ParticleModel {
+        positions,
+        radii: state.radii,
+        attachments,
+        connections,
+        surface: mesh.clone(),
+    };
+    stages.connections += clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    let mut report = quality_report(&model, &field, iterations, converged, 0.0);
+    stages.report += clock.elapsed().as_secs_f64();
+    report.neighbour_rebuilds = rebuilds;
+    report.stage_seconds = stages;
+    report.seconds = started.elapsed().as_secs_f64();
+    Ok(Sampled { model, report })
+}
+
+/// The iteration loop: `(final state, iterations, converged, rebuilds, seconds in rebuilds)`.
+#[allow(clippy::too_many_arguments, reason = "the loop's inputs, named")]
+fn iterate(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    pipelines: &SamplingPipelines,
+    grid: &GridPipelines,
+    field: &SurfaceField,
+    state: SamplingState,
+    params: &SamplingParams,
+    r0: f32,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<(SamplingState, usize, bool, usize, f64), GpuError> {
+    let n = state.positions.len();
+    let skin = SKIN_IN_R0 * r0;
+    let mut buffers = SamplingBuffers::new(device, queue, pipelines, field, &state, params, r0)?;
+    drop(state);
+    // Rows from the state of `parity`, which becomes their build state.
+    let build_rows = |buffers: &mut SamplingBuffers, parity: usize| -> Result<(), GpuError> {
+        let rows = grid.neighbour_rows(
+            device,
+            queue,
+            &buffers.states[parity],
+            buffers.count,
+            params.force_cutoff,
+            skin,
+            false,
+        )?;
+        buffers.set_row_buffers(device, pipelines, rows.offsets, rows.indices)?;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("sampling rows built"),
+        });
+        buffers.mark_built(&mut encoder, parity);
+        queue.submit([encoder.finish()]);
+        Ok(())
+    };
+    build_rows(&mut buffers, 0)?;
+    let backup = |label| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: n as u64 * 16,
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    };
+    let backup_state = backup("backup state");
+    let backup_contact = backup("backup contact");
+
+    let mut parity = 0usize;
+    let mut iterations = 0usize;
+    let mut rebuilds = 0usize;
+    let mut neighbour_seconds = 0.0;
+    let mut converged = false;
+    while iterations < params.max_iterations {
+        let batch = BATCH.min((params.max_iterations - iterations) as u32);
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("sampling batch"),
+        });
+        encoder.copy_buffer_to_buffer(&buffers.states[parity], 0, &backup_state, 0, None);
+        encoder.copy_buffer_to_buffer(&buffers.contacts[parity], 0, &backup_contact, 0, None);
+        buffers.record_iterations(&mut encoder, pipelines, batch, parity);
+        queue.submit([encoder.finish()]);
+        let (sums, halt) = buffers.read_change(device, queue, batch)?;
+        // A halt at slot s: iterations 0..=s ran, the rest did nothing.
+        let ran = if halt == 0 { batch } else { halt.min(batch) };
+        let mut stop_after = None;
+        for (k, &row) in sums.iter().take(ran as usize).enumerate() {
+            let (step_rms, radius_rms) = finish_change(row, n, r0);
+            if !(step_rms.is_finite() && radius_rms.is_finite()) {
+                return Err(GpuError::Model(tissue_core::Error::Sampling(format!(
+                    "the particle state became non-finite at iteration {iterations}; \
+                     the parameters make the system unstable"
+                ))));
+            }
+            iterations += 1;
+            progress(&Progress {
+                iteration: iterations,
+                max_iterations: params.max_iterations,
+                step_rms,
+                radius_rms,
+            });
+            if step_rms < params.step_tolerance && radius_rms < params.radius_tolerance {
+                converged = true;
+                stop_after = Some(k as u32 + 1);
+                break;
+            }
+        }
+        if let Some(done) = stop_after {
+            if done < ran {
+                // Replay the batch up to the iteration where the test held.
+                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("sampling replay"),
+                });
+                encoder.copy_buffer_to_buffer(&backup_state, 0, &buffers.states[parity], 0, None);
+                encoder.copy_buffer_to_buffer(
+                    &backup_contact,
+                    0,
+                    &buffers.contacts[parity],
+                    0,
+                    None,
+                );
+                buffers.record_iterations(&mut encoder, pipelines, done, parity);
+                queue.submit([encoder.finish()]);
+            }
+            parity = (parity + done as usize) & 1;
+            break;
+        }
+        parity = (parity + ran as usize) & 1;
+        if halt != 0 && iterations < params.max_iterations {
+            let clock = Instant::now();
+            build_rows(&mut buffers, parity)?;
+            rebuilds += 1;
+            neighbour_seconds += clock.elapsed().as_secs_f64();
+        }
+    }
+    let state = buffers.read_state(device, queue, parity)?;
+    Ok((state, iterations, converged, rebuilds, neighbour_seconds))
+}
+
+/// Connections of eq. (9), `neighbour_rows(.., ratio, 0, sorted)`, on the GPU.
+fn connections(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    grid: &GridPipelines,
+    positions: &[Vec3],
+    radii: &[f32],
+    ratio: f32,
+) -> Result<Connections, GpuError> {
+    let n = positions.len();
+    let count = u32::try_from(n).map_err(|_| GpuError::Length {
+        what: "particles (below u32::MAX)",
+        expected: u32::MAX as usize,
+        got: n,
+    })?;
+    let what = || format!("{n} particles");
+    let placed = scoped(device, || {
+        storage(
+            device,
+            "placed",
+            bytemuck::cast_slice(&vec4s(positions, radii)),
+            &what,
+        )
+    })?;
+    let rows = grid.neighbour_rows(device, queue, &placed, count, ratio, 0.0, true)?;
+    let (offsets, indices) = rows.read(device, queue)?;
+    Ok(Connections { offsets, indices })
+}
+
+/// The field query of `shaders/shared/surface_field.wgsl` at `points` (the
+/// twin of [`SurfaceField::query`]), through the test kernel
+/// `shaders/tests/surface_field.wgsl`: for tests and tools.
+pub fn query_field(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    field: &SurfaceField,
+    points: &[Vec3],
+) -> Result<Vec<Side>, GpuError> {
+    let n = points.len();
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let count = u32::try_from(n).map_err(|_| GpuError::Length {
+        what: "query points (below u32::MAX)",
+        expected: u32::MAX as usize,
+        got: n,
+    })?;
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let kernel = compile(device, "tests/surface_field", "field_query_test");
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(e.into());
+    }
+    let kernel = kernel?;
+    let buffers = FieldBuffers::new(device, field)?;
+    let mut uniforms = SamplingUniforms::new(&buffers, &SamplingParams::default(), 1.0, count);
+    uniforms.groups = 1;
+    let what = || format!("{n} query points");
+    let points4: Vec<[f32; 4]> = points.iter().map(|p| p.extend(0.0).to_array()).collect();
+    let answers_size = n * 64;
+    let [x, y] = workgroups(
+        count,
+        kernel.workgroup_size,
+        device.limits().max_compute_workgroups_per_dimension,
+    )?;
+    let answers = scoped(device, || {
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("query uniforms"),
+            contents: bytemuck::bytes_of(&uniforms),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let points_buffer = storage(device, "points", bytemuck::cast_slice(&points4), &what)?;
+        let answers = storage(device, "answers", &vec![0u8; answers_size], &what)?;
+        let mut entries = Vec::new();
+        for b in &kernel.bindings {
+            let buffer = match b.name.as_str() {
+                "sampling" => &uniform,
+                "points" => &points_buffer,
+                "answers" => &answers,
+                "field_cells" => &buffers.cells,
+                "field_triangles" => &buffers.triangles,
+                other => {
+                    return Err(GpuError::Shader {
+                        name: "tests/surface_field".into(),
+                        message: format!("binding `{other}` names no buffer"),
+                    });
+                }
+            };
+            entries.push(wgpu::BindGroupEntry {
+                binding: b.binding,
+                resource: buffer.as_entire_binding(),
+            });
+        }
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("field query"),
+            layout: &kernel.layout,
+            entries: &entries,
+        });
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("field query"),
+        });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("field query"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&kernel.pipeline);
+            pass.set_bind_group(0, &group, &[0]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        queue.submit([encoder.finish()]);
+        Ok(answers)
+    })?;
+    let bytes = read_buffer(device, queue, &answers, answers_size)?;
+    let raw: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+    Ok(raw
+        .chunks_exact(4)
+        .map(|a| match a[0][0].to_bits() {
+            0 => Side::DeepInside,
+            1 => Side::DeepOutside,
+            _ => Side::Near(Nearest {
+                distance: a[0][1],
+                point: Vec3::new(a[1][0], a[1][1], a[1][2]),
+                normal: Vec3::new(a[2][0], a[2][1], a[2][2]),
+                triangle: a[0][2].to_bits(),
+                barycentric: [a[3][0], a[3][1], a[3][2]],
+            }),
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shaders;
+
+    #[test]
+    fn sampling_uniforms_match_the_wgsl_layout() {
+        use std::mem::{offset_of, size_of};
+        let module = shaders::module("imf_force").map_err(|e| e.to_string());
+        let layout = module
+            .ok()
+            .and_then(|m| shaders::struct_layout(&m, "Sampling"))
+            .unwrap_or_else(|| panic!("WGSL struct Sampling not found"));
+        assert_eq!(layout.0 as usize, size_of::<SamplingUniforms>(), "size");
+        let rust = [
+            ("field_origin", offset_of!(SamplingUniforms, field_origin)),
+            ("field_dims", offset_of!(SamplingUniforms, field_dims)),
+            ("field_layout", offset_of!(SamplingUniforms, field_layout)),
+            ("count", offset_of!(SamplingUniforms, count)),
+            ("surface_mode", offset_of!(SamplingUniforms, surface_mode)),
+            (
+                "wall_in_compression",
+                offset_of!(SamplingUniforms, wall_in_compression),
+            ),
+            ("slot", offset_of!(SamplingUniforms, slot)),
+            ("groups", offset_of!(SamplingUniforms, groups)),
+            ("alpha", offset_of!(SamplingUniforms, alpha)),
+            ("cutoff", offset_of!(SamplingUniforms, cutoff)),
+            ("mu", offset_of!(SamplingUniforms, mu)),
+            ("ideal", offset_of!(SamplingUniforms, ideal)),
+            ("eta", offset_of!(SamplingUniforms, eta)),
+            ("radius_bound", offset_of!(SamplingUniforms, radius_bound)),
+            (
+                "radius_bound_inv",
+                offset_of!(SamplingUniforms, radius_bound_inv),
+            ),
+            ("step_scale", offset_of!(SamplingUniforms, step_scale)),
+            ("max_step", offset_of!(SamplingUniforms, max_step)),
+            ("mass", offset_of!(SamplingUniforms, mass)),
+            ("r0", offset_of!(SamplingUniforms, r0)),
+            ("half_skin", offset_of!(SamplingUniforms, half_skin)),
+            ("pad0", offset_of!(SamplingUniforms, pad0)),
+            ("pad1", offset_of!(SamplingUniforms, pad1)),
+            ("pad2", offset_of!(SamplingUniforms, pad2)),
+        ];
+        let naga: Vec<(String, usize)> =
+            layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
+        let rust: Vec<(String, usize)> = rust.iter().map(|(n, o)| ((*n).to_owned(), *o)).collect();
+        assert_eq!(naga, rust, "member names and offsets of Sampling");
+    }
+
+    #[test]
+    fn every_stage_1_kernel_binds_only_known_buffers() {
+        let known = [
+            "sampling",
+            "current",
+            "next",
+            "contact",
+            "contact_next",
+            "forces",
+            "offsets",
+            "neighbours",
+            "halt",
+            "partials",
+            "built",
+            "field_cells",
+            "field_triangles",
+        ];
+        for kernel in SamplingKernel::ALL {
+            let (file, _) = kernel.entry();
+            let module = shaders::module(file).unwrap_or_else(|e| panic!("{e}"));
+            for b in shaders::bindings(&module) {
+                assert!(known.contains(&b.name.as_str()), "{file}: `{}`", b.name);
+            }
+        }
+    }
+}

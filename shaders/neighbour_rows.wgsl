@@ -1,0 +1,145 @@
+// Stage 1: neighbour rows (CSR), twin of `tissue_cpu::grid::neighbour_rows`:
+// j is in row i when j != i and |p_i - p_j| < factor (r_i + r_j) + skin,
+// searched in the cells (half the reach wide) within `grid.span` cells of
+// p_i's, in the CPU's order. After `grid_build.wgsl` (with `params.rows` 1):
+// `reorder`, `count_rows`, the prefix sum of the counts into `offsets`
+// (`grid_build.wgsl`'s scan), then `fill_rows` and, when sorted, `sort_rows`.
+
+#import shared/grid
+
+@group(0) @binding(0) var<uniform> params: GridParams;
+// xyz position, w radius.
+@group(0) @binding(1) var<storage, read> positions: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> grid: GridLayout;
+@group(0) @binding(6) var<storage, read> cell_start: array<u32>;
+@group(0) @binding(9) var<storage, read> particles: array<u32>;
+// `positions` in cell order: the search reads memory in runs.
+@group(0) @binding(12) var<storage, read_write> in_cell_order: array<vec4<f32>>;
+// Row lengths from `count_rows`; after the prefix sum, row i is
+// `indices[offsets[i]..offsets[i + 1]]`.
+@group(0) @binding(13) var<storage, read_write> offsets: array<u32>;
+@group(0) @binding(14) var<storage, read_write> indices: array<u32>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn reorder(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let slot = particle_index(workgroup, groups, local);
+    if (slot >= params.count || grid.status != 0u) {
+        return;
+    }
+    in_cell_order[slot] = positions[particles[slot]];
+}
+
+// `Grid::for_each_slot_near` with the pair test: counts row i and, when
+// `fill`, writes it from `offsets[i]` (never past `offsets[i + 1]`).
+fn search(i: u32, fill: bool) -> u32 {
+    let p = positions[i].xyz;
+    let base = params.factor * positions[i].w + params.skin;
+    let c = cell_coords(grid, p);
+    let span = grid.span;
+    let last = grid.dims.xyz - vec3<u32>(1u);
+    var found = 0u;
+    var at = 0u;
+    var stop = 0u;
+    if (fill) {
+        at = offsets[i];
+        stop = offsets[i + 1u];
+    }
+    for (var cz = c.z - min(c.z, span); cz <= min(c.z + span, last.z); cz++) {
+        for (var cy = c.y - min(c.y, span); cy <= min(c.y + span, last.y); cy++) {
+            let row = cell_index(grid, vec3<u32>(0u, cy, cz));
+            let first = cell_start[row + c.x - min(c.x, span)];
+            let end = cell_start[row + min(c.x + span, last.x) + 1u];
+            for (var slot = first; slot < end; slot++) {
+                let q = in_cell_order[slot];
+                let limit = base + params.factor * q.w;
+                let d = q.xyz - p;
+                if (dot(d, d) < limit * limit) {
+                    let j = particles[slot];
+                    if (j != i) {
+                        found += 1u;
+                        if (fill && at < stop) {
+                            indices[at] = j;
+                            at += 1u;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    return found;
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn count_rows(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count || grid.status != 0u) {
+        return;
+    }
+    offsets[i] = search(i, false);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn fill_rows(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count || grid.status != 0u) {
+        return;
+    }
+    search(i, true);
+}
+
+// Heapsort of `indices[first..first + n]` (in place, O(n log n) for any row).
+fn sift_down(first: u32, start: u32, n: u32) {
+    var root = start;
+    loop {
+        var child = 2u * root + 1u;
+        if (child >= n) {
+            break;
+        }
+        if (child + 1u < n && indices[first + child + 1u] > indices[first + child]) {
+            child += 1u;
+        }
+        let top = indices[first + root];
+        let larger = indices[first + child];
+        if (top >= larger) {
+            break;
+        }
+        indices[first + root] = larger;
+        indices[first + child] = top;
+        root = child;
+    }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn sort_rows(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count || grid.status != 0u) {
+        return;
+    }
+    let first = offsets[i];
+    let n = offsets[i + 1u] - first;
+    for (var k = n / 2u; k > 0u; k--) {
+        sift_down(first, k - 1u, n);
+    }
+    for (var end = n; end > 1u; end--) {
+        let top = indices[first];
+        indices[first] = indices[first + end - 1u];
+        indices[first + end - 1u] = top;
+        sift_down(first, 0u, end - 1u);
+    }
+}

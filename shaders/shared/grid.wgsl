@@ -1,0 +1,80 @@
+// The uniform grid shared by `grid_build.wgsl` and `neighbour_rows.wgsl`.
+// Rust mirrors: `tissue_gpu::grid::GridParams`, `tissue_gpu::grid::GridLayout`
+// (layout-tested against naga). The CPU twin is `tissue_cpu::grid::Grid`.
+
+#import shared/layout
+
+// The parameters of one grid build or neighbour-row build.
+struct GridParams {
+    // Number of particles.
+    count: u32,
+    // Cells the cell buffers hold: `tissue_cpu::grid::max_cells(count)`.
+    capacity: u32,
+    // The smallest cell edge asked for (grid_build; unused when `rows` is 1).
+    cell: f32,
+    // 1: the cell is half the neighbour reach, from the largest radius.
+    rows: u32,
+    // Neighbour rows: j is a neighbour of i when |p_i - p_j| < factor (r_i + r_j) + skin.
+    factor: f32,
+    skin: f32,
+    // 1: rows ascending by particle index.
+    sorted: u32,
+    // Elements of a prefix-sum level (`scan_blocks`, `scan_add`).
+    len: u32,
+}
+
+// The grid the layout kernel chose, read by every later kernel.
+struct GridLayout {
+    // Corner of cell (0, 0, 0); w unused.
+    origin: vec4<f32>,
+    // Cells along x, y, z; w the number of cells.
+    dims: vec4<u32>,
+    // Cell edge length.
+    cell: f32,
+    // Neighbour rows: the largest pair limit, factor 2 r_max + skin.
+    reach: f32,
+    // Neighbour rows: cells searched on each side of a particle's cell.
+    span: u32,
+    // 0, or why the grid is unusable (`STATUS_*`); later kernels then do nothing.
+    status: u32,
+}
+
+// A position or radius is NaN or infinite: there is no grid.
+const STATUS_NON_FINITE: u32 = 1u;
+
+// Slots of `bounds`: the lower corner (as inverted keys, so that atomicMax
+// finds the minimum and zeroed memory is the empty set), the largest
+// radius and the upper corner (keys).
+const BOUND_LO: u32 = 0u;
+const BOUND_RADIUS: u32 = 3u;
+const BOUND_HI: u32 = 4u;
+
+// A key whose unsigned order is the order of the floats: negative floats
+// are flipped whole, non-negative ones get the sign bit set.
+fn order_key(x: f32) -> u32 {
+    let bits = bitcast<u32>(x);
+    return select(bits | 0x80000000u, ~bits, (bits & 0x80000000u) != 0u);
+}
+
+fn key_value(key: u32) -> f32 {
+    return bitcast<f32>(select(~key, key & 0x7fffffffu, (key & 0x80000000u) != 0u));
+}
+
+// By the bits, so that no compiler assumption about NaN can remove the test.
+fn is_finite(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+// `Grid::coords`: the cell holding p, clamped into the grid.
+fn cell_coords(grid: GridLayout, p: vec3<f32>) -> vec3<u32> {
+    let g = (p - grid.origin.xyz) / grid.cell;
+    // Clamped before the conversion, which is undefined out of range; the
+    // bound is the largest f32 below 2^32.
+    let c = vec3<u32>(clamp(g, vec3<f32>(0.0), vec3<f32>(4294967040.0)));
+    return min(c, grid.dims.xyz - vec3<u32>(1u));
+}
+
+// `Grid::index`: cells in x-fastest order.
+fn cell_index(grid: GridLayout, c: vec3<u32>) -> u32 {
+    return (c.z * grid.dims.y + c.y) * grid.dims.x + c.x;
+}
