@@ -1,13 +1,15 @@
-//! `--backend auto|gpu|cpu`: where stage 2 runs. [`Device::pick`] chooses
-//! once per command; [`Solver`] hides which one was chosen from `deform`,
-//! `track` and `demo`. Stage 1 (sampling) always runs on the CPU.
+//! `--backend auto|gpu|cpu`: where stage 2 runs, and for `tissue sample`
+//! where stage 1's iterations run. [`Device::pick`] chooses once per
+//! command; [`Solver`] hides which one was chosen from `deform`, `track` and
+//! `demo`. `demo` samples on the CPU.
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
-use tissue_gpu::{GpuDeformer, GpuError};
+use tissue_cpu::structures::Embedding;
+use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
 
 /// Where stage 2 runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -16,8 +18,8 @@ pub enum Backend {
     /// adapter such as lavapipe is slower than the CPU path).
     Auto,
     /// The GPU adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the
-    /// default one; an error when there is none. Rotations by SVD, and no
-    /// constant-velocity prediction between frames (see `GpuDeformer`).
+    /// default one; an error when there is none. Rotations by SVD (see
+    /// `GpuDeformer`).
     Gpu,
     /// The CPU path.
     Cpu,
@@ -155,8 +157,10 @@ impl Device {
     }
 }
 
-/// Stage 2 on the chosen device, with the positions and rotations of the
-/// last solve at hand on the host (read back once per solve, a frame boundary).
+/// Stage 2 on the chosen device, with the positions of the last solve at
+/// hand on the host (read back once per solve, a frame boundary). Structures
+/// and landmarks are carried where the particles are: on the GPU, by
+/// `embedding_moved.wgsl`, reading back only the moved points.
 #[derive(Debug)]
 pub enum Solver {
     /// The CPU path.
@@ -172,11 +176,24 @@ pub struct GpuSolver {
     device: wgpu::Device,
     queue: wgpu::Queue,
     deformer: GpuDeformer,
+    embedding: EmbeddingKernel,
     rest: Vec<Vec3>,
     /// Read back after each solve.
     current: Vec<Vec3>,
-    /// Read back after each solve.
-    rotations: Vec<Mat3>,
+}
+
+/// Points bound to the particles, ready to be carried on the solver's device.
+#[derive(Debug)]
+pub struct Carrier {
+    embedding: Embedding,
+    gpu: Option<GpuEmbedding>,
+}
+
+impl Carrier {
+    /// The points at rest.
+    pub fn rest(&self) -> &[Vec3] {
+        &self.embedding.points
+    }
 }
 
 impl Solver {
@@ -190,14 +207,15 @@ impl Solver {
                 queue,
             } => {
                 let deformer = GpuDeformer::new(&device, &queue, model, params)?;
+                let embedding = EmbeddingKernel::new(&device)?;
                 Self::Gpu(Box::new(GpuSolver {
                     name,
                     device,
                     queue,
                     deformer,
+                    embedding,
                     rest: model.positions.clone(),
                     current: model.positions.clone(),
-                    rotations: vec![Mat3::IDENTITY; model.len()],
                 }))
             }
         })
@@ -220,15 +238,14 @@ impl Solver {
         Ok(())
     }
 
-    /// Solves, and on the GPU reads the positions and rotations back.
+    /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport> {
         match self {
             Self::Cpu(cpu) => Ok(cpu.solve()),
             Self::Gpu(gpu) => {
                 let read = |gpu: &mut GpuSolver| -> Result<DeformReport, GpuError> {
                     let report = gpu.deformer.solve(&gpu.device, &gpu.queue)?;
-                    gpu.current = gpu.deformer.positions(&gpu.device, &gpu.queue)?;
-                    gpu.rotations = gpu.deformer.read_rotations(&gpu.device, &gpu.queue)?;
+                    gpu.current = gpu.deformer.host_positions().to_vec();
                     Ok(report)
                 };
                 read(gpu).with_context(|| format!("stage 2 on {}", gpu.name))
@@ -243,7 +260,6 @@ impl Solver {
             Self::Gpu(gpu) => {
                 gpu.deformer.reset(&gpu.device, &gpu.queue)?;
                 gpu.current.clone_from(&gpu.rest);
-                gpu.rotations.fill(Mat3::IDENTITY);
             }
         }
         Ok(())
@@ -265,11 +281,37 @@ impl Solver {
         }
     }
 
-    /// Each particle's rotation from the last solve's last iteration.
-    pub fn rotations(&self) -> &[Mat3] {
-        match self {
-            Self::Cpu(cpu) => cpu.rotations(),
-            Self::Gpu(gpu) => &gpu.rotations,
+    /// Binds `points` (rest coordinates) to the rest particles, and on the
+    /// GPU uploads the binding.
+    pub fn bind(&self, points: &[Vec3]) -> Result<Carrier> {
+        let embedding = Embedding::new(self.rest(), points);
+        let gpu = match self {
+            Self::Cpu(_) => None,
+            Self::Gpu(gpu) => Some(
+                GpuEmbedding::new(&gpu.device, &gpu.embedding, &embedding, gpu.rest.len())
+                    .with_context(|| format!("binding points on {}", gpu.name))?,
+            ),
+        };
+        Ok(Carrier { embedding, gpu })
+    }
+
+    /// Where `carrier`'s points are after the last solve.
+    pub fn carry(&self, carrier: &Carrier) -> Result<Vec<Vec3>> {
+        match (self, &carrier.gpu) {
+            (Self::Gpu(gpu), Some(on_gpu)) => on_gpu
+                .moved(
+                    &gpu.device,
+                    &gpu.queue,
+                    &gpu.embedding,
+                    gpu.deformer.state(),
+                )
+                .with_context(|| format!("carrying points on {}", gpu.name)),
+            (Self::Cpu(cpu), None) => {
+                Ok(carrier
+                    .embedding
+                    .moved(cpu.rest(), cpu.positions(), cpu.rotations()))
+            }
+            _ => bail!("points bound for one backend were carried by another"),
         }
     }
 }

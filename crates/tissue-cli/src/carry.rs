@@ -5,12 +5,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
-use tissue_cpu::structures::{Embedding, RigidBinding, RigidMotion};
+use tissue_cpu::structures::{RigidBinding, RigidMotion};
 
-use crate::backend::Solver;
+use crate::backend::{Carrier, Solver};
 use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
 
 /// Options naming what to carry, shared by `deform` and `track`.
@@ -51,14 +51,16 @@ impl Kind {
 }
 
 /// How the structure is bound to the rest particles.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 enum Binding {
-    Deformable(Embedding),
-    Rigid(RigidBinding),
+    /// Every vertex carried.
+    Deformable(Carrier),
+    /// The centre carried, the rotation fitted to the particles around it.
+    Rigid(RigidBinding, Carrier),
 }
 
 /// One internal structure, bound at rest.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct Structure {
     /// The file name it is written under, e.g. `tumour.obj`.
     pub name: String,
@@ -69,15 +71,15 @@ pub struct Structure {
 }
 
 /// Landmark points bound at rest.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct Points {
     /// Where they came from.
     pub source: String,
-    embedding: Embedding,
+    carrier: Carrier,
 }
 
 /// Everything the particles carry.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 pub struct Carried {
     /// Landmark points, if any.
     pub points: Option<Points>,
@@ -121,15 +123,15 @@ pub struct MovedStructure {
 }
 
 impl Carried {
-    /// Reads and binds what `args` names to the rest particles `rest`.
-    pub fn load(args: &CarryArgs, rest: &[Vec3]) -> Result<Self> {
+    /// Reads and binds what `args` names to the solver's rest particles.
+    pub fn load(args: &CarryArgs, solver: &Solver) -> Result<Self> {
         let names = output_names(&args.structures, &args.rigid_structures)?;
         let points = match &args.points {
             Some(path) => {
                 let points = tissue::load_points(path)?;
                 Some(Points {
                     source: path.display().to_string(),
-                    embedding: Embedding::new(rest, &points),
+                    carrier: solver.bind(&points)?,
                 })
             }
             None => None,
@@ -144,73 +146,77 @@ impl Carried {
         let structures = named
             .into_iter()
             .zip(names)
-            .map(|((kind, source, mesh), name)| Structure::bind(name, source, kind, mesh, rest))
-            .collect();
+            .map(|((kind, source, mesh), name)| Structure::bind(name, source, kind, mesh, solver))
+            .collect::<Result<_>>()?;
         Ok(Self { points, structures })
     }
 
     /// Where the points and structures are for the solver's current state.
-    pub fn moved(&self, solver: &Solver) -> (Option<Vec<Vec3>>, Vec<MovedStructure>) {
-        let (rest, current, rotations) = (solver.rest(), solver.positions(), solver.rotations());
-        let points = self
-            .points
-            .as_ref()
-            .map(|p| p.embedding.moved(rest, current, rotations));
+    pub fn moved(&self, solver: &Solver) -> Result<(Option<Vec<Vec3>>, Vec<MovedStructure>)> {
+        let points = match &self.points {
+            Some(p) => Some(solver.carry(&p.carrier)?),
+            None => None,
+        };
         let structures = self
             .structures
             .iter()
-            .map(|s| s.moved(rest, current, rotations))
-            .collect();
-        (points, structures)
+            .map(|s| s.moved(solver))
+            .collect::<Result<_>>()?;
+        Ok((points, structures))
     }
 }
 
 impl Points {
     /// The points at rest, in input order.
     pub fn rest(&self) -> &[Vec3] {
-        &self.embedding.points
+        self.carrier.rest()
     }
 }
 
 impl Structure {
-    /// Binds `mesh` (rest coordinates) to the rest particles.
+    /// Binds `mesh` (rest coordinates) to the solver's rest particles.
     pub fn bind(
         name: String,
         source: String,
         kind: Kind,
         mesh: SurfaceMesh,
-        rest: &[Vec3],
-    ) -> Self {
+        solver: &Solver,
+    ) -> Result<Self> {
         let binding = match kind {
-            Kind::Deformable => Binding::Deformable(Embedding::new(rest, &mesh.vertices)),
-            Kind::Rigid => Binding::Rigid(RigidBinding::new(rest, &mesh.vertices)),
+            Kind::Deformable => Binding::Deformable(solver.bind(&mesh.vertices)?),
+            Kind::Rigid => {
+                let rigid = RigidBinding::new(solver.rest(), &mesh.vertices);
+                let centre = solver.bind(&rigid.centre().points)?;
+                Binding::Rigid(rigid, centre)
+            }
         };
-        Self {
+        Ok(Self {
             name,
             source,
             rest: mesh,
             binding,
-        }
+        })
     }
 
     /// How the structure moves.
     pub fn kind(&self) -> Kind {
         match self.binding {
             Binding::Deformable(_) => Kind::Deformable,
-            Binding::Rigid(_) => Kind::Rigid,
+            Binding::Rigid(..) => Kind::Rigid,
         }
     }
 
-    fn moved(&self, rest: &[Vec3], current: &[Vec3], rotations: &[Mat3]) -> MovedStructure {
+    fn moved(&self, solver: &Solver) -> Result<MovedStructure> {
         let rest_centroid = centroid(&self.rest.vertices);
         let (vertices, moved_centroid, motion) = match &self.binding {
-            Binding::Deformable(embedding) => {
-                let vertices = embedding.moved(rest, current, rotations);
+            Binding::Deformable(carrier) => {
+                let vertices = solver.carry(carrier)?;
                 let c = centroid(&vertices);
                 (vertices, c, None)
             }
-            Binding::Rigid(binding) => {
-                let motion = binding.motion(rest, current, rotations);
+            Binding::Rigid(binding, centre) => {
+                let moved_centre = solver.carry(centre)?.first().copied().unwrap_or_default();
+                let motion = binding.motion_from(moved_centre, solver.rest(), solver.positions());
                 let vertices = self
                     .rest
                     .vertices
@@ -228,7 +234,7 @@ impl Structure {
             .map(|(a, b)| a.distance(*b))
             .fold(0.0, f32::max);
         let mesh = SurfaceMesh::new(vertices, self.rest.triangles.clone());
-        MovedStructure {
+        Ok(MovedStructure {
             mesh,
             report: StructureReport {
                 name: self.name.clone(),
@@ -241,7 +247,7 @@ impl Structure {
                 rotation_degrees: motion.as_ref().map(rotation_degrees),
                 transform: motion.as_ref().map(RigidMotion::homogeneous),
             },
-        }
+        })
     }
 }
 

@@ -114,7 +114,6 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
 
     let deform_params = DeformParams::default();
     let mut solver = Solver::new(device, &model, deform_params.clone())?;
-    let rest = solver.rest();
     let carried = Carried {
         points: None,
         structures: [Kind::Deformable, Kind::Rigid]
@@ -125,9 +124,9 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
                     Kind::Rigid => "tumour-rigid.obj",
                 };
                 let source = out.join("tumour.obj").display().to_string();
-                Structure::bind(name.into(), source, kind, tumour.clone(), rest)
+                Structure::bind(name.into(), source, kind, tumour.clone(), &solver)
             })
-            .collect(),
+            .collect::<Result<_>>()?,
     };
 
     let cases = [

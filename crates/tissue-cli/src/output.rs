@@ -104,7 +104,7 @@ pub fn write_solution(
     tissue::io::model::save_moved_particles(model, current, deformed, &particles)?;
     files.push(particles);
 
-    let (points, structures) = carried.moved(solver);
+    let (points, structures) = carried.moved(solver)?;
     let points = match (points, &carried.points) {
         (Some(moved), Some(source)) => {
             let path = to.dir.join(POINTS_FILE);

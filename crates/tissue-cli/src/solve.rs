@@ -134,7 +134,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let device = Device::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
-    let carried = Carried::load(&args.carry, solver.rest())?;
+    let carried = Carried::load(&args.carry, &solver)?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
     let solve = solver.solve()?;

@@ -84,7 +84,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let frames = expand(&args.frames)?;
     let device = Device::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
-    let carried = Carried::load(&args.carry, solver.rest())?;
+    let carried = Carried::load(&args.carry, &solver)?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
     let model_name = args.model.display().to_string();

@@ -6,6 +6,7 @@ use glam::Vec3;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{
     Chebyshev, DeformParams, DeformReport, Plan, StopReason, StoppingRule, check_same_topology,
+    predict,
 };
 
 use crate::state::SLOTS;
@@ -14,9 +15,11 @@ use crate::{DeformState, GpuError, Pipelines};
 /// Stage 2 on the GPU for one particle model: the same step `alpha` from
 /// `lambda_max`, the same spectral Chebyshev `rho` and the same stopping rule
 /// as the CPU [`tissue_cpu::deformation::Deformer`], with rotations always by
-/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted) and no
-/// constant-velocity prediction between frames (a new frame starts from the
-/// last solution). The step norms are read back once per [`SLOTS`]
+/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted). A
+/// new frame starts where `tissue_cpu::deformation::predict` puts it, the
+/// CPU path's own function: the positions are read back at the end of every
+/// solve and the prediction is uploaded with the new control points (both
+/// frame boundaries). The step norms are read back once per [`SLOTS`]
 /// iterations; when the rule held inside a batch, the batch is replayed up
 /// to that iteration, so the iteration count equals the CPU rule's.
 #[derive(Debug)]
@@ -31,6 +34,15 @@ pub struct GpuDeformer {
     params: DeformParams,
     backup_current: wgpu::Buffer,
     backup_previous: wgpu::Buffer,
+    /// The control particles, in the order of `attachments`.
+    controls: Vec<usize>,
+    /// The positions on the GPU at the last frame boundary.
+    current: Vec<Vec3>,
+    /// The solution before the last one, when the last two solves converged.
+    earlier: Option<Vec<Vec3>>,
+    /// The last converged solution.
+    last: Option<Vec<Vec3>>,
+    rest: Vec<Vec3>,
 }
 
 impl GpuDeformer {
@@ -61,6 +73,12 @@ impl GpuDeformer {
                 mapped_at_creation: false,
             })
         };
+        let controls = model
+            .attachments
+            .iter()
+            .enumerate()
+            .filter_map(|(i, a)| a.map(|_| i))
+            .collect();
         Ok(Self {
             backup_current: backup("backup current"),
             backup_previous: backup("backup previous"),
@@ -70,6 +88,11 @@ impl GpuDeformer {
             attachments,
             plan,
             params,
+            controls,
+            current: model.positions.clone(),
+            earlier: None,
+            last: None,
+            rest: model.positions.clone(),
         })
     }
 
@@ -105,7 +128,8 @@ impl GpuDeformer {
     }
 
     /// Places the control points on `deformed`, the rest surface with moved
-    /// vertices, and uploads them (a frame boundary).
+    /// vertices, predicts the free particles as the CPU path does (unless
+    /// `extrapolate` is off) and uploads them (a frame boundary).
     pub fn set_surface(
         &mut self,
         queue: &wgpu::Queue,
@@ -117,7 +141,39 @@ impl GpuDeformer {
             .iter()
             .map(|&(t, bary)| deformed.point_on(t as usize, bary))
             .collect();
-        self.state.set_control_points(queue, &points)
+        if !self.params.extrapolate {
+            for (&i, &q) in self.controls.iter().zip(&points) {
+                self.current[i] = q;
+            }
+            return self.state.set_control_points(queue, &points);
+        }
+        let controls: Vec<(usize, Vec3)> = self
+            .controls
+            .iter()
+            .copied()
+            .zip(points.iter().copied())
+            .collect();
+        let (prediction, _) = predict(
+            &self.current,
+            self.earlier.as_deref().zip(self.last.as_deref()),
+            &controls,
+            self.params.tolerance * self.plan.size,
+        );
+        for (i, q) in prediction.into_iter().enumerate() {
+            if self.plan.free[i] {
+                self.current[i] = q;
+            }
+        }
+        for (i, q) in controls {
+            self.current[i] = q;
+        }
+        self.state.write_current(queue, &self.current)
+    }
+
+    /// The positions at the end of the last solve (read back by it), or
+    /// after the last `set_surface` or `reset`.
+    pub fn host_positions(&self) -> &[Vec3] {
+        &self.current
     }
 
     /// Reads the current positions back (a frame boundary).
@@ -149,6 +205,9 @@ impl GpuDeformer {
         });
         encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
         queue.submit([encoder.finish()]);
+        self.current.clone_from(&self.rest);
+        self.earlier = None;
+        self.last = None;
         crate::wait(device)
     }
 
@@ -164,7 +223,16 @@ impl GpuDeformer {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(e.into());
         }
-        report
+        let report = report?;
+        self.current = self.state.read_positions(device, queue)?;
+        if report.converged {
+            self.earlier = self.last.take();
+            self.last = Some(self.current.clone());
+        } else {
+            self.earlier = None;
+            self.last = None;
+        }
+        Ok(report)
     }
 
     fn iterate(

@@ -52,3 +52,50 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         );
     }
 }
+
+/// Tracking: frames of a growing sag, each starting where `predict` puts it
+/// on both paths; the same iterations per frame and the same positions.
+#[test]
+fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
+    let Some((device, queue)) = common::gpu("tracking parity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = DeformParams {
+        rotations: RotationMethod::Svd,
+        ..DeformParams::default()
+    };
+    let sagged = tissue_core::deform::sagged_breast();
+    let mut cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let tolerance = 1e-5 * cpu.size();
+    let mut counts = Vec::new();
+    for k in 0..5 {
+        let frame =
+            tissue_core::deform::interpolate(&model.surface, &sagged, 0.5 + 0.05 * k as f32)
+                .unwrap_or_else(|e| panic!("{e}"));
+        cpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
+        gpu.set_surface(&queue, &frame)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let on_cpu = cpu.solve();
+        let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+        assert!(on_gpu.converged, "frame {k}: {on_gpu:?}");
+        // Rounding may tip the stopping rule one iteration either way.
+        assert!(
+            on_cpu.iterations.abs_diff(on_gpu.iterations) <= 1,
+            "frame {k}: CPU {} iterations, GPU {}",
+            on_cpu.iterations,
+            on_gpu.iterations
+        );
+        counts.push((on_cpu.iterations, on_gpu.iterations));
+        for (i, (g, c)) in gpu.host_positions().iter().zip(cpu.positions()).enumerate() {
+            assert!(
+                g.distance(*c) <= tolerance,
+                "frame {k}, particle {i}: GPU {g} vs CPU {c}, tolerance {tolerance:e}"
+            );
+        }
+    }
+    eprintln!("iterations per frame (CPU, GPU): {counts:?}");
+}
