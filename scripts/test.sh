@@ -40,6 +40,7 @@ cargo test -p tissue-gpu --release -- --show-output
 
 echo "== criterion micro-benchmarks, smoke mode (each kernel once)"
 cargo bench --bench kernels -- --test
+cargo bench --bench gpu_kernels -- --test
 
 echo "== the README's first command: the whole pipeline on the bundled phantom"
 cargo run --release --quiet -p tissue-cli -- demo --output-dir target/ci-demo

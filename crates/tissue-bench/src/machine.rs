@@ -67,8 +67,9 @@ pub struct Adapter {
     pub driver: String,
     /// Driver version string.
     pub driver_info: String,
-    /// Whether the adapter offers timestamp queries (not used: timings are
-    /// wall clock around submit and poll, the same on every adapter).
+    /// Whether the adapter offers timestamp queries: the bench then opens its
+    /// device with them and times each kernel of the per-stage breakdown by
+    /// them (the solve and tracking timings stay wall clock on every adapter).
     pub timestamp_queries: bool,
 }
 

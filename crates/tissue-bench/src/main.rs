@@ -2,8 +2,11 @@
 //! or a given closed surface. Stage 1 (sampling) on the CPU; stage 2 (one
 //! iteration, convergence from rest, a tracking loop) on each backend asked
 //! for; memory per particle, the iteration's traffic floor and effective
-//! bandwidth. A markdown table on stdout, every number in `--json`.
+//! bandwidth; where the time goes (sampling by its report's stages, one
+//! iteration pass by pass, on the GPU by timestamp queries where the adapter
+//! offers them). Markdown tables on stdout, every number in `--json`.
 
+mod breakdown;
 mod machine;
 mod memory;
 mod stage2;
@@ -19,7 +22,7 @@ use clap::{Parser, ValueEnum};
 use glam::{Vec2, Vec3};
 use serde::Serialize;
 use tissue_core::deform::{Indentation, Rigid, Sag, deform_surface};
-use tissue_core::{SamplingParams, SurfaceMesh};
+use tissue_core::{SamplingParams, StageSeconds, SurfaceMesh};
 
 use crate::machine::{Adapter, Machine};
 use crate::memory::{CpuModelBytes, IterationFloor};
@@ -48,6 +51,10 @@ struct Args {
     /// Sizes 1000 and 5000 and few repeats: well under a minute.
     #[arg(long)]
     quick: bool,
+    /// Time the GPU kernels by the wall clock around a submit and a wait,
+    /// even where the adapter offers timestamp queries.
+    #[arg(long)]
+    no_timestamps: bool,
 }
 
 /// A stage-2 backend.
@@ -69,6 +76,8 @@ struct Sampling {
     nn_cv: f32,
     connections_median: f32,
     coverage: f32,
+    /// Where the time went (the sampling report's own breakdown).
+    stage_seconds: StageSeconds,
 }
 
 /// One backend's outcome for one size.
@@ -110,6 +119,9 @@ struct GpuFound {
     status: &'static str,
     reason: Option<String>,
     adapter: Option<Adapter>,
+    /// Whether the device was opened with timestamp queries (the adapter
+    /// offers them and `--no-timestamps` was not given).
+    timestamps_used: bool,
 }
 
 /// The JSON report.
@@ -193,21 +205,45 @@ fn surfaces(mesh: Option<&PathBuf>) -> Result<(String, Cases)> {
     ))
 }
 
-fn open_gpu() -> (GpuFound, Option<Gpu>) {
-    match tissue_gpu::device_from_env() {
-        Ok((adapter, device, queue)) => (
+/// The adapter `tissue_gpu::adapter_from_env` chooses, opened with default
+/// limits and `TIMESTAMP_QUERY` where the adapter has it and `timestamps`
+/// allows (the only optional feature, and only for the per-kernel breakdown).
+fn open_gpu(timestamps: bool) -> (GpuFound, Option<Gpu>) {
+    let opened = tissue_gpu::adapter_from_env().and_then(|adapter| {
+        let features = if timestamps {
+            adapter.features() & wgpu::Features::TIMESTAMP_QUERY
+        } else {
+            wgpu::Features::empty()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("tissue-bench"),
+            required_features: features,
+            required_limits: wgpu::Limits::default(),
+            ..Default::default()
+        }))
+        .map_err(|e| tissue_gpu::GpuError::RequestDevice(e.to_string()))?;
+        Ok((adapter, device, queue, !features.is_empty()))
+    });
+    match opened {
+        Ok((adapter, device, queue, timestamp_query)) => (
             GpuFound {
                 status: "available",
                 reason: None,
                 adapter: Some(Adapter::of(&adapter)),
+                timestamps_used: timestamp_query,
             },
-            Some(Gpu { device, queue }),
+            Some(Gpu {
+                device,
+                queue,
+                timestamp_query,
+            }),
         ),
         Err(e) => (
             GpuFound {
                 status: "skipped",
                 reason: Some(e.to_string()),
                 adapter: None,
+                timestamps_used: false,
             },
             None,
         ),
@@ -236,18 +272,20 @@ fn run(args: &Args) -> Result<()> {
             iteration_solves: 3,
             iterations_per_solve: 8,
             frames: 10,
+            stage_samples: 5,
         }
     } else {
         Repeats {
             iteration_solves: 7,
             iterations_per_solve: 24,
             frames: 10,
+            stage_samples: 15,
         }
     };
     let (mesh, cases) = surfaces(args.mesh.as_ref())?;
     let machine = Machine::detect();
     let (gpu_found, gpu) = if args.backends.contains(&BackendName::Gpu) {
-        let (found, gpu) = open_gpu();
+        let (found, gpu) = open_gpu(!args.no_timestamps);
         (Some(found), gpu)
     } else {
         (None, None)
@@ -265,6 +303,7 @@ fn run(args: &Args) -> Result<()> {
             nn_cv: sampled.report.nn_cv,
             connections_median: sampled.report.connections.median,
             coverage: sampled.report.coverage,
+            stage_seconds: sampled.report.stage_seconds,
         };
         let mut backends = Vec::new();
         for &backend in &args.backends {

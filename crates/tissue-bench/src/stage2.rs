@@ -11,6 +11,7 @@ use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, RotationMethod};
 use tissue_gpu::GpuDeformer;
 
+use crate::breakdown::{self, Breakdown};
 use crate::memory::GpuStateBytes;
 use crate::stats::Summary;
 
@@ -21,6 +22,8 @@ pub struct Gpu {
     pub device: wgpu::Device,
     /// Its queue.
     pub queue: wgpu::Queue,
+    /// Whether the device was opened with `wgpu::Features::TIMESTAMP_QUERY`.
+    pub timestamp_query: bool,
 }
 
 /// Stage 2 on one backend.
@@ -83,6 +86,8 @@ pub struct Repeats {
     pub iterations_per_solve: usize,
     /// Tracking frames.
     pub frames: usize,
+    /// Samples of each pass in the per-stage breakdown.
+    pub stage_samples: usize,
 }
 
 /// The surfaces stage 2 is measured on, all the rest surface with moved vertices.
@@ -139,6 +144,8 @@ pub struct Stage2 {
     pub rotations: String,
     /// One iteration.
     pub iteration: IterationTiming,
+    /// One iteration, pass by pass.
+    pub stages: Breakdown,
     /// Solves to convergence from rest.
     pub converge: Vec<Converge>,
     /// The tracking loop.
@@ -155,7 +162,7 @@ pub fn measure(
     repeats: Repeats,
 ) -> Result<Stage2> {
     let defaults = DeformParams::default();
-    let iteration = {
+    let (iteration, stages) = {
         // The stopping rule off: the smallest positive tolerance never holds
         // while the sag is still being followed.
         let fixed = DeformParams {
@@ -164,7 +171,8 @@ pub fn measure(
             extrapolate: false,
             ..defaults.clone()
         };
-        let mut solver = Solver::new(gpu, model, fixed).context("stage 2, fixed iterations")?;
+        let mut solver =
+            Solver::new(gpu, model, fixed.clone()).context("stage 2, fixed iterations")?;
         let mut per_iteration = Vec::new();
         let mut iterations_run = Vec::new();
         // One untimed solve first: shader compilation, first-touch of memory.
@@ -179,11 +187,23 @@ pub fn measure(
                 iterations_run.push(report.iterations);
             }
         }
-        IterationTiming {
+        let stages = match &solver {
+            Solver::Cpu(deformer) => breakdown::cpu(
+                deformer,
+                &model.connections,
+                &fixed,
+                repeats.iterations_per_solve,
+                repeats.stage_samples,
+            ),
+            Solver::Gpu(gpu, deformer) => breakdown::gpu(gpu, deformer, repeats.stage_samples),
+        }
+        .context("per-stage breakdown")?;
+        let timing = IterationTiming {
             per_iteration: Summary::of_seconds(&per_iteration)
                 .context("no timed iteration solve ran")?,
             iterations_run,
-        }
+        };
+        (timing, stages)
     };
 
     let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
@@ -191,12 +211,23 @@ pub fn measure(
         Solver::Cpu(_) => None,
         Solver::Gpu(_, deformer) => Some(GpuStateBytes::of(deformer, model.len())),
     };
+    // From rest, the solver alone: the tracking prediction would carry a
+    // rigid rotation there exactly, and hide the solver's convergence.
+    let mut from_rest = Solver::new(
+        gpu,
+        model,
+        DeformParams {
+            extrapolate: false,
+            ..defaults.clone()
+        },
+    )
+    .context("stage 2, from rest")?;
     let mut converge = Vec::new();
     for (case, target) in &cases.targets {
-        solver.reset()?;
-        solver.set_surface(target)?;
+        from_rest.reset()?;
+        from_rest.set_surface(target)?;
         let started = Instant::now();
-        let report = solver.solve()?;
+        let report = from_rest.solve()?;
         converge.push(Converge {
             case: case.clone(),
             iterations: report.iterations,
@@ -238,6 +269,7 @@ pub fn measure(
     Ok(Stage2 {
         rotations: rotations.to_owned(),
         iteration,
+        stages,
         converge,
         tracking: Tracking {
             description: format!(

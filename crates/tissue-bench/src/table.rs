@@ -55,6 +55,24 @@ pub fn markdown(report: &Report) -> String {
         );
     }
 
+    let _ = writeln!(
+        out,
+        "\nWhere the sampling time goes (seconds; neighbour rebuilds are part of the iterations):\n"
+    );
+    let _ = writeln!(
+        out,
+        "| particles | field | initial | iterations | of which neighbours | connections | report |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|");
+    for s in &report.sizes {
+        let t = &s.sampling.stage_seconds;
+        let _ = writeln!(
+            out,
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            s.particles, t.field, t.initial, t.iterations, t.neighbours, t.connections, t.report
+        );
+    }
+
     let _ = writeln!(out, "\n## Stage 2: deformation\n");
     let mut header = String::from(
         "| particles | backend | ms / iteration median (min-max) | floor MB / iteration | effective GB/s |",
@@ -112,6 +130,8 @@ pub fn markdown(report: &Report) -> String {
         }
     }
 
+    stage_table(&mut out, report);
+
     let _ = writeln!(out, "\n## Memory\n");
     let _ = writeln!(
         out,
@@ -145,4 +165,56 @@ pub fn markdown(report: &Report) -> String {
         report.total_seconds
     );
     out
+}
+
+/// One iteration pass by pass, per size and backend.
+fn stage_table(out: &mut String, report: &Report) {
+    let _ = writeln!(out, "\n## One iteration, pass by pass\n");
+    let _ = writeln!(
+        out,
+        "| particles | backend | method | pass | ms median (min-max) | share of the sum |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|");
+    let mut notes = Vec::new();
+    for s in &report.sizes {
+        for b in &s.backends {
+            let Some(stage2) = &b.stage2 else { continue };
+            let name = match b.backend {
+                BackendName::Cpu => "cpu",
+                BackendName::Gpu => "gpu",
+            };
+            let stages = &stage2.stages;
+            let sum = stages.sum_of_medians_ms.max(f64::MIN_POSITIVE);
+            for t in &stages.stages {
+                let _ = writeln!(
+                    out,
+                    "| {} | {name} | {} | {} | {:.3} ({:.3}-{:.3}) | {:.0} % |",
+                    s.particles,
+                    stages.method,
+                    t.stage,
+                    t.time.median_ms,
+                    t.time.min_ms,
+                    t.time.max_ms,
+                    100.0 * t.time.median_ms / sum
+                );
+            }
+            let it = &stages.iteration;
+            let _ = writeln!(
+                out,
+                "| {} | {name} | {} | sum of medians; passes back to back | {:.3}; {:.3} ({:.3}-{:.3}) | |",
+                s.particles,
+                stages.method,
+                stages.sum_of_medians_ms,
+                it.median_ms,
+                it.min_ms,
+                it.max_ms
+            );
+            if !notes.contains(&(stages.method, &stages.note)) {
+                notes.push((stages.method, &stages.note));
+            }
+        }
+    }
+    for (method, note) in notes {
+        let _ = writeln!(out, "\n{method}: {note}");
+    }
 }

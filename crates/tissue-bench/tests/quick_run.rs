@@ -2,18 +2,12 @@
 
 #![allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
 
-use std::process::Command;
-use std::time::{Duration, Instant};
+mod common;
 
+use std::time::Duration;
+
+use common::{CPU_PASSES, GPU_PASSES, check_breakdown, check_sampling, positive, run_bench};
 use serde_json::Value;
-
-fn positive(value: &Value, what: &str) -> f64 {
-    let x = value
-        .as_f64()
-        .unwrap_or_else(|| panic!("{what} is not a number: {value}"));
-    assert!(x > 0.0 && x.is_finite(), "{what} is {x}, expected positive");
-    x
-}
 
 fn check_stage2(stage2: &Value, context: &str) {
     let it = &stage2["iteration"]["per_iteration"];
@@ -41,34 +35,16 @@ fn check_stage2(stage2: &Value, context: &str) {
 
 #[test]
 fn quick_run_writes_a_complete_json_report() {
-    let dir = tempfile::tempdir().expect("temporary directory");
-    let json = dir.path().join("bench.json");
-    let started = Instant::now();
-    let out = Command::new(env!("CARGO_BIN_EXE_tissue-bench"))
-        .args(["--quick", "--json"])
-        .arg(&json)
-        .output()
-        .expect("running tissue-bench");
-    let took = started.elapsed();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "tissue-bench failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (stdout, report, took) = run_bench(&["--quick"]);
     // The binary follows the dev profile (opt-level 0) in a plain `cargo
     // test`: the time budget is the release build's.
     assert!(
         cfg!(debug_assertions) || took < Duration::from_secs(60),
         "--quick took {took:?}, expected well under a minute"
     );
-    assert!(
-        stdout.contains("## Stage 1"),
-        "no table on stdout:\n{stdout}"
-    );
-
-    let text = std::fs::read_to_string(&json).expect("the JSON report");
-    let report: Value = serde_json::from_str(&text).expect("valid JSON");
+    for table in ["## Stage 1", "Where the sampling time goes", "pass by pass"] {
+        assert!(stdout.contains(table), "no {table:?} on stdout:\n{stdout}");
+    }
     for key in ["cpu_model", "rayon_threads", "git_commit"] {
         assert!(!report["machine"][key].is_null(), "machine.{key} missing");
     }
@@ -79,6 +55,14 @@ fn quick_run_writes_a_complete_json_report() {
             for key in ["name", "backend", "device_type", "driver"] {
                 assert!(gpu["adapter"][key].is_string(), "gpu.adapter.{key} missing");
             }
+            assert_eq!(
+                gpu["timestamps_used"], gpu["adapter"]["timestamp_queries"],
+                "timestamps are used wherever the adapter offers them"
+            );
+            eprintln!(
+                "GPU: {} (timestamp queries: {})",
+                gpu["adapter"]["name"], gpu["adapter"]["timestamp_queries"]
+            );
             true
         }
         Some("skipped") => {
@@ -104,14 +88,7 @@ fn quick_run_writes_a_complete_json_report() {
     for size in sizes {
         let n = size["particles"].as_u64().unwrap_or(0);
         assert!(n > 0, "no particles");
-        positive(&size["sampling"]["seconds"], "sampling seconds");
-        positive(&size["sampling"]["iterations"], "sampling iterations");
-        positive(&size["sampling"]["nn_cv"], "nn_cv");
-        positive(&size["sampling"]["coverage"], "coverage");
-        positive(
-            &size["sampling"]["connections_median"],
-            "connections median",
-        );
+        check_sampling(size);
         positive(
             &size["cpu_model_bytes"]["per_particle"],
             "CPU bytes per particle",
@@ -144,6 +121,17 @@ fn quick_run_writes_a_complete_json_report() {
                 &b["floor"]["effective_gb_per_s"],
                 &format!("{context} bandwidth"),
             );
+            let stages = &b["stage2"]["stages"];
+            if b["backend"] == "cpu" {
+                check_breakdown(stages, "wall_clock", &CPU_PASSES, &context);
+            } else {
+                let method = if gpu["timestamps_used"] == true {
+                    "timestamp_queries"
+                } else {
+                    "wall_clock_submit_wait"
+                };
+                check_breakdown(stages, method, &GPU_PASSES, &context);
+            }
             if b["backend"] == "gpu" {
                 let bytes = &b["stage2"]["gpu_state_bytes"];
                 positive(&bytes["state_total"], &format!("{context} GPU bytes"));
