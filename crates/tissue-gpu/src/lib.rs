@@ -213,19 +213,7 @@ mod tests {
 
     /// Size and offsets of a Rust mirror must equal naga's layout of the WGSL struct.
     fn check_layout(name: &str, rust_size: usize, rust_offsets: &[(&str, usize)]) {
-        let module = shaders::module("local_rotations").map_err(|e| e.to_string());
-        let layout = module
-            .ok()
-            .and_then(|m| shaders::struct_layout(&m, name))
-            .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
-        assert_eq!(layout.0 as usize, rust_size, "size of {name}");
-        let naga: Vec<(String, usize)> =
-            layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
-        let rust: Vec<(String, usize)> = rust_offsets
-            .iter()
-            .map(|(n, o)| ((*n).to_owned(), *o))
-            .collect();
-        assert_eq!(naga, rust, "member names and offsets of {name}");
+        shaders::assert_layout("local_rotations", name, rust_size, rust_offsets);
     }
 
     #[test]

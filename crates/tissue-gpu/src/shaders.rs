@@ -224,6 +224,28 @@ pub fn struct_layout(module: &naga::Module, name: &str) -> Option<(u32, Vec<(Str
     })
 }
 
+/// Test helper: the size and member offsets of a Rust mirror equal naga's
+/// layout of WGSL struct `name` in shader `file`.
+#[cfg(test)]
+pub(crate) fn assert_layout(
+    file: &str,
+    name: &str,
+    rust_size: usize,
+    rust_offsets: &[(&str, usize)],
+) {
+    let layout = module(file)
+        .ok()
+        .and_then(|m| struct_layout(&m, name))
+        .unwrap_or_else(|| panic!("WGSL struct {name} not found in {file}"));
+    assert_eq!(layout.0 as usize, rust_size, "size of {name}");
+    let naga: Vec<(String, usize)> = layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
+    let rust: Vec<(String, usize)> = rust_offsets
+        .iter()
+        .map(|(n, o)| ((*n).to_owned(), *o))
+        .collect();
+    assert_eq!(naga, rust, "member names and offsets of {name}");
+}
+
 /// A buffer binding of group 0 as the module declares it.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Binding {
