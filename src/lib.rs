@@ -2,8 +2,9 @@
 //!
 //! The organ's interior is filled with particles (stage 1, uniform sampling,
 //! Zhou et al. Section 2); surface particles then follow an observed surface
-//! and the interior follows them (stage 2). This crate is the public,
-//! backend-agnostic entry point; `docs/ARCHITECTURE.md` maps the crates.
+//! and the interior follows them (stage 2). This crate is the public
+//! entry point; [`backend`] chooses where the work runs (`auto`, `gpu`,
+//! `cpu`) and runs both stages there. `docs/ARCHITECTURE.md` maps the crates.
 //!
 //! ```
 //! use tissue::{SamplingParams, phantom};
@@ -23,7 +24,9 @@ pub use tissue_core::io::model::{export_model, load_model, load_points, save_mod
 pub use tissue_core::io::surface::{load_closed_surface, load_surface, save_surface, weld};
 pub use tissue_core::validate::{Validation, validate};
 pub use tissue_core::*;
-pub use tissue_cpu::{Progress, Sampled};
+pub use tissue_cpu::{Progress, Sampled, deformation, structures};
+
+pub mod backend;
 
 /// Stage 1: fills a closed surface with `params.particles` particles relaxed
 /// to the paper's uniform state, and reports their quality.

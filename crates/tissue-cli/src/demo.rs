@@ -10,10 +10,10 @@ use serde::Serialize;
 use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 use tissue_cpu::deformation::DeformParams;
 
-use crate::backend::{BackendArgs, Device, Solver};
+use crate::backend::{self, BackendArgs, Solver};
 use crate::carry::{Carried, Kind, Structure, StructureReport};
 use crate::output::{Destination, write_json, write_solution};
-use crate::sample::{print_report, sample_with_bar};
+use crate::sample::{print_report, sample_on};
 
 /// The demo's summary.
 pub const DEMO_FILE: &str = "demo.json";
@@ -55,8 +55,8 @@ struct CaseReport {
 #[derive(Debug, Serialize)]
 struct DemoReport {
     particles: usize,
-    /// Where stage 2 ran: `cpu`, or the GPU adapter's name and graphics
-    /// backend (stage 1, sampling, runs on the CPU).
+    /// Where the stages ran: `cpu`, or the GPU adapter's name and graphics
+    /// backend (both stages ran there).
     backend: String,
     sampling: SamplingReport,
     cases: Vec<CaseReport>,
@@ -101,8 +101,8 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         source,
     })?;
     // Before sampling, so that a missing GPU fails at once.
-    let device = Device::pick(args.backend.backend, quiet)?;
-    let sampled = sample_with_bar(&breast, &params, quiet)?;
+    let device = backend::pick(args.backend.backend, quiet)?;
+    let sampled = sample_on(&device, &breast, &params, quiet)?;
     if !quiet {
         print_report(&sampled.report);
     }

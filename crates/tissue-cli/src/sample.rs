@@ -8,7 +8,7 @@ use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use tissue::{Sampled, SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 
-use crate::backend::{Backend, Device};
+use crate::backend::{self, Backend, Device};
 
 /// Parameter presets.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -59,7 +59,7 @@ pub struct SampleArgs {
     /// WGPU_BACKEND and WGPU_ADAPTER_NAME), `cpu`, or `auto` (a hardware GPU
     /// when there is one, else the CPU). The field, the initial placement and
     /// the surface placement stay on the CPU either way.
-    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
     /// Print nothing but errors.
     #[arg(long, short)]
@@ -115,7 +115,7 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
         tissue::io::surface::load_closed_surface_with(&args.surface, &options)?;
     // The library logs a flipped surface and dropped shells as warnings.
     let _ = (validation, dropped);
-    let device = Device::pick(args.backend, args.quiet)?;
+    let device = backend::pick(args.backend, args.quiet)?;
     let sampled = sample_on(&device, &surface, &params, args.quiet)?;
     tissue::export_model(&sampled.model, &args.output)?;
     if let Some(path) = &args.report {
@@ -129,17 +129,8 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
     Ok(())
 }
 
-/// Stage 1 on a validated surface on the CPU, with a progress bar once it
+/// Stage 1 on a validated surface on `device`, with a progress bar once it
 /// has taken a second (none when `quiet`).
-pub fn sample_with_bar(
-    surface: &SurfaceMesh,
-    params: &SamplingParams,
-    quiet: bool,
-) -> Result<Sampled> {
-    sample_on(&Device::Cpu, surface, params, quiet)
-}
-
-/// [`sample_with_bar`] on the chosen device.
 pub fn sample_on(
     device: &Device,
     surface: &SurfaceMesh,
@@ -148,7 +139,7 @@ pub fn sample_on(
 ) -> Result<Sampled> {
     let started = Instant::now();
     let mut bar: Option<ProgressBar> = None;
-    let mut progress = |p: &tissue_cpu::Progress| {
+    let mut progress = |p: &tissue::Progress| {
         if quiet || started.elapsed() < Duration::from_secs(1) {
             return;
         }
@@ -165,12 +156,7 @@ pub fn sample_on(
         bar.set_position(p.iteration as u64);
         bar.set_message(format!("step {:.1e} r0", p.step_rms));
     };
-    let sampled = match device {
-        Device::Cpu => tissue_cpu::sample(surface, params, &mut progress)?,
-        Device::Gpu { device, queue, .. } => {
-            tissue_gpu::sampler::sample(device, queue, surface, params, &mut progress)?
-        }
-    };
+    let sampled = tissue::backend::sample_on(device, surface, params, &mut progress)?;
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }

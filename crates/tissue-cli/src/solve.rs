@@ -8,7 +8,7 @@ use clap::ValueEnum;
 use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, ForceModel};
 
-use crate::backend::{BackendArgs, Device, Solver};
+use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{Destination, write_solution};
 
@@ -131,7 +131,7 @@ pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Re
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let params = args.solve.params()?;
-    let device = Device::pick(args.backend.backend, args.quiet)?;
+    let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
     let carried = Carried::load(&args.carry, &solver)?;

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::Serialize;
 
-use crate::backend::{BackendArgs, Device};
+use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{Destination, convergence, write_json, write_solution};
@@ -82,7 +82,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
     let params = args.solve.params()?;
     let frames = expand(&args.frames)?;
-    let device = Device::pick(args.backend.backend, args.quiet)?;
+    let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let carried = Carried::load(&args.carry, &solver)?;
     std::fs::create_dir_all(&args.output_dir)

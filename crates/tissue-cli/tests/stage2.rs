@@ -621,9 +621,16 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
             !message.contains("panicked"),
             "{args:?} panicked: {message}"
         );
+        // stdout holds at most the `backend:` line of `--backend auto`.
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(
-            message.lines().count() == 1 && message.starts_with("error: "),
+            stderr.lines().count() == 1 && stderr.starts_with("error: "),
             "{args:?}: expected one error line, got {message}"
+        );
+        assert!(
+            stdout.lines().all(|l| l.starts_with("backend: ")),
+            "{args:?}: expected nothing but the backend line on stdout, got {stdout}"
         );
     }
     assert!(

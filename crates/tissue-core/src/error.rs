@@ -162,6 +162,15 @@ pub enum Error {
     /// control points, parameters out of range.
     #[error("{0}")]
     Deformation(String),
+    /// The GPU path failed: no adapter, a device limit, device loss, out of
+    /// memory (the GPU crate's own error, as text, with what was being done).
+    #[error("{context}: {message}")]
+    Gpu {
+        /// What was being done, e.g. `stage 2 on NVIDIA H100, Vulkan`.
+        context: String,
+        /// The GPU crate's error.
+        message: String,
+    },
 }
 
 /// Result with tissue's core error.

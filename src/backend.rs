@@ -1,0 +1,460 @@
+//! Where the work runs: `auto`, `gpu` or `cpu`, chosen once; then both
+//! stages on the chosen device behind one interface.
+//!
+//! ```
+//! use tissue::backend::{Backend, Device, Solver};
+//! use tissue::deformation::DeformParams;
+//! use tissue::{SamplingParams, phantom};
+//!
+//! // The CPU path here; `Backend::Auto` takes a hardware GPU when there is one.
+//! let picked = Device::pick(Backend::Cpu)?;
+//! assert_eq!(picked.device.name(), "cpu");
+//! let skin = phantom::default_breast();
+//! let sampled = tissue::backend::sample_on(
+//!     &picked.device,
+//!     &skin,
+//!     &SamplingParams::with_particles(1_000),
+//!     &mut |_| {},
+//! )?;
+//! let mut solver = Solver::new(picked.device, &sampled.model, DeformParams::default())?;
+//! solver.set_surface(&tissue::deform::sagged_breast())?;
+//! let report = solver.solve()?;
+//! assert!(report.converged);
+//! # Ok::<(), tissue::Error>(())
+//! ```
+
+use std::fmt;
+use std::str::FromStr;
+
+use glam::Vec3;
+use tissue_core::{Error, ParticleModel, SamplingParams, SurfaceMesh};
+use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
+use tissue_cpu::structures::Embedding;
+use tissue_cpu::{Progress, Sampled};
+use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
+
+/// Which device to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Backend {
+    /// A hardware GPU when there is one, otherwise the CPU: a software
+    /// adapter such as Mesa lavapipe is slower than the CPU path.
+    #[default]
+    Auto,
+    /// The GPU adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the
+    /// default one (a software adapter too); an error when there is none.
+    Gpu,
+    /// The CPU path.
+    Cpu,
+}
+
+impl FromStr for Backend {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self, Error> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" => Ok(Self::Auto),
+            "gpu" => Ok(Self::Gpu),
+            "cpu" => Ok(Self::Cpu),
+            _ => Err(Error::Gpu {
+                context: "choosing a backend".into(),
+                message: format!("unknown backend `{s}`, expected auto, gpu or cpu"),
+            }),
+        }
+    }
+}
+
+impl fmt::Display for Backend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Auto => "auto",
+            Self::Gpu => "gpu",
+            Self::Cpu => "cpu",
+        })
+    }
+}
+
+/// The chosen device: the CPU, or an opened GPU.
+#[derive(Debug)]
+pub enum Device {
+    /// The CPU path.
+    Cpu,
+    /// A GPU device and its queue.
+    Gpu {
+        /// The adapter's name and graphics backend, e.g. `NVIDIA H100, Vulkan`.
+        name: String,
+        /// The device.
+        device: wgpu::Device,
+        /// Its queue.
+        queue: wgpu::Queue,
+    },
+}
+
+/// What [`Device::pick`] chose, and why.
+#[derive(Debug)]
+pub struct Picked {
+    /// The device.
+    pub device: Device,
+    /// Why: asked for, or what `auto` found.
+    pub reason: String,
+}
+
+impl fmt::Display for Picked {
+    /// `cpu (asked for)`, `gpu (NVIDIA H100, Vulkan; a hardware GPU, DiscreteGpu)`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.device {
+            Device::Cpu => write!(f, "cpu ({})", self.reason),
+            Device::Gpu { name, .. } => write!(f, "gpu ({name}; {})", self.reason),
+        }
+    }
+}
+
+/// `error`, with what was being done; the model's own errors pass unchanged.
+pub fn gpu_error(context: impl Into<String>, error: GpuError) -> Error {
+    match error {
+        GpuError::Model(e) => e,
+        other => Error::Gpu {
+            context: context.into(),
+            message: other.to_string(),
+        },
+    }
+}
+
+/// Whether `info` is a hardware GPU (not a software rasteriser like lavapipe).
+fn is_hardware(info: &wgpu::AdapterInfo) -> bool {
+    matches!(
+        info.device_type,
+        wgpu::DeviceType::DiscreteGpu
+            | wgpu::DeviceType::IntegratedGpu
+            | wgpu::DeviceType::VirtualGpu
+    )
+}
+
+/// `name, Vulkan`.
+fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{}, {:?}", info.name, info.backend)
+}
+
+impl Device {
+    /// Chooses the device for `backend`. `gpu` fails when no adapter opens;
+    /// `auto` never fails: without a hardware GPU it takes the CPU and says why.
+    pub fn pick(backend: Backend) -> Result<Picked, Error> {
+        match backend {
+            Backend::Cpu => Ok(Picked {
+                device: Self::Cpu,
+                reason: "asked for".into(),
+            }),
+            Backend::Gpu => {
+                let (adapter, device, queue) =
+                    tissue_gpu::device_from_env().map_err(|e| gpu_error("the GPU backend", e))?;
+                Ok(Picked {
+                    device: Self::Gpu {
+                        name: describe(&adapter.get_info()),
+                        device,
+                        queue,
+                    },
+                    reason: "asked for".into(),
+                })
+            }
+            Backend::Auto => Ok(Self::auto()),
+        }
+    }
+
+    /// `auto`: the best hardware adapter among those the environment allows
+    /// (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`), else the CPU; and why.
+    fn auto() -> Picked {
+        let cpu = |reason: String| Picked {
+            device: Self::Cpu,
+            reason,
+        };
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle().with_env());
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
+            let wanted = wanted.to_lowercase();
+            adapters.retain(|a| a.get_info().name.to_lowercase().contains(&wanted));
+        }
+        let rank = |a: &wgpu::Adapter| match a.get_info().device_type {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            _ => 3,
+        };
+        adapters.sort_by_key(rank);
+        // One adapter may be listed once per graphics backend (Vulkan, GL).
+        let mut software: Vec<String> = Vec::new();
+        for info in adapters.iter().map(wgpu::Adapter::get_info) {
+            if !is_hardware(&info) && !software.contains(&info.name) {
+                software.push(info.name);
+            }
+        }
+        let Some(adapter) = adapters.into_iter().find(|a| is_hardware(&a.get_info())) else {
+            return cpu(match software.as_slice() {
+                [] => "no GPU adapter found".to_owned(),
+                [one] => format!(
+                    "the only GPU adapter is {one}, a software device slower than the CPU path"
+                ),
+                many => format!(
+                    "the GPU adapters ({}) are software devices slower than the CPU path",
+                    many.join("; ")
+                ),
+            });
+        };
+        let info = adapter.get_info();
+        let name = describe(&info);
+        let opened = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("tissue"),
+            required_limits: wgpu::Limits::default(),
+            ..Default::default()
+        }));
+        match opened {
+            Ok((device, queue)) => Picked {
+                device: Self::Gpu {
+                    name,
+                    device,
+                    queue,
+                },
+                reason: format!("a hardware GPU, {:?}", info.device_type),
+            },
+            Err(e) => cpu(format!("{name} refused a device: {e}")),
+        }
+    }
+
+    /// `cpu`, or the GPU adapter's name and graphics backend.
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Gpu { name, .. } => name,
+        }
+    }
+}
+
+/// Stage 1 on `device`: fills the validated, outward-facing `surface` with
+/// `params.particles` particles; `progress` is called after every iteration
+/// (after every batch of iterations on the GPU). Both devices give the same
+/// model (the GPU kernels are twins of the CPU stages; `tests/` holds them
+/// to it).
+pub fn sample_on(
+    device: &Device,
+    surface: &SurfaceMesh,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Sampled, Error> {
+    params.validate()?;
+    match device {
+        Device::Cpu => tissue_cpu::sample(surface, params, progress),
+        Device::Gpu {
+            name,
+            device,
+            queue,
+        } => tissue_gpu::sampler::sample(device, queue, surface, params, progress)
+            .map_err(|e| gpu_error(format!("sampling on {name}"), e)),
+    }
+}
+
+/// Stage 2 on the chosen device, with the positions of the last solve at
+/// hand on the host (read back once per solve, a frame boundary). Structures
+/// and landmarks are carried where the particles are: on the GPU, by
+/// `embedding_moved.wgsl`, reading back only the moved points.
+#[derive(Debug)]
+pub enum Solver {
+    /// The CPU path.
+    Cpu(Box<Deformer>),
+    /// The GPU path.
+    Gpu(Box<GpuSolver>),
+}
+
+/// The GPU half of [`Solver`].
+#[derive(Debug)]
+pub struct GpuSolver {
+    name: String,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    deformer: GpuDeformer,
+    embedding: EmbeddingKernel,
+    rest: Vec<Vec3>,
+    /// Read back after each solve.
+    current: Vec<Vec3>,
+}
+
+/// Points bound to the particles, ready to be carried on the solver's device.
+#[derive(Debug)]
+pub struct Carrier {
+    embedding: Embedding,
+    gpu: Option<GpuEmbedding>,
+}
+
+impl Carrier {
+    /// The points at rest.
+    pub fn rest(&self) -> &[Vec3] {
+        &self.embedding.points
+    }
+}
+
+impl Solver {
+    /// Prepares stage 2 for `model` on `device`.
+    pub fn new(device: Device, model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
+        Ok(match device {
+            Device::Cpu => Self::Cpu(Box::new(Deformer::new(model, params)?)),
+            Device::Gpu {
+                name,
+                device,
+                queue,
+            } => {
+                let context = format!("preparing stage 2 on {name}");
+                let deformer = GpuDeformer::new(&device, &queue, model, params)
+                    .map_err(|e| gpu_error(&context, e))?;
+                let embedding =
+                    EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
+                Self::Gpu(Box::new(GpuSolver {
+                    name,
+                    device,
+                    queue,
+                    deformer,
+                    embedding,
+                    rest: model.positions.clone(),
+                    current: model.positions.clone(),
+                }))
+            }
+        })
+    }
+
+    /// `cpu`, or the GPU adapter's name and graphics backend (for the reports).
+    pub fn backend(&self) -> String {
+        match self {
+            Self::Cpu(_) => "cpu".to_owned(),
+            Self::Gpu(gpu) => gpu.name.clone(),
+        }
+    }
+
+    /// Places the control points on `deformed`, the rest surface with moved vertices.
+    pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => cpu.set_surface(deformed),
+            Self::Gpu(gpu) => gpu
+                .deformer
+                .set_surface(&gpu.queue, deformed)
+                .map_err(|e| gpu_error(format!("uploading a surface to {}", gpu.name), e)),
+        }
+    }
+
+    /// Solves, and on the GPU reads the positions back.
+    pub fn solve(&mut self) -> Result<DeformReport, Error> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.solve()),
+            Self::Gpu(gpu) => {
+                let report = gpu
+                    .deformer
+                    .solve(&gpu.device, &gpu.queue)
+                    .map_err(|e| gpu_error(format!("stage 2 on {}", gpu.name), e))?;
+                gpu.current = gpu.deformer.host_positions().to_vec();
+                Ok(report)
+            }
+        }
+    }
+
+    /// Back to the rest shape.
+    pub fn reset(&mut self) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => cpu.reset(),
+            Self::Gpu(gpu) => {
+                gpu.deformer
+                    .reset(&gpu.device, &gpu.queue)
+                    .map_err(|e| gpu_error(format!("resetting stage 2 on {}", gpu.name), e))?;
+                gpu.current.clone_from(&gpu.rest);
+            }
+        }
+        Ok(())
+    }
+
+    /// Rest particle positions.
+    pub fn rest(&self) -> &[Vec3] {
+        match self {
+            Self::Cpu(cpu) => cpu.rest(),
+            Self::Gpu(gpu) => &gpu.rest,
+        }
+    }
+
+    /// Particle positions after the last solve.
+    pub fn positions(&self) -> &[Vec3] {
+        match self {
+            Self::Cpu(cpu) => cpu.positions(),
+            Self::Gpu(gpu) => &gpu.current,
+        }
+    }
+
+    /// Binds `points` (rest coordinates) to the rest particles, and on the
+    /// GPU uploads the binding.
+    pub fn bind(&self, points: &[Vec3]) -> Result<Carrier, Error> {
+        let embedding = Embedding::new(self.rest(), points);
+        let gpu = match self {
+            Self::Cpu(_) => None,
+            Self::Gpu(gpu) => Some(
+                GpuEmbedding::new(&gpu.device, &gpu.embedding, &embedding, gpu.rest.len())
+                    .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
+            ),
+        };
+        Ok(Carrier { embedding, gpu })
+    }
+
+    /// Where `carrier`'s points are after the last solve.
+    pub fn carry(&self, carrier: &Carrier) -> Result<Vec<Vec3>, Error> {
+        match (self, &carrier.gpu) {
+            (Self::Gpu(gpu), Some(on_gpu)) => on_gpu
+                .moved(
+                    &gpu.device,
+                    &gpu.queue,
+                    &gpu.embedding,
+                    gpu.deformer.state(),
+                )
+                .map_err(|e| gpu_error(format!("carrying points on {}", gpu.name), e)),
+            (Self::Cpu(cpu), None) => {
+                Ok(carrier
+                    .embedding
+                    .moved(cpu.rest(), cpu.positions(), cpu.rotations()))
+            }
+            _ => Err(Error::Deformation(
+                "points bound on one backend were carried by another".into(),
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests")]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backends_parse_and_print_their_names() {
+        for backend in [Backend::Auto, Backend::Gpu, Backend::Cpu] {
+            let parsed: Backend = backend.to_string().parse().unwrap();
+            assert_eq!(parsed, backend);
+        }
+        assert_eq!("GPU".parse::<Backend>().unwrap(), Backend::Gpu);
+        let err = "cuda".parse::<Backend>().unwrap_err().to_string();
+        assert!(err.contains("unknown backend `cuda`"), "{err}");
+        assert_eq!(Backend::default(), Backend::Auto);
+    }
+
+    #[test]
+    fn the_cpu_is_taken_when_asked_for() {
+        let picked = Device::pick(Backend::Cpu).unwrap();
+        assert!(matches!(picked.device, Device::Cpu));
+        assert_eq!(picked.to_string(), "cpu (asked for)");
+    }
+
+    #[test]
+    fn auto_takes_a_hardware_gpu_or_says_why_not() {
+        let picked = Device::pick(Backend::Auto).unwrap();
+        let line = picked.to_string();
+        match &picked.device {
+            Device::Cpu => assert!(
+                line.contains("no GPU adapter")
+                    || line.contains("software device")
+                    || line.contains("refused a device"),
+                "{line}"
+            ),
+            Device::Gpu { .. } => assert!(line.contains("a hardware GPU"), "{line}"),
+        }
+    }
+}

@@ -1,0 +1,102 @@
+//! The library's backend choice: both stages through `tissue::backend` on the
+//! GPU and on the CPU give the same model and the same moved tumour. Without
+//! an adapter the test prints "SKIPPED: no GPU adapter", and fails under
+//! `CI=true`.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+use tissue::backend::{Backend, Device, Solver, sample_on};
+use tissue::deformation::DeformParams;
+use tissue::{Error, SamplingParams, Vec3, deform, phantom};
+
+/// The GPU device, or `None` after printing "SKIPPED" (a panic under `CI=true`).
+fn gpu() -> Option<Device> {
+    match Device::pick(Backend::Gpu) {
+        Ok(picked) => {
+            eprintln!("backend: {picked}");
+            Some(picked.device)
+        }
+        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
+            if std::env::var("CI").as_deref() == Ok("true") {
+                panic!("no GPU adapter under CI=true ({message}); install Mesa lavapipe");
+            }
+            eprintln!("SKIPPED: no GPU adapter ({message})");
+            None
+        }
+        Err(e) => panic!("the GPU backend failed: {e}"),
+    }
+}
+
+#[test]
+fn both_stages_on_the_gpu_match_the_cpu_through_the_library() {
+    let Some(gpu) = gpu() else { return };
+    let skin = phantom::default_breast();
+    // Not a multiple of the workgroup size.
+    let params = SamplingParams::with_particles(1_001);
+    let on_cpu = sample_on(&Device::Cpu, &skin, &params, &mut |_| {}).unwrap();
+    let mut batches = 0;
+    let on_gpu = sample_on(&gpu, &skin, &params, &mut |_| batches += 1).unwrap();
+    assert!(batches > 0, "progress was never called");
+    let (c, g) = (&on_cpu.report, &on_gpu.report);
+    assert!(c.converged && g.converged, "{c:?}\n{g:?}");
+    assert!(
+        c.iterations.abs_diff(g.iterations) <= c.iterations / 10,
+        "iterations: CPU {} GPU {}",
+        c.iterations,
+        g.iterations
+    );
+    assert!(
+        (c.nn_cv - g.nn_cv).abs() <= 0.005,
+        "nn_cv: CPU {} GPU {}",
+        c.nn_cv,
+        g.nn_cv
+    );
+
+    // Stage 2 of the same (CPU-sampled) model on both devices.
+    let model = &on_cpu.model;
+    let size = skin.bounds().map(|(lo, hi)| (hi - lo).length()).unwrap();
+    let tumour = phantom::default_tumour().vertices;
+    let sag = deform::sagged_breast();
+    let mut moved = Vec::new();
+    for device in [Device::Cpu, gpu] {
+        let name = device.name().to_owned();
+        let mut solver = Solver::new(device, model, DeformParams::default()).unwrap();
+        let carrier = solver.bind(&tumour).unwrap();
+        solver.set_surface(&sag).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged, "{name}: {report:?}");
+        assert_eq!(solver.positions().len(), model.len());
+        moved.push(solver.carry(&carrier).unwrap());
+    }
+    let centroid = |p: &[Vec3]| p.iter().copied().sum::<Vec3>() / p.len() as f32;
+    let rest = centroid(&tumour);
+    let (c, g) = (centroid(&moved[0]), centroid(&moved[1]));
+    eprintln!("tumour centroid: rest {rest}, CPU {c}, GPU {g}");
+    assert!(
+        c.distance(rest) > 1.0 && g.distance(rest) > 1.0,
+        "the sag moves the tumour: {rest} -> CPU {c}, GPU {g}"
+    );
+    let tolerance = 1e-3 * size;
+    for (i, (c, g)) in moved[0].iter().zip(&moved[1]).enumerate() {
+        assert!(
+            c.distance(*g) <= tolerance,
+            "tumour vertex {i}: CPU {c} GPU {g}, {} mm apart > {tolerance} mm",
+            c.distance(*g)
+        );
+    }
+}
+
+#[test]
+fn points_bound_on_one_device_are_refused_by_another() {
+    let Some(gpu) = gpu() else { return };
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(500),
+    )
+    .unwrap()
+    .model;
+    let on_gpu = Solver::new(gpu, &model, DeformParams::default()).unwrap();
+    let on_cpu = Solver::new(Device::Cpu, &model, DeformParams::default()).unwrap();
+    let carrier = on_gpu.bind(&[Vec3::new(10.0, 0.0, 20.0)]).unwrap();
+    let err = on_cpu.carry(&carrier).unwrap_err().to_string();
+    assert!(err.contains("bound on one backend"), "{err}");
+}
