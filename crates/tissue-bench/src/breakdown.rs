@@ -5,11 +5,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use rayon::prelude::*;
 use serde::Serialize;
 use tissue_cpu::deformation::{
     Chebyshev, DeformParams, Deformer, RotationMethod, chebyshev_combine, deformation_force,
-    integrate, local_rotations, local_rotations_warm,
+    integrate, local_rotations, local_rotations_warm, steps,
 };
 use tissue_gpu::timing::KernelTimer;
 use tissue_gpu::{GpuDeformer, Kernel};
@@ -76,19 +75,6 @@ fn timed<T>(f: impl FnOnce() -> T) -> (f64, T) {
     (started.elapsed().as_secs_f64(), out)
 }
 
-/// Twin of `tissue_cpu::deformation`'s private `steps`, which `Deformer::solve`
-/// calls once per iteration: the largest and RMS plain step.
-fn step_norms(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
-    let squares: Vec<f32> = old
-        .par_iter()
-        .zip(new)
-        .map(|(a, b)| (*b - *a).length_squared())
-        .collect();
-    let max = squares.iter().copied().fold(0.0, f32::max).sqrt();
-    let mean = squares.iter().map(|&x| f64::from(x)).sum::<f64>() / squares.len().max(1) as f64;
-    (max, mean.sqrt() as f32)
-}
-
 /// The CPU iteration of `Deformer::solve`, pass by pass, through the public
 /// `tissue_cpu::deformation` functions on `deformer`'s current state (after
 /// `iterations` iterations of `params`), `samples` times each.
@@ -133,13 +119,13 @@ pub fn cpu(
             let next = chebyshev_combine(&plain, previous, omega);
             (plain, next)
         });
-        let (t_steps, norms) = timed(|| step_norms(current, &plain));
+        let (t_steps, norms) = timed(|| steps(current, &plain));
         std::hint::black_box((&next, norms));
         let (t_whole, out) = timed(|| {
             let rotations = rotations_of(current);
             let force = deformation_force(rest, current, &rotations, connections, params.force);
             let plain = integrate(current, &force, &plan.free, alpha);
-            let norms = step_norms(current, &plain);
+            let norms = steps(current, &plain);
             (chebyshev_combine(&plain, previous, omega), norms)
         });
         std::hint::black_box(out);

@@ -9,28 +9,9 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{assets, json, s, text, tissue, vec3};
+use common::{assets, gpu, json, s, text, tissue, vec3};
 use serde_json::Value;
 use tissue::Vec3;
-
-/// Whether a GPU adapter exists; `false` after printing "SKIPPED: no GPU
-/// adapter" (as `crates/tissue-gpu/tests/common` does), a panic under `CI=true`.
-fn gpu(test: &str) -> bool {
-    match tissue_gpu::device_from_env() {
-        Ok((adapter, _, _)) => {
-            eprintln!("{test}: adapter {:?}", adapter.get_info());
-            true
-        }
-        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
-            if std::env::var("CI").as_deref() == Ok("true") {
-                panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
-            }
-            eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
-            false
-        }
-        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
-    }
-}
 
 /// Bounding-box diagonal of the bundled breast phantom (~190 mm).
 fn phantom_size() -> f32 {

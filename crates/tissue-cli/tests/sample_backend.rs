@@ -5,24 +5,7 @@
 
 mod common;
 
-use common::{assets, json, s, text, tissue};
-
-fn gpu(test: &str) -> bool {
-    match tissue_gpu::device_from_env() {
-        Ok((adapter, _, _)) => {
-            eprintln!("{test}: adapter {:?}", adapter.get_info());
-            true
-        }
-        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
-            if std::env::var("CI").as_deref() == Ok("true") {
-                panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
-            }
-            eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
-            false
-        }
-        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
-    }
-}
+use common::{assets, gpu, json, s, text, tissue};
 
 #[test]
 fn sample_on_the_gpu_matches_the_cpu_by_its_report() {

@@ -665,8 +665,9 @@ fn geometric_rate(first: f32, last: f32, count: usize) -> f32 {
     (last / first).powf(1.0 / count as f32)
 }
 
-/// Largest and RMS plain step over all particles.
-fn steps(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
+/// Largest and RMS plain step over all particles (`old` to `new`), as
+/// [`Deformer::solve`] measures each iteration.
+pub fn steps(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
     let squares: Vec<f32> = old
         .par_iter()
         .zip(new)

@@ -49,3 +49,22 @@ pub fn vec3(v: &serde_json::Value) -> tissue::Vec3 {
         .collect();
     tissue::Vec3::new(a[0], a[1], a[2])
 }
+
+/// Whether a GPU adapter exists (the test log names it); `false` after
+/// printing "SKIPPED: no GPU adapter", a panic under `CI=true`.
+pub fn gpu(test: &str) -> bool {
+    match tissue_gpu::device_from_env() {
+        Ok((adapter, _, _)) => {
+            eprintln!("{test}: adapter {:?}", adapter.get_info());
+            true
+        }
+        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
+            if std::env::var("CI").as_deref() == Ok("true") {
+                panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
+            }
+            eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
+            false
+        }
+        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
+    }
+}
