@@ -34,12 +34,9 @@ var<workgroup> partial: array<u32, WORKGROUP_SIZE>;
 
 // Keys are maxed, never floats, so that a NaN cannot vanish in the tree.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn grid_bounds(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
+fn grid_bounds(at: Invocation) {
+    let local = at.local;
+    let i = particle_index(at.workgroup, at.groups, local);
     // No early return: every thread must reach the barriers.
     var lo = vec4<u32>(0u);
     var hi = vec4<u32>(0u);
@@ -61,7 +58,7 @@ fn grid_bounds(
         }
         workgroupBarrier();
     }
-    if (local == 0u && flat_workgroup(workgroup, groups) * WORKGROUP_SIZE < params.count) {
+    if (local == 0u && flat_workgroup(at.workgroup, at.groups) * WORKGROUP_SIZE < params.count) {
         for (var k = 0u; k < 3u; k++) {
             atomicMax(&bounds[BOUND_LO + k], lower[0][k]);
             atomicMax(&bounds[BOUND_HI + k], upper[0][k]);
@@ -140,13 +137,9 @@ fn grid_layout() {
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn cell_count(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn cell_count(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     let c = cell_index(grid, cell_coords(grid, positions[i].xyz));
@@ -158,12 +151,9 @@ fn cell_count(
 // `scan_data` in place (Hillis-Steele in workgroup memory) and writes the
 // block's total to `scan_sums`, which the next level scans.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn scan_blocks(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let block = flat_workgroup(workgroup, groups);
+fn scan_blocks(at: Invocation) {
+    let local = at.local;
+    let block = flat_workgroup(at.workgroup, at.groups);
     let i = block * WORKGROUP_SIZE + local;
     var value = 0u;
     if (i < params.len) {
@@ -191,26 +181,18 @@ fn scan_blocks(
 
 // Adds each block's offset (the scanned `scan_sums`) to its elements.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn scan_add(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let block = flat_workgroup(workgroup, groups);
-    let i = block * WORKGROUP_SIZE + local;
+fn scan_add(at: Invocation) {
+    let block = flat_workgroup(at.workgroup, at.groups);
+    let i = block * WORKGROUP_SIZE + at.local;
     if (i < params.len) {
         scan_data[i] += scan_sums[block];
     }
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn cell_scatter(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn cell_scatter(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     arrived[cell_start[cell_of[i]] + arrival[i]] = i;
@@ -220,13 +202,9 @@ fn cell_scatter(
 // smaller index: the order of the CPU's stable scatter. Quadratic in the
 // cell's population, which the layout keeps small on average.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn cell_sort(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn cell_sort(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     let c = cell_of[i];

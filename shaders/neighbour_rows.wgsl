@@ -21,13 +21,9 @@
 @group(0) @binding(14) var<storage, read_write> indices: array<u32>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn reorder(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let slot = particle_index(workgroup, groups, local);
-    if (slot >= params.count || grid.status != 0u) {
+fn reorder(at: Invocation) {
+    let slot = grid_particle(at, params.count, grid.status);
+    if (slot == NO_PARTICLE) {
         return;
     }
     in_cell_order[slot] = positions[particles[slot]];
@@ -74,26 +70,18 @@ fn search(i: u32, fill: bool) -> u32 {
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn count_rows(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn count_rows(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     offsets[i] = search(i, false);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn fill_rows(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn fill_rows(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     search(i, true);
@@ -122,13 +110,9 @@ fn sift_down(first: u32, start: u32, n: u32) {
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn sort_rows(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let i = particle_index(workgroup, groups, local);
-    if (i >= params.count || grid.status != 0u) {
+fn sort_rows(at: Invocation) {
+    let i = grid_particle(at, params.count, grid.status);
+    if (i == NO_PARTICLE) {
         return;
     }
     let first = offsets[i];

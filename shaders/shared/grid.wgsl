@@ -49,6 +49,25 @@ const BOUND_LO: u32 = 0u;
 const BOUND_RADIUS: u32 = 3u;
 const BOUND_HI: u32 = 4u;
 
+// The builtins of one thread of a grid kernel (every entry point of
+// `grid_build.wgsl` and `neighbour_rows.wgsl` but the one-thread
+// `grid_layout`); beyond 65,535 workgroups the dispatch is two-dimensional.
+struct Invocation {
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+}
+
+// What `grid_particle` gives a thread that has no particle to work on.
+const NO_PARTICLE: u32 = 0xffffffffu;
+
+// The particle thread `at` works on, or `NO_PARTICLE` past the `count`
+// particles or when the grid is unusable (`status`, the layout's, not 0).
+fn grid_particle(at: Invocation, count: u32, status: u32) -> u32 {
+    let i = particle_index(at.workgroup, at.groups, at.local);
+    return select(NO_PARTICLE, i, i < count && status == 0u);
+}
+
 // A key whose unsigned order is the order of the floats: negative floats
 // are flipped whole, non-negative ones get the sign bit set.
 fn order_key(x: f32) -> u32 {

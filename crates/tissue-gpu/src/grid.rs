@@ -41,9 +41,10 @@ use glam::Vec3;
 use tissue_cpu::grid::Grid;
 use wgpu::util::DeviceExt;
 
+use crate::GpuError;
+use crate::pipelines::CompiledKernel;
 use crate::state::{read_buffer, workgroups};
-use crate::support::{Scopes, compile};
-use crate::{GpuError, shaders};
+use crate::support::{self, Scopes, bind_group, compile};
 
 /// Mirror of WGSL `GridParams` (`shaders/shared/grid.wgsl`).
 #[repr(C)]
@@ -86,15 +87,12 @@ pub struct GridLayout {
     pub status: u32,
 }
 
-/// A kernel of the grid: pipeline, its own bind group layout (only the
-/// bindings its entry point uses, from naga's analysis) and workgroup size.
+/// A kernel of the grid: its entry point's name and compiled pipeline (its
+/// own bind group layout holds only the bindings the entry point uses).
 #[derive(Debug)]
 struct GridKernel {
     entry: &'static str,
-    pipeline: wgpu::ComputePipeline,
-    layout: wgpu::BindGroupLayout,
-    bindings: Vec<shaders::Binding>,
-    workgroup_size: u32,
+    compiled: CompiledKernel,
 }
 
 /// The compiled grid and neighbour-row kernels, one field per kernel.
@@ -178,7 +176,7 @@ impl GridPipelines {
     /// Levels of the prefix sum over `len` elements (one workgroup's block
     /// per element of the next level, until one block remains).
     pub fn scan_levels(&self, len: u32) -> u32 {
-        scan_lengths(len, self.scan_blocks.workgroup_size).len() as u32
+        scan_lengths(len, self.scan_blocks.compiled.workgroup_size).len() as u32
     }
 
     /// Sorts the first `count` particles of `positions` (`vec4`: xyz
@@ -266,12 +264,12 @@ impl GridPipelines {
                 ..params
             };
             let uniform = uniform(device, &params);
-            let in_cell_order = storage(device, "in_cell_order", u64::from(count) * 16, &limits)?;
-            let offsets = storage(device, "offsets", (u64::from(count) + 1) * 4, &limits)?;
-            let summary = storage(device, "neighbour_rows summary", 8, &limits)?;
+            let in_cell_order = storage(device, "in_cell_order", u64::from(count) * 16)?;
+            let offsets = storage(device, "offsets", (u64::from(count) + 1) * 4)?;
+            let summary = storage(device, "neighbour_rows summary", 8)?;
             // `count_rows` and `fill_rows` share one search, which names
             // `indices`; counting never writes it, so a placeholder binds.
-            let placeholder = storage(device, "indices placeholder", 4, &limits)?;
+            let placeholder = storage(device, "indices placeholder", 4)?;
             let named: &Named = &[
                 ("params", &uniform),
                 ("positions", positions),
@@ -309,7 +307,7 @@ impl GridPipelines {
 
         let scopes = Scopes::push(device);
         let filled = (|| {
-            let indices = storage(device, "indices", u64::from(entries.max(1)) * 4, &limits)?;
+            let indices = storage(device, "indices", u64::from(entries.max(1)) * 4)?;
             let named: &Named = &[
                 ("params", &uniform),
                 ("positions", positions),
@@ -357,7 +355,7 @@ impl GridPipelines {
         let limits = device.limits();
         let scopes = Scopes::push(device);
         let built = (|| {
-            let data = storage(device, "scan", values.len() as u64 * 4, &limits)?;
+            let data = storage(device, "scan", values.len() as u64 * 4)?;
             queue.write_buffer(&data, 0, bytemuck::cast_slice(values));
             let steps = self.scan_steps(device, &data, len, &limits)?;
             let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -417,13 +415,13 @@ impl GridPipelines {
         };
         let uniform = uniform(device, &params);
         let bytes = |n: u32| u64::from(n) * 4;
-        let bounds = storage(device, "bounds", 32, &limits)?;
-        let layout = storage(device, "grid", size_of::<GridLayout>() as u64, &limits)?;
-        let cell_of = storage(device, "cell_of", bytes(count), &limits)?;
-        let cell_start = storage(device, "cell_start", bytes(starts), &limits)?;
-        let arrival = storage(device, "arrival", bytes(count), &limits)?;
-        let arrived = storage(device, "arrived", bytes(count), &limits)?;
-        let particles = storage(device, "particles", bytes(count), &limits)?;
+        let bounds = storage(device, "bounds", 32)?;
+        let layout = storage(device, "grid", size_of::<GridLayout>() as u64)?;
+        let cell_of = storage(device, "cell_of", bytes(count))?;
+        let cell_start = storage(device, "cell_start", bytes(starts))?;
+        let arrival = storage(device, "arrival", bytes(count))?;
+        let arrived = storage(device, "arrived", bytes(count))?;
+        let particles = storage(device, "particles", bytes(count))?;
         let named: &Named = &[
             ("params", &uniform),
             ("positions", positions),
@@ -465,14 +463,14 @@ impl GridPipelines {
         len: u32,
         limits: &wgpu::Limits,
     ) -> Result<Vec<Step<'_>>, GpuError> {
-        let lengths = scan_lengths(len, self.scan_blocks.workgroup_size);
+        let lengths = scan_lengths(len, self.scan_blocks.compiled.workgroup_size);
         // Level k's data is level k - 1's block totals; the last level's
         // single total goes to a spare word.
         let mut levels = vec![data.clone()];
         for &n in &lengths[1..] {
-            levels.push(storage(device, "scan level", u64::from(n) * 4, limits)?);
+            levels.push(storage(device, "scan level", u64::from(n) * 4)?);
         }
-        levels.push(storage(device, "scan total", 4, limits)?);
+        levels.push(storage(device, "scan total", 4)?);
         let uniforms: Vec<wgpu::Buffer> = lengths
             .iter()
             .map(|&len| {
@@ -514,27 +512,22 @@ impl GridPipelines {
         threads: u32,
         limits: &wgpu::Limits,
     ) -> Result<Step<'a>, GpuError> {
-        let mut entries = Vec::with_capacity(kernel.bindings.len());
-        for b in &kernel.bindings {
-            let Some((_, buffer)) = named.iter().find(|(name, _)| *name == b.name) else {
-                return Err(GpuError::Shader {
-                    name: kernel.entry.to_owned(),
-                    message: format!("binding {} `{}` was given no buffer", b.binding, b.name),
-                });
-            };
-            entries.push(wgpu::BindGroupEntry {
-                binding: b.binding,
-                resource: buffer.as_entire_binding(),
-            });
-        }
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.entry),
-            layout: &kernel.layout,
-            entries: &entries,
-        });
+        let group = bind_group(
+            device,
+            &kernel.compiled,
+            (kernel.entry, kernel.entry),
+            |name| {
+                named
+                    .iter()
+                    .find(|(n, _)| *n == name)
+                    .map(|&(_, buffer)| buffer)
+            },
+            None,
+            "was given no buffer",
+        )?;
         let dispatch = workgroups(
             threads,
-            kernel.workgroup_size,
+            kernel.compiled.workgroup_size,
             limits.max_compute_workgroups_per_dimension,
         )?;
         Ok((kernel, group, dispatch))
@@ -601,7 +594,7 @@ fn record<'a>(
         timestamp_writes: None,
     });
     for (kernel, group, [x, y]) in steps {
-        pass.set_pipeline(&kernel.pipeline);
+        pass.set_pipeline(&kernel.compiled.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(x, y, 1);
     }
@@ -646,33 +639,8 @@ fn storage(
     device: &wgpu::Device,
     label: &'static str,
     bytes: u64,
-    limits: &wgpu::Limits,
 ) -> Result<wgpu::Buffer, GpuError> {
-    let size = bytes.max(16).next_multiple_of(4);
-    for (limit, allowed) in [
-        (
-            "max_storage_buffer_binding_size",
-            limits.max_storage_buffer_binding_size,
-        ),
-        ("max_buffer_size", limits.max_buffer_size),
-    ] {
-        if size > allowed {
-            return Err(GpuError::LimitExceeded {
-                limit,
-                what: format!("the {label} buffer"),
-                asked: size,
-                allowed,
-            });
-        }
-    }
-    Ok(device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size,
-        usage: wgpu::BufferUsages::STORAGE
-            | wgpu::BufferUsages::COPY_SRC
-            | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    }))
+    support::storage(device, label, bytes, &format!("the {label} buffer"))
 }
 
 /// Compiles the entry points of one shader file.
@@ -687,13 +655,9 @@ impl<'d> Compiler<'d> {
     }
 
     fn kernel(&self, entry: &'static str) -> Result<GridKernel, GpuError> {
-        let compiled = compile(self.device, self.file, entry, false)?;
         Ok(GridKernel {
             entry,
-            pipeline: compiled.pipeline,
-            layout: compiled.layout,
-            bindings: compiled.bindings,
-            workgroup_size: compiled.workgroup_size,
+            compiled: compile(self.device, self.file, entry, false)?,
         })
     }
 }
@@ -701,45 +665,39 @@ impl<'d> Compiler<'d> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Size and offsets of a Rust mirror must equal naga's layout of the WGSL struct.
-    fn check_layout(name: &str, rust_size: usize, rust_offsets: &[(&str, usize)]) {
-        shaders::assert_layout("grid_build", name, rust_size, rust_offsets);
-    }
+    use crate::support::assert_mirror;
 
     #[test]
     fn grid_params_matches_the_wgsl_layout() {
-        use std::mem::offset_of;
-        check_layout(
+        assert_mirror!(
+            "grid_build",
             "GridParams",
-            size_of::<GridParams>(),
-            &[
-                ("count", offset_of!(GridParams, count)),
-                ("capacity", offset_of!(GridParams, capacity)),
-                ("cell", offset_of!(GridParams, cell)),
-                ("rows", offset_of!(GridParams, rows)),
-                ("factor", offset_of!(GridParams, factor)),
-                ("skin", offset_of!(GridParams, skin)),
-                ("sorted", offset_of!(GridParams, sorted)),
-                ("len", offset_of!(GridParams, len)),
-            ],
+            GridParams {
+                count,
+                capacity,
+                cell,
+                rows,
+                factor,
+                skin,
+                sorted,
+                len,
+            }
         );
     }
 
     #[test]
     fn grid_layout_matches_the_wgsl_layout() {
-        use std::mem::offset_of;
-        check_layout(
+        assert_mirror!(
+            "grid_build",
             "GridLayout",
-            size_of::<GridLayout>(),
-            &[
-                ("origin", offset_of!(GridLayout, origin)),
-                ("dims", offset_of!(GridLayout, dims)),
-                ("cell", offset_of!(GridLayout, cell)),
-                ("reach", offset_of!(GridLayout, reach)),
-                ("span", offset_of!(GridLayout, span)),
-                ("status", offset_of!(GridLayout, status)),
-            ],
+            GridLayout {
+                origin,
+                dims,
+                cell,
+                reach,
+                span,
+                status,
+            }
         );
     }
 

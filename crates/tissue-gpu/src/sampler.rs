@@ -30,6 +30,7 @@ use wgpu::util::DeviceExt;
 
 use crate::pipelines::CompiledKernel;
 use crate::state::{read_buffer, workgroups};
+use crate::support::{bind_group, scoped, storage_init};
 use crate::{GpuError, GridPipelines};
 
 /// Iterations one command buffer records: one uniform slot and one row of
@@ -206,63 +207,20 @@ fn compile(device: &wgpu::Device, file: &str, entry: &str) -> Result<CompiledKer
 }
 
 /// A storage buffer holding `contents` (an empty one gets 16 zero bytes: zero-sized
-/// bindings are invalid), checked against the device's limits.
+/// bindings are invalid), checked against the device's limits; `what` says
+/// what it serves in the error.
 fn storage(
     device: &wgpu::Device,
-    label: &str,
+    label: &'static str,
     contents: &[u8],
     what: &dyn Fn() -> String,
 ) -> Result<wgpu::Buffer, GpuError> {
-    let limits = device.limits();
-    let padded;
-    let contents = if contents.is_empty() {
-        padded = [0u8; 16];
-        &padded[..]
-    } else {
-        contents
-    };
-    let size = contents.len() as u64;
-    for (limit, allowed) in [
-        (
-            "max_storage_buffer_binding_size",
-            limits.max_storage_buffer_binding_size,
-        ),
-        ("max_buffer_size", limits.max_buffer_size),
-    ] {
-        if size > allowed {
-            return Err(GpuError::LimitExceeded {
-                limit,
-                what: format!("the {label} buffer ({})", what()),
-                asked: size,
-                allowed,
-            });
-        }
-    }
-    Ok(
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_DST
-                | wgpu::BufferUsages::COPY_SRC,
-        }),
+    storage_init(
+        device,
+        label,
+        contents,
+        &format!("the {label} buffer ({})", what()),
     )
-}
-
-/// Runs `f` inside validation and out-of-memory error scopes.
-fn scoped<T>(
-    device: &wgpu::Device,
-    f: impl FnOnce() -> Result<T, GpuError>,
-) -> Result<T, GpuError> {
-    let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-    let valid = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let out = f();
-    let valid = pollster::block_on(valid.pop());
-    let memory = pollster::block_on(memory.pop());
-    if let Some(e) = memory.or(valid) {
-        return Err(e.into());
-    }
-    out
 }
 
 /// The surface field on the GPU: the same data as [`SurfaceField`], packed
@@ -423,7 +381,7 @@ impl SamplingBuffers {
         let partials = vec![0u8; (BATCH * change_groups) as usize * 16];
         let (states, contacts, forces, offsets, neighbours, halt, partials, built) =
             scoped(device, || {
-                let s = |label, bytes: &[u8]| storage(device, label, bytes, &what);
+                let s = |label: &'static str, bytes: &[u8]| storage(device, label, bytes, &what);
                 Ok((
                     [
                         s("state 0", bytemuck::cast_slice(&current))?,
@@ -516,52 +474,22 @@ impl SamplingBuffers {
             SamplingKernel::ALL
                 .into_iter()
                 .map(|kernel| {
-                    Ok([
-                        self.bind_group(device, pipelines, kernel, 0)?,
-                        self.bind_group(device, pipelines, kernel, 1)?,
-                    ])
+                    let group = |parity| {
+                        bind_group(
+                            device,
+                            pipelines.kernel(kernel),
+                            kernel.entry(),
+                            |name| self.buffer(name, parity),
+                            Some(std::mem::size_of::<SamplingUniforms>() as u64),
+                            "names no stage-1 buffer",
+                        )
+                    };
+                    Ok([group(0)?, group(1)?])
                 })
                 .collect::<Result<Vec<_>, GpuError>>()
         })?;
         self.bind_groups = groups;
         Ok(())
-    }
-
-    fn bind_group(
-        &self,
-        device: &wgpu::Device,
-        pipelines: &SamplingPipelines,
-        kernel: SamplingKernel,
-        parity: usize,
-    ) -> Result<wgpu::BindGroup, GpuError> {
-        let compiled = pipelines.kernel(kernel);
-        let mut entries = Vec::new();
-        for b in &compiled.bindings {
-            let buffer = self
-                .buffer(&b.name, parity)
-                .ok_or_else(|| GpuError::Shader {
-                    name: kernel.entry().0.to_owned(),
-                    message: format!("binding {} `{}` names no stage-1 buffer", b.binding, b.name),
-                })?;
-            let resource = if b.uniform {
-                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer,
-                    offset: 0,
-                    size: std::num::NonZeroU64::new(std::mem::size_of::<SamplingUniforms>() as u64),
-                })
-            } else {
-                buffer.as_entire_binding()
-            };
-            entries.push(wgpu::BindGroupEntry {
-                binding: b.binding,
-                resource,
-            });
-        }
-        Ok(device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.entry().1),
-            layout: &compiled.layout,
-            entries: &entries,
-        }))
     }
 
     /// Uploads neighbour rows (CSR, as `tissue_cpu::grid::neighbour_rows` returns them).
@@ -1060,31 +988,21 @@ pub fn query_field(
         });
         let points_buffer = storage(device, "points", bytemuck::cast_slice(&points4), &what)?;
         let answers = storage(device, "answers", &vec![0u8; answers_size], &what)?;
-        let mut entries = Vec::new();
-        for b in &kernel.bindings {
-            let buffer = match b.name.as_str() {
-                "sampling" => &uniform,
-                "points" => &points_buffer,
-                "answers" => &answers,
-                "field_cells" => &buffers.cells,
-                "field_triangles" => &buffers.triangles,
-                other => {
-                    return Err(GpuError::Shader {
-                        name: "tests/surface_field".into(),
-                        message: format!("binding `{other}` names no buffer"),
-                    });
-                }
-            };
-            entries.push(wgpu::BindGroupEntry {
-                binding: b.binding,
-                resource: buffer.as_entire_binding(),
-            });
-        }
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("field query"),
-            layout: &kernel.layout,
-            entries: &entries,
-        });
+        let group = bind_group(
+            device,
+            &kernel,
+            ("tests/surface_field", "field query"),
+            |name| match name {
+                "sampling" => Some(&uniform),
+                "points" => Some(&points_buffer),
+                "answers" => Some(&answers),
+                "field_cells" => Some(&buffers.cells),
+                "field_triangles" => Some(&buffers.triangles),
+                _ => None,
+            },
+            None,
+            "names no buffer",
+        )?;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("field query"),
         });
@@ -1122,51 +1040,39 @@ pub fn query_field(
 mod tests {
     use super::*;
     use crate::shaders;
+    use crate::support::assert_mirror;
 
     #[test]
     fn sampling_uniforms_match_the_wgsl_layout() {
-        use std::mem::{offset_of, size_of};
-        let module = shaders::module("imf_force").map_err(|e| e.to_string());
-        let layout = module
-            .ok()
-            .and_then(|m| shaders::struct_layout(&m, "Sampling"))
-            .unwrap_or_else(|| panic!("WGSL struct Sampling not found"));
-        assert_eq!(layout.0 as usize, size_of::<SamplingUniforms>(), "size");
-        let rust = [
-            ("field_origin", offset_of!(SamplingUniforms, field_origin)),
-            ("field_dims", offset_of!(SamplingUniforms, field_dims)),
-            ("field_layout", offset_of!(SamplingUniforms, field_layout)),
-            ("count", offset_of!(SamplingUniforms, count)),
-            ("surface_mode", offset_of!(SamplingUniforms, surface_mode)),
-            (
-                "wall_in_compression",
-                offset_of!(SamplingUniforms, wall_in_compression),
-            ),
-            ("slot", offset_of!(SamplingUniforms, slot)),
-            ("groups", offset_of!(SamplingUniforms, groups)),
-            ("alpha", offset_of!(SamplingUniforms, alpha)),
-            ("cutoff", offset_of!(SamplingUniforms, cutoff)),
-            ("mu", offset_of!(SamplingUniforms, mu)),
-            ("ideal", offset_of!(SamplingUniforms, ideal)),
-            ("eta", offset_of!(SamplingUniforms, eta)),
-            ("radius_bound", offset_of!(SamplingUniforms, radius_bound)),
-            (
-                "radius_bound_inv",
-                offset_of!(SamplingUniforms, radius_bound_inv),
-            ),
-            ("step_scale", offset_of!(SamplingUniforms, step_scale)),
-            ("max_step", offset_of!(SamplingUniforms, max_step)),
-            ("mass", offset_of!(SamplingUniforms, mass)),
-            ("r0", offset_of!(SamplingUniforms, r0)),
-            ("half_skin", offset_of!(SamplingUniforms, half_skin)),
-            ("pad0", offset_of!(SamplingUniforms, pad0)),
-            ("pad1", offset_of!(SamplingUniforms, pad1)),
-            ("pad2", offset_of!(SamplingUniforms, pad2)),
-        ];
-        let naga: Vec<(String, usize)> =
-            layout.1.into_iter().map(|(n, o)| (n, o as usize)).collect();
-        let rust: Vec<(String, usize)> = rust.iter().map(|(n, o)| ((*n).to_owned(), *o)).collect();
-        assert_eq!(naga, rust, "member names and offsets of Sampling");
+        assert_mirror!(
+            "imf_force",
+            "Sampling",
+            SamplingUniforms {
+                field_origin,
+                field_dims,
+                field_layout,
+                count,
+                surface_mode,
+                wall_in_compression,
+                slot,
+                groups,
+                alpha,
+                cutoff,
+                mu,
+                ideal,
+                eta,
+                radius_bound,
+                radius_bound_inv,
+                step_scale,
+                max_step,
+                mass,
+                r0,
+                half_skin,
+                pad0,
+                pad1,
+                pad2,
+            }
+        );
     }
 
     #[test]

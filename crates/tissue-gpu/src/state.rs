@@ -3,9 +3,9 @@
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::deformation::ForceModel;
-use wgpu::util::DeviceExt;
 
 use crate::pipelines::{Kernel, Pipelines};
+use crate::support::{Scopes, bind_group, storage_init};
 use crate::{GpuError, Params, Rotation};
 
 /// Iterations one command buffer records: one uniform slot and one row of
@@ -127,42 +127,12 @@ impl DeformState {
         let params_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
             .max(std::mem::size_of::<Params>() as u64);
 
-        let scope_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let scope_valid = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let storage = |label: &'static str, contents: &[u8]| -> Result<wgpu::Buffer, GpuError> {
-            // Zero-sized bindings are invalid: an empty array still gets 16 bytes.
-            let padded;
-            let contents = if contents.is_empty() {
-                padded = [0u8; 16];
-                &padded[..]
-            } else {
-                contents
-            };
-            let size = contents.len() as u64;
-            for (limit, allowed) in [
-                (
-                    "max_storage_buffer_binding_size",
-                    limits.max_storage_buffer_binding_size,
-                ),
-                ("max_buffer_size", limits.max_buffer_size),
-            ] {
-                if size > allowed {
-                    return Err(GpuError::LimitExceeded {
-                        limit,
-                        what: format!("the {label} buffer ({n} particles)"),
-                        asked: size,
-                        allowed,
-                    });
-                }
-            }
-            Ok(
-                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage: wgpu::BufferUsages::STORAGE
-                        | wgpu::BufferUsages::COPY_DST
-                        | wgpu::BufferUsages::COPY_SRC,
-                }),
+        let storage = |label: &'static str, contents: &[u8]| {
+            storage_init(
+                device,
+                label,
+                contents,
+                &format!("the {label} buffer ({n} particles)"),
             )
         };
         let rest_positions = vec4s(&model.positions);
@@ -171,6 +141,7 @@ impl DeformState {
         let free: Vec<u32> = free.iter().map(|&f| u32::from(f)).collect();
         let zeros = vec![0u8; rest_bytes.len()];
         let partials = vec![[0.0f32; 2]; (SLOTS * step_groups) as usize];
+        let scopes = Scopes::push(device);
         let built = (|| {
             Ok::<_, GpuError>((
                 storage("rest", rest_bytes)?,
@@ -191,11 +162,7 @@ impl DeformState {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let valid = pollster::block_on(scope_valid.pop());
-        let memory = pollster::block_on(scope_memory.pop());
-        if let Some(e) = memory.or(valid) {
-            return Err(e.into());
-        }
+        scopes.pop()?;
         let (rest, current, previous, plain, rotations, force, free, offsets, indices, partials) =
             built?;
 
@@ -232,7 +199,16 @@ impl DeformState {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
             .into_iter()
-            .map(|kernel| state.make_bind_group(device, pipelines, kernel))
+            .map(|kernel| {
+                bind_group(
+                    device,
+                    pipelines.kernel(kernel),
+                    kernel.entry(),
+                    |name| state.buffer(name),
+                    Some(std::mem::size_of::<Params>() as u64),
+                    "names no stage-2 buffer",
+                )
+            })
             .collect();
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(e.into());
@@ -263,40 +239,6 @@ impl DeformState {
             "partials" => &self.partials,
             _ => return None,
         })
-    }
-
-    fn make_bind_group(
-        &self,
-        device: &wgpu::Device,
-        pipelines: &Pipelines,
-        kernel: Kernel,
-    ) -> Result<wgpu::BindGroup, GpuError> {
-        let compiled = pipelines.kernel(kernel);
-        let mut entries = Vec::new();
-        for b in &compiled.bindings {
-            let buffer = self.buffer(&b.name).ok_or_else(|| GpuError::Shader {
-                name: kernel.entry().0.to_owned(),
-                message: format!("binding {} `{}` names no stage-2 buffer", b.binding, b.name),
-            })?;
-            let resource = if b.uniform {
-                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer,
-                    offset: 0,
-                    size: std::num::NonZeroU64::new(std::mem::size_of::<Params>() as u64),
-                })
-            } else {
-                buffer.as_entire_binding()
-            };
-            entries.push(wgpu::BindGroupEntry {
-                binding: b.binding,
-                resource,
-            });
-        }
-        Ok(device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.entry().1),
-            layout: &compiled.layout,
-            entries: &entries,
-        }))
     }
 
     pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {

@@ -1,9 +1,10 @@
 //! What every kernel family of this crate shares: compiling an entry point
-//! with its bind group layout from naga's reflection, storage buffers
-//! checked against the device's limits, and error scopes that turn wgpu's
-//! errors into [`GpuError`]s.
+//! with its bind group layout from naga's reflection, bind groups built by
+//! the WGSL variables' names, storage buffers checked against the device's
+//! limits, and error scopes that turn wgpu's errors into [`GpuError`]s.
 
 use std::borrow::Cow;
+use std::num::NonZeroU64;
 
 use crate::pipelines::CompiledKernel;
 use crate::{GpuError, shaders};
@@ -71,6 +72,68 @@ pub(crate) fn compile(
         bindings,
         workgroup_size,
     })
+}
+
+/// The bind group of `kernel`'s group 0, labelled `label`: each binding
+/// gets the buffer `buffer` gives for its WGSL variable's name. A uniform
+/// binds its first `uniform_size` bytes (the slot a dynamic offset selects),
+/// or the whole buffer when `None`; storage always binds the whole buffer.
+/// A name with no buffer is an error naming the kernel `name`, its message
+/// "binding N `NAME` " followed by `missing`.
+pub(crate) fn bind_group<'a>(
+    device: &wgpu::Device,
+    kernel: &CompiledKernel,
+    (name, label): (&str, &str),
+    buffer: impl Fn(&str) -> Option<&'a wgpu::Buffer>,
+    uniform_size: Option<u64>,
+    missing: &str,
+) -> Result<wgpu::BindGroup, GpuError> {
+    let mut entries = Vec::with_capacity(kernel.bindings.len());
+    for b in &kernel.bindings {
+        let buffer = buffer(&b.name).ok_or_else(|| GpuError::Shader {
+            name: name.to_owned(),
+            message: format!("binding {} `{}` {missing}", b.binding, b.name),
+        })?;
+        let size = if b.uniform {
+            uniform_size.and_then(NonZeroU64::new)
+        } else {
+            None
+        };
+        entries.push(wgpu::BindGroupEntry {
+            binding: b.binding,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer,
+                offset: 0,
+                size,
+            }),
+        });
+    }
+    Ok(device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout: &kernel.layout,
+        entries: &entries,
+    }))
+}
+
+/// A zeroed storage buffer of at least `bytes` (16 at least, so that it
+/// binds, and a whole number of words), or the limit it would break; `what`
+/// names it in the error.
+pub(crate) fn storage(
+    device: &wgpu::Device,
+    label: &'static str,
+    bytes: u64,
+    what: &str,
+) -> Result<wgpu::Buffer, GpuError> {
+    let size = bytes.max(16).next_multiple_of(4);
+    check_size(device, size, what)?;
+    Ok(device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    }))
 }
 
 /// A storage buffer holding `contents` (16 zero bytes when empty: a binding
@@ -147,3 +210,31 @@ impl Scopes {
         }
     }
 }
+
+/// Runs `f` inside both scopes: the first wgpu error caught, else `f`'s result.
+pub(crate) fn scoped<T>(
+    device: &wgpu::Device,
+    f: impl FnOnce() -> Result<T, GpuError>,
+) -> Result<T, GpuError> {
+    let scopes = Scopes::push(device);
+    let out = f();
+    scopes.pop()?;
+    out
+}
+
+/// Test helper: the size of Rust mirror `$ty` and the offsets of its
+/// `$field`s, in order, equal naga's layout of WGSL struct `$wgsl` in shader
+/// `$file` ([`shaders::assert_layout`]).
+#[cfg(test)]
+macro_rules! assert_mirror {
+    ($file:literal, $wgsl:literal, $ty:ty { $($field:ident),* $(,)? }) => {
+        $crate::shaders::assert_layout(
+            $file,
+            $wgsl,
+            ::std::mem::size_of::<$ty>(),
+            &[$((stringify!($field), ::std::mem::offset_of!($ty, $field))),*],
+        )
+    };
+}
+#[cfg(test)]
+pub(crate) use assert_mirror;
