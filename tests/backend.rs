@@ -100,3 +100,53 @@ fn points_bound_on_one_device_are_refused_by_another() {
     let err = on_cpu.carry(&carrier).unwrap_err().to_string();
     assert!(err.contains("bound on one backend"), "{err}");
 }
+
+#[test]
+fn deflation_runs_on_the_cpu_and_is_refused_on_the_gpu() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let deflated = DeformParams {
+        deflation: 16,
+        ..DeformParams::default()
+    };
+    let sag = deform::sagged_breast();
+    let mut moved = Vec::new();
+    for params in [DeformParams::default(), deflated.clone()] {
+        let mut solver = Solver::new(Device::Cpu, &model, params).unwrap();
+        solver.set_surface(&sag).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged, "{report:?}");
+        moved.push((report.iterations, solver.positions().to_vec()));
+    }
+    let size = phantom::default_breast()
+        .bounds()
+        .map(|(lo, hi)| (hi - lo).length())
+        .unwrap();
+    let worst = moved[0]
+        .1
+        .iter()
+        .zip(&moved[1].1)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "sag from rest: {} iterations, {} deflated; {:.1e} of the size apart",
+        moved[0].0,
+        moved[1].0,
+        worst / size
+    );
+    assert!(moved[1].0 < moved[0].0, "{} vs {}", moved[1].0, moved[0].0);
+    // Each solve stops within about its tolerance (3e-5 of the size) of the
+    // answer; the default's estimate can run a little over (docs/METHOD.md).
+    assert!(worst <= 3.0 * 3e-5 * size, "{:e} of the size", worst / size);
+
+    let Some(gpu) = gpu() else { return };
+    let err = Solver::new(gpu, &model, deflated).unwrap_err().to_string();
+    assert!(
+        err.contains("deflation is 16") && err.contains("CPU path only"),
+        "{err}"
+    );
+}

@@ -399,6 +399,67 @@ fn prediction_cuts_tracking_iterations() {
     );
 }
 
+/// Deflation (32 modes) on a sag tracked in 3 mm steps, 1.6 % of the size
+/// a frame, and on an indentation growing 1.6 mm a frame: at most 10
+/// iterations a frame once the prediction has two solved frames to go on
+/// (the first two start from rest and from the last solution), where the
+/// default takes 11-18, and every frame within the tolerance of a tight
+/// reference solve.
+#[test]
+fn deflation_tracks_local_and_sagging_frames_in_at_most_ten_iterations() {
+    let model = breast_model();
+    let deflated = DeformParams {
+        deflation: 32,
+        ..DeformParams::default()
+    };
+    let tight = DeformParams {
+        tolerance: 1e-6,
+        ..DeformParams::default()
+    };
+    let mut reference = Deformer::new(model, tight).unwrap();
+    let (sagged, indented) = (
+        tissue::deform::sagged_breast(),
+        tissue::deform::indented_breast(),
+    );
+    for (name, target, steps) in [("sag", &sagged, 6), ("indentation", &indented, 5)] {
+        let mut plain = Deformer::new(model, DeformParams::default()).unwrap();
+        let mut deformer = Deformer::new(model, deflated.clone()).unwrap();
+        let modes = deformer.modes().unwrap();
+        assert_eq!(modes.count(), 32);
+        assert!(modes.residual() < 1e-3, "{}", modes.residual());
+        let size = deformer.size();
+        let (mut with, mut without) = (Vec::new(), Vec::new());
+        for k in 1..=steps {
+            let frame = interpolate(&model.surface, target, 0.2 * k as f32).unwrap();
+            plain.set_surface(&frame).unwrap();
+            deformer.set_surface(&frame).unwrap();
+            reference.set_surface(&frame).unwrap();
+            let (a, b) = (plain.solve(), deformer.solve());
+            assert!(a.converged && b.converged && reference.solve().converged);
+            without.push(a.iterations);
+            with.push(b.iterations);
+            let worst = (0..model.len())
+                .map(|i| (deformer.positions()[i] - reference.positions()[i]).length())
+                .fold(0.0f32, f32::max);
+            assert!(
+                worst <= deflated.tolerance * size,
+                "{name}, frame {k}: error {:.2e} of the size after {} iterations",
+                worst / size,
+                b.iterations
+            );
+        }
+        eprintln!("{name}: iterations {with:?} deflated, {without:?} not");
+        assert!(
+            with[2..].iter().all(|&n| n <= 10),
+            "{name}: iterations {with:?} deflated ({without:?} not)"
+        );
+        assert!(
+            with.iter().sum::<usize>() < without.iter().sum::<usize>(),
+            "{name}: {with:?} vs {without:?}"
+        );
+    }
+}
+
 /// A surface turning at a steady rate, 1 and 3 degrees a frame (a change of
 /// up to 2 % of the size): the affine prediction carries the interior and
 /// the rotations along exactly, so each frame takes a few iterations and

@@ -33,6 +33,11 @@ pub struct SolveArgs {
     /// Stop when every particle's error estimate is below this fraction of the model's size.
     #[arg(long, default_value_t = DeformParams::default().tolerance)]
     pub tolerance: f32,
+    /// Remove the error of this many of the lowest modes exactly every
+    /// iteration (computed once per model; CPU only; 32 halves the
+    /// iterations, docs/METHOD.md). 0 turns it off.
+    #[arg(long, default_value_t = DeformParams::default().deflation)]
+    pub deflation: usize,
 }
 
 impl SolveArgs {
@@ -45,6 +50,7 @@ impl SolveArgs {
             },
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
+            deflation: self.deflation,
             ..DeformParams::default()
         };
         params.validate()?;

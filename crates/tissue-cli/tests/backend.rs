@@ -253,3 +253,51 @@ fn deform_and_track_on_the_gpu_match_the_cpu() {
         moved[1]
     );
 }
+
+#[test]
+fn deflation_runs_on_the_cpu_and_is_refused_on_the_gpu_with_a_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.vtp");
+    let breast = assets().join("phantom-breast.obj");
+    let out = tissue(&["sample", s(&breast), "-n", "1500", "-o", s(&model), "-q"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let sag = assets().join("phantom-sag.obj");
+    let deform = |backend: &str, deflation: &str, out_dir: &Path| {
+        tissue(&[
+            "deform",
+            "--model",
+            s(&model),
+            "--surface",
+            s(&sag),
+            "--deflation",
+            deflation,
+            "--backend",
+            backend,
+            "-q",
+            "-o",
+            s(out_dir),
+        ])
+    };
+    let mut iterations = Vec::new();
+    for deflation in ["0", "16"] {
+        let out_dir = dir.path().join(format!("cpu-{deflation}"));
+        let out = deform("cpu", deflation, &out_dir);
+        assert!(out.status.success(), "{}", text(&out));
+        let report = json(&out_dir.join("report.json"));
+        assert_eq!(report["converged"], true, "{report}");
+        iterations.push(report["iterations"].as_u64().unwrap());
+    }
+    assert!(iterations[1] < iterations[0], "{iterations:?}");
+    let out = deform("cpu", "1000", &dir.path().join("absurd"));
+    assert!(!out.status.success());
+    assert!(text(&out).contains("deflation is 1000"), "{}", text(&out));
+
+    if !gpu("deform --backend gpu --deflation 16") {
+        return;
+    }
+    let out = deform("gpu", "16", &dir.path().join("gpu"));
+    let printed = text(&out);
+    assert!(!out.status.success(), "{printed}");
+    assert!(!printed.contains("panicked"), "{printed}");
+    assert!(printed.contains("CPU path only"), "{printed}");
+}

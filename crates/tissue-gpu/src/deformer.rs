@@ -48,7 +48,8 @@ pub struct GpuDeformer {
 impl GpuDeformer {
     /// Checks `model` and `params`, estimates the Laplacian's extreme
     /// eigenvalues (on the CPU, as the CPU path does), compiles the kernels
-    /// and uploads the model.
+    /// and uploads the model. `params.deflation` must be 0: deflation has
+    /// no kernel yet, and is refused rather than left out silently.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -56,6 +57,14 @@ impl GpuDeformer {
         params: DeformParams,
     ) -> Result<Self, GpuError> {
         params.validate()?;
+        if params.deflation > 0 {
+            return Err(tissue_core::Error::Deformation(format!(
+                "deformation parameter deflation is {}: deflation runs on the CPU path only \
+                 (no GPU kernel yet); use 0 on the GPU",
+                params.deflation
+            ))
+            .into());
+        }
         let plan = Plan::new(model)?;
         let attachments: Vec<(u32, [f32; 3])> = model
             .attachments
