@@ -23,6 +23,7 @@ use glam::{Vec2, Vec3};
 use serde::Serialize;
 use tissue_core::deform::{Indentation, Rigid, Sag, deform_surface};
 use tissue_core::{SamplingParams, StageSeconds, SurfaceMesh};
+use tissue_cpu::deformation::DeformParams;
 
 use crate::machine::{Adapter, Machine};
 use crate::memory::{CpuModelBytes, IterationFloor};
@@ -55,6 +56,10 @@ struct Args {
     /// even where the adapter offers timestamp queries.
     #[arg(long)]
     no_timestamps: bool,
+    /// Deflate this many of the Laplacian's lowest modes in stage 2
+    /// (`DeformParams::deflation`; the CPU path only, so `--backends cpu`).
+    #[arg(long, default_value_t = 0)]
+    deflation: usize,
 }
 
 /// A stage-2 backend.
@@ -282,6 +287,16 @@ fn run(args: &Args) -> Result<()> {
             stage_samples: 15,
         }
     };
+    let params = DeformParams {
+        deflation: args.deflation,
+        ..DeformParams::default()
+    };
+    params.validate()?;
+    anyhow::ensure!(
+        args.deflation == 0 || !args.backends.contains(&BackendName::Gpu),
+        "--deflation {} runs on the CPU path only (no GPU kernel yet): add --backends cpu",
+        args.deflation
+    );
     let (mesh, cases) = surfaces(args.mesh.as_ref())?;
     let machine = Machine::detect();
     let (gpu_found, gpu) = if args.backends.contains(&BackendName::Gpu) {
@@ -326,31 +341,33 @@ fn run(args: &Args) -> Result<()> {
                 BackendName::Cpu => (12.0, 36.0),
                 BackendName::Gpu => (16.0, 48.0),
             };
-            backends.push(match stage2::measure(device, model, &cases, repeats) {
-                Ok(stage2) => {
-                    let bytes = IterationFloor::new(model, position_bytes, rotation_bytes);
-                    let seconds = stage2.iteration.per_iteration.median_ms / 1e3;
-                    BackendRun {
-                        backend,
-                        status: "ran",
-                        reason: None,
-                        floor: Some(Floor {
-                            bytes,
-                            effective_gb_per_s: bytes.gigabytes_per_second(seconds),
-                            formula: FLOOR_FORMULA,
-                        }),
-                        stage2: Some(stage2),
+            backends.push(
+                match stage2::measure(device, model, &cases, repeats, &params) {
+                    Ok(stage2) => {
+                        let bytes = IterationFloor::new(model, position_bytes, rotation_bytes);
+                        let seconds = stage2.iteration.per_iteration.median_ms / 1e3;
+                        BackendRun {
+                            backend,
+                            status: "ran",
+                            reason: None,
+                            floor: Some(Floor {
+                                bytes,
+                                effective_gb_per_s: bytes.gigabytes_per_second(seconds),
+                                formula: FLOOR_FORMULA,
+                            }),
+                            stage2: Some(stage2),
+                        }
                     }
-                }
-                Err(e) if backend == BackendName::Gpu => BackendRun {
-                    backend,
-                    status: "failed",
-                    reason: Some(format!("{e:#}")),
-                    stage2: None,
-                    floor: None,
+                    Err(e) if backend == BackendName::Gpu => BackendRun {
+                        backend,
+                        status: "failed",
+                        reason: Some(format!("{e:#}")),
+                        stage2: None,
+                        floor: None,
+                    },
+                    Err(e) => return Err(e.context(format!("CPU stage 2 at {n} particles"))),
                 },
-                Err(e) => return Err(e.context(format!("CPU stage 2 at {n} particles"))),
-            });
+            );
         }
         runs.push(SizeRun {
             particles_requested: n,

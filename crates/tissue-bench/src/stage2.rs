@@ -142,6 +142,11 @@ pub struct Tracking {
 pub struct Stage2 {
     /// How rotations are found on this backend.
     pub rotations: String,
+    /// Modes deflated (`DeformParams::deflation`; 0: none).
+    pub deflation: usize,
+    /// Seconds to prepare stage 2 for the model (the spectrum, with
+    /// deflation the modes, and on the GPU the kernels and buffers).
+    pub prepare_seconds: f64,
     /// One iteration.
     pub iteration: IterationTiming,
     /// One iteration, pass by pass.
@@ -160,8 +165,8 @@ pub fn measure(
     model: &ParticleModel,
     cases: &Cases,
     repeats: Repeats,
+    defaults: &DeformParams,
 ) -> Result<Stage2> {
-    let defaults = DeformParams::default();
     let (iteration, stages) = {
         // The stopping rule off: the smallest positive tolerance never holds
         // while the sag is still being followed.
@@ -206,7 +211,9 @@ pub fn measure(
         (timing, stages)
     };
 
+    let started = Instant::now();
     let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
+    let prepare_seconds = started.elapsed().as_secs_f64();
     let gpu_state_bytes = match &solver {
         Solver::Cpu(_) => None,
         Solver::Gpu(_, deformer) => Some(GpuStateBytes::of(deformer, model.len())),
@@ -268,6 +275,8 @@ pub fn measure(
     };
     Ok(Stage2 {
         rotations: rotations.to_owned(),
+        deflation: defaults.deflation,
+        prepare_seconds,
         iteration,
         stages,
         converge,

@@ -106,7 +106,14 @@ pub fn markdown(report: &Report) -> String {
                 out,
                 "| {} | {name} ({}) | {:.3} ({:.3}-{:.3}) | {:.2} | {:.2} |",
                 s.particles,
-                stage2.rotations,
+                if stage2.deflation > 0 {
+                    format!(
+                        "{}, {} modes deflated, prepared in {:.2} s",
+                        stage2.rotations, stage2.deflation, stage2.prepare_seconds
+                    )
+                } else {
+                    stage2.rotations.clone()
+                },
                 it.median_ms,
                 it.min_ms,
                 it.max_ms,

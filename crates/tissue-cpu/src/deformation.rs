@@ -269,6 +269,16 @@ impl Plan {
         params.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE)
     }
 
+    /// `c alpha`: the plain step is `-c alpha L e` for the error `e` while the
+    /// rotations are fixed (`c = 2` for the symmetric force, 1 for the paper's).
+    pub fn contraction(&self, params: &DeformParams) -> f32 {
+        let c = match params.force {
+            ForceModel::Paper => 1.0,
+            ForceModel::Symmetric => 2.0,
+        };
+        c * self.alpha(params)
+    }
+
     /// The plain iteration `q <- (I - c alpha L) q + b` (`c = 2` symmetric, 1
     /// paper) contracts at `1 - 2 step_fraction lambda_min / lambda_max` for both.
     pub fn rho(&self, params: &DeformParams) -> f32 {
@@ -578,11 +588,7 @@ impl Deformer {
                 StoppingRule::new(&self.plan, p),
             ),
         };
-        let contraction = alpha
-            * match p.force {
-                ForceModel::Paper => 1.0,
-                ForceModel::Symmetric => 2.0,
-            };
+        let contraction = self.plan.contraction(p);
         let mut previous = self.current.clone();
         let mut stopped_by = StopReason::IterationCap;
         let mut iterations = 0;
