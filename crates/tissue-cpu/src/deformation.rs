@@ -20,6 +20,8 @@
 use std::time::Instant;
 
 use glam::{DMat3, DVec3, Mat3, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
@@ -1044,6 +1046,8 @@ const MODE_GUARDS: usize = 8;
 const MODE_FILTER_DEGREE: f64 = 4.0;
 /// Subspace iterations at most.
 const MODE_ITERATIONS: usize = 60;
+/// Seed of the random start block (any fixed value: the modes do not depend on it).
+const MODE_SEED: u64 = 0x9e37_79b9_7f4a_7c15;
 /// Relative eigenvector residual at which the modes are taken as converged.
 const MODE_RESIDUAL: f64 = 1e-5;
 
@@ -1102,14 +1106,9 @@ pub fn low_modes(
     };
     let dot =
         |a: &[f64], b: &[f64]| -> f64 { a.par_iter().zip(b).map(|(x, y)| x * y).sum::<f64>() };
-    // Deterministic pseudo-random start.
-    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next_random = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    };
+    // A deterministic random start.
+    let mut rng = Pcg64::seed_from_u64(MODE_SEED);
+    let mut next_random = move || rng.random::<f64>() - 0.5;
     let mut x: Vec<Vec<f64>> = (0..block)
         .map(|_| (0..n).map(|_| next_random()).collect())
         .collect();
