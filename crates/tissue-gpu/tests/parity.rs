@@ -186,18 +186,8 @@ fn integrate_and_step_norms_match_the_cpu_twins() {
             .read_plain(&device, &queue)
             .unwrap_or_else(|e| panic!("{e}"));
         // q + alpha F: a fused multiply-add may differ by an ulp or two of |q|.
-        let largest = current
-            .iter()
-            .map(|q| q.abs().max_element())
-            .fold(0.0, f32::max);
-        let tolerance = 4.0 * f32::EPSILON * largest;
-        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-            let off = (*g - *e).abs().max_element();
-            assert!(
-                off <= tolerance,
-                "n = {n}, particle {i} (free: {}): GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}",
-                free[i]
-            );
+        assert_within_ulps(&got, &expected, &current, 4.0, &format!("n = {n}"));
+        for (i, g) in got.iter().enumerate() {
             if !free[i] {
                 assert_eq!(*g, current[i], "n = {n}, control point {i} moved");
             }
@@ -271,16 +261,23 @@ fn chebyshev_matches_the_cpu_combine() {
     let got = state
         .read_positions(&device, &queue)
         .unwrap_or_else(|e| panic!("{e}"));
-    let largest = current
+    assert_within_ulps(&got, &expected, &current, 8.0, "integrate + chebyshev");
+}
+
+/// Every `got` within `ulps` ulps of the largest coordinate of `scale` of
+/// `expected`, naming the particle, both values and the tolerance.
+fn assert_within_ulps(got: &[Vec3], expected: &[Vec3], scale: &[Vec3], ulps: f32, what: &str) {
+    assert_eq!(got.len(), expected.len(), "{what}: lengths");
+    let largest = scale
         .iter()
         .map(|q| q.abs().max_element())
         .fold(0.0, f32::max);
-    let tolerance = 8.0 * f32::EPSILON * largest;
-    for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+    let tolerance = ulps * f32::EPSILON * largest;
+    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
         let off = (*g - *e).abs().max_element();
         assert!(
             off <= tolerance,
-            "particle {i}: GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
+            "{what}, particle {i}: GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
         );
     }
 }
