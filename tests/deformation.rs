@@ -399,6 +399,53 @@ fn prediction_cuts_tracking_iterations() {
     );
 }
 
+/// A sag breathing in and out (its depth `0.5 - 0.5 cos(k / 2)` of the full
+/// 12 mm at frame `k`: accelerating, turning back): the prediction fits this
+/// frame's surface move with the last two frames' changes, so every frame
+/// starts within 2 % of its change of the answer (0.4 % measured); the
+/// affine map alone (`history = 0`) leaves 17 % of it to the solve.
+#[test]
+fn the_prediction_follows_a_breathing_sag() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let run = |history| {
+        let params = DeformParams {
+            history,
+            tolerance: 1e-6,
+            ..DeformParams::default()
+        };
+        let mut deformer = Deformer::new(model, params).unwrap();
+        let mut solution = deformer.positions().to_vec();
+        (0..12)
+            .map(|k| {
+                let depth = 0.5 - 0.5 * (0.5 * k as f32).cos();
+                let frame = interpolate(&model.surface, &sagged, depth).unwrap();
+                deformer.set_surface(&frame).unwrap();
+                let start = deformer.positions().to_vec();
+                assert!(deformer.solve().converged, "history {history}, frame {k}");
+                let previous = std::mem::replace(&mut solution, deformer.positions().to_vec());
+                let worst = |a: &[Vec3], b: &[Vec3]| {
+                    a.iter()
+                        .zip(b)
+                        .map(|(a, b)| a.distance(*b))
+                        .fold(0.0f32, f32::max)
+                };
+                worst(&start, &solution) / worst(&previous, &solution)
+            })
+            .collect::<Vec<f32>>()
+    };
+    let (fitted, affine) = (run(2), run(0));
+    eprintln!("start error / change: {fitted:?} fitted, {affine:?} affine only");
+    assert!(
+        fitted[3..].iter().all(|&r| r < 0.02),
+        "{fitted:?} (affine only: {affine:?})"
+    );
+    assert!(
+        affine[3..].iter().all(|&r| r > 0.1),
+        "{affine:?} (fitted: {fitted:?})"
+    );
+}
+
 /// Deflation (32 modes) on a sag tracked in 3 mm steps, 1.6 % of the size
 /// a frame, and on an indentation growing 1.6 mm a frame: at most 10
 /// iterations a frame once the prediction has two solved frames to go on

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
+use tissue_cpu::deformation::DeformParams;
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
@@ -33,6 +34,10 @@ pub struct TrackArgs {
     pub output_dir: PathBuf,
     #[command(flatten)]
     pub solve: SolveArgs,
+    /// Start each frame from the fit of its surface move by this many of the
+    /// last frames' changes (0: by the affine part of the move alone).
+    #[arg(long, default_value_t = DeformParams::default().history)]
+    pub history: usize,
     #[command(flatten)]
     pub backend: BackendArgs,
     /// Print nothing but errors.
@@ -80,7 +85,11 @@ struct TrackReport {
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
-    let params = args.solve.params()?;
+    let params = DeformParams {
+        history: args.history,
+        ..args.solve.params()?
+    };
+    params.validate()?;
     let frames = expand(&args.frames)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;

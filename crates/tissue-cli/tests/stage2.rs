@@ -605,6 +605,20 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
             ],
             vec!["/no/such/model.vtp"],
         ),
+        (
+            vec![
+                "track".into(),
+                "--model".into(),
+                model.clone(),
+                "--frames".into(),
+                sag.clone(),
+                "--history".into(),
+                "17".into(),
+                "--output-dir".into(),
+                d("out"),
+            ],
+            vec!["history is 17", "0 to 16 frames"],
+        ),
     ];
     for (args, expected) in cases {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();

@@ -74,10 +74,14 @@ pub struct DeformParams {
     /// Iteration cap.
     pub max_iterations: usize,
     /// Tracking: start a new frame from the current state carried by the
-    /// least-squares affine map of the surface's move, plus the last frame's
-    /// non-affine change again when the last two solves converged (see
-    /// [`predict`]).
+    /// least-squares affine map of the surface's move, plus the combination
+    /// of the last frames' non-affine changes that best matches the
+    /// surface's own non-affine move (see [`predict`]).
     pub extrapolate: bool,
+    /// Tracking: how many of the last frames' changes the prediction fits
+    /// the new frame's surface move with (`0`: the affine map alone). Each
+    /// costs a copy of the positions. 2 by default: see docs/METHOD.md.
+    pub history: usize,
     /// Deflation: the number of lowest eigenvectors of the Dirichlet
     /// Laplacian over free particles (computed once per model) whose error
     /// every iteration removes exactly; Chebyshev and the stopping rule then
@@ -101,6 +105,7 @@ impl Default for DeformParams {
             tolerance: 3e-5,
             max_iterations: 5_000,
             extrapolate: true,
+            history: 2,
             deflation: 0,
         }
     }
@@ -120,6 +125,12 @@ impl DeformParams {
             return bad(&format!(
                 "tolerance is {}, expected a positive number",
                 self.tolerance
+            ));
+        }
+        if self.history > MAX_HISTORY {
+            return bad(&format!(
+                "history is {}, expected 0 to {MAX_HISTORY} frames",
+                self.history
             ));
         }
         if self.deflation > MAX_DEFLATION {
@@ -429,10 +440,8 @@ pub struct Deformer {
     attachments: Vec<Option<(u32, [f32; 3])>>,
     plan: Plan,
     current: Vec<Vec3>,
-    /// The solution before the last one, when the last two solves converged.
-    earlier: Option<Vec<Vec3>>,
-    /// The last converged solution.
-    last: Option<Vec<Vec3>>,
+    /// The last converged solutions, for the prediction.
+    history: FrameHistory,
     rotations: Vec<Mat3>,
     params: DeformParams,
     /// The lowest Laplacian modes removed exactly every iteration.
@@ -465,8 +474,7 @@ impl Deformer {
                 .collect(),
             plan,
             current: model.positions.clone(),
-            earlier: None,
-            last: None,
+            history: FrameHistory::default(),
             rotations: vec![Mat3::IDENTITY; model.len()],
             params,
             modes,
@@ -530,8 +538,7 @@ impl Deformer {
     pub fn reset(&mut self) {
         self.current.clone_from(&self.rest);
         self.rotations.fill(Mat3::IDENTITY);
-        self.earlier = None;
-        self.last = None;
+        self.history.clear();
     }
 
     /// Places the control points on `deformed`, which must be the rest surface
@@ -547,7 +554,7 @@ impl Deformer {
         if self.params.extrapolate {
             let (prediction, linear) = predict(
                 &self.current,
-                self.earlier.as_deref().zip(self.last.as_deref()),
+                &self.history,
                 &controls,
                 self.params.tolerance * self.plan.size,
             );
@@ -640,35 +647,90 @@ impl Deformer {
             }
         }
         let report = rule.report(iterations, stopped_by, started.elapsed().as_secs_f64());
-        if report.converged {
-            self.earlier = self.last.take();
-            self.last = Some(self.current.clone());
-        } else {
-            self.earlier = None;
-            self.last = None;
-        }
+        self.history
+            .record(&self.current, report.converged, self.params.history);
         report
     }
 }
 
+/// The most frames [`DeformParams::history`] may keep: each is a copy of
+/// the positions, and a fit with more columns than the surface's changes
+/// have independent shapes only adds noise.
+pub const MAX_HISTORY: usize = 16;
+
+/// The converged solutions of the last frames, oldest first, from which
+/// [`predict`] takes the changes it fits a new frame's surface move with.
+/// A solve that did not converge clears it: its state is no change worth
+/// repeating.
+#[derive(Debug, Clone, Default)]
+pub struct FrameHistory {
+    solutions: std::collections::VecDeque<Vec<Vec3>>,
+}
+
+impl FrameHistory {
+    /// Keeps `solution` (when `converged`) and the `depth` solutions
+    /// before it, which give `depth` changes.
+    pub fn record(&mut self, solution: &[Vec3], converged: bool, depth: usize) {
+        if !converged || depth == 0 {
+            self.solutions.clear();
+            return;
+        }
+        let mut kept = Vec::new();
+        while self.solutions.len() > depth {
+            kept = self.solutions.pop_front().unwrap_or_default();
+        }
+        kept.clear();
+        kept.extend_from_slice(solution);
+        self.solutions.push_back(kept);
+    }
+
+    /// Forgets every frame (a reset, or a new model state).
+    pub fn clear(&mut self) {
+        self.solutions.clear();
+    }
+
+    /// The number of frame-to-frame changes kept.
+    pub fn changes(&self) -> usize {
+        self.solutions.len().saturating_sub(1)
+    }
+
+    /// `(earlier, later)` solution pairs, newest first.
+    fn pairs(&self) -> impl Iterator<Item = (&[Vec3], &[Vec3])> {
+        let s = &self.solutions;
+        (1..s.len())
+            .rev()
+            .map(move |k| (s[k - 1].as_slice(), s[k].as_slice()))
+    }
+}
+
 /// Where a new frame's solve starts: the current state carried along by the
-/// surface's move. `controls` are the control particles' new positions.
+/// surface's move, plus what the last frames' changes say about its
+/// non-affine part. `controls` are the control particles' new positions;
+/// `current` is the last solution (the newest in `history`, if any).
 ///
-/// With `A` the least-squares affine map of the control points from where
-/// they are in `current` to where they go, every particle starts at
-/// `A(q)`: exact for a rigid or affine move, of the sequence or of the frame.
-/// When the last two solves converged (`history = (earlier, last)`,
-/// `last == current`), the part of the last frame's change that the affine
-/// map between those frames did not explain, `d = last - A'(earlier)`, is
-/// added once more, carried by `A`'s linear part: constant velocity for the
-/// non-affine rest of the motion (a sag growing frame after frame), unless
-/// no particle's `d` reaches `noise` (the solve's tolerance, as a length):
-/// then `d` is what the last solves left undone, and extrapolating it would
-/// only grow it frame after frame. Returns the predicted positions and `A`'s linear part (the identity when
-/// the control points do not determine `A`, and nothing moves).
+/// - `A`, the least-squares affine map of the control points from where
+///   they are in `current` to where they go, carries every particle:
+///   `A(q)`. Exact for a rigid or affine move, of the sequence or of the frame.
+/// - The rest of the control points' move, `r = controls - A(current)`, is
+///   fitted in least squares by the non-affine parts of the last frames'
+///   changes at the control points, `d_k = later - A_k(earlier)` (carried by
+///   `A`'s linear part `L`): `r ~ sum_k beta_k L d_k`. With the rotations
+///   fixed the interior's answer is linear in the surface's move, so every
+///   particle gets `sum_k beta_k L d_k` too. A sag growing by the same step
+///   gets `beta = 1` (constant velocity); a breathing one the ratio of this
+///   step to the last, negative where it turns.
+/// - A change whose control part is below `noise` (the solve's tolerance,
+///   as a length) everywhere is left out: it is affine, and its interior is
+///   what the last solves left undone; extrapolating that made the error
+///   grow frame after frame. So is a change the ones before it (newer)
+///   nearly explain already (a tenth of its length left), which would
+///   otherwise amplify their noise.
+///
+/// Returns the predicted positions and `L` (the identity when the control
+/// points do not determine `A`, and nothing moves).
 pub fn predict(
     current: &[Vec3],
-    history: Option<(&[Vec3], &[Vec3])>,
+    history: &FrameHistory,
     controls: &[(usize, Vec3)],
     noise: f32,
 ) -> (Vec<Vec3>, Mat3) {
@@ -678,26 +740,89 @@ pub fn predict(
         return (current.to_vec(), Mat3::IDENTITY);
     };
     let carried = |q: Vec3| linear * q + shift;
-    let residual: Option<Vec<Vec3>> = history.and_then(|(earlier, last)| {
-        let before: Vec<Vec3> = controls.iter().map(|&(i, _)| earlier[i]).collect();
-        let after: Vec<Vec3> = controls.iter().map(|&(i, _)| last[i]).collect();
-        let (l, t) = affine_fit(&before, &after)?;
-        let d: Vec<Vec3> = earlier
-            .par_iter()
-            .zip(last)
-            .map(|(&e, &q)| q - (l * e + t))
-            .collect();
-        d.iter().any(|d| d.length() >= noise).then_some(d)
-    });
-    let predicted = match residual {
-        Some(d) => current
-            .par_iter()
-            .zip(&d)
-            .map(|(&q, &d)| carried(q) + linear * d)
-            .collect(),
-        None => current.par_iter().map(|&q| carried(q)).collect(),
+    let changes: Vec<Vec<Vec3>> = history
+        .pairs()
+        .filter_map(|(earlier, later)| {
+            let before: Vec<Vec3> = controls.iter().map(|&(i, _)| earlier[i]).collect();
+            let after: Vec<Vec3> = controls.iter().map(|&(i, _)| later[i]).collect();
+            let (l, t) = affine_fit(&before, &after)?;
+            let d: Vec<Vec3> = earlier
+                .par_iter()
+                .zip(later)
+                .map(|(&e, &q)| linear * (q - (l * e + t)))
+                .collect();
+            controls
+                .iter()
+                .any(|&(i, _)| d[i].length() >= noise)
+                .then_some(d)
+        })
+        .collect();
+    let flat = |points: &mut dyn Iterator<Item = Vec3>| -> Vec<f64> {
+        points
+            .flat_map(|p| p.as_dvec3().to_array())
+            .collect::<Vec<f64>>()
     };
+    let target = flat(&mut from.iter().zip(&to).map(|(&f, &t)| t - carried(f)));
+    let columns: Vec<Vec<f64>> = changes
+        .iter()
+        .map(|d| flat(&mut controls.iter().map(|&(i, _)| d[i])))
+        .collect();
+    let beta = least_squares(&columns, &target, 0.1);
+    let predicted = current
+        .par_iter()
+        .enumerate()
+        .map(|(i, &q)| {
+            let fitted: Vec3 = changes
+                .iter()
+                .zip(&beta)
+                .map(|(d, &b)| b as f32 * d[i])
+                .sum();
+            carried(q) + fitted
+        })
+        .collect();
     (predicted, linear)
+}
+
+/// The coefficients `beta` minimising `|target - sum_k beta_k columns_k|`,
+/// by modified Gram-Schmidt. A column with less than `keep` of its length
+/// outside the span of the columns before it gets `beta = 0`: nearly
+/// dependent columns would only amplify their noise.
+fn least_squares(columns: &[Vec<f64>], target: &[f64], keep: f64) -> Vec<f64> {
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    // The kept columns' orthonormal basis, their column of R, and index.
+    let mut basis: Vec<Vec<f64>> = Vec::new();
+    let mut r: Vec<Vec<f64>> = Vec::new();
+    let mut kept: Vec<usize> = Vec::new();
+    for (k, column) in columns.iter().enumerate() {
+        let length = dot(column, column).sqrt();
+        let mut v = column.clone();
+        let mut coefficients = Vec::with_capacity(basis.len() + 1);
+        for q in &basis {
+            let c = dot(q, &v);
+            v.iter_mut().zip(q).for_each(|(v, q)| *v -= c * q);
+            coefficients.push(c);
+        }
+        let rest = dot(&v, &v).sqrt();
+        if !(length > 0.0 && rest > keep * length) {
+            continue;
+        }
+        v.iter_mut().for_each(|v| *v /= rest);
+        coefficients.push(rest);
+        basis.push(v);
+        r.push(coefficients);
+        kept.push(k);
+    }
+    let y: Vec<f64> = basis.iter().map(|q| dot(q, target)).collect();
+    let mut solved = vec![0.0; kept.len()];
+    for i in (0..kept.len()).rev() {
+        let later: f64 = (i + 1..kept.len()).map(|j| r[j][i] * solved[j]).sum();
+        solved[i] = (y[i] - later) / r[i][i];
+    }
+    let mut beta = vec![0.0; columns.len()];
+    for (k, b) in kept.into_iter().zip(solved) {
+        beta[k] = b;
+    }
+    beta
 }
 
 /// The affine map `x -> L x + t` that moves the points `from` closest to
@@ -1499,31 +1624,139 @@ mod tests {
         assert_eq!(affine_fit(&from[..3], &to[..3]), None);
     }
 
+    /// Eight control points on a unit cube's corners and two free particles
+    /// inside; `bulge` and `dent` are two non-affine moves (a corner pulled
+    /// out, another pushed in) with what they do to the free particles.
+    fn cube() -> (Vec<Vec3>, [Vec<Vec3>; 2]) {
+        let mut rest: Vec<Vec3> = (0..8)
+            .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
+            .collect();
+        rest.extend([Vec3::splat(0.3), Vec3::splat(0.7)]);
+        let mut bulge = vec![Vec3::ZERO; 10];
+        bulge[7] = Vec3::splat(0.02);
+        bulge[9] = Vec3::splat(0.01);
+        let mut dent = vec![Vec3::ZERO; 10];
+        dent[0] = Vec3::new(0.0, 0.0, 0.03);
+        dent[8] = Vec3::new(0.0, 0.0, 0.012);
+        (rest, [bulge, dent])
+    }
+
+    /// `rest + a bulge + b dent`, then translated by `shift`.
+    fn cube_state(a: f32, b: f32, shift: Vec3) -> Vec<Vec3> {
+        let (rest, [bulge, dent]) = cube();
+        (0..rest.len())
+            .map(|i| rest[i] + a * bulge[i] + b * dent[i] + shift)
+            .collect()
+    }
+
+    fn history_of(states: &[Vec<Vec3>]) -> FrameHistory {
+        let mut history = FrameHistory::default();
+        for state in states {
+            history.record(state, true, states.len() - 1);
+        }
+        history
+    }
+
+    fn controls_of(state: &[Vec3]) -> Vec<(usize, Vec3)> {
+        (0..8).map(|i| (i, state[i])).collect()
+    }
+
     #[test]
-    fn a_prediction_extrapolates_a_non_affine_change_only_above_the_noise() {
-        // Five particles: four control points moved by a translation, and
-        // particle 4 also drifting by `drift` a frame on its own. A drift
-        // below the noise (1e-3) is not extrapolated.
-        let base = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z, Vec3::splat(0.25)];
-        let frame = |k: f32, drift: f32| -> Vec<Vec3> {
-            let mut q: Vec<Vec3> = base.iter().map(|&p| p + Vec3::X * k).collect();
-            q[4] += Vec3::Y * drift * k;
-            q
-        };
-        for (drift, expected) in [(0.1, 0.3), (1e-4, 2e-4)] {
-            let earlier = frame(1.0, drift);
-            let last = frame(2.0, drift);
-            let controls: Vec<(usize, Vec3)> =
-                (0..4).map(|i| (i, base[i] + Vec3::X * 3.0)).collect();
-            let (predicted, linear) = predict(&last, Some((&earlier, &last)), &controls, 1e-3);
-            assert!(linear.abs_diff_eq(Mat3::IDENTITY, 1e-6));
-            let want = base[4] + Vec3::X * 3.0 + Vec3::Y * expected;
+    fn a_prediction_fits_the_surface_move_with_the_last_changes() {
+        // A bulge growing by 1, then by 0.5, then turning back by 0.75, with
+        // a translation on top: the free particles follow by the same
+        // fraction of the last change (constant velocity would say +1), to
+        // a small fraction of the bulge (the affine fits see the bulge too:
+        // exact only to first order).
+        let shift = Vec3::new(0.5, -0.2, 0.1);
+        let states = [
+            cube_state(0.0, 0.0, Vec3::ZERO),
+            cube_state(1.0, 0.0, Vec3::ZERO),
+        ];
+        let history = history_of(&states);
+        assert_eq!(history.changes(), 1);
+        for step in [1.0, 0.5, -0.75] {
+            let next = cube_state(1.0 + step, 0.0, shift);
+            let (predicted, _) = predict(&states[1], &history, &controls_of(&next), 1e-4);
+            for i in 8..10 {
+                assert!(
+                    predicted[i].distance(next[i]) < 1e-2 * 0.02,
+                    "step {step}, particle {i}: {} vs {}",
+                    predicted[i],
+                    next[i]
+                );
+            }
+        }
+        // Two changes of two shapes (a bulge, then a dent) fit a move of both.
+        let states = [
+            cube_state(0.0, 0.0, Vec3::ZERO),
+            cube_state(1.0, 0.0, Vec3::ZERO),
+            cube_state(1.0, 1.0, Vec3::ZERO),
+        ];
+        let history = history_of(&states);
+        assert_eq!(history.changes(), 2);
+        let next = cube_state(0.6, 1.5, shift);
+        let (predicted, _) = predict(&states[2], &history, &controls_of(&next), 1e-4);
+        for i in 8..10 {
             assert!(
-                predicted[4].abs_diff_eq(want, 1e-5),
-                "drift {drift}: {} vs {want}",
-                predicted[4]
+                predicted[i].distance(next[i]) < 1e-2 * 0.03,
+                "particle {i}: {} vs {}",
+                predicted[i],
+                next[i]
             );
         }
+    }
+
+    #[test]
+    fn a_prediction_leaves_out_changes_affine_on_the_surface() {
+        // The control points only translate from frame to frame while a free
+        // particle drifts (what a solve leaves undone): the drift is not
+        // extrapolated, however large, and the next frame is carried by the
+        // affine map alone.
+        let mut earlier = cube_state(0.0, 0.0, Vec3::ZERO);
+        let mut last = cube_state(0.0, 0.0, Vec3::X);
+        earlier[8] += Vec3::Y * 0.1;
+        last[8] += Vec3::Y * 0.2;
+        let history = history_of(&[earlier, last.clone()]);
+        let next = cube_state(0.0, 0.0, 2.0 * Vec3::X);
+        let (predicted, _) = predict(&last, &history, &controls_of(&next), 1e-3);
+        assert!(
+            predicted[8].abs_diff_eq(last[8] + Vec3::X, 1e-5),
+            "{} vs {}",
+            predicted[8],
+            last[8] + Vec3::X
+        );
+    }
+
+    #[test]
+    fn frame_history_keeps_depth_changes_and_forgets_on_divergence() {
+        let state = |k: f32| vec![Vec3::splat(k); 3];
+        let mut history = FrameHistory::default();
+        for k in 0..5 {
+            history.record(&state(k as f32), true, 2);
+        }
+        assert_eq!(history.changes(), 2);
+        let newest: Vec<f32> = history.pairs().map(|(_, later)| later[0].x).collect();
+        assert_eq!(newest, [4.0, 3.0]);
+        history.record(&state(5.0), true, 1);
+        assert_eq!(history.changes(), 1);
+        history.record(&state(6.0), false, 2);
+        assert_eq!(history.changes(), 0);
+        history.record(&state(7.0), true, 0);
+        assert_eq!(history.changes(), 0);
+    }
+
+    #[test]
+    fn history_defaults_to_two_frames_and_is_bounded() {
+        assert_eq!(DeformParams::default().history, 2);
+        let too_many = DeformParams {
+            history: MAX_HISTORY + 1,
+            ..DeformParams::default()
+        };
+        let Err(err) = too_many.validate() else {
+            panic!("17 frames were accepted");
+        };
+        assert!(err.to_string().contains("history is 17"), "{err}");
     }
 
     /// A path of `n` free particles between two fixed ends, whose Laplacian

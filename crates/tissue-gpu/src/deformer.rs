@@ -5,8 +5,8 @@ use std::time::Instant;
 use glam::Vec3;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, DeformReport, Plan, StopReason, StoppingRule, check_same_topology,
-    predict,
+    Chebyshev, DeformParams, DeformReport, FrameHistory, Plan, StopReason, StoppingRule,
+    check_same_topology, predict,
 };
 
 use crate::state::SLOTS;
@@ -38,10 +38,8 @@ pub struct GpuDeformer {
     controls: Vec<usize>,
     /// The positions on the GPU at the last frame boundary.
     current: Vec<Vec3>,
-    /// The solution before the last one, when the last two solves converged.
-    earlier: Option<Vec<Vec3>>,
-    /// The last converged solution.
-    last: Option<Vec<Vec3>>,
+    /// The last converged solutions, for the prediction.
+    history: FrameHistory,
     rest: Vec<Vec3>,
 }
 
@@ -99,8 +97,7 @@ impl GpuDeformer {
             params,
             controls,
             current: model.positions.clone(),
-            earlier: None,
-            last: None,
+            history: FrameHistory::default(),
             rest: model.positions.clone(),
         })
     }
@@ -164,7 +161,7 @@ impl GpuDeformer {
             .collect();
         let (prediction, _) = predict(
             &self.current,
-            self.earlier.as_deref().zip(self.last.as_deref()),
+            &self.history,
             &controls,
             self.params.tolerance * self.plan.size,
         );
@@ -215,8 +212,7 @@ impl GpuDeformer {
         encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
         queue.submit([encoder.finish()]);
         self.current.clone_from(&self.rest);
-        self.earlier = None;
-        self.last = None;
+        self.history.clear();
         crate::wait(device)
     }
 
@@ -234,13 +230,8 @@ impl GpuDeformer {
         }
         let report = report?;
         self.current = self.state.read_positions(device, queue)?;
-        if report.converged {
-            self.earlier = self.last.take();
-            self.last = Some(self.current.clone());
-        } else {
-            self.earlier = None;
-            self.last = None;
-        }
+        self.history
+            .record(&self.current, report.converged, self.params.history);
         Ok(report)
     }
 
