@@ -19,7 +19,7 @@
 
 use std::time::Instant;
 
-use glam::{DMat3, DVec3, Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Vec3, Vec3A};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
@@ -1118,16 +1118,18 @@ impl LowModes {
     pub fn deflate(&self, current: &[Vec3], plain: &mut [Vec3], contraction: f32) {
         let m = self.count();
         const CHUNK: usize = 1024;
+        // Per particle, one 4-lane multiply-add per mode (`Vec3A`), summed in
+        // `f32` within a chunk and in `f64` across chunks.
         let projections = current
             .par_chunks(CHUNK)
             .zip(plain.par_chunks(CHUNK))
             .zip(self.vectors.par_chunks(CHUNK * m))
             .map(|((q, p), v)| {
-                let mut c = vec![Vec3::ZERO; m];
+                let mut c = vec![Vec3A::ZERO; m];
                 for ((q, p), v) in q.iter().zip(p).zip(v.chunks_exact(m)) {
-                    let s = *p - *q;
-                    for k in 0..m {
-                        c[k] += v[k] * s;
+                    let s = Vec3A::from(*p - *q);
+                    for (c, &v) in c.iter_mut().zip(v) {
+                        *c += s * v;
                     }
                 }
                 c.into_iter().map(|c| c.as_dvec3()).collect::<Vec<_>>()
@@ -1139,21 +1141,23 @@ impl LowModes {
                     a
                 },
             );
-        let gains: Vec<Vec3> = projections
+        let gains: Vec<Vec3A> = projections
             .iter()
             .zip(&self.values)
-            .map(|(c, &lambda)| (*c * (1.0 / (f64::from(contraction) * lambda) - 1.0)).as_vec3())
+            .map(|(c, &lambda)| {
+                Vec3A::from((*c * (1.0 / (f64::from(contraction) * lambda) - 1.0)).as_vec3())
+            })
             .collect();
         plain
             .par_chunks_mut(CHUNK)
             .zip(self.vectors.par_chunks(CHUNK * m))
             .for_each(|(p, v)| {
                 for (p, v) in p.iter_mut().zip(v.chunks_exact(m)) {
-                    let mut d = Vec3::ZERO;
-                    for k in 0..m {
-                        d += v[k] * gains[k];
+                    let mut d = Vec3A::ZERO;
+                    for (&g, &v) in gains.iter().zip(v) {
+                        d += g * v;
                     }
-                    *p += d;
+                    *p += Vec3::from(d);
                 }
             });
     }
@@ -1210,33 +1214,46 @@ pub fn low_modes(
     for (k, &i) in index.iter().enumerate() {
         local[i] = k;
     }
-    let rows: Vec<(f64, Vec<u32>)> = index
+    // Free-only rows in compressed form: diagonal, and free neighbours.
+    let diagonal: Vec<f64> = index
         .iter()
-        .map(|&i| {
-            let row = connections.of(i);
-            (
-                row.len() as f64,
-                row.iter()
-                    .filter(|&&j| free[j as usize])
-                    .map(|&j| local[j as usize] as u32)
-                    .collect(),
-            )
-        })
+        .map(|&i| connections.of(i).len() as f64)
         .collect();
-    let apply = |v: &[f64]| -> Vec<f64> {
-        rows.par_iter()
-            .enumerate()
-            .map(|(i, (d, row))| d * v[i] - row.iter().map(|&j| v[j as usize]).sum::<f64>())
-            .collect()
+    let mut offsets = Vec::with_capacity(n + 1);
+    let mut columns = Vec::new();
+    offsets.push(0);
+    for &i in &index {
+        columns.extend(
+            connections
+                .of(i)
+                .iter()
+                .filter(|&&j| free[j as usize])
+                .map(|&j| local[j as usize] as u32),
+        );
+        offsets.push(columns.len());
+    }
+    // `L X` for the block `X` held particle-major (`x[i * block + a]`), so
+    // one pass over the rows serves every vector and the inner loops run
+    // over contiguous vector entries.
+    let apply = |x: &[f64]| -> Vec<f64> {
+        let mut y = vec![0.0; x.len()];
+        y.par_chunks_mut(block).enumerate().for_each(|(i, y)| {
+            let own = &x[i * block..(i + 1) * block];
+            y.iter_mut()
+                .zip(own)
+                .for_each(|(y, v)| *y = diagonal[i] * v);
+            for &j in &columns[offsets[i]..offsets[i + 1]] {
+                let j = j as usize;
+                y.iter_mut()
+                    .zip(&x[j * block..(j + 1) * block])
+                    .for_each(|(y, v)| *y -= v);
+            }
+        });
+        y
     };
-    let dot =
-        |a: &[f64], b: &[f64]| -> f64 { a.par_iter().zip(b).map(|(x, y)| x * y).sum::<f64>() };
     // A deterministic random start.
     let mut rng = Pcg64::seed_from_u64(MODE_SEED);
-    let mut next_random = move || rng.random::<f64>() - 0.5;
-    let mut x: Vec<Vec<f64>> = (0..block)
-        .map(|_| (0..n).map(|_| next_random()).collect())
-        .collect();
+    let mut x: Vec<f64> = (0..n * block).map(|_| rng.random::<f64>() - 0.5).collect();
     let upper = f64::from(lambda_max);
     // The first cut: a guess of where the block's spectrum ends, lowered to
     // the block's largest Ritz value after every round.
@@ -1247,84 +1264,69 @@ pub fn low_modes(
         // Filter: T_d((L - c) / e) with [cut, upper] mapped onto [-1, 1].
         let (c, e) = (0.5 * (upper + cut), 0.5 * (upper - cut));
         let degree = (MODE_FILTER_DEGREE * (upper / cut).sqrt()).clamp(8.0, 400.0) as usize;
-        x = x
-            .into_par_iter()
-            .map(|v0| {
-                let lv = apply(&v0);
-                let mut previous = v0;
-                let mut current: Vec<f64> = lv
-                    .iter()
-                    .zip(&previous)
-                    .map(|(l, v)| (l - c * v) / e)
-                    .collect();
-                for _ in 1..degree {
-                    let lv = apply(&current);
-                    let next: Vec<f64> = lv
-                        .iter()
-                        .zip(&current)
-                        .zip(&previous)
-                        .map(|((l, v), p)| 2.0 * (l - c * v) / e - p)
-                        .collect();
-                    previous = std::mem::replace(&mut current, next);
-                    // Keep the scale in range.
-                    let norm = current.iter().map(|x| x * x).sum::<f64>().sqrt();
-                    if norm > 1e100 {
-                        current.iter_mut().for_each(|x| *x /= norm);
-                        previous.iter_mut().for_each(|x| *x /= norm);
-                    }
-                }
-                current
-            })
+        let mut previous = x;
+        let mut current: Vec<f64> = apply(&previous)
+            .par_iter()
+            .zip(&previous)
+            .map(|(l, v)| (l - c * v) / e)
             .collect();
-        // Orthonormalise: modified Gram-Schmidt, twice.
+        for _ in 1..degree {
+            let next: Vec<f64> = apply(&current)
+                .par_iter()
+                .zip(&current)
+                .zip(&previous)
+                .map(|((l, v), p)| 2.0 * (l - c * v) / e - p)
+                .collect();
+            previous = std::mem::replace(&mut current, next);
+            // Keep the scale in range.
+            let largest = current.par_iter().map(|x| x.abs()).reduce(|| 0.0, f64::max);
+            if largest > 1e100 {
+                current.par_iter_mut().for_each(|x| *x /= largest);
+                previous.par_iter_mut().for_each(|x| *x /= largest);
+            }
+        }
+        // Orthonormalise (Cholesky QR, twice: Fukaya et al. 2014).
+        x = current;
         for _ in 0..2 {
-            for k in 0..block {
-                let (done, rest) = x.split_at_mut(k);
-                let v = &mut rest[0];
-                for u in done.iter() {
-                    let r = dot(u, v);
-                    v.par_iter_mut().zip(u).for_each(|(v, u)| *v -= r * u);
-                }
-                let norm = dot(v, v).sqrt();
-                if norm > 0.0 {
-                    v.par_iter_mut().for_each(|x| *x /= norm);
-                }
+            if !orthonormalise_rows(&mut x, block) {
+                log::warn!("the Laplacian's low modes did not come out; no deflation");
+                return LowModes {
+                    vectors: vec![],
+                    ..empty()
+                };
             }
         }
         // Rayleigh-Ritz.
-        let lx: Vec<Vec<f64>> = x.iter().map(|v| apply(v)).collect();
-        let mut h = vec![0.0; block * block];
-        for a in 0..block {
-            for b in a..block {
-                let value = dot(&x[a], &lx[b]);
-                h[a * block + b] = value;
-                h[b * block + a] = value;
-            }
-        }
-        let (theta, z) = symmetric_eigen(&mut h, block);
-        let combine = |vs: &[Vec<f64>]| -> Vec<Vec<f64>> {
-            (0..block)
-                .map(|k| {
-                    (0..n)
-                        .into_par_iter()
-                        .map(|i| (0..block).map(|a| vs[a][i] * z[a * block + k]).sum::<f64>())
-                        .collect()
-                })
-                .collect()
-        };
-        x = combine(&x);
-        let lx = combine(&lx);
+        let lx = apply(&x);
+        let (theta, z) = symmetric_eigen(&mut row_gram(&x, &lx, block), block);
+        x = times_rows(&x, &z, block);
+        let lx = times_rows(&lx, &z, block);
         values = theta;
-        residual = (0..=count.min(block - 1))
-            .map(|k| {
-                let r = lx[k]
-                    .iter()
-                    .zip(&x[k])
-                    .map(|(l, v)| (l - values[k] * v).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
-                r / values[k].abs().max(f64::MIN_POSITIVE)
-            })
+        // Per vector, |L v - theta v|, relative to theta.
+        let checked = (count + 1).min(block);
+        let squares = lx
+            .par_chunks(block)
+            .zip(x.par_chunks(block))
+            .fold(
+                || vec![0.0; checked],
+                |mut sums, (l, v)| {
+                    for k in 0..checked {
+                        sums[k] += (l[k] - values[k] * v[k]).powi(2);
+                    }
+                    sums
+                },
+            )
+            .reduce(
+                || vec![0.0; checked],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                    a
+                },
+            );
+        residual = squares
+            .iter()
+            .zip(&values)
+            .map(|(r, v)| r.sqrt() / v.abs().max(f64::MIN_POSITIVE))
             .fold(0.0, f64::max);
         cut = values[block - 1];
         if residual < MODE_RESIDUAL {
@@ -1341,7 +1343,7 @@ pub fn low_modes(
     let mut vectors = vec![0.0f32; free.len() * count];
     for (k, &i) in index.iter().enumerate() {
         for m in 0..count {
-            vectors[i * count + m] = x[m][k] as f32;
+            vectors[i * count + m] = x[k * block + m] as f32;
         }
     }
     LowModes {
@@ -1353,6 +1355,75 @@ pub fn low_modes(
         residual,
         seconds: started.elapsed().as_secs_f64(),
     }
+}
+
+/// `A^T B` for two blocks held particle-major (`a[i * block + k]`): a
+/// `block x block` matrix, row-major.
+fn row_gram(a: &[f64], b: &[f64], block: usize) -> Vec<f64> {
+    a.par_chunks(block)
+        .zip(b.par_chunks(block))
+        .fold(
+            || vec![0.0; block * block],
+            |mut sum, (a, b)| {
+                for (k, &a) in a.iter().enumerate() {
+                    sum[k * block..(k + 1) * block]
+                        .iter_mut()
+                        .zip(b)
+                        .for_each(|(s, b)| *s += a * b);
+                }
+                sum
+            },
+        )
+        .reduce(
+            || vec![0.0; block * block],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                a
+            },
+        )
+}
+
+/// `X Z` for a block held particle-major and a `block x block` row-major `Z`.
+fn times_rows(x: &[f64], z: &[f64], block: usize) -> Vec<f64> {
+    let mut out = vec![0.0; x.len()];
+    out.par_chunks_mut(block)
+        .zip(x.par_chunks(block))
+        .for_each(|(out, row)| {
+            for (a, &r) in row.iter().enumerate() {
+                out.iter_mut()
+                    .zip(&z[a * block..(a + 1) * block])
+                    .for_each(|(o, z)| *o += r * z);
+            }
+        });
+    out
+}
+
+/// Makes the columns of the particle-major block `x` orthonormal by one
+/// Cholesky QR step: `X^T X = R^T R`, `X <- X R^-1`. False when the Gram
+/// matrix is not numerically positive definite (dependent columns).
+fn orthonormalise_rows(x: &mut [f64], block: usize) -> bool {
+    let mut r = row_gram(x, x, block);
+    // Cholesky, upper: r = R^T R, R stored in r's upper triangle.
+    for k in 0..block {
+        let pivot = r[k * block + k] - (0..k).map(|a| r[a * block + k].powi(2)).sum::<f64>();
+        if !(pivot > 0.0 && pivot.is_finite()) {
+            return false;
+        }
+        let pivot = pivot.sqrt();
+        r[k * block + k] = pivot;
+        for j in k + 1..block {
+            let dot: f64 = (0..k).map(|a| r[a * block + k] * r[a * block + j]).sum();
+            r[k * block + j] = (r[k * block + j] - dot) / pivot;
+        }
+    }
+    // Each row y of the result solves y R = x (forward substitution).
+    x.par_chunks_mut(block).for_each(|row| {
+        for k in 0..block {
+            let dot: f64 = (0..k).map(|a| row[a] * r[a * block + k]).sum();
+            row[k] = (row[k] - dot) / r[k * block + k];
+        }
+    });
+    true
 }
 
 /// Eigenvalues (ascending) and eigenvectors (columns of the row-major
