@@ -87,9 +87,9 @@ pub struct DeformParams {
     /// every iteration removes exactly; Chebyshev and the stopping rule then
     /// use the next eigenvalue instead of the smallest (see
     /// [`LowModes`]). 0, the default, turns it off: 32 modes halve the
-    /// iterations of a solve and bring most tracking frames to at most 7
-    /// (docs/METHOD.md), but cost 0.7 s of preparation at 10k particles,
-    /// 6 s at 100k, 20-35 % more time per iteration, and have no GPU
+    /// iterations of a solve and bring most tracking frames to at most 8
+    /// (docs/METHOD.md), but cost 0.2 s of preparation at 10k particles,
+    /// 4 s at 100k, 10-40 % more time per iteration, and have no GPU
     /// kernel yet.
     pub deflation: usize,
 }
@@ -624,7 +624,12 @@ impl Deformer {
             if let Some(m) = &modes {
                 m.deflate(&self.current, &mut plain, contraction);
             }
-            let (mut step, mut rms) = steps(&self.current, &plain);
+            // Deflated, the plain step no longer bounds the error of the
+            // modes coupled to the rotations (re-fitting them lowers the
+            // curvature below the Laplacian's, so the exact correction for
+            // fixed rotations under-corrects them): the error is bounded by
+            // the geometric tail of the updates actually made instead.
+            let plain_steps = modes.is_none().then(|| steps(&self.current, &plain));
             iterations += 1;
             let omega = chebyshev.omega(iterations);
             let next = if omega == 1.0 {
@@ -632,14 +637,7 @@ impl Deformer {
             } else {
                 chebyshev_combine(&plain, &previous, omega)
             };
-            if modes.is_some() {
-                // Deflated, the plain step no longer bounds the error of the
-                // modes coupled to the rotations (re-fitting them lowers the
-                // curvature below the Laplacian's, so the exact correction for
-                // fixed rotations under-corrects them): bound the error by the
-                // geometric tail of the updates actually made instead.
-                (step, rms) = steps(&self.current, &next);
-            }
+            let (step, rms) = plain_steps.unwrap_or_else(|| steps(&self.current, &next));
             previous = std::mem::replace(&mut self.current, next);
             if let Some(reason) = rule.after(step, rms) {
                 stopped_by = reason;
