@@ -940,16 +940,20 @@ pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result
 pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connections) -> Vec<Mat3> {
     (0..rest.len())
         .into_par_iter()
-        .map(|i| {
-            let mut m = Mat3::ZERO;
-            for &j in connections.of(i) {
-                let d = rest[j as usize] - rest[i];
-                let c = current[j as usize] - current[i];
-                m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
-            }
-            rotation_of(m)
-        })
+        .map(|i| rotation_of(offsets_product(rest, current, connections, i)))
         .collect()
+}
+
+/// `M_i = sum_j (q_j - q_i)(p_j - p_i)^T` over particle `i`'s connections:
+/// the matrix whose polar rotation maps its rest offsets onto its current ones.
+fn offsets_product(rest: &[Vec3], current: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
+    let mut m = Mat3::ZERO;
+    for &j in connections.of(i) {
+        let d = rest[j as usize] - rest[i];
+        let c = current[j as usize] - current[i];
+        m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+    }
+    m
 }
 
 /// Iterations of the warm-started polar update per solver iteration; the
@@ -966,15 +970,7 @@ pub fn local_rotations_warm(
 ) -> Vec<Mat3> {
     (0..rest.len())
         .into_par_iter()
-        .map(|i| {
-            let mut m = Mat3::ZERO;
-            for &j in connections.of(i) {
-                let d = rest[j as usize] - rest[i];
-                let c = current[j as usize] - current[i];
-                m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
-            }
-            warm_rotation(m, previous[i])
-        })
+        .map(|i| warm_rotation(offsets_product(rest, current, connections, i), previous[i]))
         .collect()
 }
 
@@ -1132,13 +1128,7 @@ impl LowModes {
                 }
                 c.into_iter().map(|c| c.as_dvec3()).collect::<Vec<_>>()
             })
-            .reduce(
-                || vec![DVec3::ZERO; m],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
-                    a
-                },
-            );
+            .reduce(|| vec![DVec3::ZERO; m], add_entries);
         let gains: Vec<Vec3A> = projections
             .iter()
             .zip(&self.values)
@@ -1314,13 +1304,7 @@ pub fn low_modes(
                     sums
                 },
             )
-            .reduce(
-                || vec![0.0; checked],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
-                    a
-                },
-            );
+            .reduce(|| vec![0.0; checked], add_entries);
         residual = squares
             .iter()
             .zip(&values)
@@ -1355,6 +1339,12 @@ pub fn low_modes(
     }
 }
 
+/// `a + b`, entry by entry: how partial sums from parallel chunks combine.
+fn add_entries<T: std::ops::AddAssign>(mut a: Vec<T>, b: Vec<T>) -> Vec<T> {
+    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+    a
+}
+
 /// `A^T B` for two blocks held particle-major (`a[i * block + k]`): a
 /// `block x block` matrix, row-major.
 fn row_gram(a: &[f64], b: &[f64], block: usize) -> Vec<f64> {
@@ -1372,13 +1362,7 @@ fn row_gram(a: &[f64], b: &[f64], block: usize) -> Vec<f64> {
                 sum
             },
         )
-        .reduce(
-            || vec![0.0; block * block],
-            |mut a, b| {
-                a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
-                a
-            },
-        )
+        .reduce(|| vec![0.0; block * block], add_entries)
 }
 
 /// `X Z` for a block held particle-major and a `block x block` row-major `Z`.
