@@ -2,13 +2,15 @@
 //! sequences of small surface changes, against a tight reference solve of
 //! every frame.
 //!
-//! `cargo run --release --example tracking [particles] [deflation] [history]`
+//! `cargo run --release --example tracking [particles] [deflation] [history] [sequence]`
+//! (`sequence`: only the sequences whose name contains it)
 //!
 //! For every frame it prints the iterations the solve took, the "oracle"
 //! (the fewest iterations after which the true error is below the
 //! tolerance; `1000+k` when the solve stopped after `k` with the true
 //! error still above it) and the true error at the stop, as a fraction of
-//! the model's size. The reference is the same frame solved from the same
+//! the model's size; and per frame the surface's largest move and the
+//! prediction's error (where the solve starts). The reference is the same frame solved from the same
 //! start to a tolerance of 1e-7.
 
 use glam::Vec3;
@@ -26,6 +28,7 @@ fn main() -> Result<(), tissue::Error> {
         history: number(defaults.history),
         ..defaults
     };
+    let only = args.next().unwrap_or_default();
     let breast = phantom::default_breast();
     let model = tissue::sample(&breast, &SamplingParams::with_particles(particles))?.model;
     let deformer = Deformer::new(&model, params.clone())?;
@@ -38,8 +41,10 @@ fn main() -> Result<(), tissue::Error> {
         params.tolerance
     );
     println!();
-    println!("| sequence | iterations per frame | oracle | worst error / size |");
-    println!("|---|---|---|---|");
+    println!(
+        "| sequence | iterations per frame | oracle | worst error / size | largest surface move per frame, % of size | prediction's error, 1e-5 of size |"
+    );
+    println!("|---|---|---|---|---|---|");
 
     let sag = sagged_breast();
     let indentation = indented_breast();
@@ -87,8 +92,19 @@ fn main() -> Result<(), tissue::Error> {
                 .collect(),
         ),
     ];
-    for (name, frames) in &sequences {
-        let frames = track(&model, frames, &params)?;
+    for (name, surfaces) in sequences.iter().filter(|(name, _)| name.contains(&only)) {
+        let frames = track(&model, surfaces, &params)?;
+        let moves = std::iter::once(&breast)
+            .chain(surfaces)
+            .zip(surfaces)
+            .map(|(a, b)| {
+                format!(
+                    "{:.1}",
+                    100.0 * max_distance(&a.vertices, &b.vertices) / deformer.size()
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
         let worst = frames
             .iter()
             .skip(2)
@@ -101,8 +117,13 @@ fn main() -> Result<(), tissue::Error> {
                 .collect::<Vec<_>>()
                 .join(", ")
         };
+        let starts = frames
+            .iter()
+            .map(|f| format!("{:.0}", f.start * 1e5))
+            .collect::<Vec<_>>()
+            .join(", ");
         println!(
-            "| {name} | {} | {} | {worst:.1e} |",
+            "| {name} | {} | {} | {worst:.1e} | {moves} | {starts} |",
             list(|f| f.iterations),
             list(|f| f.oracle)
         );
@@ -113,6 +134,8 @@ fn main() -> Result<(), tissue::Error> {
 }
 
 struct Frame {
+    /// The prediction's error, as a fraction of the size.
+    start: f32,
     iterations: usize,
     oracle: usize,
     error: f32,
@@ -136,6 +159,7 @@ fn track(
         })?;
         reference.solve();
         let error = |d: &Deformer| max_distance(d.positions(), reference.positions()) / size;
+        let start = error(&deformer);
         let mut oracle = 0;
         for cap in 1..300 {
             let mut capped = deformer.clone();
@@ -155,6 +179,7 @@ fn track(
         }
         let report = deformer.solve();
         measured.push(Frame {
+            start,
             iterations: report.iterations,
             oracle,
             error: error(&deformer),

@@ -399,6 +399,35 @@ fn prediction_cuts_tracking_iterations() {
     );
 }
 
+/// Tracks `frames` with `history` and tolerance 1e-6; per frame, the
+/// prediction's worst distance from the answer over the change's largest.
+fn prediction_errors(history: usize, frames: &[SurfaceMesh]) -> Vec<f32> {
+    let params = DeformParams {
+        history,
+        tolerance: 1e-6,
+        ..DeformParams::default()
+    };
+    let mut deformer = Deformer::new(breast_model(), params).unwrap();
+    let mut solution = deformer.positions().to_vec();
+    let worst = |a: &[Vec3], b: &[Vec3]| {
+        a.iter()
+            .zip(b)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max)
+    };
+    frames
+        .iter()
+        .enumerate()
+        .map(|(k, frame)| {
+            deformer.set_surface(frame).unwrap();
+            let start = deformer.positions().to_vec();
+            assert!(deformer.solve().converged, "history {history}, frame {k}");
+            let previous = std::mem::replace(&mut solution, deformer.positions().to_vec());
+            worst(&start, &solution) / worst(&previous, &solution)
+        })
+        .collect()
+}
+
 /// A sag breathing in and out (its depth `0.5 - 0.5 cos(k / 2)` of the full
 /// 12 mm at frame `k`: accelerating, turning back): the prediction fits this
 /// frame's surface move with the last two frames' changes, so every frame
@@ -408,33 +437,13 @@ fn prediction_cuts_tracking_iterations() {
 fn the_prediction_follows_a_breathing_sag() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
-    let run = |history| {
-        let params = DeformParams {
-            history,
-            tolerance: 1e-6,
-            ..DeformParams::default()
-        };
-        let mut deformer = Deformer::new(model, params).unwrap();
-        let mut solution = deformer.positions().to_vec();
-        (0..12)
-            .map(|k| {
-                let depth = 0.5 - 0.5 * (0.5 * k as f32).cos();
-                let frame = interpolate(&model.surface, &sagged, depth).unwrap();
-                deformer.set_surface(&frame).unwrap();
-                let start = deformer.positions().to_vec();
-                assert!(deformer.solve().converged, "history {history}, frame {k}");
-                let previous = std::mem::replace(&mut solution, deformer.positions().to_vec());
-                let worst = |a: &[Vec3], b: &[Vec3]| {
-                    a.iter()
-                        .zip(b)
-                        .map(|(a, b)| a.distance(*b))
-                        .fold(0.0f32, f32::max)
-                };
-                worst(&start, &solution) / worst(&previous, &solution)
-            })
-            .collect::<Vec<f32>>()
-    };
-    let (fitted, affine) = (run(2), run(0));
+    let frames: Vec<SurfaceMesh> = (0..12)
+        .map(|k| {
+            let depth = 0.5 - 0.5 * (0.5 * k as f32).cos();
+            interpolate(&model.surface, &sagged, depth).unwrap()
+        })
+        .collect();
+    let (fitted, affine) = (prediction_errors(2, &frames), prediction_errors(0, &frames));
     eprintln!("start error / change: {fitted:?} fitted, {affine:?} affine only");
     assert!(
         fitted[3..].iter().all(|&r| r < 0.02),
@@ -444,6 +453,38 @@ fn the_prediction_follows_a_breathing_sag() {
         affine[3..].iter().all(|&r| r > 0.1),
         "{affine:?} (fitted: {fitted:?})"
     );
+}
+
+/// A sag and an indentation at two rhythms (depths `0.5 - 0.5 cos(k / 2)`
+/// and `0.5 - 0.5 cos(0.8 k)`): two changes span both shapes, so from the
+/// third frame on every frame starts within 5 % of its change of the answer
+/// (2.5 % measured at 5k particles). Fitting each change's affine part on
+/// its own base (where that change started) instead of the current one
+/// left up to 9 %.
+#[test]
+fn the_prediction_follows_a_sag_and_an_indentation_out_of_step() {
+    let model = breast_model();
+    let (sagged, indented) = (
+        tissue::deform::sagged_breast(),
+        tissue::deform::indented_breast(),
+    );
+    let frames: Vec<SurfaceMesh> = (0..12)
+        .map(|k| {
+            let (a, b) = (
+                0.5 - 0.5 * (0.5 * k as f32).cos(),
+                0.5 - 0.5 * (0.8 * k as f32).cos(),
+            );
+            let vertices = (model.surface.vertices.iter())
+                .zip(&sagged.vertices)
+                .zip(&indented.vertices)
+                .map(|((&p, &s), &i)| p + a * (s - p) + b * (i - p))
+                .collect();
+            SurfaceMesh::new(vertices, model.surface.triangles.clone())
+        })
+        .collect();
+    let fitted = prediction_errors(2, &frames);
+    eprintln!("start error / change: {fitted:?}");
+    assert!(fitted[3..].iter().all(|&r| r < 0.05), "{fitted:?}");
 }
 
 /// Deflation (32 modes) on a sag tracked in 3 mm steps, 1.6 % of the size
