@@ -18,6 +18,10 @@ struct Params {
     slot: u32,
     // Workgroups per dispatch (x times y), the length of a `partials` row.
     groups: u32,
+    // Modes deflated (0: none), the length of a particle's row of `vectors`.
+    modes: u32,
+    // Workgroups of a deflate_project dispatch (x times y): rows of `projections`.
+    mode_groups: u32,
 }
 
 // A particle's rotation as three columns (no bare vec3 in storage).

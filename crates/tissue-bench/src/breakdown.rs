@@ -10,8 +10,8 @@ use tissue_cpu::deformation::{
     Chebyshev, DeformParams, Deformer, RotationMethod, chebyshev_combine, deformation_force,
     integrate, local_rotations, local_rotations_warm, steps,
 };
+use tissue_gpu::GpuDeformer;
 use tissue_gpu::timing::KernelTimer;
-use tissue_gpu::{GpuDeformer, Kernel};
 
 use crate::stage2::Gpu;
 use crate::stats::Summary;
@@ -186,8 +186,9 @@ fn wait(gpu: &Gpu) -> Result<()> {
 /// submit and a wait otherwise.
 pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdown> {
     let (pipelines, state) = (deformer.pipelines(), deformer.state());
-    let names = || Kernel::ALL.map(|k| k.entry().1.to_owned());
-    let mut times: [Vec<f64>; 5] = Default::default();
+    let iteration = state.iteration();
+    let names = || iteration.iter().map(|k| k.name().to_owned());
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); iteration.len()];
     let mut whole = Vec::new();
     if gpu.timestamp_query {
         let timer = KernelTimer::new(&gpu.device, &gpu.queue)?;
@@ -205,12 +206,12 @@ pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdow
             "GPU time of each kernel in a compute pass of its own (timestamps at its start \
              and end); the iteration from the first start to the last end"
                 .to_owned(),
-            names().into_iter().zip(times).collect(),
+            names().zip(times).collect(),
             &whole,
         );
     }
     for sample in 0..=samples {
-        for (k, kernel) in Kernel::ALL.into_iter().enumerate() {
+        for (k, &kernel) in iteration.iter().enumerate() {
             let started = Instant::now();
             let mut encoder = gpu
                 .device
@@ -243,7 +244,7 @@ pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdow
          around recording, submitting and waiting for each kernel alone, and for one \
          iteration in one pass"
             .to_owned(),
-        names().into_iter().zip(times).collect(),
+        names().zip(times).collect(),
         &whole,
     )
 }

@@ -57,7 +57,7 @@ struct Args {
     #[arg(long)]
     no_timestamps: bool,
     /// Deflate this many of the Laplacian's lowest modes in stage 2
-    /// (`DeformParams::deflation`; the CPU path only, so `--backends cpu`).
+    /// (`DeformParams::deflation`), on every backend.
     #[arg(long, default_value_t = 0)]
     deflation: usize,
 }
@@ -292,11 +292,6 @@ fn run(args: &Args) -> Result<()> {
         ..DeformParams::default()
     };
     params.validate()?;
-    anyhow::ensure!(
-        args.deflation == 0 || !args.backends.contains(&BackendName::Gpu),
-        "--deflation {} runs on the CPU path only (no GPU kernel yet): add --backends cpu",
-        args.deflation
-    );
     let (mesh, cases) = surfaces(args.mesh.as_ref())?;
     let machine = Machine::detect();
     let (gpu_found, gpu) = if args.backends.contains(&BackendName::Gpu) {

@@ -34,7 +34,7 @@ pub struct SolveArgs {
     #[arg(long, default_value_t = DeformParams::default().tolerance)]
     pub tolerance: f32,
     /// Remove the error of this many of the lowest modes exactly every
-    /// iteration (computed once per model; CPU only; 32 halves the
+    /// iteration (computed once per model, on either backend; 32 halves the
     /// iterations, docs/METHOD.md). 0 turns it off.
     #[arg(long, default_value_t = DeformParams::default().deflation)]
     pub deflation: usize,

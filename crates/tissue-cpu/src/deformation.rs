@@ -1096,6 +1096,13 @@ impl LowModes {
         &self.values
     }
 
+    /// The eigenvectors, particle-major (`vectors()[i * count() + k]` is
+    /// mode `k` at particle `i`, 0 where the particle is not free), so the
+    /// GPU deflates with the very modes the CPU path does.
+    pub fn vectors(&self) -> &[f32] {
+        &self.vectors
+    }
+
     /// The smallest eigenvalue left after deflation (estimated from below).
     pub fn next(&self) -> f32 {
         self.next

@@ -5,8 +5,8 @@ use std::time::Instant;
 use glam::Vec3;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, DeformReport, FrameHistory, Plan, StopReason, StoppingRule,
-    check_same_topology, predict,
+    Chebyshev, DeformParams, DeformReport, FrameHistory, LowModes, Plan, StopReason, StoppingRule,
+    check_same_topology, low_modes, predict,
 };
 
 use crate::state::SLOTS;
@@ -15,7 +15,10 @@ use crate::{DeformState, GpuError, Pipelines};
 /// Stage 2 on the GPU for one particle model: the same step `alpha` from
 /// `lambda_max`, the same spectral Chebyshev `rho` and the same stopping rule
 /// as the CPU [`tissue_cpu::deformation::Deformer`], with rotations always by
-/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted). A
+/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted).
+/// With `params.deflation`, the same modes as the CPU path's deflate the
+/// plain step every iteration, with the same deflated `rho` and the same
+/// step for the rule (the update made, after the combine). A
 /// new frame starts where `tissue_cpu::deformation::predict` puts it, the
 /// CPU path's own function: the positions are read back at the end of every
 /// solve and the prediction is uploaded with the new control points (both
@@ -32,6 +35,9 @@ pub struct GpuDeformer {
     /// Free particles, spectrum, size and float floor, as the CPU path has them.
     plan: Plan,
     params: DeformParams,
+    /// The modes deflated every iteration, as the CPU path computes them;
+    /// `None` without deflation or when none came out.
+    modes: Option<LowModes>,
     backup_current: wgpu::Buffer,
     backup_previous: wgpu::Buffer,
     /// The control particles, in the order of `attachments`.
@@ -45,9 +51,9 @@ pub struct GpuDeformer {
 
 impl GpuDeformer {
     /// Checks `model` and `params`, estimates the Laplacian's extreme
-    /// eigenvalues (on the CPU, as the CPU path does), compiles the kernels
-    /// and uploads the model. `params.deflation` must be 0: deflation has
-    /// no kernel yet, and is refused rather than left out silently.
+    /// eigenvalues and, with `params.deflation`, its lowest modes (on the
+    /// CPU, by the CPU path's own calls, so both deflate the same modes),
+    /// compiles the kernels and uploads the model and the modes.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -55,14 +61,6 @@ impl GpuDeformer {
         params: DeformParams,
     ) -> Result<Self, GpuError> {
         params.validate()?;
-        if params.deflation > 0 {
-            return Err(tissue_core::Error::Deformation(format!(
-                "deformation parameter deflation is {}: deflation runs on the CPU path only \
-                 (no GPU kernel yet); use 0 on the GPU",
-                params.deflation
-            ))
-            .into());
-        }
         let plan = Plan::new(model)?;
         let attachments: Vec<(u32, [f32; 3])> = model
             .attachments
@@ -71,7 +69,28 @@ impl GpuDeformer {
             .map(|a| (a.triangle, a.barycentric))
             .collect();
         let pipelines = Pipelines::new(device)?;
-        let state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+        let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+        let modes = (params.deflation > 0)
+            .then(|| {
+                low_modes(
+                    &model.connections,
+                    &plan.free,
+                    params.deflation,
+                    plan.lambda_min,
+                    plan.lambda_max,
+                )
+            })
+            .filter(|m| m.count() > 0);
+        if let Some(m) = &modes {
+            // As `LowModes::deflate` forms each gain: in f64, from `c alpha`.
+            let contraction = f64::from(plan.contraction(&params));
+            let scales: Vec<f32> = m
+                .values()
+                .iter()
+                .map(|&lambda| (1.0 / (contraction * lambda) - 1.0) as f32)
+                .collect();
+            state.set_modes(device, &pipelines, m.vectors(), &scales)?;
+        }
         let backup = |label| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -95,6 +114,7 @@ impl GpuDeformer {
             attachments,
             plan,
             params,
+            modes,
             controls,
             current: model.positions.clone(),
             history: FrameHistory::default(),
@@ -112,8 +132,14 @@ impl GpuDeformer {
         &self.state
     }
 
-    /// Bytes of every GPU buffer the deformer holds: the state's, and the two
-    /// backups a batch is replayed from.
+    /// The lowest Laplacian modes deflated every iteration, if any (the
+    /// CPU path's `Deformer::modes`).
+    pub fn modes(&self) -> Option<&LowModes> {
+        self.modes.as_ref()
+    }
+
+    /// Bytes of every GPU buffer the deformer holds: the state's (with the
+    /// modes, when deflated), and the two backups a batch is replayed from.
     pub fn buffer_bytes(&self) -> u64 {
         self.state.buffer_bytes() + self.backup_current.size() + self.backup_previous.size()
     }
@@ -243,8 +269,21 @@ impl GpuDeformer {
         let started = Instant::now();
         let p = &self.params;
         let alpha = self.plan.alpha(p);
-        let mut chebyshev = Chebyshev::new(&self.plan, p);
-        let mut rule = StoppingRule::new(&self.plan, p);
+        // Deflated, the rest of the spectrum sets rho, and the state's
+        // iteration measures the update made (`Deformer::solve`).
+        let (mut chebyshev, mut rule) = match &self.modes {
+            Some(m) => {
+                let rho = m.rho(&self.plan, p);
+                (
+                    Chebyshev::with_rho(p, rho),
+                    StoppingRule::with_rho(&self.plan, p, rho),
+                )
+            }
+            None => (
+                Chebyshev::new(&self.plan, p),
+                StoppingRule::new(&self.plan, p),
+            ),
+        };
         let state = &self.state;
         let n = state.len() as f64;
         let mut stopped_by = StopReason::IterationCap;

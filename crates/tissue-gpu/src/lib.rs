@@ -5,7 +5,9 @@
 //! - [`Pipelines`]: the compiled kernels, built once from a `&Device`.
 //! - [`DeformState`]: the buffers of one particle model.
 //! - [`Pipelines::record_iterations`]: the step, rotations → force →
-//!   integrate → step norms → Chebyshev, K times into one command buffer.
+//!   integrate → step norms → Chebyshev (deflated: rotations → force →
+//!   integrate → deflate → Chebyshev → the update's norms), K times into
+//!   one command buffer.
 //! - [`GpuDeformer`]: `tissue_cpu::deformation::Deformer::solve` on the GPU.
 //! - [`GridPipelines`]: stage 1's uniform grid and neighbour rows
 //!   (`tissue_cpu::grid`) on the GPU, [`GpuGrid`] and [`GpuRows`].
@@ -123,6 +125,10 @@ pub struct Params {
     pub slot: u32,
     /// Workgroups of a `step_norms` dispatch: the length of a partials row.
     pub groups: u32,
+    /// Modes deflated (0: none).
+    pub modes: u32,
+    /// Workgroups of a `deflate_project` dispatch: rows of its projections.
+    pub mode_groups: u32,
 }
 
 /// Mirror of WGSL `Rotation` (`shaders/shared/layout.wgsl`): three columns,
@@ -229,6 +235,8 @@ mod tests {
                 ("omega", offset_of!(Params, omega)),
                 ("slot", offset_of!(Params, slot)),
                 ("groups", offset_of!(Params, groups)),
+                ("modes", offset_of!(Params, modes)),
+                ("mode_groups", offset_of!(Params, mode_groups)),
             ],
         );
     }

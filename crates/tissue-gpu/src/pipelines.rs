@@ -3,7 +3,7 @@
 use crate::state::DeformState;
 use crate::{GpuError, shaders};
 
-/// One stage-2 kernel (a WGSL entry point).
+/// One stage-2 kernel (a WGSL entry point bound to the state's buffers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
     /// `local_rotations.wgsl`: `R_i` from `M_i` through the 3x3 SVD.
@@ -16,16 +16,54 @@ pub enum Kernel {
     StepNorms,
     /// `integrate.wgsl::chebyshev`: the Chebyshev combine; updates current and previous.
     Chebyshev,
+    /// `deflate.wgsl::deflate_project`: each workgroup's share of the
+    /// plain step's projection on every mode.
+    DeflateProject,
+    /// `deflate.wgsl::deflate_gains`: one workgroup sums the projections
+    /// into each mode's gain.
+    DeflateGains,
+    /// `deflate.wgsl::deflate_apply`: adds the gains along the modes to the plain step.
+    DeflateApply,
+    /// `step_norms.wgsl` on the update made, `current` against `previous`
+    /// after the combine: the step a deflated solve's stopping rule takes
+    /// (the CPU's `steps(current, next)`).
+    UpdateNorms,
 }
 
 impl Kernel {
-    /// Every kernel, in the order of one iteration.
-    pub const ALL: [Kernel; 5] = [
+    /// Every kernel, in the order of the state's per-kernel tables.
+    pub const ALL: [Kernel; 9] = [
         Kernel::LocalRotations,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
         Kernel::Chebyshev,
+        Kernel::DeflateProject,
+        Kernel::DeflateGains,
+        Kernel::DeflateApply,
+        Kernel::UpdateNorms,
+    ];
+
+    /// One iteration without deflation, in order.
+    pub const ITERATION: [Kernel; 5] = [
+        Kernel::LocalRotations,
+        Kernel::DeformationForce,
+        Kernel::Integrate,
+        Kernel::StepNorms,
+        Kernel::Chebyshev,
+    ];
+
+    /// One deflated iteration, in order: the plain step is deflated before
+    /// the combine, and the norms are of the update the combine made.
+    pub const DEFLATED_ITERATION: [Kernel; 8] = [
+        Kernel::LocalRotations,
+        Kernel::DeformationForce,
+        Kernel::Integrate,
+        Kernel::DeflateProject,
+        Kernel::DeflateGains,
+        Kernel::DeflateApply,
+        Kernel::Chebyshev,
+        Kernel::UpdateNorms,
     ];
 
     /// `(shader file, entry point)`.
@@ -34,9 +72,25 @@ impl Kernel {
             Kernel::LocalRotations => ("local_rotations", "local_rotations"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
-            Kernel::StepNorms => ("step_norms", "step_norms"),
+            Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
             Kernel::Chebyshev => ("integrate", "chebyshev"),
+            Kernel::DeflateProject => ("deflate", "deflate_project"),
+            Kernel::DeflateGains => ("deflate", "deflate_gains"),
+            Kernel::DeflateApply => ("deflate", "deflate_apply"),
         }
+    }
+
+    /// A name for reports: the entry point, or what `UpdateNorms` measures.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::UpdateNorms => "step_norms (update)",
+            other => other.entry().1,
+        }
+    }
+
+    /// Position in [`Kernel::ALL`].
+    pub(crate) fn index(self) -> usize {
+        self as usize
     }
 }
 
@@ -58,6 +112,9 @@ pub struct Pipelines {
     pub(crate) integrate: CompiledKernel,
     pub(crate) step_norms: CompiledKernel,
     pub(crate) chebyshev: CompiledKernel,
+    pub(crate) deflate_project: CompiledKernel,
+    pub(crate) deflate_gains: CompiledKernel,
+    pub(crate) deflate_apply: CompiledKernel,
 }
 
 impl Pipelines {
@@ -71,6 +128,9 @@ impl Pipelines {
                 integrate: compile(device, Kernel::Integrate)?,
                 step_norms: compile(device, Kernel::StepNorms)?,
                 chebyshev: compile(device, Kernel::Chebyshev)?,
+                deflate_project: compile(device, Kernel::DeflateProject)?,
+                deflate_gains: compile(device, Kernel::DeflateGains)?,
+                deflate_apply: compile(device, Kernel::DeflateApply)?,
             })
         })();
         if let Some(error) = pollster::block_on(scope.pop()) {
@@ -84,8 +144,12 @@ impl Pipelines {
             Kernel::LocalRotations => &self.local_rotations,
             Kernel::DeformationForce => &self.deformation_force,
             Kernel::Integrate => &self.integrate,
-            Kernel::StepNorms => &self.step_norms,
+            // The same pipeline; the state binds the update's buffers.
+            Kernel::StepNorms | Kernel::UpdateNorms => &self.step_norms,
             Kernel::Chebyshev => &self.chebyshev,
+            Kernel::DeflateProject => &self.deflate_project,
+            Kernel::DeflateGains => &self.deflate_gains,
+            Kernel::DeflateApply => &self.deflate_apply,
         }
     }
 
@@ -139,8 +203,10 @@ impl Pipelines {
     }
 
     /// The step: `iterations` solver iterations (at most [`crate::SLOTS`]),
-    /// iteration `k` with the parameters of slot `k`, in one compute pass:
-    /// rotations, force, plain step, its norms, Chebyshev combine.
+    /// iteration `k` with the parameters of slot `k`, in one compute pass,
+    /// the kernels of [`DeformState::iteration`]: rotations, force, plain
+    /// step, its norms, Chebyshev combine; deflated, rotations, force, plain
+    /// step, its deflation, Chebyshev combine, the update's norms.
     pub fn record_iterations(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -152,7 +218,7 @@ impl Pipelines {
             timestamp_writes: None,
         });
         for slot in 0..iterations.min(crate::SLOTS) {
-            for kernel in Kernel::ALL {
+            for &kernel in state.iteration() {
                 self.dispatch_in(&mut pass, state, kernel, slot);
             }
         }

@@ -49,6 +49,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         "step_norms",
         include_str!("../../../shaders/step_norms.wgsl"),
     ),
+    ("deflate", include_str!("../../../shaders/deflate.wgsl")),
     (
         "tests/svd3",
         include_str!("../../../shaders/tests/svd3.wgsl"),
@@ -301,6 +302,39 @@ mod tests {
         }
     }
 
+    /// A WGSL file left out of [`SHADERS`] or [`SHARED`] would escape the
+    /// validation above.
+    #[test]
+    fn every_wgsl_file_is_registered() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+        let mut found = Vec::new();
+        for folder in ["", "shared", "tests"] {
+            let entries = std::fs::read_dir(root.join(folder))
+                .unwrap_or_else(|e| panic!("reading shaders/{folder}: {e}"));
+            for entry in entries.flatten() {
+                let path = entry.path();
+                if path.extension().is_some_and(|x| x == "wgsl") {
+                    let stem = path
+                        .file_stem()
+                        .map(|s| s.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    found.push(if folder.is_empty() {
+                        stem
+                    } else {
+                        format!("{folder}/{stem}")
+                    });
+                }
+            }
+        }
+        assert!(found.iter().any(|name| name == "deflate"), "{found:?}");
+        for name in found {
+            assert!(
+                SHADERS.iter().chain(SHARED).any(|(n, _)| *n == name),
+                "shaders/{name}.wgsl is in neither SHADERS nor SHARED"
+            );
+        }
+    }
+
     #[test]
     fn shared_files_validate_on_their_own() {
         for (name, text) in SHARED {
@@ -326,6 +360,9 @@ mod tests {
             ("integrate", "integrate"),
             ("integrate", "chebyshev"),
             ("step_norms", "step_norms"),
+            ("deflate", "deflate_project"),
+            ("deflate", "deflate_gains"),
+            ("deflate", "deflate_apply"),
             ("imf_force", "imf_force"),
             ("radius_update", "radius_update"),
             ("sampling_integrate", "integrate"),

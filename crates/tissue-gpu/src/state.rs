@@ -13,15 +13,20 @@ use crate::{GpuError, Params, Rotation};
 pub const SLOTS: u32 = 8;
 
 /// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused),
-/// rotations three `vec4` columns ([`Rotation`]).
+/// rotations three `vec4` columns ([`Rotation`]); the deflation buffers
+/// hold 16 bytes each until [`DeformState::set_modes`] fills them.
 #[derive(Debug)]
 pub struct DeformState {
     pub(crate) count: u32,
     params_stride: u64,
     /// Workgroups `[x, y]` of each kernel's dispatch, in [`Kernel::ALL`] order.
-    workgroups: [[u32; 2]; 5],
+    workgroups: [[u32; 2]; Kernel::ALL.len()],
     /// `x * y` of the step_norms dispatch: the length of a partials row.
     pub(crate) step_groups: u32,
+    /// `x * y` of the deflate_project dispatch: rows of `projections`.
+    mode_groups: u32,
+    /// Modes deflated each iteration (0: none, [`Kernel::ITERATION`]).
+    modes: u32,
     pub(crate) params: wgpu::Buffer,
     pub(crate) rest: wgpu::Buffer,
     pub(crate) current: wgpu::Buffer,
@@ -33,6 +38,15 @@ pub struct DeformState {
     pub(crate) offsets: wgpu::Buffer,
     pub(crate) indices: wgpu::Buffer,
     pub(crate) partials: wgpu::Buffer,
+    /// The modes, particle-major, `modes` per particle (16 zero bytes without deflation).
+    pub(crate) vectors: wgpu::Buffer,
+    /// Per mode, `1 / (c alpha lambda_k) − 1`.
+    pub(crate) scales: wgpu::Buffer,
+    /// Per deflate_project workgroup and mode, its share of the projection (`vec4`).
+    pub(crate) projections: wgpu::Buffer,
+    /// Per mode, the gain along it (`vec4`).
+    pub(crate) gains: wgpu::Buffer,
+    /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
     controls: Vec<u32>,
@@ -76,6 +90,10 @@ impl DeformState {
             &self.offsets,
             &self.indices,
             &self.partials,
+            &self.vectors,
+            &self.scales,
+            &self.projections,
+            &self.gains,
         ]
         .iter()
         .map(|b| b.size())
@@ -114,16 +132,23 @@ impl DeformState {
             asked: n as u64,
             allowed: u64::from(u32::MAX),
         })?;
-        let mut workgroups_of = [[0u32; 2]; 5];
-        for (k, kernel) in Kernel::ALL.into_iter().enumerate() {
-            workgroups_of[k] = workgroups(
-                count,
-                pipelines.workgroup_size(kernel),
-                limits.max_compute_workgroups_per_dimension,
-            )?;
+        let mut workgroups_of = [[1u32; 2]; Kernel::ALL.len()];
+        for kernel in Kernel::ALL {
+            // One workgroup sums the projections over all the others.
+            if kernel != Kernel::DeflateGains {
+                workgroups_of[kernel.index()] = workgroups(
+                    count,
+                    pipelines.workgroup_size(kernel),
+                    limits.max_compute_workgroups_per_dimension,
+                )?;
+            }
         }
-        let [sx, sy] = workgroups_of[3];
-        let step_groups = sx * sy;
+        let groups_of = |kernel: Kernel| {
+            let [x, y] = workgroups_of[kernel.index()];
+            x * y
+        };
+        let step_groups = groups_of(Kernel::StepNorms);
+        let mode_groups = groups_of(Kernel::DeflateProject);
         let params_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
             .max(std::mem::size_of::<Params>() as u64);
 
@@ -154,6 +179,10 @@ impl DeformState {
                 storage("offsets", bytemuck::cast_slice(&model.connections.offsets))?,
                 storage("indices", bytemuck::cast_slice(&model.connections.indices))?,
                 storage("partials", bytemuck::cast_slice(&partials))?,
+                storage("vectors", &[])?,
+                storage("scales", &[])?,
+                storage("projections", &[])?,
+                storage("gains", &[])?,
             ))
         })();
         let params = device.create_buffer(&wgpu::BufferDescriptor {
@@ -163,8 +192,22 @@ impl DeformState {
             mapped_at_creation: false,
         });
         scopes.pop()?;
-        let (rest, current, previous, plain, rotations, force, free, offsets, indices, partials) =
-            built?;
+        let (
+            rest,
+            current,
+            previous,
+            plain,
+            rotations,
+            force,
+            free,
+            offsets,
+            indices,
+            partials,
+            vectors,
+            scales,
+            projections,
+            gains,
+        ) = built?;
 
         let controls: Vec<u32> = (0..count)
             .filter(|&i| model.attachments[i as usize].is_some())
@@ -181,6 +224,8 @@ impl DeformState {
             params_stride,
             workgroups: workgroups_of,
             step_groups,
+            mode_groups,
+            modes: 0,
             params,
             rest,
             current,
@@ -192,28 +237,15 @@ impl DeformState {
             offsets,
             indices,
             partials,
+            vectors,
+            scales,
+            projections,
+            gains,
             bind_groups: Vec::new(),
             controls,
             control_runs,
         };
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
-            .into_iter()
-            .map(|kernel| {
-                bind_group(
-                    device,
-                    pipelines.kernel(kernel),
-                    kernel.entry(),
-                    |name| state.buffer(name),
-                    Some(std::mem::size_of::<Params>() as u64),
-                    "names no stage-2 buffer",
-                )
-            })
-            .collect();
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(e.into());
-        }
-        state.bind_groups = groups?;
+        state.bind_groups = state.bind_all(device, pipelines)?;
         for slot in 0..SLOTS {
             state.write_params(
                 queue,
@@ -222,6 +254,122 @@ impl DeformState {
             );
         }
         Ok(state)
+    }
+
+    /// Deflates the plain step along `m = scales.len()` modes every
+    /// iteration from now on ([`Kernel::DEFLATED_ITERATION`]): `vectors`
+    /// particle-major (`vectors[i * m + k]`, 0 at control points), `scales[k]` the
+    /// factor `1 / (c alpha lambda_k) − 1` that turns mode `k`'s projection
+    /// into its gain (see `tissue_cpu::deformation::LowModes::deflate`).
+    /// Zero modes turn deflation off.
+    pub fn set_modes(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        vectors: &[f32],
+        scales: &[f32],
+    ) -> Result<(), GpuError> {
+        let n = self.len();
+        let m = scales.len();
+        if vectors.len() != n * m {
+            return Err(GpuError::Length {
+                what: "mode entries (one per particle and mode)",
+                expected: n * m,
+                got: vectors.len(),
+            });
+        }
+        let modes = u32::try_from(m)
+            .ok()
+            .filter(|_| u32::try_from(n * m).is_ok())
+            .ok_or_else(|| GpuError::LimitExceeded {
+                limit: "u32 mode entry index",
+                what: format!("{m} modes over {n} particles"),
+                asked: (n * m) as u64,
+                allowed: u64::from(u32::MAX),
+            })?;
+        let what = |buffer: &str| format!("the {buffer} buffer ({m} modes, {n} particles)");
+        let rows = self.mode_groups as usize * m;
+        let scopes = Scopes::push(device);
+        let built = (|| {
+            Ok::<_, GpuError>((
+                storage_init(
+                    device,
+                    "vectors",
+                    bytemuck::cast_slice(vectors),
+                    &what("vectors"),
+                )?,
+                storage_init(
+                    device,
+                    "scales",
+                    bytemuck::cast_slice(scales),
+                    &what("scales"),
+                )?,
+                storage_init(
+                    device,
+                    "projections",
+                    bytemuck::cast_slice(&vec![[0.0f32; 4]; rows]),
+                    &what("projections"),
+                )?,
+                storage_init(
+                    device,
+                    "gains",
+                    bytemuck::cast_slice(&vec![[0.0f32; 4]; m]),
+                    &what("gains"),
+                )?,
+            ))
+        })();
+        scopes.pop()?;
+        (self.vectors, self.scales, self.projections, self.gains) = built?;
+        self.modes = modes;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Modes deflated every iteration (0: none).
+    pub fn modes(&self) -> usize {
+        self.modes as usize
+    }
+
+    /// The kernels of one iteration, in order: [`Kernel::DEFLATED_ITERATION`]
+    /// once [`DeformState::set_modes`] gave modes, else [`Kernel::ITERATION`].
+    pub fn iteration(&self) -> &'static [Kernel] {
+        if self.modes > 0 {
+            &Kernel::DEFLATED_ITERATION
+        } else {
+            &Kernel::ITERATION
+        }
+    }
+
+    /// A bind group per kernel, in [`Kernel::ALL`] order. `UpdateNorms`
+    /// is `step_norms` with `previous` (the old current, after the combine)
+    /// bound as its `plain`.
+    fn bind_all(
+        &self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+    ) -> Result<Vec<wgpu::BindGroup>, GpuError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
+            .into_iter()
+            .map(|kernel| {
+                let update = kernel == Kernel::UpdateNorms;
+                bind_group(
+                    device,
+                    pipelines.kernel(kernel),
+                    (kernel.entry().0, kernel.name()),
+                    |name| match name {
+                        "plain" if update => Some(&self.previous),
+                        _ => self.buffer(name),
+                    },
+                    Some(std::mem::size_of::<Params>() as u64),
+                    "names no stage-2 buffer",
+                )
+            })
+            .collect();
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(e.into());
+        }
+        groups
     }
 
     fn buffer(&self, name: &str) -> Option<&wgpu::Buffer> {
@@ -237,16 +385,20 @@ impl DeformState {
             "offsets" => &self.offsets,
             "indices" => &self.indices,
             "partials" => &self.partials,
+            "vectors" => &self.vectors,
+            "scales" => &self.scales,
+            "projections" => &self.projections,
+            "gains" => &self.gains,
             _ => return None,
         })
     }
 
     pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {
-        &self.bind_groups[kernel_index(kernel)]
+        &self.bind_groups[kernel.index()]
     }
 
     pub(crate) fn workgroups(&self, kernel: Kernel) -> [u32; 2] {
-        self.workgroups[kernel_index(kernel)]
+        self.workgroups[kernel.index()]
     }
 
     pub(crate) fn params_offset(&self, slot: u32) -> u32 {
@@ -281,6 +433,8 @@ impl DeformState {
             omega,
             slot: slot.min(SLOTS - 1),
             groups: self.step_groups,
+            modes: self.modes,
+            mode_groups: self.mode_groups,
         }
     }
 
@@ -421,10 +575,6 @@ impl DeformState {
             .map(|p| Vec3::new(p[0], p[1], p[2]))
             .collect())
     }
-}
-
-fn kernel_index(kernel: Kernel) -> usize {
-    Kernel::ALL.iter().position(|&k| k == kernel).unwrap_or(0)
 }
 
 /// Copies the first `size` bytes of `buffer` to a mapped staging buffer and reads them.

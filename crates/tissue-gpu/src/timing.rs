@@ -8,13 +8,14 @@ use crate::GpuError;
 use crate::pipelines::{Kernel, Pipelines};
 use crate::state::{DeformState, read_buffer};
 
-/// Timestamps per iteration: a start and an end per kernel.
-const QUERIES: u32 = 2 * Kernel::ALL.len() as u32;
+/// Timestamps of the longest iteration: a start and an end per kernel.
+const QUERIES: u32 = 2 * Kernel::DEFLATED_ITERATION.len() as u32;
 
 /// GPU time of one iteration, from the device's own clock.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IterationTimes {
-    /// Milliseconds of each kernel's pass, in [`Kernel::ALL`] order.
+    /// Milliseconds of each kernel's pass, in the order of
+    /// [`DeformState::iteration`].
     pub kernels: Vec<(Kernel, f64)>,
     /// Milliseconds from the first kernel's start to the last one's end
     /// (the kernels, and the gaps between their passes).
@@ -75,7 +76,9 @@ impl KernelTimer {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("timed iteration"),
         });
-        for (k, kernel) in (0u32..).zip(Kernel::ALL) {
+        let iteration = state.iteration();
+        let used = 2 * iteration.len() as u32;
+        for (k, &kernel) in (0u32..).zip(iteration) {
             pipelines.dispatch_timed(
                 &mut encoder,
                 state,
@@ -88,16 +91,22 @@ impl KernelTimer {
                 }),
             );
         }
-        encoder.resolve_query_set(&self.queries, 0..QUERIES, &self.resolved, 0);
+        encoder.resolve_query_set(&self.queries, 0..used, &self.resolved, 0);
         queue.submit([encoder.finish()]);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(e.into());
         }
-        let bytes = read_buffer(device, queue, &self.resolved, self.resolved.size() as usize)?;
+        let bytes = read_buffer(
+            device,
+            queue,
+            &self.resolved,
+            used as usize * wgpu::QUERY_SIZE as usize,
+        )?;
         let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&bytes);
         let ms = |from: u64, to: u64| to.saturating_sub(from) as f64 * self.period_ns / 1e6;
-        let kernels = Kernel::ALL
-            .into_iter()
+        let kernels = iteration
+            .iter()
+            .copied()
             .zip(ticks.chunks_exact(2))
             .map(|(kernel, pair)| (kernel, ms(pair[0], pair[1])))
             .collect();

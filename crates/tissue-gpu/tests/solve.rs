@@ -99,3 +99,89 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
     }
     eprintln!("iterations per frame (CPU, GPU): {counts:?}");
 }
+
+/// Deflation (32 modes) on the sag from rest: the GPU deflates the CPU
+/// path's very modes, stops after the same iterations (one either way, if
+/// the reductions' rounding tips the rule), lands within 1e-5 of the size of
+/// the CPU's positions, and needs fewer iterations than undeflated.
+#[test]
+fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
+    let Some((device, queue)) = common::gpu("deflated solve parity") else {
+        return;
+    };
+    // Not a multiple of the workgroup size: the last workgroup is partial.
+    let model = common::phantom(3_001);
+    for force in [ForceModel::Symmetric, ForceModel::Paper] {
+        let plain = DeformParams {
+            force,
+            rotations: RotationMethod::Svd,
+            ..DeformParams::default()
+        };
+        let deflated = DeformParams {
+            deflation: 32,
+            ..plain.clone()
+        };
+        let (cpu, cpu_report, gpu, gpu_report) =
+            common::solve_sag_on_both(&device, &queue, model, deflated);
+        let modes = gpu.modes().unwrap_or_else(|| panic!("{force:?}: no modes"));
+        assert_eq!(modes.count(), 32, "{force:?}");
+        // The same call as the CPU path's: the same f32 vectors; the f64
+        // eigenvalues may differ in the last bit, as low_modes' parallel
+        // reductions add in an order that depends on the thread schedule.
+        let same = cpu.modes().is_some_and(|m| {
+            m.vectors() == modes.vectors()
+                && m.next() == modes.next()
+                && m.values()
+                    .iter()
+                    .zip(modes.values())
+                    .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs())
+        });
+        assert!(same, "{force:?}: the GPU deflates other modes than the CPU");
+        let mut undeflated = tissue_gpu::GpuDeformer::new(&device, &queue, model, plain)
+            .unwrap_or_else(|e| panic!("{e}"));
+        undeflated
+            .set_surface(&queue, &tissue_core::deform::sagged_breast())
+            .unwrap_or_else(|e| panic!("{e}"));
+        let undeflated_report = undeflated
+            .solve(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        eprintln!(
+            "{force:?} deflated: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU undeflated {}",
+            cpu_report.iterations,
+            cpu_report.stopped_by,
+            gpu_report.iterations,
+            gpu_report.stopped_by,
+            undeflated_report.iterations
+        );
+        assert!(cpu_report.converged, "{force:?}: {cpu_report:?}");
+        assert!(gpu_report.converged, "{force:?}: {gpu_report:?}");
+        assert!(
+            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+            "{force:?}: CPU {} iterations deflated, GPU {}",
+            cpu_report.iterations,
+            gpu_report.iterations
+        );
+        assert!(
+            undeflated_report.converged && gpu_report.iterations < undeflated_report.iterations,
+            "{force:?}: {} iterations deflated, {undeflated_report:?} undeflated",
+            gpu_report.iterations
+        );
+        let got = gpu
+            .positions(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let tolerance = 1e-5 * cpu.size();
+        let mut worst = 0.0f32;
+        for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
+            let off = g.distance(*c);
+            worst = worst.max(off);
+            assert!(
+                off <= tolerance,
+                "{force:?}, particle {i}: GPU {g} vs CPU {c}, distance {off:e} > tolerance {tolerance:e} (1e-5 of the size)"
+            );
+        }
+        eprintln!(
+            "{force:?} deflated: worst distance {worst:e} = {:e} of the size",
+            worst / cpu.size()
+        );
+    }
+}
