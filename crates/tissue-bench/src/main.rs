@@ -57,8 +57,9 @@ struct Args {
     #[arg(long)]
     no_timestamps: bool,
     /// Deflate this many of the Laplacian's lowest modes in stage 2
-    /// (`DeformParams::deflation`), on every backend.
-    #[arg(long, default_value_t = 0)]
+    /// (`DeformParams::deflation`, the library's default), on every
+    /// backend; 0 measures the solver without it.
+    #[arg(long, default_value_t = DeformParams::default().deflation)]
     deflation: usize,
 }
 

@@ -34,15 +34,23 @@ pub struct SolveArgs {
     #[arg(long, default_value_t = DeformParams::default().tolerance)]
     pub tolerance: f32,
     /// Remove the error of this many of the lowest modes exactly every
-    /// iteration (computed once per model, on either backend; 32 halves the
-    /// iterations, docs/METHOD.md). 0 turns it off.
-    #[arg(long, default_value_t = DeformParams::default().deflation)]
-    pub deflation: usize,
+    /// iteration (computed once per model, on either backend: 0.2 s at 10k
+    /// particles, 4 s at 100k; docs/METHOD.md). 0 turns it off. Default: 32
+    /// for `track`, where it brings small frames to at most 10 iterations;
+    /// 0 for `deform`, whose one frame does not repay the preparation on
+    /// large models.
+    #[arg(long)]
+    pub deflation: Option<usize>,
 }
 
 impl SolveArgs {
-    /// The stage-2 parameters, checked.
-    pub fn params(&self) -> Result<DeformParams> {
+    /// The stage-2 parameters, checked; `frames` says whether a sequence
+    /// (deflation by default) or one frame (none by default) is solved.
+    pub fn params(&self, frames: Frames) -> Result<DeformParams> {
+        let deflation = self.deflation.unwrap_or(match frames {
+            Frames::One => 0,
+            Frames::Sequence => DeformParams::default().deflation,
+        });
         let params = DeformParams {
             force: match self.force {
                 Force::Paper => ForceModel::Paper,
@@ -50,12 +58,21 @@ impl SolveArgs {
             },
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
-            deflation: self.deflation,
+            deflation,
             ..DeformParams::default()
         };
         params.validate()?;
         Ok(params)
     }
+}
+
+/// What a command solves: the default deflation depends on it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Frames {
+    /// One deformed surface (`deform`).
+    One,
+    /// A sequence, each frame from the last (`track`).
+    Sequence,
 }
 
 /// Options of `tissue deform`.
@@ -136,7 +153,7 @@ pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Re
 
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
-    let params = args.solve.params()?;
+    let params = args.solve.params(Frames::One)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
@@ -170,4 +187,27 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         println!("  wrote {}", report.files.join(", "));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `deform` (one frame) leaves deflation out by default, `track` keeps
+    /// the library's 32 modes, and `--deflation` wins over both.
+    #[test]
+    fn deflation_defaults_to_none_for_one_frame_and_32_for_a_sequence() {
+        let args = |deflation| SolveArgs {
+            force: Force::Symmetric,
+            max_iterations: 100,
+            tolerance: 1e-4,
+            deflation,
+        };
+        let deflation = |given, frames| args(given).params(frames).map(|p| p.deflation).ok();
+        assert_eq!(deflation(None, Frames::One), Some(0));
+        assert_eq!(deflation(None, Frames::Sequence), Some(32));
+        assert_eq!(deflation(Some(8), Frames::One), Some(8));
+        assert_eq!(deflation(Some(0), Frames::Sequence), Some(0));
+        assert_eq!(deflation(Some(100_000), Frames::Sequence), None);
+    }
 }

@@ -12,7 +12,7 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{Destination, convergence, write_json, write_solution};
-use crate::solve::{SolveArgs, load_deformed, load_model};
+use crate::solve::{Frames, SolveArgs, load_deformed, load_model};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -87,7 +87,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
     let params = DeformParams {
         history: args.history,
-        ..args.solve.params()?
+        ..args.solve.params(Frames::Sequence)?
     };
     params.validate()?;
     let frames = expand(&args.frames)?;

@@ -85,12 +85,13 @@ pub struct DeformParams {
     /// Deflation: the number of lowest eigenvectors of the Dirichlet
     /// Laplacian over free particles (computed once per model) whose error
     /// every iteration removes exactly; Chebyshev and the stopping rule then
-    /// use the next eigenvalue instead of the smallest (see
-    /// [`LowModes`]). 0, the default, turns it off: 32 modes halve the
-    /// iterations of a solve and bring most tracking frames to at most 8
-    /// (docs/METHOD.md), but cost 0.2 s of preparation at 10k particles,
-    /// 4 s at 100k, 10-40 % more time per iteration, and have no GPU
-    /// kernel yet.
+    /// use the next eigenvalue instead of the smallest (see [`LowModes`]).
+    /// 32 by default: it halves the iterations of a solve from rest and
+    /// brings tracking frames of up to 2 % of the size to at most 10
+    /// iterations, where 0 (off) takes up to 24 (docs/METHOD.md); it costs
+    /// 0.2 s of preparation at 10k particles, 4 s at 100k, and 10-40 % more
+    /// time per iteration. One frame alone does not repay the preparation
+    /// at 100k: `tissue deform` turns it off unless asked.
     pub deflation: usize,
 }
 
@@ -106,7 +107,7 @@ impl Default for DeformParams {
             max_iterations: 5_000,
             extrapolate: true,
             history: 2,
-            deflation: 0,
+            deflation: 32,
         }
     }
 }
@@ -1926,8 +1927,8 @@ mod tests {
     }
 
     #[test]
-    fn deflation_is_off_by_default_and_bounded() {
-        assert_eq!(DeformParams::default().deflation, 0);
+    fn deflation_defaults_to_32_modes_and_is_bounded() {
+        assert_eq!(DeformParams::default().deflation, 32);
         let err = refusal(&DeformParams {
             deflation: MAX_DEFLATION + 1,
             ..DeformParams::default()

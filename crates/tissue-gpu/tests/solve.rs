@@ -115,6 +115,7 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
         let plain = DeformParams {
             force,
             rotations: RotationMethod::Svd,
+            deflation: 0,
             ..DeformParams::default()
         };
         let deflated = DeformParams {

@@ -111,19 +111,25 @@ pub fn check_breakdown(stages: &Value, method: &str, passes: &[&str], context: &
     );
 }
 
-/// The CPU passes of one iteration with the default (warm polar) rotations.
-pub const CPU_PASSES: [&str; 4] = [
+/// The CPU passes of one iteration with the defaults (warm polar
+/// rotations, 32 modes deflated).
+pub const CPU_PASSES: [&str; 5] = [
     "local_rotations_warm (warm polar)",
     "deformation_force",
     "integrate + chebyshev_combine",
+    "deflate (32 modes)",
     "step norms",
 ];
 
-/// The GPU kernels of one iteration, in dispatch order.
-pub const GPU_PASSES: [&str; 5] = [
+/// The GPU kernels of one iteration with the defaults (32 modes
+/// deflated), in dispatch order.
+pub const GPU_PASSES: [&str; 8] = [
     "local_rotations",
     "deformation_force",
     "integrate",
-    "step_norms",
+    "deflate_project",
+    "deflate_gains",
+    "deflate_apply",
     "chebyshev",
+    "step_norms (update)",
 ];
