@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{check_breakdown, positive, run_bench};
+use common::{GPU_PASSES, check_breakdown, positive, run_bench};
 
 #[test]
 fn deflation_is_measured_on_the_cpu() {
@@ -85,16 +85,7 @@ fn deflation_is_measured_on_the_gpu() {
     check_breakdown(
         &stage2["stages"],
         method,
-        &[
-            "local_rotations",
-            "deformation_force",
-            "integrate",
-            "deflate_project",
-            "deflate_gains",
-            "deflate_apply",
-            "chebyshev",
-            "step_norms (update)",
-        ],
+        &GPU_PASSES,
         "gpu, 1500 particles, 8 modes",
     );
 }

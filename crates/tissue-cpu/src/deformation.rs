@@ -298,6 +298,13 @@ impl Plan {
     pub fn rho(&self, params: &DeformParams) -> f32 {
         (1.0 - 2.0 * params.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999)
     }
+
+    /// The contraction a solve's Chebyshev weights and stopping rule use:
+    /// [`Plan::rho`], or with deflation what the modes leave
+    /// ([`LowModes::rho`]).
+    pub fn solve_rho(&self, params: &DeformParams, modes: Option<&LowModes>) -> f32 {
+        modes.map_or_else(|| self.rho(params), |m| m.rho(self, params))
+    }
 }
 
 /// The RMS step, in ulps of the largest coordinate, below which a solve has
@@ -585,19 +592,11 @@ impl Deformer {
         let p = &self.params;
         let alpha = self.plan.alpha(p);
         let modes = self.modes.clone().filter(|m| m.count() > 0);
-        let (mut chebyshev, mut rule) = match &modes {
-            Some(m) => {
-                let rho = m.rho(&self.plan, p);
-                (
-                    Chebyshev::with_rho(p, rho),
-                    StoppingRule::with_rho(&self.plan, p, rho),
-                )
-            }
-            None => (
-                Chebyshev::new(&self.plan, p),
-                StoppingRule::new(&self.plan, p),
-            ),
-        };
+        let rho = self.plan.solve_rho(p, modes.as_deref());
+        let (mut chebyshev, mut rule) = (
+            Chebyshev::with_rho(p, rho),
+            StoppingRule::with_rho(&self.plan, p, rho),
+        );
         let contraction = self.plan.contraction(p);
         let mut previous = self.current.clone();
         let mut stopped_by = StopReason::IterationCap;

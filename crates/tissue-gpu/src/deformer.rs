@@ -271,19 +271,11 @@ impl GpuDeformer {
         let alpha = self.plan.alpha(p);
         // Deflated, the rest of the spectrum sets rho, and the state's
         // iteration measures the update made (`Deformer::solve`).
-        let (mut chebyshev, mut rule) = match &self.modes {
-            Some(m) => {
-                let rho = m.rho(&self.plan, p);
-                (
-                    Chebyshev::with_rho(p, rho),
-                    StoppingRule::with_rho(&self.plan, p, rho),
-                )
-            }
-            None => (
-                Chebyshev::new(&self.plan, p),
-                StoppingRule::new(&self.plan, p),
-            ),
-        };
+        let rho = self.plan.solve_rho(p, self.modes.as_ref());
+        let (mut chebyshev, mut rule) = (
+            Chebyshev::with_rho(p, rho),
+            StoppingRule::with_rho(&self.plan, p, rho),
+        );
         let state = &self.state;
         let n = state.len() as f64;
         let mut stopped_by = StopReason::IterationCap;

@@ -16,6 +16,18 @@ use tissue_gpu::{DeformState, Kernel, Pipelines};
 const SIZES: [usize; 2] = [2_000, 3_001];
 
 /// A smooth non-rigid deformation of the rest shape: a twist about z and ripples.
+/// The CPU path's symmetric force at `current`, with its own rotations.
+fn symmetric_force(model: &ParticleModel, current: &[Vec3]) -> Vec<Vec3> {
+    let rotations = local_rotations(&model.positions, current, &model.connections);
+    deformation_force(
+        &model.positions,
+        current,
+        &rotations,
+        &model.connections,
+        ForceModel::Symmetric,
+    )
+}
+
 fn deformed(model: &ParticleModel) -> Vec<Vec3> {
     let (lo, hi) = model.positions.iter().fold(
         (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
@@ -160,14 +172,7 @@ fn integrate_and_step_norms_match_the_cpu_twins() {
     for n in SIZES {
         let model = common::phantom(n);
         let current = deformed(model);
-        let rotations = local_rotations(&model.positions, &current, &model.connections);
-        let force = deformation_force(
-            &model.positions,
-            &current,
-            &rotations,
-            &model.connections,
-            ForceModel::Symmetric,
-        );
+        let force = symmetric_force(model, &current);
         let free = free_of(model);
         let alpha = 0.07;
         let expected = integrate(&current, &force, &free, alpha);
@@ -228,14 +233,7 @@ fn chebyshev_matches_the_cpu_combine() {
     let model = common::phantom(n);
     let old = model.positions.clone();
     let current = deformed(model);
-    let rotations = local_rotations(&model.positions, &current, &model.connections);
-    let force = deformation_force(
-        &model.positions,
-        &current,
-        &rotations,
-        &model.connections,
-        ForceModel::Symmetric,
-    );
+    let force = symmetric_force(model, &current);
     let free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
     let alpha = 0.07;
     let plain = integrate(&current, &force, &free, alpha);
@@ -276,14 +274,7 @@ fn deflate_matches_the_cpu_twin() {
     for n in SIZES {
         let model = common::phantom(n);
         let current = deformed(model);
-        let rotations = local_rotations(&model.positions, &current, &model.connections);
-        let force = deformation_force(
-            &model.positions,
-            &current,
-            &rotations,
-            &model.connections,
-            ForceModel::Symmetric,
-        );
+        let force = symmetric_force(model, &current);
         let plan = Plan::new(model).unwrap_or_else(|e| panic!("{e}"));
         let params = DeformParams {
             deflation: 16,
