@@ -99,6 +99,7 @@ impl GpuDeformer {
                 mapped_at_creation: false,
             })
         };
+        let history = FrameHistory::at_rest(&model.positions, params.history);
         let controls = model
             .attachments
             .iter()
@@ -117,7 +118,7 @@ impl GpuDeformer {
             modes,
             controls,
             current: model.positions.clone(),
-            history: FrameHistory::default(),
+            history,
             rest: model.positions.clone(),
         })
     }
@@ -238,7 +239,7 @@ impl GpuDeformer {
         encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
         queue.submit([encoder.finish()]);
         self.current.clone_from(&self.rest);
-        self.history.clear();
+        self.history = FrameHistory::at_rest(&self.rest, self.params.history);
         crate::wait(device)
     }
 
