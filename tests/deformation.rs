@@ -487,6 +487,31 @@ fn the_prediction_follows_a_sag_and_an_indentation_out_of_step() {
     assert!(fitted[3..].iter().all(|&r| r < 0.05), "{fitted:?}");
 }
 
+/// Deflation is left out for models above `deflation_max_particles` free
+/// particles (the preparation would take minutes at 1M), and the solve
+/// still converges to the same answer.
+#[test]
+fn deflation_is_left_out_above_its_particle_limit() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let capped = DeformParams {
+        deflation_max_particles: 1_000,
+        ..DeformParams::default()
+    };
+    let mut without = Deformer::new(model, capped).unwrap();
+    assert!(without.modes().is_none());
+    let mut with = Deformer::new(model, DeformParams::default()).unwrap();
+    assert_eq!(with.modes().map(|m| m.count()), Some(32));
+    for deformer in [&mut without, &mut with] {
+        deformer.set_surface(&sagged).unwrap();
+        assert!(deformer.solve().converged);
+    }
+    let worst = (0..model.len())
+        .map(|i| with.positions()[i].distance(without.positions()[i]))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 2.0 * 3e-5 * with.size(), "{worst}");
+}
+
 /// The rest shape counts as a solved frame: after a first frame of half
 /// the sag, a frame grown by 2 % of the sag starts from the change rest to
 /// half (the same shape), within 1 % of its change of the answer (0.65 %

@@ -92,7 +92,16 @@ pub struct DeformParams {
     /// 0.2 s of preparation at 10k particles, 4 s at 100k, and 10-40 % more
     /// time per iteration. One frame alone does not repay the preparation
     /// at 100k: `tissue deform` turns it off unless asked.
+    ///
+    /// Models with more free particles than [`DeformParams::deflation_max_particles`]
+    /// are solved without it.
     pub deflation: usize,
+    /// Deflation is left out (with a log warning) for models with more free
+    /// particles than this: the modes' preparation grows faster than the
+    /// model (0.2 s at 10k, 4.4 s at 100k, 153 s and 1.8 GB of memory at
+    /// 1M), and a solve from rest at 1M takes less than that. 200,000 by
+    /// default; raise it to deflate larger models.
+    pub deflation_max_particles: usize,
 }
 
 impl Default for DeformParams {
@@ -108,6 +117,7 @@ impl Default for DeformParams {
             extrapolate: true,
             history: 2,
             deflation: 32,
+            deflation_max_particles: 200_000,
         }
     }
 }
@@ -462,15 +472,7 @@ impl Deformer {
     pub fn new(model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
         params.validate()?;
         let plan = Plan::new(model)?;
-        let modes = (params.deflation > 0).then(|| {
-            std::sync::Arc::new(low_modes(
-                &model.connections,
-                &plan.free,
-                params.deflation,
-                plan.lambda_min,
-                plan.lambda_max,
-            ))
-        });
+        let modes = deflation_modes(model, &plan, &params).map(std::sync::Arc::new);
         Ok(Self {
             rest: model.positions.clone(),
             connections: model.connections.clone(),
@@ -1179,6 +1181,36 @@ impl LowModes {
                 }
             });
     }
+}
+
+/// The modes a solve of `model` deflates under `params`, as both backends
+/// compute them: none without deflation, or (with a warning) for a model
+/// with more free particles than `deflation_max_particles`.
+pub fn deflation_modes(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+) -> Option<LowModes> {
+    if params.deflation == 0 {
+        return None;
+    }
+    let free = plan.free.iter().filter(|&&f| f).count();
+    if free > params.deflation_max_particles {
+        log::warn!(
+            "no deflation: {free} free particles, more than deflation_max_particles \
+             ({}); preparing {} modes would take minutes",
+            params.deflation_max_particles,
+            params.deflation
+        );
+        return None;
+    }
+    Some(low_modes(
+        &model.connections,
+        &plan.free,
+        params.deflation,
+        plan.lambda_min,
+        plan.lambda_max,
+    ))
 }
 
 /// The most modes [`DeformParams::deflation`] may ask for: each costs a
@@ -1946,6 +1978,7 @@ mod tests {
     #[test]
     fn deflation_defaults_to_32_modes_and_is_bounded() {
         assert_eq!(DeformParams::default().deflation, 32);
+        assert_eq!(DeformParams::default().deflation_max_particles, 200_000);
         let err = refusal(&DeformParams {
             deflation: MAX_DEFLATION + 1,
             ..DeformParams::default()

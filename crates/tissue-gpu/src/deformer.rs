@@ -6,7 +6,7 @@ use glam::Vec3;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{
     Chebyshev, DeformParams, DeformReport, FrameHistory, LowModes, Plan, StopReason, StoppingRule,
-    check_same_topology, low_modes, predict,
+    check_same_topology, deflation_modes, predict,
 };
 
 use crate::state::SLOTS;
@@ -70,17 +70,7 @@ impl GpuDeformer {
             .collect();
         let pipelines = Pipelines::new(device)?;
         let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-        let modes = (params.deflation > 0)
-            .then(|| {
-                low_modes(
-                    &model.connections,
-                    &plan.free,
-                    params.deflation,
-                    plan.lambda_min,
-                    plan.lambda_max,
-                )
-            })
-            .filter(|m| m.count() > 0);
+        let modes = deflation_modes(model, &plan, &params).filter(|m| m.count() > 0);
         if let Some(m) = &modes {
             // As `LowModes::deflate` forms each gain: in f64, from `c alpha`.
             let contraction = f64::from(plan.contraction(&params));
