@@ -88,7 +88,7 @@ pub struct DeformParams {
     /// use the next eigenvalue instead of the smallest (see [`LowModes`]).
     /// 32 by default: it halves the iterations of a solve from rest and
     /// brings tracking frames of up to 2 % of the size to at most 10
-    /// iterations, where 0 (off) takes up to 24 (docs/METHOD.md); it costs
+    /// iterations, where 0 (off) takes up to 29 (docs/METHOD.md); it costs
     /// 0.2 s of preparation at 10k particles, 4 s at 100k, and 10-40 % more
     /// time per iteration. One frame alone does not repay the preparation
     /// at 100k: `tissue deform` turns it off unless asked.
@@ -593,7 +593,7 @@ impl Deformer {
         let started = Instant::now();
         let p = &self.params;
         let alpha = self.plan.alpha(p);
-        let modes = self.modes.clone().filter(|m| m.count() > 0);
+        let modes = self.modes.clone();
         let rho = self.plan.solve_rho(p, modes.as_deref());
         let (mut chebyshev, mut rule) = (
             Chebyshev::with_rho(p, rho),
@@ -1137,6 +1137,16 @@ impl LowModes {
         (1.0 - 2.0 * params.step_fraction * self.next / plan.lambda_max).clamp(0.0, 0.9999)
     }
 
+    /// Per mode, `1 / (contraction lambda_k) - 1` in `f64`: what turns the
+    /// plain step's component along mode `k` into the correction that
+    /// removes its error ([`LowModes::deflate`]; the GPU uploads them).
+    pub fn gain_scales(&self, contraction: f32) -> impl Iterator<Item = f64> + '_ {
+        let c = f64::from(contraction);
+        self.values
+            .iter()
+            .map(move |&lambda| 1.0 / (c * lambda) - 1.0)
+    }
+
     /// Turns the plain step `plain - current` into one that also removes the
     /// error along every mode: the step's component `s_k` along mode `k` is
     /// `c alpha lambda_k` times the error there (`contraction = c alpha`),
@@ -1163,10 +1173,8 @@ impl LowModes {
             .reduce(|| vec![DVec3::ZERO; m], add_entries);
         let gains: Vec<Vec3A> = projections
             .iter()
-            .zip(&self.values)
-            .map(|(c, &lambda)| {
-                Vec3A::from((*c * (1.0 / (f64::from(contraction) * lambda) - 1.0)).as_vec3())
-            })
+            .zip(self.gain_scales(contraction))
+            .map(|(c, scale)| Vec3A::from((*c * scale).as_vec3()))
             .collect();
         plain
             .par_chunks_mut(CHUNK)
@@ -1184,8 +1192,9 @@ impl LowModes {
 }
 
 /// The modes a solve of `model` deflates under `params`, as both backends
-/// compute them: none without deflation, or (with a warning) for a model
-/// with more free particles than `deflation_max_particles`.
+/// compute them: none without deflation, where none came out (`low_modes`
+/// warned), or (with a warning) for a model with more free particles than
+/// `deflation_max_particles`.
 pub fn deflation_modes(
     model: &ParticleModel,
     plan: &Plan,
@@ -1211,6 +1220,7 @@ pub fn deflation_modes(
         plan.lambda_min,
         plan.lambda_max,
     ))
+    .filter(|m| m.count() > 0)
 }
 
 /// The most modes [`DeformParams::deflation`] may ask for: each costs a

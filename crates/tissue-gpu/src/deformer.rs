@@ -70,14 +70,11 @@ impl GpuDeformer {
             .collect();
         let pipelines = Pipelines::new(device)?;
         let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-        let modes = deflation_modes(model, &plan, &params).filter(|m| m.count() > 0);
+        let modes = deflation_modes(model, &plan, &params);
         if let Some(m) = &modes {
-            // As `LowModes::deflate` forms each gain: in f64, from `c alpha`.
-            let contraction = f64::from(plan.contraction(&params));
             let scales: Vec<f32> = m
-                .values()
-                .iter()
-                .map(|&lambda| (1.0 / (contraction * lambda) - 1.0) as f32)
+                .gain_scales(plan.contraction(&params))
+                .map(|scale| scale as f32)
                 .collect();
             state.set_modes(device, &pipelines, m.vectors(), &scales)?;
         }
