@@ -229,3 +229,17 @@ fn compile(device: &wgpu::Device, kernel: Kernel) -> Result<CompiledKernel, GpuE
     let (file, entry) = kernel.entry();
     crate::support::compile(device, file, entry, true)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Kernel;
+
+    /// `index` is the declaration order; the per-kernel tables are in
+    /// `Kernel::ALL` order, so the two must agree.
+    #[test]
+    fn every_kernel_indexes_its_place_in_all() {
+        for (i, kernel) in Kernel::ALL.into_iter().enumerate() {
+            assert_eq!(kernel.index(), i, "{kernel:?}");
+        }
+    }
+}
