@@ -2,7 +2,7 @@
 //! sequences of small surface changes, against a tight reference solve of
 //! every frame.
 //!
-//! `cargo run --release --example tracking [particles] [deflation] [history] [sequence]`
+//! `cargo run --release --example tracking [particles] [coarse] [deflation] [history] [sequence]`
 //! (`sequence`: only the sequences whose name contains it)
 //!
 //! For every frame it prints the iterations the solve took, the "oracle"
@@ -20,12 +20,18 @@ use tissue_cpu::deformation::{DeformParams, Deformer};
 
 fn main() -> Result<(), tissue::Error> {
     let mut args = std::env::args().skip(1);
-    let mut number = |default: usize| args.next().and_then(|t| t.parse().ok()).unwrap_or(default);
-    let particles = number(10_000);
+    let particles = args.next().and_then(|t| t.parse().ok()).unwrap_or(10_000);
     let defaults = DeformParams::default();
+    let coarse = args
+        .next()
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(defaults.coarse);
+    let mut number = |default: usize| args.next().and_then(|t| t.parse().ok()).unwrap_or(default);
     let params = DeformParams {
+        coarse,
         deflation: number(defaults.deflation),
         history: number(defaults.history),
+
         ..defaults
     };
     let only = args.next().unwrap_or_default();
@@ -33,10 +39,12 @@ fn main() -> Result<(), tissue::Error> {
     let model = tissue::sample(&breast, &SamplingParams::with_particles(particles))?.model;
     let deformer = Deformer::new(&model, params.clone())?;
     println!(
-        "{} particles, size {:.1} mm, deflation {}, history {}, tolerance {:e}",
+        "{} particles, size {:.1} mm, coarse cell {} ({} aggregates), deflation {}, history {}, tolerance {:e}",
         model.len(),
         deformer.size(),
-        params.deflation,
+        params.coarse,
+        deformer.coarse().map_or(0, |c| c.count()),
+        deformer.modes().map_or(0, |m| m.count()),
         params.history,
         params.tolerance
     );

@@ -112,12 +112,15 @@ fn deflation_runs_on_both_backends_and_agrees() {
     )
     .unwrap()
     .model;
+    // The CPU's two-level solve would replace deflation: off here.
     let deflated = DeformParams {
         deflation: 16,
+        coarse: 0.0,
         ..DeformParams::default()
     };
     let undeflated = DeformParams {
         deflation: 0,
+        coarse: 0.0,
         ..DeformParams::default()
     };
     let sag = deform::sagged_breast();
@@ -171,6 +174,70 @@ fn deflation_runs_on_both_backends_and_agrees() {
     assert!(
         worst <= tolerance,
         "deflated, GPU against CPU: {:e} of the size",
+        worst / size
+    );
+}
+
+/// The defaults on both backends: the CPU solves two-level (in fewer
+/// iterations than deflated), the GPU, which has no coarse kernels yet,
+/// deflates; the answers agree within their tolerances.
+#[test]
+fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let sag = deform::sagged_breast();
+    let defaults = DeformParams::default();
+    assert!(defaults.coarse > 0.0 && defaults.deflation > 0);
+    let solve = |device: Device, params: &DeformParams| {
+        let name = device.name().to_owned();
+        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
+        solver.set_surface(&sag).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged, "{name}: {report:?}");
+        (report.iterations, solver.positions().to_vec())
+    };
+    let size = phantom::default_breast()
+        .bounds()
+        .map(|(lo, hi)| (hi - lo).length())
+        .unwrap();
+    let apart = |a: &[Vec3], b: &[Vec3]| {
+        a.iter()
+            .zip(b)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max)
+    };
+    let tolerance = 3.0 * 3e-5 * size;
+    let two_level = solve(Device::Cpu, &defaults);
+    let deflated = solve(
+        Device::Cpu,
+        &DeformParams {
+            coarse: 0.0,
+            ..defaults.clone()
+        },
+    );
+    eprintln!(
+        "CPU, sag from rest: {} iterations two-level, {} deflated",
+        two_level.0, deflated.0
+    );
+    assert!(
+        two_level.0 < deflated.0,
+        "{} vs {}",
+        two_level.0,
+        deflated.0
+    );
+    let worst = apart(&two_level.1, &deflated.1);
+    assert!(worst <= tolerance, "CPU: {:e} of the size", worst / size);
+
+    let Some(device) = gpu() else { return };
+    let on_gpu = solve(device, &defaults);
+    let worst = apart(&on_gpu.1, &two_level.1);
+    assert!(
+        worst <= tolerance,
+        "default, GPU against CPU: {:e} of the size",
         worst / size
     );
 }

@@ -494,13 +494,18 @@ fn the_prediction_follows_a_sag_and_an_indentation_out_of_step() {
 fn deflation_is_left_out_above_its_particle_limit() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
+    // Without the two-level solve, which would replace deflation.
+    let deflated = DeformParams {
+        coarse: 0.0,
+        ..DeformParams::default()
+    };
     let capped = DeformParams {
         deflation_max_particles: 1_000,
-        ..DeformParams::default()
+        ..deflated.clone()
     };
     let mut without = Deformer::new(model, capped).unwrap();
     assert!(without.modes().is_none());
-    let mut with = Deformer::new(model, DeformParams::default()).unwrap();
+    let mut with = Deformer::new(model, deflated).unwrap();
     assert_eq!(with.modes().map(|m| m.count()), Some(32));
     for deformer in [&mut without, &mut with] {
         deformer.set_surface(&sagged).unwrap();
@@ -568,14 +573,15 @@ fn mixed(
     SurfaceMesh::new(vertices, rest.triangles.clone())
 }
 
-/// By default (32 modes deflated) small tracking frames take at most 10
-/// iterations once the prediction has its changes to go on, where no
-/// deflation takes up to 24, and every frame is within the tolerance of a
+/// By default (the two-level solve) every tracking frame whose surface
+/// moves by at most 2 % of the size takes at most 10 iterations, the first
+/// change away from rest included (nothing to predict it from), and fewer
+/// in all than deflation alone; every frame is within the tolerance of a
 /// tight reference solve:
 /// - a sag in 3 mm steps (1.6 % of the size a frame) and an indentation
-///   growing 1.6 mm a frame, from the third frame (one change to fit);
+///   growing 1.6 mm a frame;
 /// - a sag and an indentation at two rhythms (up to 2.1 % of the size a
-///   frame), from the fourth (two changes: one cannot fit two shapes).
+///   frame; the frames over 2 % are solved and checked but not counted).
 #[test]
 fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
     let model = breast_model();
@@ -595,7 +601,7 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
             .map(|k| interpolate(rest, target, 0.2 * k as f32).unwrap())
             .collect()
     };
-    let out_of_step: Vec<SurfaceMesh> = (0..12)
+    let out_of_step: Vec<SurfaceMesh> = (1..12)
         .map(|k| {
             let t = k as f32;
             let (a, b) = (0.5 - 0.5 * (0.5 * t).cos(), 0.5 - 0.5 * (0.8 * t).cos());
@@ -603,31 +609,37 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
         })
         .collect();
     let sequences = [
-        ("sag", steps(&sagged, 6), 2),
-        ("indentation", steps(&indented, 5), 2),
-        ("sag and indentation out of step", out_of_step, 3),
+        ("sag", steps(&sagged, 6)),
+        ("indentation", steps(&indented, 5)),
+        ("sag and indentation out of step", out_of_step),
     ];
-    for (name, frames, from) in sequences {
-        let mut plain = Deformer::new(
+    for (name, frames) in sequences {
+        let mut deflated = Deformer::new(
             model,
             DeformParams {
-                deflation: 0,
+                coarse: 0.0,
                 ..DeformParams::default()
             },
         )
         .unwrap();
         let mut deformer = Deformer::new(model, defaults.clone()).unwrap();
-        let modes = deformer.modes().unwrap();
-        assert_eq!(modes.count(), 32);
-        assert!(modes.residual() < 1e-3, "{}", modes.residual());
+        assert!(deformer.coarse().is_some() && deformer.modes().is_none());
+        assert_eq!(deflated.modes().map(|m| m.count()), Some(32));
         let size = deformer.size();
         reference.reset();
-        let (mut with, mut without) = (Vec::new(), Vec::new());
+        let (mut with, mut without, mut small) = (Vec::new(), Vec::new(), Vec::new());
+        let mut last = rest;
         for (k, frame) in frames.iter().enumerate() {
-            plain.set_surface(frame).unwrap();
+            let moved = (last.vertices.iter())
+                .zip(&frame.vertices)
+                .map(|(a, b)| a.distance(*b))
+                .fold(0.0f32, f32::max);
+            small.push(moved <= 0.02 * size);
+            last = frame;
+            deflated.set_surface(frame).unwrap();
             deformer.set_surface(frame).unwrap();
             reference.set_surface(frame).unwrap();
-            let (a, b) = (plain.solve(), deformer.solve());
+            let (a, b) = (deflated.solve(), deformer.solve());
             assert!(a.converged && b.converged && reference.solve().converged);
             without.push(a.iterations);
             with.push(b.iterations);
@@ -641,10 +653,13 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
                 b.iterations
             );
         }
-        eprintln!("{name}: iterations {with:?} by default, {without:?} undeflated");
+        eprintln!(
+            "{name}: iterations {with:?} by default, {without:?} deflated (small: {small:?})"
+        );
+        assert!(small[0] && small.iter().filter(|&&s| s).count() >= frames.len() - 2);
         assert!(
-            with[from..].iter().all(|&n| n <= 10),
-            "{name}: iterations {with:?} by default ({without:?} undeflated)"
+            with.iter().zip(&small).all(|(&n, &s)| !s || n <= 10),
+            "{name}: iterations {with:?} by default ({without:?} deflated)"
         );
         assert!(
             with.iter().sum::<usize>() < without.iter().sum::<usize>(),

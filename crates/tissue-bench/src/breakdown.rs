@@ -107,13 +107,17 @@ pub fn cpu(
         RotationMethod::WarmPolar => "local_rotations_warm (warm polar)",
     };
 
-    // With deflation, the plain step is corrected along the modes before
+    // With a coarse space or deflation, the plain step is corrected before
     // the Chebyshev combine (`Deformer::solve`'s order).
     let modes = deformer.modes().filter(|m| m.count() > 0);
+    let coarse = deformer.coarse();
     let contraction = plan.contraction(params);
     let deflate = |plain: &mut Vec<Vec3>| {
         if let Some(modes) = modes {
             modes.deflate(current, plain, contraction);
+        }
+        if let Some(coarse) = coarse {
+            coarse.correct(current, plain, connections, contraction);
         }
     };
 
@@ -160,6 +164,8 @@ pub fn cpu(
     ];
     if let Some(modes) = modes {
         passes.push((format!("deflate ({} modes)", modes.count()), deflation));
+    } else if coarse.is_some() {
+        passes.push(("coarse correction (two-level)".to_owned(), deflation));
     }
     passes.push(("step norms".to_owned(), steps));
     Breakdown::new(

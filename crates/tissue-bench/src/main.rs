@@ -61,6 +61,11 @@ struct Args {
     /// backend; 0 measures the solver without it.
     #[arg(long, default_value_t = DeformParams::default().deflation)]
     deflation: usize,
+    /// The two-level solve's cell in mean connection lengths
+    /// (`DeformParams::coarse`, the library's default; CPU only, where it
+    /// replaces deflation); 0 measures the solver without it.
+    #[arg(long, default_value_t = DeformParams::default().coarse)]
+    coarse: f32,
 }
 
 /// A stage-2 backend.
@@ -290,6 +295,7 @@ fn run(args: &Args) -> Result<()> {
     };
     let params = DeformParams {
         deflation: args.deflation,
+        coarse: args.coarse,
         ..DeformParams::default()
     };
     params.validate()?;

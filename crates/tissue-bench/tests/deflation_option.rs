@@ -17,6 +17,9 @@ fn deflation_is_measured_on_the_cpu() {
         "cpu",
         "--deflation",
         "8",
+        // The CPU's two-level solve would replace deflation.
+        "--coarse",
+        "0",
     ]);
     assert!(
         stdout.contains("8 modes deflated, prepared in"),

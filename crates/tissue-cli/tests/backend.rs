@@ -274,6 +274,9 @@ fn deflation_runs_on_both_backends_and_agrees() {
             s(&tumour),
             "--deflation",
             deflation,
+            // The CPU's two-level solve would replace deflation there.
+            "--coarse",
+            "0",
             "--backend",
             backend,
             "-q",

@@ -2,6 +2,7 @@
 //! particle's update reads only the previous state), so results do not depend
 //! on the thread count. Each stage is the twin of a GPU shader of the same name.
 
+pub mod coarse;
 pub mod deformation;
 pub mod grid;
 pub mod quality;

@@ -18,7 +18,9 @@ use crate::{DeformState, GpuError, Pipelines};
 /// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted).
 /// With `params.deflation`, the same modes as the CPU path's deflate the
 /// plain step every iteration, with the same deflated `rho` and the same
-/// step for the rule (the update made, after the combine). A
+/// step for the rule (the update made, after the combine). The two-level
+/// solve (`params.coarse`) has no kernels yet: the GPU deflates where the
+/// CPU path would use its coarse space. A
 /// new frame starts where `tissue_cpu::deformation::predict` puts it, the
 /// CPU path's own function: the positions are read back at the end of every
 /// solve and the prediction is uploaded with the new control points (both
@@ -70,6 +72,13 @@ impl GpuDeformer {
             .collect();
         let pipelines = Pipelines::new(device)?;
         let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+        if params.coarse > 0.0 {
+            log::info!(
+                "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
+                params.coarse,
+                params.deflation
+            );
+        }
         let modes = deflation_modes(model, &plan, &params);
         if let Some(m) = &modes {
             let scales: Vec<f32> = m
@@ -259,7 +268,7 @@ impl GpuDeformer {
         let alpha = self.plan.alpha(p);
         // Deflated, the rest of the spectrum sets rho, and the state's
         // iteration measures the update made (`Deformer::solve`).
-        let rho = self.plan.solve_rho(p, self.modes.as_ref());
+        let rho = self.plan.solve_rho(p, self.modes.as_ref(), None);
         let (mut chebyshev, mut rule) = (
             Chebyshev::with_rho(p, rho),
             StoppingRule::with_rho(&self.plan, p, rho),

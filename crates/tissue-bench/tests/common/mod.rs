@@ -117,7 +117,7 @@ pub const CPU_PASSES: [&str; 5] = [
     "local_rotations_warm (warm polar)",
     "deformation_force",
     "integrate + chebyshev_combine",
-    "deflate (32 modes)",
+    "coarse correction (two-level)",
     "step norms",
 ];
 

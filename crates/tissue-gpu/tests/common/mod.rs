@@ -99,3 +99,14 @@ pub fn solve_sag_on_both(
     let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)
 }
+
+/// The library's defaults as the GPU runs them: without the CPU's two-level
+/// solve (it has no GPU kernels yet, and the GPU deflates instead), so the
+/// CPU path is the GPU's twin.
+#[allow(dead_code)]
+pub fn twin_params() -> tissue_cpu::deformation::DeformParams {
+    tissue_cpu::deformation::DeformParams {
+        coarse: 0.0,
+        ..Default::default()
+    }
+}

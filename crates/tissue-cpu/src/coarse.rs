@@ -1,0 +1,620 @@
+//! The two-level solve of stage 2: every iteration, after the plain step,
+//! the error left in a coarse space of aggregates is removed exactly.
+//!
+//! For fixed rotations the plain step is `s = -c alpha L e` for the error
+//! `e` (`L` the Dirichlet Laplacian over free particles, `c alpha` the
+//! [`Plan::contraction`](crate::deformation::Plan::contraction)), so the
+//! error after it, `e' = e + s`, has `L e' = -s / (c alpha) + L s`: known
+//! without knowing `e`. The coarse space is piecewise constant over
+//! aggregates (the free particles in one cell of a grid of edge `cell`),
+//! `P` its prolongation; the correction `-P (P^T L P)^-1 P^T L e'` is the
+//! `L`-orthogonal projection of `e'` onto it, so what is left of the error
+//! is `L`-orthogonal to every aggregate's translation. That removes the
+//! smooth error the plain step hardly touches, and the iteration
+//! `E = (I - Pi)(I - c alpha L)` contracts much faster than the plain one
+//! (docs/METHOD.md, "Two-level solve").
+//!
+//! `P^T L P` is the aggregates' own graph Laplacian; it is factored once
+//! (Cholesky, in reverse Cuthill-McKee order so the factor stays within a
+//! narrow envelope) and solved every iteration for the three coordinates.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::Instant;
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+use tissue_core::{Connections, Error};
+
+/// Marks a particle that belongs to no aggregate (a control point, or a
+/// particle held because nothing connects it to the surface).
+const OUTSIDE: u32 = u32::MAX;
+
+/// Power iterations that estimate the two-level iteration's contraction.
+const RATE_ITERATIONS: usize = 40;
+
+/// Aggregates of free particles and the factored coarse Laplacian.
+#[derive(Debug, Clone)]
+pub struct CoarseSpace {
+    /// Per particle: its aggregate (numbered in the factor's order), or
+    /// [`OUTSIDE`].
+    aggregate: Vec<u32>,
+    /// The Cholesky factor of `P^T L P`.
+    factor: Envelope,
+    cell: f32,
+    rho: f32,
+    seconds: f64,
+}
+
+impl CoarseSpace {
+    /// The aggregates of the free particles of a model with rest positions
+    /// `rest` in grid cells of edge `cell`, grown (by factors of 1.25) until
+    /// there are at most `max_aggregates`; the coarse Laplacian factored and
+    /// the two-level iteration's contraction estimated for the plain step's
+    /// `contraction` (`c alpha`).
+    pub fn new(
+        rest: &[Vec3],
+        connections: &Connections,
+        free: &[bool],
+        cell: f32,
+        max_aggregates: usize,
+        contraction: f32,
+    ) -> Result<Self, Error> {
+        let started = Instant::now();
+        if !(cell > 0.0 && cell.is_finite()) {
+            return Err(Error::Deformation(format!(
+                "the coarse space's cell is {cell}, expected a positive length"
+            )));
+        }
+        let (mut cell, mut aggregate, mut count) = (cell, Vec::new(), 0);
+        for _ in 0..MAX_GROWTH {
+            (aggregate, count) = aggregates(rest, connections, free, cell);
+            if count <= max_aggregates.max(1) {
+                break;
+            }
+            cell *= 1.25;
+        }
+        if count == 0 {
+            return Err(Error::Deformation(
+                "the coarse space has no aggregates: no particle is free".into(),
+            ));
+        }
+        let rows = coarse_laplacian(&aggregate, connections, count);
+        let order = reverse_cuthill_mckee(&rows);
+        let mut rank = vec![0u32; count];
+        for (k, &a) in order.iter().enumerate() {
+            rank[a as usize] = k as u32;
+        }
+        for a in aggregate.iter_mut().filter(|a| **a != OUTSIDE) {
+            *a = rank[*a as usize];
+        }
+        let rows: Vec<Vec<(u32, f64)>> = order
+            .iter()
+            .map(|&a| {
+                let mut row: Vec<(u32, f64)> = rows[a as usize]
+                    .iter()
+                    .map(|&(b, w)| (rank[b as usize], w))
+                    .collect();
+                row.sort_unstable_by_key(|&(b, _)| b);
+                row
+            })
+            .collect();
+        let factor = Envelope::cholesky(&rows).ok_or_else(|| {
+            Error::Deformation(
+                "the coarse Laplacian is not positive definite (a rounding failure)".into(),
+            )
+        })?;
+        let mut space = Self {
+            aggregate,
+            factor,
+            cell,
+            rho: 0.0,
+            seconds: 0.0,
+        };
+        space.rho = space.spectral_radius(connections, contraction);
+        space.seconds = started.elapsed().as_secs_f64();
+        Ok(space)
+    }
+
+    /// Number of aggregates.
+    pub fn count(&self) -> usize {
+        self.factor.len()
+    }
+
+    /// The edge of the grid cells the aggregates were made of.
+    pub fn cell(&self) -> f32 {
+        self.cell
+    }
+
+    /// Seconds the preparation took.
+    pub fn seconds(&self) -> f64 {
+        self.seconds
+    }
+
+    /// The contraction of the two-level iteration, for Chebyshev and the
+    /// stopping rule: its spectral radius, estimated by power iteration.
+    pub fn rho(&self) -> f32 {
+        self.rho
+    }
+
+    /// Turns the plain step `plain - current` (`-contraction L e` for the
+    /// error `e`) into the two-level one: subtracts the `L`-orthogonal
+    /// projection onto the coarse space of the error left after it.
+    pub fn correct(
+        &self,
+        current: &[Vec3],
+        plain: &mut [Vec3],
+        connections: &Connections,
+        contraction: f32,
+    ) {
+        let inverse = 1.0 / f64::from(contraction);
+        let aggregate = &self.aggregate;
+        let step = |i: usize| -> DVec3 {
+            if aggregate[i] == OUTSIDE {
+                DVec3::ZERO
+            } else {
+                (plain[i] - current[i]).as_dvec3()
+            }
+        };
+        // Per particle, `(L e')_i = -s_i / (c alpha) + (L s)_i`.
+        let residual: Vec<DVec3> = (0..current.len())
+            .into_par_iter()
+            .map(|i| {
+                if aggregate[i] == OUTSIDE {
+                    return DVec3::ZERO;
+                }
+                let row = connections.of(i);
+                let mut r = step(i) * (row.len() as f64 - inverse);
+                for &j in row {
+                    r -= step(j as usize);
+                }
+                r
+            })
+            .collect();
+        let mut coarse = vec![DVec3::ZERO; self.count()];
+        for (&a, r) in aggregate.iter().zip(&residual) {
+            if a != OUTSIDE {
+                coarse[a as usize] += *r;
+            }
+        }
+        self.factor.solve(&mut coarse);
+        let coarse: Vec<Vec3> = coarse.iter().map(|v| v.as_vec3()).collect();
+        plain.par_iter_mut().zip(aggregate).for_each(|(p, &a)| {
+            if a != OUTSIDE {
+                *p -= coarse[a as usize];
+            }
+        });
+    }
+
+    /// The spectral radius of the two-level iteration
+    /// `E = (I - Pi)(I - c alpha L)` by power iteration from a fixed start
+    /// with every mode in it. `E` is `L`-self-adjoint on the range of
+    /// `I - Pi`, where the start lands after one step, so its eigenvalues
+    /// are real; the estimate approaches the radius from below, and
+    /// Chebyshev still converges on the few modes it leaves out, more slowly.
+    fn spectral_radius(&self, connections: &Connections, contraction: f32) -> f32 {
+        let n = self.aggregate.len();
+        let inside = |i: usize| self.aggregate[i] != OUTSIDE;
+        let mut v: Vec<Vec3> = (0..n)
+            .map(|i| {
+                if !inside(i) {
+                    return Vec3::ZERO;
+                }
+                let t = (i as f32 * 0.618_034).fract();
+                Vec3::new(t, (t * 7.31).fract(), (t * 13.17).fract()) - 0.5
+            })
+            .collect();
+        let norm = |v: &[Vec3]| {
+            v.par_iter()
+                .map(|x| f64::from(x.length_squared()))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let mut radius = 0.0;
+        for _ in 0..RATE_ITERATIONS {
+            let scale = norm(&v);
+            if scale == 0.0 {
+                break;
+            }
+            v.par_iter_mut().for_each(|x| *x /= scale as f32);
+            let mut plain: Vec<Vec3> = (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    if !inside(i) {
+                        return Vec3::ZERO;
+                    }
+                    let row = connections.of(i);
+                    let mut lv = v[i] * row.len() as f32;
+                    for &j in row {
+                        if inside(j as usize) {
+                            lv -= v[j as usize];
+                        }
+                    }
+                    v[i] - contraction * lv
+                })
+                .collect();
+            self.correct(&v, &mut plain, connections, contraction);
+            radius = norm(&plain) as f32;
+            v = plain;
+        }
+        radius.clamp(0.0, 0.9999)
+    }
+}
+
+/// Cells the coarse space grows by at most to stay within its aggregate
+/// budget: `1.25^40`, 7,500 times the edge.
+const MAX_GROWTH: usize = 40;
+
+/// A free particle with fewer connections than this is an aggregate of its
+/// own: its error barely reaches its neighbours (a low eigenvalue of the
+/// Laplacian held at one particle), so an aggregate's constant would not
+/// represent it, and the solve would wait on it.
+const WEAK_DEGREE: usize = 4;
+
+/// Per particle, the aggregate of the free ones in cells of edge `cell`,
+/// weakly connected particles alone (numbered in order of first
+/// appearance); and how many there are.
+fn aggregates(
+    rest: &[Vec3],
+    connections: &Connections,
+    free: &[bool],
+    cell: f32,
+) -> (Vec<u32>, usize) {
+    let mut cells: HashMap<[i32; 3], u32> = HashMap::new();
+    let mut count = 0u32;
+    let aggregate = (0..rest.len())
+        .map(|i| {
+            if !free[i] {
+                return OUTSIDE;
+            }
+            count += 1;
+            if connections.of(i).len() < WEAK_DEGREE {
+                return count - 1;
+            }
+            let key = (rest[i] / cell).floor().as_ivec3().to_array();
+            let next = count - 1;
+            let a = *cells.entry(key).or_insert(next);
+            if a != next {
+                count -= 1;
+            }
+            a
+        })
+        .collect();
+    (aggregate, count as usize)
+}
+
+/// The rows of `P^T L P`: per aggregate, its diagonal (every connection
+/// leaving its particles, control points included) and minus the number
+/// of connections to each other aggregate, sorted by column.
+fn coarse_laplacian(
+    aggregate: &[u32],
+    connections: &Connections,
+    count: usize,
+) -> Vec<Vec<(u32, f64)>> {
+    let mut rows: Vec<HashMap<u32, f64>> = vec![HashMap::new(); count];
+    for (i, &a) in aggregate.iter().enumerate() {
+        if a == OUTSIDE {
+            continue;
+        }
+        let row = &mut rows[a as usize];
+        for &j in connections.of(i) {
+            *row.entry(a).or_default() += 1.0;
+            let b = aggregate[j as usize];
+            if b != OUTSIDE {
+                *row.entry(b).or_default() -= 1.0;
+            }
+        }
+    }
+    rows.into_iter()
+        .map(|row| {
+            let mut row: Vec<(u32, f64)> = row.into_iter().filter(|&(_, w)| w != 0.0).collect();
+            row.sort_unstable_by_key(|&(b, _)| b);
+            row
+        })
+        .collect()
+}
+
+/// An ordering of a graph's nodes that keeps its connections near the
+/// diagonal: breadth-first from a node of least degree (for each component),
+/// neighbours in order of degree, reversed (reverse Cuthill-McKee).
+fn reverse_cuthill_mckee(rows: &[Vec<(u32, f64)>]) -> Vec<u32> {
+    let n = rows.len();
+    let degree = |a: usize| rows[a].len();
+    let mut by_degree: Vec<usize> = (0..n).collect();
+    by_degree.sort_by_key(|&a| degree(a));
+    let mut seen = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    for &start in &by_degree {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        let mut queue = VecDeque::from([start]);
+        while let Some(a) = queue.pop_front() {
+            order.push(a as u32);
+            let mut next: Vec<usize> = rows[a]
+                .iter()
+                .map(|&(b, _)| b as usize)
+                .filter(|&b| !seen[b])
+                .collect();
+            next.sort_by_key(|&b| degree(b));
+            for b in next {
+                seen[b] = true;
+                queue.push_back(b);
+            }
+        }
+    }
+    order.reverse();
+    order
+}
+
+/// A lower-triangular Cholesky factor stored by rows within its envelope:
+/// row `i` holds columns `first[i]..=i`, where `first[i]` is the row's first
+/// nonzero in the matrix (Cholesky fills nothing outside the envelope).
+#[derive(Debug, Clone)]
+struct Envelope {
+    first: Vec<usize>,
+    /// Where each row starts in `values`.
+    start: Vec<usize>,
+    values: Vec<f64>,
+}
+
+impl Envelope {
+    /// Factors the symmetric positive definite matrix given by `rows`
+    /// (each sorted by column, both triangles present); `None` when a pivot
+    /// is not positive.
+    fn cholesky(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
+        let n = rows.len();
+        let first: Vec<usize> = rows
+            .iter()
+            .enumerate()
+            .map(|(i, row)| row.first().map_or(i, |&(j, _)| (j as usize).min(i)))
+            .collect();
+        let mut start = Vec::with_capacity(n + 1);
+        start.push(0);
+        for i in 0..n {
+            start.push(start[i] + i + 1 - first[i]);
+        }
+        let mut values = vec![0.0; start[n]];
+        for (i, row) in rows.iter().enumerate() {
+            for &(j, w) in row.iter().filter(|&&(j, _)| j as usize <= i) {
+                values[start[i] + j as usize - first[i]] += w;
+            }
+        }
+        for i in 0..n {
+            for j in first[i]..=i {
+                let from = first[i].max(first[j]);
+                let mut s = values[start[i] + j - first[i]];
+                let (ri, rj) = (
+                    &values[start[i] + from - first[i]..start[i] + j - first[i]],
+                    &values[start[j] + from - first[j]..start[j] + j - first[j]],
+                );
+                s -= ri.iter().zip(rj).map(|(a, b)| a * b).sum::<f64>();
+                let entry = if j < i {
+                    s / values[start[j] + j - first[j]]
+                } else if s > 0.0 {
+                    s.sqrt()
+                } else {
+                    return None;
+                };
+                values[start[i] + j - first[i]] = entry;
+            }
+        }
+        Some(Self {
+            first,
+            start,
+            values,
+        })
+    }
+
+    fn len(&self) -> usize {
+        self.first.len()
+    }
+
+    /// Solves `L L^T x = b` in place for three right-hand sides at once.
+    fn solve(&self, b: &mut [DVec3]) {
+        let n = self.len();
+        for i in 0..n {
+            let row = &self.values[self.start[i]..self.start[i + 1]];
+            let (off, diagonal) = row.split_at(row.len() - 1);
+            let mut s = b[i];
+            for (&l, x) in off.iter().zip(&b[self.first[i]..i]) {
+                s -= *x * l;
+            }
+            b[i] = s / diagonal[0];
+        }
+        for i in (0..n).rev() {
+            let row = &self.values[self.start[i]..self.start[i + 1]];
+            let (off, diagonal) = row.split_at(row.len() - 1);
+            let x = b[i] / diagonal[0];
+            b[i] = x;
+            for (&l, y) in off.iter().zip(&mut b[self.first[i]..i]) {
+                *y -= x * l;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+
+    /// A `side^3` grid of unit spacing, 6-connected, its outer layer fixed.
+    fn grid(side: usize) -> (Vec<Vec3>, Connections, Vec<bool>) {
+        let index = |x: usize, y: usize, z: usize| ((z * side + y) * side + x) as u32;
+        let mut positions = Vec::new();
+        let mut free = Vec::new();
+        let mut pairs = Vec::new();
+        for z in 0..side {
+            for y in 0..side {
+                for x in 0..side {
+                    positions.push(Vec3::new(x as f32, y as f32, z as f32) + 0.5);
+                    free.push([x, y, z].iter().all(|&c| c > 0 && c + 1 < side));
+                    if x + 1 < side {
+                        pairs.push((index(x, y, z), index(x + 1, y, z)));
+                    }
+                    if y + 1 < side {
+                        pairs.push((index(x, y, z), index(x, y + 1, z)));
+                    }
+                    if z + 1 < side {
+                        pairs.push((index(x, y, z), index(x, y, z + 1)));
+                    }
+                }
+            }
+        }
+        let connections = Connections::from_pairs(positions.len(), pairs);
+        (positions, connections, free)
+    }
+
+    /// `L v` over free particles (the Dirichlet Laplacian).
+    fn laplacian(v: &[Vec3], connections: &Connections, free: &[bool]) -> Vec<Vec3> {
+        (0..v.len())
+            .map(|i| {
+                if !free[i] {
+                    return Vec3::ZERO;
+                }
+                let row = connections.of(i);
+                let mut lv = v[i] * row.len() as f32;
+                for &j in row.iter().filter(|&&j| free[j as usize]) {
+                    lv -= v[j as usize];
+                }
+                lv
+            })
+            .collect()
+    }
+
+    /// For fixed rotations and a solution at 0, the positions are the error.
+    fn error(free: &[bool]) -> Vec<Vec3> {
+        free.iter()
+            .enumerate()
+            .map(|(i, &f)| {
+                let t = i as f32;
+                if f {
+                    Vec3::new((t * 0.37).sin(), (t * 0.11).cos(), 1.0 + (t * 0.05).sin())
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_two_level_step_leaves_no_error_in_the_coarse_space() {
+        let (rest, connections, free) = grid(12);
+        let contraction = 0.9 / 6.0;
+        let space = CoarseSpace::new(&rest, &connections, &free, 2.0, 10_000, contraction)
+            .expect("a coarse space");
+        // 10^3 free particles in cells of 2: 6^3 aggregates (the grid starts at 0.5).
+        assert_eq!(space.count(), 216);
+        let current = error(&free);
+        let l = laplacian(&current, &connections, &free);
+        let mut next: Vec<Vec3> = current
+            .iter()
+            .zip(&l)
+            .map(|(e, le)| *e - contraction * *le)
+            .collect();
+        let plain = next.clone();
+        space.correct(&current, &mut next, &connections, contraction);
+        // What is left is L-orthogonal to every aggregate's indicator:
+        // the residual `L e` sums to zero over each aggregate; the plain
+        // step's did not.
+        let sums = |e: &[Vec3]| {
+            let mut sums = vec![Vec3::ZERO; space.count()];
+            for (r, &a) in laplacian(e, &connections, &free)
+                .iter()
+                .zip(&space.aggregate)
+            {
+                if a != OUTSIDE {
+                    sums[a as usize] += *r;
+                }
+            }
+            sums.iter().map(|s| s.length()).fold(0.0f32, f32::max)
+        };
+        assert!(sums(&plain) > 1.0, "{}", sums(&plain));
+        assert!(sums(&next) < 1e-4, "{}", sums(&next));
+    }
+
+    #[test]
+    fn the_two_level_iteration_contracts_far_faster_than_the_plain_one() {
+        let (rest, connections, free) = grid(18);
+        let (lambda_min, lambda_max) = crate::deformation::laplacian_extremes(&connections, &free);
+        // The symmetric force at step fraction 0.9: `c alpha = 1.8 / lambda_max`.
+        let contraction = 1.8 / lambda_max;
+        let plain = 1.0 - contraction * lambda_min;
+        let space = CoarseSpace::new(&rest, &connections, &free, 2.0, 10_000, contraction)
+            .expect("a coarse space");
+        // The plain iteration is slower than 0.95 here; the two-level one is
+        // held by the step's negative end, `1 - 1.8 lambda_top / lambda_max`.
+        assert!(plain > 0.95, "plain {plain}");
+        assert!(space.rho() < 0.85, "two-level {}", space.rho());
+        // And the estimate holds: 30 two-level steps shrink an error by at
+        // least `rho^30` times a small factor, not much less.
+        let mut e = error(&free);
+        let start = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
+        for _ in 0..30 {
+            let l = laplacian(&e, &connections, &free);
+            let mut next: Vec<Vec3> = e
+                .iter()
+                .zip(&l)
+                .map(|(e, le)| *e - contraction * *le)
+                .collect();
+            space.correct(&e, &mut next, &connections, contraction);
+            e = next;
+        }
+        let end = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
+        let observed = (end / start).powf(1.0 / 30.0);
+        assert!(
+            observed <= space.rho() * 1.05,
+            "observed {observed}, rho {}",
+            space.rho()
+        );
+    }
+
+    #[test]
+    fn cells_grow_until_the_aggregates_fit_the_budget() {
+        let (rest, connections, free) = grid(12);
+        let space =
+            CoarseSpace::new(&rest, &connections, &free, 2.0, 50, 0.15).expect("a coarse space");
+        assert!(space.count() <= 50, "{}", space.count());
+        assert!(space.cell() > 2.0);
+        let refused = CoarseSpace::new(&rest, &connections, &free, f32::NAN, 50, 0.15)
+            .expect_err("a NaN cell");
+        assert!(refused.to_string().contains("cell is NaN"), "{refused}");
+        let none = CoarseSpace::new(&rest, &connections, &vec![false; rest.len()], 2.0, 50, 0.15)
+            .expect_err("nothing free");
+        assert!(none.to_string().contains("no particle is free"), "{none}");
+    }
+
+    #[test]
+    fn the_envelope_cholesky_solves_a_banded_system() {
+        // The Dirichlet Laplacian of a path (tridiagonal 2, -1), with a
+        // long-range entry to exercise the envelope.
+        let n = 12;
+        let mut rows: Vec<Vec<(u32, f64)>> = (0..n)
+            .map(|i| {
+                let mut row = vec![(i as u32, 2.5)];
+                if i > 0 {
+                    row.insert(0, (i as u32 - 1, -1.0));
+                }
+                if i + 1 < n {
+                    row.push((i as u32 + 1, -1.0));
+                }
+                row
+            })
+            .collect();
+        rows[9].insert(0, (2, -0.3));
+        rows[2].push((9, -0.3));
+        let factor = Envelope::cholesky(&rows).expect("positive definite");
+        let x: Vec<DVec3> = (0..n)
+            .map(|i| DVec3::new(i as f64, 1.0, -(i as f64).sin()))
+            .collect();
+        let mut b: Vec<DVec3> = rows
+            .iter()
+            .map(|row| row.iter().map(|&(j, w)| x[j as usize] * w).sum())
+            .collect();
+        factor.solve(&mut b);
+        for (got, want) in b.iter().zip(&x) {
+            assert!((*got - *want).length() < 1e-12, "{got} vs {want}");
+        }
+    }
+}
