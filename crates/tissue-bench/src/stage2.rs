@@ -142,8 +142,11 @@ pub struct Tracking {
 pub struct Stage2 {
     /// How rotations are found on this backend.
     pub rotations: String,
-    /// Modes deflated (`DeformParams::deflation`; 0: none).
+    /// Modes deflated (`DeformParams::deflation`; 0: none, as on the CPU
+    /// where the coarse space replaces them).
     pub deflation: usize,
+    /// Aggregates of the two-level solve's coarse space (CPU; 0: none).
+    pub coarse_aggregates: usize,
     /// Seconds to prepare stage 2 for the model (the spectrum, with
     /// deflation the modes, and on the GPU the kernels and buffers).
     pub prepare_seconds: f64,
@@ -214,6 +217,14 @@ pub fn measure(
     let started = Instant::now();
     let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
+    // What the solve runs: on the CPU the coarse space replaces deflation.
+    let (deflation, coarse_aggregates) = match &solver {
+        Solver::Cpu(deformer) => (
+            deformer.modes().map_or(0, |m| m.count()),
+            deformer.coarse().map_or(0, |c| c.count()),
+        ),
+        Solver::Gpu(..) => (defaults.deflation, 0),
+    };
     let gpu_state_bytes = match &solver {
         Solver::Cpu(_) => None,
         Solver::Gpu(_, deformer) => Some(GpuStateBytes::of(deformer, model.len())),
@@ -275,7 +286,8 @@ pub fn measure(
     };
     Ok(Stage2 {
         rotations: rotations.to_owned(),
-        deflation: defaults.deflation,
+        deflation,
+        coarse_aggregates,
         prepare_seconds,
         iteration,
         stages,

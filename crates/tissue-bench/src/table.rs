@@ -106,7 +106,12 @@ pub fn markdown(report: &Report) -> String {
                 out,
                 "| {} | {name} ({}) | {:.3} ({:.3}-{:.3}) | {:.2} | {:.2} |",
                 s.particles,
-                if stage2.deflation > 0 {
+                if stage2.coarse_aggregates > 0 {
+                    format!(
+                        "{}, two-level over {} aggregates, prepared in {:.2} s",
+                        stage2.rotations, stage2.coarse_aggregates, stage2.prepare_seconds
+                    )
+                } else if stage2.deflation > 0 {
                     format!(
                         "{}, {} modes deflated, prepared in {:.2} s",
                         stage2.rotations, stage2.deflation, stage2.prepare_seconds

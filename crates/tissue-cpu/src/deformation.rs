@@ -95,7 +95,8 @@ pub struct DeformParams {
     /// at 100k: `tissue deform` turns it off unless asked.
     ///
     /// Models with more free particles than [`DeformParams::deflation_max_particles`]
-    /// are solved without it.
+    /// are solved without it, and the CPU path does not deflate where the
+    /// two-level solve ([`DeformParams::coarse`], on by default) runs.
     pub deflation: usize,
     /// Deflation is left out (with a log warning) for models with more free
     /// particles than this: the modes' preparation grows faster than the

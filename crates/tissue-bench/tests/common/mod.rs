@@ -112,7 +112,7 @@ pub fn check_breakdown(stages: &Value, method: &str, passes: &[&str], context: &
 }
 
 /// The CPU passes of one iteration with the defaults (warm polar
-/// rotations, 32 modes deflated).
+/// rotations, the two-level solve).
 pub const CPU_PASSES: [&str; 5] = [
     "local_rotations_warm (warm polar)",
     "deformation_force",
