@@ -101,6 +101,37 @@ fn points_bound_on_one_device_are_refused_by_another() {
     assert!(err.contains("bound on one backend"), "{err}");
 }
 
+/// The phantom's size (its bounding-box diagonal).
+fn phantom_size() -> f32 {
+    phantom::default_breast()
+        .bounds()
+        .map(|(lo, hi)| (hi - lo).length())
+        .unwrap()
+}
+
+/// The largest distance between corresponding points.
+fn apart(a: &[Vec3], b: &[Vec3]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max)
+}
+
+/// The bundled sag solved from rest on `device` under `params`, converged:
+/// its iterations and positions.
+fn solve_sag(
+    model: &tissue::ParticleModel,
+    device: Device,
+    params: &DeformParams,
+) -> (usize, Vec<Vec3>) {
+    let name = device.name().to_owned();
+    let mut solver = Solver::new(device, model, params.clone()).unwrap();
+    solver.set_surface(&deform::sagged_breast()).unwrap();
+    let report = solver.solve().unwrap();
+    assert!(report.converged, "{name}: {report:?}");
+    (report.iterations, solver.positions().to_vec())
+}
+
 /// Deflation through the library on both backends: fewer iterations than
 /// without it on each, and the CPU and GPU answers within their tolerances
 /// of each other.
@@ -123,25 +154,8 @@ fn deflation_runs_on_both_backends_and_agrees() {
         coarse: 0.0,
         ..DeformParams::default()
     };
-    let sag = deform::sagged_breast();
-    let solve = |device: Device, params: &DeformParams| {
-        let name = device.name().to_owned();
-        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
-        solver.set_surface(&sag).unwrap();
-        let report = solver.solve().unwrap();
-        assert!(report.converged, "{name}: {report:?}");
-        (report.iterations, solver.positions().to_vec())
-    };
-    let size = phantom::default_breast()
-        .bounds()
-        .map(|(lo, hi)| (hi - lo).length())
-        .unwrap();
-    let apart = |a: &[Vec3], b: &[Vec3]| {
-        a.iter()
-            .zip(b)
-            .map(|(a, b)| a.distance(*b))
-            .fold(0.0f32, f32::max)
-    };
+    let solve = |device: Device, params: &DeformParams| solve_sag(&model, device, params);
+    let size = phantom_size();
     // Each solve stops within about its tolerance (3e-5 of the size) of the
     // answer; the default's estimate can run a little over (docs/METHOD.md).
     let tolerance = 3.0 * 3e-5 * size;
@@ -189,27 +203,10 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     )
     .unwrap()
     .model;
-    let sag = deform::sagged_breast();
     let defaults = DeformParams::default();
     assert!(defaults.coarse > 0.0 && defaults.deflation > 0);
-    let solve = |device: Device, params: &DeformParams| {
-        let name = device.name().to_owned();
-        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
-        solver.set_surface(&sag).unwrap();
-        let report = solver.solve().unwrap();
-        assert!(report.converged, "{name}: {report:?}");
-        (report.iterations, solver.positions().to_vec())
-    };
-    let size = phantom::default_breast()
-        .bounds()
-        .map(|(lo, hi)| (hi - lo).length())
-        .unwrap();
-    let apart = |a: &[Vec3], b: &[Vec3]| {
-        a.iter()
-            .zip(b)
-            .map(|(a, b)| a.distance(*b))
-            .fold(0.0f32, f32::max)
-    };
+    let solve = |device: Device, params: &DeformParams| solve_sag(&model, device, params);
+    let size = phantom_size();
     let tolerance = 3.0 * 3e-5 * size;
     let two_level = solve(Device::Cpu, &defaults);
     let deflated = solve(
