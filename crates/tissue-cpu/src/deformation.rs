@@ -595,7 +595,10 @@ impl Deformer {
     }
 
     /// Changes the parameters of the next solves (the tolerance between
-    /// frames, say); the current state is kept.
+    /// frames, say); the current state is kept. The coarse space and the
+    /// deflated modes are prepared once, by [`Deformer::new`], for its
+    /// `coarse`, `coarse_max_aggregates`, `deflation` and `step_fraction`:
+    /// build a new deformer to change those.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
         params.validate()?;
         self.params = params;
