@@ -44,8 +44,6 @@ fn gpu_kernels(c: &mut Criterion) {
     let params = DeformParams {
         tolerance: f32::MIN_POSITIVE,
         max_iterations: 24,
-        // The GPU has no two-level solve: its CPU twin runs without it.
-        coarse: 0.0,
         ..DeformParams::default()
     };
     let mut deformer =

@@ -112,7 +112,7 @@ pub fn cpu(
     let modes = deformer.modes().filter(|m| m.count() > 0);
     let coarse = deformer.coarse();
     let contraction = plan.contraction(params);
-    let deflate = |plain: &mut Vec<Vec3>| {
+    let correct = |plain: &mut Vec<Vec3>| {
         if let Some(modes) = modes {
             modes.deflate(current, plain, contraction);
         }
@@ -133,15 +133,15 @@ pub fn cpu(
             let next = chebyshev_combine(&plain, previous, omega);
             (plain, next)
         });
-        let mut deflated = plain.clone();
-        let (t_deflate, ()) = timed(|| deflate(&mut deflated));
+        let mut corrected = plain.clone();
+        let (t_correct, ()) = timed(|| correct(&mut corrected));
         let (t_steps, norms) = timed(|| steps(current, &plain));
-        std::hint::black_box((&next, &deflated, norms));
+        std::hint::black_box((&next, &corrected, norms));
         let (t_whole, out) = timed(|| {
             let rotations = rotations_of(current);
             let force = deformation_force(rest, current, &rotations, connections, params.force);
             let mut plain = integrate(current, &force, &plan.free, alpha);
-            deflate(&mut plain);
+            correct(&mut plain);
             let norms = steps(current, &plain);
             (chebyshev_combine(&plain, previous, omega), norms)
         });
@@ -149,23 +149,23 @@ pub fn cpu(
         if sample > 0 {
             for (list, t) in times
                 .iter_mut()
-                .zip([t_rot, t_force, t_int, t_deflate, t_steps])
+                .zip([t_rot, t_force, t_int, t_correct, t_steps])
             {
                 list.push(t);
             }
             whole.push(t_whole);
         }
     }
-    let [rot, force, int, deflation, steps] = times;
+    let [rot, force, int, correction, steps] = times;
     let mut passes = vec![
         (rotation_name.to_owned(), rot),
         ("deformation_force".to_owned(), force),
         ("integrate + chebyshev_combine".to_owned(), int),
     ];
     if let Some(modes) = modes {
-        passes.push((format!("deflate ({} modes)", modes.count()), deflation));
+        passes.push((format!("deflate ({} modes)", modes.count()), correction));
     } else if coarse.is_some() {
-        passes.push(("coarse correction (two-level)".to_owned(), deflation));
+        passes.push(("coarse correction (two-level)".to_owned(), correction));
     }
     passes.push(("step norms".to_owned(), steps));
     Breakdown::new(

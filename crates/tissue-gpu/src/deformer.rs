@@ -52,6 +52,16 @@ pub struct GpuDeformer {
 }
 
 impl GpuDeformer {
+    /// The parameters under which the CPU path runs the solve the GPU runs
+    /// under `params`, its twin: the same, without the two-level solve
+    /// (`coarse`), which has no kernels yet (the GPU deflates instead).
+    pub fn cpu_twin(params: &DeformParams) -> DeformParams {
+        DeformParams {
+            coarse: 0.0,
+            ..params.clone()
+        }
+    }
+
     /// Checks `model` and `params`, estimates the Laplacian's extreme
     /// eigenvalues and, with `params.deflation`, its lowest modes (on the
     /// CPU, by the CPU path's own calls, so both deflate the same modes),

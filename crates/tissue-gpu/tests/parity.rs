@@ -278,8 +278,6 @@ fn deflate_matches_the_cpu_twin() {
         let plan = Plan::new(model).unwrap_or_else(|e| panic!("{e}"));
         let params = DeformParams {
             deflation: 16,
-            // The GPU has no two-level solve: its CPU twin runs without it.
-            coarse: 0.0,
             ..DeformParams::default()
         };
         let modes = low_modes(

@@ -34,8 +34,6 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
     let params = DeformParams {
         rotations: RotationMethod::Svd,
         max_iterations: 1,
-        // The GPU has no two-level solve: its CPU twin runs without it.
-        coarse: 0.0,
         ..DeformParams::default()
     };
     let mut gpu =
@@ -71,8 +69,6 @@ fn read_rotations_after_a_solve_matches_the_cpu_deformer() {
     let model = common::phantom(2_000);
     let params = DeformParams {
         rotations: RotationMethod::Svd,
-        // The GPU has no two-level solve: its CPU twin runs without it.
-        coarse: 0.0,
         ..DeformParams::default()
     };
     let (cpu, cpu_report, gpu, gpu_report) =

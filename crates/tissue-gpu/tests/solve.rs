@@ -16,8 +16,6 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         let params = DeformParams {
             force,
             rotations: RotationMethod::Svd,
-            // The GPU has no two-level solve: its CPU twin runs without it.
-            coarse: 0.0,
             ..DeformParams::default()
         };
         let (cpu, cpu_report, gpu, gpu_report) =
@@ -65,13 +63,12 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
     let model = common::phantom(2_000);
     let params = DeformParams {
         rotations: RotationMethod::Svd,
-        // The GPU has no two-level solve: its CPU twin runs without it.
-        coarse: 0.0,
         ..DeformParams::default()
     };
     let sagged = tissue_core::deform::sagged_breast();
-    let mut cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
-        .unwrap_or_else(|e| panic!("{e}"));
+    let mut cpu =
+        tissue_cpu::deformation::Deformer::new(model, tissue_gpu::GpuDeformer::cpu_twin(&params))
+            .unwrap_or_else(|e| panic!("{e}"));
     let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
         .unwrap_or_else(|e| panic!("{e}"));
     let tolerance = 1e-5 * cpu.size();
@@ -120,8 +117,6 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
             force,
             rotations: RotationMethod::Svd,
             deflation: 0,
-            // The GPU has no two-level solve: its CPU twin runs without it.
-            coarse: 0.0,
             ..DeformParams::default()
         };
         let deflated = DeformParams {

@@ -8,6 +8,7 @@ mod common;
 use glam::Vec3;
 use tissue_core::deform::{Rigid, deform_surface};
 use tissue_core::phantom;
+use tissue_cpu::deformation::DeformParams;
 use tissue_cpu::structures::Embedding;
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
 
@@ -20,7 +21,7 @@ fn embedded_points_move_as_the_cpu_twin_moves_them() {
     // 2,003 particles: not a multiple of the workgroup size.
     let model = common::phantom(2_003);
     let (_, _, gpu, report) =
-        common::solve_sag_on_both(&device, &queue, model, common::twin_params());
+        common::solve_sag_on_both(&device, &queue, model, DeformParams::default());
     assert!(report.converged, "{report:?}");
     let kernel = EmbeddingKernel::new(&device).unwrap_or_else(|e| panic!("{e}"));
     // The tumour's vertices plus a few landmarks, 1,000 points or so: more
@@ -80,7 +81,7 @@ fn a_rigid_motion_carries_embedded_points_rigidly_on_the_gpu() {
         Vec3::new(0.0, 0.0, 25.0),
         Vec3::new(7.0, -3.0, 4.0),
     );
-    let mut gpu = GpuDeformer::new(&device, &queue, model, common::twin_params())
+    let mut gpu = GpuDeformer::new(&device, &queue, model, DeformParams::default())
         .unwrap_or_else(|e| panic!("{e}"));
     gpu.set_surface(&queue, &deform_surface(&model.surface, &rigid))
         .unwrap_or_else(|e| panic!("{e}"));

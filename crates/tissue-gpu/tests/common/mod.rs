@@ -74,8 +74,9 @@ pub fn read(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -
     bytes
 }
 
-/// The phantom's sag solved from rest by the CPU and the GPU path with the
-/// same parameters: `(cpu, cpu report, gpu, gpu report)`.
+/// The phantom's sag solved from rest by the GPU path with `params` and
+/// by the CPU path as its twin (`GpuDeformer::cpu_twin`):
+/// `(cpu, cpu report, gpu, gpu report)`.
 pub fn solve_sag_on_both(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
@@ -88,8 +89,9 @@ pub fn solve_sag_on_both(
     tissue_cpu::deformation::DeformReport,
 ) {
     let sagged = tissue_core::deform::sagged_breast();
-    let mut cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
-        .unwrap_or_else(|e| panic!("{e}"));
+    let mut cpu =
+        tissue_cpu::deformation::Deformer::new(model, tissue_gpu::GpuDeformer::cpu_twin(&params))
+            .unwrap_or_else(|e| panic!("{e}"));
     cpu.set_surface(&sagged).unwrap_or_else(|e| panic!("{e}"));
     let cpu_report = cpu.solve();
     let mut gpu = tissue_gpu::GpuDeformer::new(device, queue, model, params)
@@ -98,15 +100,4 @@ pub fn solve_sag_on_both(
         .unwrap_or_else(|e| panic!("{e}"));
     let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)
-}
-
-/// The library's defaults as the GPU runs them: without the CPU's two-level
-/// solve (it has no GPU kernels yet, and the GPU deflates instead), so the
-/// CPU path is the GPU's twin.
-#[allow(dead_code)]
-pub fn twin_params() -> tissue_cpu::deformation::DeformParams {
-    tissue_cpu::deformation::DeformParams {
-        coarse: 0.0,
-        ..Default::default()
-    }
 }
