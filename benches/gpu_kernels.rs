@@ -49,7 +49,7 @@ fn gpu_kernels(c: &mut Criterion) {
     let mut deformer =
         GpuDeformer::new(&device, &queue, &sampled.model, params).expect("the GPU deformer");
     deformer
-        .set_surface(&queue, &deform_surface(&breast, &Sag::default()))
+        .set_surface(&device, &queue, &deform_surface(&breast, &Sag::default()))
         .expect("the sagged surface");
     deformer.solve(&device, &queue).expect("24 iterations");
     let (pipelines, state) = (deformer.pipelines(), deformer.state());

@@ -332,7 +332,7 @@ impl Solver {
             Self::Cpu(cpu) => cpu.set_surface(deformed),
             Self::Gpu(gpu) => gpu
                 .deformer
-                .set_surface(&gpu.queue, deformed)
+                .set_surface(&gpu.device, &gpu.queue, deformed)
                 .map_err(|e| gpu_error(format!("uploading a surface to {}", gpu.name), e)),
         }
     }

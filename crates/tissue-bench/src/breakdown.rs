@@ -114,7 +114,7 @@ pub fn cpu(
     let contraction = plan.contraction(params);
     let correct = |plain: &mut Vec<Vec3>| {
         if let Some(modes) = modes {
-            modes.deflate(current, plain, contraction);
+            tissue_cpu::deformation::deflate(modes, current, plain, contraction);
         }
         if let Some(coarse) = coarse {
             coarse.correct(current, plain, connections, contraction);

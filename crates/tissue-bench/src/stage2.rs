@@ -54,7 +54,7 @@ impl<'a> Solver<'a> {
     fn set_surface(&mut self, surface: &SurfaceMesh) -> Result<()> {
         match self {
             Self::Cpu(cpu) => cpu.set_surface(surface)?,
-            Self::Gpu(gpu, deformer) => deformer.set_surface(&gpu.queue, surface)?,
+            Self::Gpu(gpu, deformer) => deformer.set_surface(&gpu.device, &gpu.queue, surface)?,
         }
         Ok(())
     }

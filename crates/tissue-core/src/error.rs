@@ -175,3 +175,9 @@ pub enum Error {
 
 /// Result with tissue's core error.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl From<std::convert::Infallible> for Error {
+    fn from(never: std::convert::Infallible) -> Self {
+        match never {}
+    }
+}

@@ -1,13 +1,16 @@
 //! The CPU reference path of tissue: rayon-parallel and Jacobi-style (each
 //! particle's update reads only the previous state), so results do not depend
 //! on the thread count. Each stage is the twin of a GPU shader of the same name.
+//!
+//! What belongs to neither device (parameters, plan, acceleration, stopping,
+//! prediction, modes, stage 1's preparation and finish) lives in
+//! `tissue-solve`; the host algorithms both devices use (the grid, the 3x3
+//! SVD, structures) are there too, re-exported here as this path's twins of
+//! their shaders.
 
 pub mod coarse;
 pub mod deformation;
-pub mod grid;
-pub mod quality;
 pub mod sampling;
-pub mod structures;
-pub mod svd3;
 
 pub use sampling::{Progress, Sampled, sample};
+pub use tissue_solve::{grid, quality, structures, svd3};

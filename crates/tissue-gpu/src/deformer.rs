@@ -1,54 +1,46 @@
-//! `tissue_cpu::deformation::Deformer::solve` on the GPU.
+//! Stage 2 on the GPU: `tissue_solve::Tracker` over [`GpuSolve`], the
+//! kernels and buffers of one model.
 
-use std::time::Instant;
-
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use tissue_core::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, DeformReport, FrameHistory, LowModes, Plan, StopReason, StoppingRule,
-    check_same_topology, deflation_modes, predict,
-};
+use tissue_solve::deflation_modes;
+use tissue_solve::{DeformParams, DeformReport, Iteration, LowModes, SolveDevice, Tracker};
 
 use crate::state::SLOTS;
 use crate::{DeformState, GpuError, Pipelines};
 
-/// Stage 2 on the GPU for one particle model: the same step `alpha` from
-/// `lambda_max`, the same spectral Chebyshev `rho` and the same stopping rule
-/// as the CPU [`tissue_cpu::deformation::Deformer`], with rotations always by
-/// the SVD (`RotationMethod::Svd`; `params.rotations` is not consulted).
-/// With `params.deflation`, the same modes as the CPU path's deflate the
-/// plain step every iteration, with the same deflated `rho` and the same
-/// step for the rule (the update made, after the combine). The two-level
-/// solve (`params.coarse`) has no kernels yet: the GPU deflates where the
-/// CPU path would use its coarse space. A
-/// new frame starts where `tissue_cpu::deformation::predict` puts it, the
-/// CPU path's own function: the positions are read back at the end of every
-/// solve and the prediction is uploaded with the new control points (both
-/// frame boundaries). The step norms are read back once per [`SLOTS`]
-/// iterations; when the rule held inside a batch, the batch is replayed up
-/// to that iteration, so the iteration count equals the CPU rule's.
+/// Stage 2 on the GPU for one particle model: the CPU path's tracker (the
+/// same step `alpha` from `lambda_max`, the same spectral Chebyshev `rho`,
+/// the same prediction and stopping rule), with rotations always by the
+/// SVD (`RotationMethod::Svd`; `params.rotations` is not consulted). With
+/// `params.deflation`, the same modes as the CPU path's deflate the plain
+/// step every iteration. The two-level solve (`params.coarse`) has no
+/// kernels yet: the GPU deflates where the CPU path would use its coarse
+/// space. The positions are read back at the end of every solve and
+/// uploaded with a new frame's control points (both frame boundaries); the
+/// step norms are read back once per [`SLOTS`] iterations, and a batch in
+/// which the rule held is replayed up to that iteration, so the iteration
+/// count equals the CPU's.
 #[derive(Debug)]
 pub struct GpuDeformer {
+    tracker: Tracker<GpuSolve>,
+}
+
+/// The GPU's stage-2 kernels and buffers for one model: what
+/// [`SolveDevice`] asks of a device.
+#[derive(Debug)]
+pub struct GpuSolve {
     pipelines: Pipelines,
     state: DeformState,
-    surface: SurfaceMesh,
-    /// Triangle and barycentric coordinates of each control point, in particle order.
-    attachments: Vec<(u32, [f32; 3])>,
-    /// Free particles, spectrum, size and float floor, as the CPU path has them.
-    plan: Plan,
-    params: DeformParams,
     /// The modes deflated every iteration, as the CPU path computes them;
     /// `None` without deflation or when none came out.
     modes: Option<LowModes>,
     backup_current: wgpu::Buffer,
     backup_previous: wgpu::Buffer,
-    /// The control particles, in the order of `attachments`.
-    controls: Vec<usize>,
-    /// The positions on the GPU at the last frame boundary.
-    current: Vec<Vec3>,
-    /// The last converged solutions, for the prediction.
-    history: FrameHistory,
-    rest: Vec<Vec3>,
+    /// What the iterations of the solve in hand run with.
+    iteration: Option<Iteration>,
+    /// Iterations of the last batch, whose weights the slots still hold.
+    slots: u32,
 }
 
 impl GpuDeformer {
@@ -64,106 +56,89 @@ impl GpuDeformer {
 
     /// Checks `model` and `params`, estimates the Laplacian's extreme
     /// eigenvalues and, with `params.deflation`, its lowest modes (on the
-    /// CPU, by the CPU path's own calls, so both deflate the same modes),
-    /// compiles the kernels and uploads the model and the modes.
+    /// host, by the same calls as the CPU path, so both deflate the same
+    /// modes), compiles the kernels and uploads the model and the modes.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         model: &ParticleModel,
         params: DeformParams,
     ) -> Result<Self, GpuError> {
-        params.validate()?;
-        let plan = Plan::new(model)?;
-        let attachments: Vec<(u32, [f32; 3])> = model
-            .attachments
-            .iter()
-            .flatten()
-            .map(|a| (a.triangle, a.barycentric))
-            .collect();
-        let pipelines = Pipelines::new(device)?;
-        let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-        if params.coarse > 0.0 {
-            log::info!(
-                "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
-                params.coarse,
-                params.deflation
-            );
-        }
-        let modes = deflation_modes(model, &plan, &params);
-        if let Some(m) = &modes {
-            let scales: Vec<f32> = m
-                .gain_scales(plan.contraction(&params))
-                .map(|scale| scale as f32)
-                .collect();
-            state.set_modes(device, &pipelines, m.vectors(), &scales)?;
-        }
-        let backup = |label| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: state.len() as u64 * 16,
-                usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
+        let tracker = Tracker::new(model, params, |plan, params| {
+            let pipelines = Pipelines::new(device)?;
+            let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+            if params.coarse > 0.0 {
+                log::info!(
+                    "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
+                    params.coarse,
+                    params.deflation
+                );
+            }
+            let modes = deflation_modes(model, plan, params);
+            if let Some(m) = &modes {
+                let scales: Vec<f32> = m
+                    .gain_scales(plan.contraction(params))
+                    .map(|scale| scale as f32)
+                    .collect();
+                state.set_modes(device, &pipelines, m.vectors(), &scales)?;
+            }
+            let backup = |label| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: state.len() as u64 * 16,
+                    usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            };
+            Ok::<_, GpuError>(GpuSolve {
+                backup_current: backup("backup current"),
+                backup_previous: backup("backup previous"),
+                pipelines,
+                state,
+                modes,
+                iteration: None,
+                slots: 0,
             })
-        };
-        let history = FrameHistory::at_rest(&model.positions, params.history);
-        let controls = model
-            .attachments
-            .iter()
-            .enumerate()
-            .filter_map(|(i, a)| a.map(|_| i))
-            .collect();
-        Ok(Self {
-            backup_current: backup("backup current"),
-            backup_previous: backup("backup previous"),
-            pipelines,
-            state,
-            surface: model.surface.clone(),
-            attachments,
-            plan,
-            params,
-            modes,
-            controls,
-            current: model.positions.clone(),
-            history,
-            rest: model.positions.clone(),
-        })
+        })?;
+        Ok(Self { tracker })
     }
 
     /// The kernels.
     pub fn pipelines(&self) -> &Pipelines {
-        &self.pipelines
+        &self.tracker.device().pipelines
     }
 
     /// The buffers.
     pub fn state(&self) -> &DeformState {
-        &self.state
+        &self.tracker.device().state
     }
 
     /// The lowest Laplacian modes deflated every iteration, if any (the
     /// CPU path's `Deformer::modes`).
     pub fn modes(&self) -> Option<&LowModes> {
-        self.modes.as_ref()
+        self.tracker.device().modes.as_ref()
     }
 
     /// Bytes of every GPU buffer the deformer holds: the state's (with the
     /// modes, when deflated), and the two backups a batch is replayed from.
     pub fn buffer_bytes(&self) -> u64 {
-        self.state.buffer_bytes() + self.backup_current.size() + self.backup_previous.size()
+        let gpu = self.tracker.device();
+        gpu.state.buffer_bytes() + gpu.backup_current.size() + gpu.backup_previous.size()
     }
 
     /// The model's size (bounding-box diagonal at rest).
     pub fn size(&self) -> f32 {
-        self.plan.size
+        self.tracker.plan().size
     }
 
     /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
     pub fn lambda_min(&self) -> f32 {
-        self.plan.lambda_min
+        self.tracker.plan().lambda_min
     }
 
     /// Largest eigenvalue of the connection-graph Laplacian over free particles.
     pub fn lambda_max(&self) -> f32 {
-        self.plan.lambda_max
+        self.tracker.plan().lambda_max
     }
 
     /// Places the control points on `deformed`, the rest surface with moved
@@ -171,48 +146,17 @@ impl GpuDeformer {
     /// `extrapolate` is off) and uploads them (a frame boundary).
     pub fn set_surface(
         &mut self,
+        device: &wgpu::Device,
         queue: &wgpu::Queue,
         deformed: &SurfaceMesh,
     ) -> Result<(), GpuError> {
-        check_same_topology(&self.surface, deformed)?;
-        let points: Vec<Vec3> = self
-            .attachments
-            .iter()
-            .map(|&(t, bary)| deformed.point_on(t as usize, bary))
-            .collect();
-        if !self.params.extrapolate {
-            for (&i, &q) in self.controls.iter().zip(&points) {
-                self.current[i] = q;
-            }
-            return self.state.set_control_points(queue, &points);
-        }
-        let controls: Vec<(usize, Vec3)> = self
-            .controls
-            .iter()
-            .copied()
-            .zip(points.iter().copied())
-            .collect();
-        let (prediction, _) = predict(
-            &self.current,
-            &self.history,
-            &controls,
-            self.params.tolerance * self.plan.size,
-        );
-        for (i, q) in prediction.into_iter().enumerate() {
-            if self.plan.free[i] {
-                self.current[i] = q;
-            }
-        }
-        for (i, q) in controls {
-            self.current[i] = q;
-        }
-        self.state.write_current(queue, &self.current)
+        self.tracker.set_surface((device, queue), deformed)
     }
 
     /// The positions at the end of the last solve (read back by it), or
     /// after the last `set_surface` or `reset`.
     pub fn host_positions(&self) -> &[Vec3] {
-        &self.current
+        self.tracker.positions()
     }
 
     /// Reads the current positions back (a frame boundary).
@@ -221,7 +165,7 @@ impl GpuDeformer {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Vec3>, GpuError> {
-        self.state.read_positions(device, queue)
+        self.state().read_positions(device, queue)
     }
 
     /// Reads back each particle's rotation (rest offsets onto current
@@ -233,20 +177,13 @@ impl GpuDeformer {
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-    ) -> Result<Vec<glam::Mat3>, GpuError> {
-        self.state.read_rotations(device, queue)
+    ) -> Result<Vec<Mat3>, GpuError> {
+        self.state().read_rotations(device, queue)
     }
 
     /// Back to the rest shape.
     pub fn reset(&mut self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(), GpuError> {
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("reset"),
-        });
-        encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
-        queue.submit([encoder.finish()]);
-        self.current.clone_from(&self.rest);
-        self.history = FrameHistory::at_rest(&self.rest, self.params.history);
-        crate::wait(device)
+        self.tracker.reset((device, queue))
     }
 
     /// Iterates until the stopping rule of `Deformer::solve` holds or the cap
@@ -257,94 +194,111 @@ impl GpuDeformer {
         queue: &wgpu::Queue,
     ) -> Result<DeformReport, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let report = self.iterate(device, queue);
+        let report = self.tracker.solve((device, queue));
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(e.into());
         }
-        let report = report?;
-        self.current = self.state.read_positions(device, queue)?;
-        self.history
-            .record(&self.current, report.converged, self.params.history);
-        Ok(report)
+        report
+    }
+}
+
+impl SolveDevice for GpuSolve {
+    type Error = GpuError;
+    type Context<'a> = (&'a wgpu::Device, &'a wgpu::Queue);
+
+    /// One uniform slot and one row of step partials per iteration.
+    fn batch(&self) -> usize {
+        SLOTS as usize
     }
 
-    fn iterate(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-    ) -> Result<DeformReport, GpuError> {
-        let started = Instant::now();
-        let p = &self.params;
-        let alpha = self.plan.alpha(p);
-        // Deflated, the rest of the spectrum sets rho, and the state's
-        // iteration measures the update made (`Deformer::solve`).
-        let rho = self.plan.solve_rho(p, self.modes.as_ref(), None);
-        let (mut chebyshev, mut rule) = (
-            Chebyshev::with_rho(p, rho),
-            StoppingRule::with_rho(&self.plan, p, rho),
-        );
-        let state = &self.state;
-        let n = state.len() as f64;
-        let mut stopped_by = StopReason::IterationCap;
-        let mut iterations = 0;
+    fn modes(&self) -> Option<&LowModes> {
+        self.modes.as_ref()
+    }
 
+    fn write_positions(
+        &mut self,
+        (_, queue): Self::Context<'_>,
+        positions: &[Vec3],
+        _turn: Option<Mat3>,
+    ) -> Result<(), GpuError> {
+        // The rotations come from the SVD every iteration: nothing to turn.
+        self.state.write_current(queue, positions)
+    }
+
+    fn begin(
+        &mut self,
+        (device, queue): Self::Context<'_>,
+        iteration: Iteration,
+    ) -> Result<(), GpuError> {
+        self.iteration = Some(iteration);
+        let state = &self.state;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve start"),
         });
         encoder.copy_buffer_to_buffer(&state.current, 0, &state.previous, 0, None);
         queue.submit([encoder.finish()]);
+        Ok(())
+    }
 
-        while iterations < p.max_iterations {
-            let batch = SLOTS.min((p.max_iterations - iterations) as u32);
-            // The batch replays exactly, so omega may advance ahead of the rule.
-            let mut lookahead = chebyshev.clone();
-            for slot in 0..batch {
-                let omega = lookahead.omega(iterations + slot as usize + 1);
-                state.write_params(queue, slot, state.params(p.force, alpha, omega, slot));
-            }
-            chebyshev = lookahead;
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("solve batch"),
-            });
-            encoder.copy_buffer_to_buffer(&state.current, 0, &self.backup_current, 0, None);
-            encoder.copy_buffer_to_buffer(&state.previous, 0, &self.backup_previous, 0, None);
-            self.pipelines.record_iterations(&mut encoder, state, batch);
-            queue.submit([encoder.finish()]);
-            let partials = state.read_partials(device, queue, batch)?;
-
-            let mut stop_after = None;
-            for (k, row) in partials.iter().enumerate() {
+    fn run(
+        &mut self,
+        (device, queue): Self::Context<'_>,
+        omegas: &[f32],
+    ) -> Result<Vec<(f32, f32)>, GpuError> {
+        let Some(it) = self.iteration else {
+            return Ok(Vec::new());
+        };
+        let state = &self.state;
+        let batch = omegas.len().min(SLOTS as usize) as u32;
+        for (slot, &omega) in (0..batch).zip(omegas) {
+            state.write_params(queue, slot, state.params(it.force, it.alpha, omega, slot));
+        }
+        self.slots = batch;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("solve batch"),
+        });
+        encoder.copy_buffer_to_buffer(&state.current, 0, &self.backup_current, 0, None);
+        encoder.copy_buffer_to_buffer(&state.previous, 0, &self.backup_previous, 0, None);
+        self.pipelines.record_iterations(&mut encoder, state, batch);
+        queue.submit([encoder.finish()]);
+        let n = state.len() as f64;
+        Ok(state
+            .read_partials(device, queue, batch)?
+            .iter()
+            .map(|row| {
                 let step = row.iter().map(|x| x[0]).fold(0.0f32, f32::max).sqrt();
                 let sum: f64 = row.iter().map(|x| f64::from(x[1])).sum();
-                iterations += 1;
-                if let Some(reason) = rule.after(step, (sum / n).sqrt() as f32) {
-                    stopped_by = reason;
-                    stop_after = Some(k as u32 + 1);
-                    break;
-                }
-            }
-            if let Some(done) = stop_after {
-                if done < batch {
-                    // Replay the batch up to the iteration where the rule held.
-                    let mut encoder =
-                        device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                            label: Some("solve replay"),
-                        });
-                    encoder.copy_buffer_to_buffer(&self.backup_current, 0, &state.current, 0, None);
-                    encoder.copy_buffer_to_buffer(
-                        &self.backup_previous,
-                        0,
-                        &state.previous,
-                        0,
-                        None,
-                    );
-                    self.pipelines.record_iterations(&mut encoder, state, done);
-                    queue.submit([encoder.finish()]);
-                    crate::wait(device)?;
-                }
-                break;
-            }
-        }
-        Ok(rule.report(iterations, stopped_by, started.elapsed().as_secs_f64()))
+                (step, (sum / n).sqrt() as f32)
+            })
+            .collect())
+    }
+
+    fn replay(&mut self, (device, queue): Self::Context<'_>, count: usize) -> Result<(), GpuError> {
+        let state = &self.state;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("solve replay"),
+        });
+        encoder.copy_buffer_to_buffer(&self.backup_current, 0, &state.current, 0, None);
+        encoder.copy_buffer_to_buffer(&self.backup_previous, 0, &state.previous, 0, None);
+        let count = u32::try_from(count).map_or(self.slots, |c| c.min(self.slots));
+        self.pipelines.record_iterations(&mut encoder, state, count);
+        queue.submit([encoder.finish()]);
+        crate::wait(device)
+    }
+
+    fn read_positions(
+        &mut self,
+        (device, queue): Self::Context<'_>,
+    ) -> Result<Vec<Vec3>, GpuError> {
+        self.state.read_positions(device, queue)
+    }
+
+    fn reset(&mut self, (device, queue): Self::Context<'_>) -> Result<(), GpuError> {
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("reset"),
+        });
+        encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
+        queue.submit([encoder.finish()]);
+        crate::wait(device)
     }
 }

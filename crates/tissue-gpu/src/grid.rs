@@ -1,6 +1,6 @@
 //! Stage 1's uniform grid and neighbour rows on the GPU: twins of
-//! `tissue_cpu::grid::grid_build` (`shaders/grid_build.wgsl`) and
-//! `tissue_cpu::grid::neighbour_rows` (`shaders/neighbour_rows.wgsl`).
+//! `tissue_solve::grid::grid_build` (`shaders/grid_build.wgsl`) and
+//! `tissue_solve::grid::neighbour_rows` (`shaders/neighbour_rows.wgsl`).
 //!
 //! - [`GridPipelines`]: the compiled kernels, built once from a `&Device`.
 //! - [`GridPipelines::grid_build`]: particles sorted into cells, [`GpuGrid`].
@@ -11,10 +11,10 @@
 //! **The layout never leaves the GPU.** The bounds (and the largest radius)
 //! are reduced by `atomicMax` on order-preserving u32 keys (exact, so the
 //! same as the CPU's fold), and one invocation, `grid_layout`, applies
-//! `tissue_cpu::grid::grid_layout`'s rule with the same f32 operations in
+//! `tissue_solve::grid::grid_layout`'s rule with the same f32 operations in
 //! the same order, writing [`GridLayout`] into a storage buffer that later
 //! kernels read. The cell buffers are sized for the most cells the rule
-//! allows ([`tissue_cpu::grid::max_cells`]: 8 per particle, at least 64),
+//! allows ([`tissue_solve::grid::max_cells`]: 8 per particle, at least 64),
 //! and the prefix sum runs over all of them (cells past the grid's are
 //! empty), so a grid build needs no readback at all. Bit-equal grids rely on
 //! the device rounding `/` correctly, as lavapipe does; WGSL allows 2.5 ULP,
@@ -38,7 +38,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
-use tissue_cpu::grid::Grid;
+use tissue_solve::grid::Grid;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
@@ -181,7 +181,7 @@ impl GridPipelines {
 
     /// Sorts the first `count` particles of `positions` (`vec4`: xyz
     /// position, w unused here) into a grid with cells of at least `cell`:
-    /// `tissue_cpu::grid::grid_build`. Submits the work and returns without
+    /// `tissue_solve::grid::grid_build`. Submits the work and returns without
     /// waiting.
     pub fn grid_build(
         &self,
@@ -216,7 +216,7 @@ impl GridPipelines {
     /// Neighbour rows of the first `count` particles of `positions` (`vec4`:
     /// xyz position, w radius): `j != i` with
     /// `|p_i - p_j| < factor (r_i + r_j) + skin`, each row in grid order or
-    /// ascending when `sorted`; `tissue_cpu::grid::neighbour_rows`. Waits
+    /// ascending when `sorted`; `tissue_solve::grid::neighbour_rows`. Waits
     /// once, for the number of entries; the fill is submitted, not awaited.
     ///
     /// Errors: a non-finite position, radius, factor or skin is
@@ -401,7 +401,7 @@ impl GridPipelines {
                 allowed: limits.max_storage_buffer_binding_size,
             });
         }
-        let capacity = tissue_cpu::grid::max_cells(count as usize);
+        let capacity = tissue_solve::grid::max_cells(count as usize);
         let starts = u32::try_from(capacity + 1).map_err(|_| GpuError::LimitExceeded {
             limit: "u32 cell index",
             what: format!("the grid of {count} particles"),

@@ -8,7 +8,7 @@
 //!   integrate → step norms → Chebyshev (deflated: rotations → force →
 //!   integrate → deflate → Chebyshev → the update's norms), K times into
 //!   one command buffer.
-//! - [`GpuDeformer`]: `tissue_cpu::deformation::Deformer::solve` on the GPU.
+//! - [`GpuDeformer`]: stage 2 on the GPU, `tissue_solve::Tracker` over [`GpuSolve`].
 //! - [`GridPipelines`]: stage 1's uniform grid and neighbour rows
 //!   (`tissue_cpu::grid`) on the GPU, [`GpuGrid`] and [`GpuRows`].
 //! - [`sampler::sample`]: stage 1 (`tissue_cpu::sample`) with its iterations
@@ -30,7 +30,7 @@ pub mod structures;
 mod support;
 pub mod timing;
 
-pub use deformer::GpuDeformer;
+pub use deformer::{GpuDeformer, GpuSolve};
 pub use grid::{GpuGrid, GpuRows, GridPipelines};
 pub use pipelines::{Kernel, Pipelines};
 pub use sampler::SamplingPipelines;

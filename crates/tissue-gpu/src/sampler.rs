@@ -21,8 +21,8 @@ use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
 use tissue_core::field::{Nearest, Side, SurfaceField};
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh, SurfaceMode};
-use tissue_cpu::quality::quality_report;
-use tissue_cpu::sampling::{
+use tissue_solve::quality::quality_report;
+use tissue_solve::sampling::{
     ForceOut, Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, place_surface_particles,
     prepare,
 };
@@ -492,7 +492,7 @@ impl SamplingBuffers {
         Ok(())
     }
 
-    /// Uploads neighbour rows (CSR, as `tissue_cpu::grid::neighbour_rows` returns them).
+    /// Uploads neighbour rows (CSR, as `tissue_solve::grid::neighbour_rows` returns them).
     pub fn set_rows(
         &mut self,
         device: &wgpu::Device,
@@ -726,7 +726,7 @@ impl SamplingBuffers {
     }
 }
 
-/// The change of one iteration as `tissue_cpu::sampling::change` finishes it:
+/// The change of one iteration as `tissue_solve::sampling::change` finishes it:
 /// RMS step of particles not held by the wall (in `r0`), RMS change of `ln r`.
 fn finish_change(sums: [f64; 3], count: usize, r0: f32) -> (f32, f32) {
     let free = sums[1].round().max(1.0);
@@ -769,7 +769,7 @@ pub fn sample(
     stages.iterations += clock.elapsed().as_secs_f64() - neighbour_seconds;
     stages.neighbours += neighbour_seconds;
 
-    // `tissue_cpu::sampling::finish`, its connections (eq. (9)) on the GPU.
+    // `tissue_solve::sampling::finish`, its connections (eq. (9)) on the GPU.
     let clock = Instant::now();
     let (positions, attachments) = place_surface_particles(&field, &state, params);
     let connections = connections(

@@ -2,7 +2,7 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
-use tissue_cpu::deformation::ForceModel;
+use tissue_solve::ForceModel;
 
 use crate::pipelines::{Kernel, Pipelines};
 use crate::support::{Scopes, bind_group, storage_init};
@@ -102,7 +102,7 @@ impl DeformState {
 
     /// Uploads `model` (rest = current = previous = the rest positions,
     /// identity rotations), with `free` marking the particles the solve moves
-    /// (`tissue_cpu::deformation::Plan::free`), and binds it to `pipelines`' kernels.
+    /// (`tissue_solve::Plan::free`), and binds it to `pipelines`' kernels.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -260,7 +260,7 @@ impl DeformState {
     /// iteration from now on ([`Kernel::DEFLATED_ITERATION`]): `vectors`
     /// particle-major (`vectors[i * m + k]`, 0 at control points), `scales[k]` the
     /// factor `1 / (c alpha lambda_k) − 1` that turns mode `k`'s projection
-    /// into its gain (see `tissue_cpu::deformation::LowModes::deflate`).
+    /// into its gain (see `tissue_solve::LowModes::deflate`).
     /// Zero modes turn deflation off.
     pub fn set_modes(
         &mut self,

@@ -38,7 +38,7 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
     };
     let mut gpu =
         GpuDeformer::new(&device, &queue, model, params).unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(&queue, &tissue_core::deform::sagged_breast())
+    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
         .unwrap_or_else(|e| panic!("{e}"));
     let start = gpu
         .positions(&device, &queue)

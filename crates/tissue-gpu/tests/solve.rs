@@ -78,7 +78,7 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
             tissue_core::deform::interpolate(&model.surface, &sagged, 0.5 + 0.05 * k as f32)
                 .unwrap_or_else(|e| panic!("{e}"));
         cpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
-        gpu.set_surface(&queue, &frame)
+        gpu.set_surface(&device, &queue, &frame)
             .unwrap_or_else(|e| panic!("{e}"));
         let on_cpu = cpu.solve();
         let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
@@ -142,7 +142,7 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
         let mut undeflated = tissue_gpu::GpuDeformer::new(&device, &queue, model, plain)
             .unwrap_or_else(|e| panic!("{e}"));
         undeflated
-            .set_surface(&queue, &tissue_core::deform::sagged_breast())
+            .set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
             .unwrap_or_else(|e| panic!("{e}"));
         let undeflated_report = undeflated
             .solve(&device, &queue)

@@ -83,7 +83,7 @@ fn a_rigid_motion_carries_embedded_points_rigidly_on_the_gpu() {
     );
     let mut gpu = GpuDeformer::new(&device, &queue, model, DeformParams::default())
         .unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(&queue, &deform_surface(&model.surface, &rigid))
+    gpu.set_surface(&device, &queue, &deform_surface(&model.surface, &rigid))
         .unwrap_or_else(|e| panic!("{e}"));
     let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.converged, "{report:?}");

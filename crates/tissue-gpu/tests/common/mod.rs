@@ -96,7 +96,7 @@ pub fn solve_sag_on_both(
     let cpu_report = cpu.solve();
     let mut gpu = tissue_gpu::GpuDeformer::new(device, queue, model, params)
         .unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(queue, &sagged)
+    gpu.set_surface(device, queue, &sagged)
         .unwrap_or_else(|e| panic!("{e}"));
     let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)

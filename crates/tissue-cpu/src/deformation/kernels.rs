@@ -1,0 +1,208 @@
+//! The stage-2 kernels on the CPU, each the twin of a shader of the same
+//! name: rotations, force, the plain step, the Chebyshev combine, the step
+//! norms and deflation.
+
+use glam::{DVec3, Mat3, Vec3, Vec3A};
+use rayon::prelude::*;
+use tissue_core::Connections;
+use tissue_solve::modes::{LowModes, add_entries};
+use tissue_solve::params::ForceModel;
+use tissue_solve::svd3::rotation_of;
+
+use super::polar::warm_rotation;
+
+/// The Chebyshev step: `omega (q_hat - q_old) + q_old`.
+pub fn chebyshev_combine(plain: &[Vec3], previous: &[Vec3], omega: f32) -> Vec<Vec3> {
+    plain
+        .par_iter()
+        .zip(previous)
+        .map(|(&q_hat, &q_old)| omega * (q_hat - q_old) + q_old)
+        .collect()
+}
+
+/// Largest and RMS plain step over all particles (`old` to `new`), as
+/// [`Deformer::solve`] measures each iteration.
+pub fn steps(old: &[Vec3], new: &[Vec3]) -> (f32, f32) {
+    let squares: Vec<f32> = old
+        .par_iter()
+        .zip(new)
+        .map(|(a, b)| (*b - *a).length_squared())
+        .collect();
+    let max = squares.iter().copied().fold(0.0, f32::max).sqrt();
+    let mean = squares.iter().map(|&x| f64::from(x)).sum::<f64>() / squares.len().max(1) as f64;
+    (max, mean.sqrt() as f32)
+}
+
+/// Per particle, the rotation that best maps rest offsets onto current
+/// offsets: the polar rotation of `M_i = sum_j (q_j - q_i)(p_j - p_i)^T`.
+pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connections) -> Vec<Mat3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| rotation_of(offsets_product(rest, current, connections, i)))
+        .collect()
+}
+
+/// `M_i = sum_j (q_j - q_i)(p_j - p_i)^T` over particle `i`'s connections:
+/// the matrix whose polar rotation maps its rest offsets onto its current ones.
+fn offsets_product(rest: &[Vec3], current: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
+    let mut m = Mat3::ZERO;
+    for &j in connections.of(i) {
+        let d = rest[j as usize] - rest[i];
+        let c = current[j as usize] - current[i];
+        m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+    }
+    m
+}
+
+/// [`local_rotations`] by Müller et al.'s polar iteration, warm-started
+/// from `previous` (rest offsets onto current offsets, like `local_rotations`).
+pub fn local_rotations_warm(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    previous: &[Mat3],
+) -> Vec<Mat3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| warm_rotation(offsets_product(rest, current, connections, i), previous[i]))
+        .collect()
+}
+
+/// The force on every particle, gathered over its connections.
+pub fn deformation_force(
+    rest: &[Vec3],
+    current: &[Vec3],
+    rotations: &[Mat3],
+    connections: &Connections,
+    model: ForceModel,
+) -> Vec<Vec3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|j| {
+            let mut f = Vec3::ZERO;
+            for &i in connections.of(j) {
+                let i = i as usize;
+                let d = rest[j] - rest[i];
+                let c = current[j] - current[i];
+                f += match model {
+                    ForceModel::Paper => rotations[i] * d - c,
+                    ForceModel::Symmetric => (rotations[i] + rotations[j]) * d - 2.0 * c,
+                };
+            }
+            f
+        })
+        .collect()
+}
+
+/// `q += alpha F` for free particles (the stiffness `sigma` and mass `m`
+/// fold into `alpha = sigma / m`); control points stay where the surface put them.
+pub fn integrate(current: &[Vec3], force: &[Vec3], free: &[bool], alpha: f32) -> Vec<Vec3> {
+    current
+        .par_iter()
+        .zip(force)
+        .zip(free)
+        .map(|((&q, &f), &free)| if free { q + alpha * f } else { q })
+        .collect()
+}
+
+/// Deflation's kernel: turns the plain step `plain - current` into one that also removes the
+/// error along every mode: the step's component `s_k` along mode `k` is
+/// `c alpha lambda_k` times the error there (`contraction = c alpha`),
+/// so the mode moves by `s_k / (c alpha lambda_k)` instead of `s_k`.
+pub fn deflate(modes: &LowModes, current: &[Vec3], plain: &mut [Vec3], contraction: f32) {
+    let m = modes.count();
+    const CHUNK: usize = 1024;
+    // Per particle, one 4-lane multiply-add per mode (`Vec3A`), summed in
+    // `f32` within a chunk and in `f64` across chunks.
+    let projections = current
+        .par_chunks(CHUNK)
+        .zip(plain.par_chunks(CHUNK))
+        .zip(modes.vectors().par_chunks(CHUNK * m))
+        .map(|((q, p), v)| {
+            let mut c = vec![Vec3A::ZERO; m];
+            for ((q, p), v) in q.iter().zip(p).zip(v.chunks_exact(m)) {
+                let s = Vec3A::from(*p - *q);
+                for (c, &v) in c.iter_mut().zip(v) {
+                    *c += s * v;
+                }
+            }
+            c.into_iter().map(|c| c.as_dvec3()).collect::<Vec<_>>()
+        })
+        .reduce(|| vec![DVec3::ZERO; m], add_entries);
+    let gains: Vec<Vec3A> = projections
+        .iter()
+        .zip(modes.gain_scales(contraction))
+        .map(|(c, scale)| Vec3A::from((*c * scale).as_vec3()))
+        .collect();
+    plain
+        .par_chunks_mut(CHUNK)
+        .zip(modes.vectors().par_chunks(CHUNK * m))
+        .for_each(|(p, v)| {
+            for (p, v) in p.iter_mut().zip(v.chunks_exact(m)) {
+                let mut d = Vec3A::ZERO;
+                for (&g, &v) in gains.iter().zip(v) {
+                    d += g * v;
+                }
+                *p += Vec3::from(d);
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tissue_solve::modes::low_modes;
+    use tissue_solve::spectrum::laplacian_extremes;
+
+    /// A path of `n` free particles between two fixed ends, whose Laplacian
+    /// has the eigenpairs `2 - 2 cos(k pi / (n + 1))`, `sin(k pi i / (n + 1))`.
+    fn dirichlet_path(n: usize) -> (Connections, Vec<bool>) {
+        let total = n + 2;
+        let pairs = (0..total - 1).map(|i| (i as u32, i as u32 + 1));
+        let free = (0..total).map(|i| i != 0 && i != total - 1).collect();
+        (Connections::from_pairs(total, pairs), free)
+    }
+
+    #[test]
+    fn deflation_removes_the_error_of_a_deflated_mode_in_one_step() {
+        let n = 60;
+        let (connections, free) = dirichlet_path(n);
+        let (lo, hi) = laplacian_extremes(&connections, &free);
+        let modes = low_modes(&connections, &free, 4, lo, hi);
+        let m = modes.count();
+        let contraction = 0.9 / hi;
+        // An error along one mode, and one along a mode left to Chebyshev.
+        for (k, deflated) in [(1, true), (9, false)] {
+            let angle = |i: usize| (k * i) as f32 * std::f32::consts::PI / (n as f32 + 1.0);
+            let lambda = 2.0 - 2.0 * angle(1).cos();
+            let direction = Vec3::new(0.3, -1.0, 0.5);
+            let error: Vec<Vec3> = (0..n + 2)
+                .map(|i| {
+                    if free[i] {
+                        angle(i).sin() * direction
+                    } else {
+                        Vec3::ZERO
+                    }
+                })
+                .collect();
+            // The plain step for fixed rotations: -contraction L e.
+            let mut plain: Vec<Vec3> = error
+                .iter()
+                .map(|&e| e - contraction * lambda * e)
+                .collect();
+            deflate(&modes, &error, &mut plain, contraction);
+            for i in 0..n + 2 {
+                let step = plain[i] - error[i];
+                let want = if deflated {
+                    -error[i]
+                } else {
+                    -contraction * lambda * error[i]
+                };
+                assert!(
+                    (step - want).length() < 1e-4 * direction.length(),
+                    "mode {k} (m = {m}), particle {i}: step {step} vs {want}"
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,357 @@
+//! Stage 2, deformation (the paper's Section 3), on the CPU.
+//!
+//! Surface particles (control points) follow the deformed surface through
+//! their triangle + barycentric attachment; every other particle moves by
+//! `q += F / m` until the residual force vanishes. Stage functions, each the
+//! twin of a GPU shader of the same name:
+//! - `local_rotations`: per particle, the rotation `R_i` that best maps its
+//!   rest offsets `p_j - p_i` onto its current ones `q_j - q_i` (Procrustes
+//!   through a 3x3 SVD). The paper writes `R_i^T (p_j - p_i)` for the rotated
+//!   rest offset because its `R_i = U V^T` comes from `svd(A_relax^T A_current)`;
+//!   our `R_i` is that matrix's transpose, so the offset is `R_i (p_j - p_i)`.
+//! - `deformation_force`: the force on each particle, gathered over its
+//!   connections (no atomics), in one of two forms:
+//!   - **paper**: `F_j = sigma sum_i [R_i (p_j - p_i) - (q_j - q_i)]`, the
+//!     paper's one-sided `F_{i->j}` summed over `j`'s connections;
+//!   - **symmetric**: `F_j = sigma sum_i [(R_i + R_j)(p_j - p_i) - 2 (q_j - q_i)]`,
+//!     exactly `-1/2` the gradient of `E = sum_i sum_j |q_j - q_i - R_i (p_j - p_i)|^2`.
+//! - `integrate`: `q += alpha F` for free particles, optionally Chebyshev-accelerated.
+
+//!
+//! The frame loop (prediction, acceleration, stopping, history) is
+//! `tissue_solve::Tracker`'s, the same as the GPU path's; [`CpuSolve`] is
+//! this path's [`SolveDevice`]: the kernels and the state they work on.
+
+mod kernels;
+mod polar;
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use glam::{Mat3, Vec3};
+use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
+pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
+pub use tissue_solve::controls::check_same_topology;
+pub use tissue_solve::modes::{LowModes, deflation_modes, low_modes};
+pub use tissue_solve::params::{
+    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_DEFLATION, MAX_HISTORY, RotationMethod,
+};
+pub use tissue_solve::plan::Plan;
+pub use tissue_solve::predict::{FrameHistory, affine_fit, predict};
+pub use tissue_solve::report::{DeformReport, StopReason};
+pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
+use tissue_solve::tracker::{Iteration, SolveDevice, Tracker};
+
+pub use kernels::{
+    chebyshev_combine, deflate, deformation_force, integrate, local_rotations,
+    local_rotations_warm, steps,
+};
+pub use polar::{polar_rotation, warm_rotation};
+
+use crate::coarse::CoarseSpace;
+
+/// Stage 2 on the CPU for one particle model: the tracker (rest shape,
+/// control points, prediction, history) over [`CpuSolve`], kept between
+/// frames (warm start).
+#[derive(Debug, Clone)]
+pub struct Deformer {
+    tracker: Tracker<CpuSolve>,
+}
+
+impl Deformer {
+    /// Prepares stage 2 for `model`: checks it, estimates the extreme
+    /// eigenvalues of the connection-graph Laplacian over free particles,
+    /// and builds the coarse space (or, without one, the deflated modes).
+    pub fn new(model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
+        let tracker = Tracker::new(model, params, |plan, params| {
+            Ok::<_, Error>(CpuSolve::new(model, plan, params))
+        })?;
+        Ok(Self { tracker })
+    }
+
+    /// Current particle positions.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.tracker.device().current
+    }
+
+    /// Rest particle positions.
+    pub fn rest(&self) -> &[Vec3] {
+        self.tracker.rest()
+    }
+
+    /// Each particle's rotation (rest offsets onto current offsets) from the last iteration.
+    pub fn rotations(&self) -> &[Mat3] {
+        &self.tracker.device().rotations
+    }
+
+    /// The model's size (bounding-box diagonal at rest).
+    pub fn size(&self) -> f32 {
+        self.tracker.plan().size
+    }
+
+    /// The solve's plan: free particles, spectrum, size, float floor.
+    pub fn plan(&self) -> &Plan {
+        self.tracker.plan()
+    }
+
+    /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_min(&self) -> f32 {
+        self.tracker.plan().lambda_min
+    }
+
+    /// Largest eigenvalue of the connection-graph Laplacian over free particles.
+    pub fn lambda_max(&self) -> f32 {
+        self.tracker.plan().lambda_max
+    }
+
+    /// The lowest Laplacian modes deflated every iteration, if any.
+    pub fn modes(&self) -> Option<&LowModes> {
+        self.tracker.device().modes.as_deref()
+    }
+
+    /// The coarse space of the two-level solve, if any.
+    pub fn coarse(&self) -> Option<&CoarseSpace> {
+        self.tracker.device().coarse.as_deref()
+    }
+
+    /// The parameters of the next solves.
+    pub fn params(&self) -> &DeformParams {
+        self.tracker.params()
+    }
+
+    /// Changes the parameters of the next solves (the tolerance between
+    /// frames, say); the current state is kept. The coarse space and the
+    /// deflated modes are prepared once, by [`Deformer::new`], for its
+    /// `coarse`, `coarse_max_aggregates`, `deflation` and `step_fraction`:
+    /// build a new deformer to change those.
+    pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
+        self.tracker.set_params(params)
+    }
+
+    /// Back to the rest shape (no warm start).
+    pub fn reset(&mut self) {
+        let Ok(()) = self.tracker.reset(());
+    }
+
+    /// Places the control points on `deformed`, which must be the rest surface
+    /// with moved vertices (same vertex count, same triangles).
+    pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
+        self.tracker.set_surface((), deformed)
+    }
+
+    /// Iterates until the stopping rule holds or the cap is reached.
+    ///
+    /// Stopping rule: the error estimate `max step / (1 - rho)`, with `rho` the
+    /// plain iteration's contraction rate from the Laplacian's spectrum, is
+    /// below `tolerance` times the model's size; or the step is below what
+    /// `f32` can resolve at the model's coordinates.
+    pub fn solve(&mut self) -> DeformReport {
+        let Ok(report) = self.tracker.solve(());
+        report
+    }
+}
+
+/// The CPU's stage-2 state and kernels: the positions, the rotations, and
+/// the correction (the coarse space of the two-level solve, or deflation).
+#[derive(Debug, Clone)]
+pub struct CpuSolve {
+    rest: Vec<Vec3>,
+    connections: Connections,
+    free: Vec<bool>,
+    current: Vec<Vec3>,
+    previous: Vec<Vec3>,
+    rotations: Vec<Mat3>,
+    /// The lowest Laplacian modes removed exactly every iteration (not
+    /// with a coarse space).
+    modes: Option<Arc<LowModes>>,
+    /// The coarse space of the two-level solve.
+    coarse: Option<Arc<CoarseSpace>>,
+    /// What the iterations of the solve in hand run with.
+    iteration: Option<Iteration>,
+    /// The state and weights the last batch started from, for a replay.
+    batch_start: Option<(Vec<Vec3>, Vec<Vec3>, Vec<Mat3>, Vec<f32>)>,
+}
+
+impl CpuSolve {
+    /// The state of `model` at rest, with its coarse space or, without one,
+    /// its deflated modes.
+    pub fn new(model: &ParticleModel, plan: &Plan, params: &DeformParams) -> Self {
+        let coarse = coarse_space(model, plan, params).map(Arc::new);
+        let modes = if coarse.is_some() {
+            None
+        } else {
+            deflation_modes(model, plan, params).map(Arc::new)
+        };
+        Self {
+            rest: model.positions.clone(),
+            connections: model.connections.clone(),
+            free: plan.free.clone(),
+            current: model.positions.clone(),
+            previous: model.positions.clone(),
+            rotations: vec![Mat3::IDENTITY; model.len()],
+            modes,
+            coarse,
+            iteration: None,
+            batch_start: None,
+        }
+    }
+
+    /// One iteration with Chebyshev weight `omega`: the largest and RMS
+    /// step the stopping rule measures.
+    fn iterate(&mut self, it: Iteration, omega: f32) -> (f32, f32) {
+        self.rotations = match it.rotations {
+            RotationMethod::Svd => local_rotations(&self.rest, &self.current, &self.connections),
+            RotationMethod::WarmPolar => local_rotations_warm(
+                &self.rest,
+                &self.current,
+                &self.connections,
+                &self.rotations,
+            ),
+        };
+        let force = deformation_force(
+            &self.rest,
+            &self.current,
+            &self.rotations,
+            &self.connections,
+            it.force,
+        );
+        let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
+        if let Some(m) = &self.modes {
+            deflate(m, &self.current, &mut plain, it.contraction);
+        }
+        if let Some(c) = &self.coarse {
+            c.correct(&self.current, &mut plain, &self.connections, it.contraction);
+        }
+        // Deflated or two-level, the plain step no longer bounds the error of the
+        // modes coupled to the rotations (re-fitting them lowers the
+        // curvature below the Laplacian's, so the exact correction for
+        // fixed rotations under-corrects them): the error is bounded by
+        // the geometric tail of the updates actually made instead.
+        let plain_steps =
+            (self.modes.is_none() && self.coarse.is_none()).then(|| steps(&self.current, &plain));
+        let next = if omega == 1.0 {
+            plain
+        } else {
+            chebyshev_combine(&plain, &self.previous, omega)
+        };
+        let measured = plain_steps.unwrap_or_else(|| steps(&self.current, &next));
+        self.previous = std::mem::replace(&mut self.current, next);
+        measured
+    }
+}
+
+impl SolveDevice for CpuSolve {
+    type Error = Infallible;
+    type Context<'a> = ();
+
+    /// One iteration at a time: the stopping rule is checked after each, so
+    /// nothing is ever replayed.
+    fn batch(&self) -> usize {
+        1
+    }
+
+    fn modes(&self) -> Option<&LowModes> {
+        self.modes.as_deref()
+    }
+
+    fn coarse_rho(&self) -> Option<f32> {
+        self.coarse.as_deref().map(CoarseSpace::rho)
+    }
+
+    fn write_positions(
+        &mut self,
+        (): (),
+        positions: &[Vec3],
+        turn: Option<Mat3>,
+    ) -> Result<(), Infallible> {
+        self.current.copy_from_slice(positions);
+        if let Some(turn) = turn {
+            // The warm-started rotations turn with the surface too.
+            self.rotations.iter_mut().for_each(|r| *r = turn * *r);
+        }
+        Ok(())
+    }
+
+    fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
+        self.previous.clone_from(&self.current);
+        self.iteration = Some(iteration);
+        Ok(())
+    }
+
+    fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
+        let Some(it) = self.iteration else {
+            return Ok(Vec::new());
+        };
+        if omegas.len() > 1 {
+            self.batch_start = Some((
+                self.current.clone(),
+                self.previous.clone(),
+                self.rotations.clone(),
+                omegas.to_vec(),
+            ));
+        }
+        Ok(omegas
+            .iter()
+            .map(|&omega| self.iterate(it, omega))
+            .collect())
+    }
+
+    fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
+        let (Some(it), Some((current, previous, rotations, omegas))) =
+            (self.iteration, self.batch_start.take())
+        else {
+            return Ok(());
+        };
+        (self.current, self.previous, self.rotations) = (current, previous, rotations);
+        for &omega in omegas.iter().take(count) {
+            self.iterate(it, omega);
+        }
+        Ok(())
+    }
+
+    fn read_positions(&mut self, (): ()) -> Result<Vec<Vec3>, Infallible> {
+        Ok(self.current.clone())
+    }
+
+    fn reset(&mut self, (): ()) -> Result<(), Infallible> {
+        self.current.clone_from(&self.rest);
+        self.rotations.fill(Mat3::IDENTITY);
+        Ok(())
+    }
+}
+
+/// The coarse space a CPU solve of `model` uses under `params`: none with
+/// `coarse` 0, or (with a warning) where it cannot be built.
+pub fn coarse_space(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+) -> Option<CoarseSpace> {
+    if params.coarse == 0.0 {
+        return None;
+    }
+    let space = CoarseSpace::new(
+        &model.positions,
+        &model.connections,
+        &plan.free,
+        params.coarse * model.mean_connection_length(),
+        params.coarse_max_aggregates,
+        plan.contraction(params),
+    );
+    match space {
+        Ok(space) => {
+            log::info!(
+                "two-level solve: {} aggregates in cells of {:.3}, contraction {:.3}, prepared in {:.3} s",
+                space.count(),
+                space.cell(),
+                space.rho(),
+                space.seconds()
+            );
+            Some(space)
+        }
+        Err(e) => {
+            log::warn!("no two-level solve: {e}");
+            None
+        }
+    }
+}

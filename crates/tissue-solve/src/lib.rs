@@ -1,0 +1,43 @@
+//! The algorithm of tissue, written once for every device: what belongs to
+//! neither the CPU nor the GPU path.
+//!
+//! - Stage 2: the parameters ([`params`]), what a solve knows before it
+//!   starts ([`plan`], with the Laplacian's spectrum from [`spectrum`]),
+//!   Chebyshev acceleration and the stopping rule ([`acceleration`]), the
+//!   tracking prediction and its history ([`predict`]), the deflated modes
+//!   ([`modes`]), the deformed surface's checks and control points
+//!   ([`controls`]), how a solve went ([`report`]), and the one tracker
+//!   that runs frames on any device ([`tracker`], over [`SolveDevice`]).
+//! - Stage 1: the initial radius and placement, the state the iterations
+//!   work on and the finish ([`sampling`]), and the quality report
+//!   ([`quality`]).
+//! - Host algorithms both devices use on the host: the uniform grid and
+//!   neighbour rows ([`grid`]), the 3x3 SVD and polar rotation ([`svd3`]),
+//!   and structures bound to particles ([`structures`]). The CPU path takes
+//!   these as its twins of the shaders of the same name.
+//!
+//! The devices (`tissue-cpu`, `tissue-gpu`) implement kernels and buffers.
+
+pub mod acceleration;
+pub mod controls;
+pub mod grid;
+pub mod modes;
+pub mod params;
+pub mod plan;
+pub mod predict;
+pub mod quality;
+pub mod report;
+pub mod sampling;
+pub mod spectrum;
+pub mod structures;
+pub mod svd3;
+pub mod tracker;
+
+pub use acceleration::{Chebyshev, StoppingRule};
+pub use controls::check_same_topology;
+pub use modes::{LowModes, deflation_modes, low_modes};
+pub use params::{DeformParams, ForceModel, RotationMethod};
+pub use plan::Plan;
+pub use predict::{FrameHistory, predict};
+pub use report::{DeformReport, StopReason};
+pub use tracker::{Iteration, SolveDevice, Tracker};

@@ -1,0 +1,242 @@
+//! The parameters of stage 2 and their bounds; `docs/METHOD.md` explains
+//! the defaults.
+
+use serde::{Deserialize, Serialize};
+use tissue_core::Error;
+
+/// Which force model stage 2 uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ForceModel {
+    /// The paper's one-sided force (not the gradient of an energy).
+    Paper,
+    /// The symmetric variant, the exact gradient of the rotation-aware energy.
+    Symmetric,
+}
+
+/// How each particle's rotation is found every iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RotationMethod {
+    /// A full 3x3 SVD of `M_i` (`svd3::rotation_of`) every iteration.
+    Svd,
+    /// The polar rotation of `M_i` by Müller et al. 2016 ("A Robust Method to
+    /// Extract the Rotational Part of Deformations"), warm-started from the
+    /// last iteration's rotation: the same rotation at convergence, a few
+    /// cross products instead of an SVD.
+    WarmPolar,
+}
+
+/// Parameters of stage 2; `docs/METHOD.md` explains the defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DeformParams {
+    /// Force model.
+    pub force: ForceModel,
+    /// How rotations are found.
+    pub rotations: RotationMethod,
+    /// Step as a fraction of the largest stable step (`2 / lambda_max` for the
+    /// paper's force, `1 / lambda_max` for the symmetric one).
+    pub step_fraction: f32,
+    /// Chebyshev semi-iterative acceleration (Wang 2015).
+    pub chebyshev: bool,
+    /// Plain iterations before Chebyshev starts. `rho` comes from the
+    /// Laplacian's spectrum, so none are needed; 0 measured best.
+    pub warm_up: usize,
+    /// Stop when the error estimate `step / (1 - rho)` of every free particle is
+    /// below this fraction of the model's size. The default sits a little
+    /// above where the estimate bottoms out at single precision
+    /// (docs/METHOD.md).
+    pub tolerance: f32,
+    /// Iteration cap.
+    pub max_iterations: usize,
+    /// Tracking: start a new frame from the current state carried by the
+    /// least-squares affine map of the surface's move, plus the combination
+    /// of the last frames' non-affine changes that best matches the
+    /// surface's own non-affine move (see [`crate::predict::predict`]).
+    pub extrapolate: bool,
+    /// Tracking: how many of the last frames' changes the prediction fits
+    /// the new frame's surface move with (`0`: the affine map alone). Each
+    /// costs a copy of the positions. 2 by default: see docs/METHOD.md.
+    pub history: usize,
+    /// Deflation: the number of lowest eigenvectors of the Dirichlet
+    /// Laplacian over free particles (computed once per model) whose error
+    /// every iteration removes exactly; Chebyshev and the stopping rule then
+    /// use the next eigenvalue instead of the smallest (see
+    /// [`crate::modes::LowModes`]). Its preparation grows faster than the
+    /// model, so one frame alone may not repay it: `tissue deform` turns it
+    /// off unless asked. What it saves and costs: docs/METHOD.md and
+    /// BENCHMARKS.md.
+    ///
+    /// Models with more free particles than [`DeformParams::deflation_max_particles`]
+    /// are solved without it, and a device that runs the two-level solve
+    /// ([`DeformParams::coarse`]) does not deflate.
+    pub deflation: usize,
+    /// Deflation is left out (with a log warning) for models with more free
+    /// particles than this: the modes' preparation grows faster than the
+    /// model, and past this size a solve from rest takes less time than the
+    /// preparation (docs/METHOD.md). Raise it to deflate larger models.
+    pub deflation_max_particles: usize,
+    /// Two-level solve: the edge of the grid cells whose free particles form
+    /// one aggregate of the coarse space, in mean connection lengths; every
+    /// iteration then removes the error's part in that space exactly (the
+    /// CPU crate's `coarse` module). 0 turns it off. The default and what it
+    /// saves: docs/METHOD.md, "Two-level solve". Where it is on, the CPU path
+    /// does not deflate; the GPU path has no coarse correction yet and
+    /// deflates instead.
+    pub coarse: f32,
+    /// The coarse space's cells grow (by factors of 1.25) until there are at
+    /// most this many aggregates: its factor takes about `n^(5/3)` numbers
+    /// and a solve as many multiply-adds per iteration, so it must stay
+    /// small beside the model.
+    pub coarse_max_aggregates: usize,
+}
+
+impl Default for DeformParams {
+    fn default() -> Self {
+        Self {
+            force: ForceModel::Symmetric,
+            rotations: RotationMethod::WarmPolar,
+            step_fraction: 0.9,
+            chebyshev: true,
+            warm_up: 0,
+            tolerance: 3e-5,
+            max_iterations: 5_000,
+            extrapolate: true,
+            history: 2,
+            deflation: 32,
+            deflation_max_particles: 200_000,
+            coarse: 2.0,
+            coarse_max_aggregates: 10_000,
+        }
+    }
+}
+
+impl DeformParams {
+    /// Checks every parameter, naming the first that is out of range.
+    pub fn validate(&self) -> Result<(), Error> {
+        let bad = |what: &str| Err(Error::Deformation(format!("deformation parameter {what}")));
+        if !(self.step_fraction > 0.0 && self.step_fraction < 1.0) {
+            return bad(&format!(
+                "step_fraction is {}, expected in (0, 1)",
+                self.step_fraction
+            ));
+        }
+        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
+            return bad(&format!(
+                "tolerance is {}, expected a positive number",
+                self.tolerance
+            ));
+        }
+        if self.history > MAX_HISTORY {
+            return bad(&format!(
+                "history is {}, expected 0 to {MAX_HISTORY} frames",
+                self.history
+            ));
+        }
+        if self.deflation > MAX_DEFLATION {
+            return bad(&format!(
+                "deflation is {}, expected 0 to {MAX_DEFLATION} modes",
+                self.deflation
+            ));
+        }
+        if !(self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse)) {
+            return bad(&format!(
+                "coarse is {}, expected 0 (off) or a cell of 1 to 1000 mean connection lengths",
+                self.coarse
+            ));
+        }
+        if !(1..=MAX_COARSE_AGGREGATES).contains(&self.coarse_max_aggregates) {
+            return bad(&format!(
+                "coarse_max_aggregates is {}, expected 1 to {MAX_COARSE_AGGREGATES}",
+                self.coarse_max_aggregates
+            ));
+        }
+        if self.max_iterations == 0 || self.max_iterations > 10_000_000 {
+            return bad(&format!(
+                "max_iterations is {}, expected 1 to 10,000,000",
+                self.max_iterations
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The most frames [`DeformParams::history`] may keep: each is a copy of
+/// the positions, and a fit with more columns than the surface's changes
+/// have independent shapes only adds noise.
+pub const MAX_HISTORY: usize = 16;
+
+/// The most aggregates [`DeformParams::coarse_max_aggregates`] may allow:
+/// the factor of 50,000 holds about 70 million numbers (0.5 GB).
+pub const MAX_COARSE_AGGREGATES: usize = 50_000;
+
+/// The most modes [`DeformParams::deflation`] may ask for: each costs a
+/// pass over the particles per iteration and `4 n` bytes.
+pub const MAX_DEFLATION: usize = 256;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The message `validate` refuses `params` with.
+    fn refusal(params: &DeformParams) -> String {
+        match params.validate() {
+            Err(err) => err.to_string(),
+            Ok(()) => panic!("{params:?} was accepted"),
+        }
+    }
+
+    #[test]
+    fn history_defaults_to_two_frames_and_is_bounded() {
+        assert_eq!(DeformParams::default().history, 2);
+        let err = refusal(&DeformParams {
+            history: MAX_HISTORY + 1,
+            ..DeformParams::default()
+        });
+        assert!(err.contains("history is 17"), "{err}");
+    }
+
+    #[test]
+    fn deflation_defaults_to_32_modes_and_is_bounded() {
+        assert_eq!(DeformParams::default().deflation, 32);
+        assert_eq!(DeformParams::default().deflation_max_particles, 200_000);
+        let err = refusal(&DeformParams {
+            deflation: MAX_DEFLATION + 1,
+            ..DeformParams::default()
+        });
+        assert!(err.contains("deflation is 257"), "{err}");
+    }
+
+    #[test]
+    fn the_two_level_solve_defaults_to_cells_of_two_spacings_and_is_bounded() {
+        let defaults = DeformParams::default();
+        assert_eq!(defaults.coarse, 2.0);
+        assert_eq!(defaults.coarse_max_aggregates, 10_000);
+        for (coarse, says) in [
+            (0.5, "coarse is 0.5"),
+            (-1.0, "coarse is -1"),
+            (f32::NAN, "coarse is NaN"),
+            (f32::INFINITY, "coarse is inf"),
+        ] {
+            let err = refusal(&DeformParams {
+                coarse,
+                ..DeformParams::default()
+            });
+            assert!(err.contains(says), "{err}");
+        }
+        let err = refusal(&DeformParams {
+            coarse_max_aggregates: MAX_COARSE_AGGREGATES + 1,
+            ..DeformParams::default()
+        });
+        assert!(err.contains("coarse_max_aggregates is 50001"), "{err}");
+        assert!(
+            DeformParams {
+                coarse: 0.0,
+                ..DeformParams::default()
+            }
+            .validate()
+            .is_ok()
+        );
+    }
+}

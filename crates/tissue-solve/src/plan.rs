@@ -1,0 +1,163 @@
+//! What a stage-2 solve knows about a model before it starts, the same on
+//! every device: which particles move, the spectrum, the size, the floor.
+
+use glam::Vec3;
+use tissue_core::{Connections, Error, ParticleModel};
+
+use crate::modes::LowModes;
+use crate::params::{DeformParams, ForceModel};
+use crate::spectrum::laplacian_extremes;
+
+/// What a stage-2 solve needs to know about a model before it starts, the
+/// same for the CPU and the GPU path: which particles move, the spectrum
+/// that sets the step and the Chebyshev rate, the model's size and the
+/// finest step `f32` resolves at its coordinates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// Per particle: moved by the solve (not a control point, and connected
+    /// to one through some path of connections).
+    pub free: Vec<bool>,
+    /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
+    pub lambda_min: f32,
+    /// Largest one, with a 2 % margin.
+    pub lambda_max: f32,
+    /// The model's bounding-box diagonal at rest.
+    pub size: f32,
+    /// An RMS step below this is `f32` rounding at the model's coordinates.
+    pub floor: f32,
+}
+
+impl Plan {
+    /// Checks `model` and works out its plan.
+    pub fn new(model: &ParticleModel) -> Result<Self, Error> {
+        let n = model.len();
+        if n == 0 {
+            return Err(Error::Deformation("the model has no particles".into()));
+        }
+        if model.connections.particles() != n {
+            return Err(Error::Deformation(format!(
+                "the model's connections describe {} particles, it has {n}",
+                model.connections.particles()
+            )));
+        }
+        if model.attachments.iter().all(Option::is_none) {
+            return Err(Error::Deformation(
+                "the model has no surface particles to follow the surface".into(),
+            ));
+        }
+        if let Some(bad) = model
+            .attachments
+            .iter()
+            .flatten()
+            .find(|a| a.triangle as usize >= model.surface.triangles.len())
+        {
+            return Err(Error::Deformation(format!(
+                "a surface particle is attached to triangle {}, the surface has {}",
+                bad.triangle,
+                model.surface.triangles.len()
+            )));
+        }
+        let mut free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
+        // A free particle with no path of connections to a control point has
+        // nothing to follow: it would stay put anyway, and its zero Laplacian
+        // eigenvalue would stall the acceleration for everyone. Hold it.
+        let anchored = anchored(&model.connections, &free);
+        let floating = free
+            .iter()
+            .zip(&anchored)
+            .filter(|(f, a)| **f && !**a)
+            .count();
+        if floating > 0 {
+            log::warn!(
+                "{floating} particles are not connected to the surface through any path of connections; \
+                 they stay where they are"
+            );
+        }
+        for (f, a) in free.iter_mut().zip(&anchored) {
+            *f = *f && *a;
+        }
+        let (lambda_min, lambda_max) = laplacian_extremes(&model.connections, &free);
+        let (lo, hi) = model.positions.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        // f32 resolves about EPSILON * |x|: at single precision most particles
+        // no longer move and a few flip by an ulp, so the RMS step (unlike the
+        // largest, which grows with the particle count) settles below one ulp.
+        let largest = model
+            .positions
+            .iter()
+            .map(|q| q.abs().max_element())
+            .fold(0.0, f32::max);
+        Ok(Self {
+            free,
+            lambda_min,
+            lambda_max,
+            size: (hi - lo).length(),
+            floor: FLOOR_ULPS * f32::EPSILON * largest,
+        })
+    }
+
+    /// The step `alpha = sigma / m`: `step_fraction` of the largest stable
+    /// step, `2 / lambda_max` for the paper's force, `1 / lambda_max` for the
+    /// symmetric one.
+    pub fn alpha(&self, params: &DeformParams) -> f32 {
+        let limit = match params.force {
+            ForceModel::Paper => 2.0,
+            ForceModel::Symmetric => 1.0,
+        };
+        params.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE)
+    }
+
+    /// `c alpha`: the plain step is `-c alpha L e` for the error `e` while the
+    /// rotations are fixed (`c = 2` for the symmetric force, 1 for the paper's).
+    pub fn contraction(&self, params: &DeformParams) -> f32 {
+        let c = match params.force {
+            ForceModel::Paper => 1.0,
+            ForceModel::Symmetric => 2.0,
+        };
+        c * self.alpha(params)
+    }
+
+    /// The plain iteration `q <- (I - c alpha L) q + b` (`c = 2` symmetric, 1
+    /// paper) contracts at `1 - 2 step_fraction lambda_min / lambda_max` for both.
+    pub fn rho(&self, params: &DeformParams) -> f32 {
+        (1.0 - 2.0 * params.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999)
+    }
+
+    /// The contraction a solve's Chebyshev weights and stopping rule use:
+    /// [`Plan::rho`]; with a coarse space, the two-level iteration's
+    /// (`coarse_rho`, measured by the device that built it); with deflation,
+    /// what the modes leave ([`LowModes::rho`]).
+    pub fn solve_rho(
+        &self,
+        params: &DeformParams,
+        modes: Option<&LowModes>,
+        coarse_rho: Option<f32>,
+    ) -> f32 {
+        match (coarse_rho, modes) {
+            (Some(rho), _) => rho,
+            (None, Some(m)) => m.rho(self, params),
+            (None, None) => self.rho(params),
+        }
+    }
+}
+
+/// The RMS step, in ulps of the largest coordinate, below which a solve has
+/// reached single precision.
+const FLOOR_ULPS: f32 = 2.0;
+
+/// Per particle: reachable from a control point through connections.
+fn anchored(connections: &Connections, free: &[bool]) -> Vec<bool> {
+    let mut reached: Vec<bool> = free.iter().map(|f| !f).collect();
+    let mut stack: Vec<usize> = (0..free.len()).filter(|&i| reached[i]).collect();
+    while let Some(i) = stack.pop() {
+        for &j in connections.of(i) {
+            if !reached[j as usize] {
+                reached[j as usize] = true;
+                stack.push(j as usize);
+            }
+        }
+    }
+    reached
+}

@@ -1,0 +1,35 @@
+//! How a stage-2 solve went.
+
+use serde::{Deserialize, Serialize};
+
+/// Which rule ended a solve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The error estimate fell below the tolerance.
+    Tolerance,
+    /// The steps fell to what `f32` resolves at the model's coordinates: the
+    /// tolerance is finer than single precision can reach for this model.
+    FloatPrecision,
+    /// The iteration cap.
+    IterationCap,
+    /// The state became non-finite.
+    Diverged,
+}
+
+/// How a solve went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DeformReport {
+    /// Iterations run.
+    pub iterations: usize,
+    /// The error estimate at the end, as a fraction of the model's size.
+    pub residual: f32,
+    /// The error estimate after every iteration.
+    pub residual_history: Vec<f32>,
+    /// Whether the stopping rule held before the cap.
+    pub converged: bool,
+    /// Which rule ended the solve.
+    pub stopped_by: StopReason,
+    /// Wall-clock seconds of the solve.
+    pub seconds: f64,
+}
