@@ -5,8 +5,8 @@
 
 use glam::{Mat3, Vec3};
 use tissue::deform::{Affine, PointMap, Rigid, deform_surface, indented_breast, sagged_breast};
+use tissue::deformation::{DeformParams, Deformer, ForceModel};
 use tissue::{SamplingParams, SurfaceMesh, phantom};
-use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
 
 fn main() -> Result<(), tissue::Error> {
     let particles = std::env::args()

@@ -15,8 +15,8 @@
 
 use glam::Vec3;
 use tissue::deform::{Rigid, deform_surface, indented_breast, interpolate, sagged_breast};
+use tissue::deformation::{DeformParams, Deformer};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
-use tissue_cpu::deformation::{DeformParams, Deformer};
 
 fn main() -> Result<(), tissue::Error> {
     let mut args = std::env::args().skip(1);

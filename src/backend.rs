@@ -228,8 +228,9 @@ impl Device {
     }
 }
 
-/// Stage 1 on `device`: fills the validated, outward-facing `surface` with
-/// `params.particles` particles; `progress` is called after every iteration
+/// Stage 1 on `device`: validates `surface` as [`crate::sample`] does (one
+/// closed, consistently oriented shell, turned outward if it faced inward)
+/// and fills it with `params.particles` particles; `progress` is called after every iteration
 /// (after every batch of iterations on the GPU). Both devices give the same
 /// model (the GPU kernels are twins of the CPU stages; `tests/` holds them
 /// to it).
@@ -240,6 +241,7 @@ pub fn sample_on(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Sampled, Error> {
     params.validate()?;
+    let surface = &crate::checked(surface)?;
     match device {
         Device::Cpu => tissue_cpu::sample(surface, params, progress),
         Device::Gpu {
@@ -434,6 +436,16 @@ mod tests {
         let err = "cuda".parse::<Backend>().unwrap_err().to_string();
         assert!(err.contains("unknown backend `cuda`"), "{err}");
         assert_eq!(Backend::default(), Backend::Auto);
+    }
+
+    /// `sample_on` skipped the surface check `sample` makes: an open surface
+    /// got past it to the sampler.
+    #[test]
+    fn sample_on_refuses_an_open_surface_as_sample_does() {
+        let open = SurfaceMesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![[0, 1, 2]]);
+        let params = SamplingParams::with_particles(100);
+        let err = sample_on(&Device::Cpu, &open, &params, &mut |_| {}).unwrap_err();
+        assert!(err.to_string().contains("open"), "{err}");
     }
 
     #[test]

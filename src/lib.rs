@@ -54,13 +54,18 @@ pub fn sample_with_progress(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Sampled, Error> {
     params.validate()?;
+    tissue_cpu::sample(&checked(surface)?, params, progress)
+}
+
+/// `surface` validated for stage 1: one closed, consistently oriented
+/// shell, turned outward if it faced inward.
+pub(crate) fn checked(surface: &SurfaceMesh) -> Result<SurfaceMesh, Error> {
     let mut surface = surface.clone();
-    // `validate` logs a warning itself when it turns an inward surface around.
-    let _checked = validate(&mut surface).map_err(|source| Error::Mesh {
+    validate(&mut surface).map_err(|source| Error::Mesh {
         path: Default::default(),
         source,
     })?;
-    tissue_cpu::sample(&surface, params, progress)
+    Ok(surface)
 }
 
 /// Loads a surface file (STL, OBJ, PLY, legacy VTK), welds, validates and samples it.

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
-use tissue_cpu::structures::{RigidBinding, RigidMotion};
+use tissue::structures::{RigidBinding, RigidMotion};
 
 use crate::backend::{Carrier, Solver};
 use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
+use tissue::deformation::DeformParams;
 use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
-use tissue_cpu::deformation::DeformParams;
 
 use crate::backend::{self, BackendArgs, Solver};
 use crate::carry::{Carried, Kind, Structure, StructureReport};

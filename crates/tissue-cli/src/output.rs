@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
+use tissue::deformation::{DeformParams, DeformReport, StopReason};
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, StopReason};
 
 use crate::backend::Solver;
 use crate::carry::{Carried, StructureReport};

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
+use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, ForceModel};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};

@@ -276,3 +276,182 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+    use std::convert::Infallible;
+
+    use tissue_core::{Attachment, Connections};
+
+    use super::*;
+
+    /// The octahedron's six vertices as control points and one free
+    /// particle at its centre, connected to all six.
+    fn star() -> ParticleModel {
+        let (vertices, triangles) = tissue_testkit::octahedron();
+        let mut attachments: Vec<Option<Attachment>> = (0..6u32)
+            .map(|v| {
+                let (triangle, corner) = triangles
+                    .iter()
+                    .enumerate()
+                    .find_map(|(t, tri)| tri.iter().position(|&x| x == v).map(|c| (t, c)))
+                    .unwrap();
+                let mut barycentric = [0.0; 3];
+                barycentric[corner] = 1.0;
+                Some(Attachment {
+                    triangle: triangle as u32,
+                    barycentric,
+                })
+            })
+            .collect();
+        attachments.push(None);
+        let mut positions = vertices.clone();
+        positions.push(Vec3::ZERO);
+        ParticleModel {
+            positions,
+            radii: vec![0.5; 7],
+            attachments,
+            connections: Connections::from_pairs(7, (0..6).map(|v| (v, 6))),
+            surface: SurfaceMesh::new(vertices, triangles),
+        }
+    }
+
+    /// A device whose step halves every iteration, whatever the weights;
+    /// it records what the tracker asked of it.
+    #[derive(Debug)]
+    struct Halving {
+        batch: usize,
+        step: f32,
+        batch_start: f32,
+        positions: Vec<Vec3>,
+        turn: Option<Mat3>,
+        replays: Vec<usize>,
+    }
+
+    impl Halving {
+        fn new(batch: usize, model: &ParticleModel) -> Self {
+            Self {
+                batch,
+                step: 1.0,
+                batch_start: 1.0,
+                positions: model.positions.clone(),
+                turn: None,
+                replays: Vec::new(),
+            }
+        }
+    }
+
+    impl SolveDevice for Halving {
+        type Error = Infallible;
+        type Context<'a> = ();
+
+        fn batch(&self) -> usize {
+            self.batch
+        }
+
+        fn write_positions(
+            &mut self,
+            (): (),
+            positions: &[Vec3],
+            turn: Option<Mat3>,
+        ) -> Result<(), Infallible> {
+            self.positions = positions.to_vec();
+            self.turn = turn;
+            Ok(())
+        }
+
+        fn begin(&mut self, (): (), _: Iteration) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
+            assert!(omegas.len() <= self.batch);
+            self.batch_start = self.step;
+            Ok(omegas
+                .iter()
+                .map(|_| {
+                    self.step *= 0.5;
+                    (self.step, self.step)
+                })
+                .collect())
+        }
+
+        fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
+            self.step = self.batch_start * 0.5f32.powi(count as i32);
+            self.replays.push(count);
+            Ok(())
+        }
+
+        fn read_positions(&mut self, (): ()) -> Result<Vec<Vec3>, Infallible> {
+            Ok(self.positions.clone())
+        }
+
+        fn reset(&mut self, (): ()) -> Result<(), Infallible> {
+            self.step = 1.0;
+            Ok(())
+        }
+    }
+
+    fn solved(batch: usize) -> (DeformReport, Halving) {
+        let model = star();
+        let mut tracker = Tracker::new(&model, DeformParams::default(), |_, _| {
+            Ok::<_, Error>(Halving::new(batch, &model))
+        })
+        .unwrap();
+        let Ok(report) = tracker.solve(());
+        (report, tracker.device)
+    }
+
+    #[test]
+    fn a_batch_the_rule_stops_inside_is_replayed_to_the_same_iteration() {
+        let (one, single) = solved(1);
+        assert!(one.converged, "{one:?}");
+        assert!(single.replays.is_empty());
+        for batch in [2, 5, 8, 64] {
+            let (report, device) = solved(batch);
+            assert_eq!(report.iterations, one.iterations, "batch {batch}");
+            assert_eq!(
+                report.residual_history, one.residual_history,
+                "batch {batch}"
+            );
+            let inside = one.iterations % batch;
+            let expected: Vec<usize> = (inside > 0).then_some(inside).into_iter().collect();
+            assert_eq!(device.replays, expected, "batch {batch}");
+            // The device is left where the rule held, not at the batch's end.
+            assert_eq!(device.step, single.step, "batch {batch}");
+        }
+    }
+
+    #[test]
+    fn a_new_surface_moves_the_controls_and_carries_the_rest_with_its_rotation() {
+        let model = star();
+        let mut tracker = Tracker::new(&model, DeformParams::default(), |_, _| {
+            Ok::<_, Error>(Halving::new(8, &model))
+        })
+        .unwrap();
+        let turn = Mat3::from_rotation_z(0.3);
+        let shift = Vec3::new(1.0, -2.0, 0.5);
+        let mut moved = model.surface.clone();
+        moved
+            .vertices
+            .iter_mut()
+            .for_each(|v| *v = turn * *v + shift);
+        let Ok(()) = tracker
+            .set_surface::<Error>((), &moved)
+            .map_err(|e| panic!("{e}"));
+        let device = tracker.device();
+        for (v, &want) in moved.vertices.iter().enumerate() {
+            assert!((device.positions[v] - want).length() < 1e-5, "control {v}");
+        }
+        // The free centre is carried by the surface's affine move.
+        assert!((device.positions[6] - shift).length() < 1e-5);
+        let applied = device.turn.unwrap();
+        assert!((applied - turn).abs_diff_eq(Mat3::ZERO, 1e-5), "{applied}");
+
+        let mut other = model.surface.clone();
+        other.vertices.pop();
+        let err = tracker.set_surface::<Error>((), &other).unwrap_err();
+        assert!(err.to_string().contains("5 vertices"), "{err}");
+    }
+}

@@ -53,12 +53,12 @@ pub fn vec3(v: &serde_json::Value) -> tissue::Vec3 {
 /// Whether a GPU adapter exists (the test log names it); `false` after
 /// printing "SKIPPED: no GPU adapter", a panic under `CI=true`.
 pub fn gpu(test: &str) -> bool {
-    match tissue_gpu::device_from_env() {
-        Ok((adapter, _, _)) => {
-            eprintln!("{test}: adapter {:?}", adapter.get_info());
+    match tissue::backend::Device::pick(tissue::backend::Backend::Gpu) {
+        Ok(picked) => {
+            eprintln!("{test}: adapter {}", picked.device.name());
             true
         }
-        Err(tissue_gpu::GpuError::NoAdapter(why)) => {
+        Err(why) if why.to_string().contains("no GPU adapter") => {
             if std::env::var("CI").as_deref() == Ok("true") {
                 panic!("{test}: no GPU adapter under CI=true ({why}); install Mesa lavapipe");
             }

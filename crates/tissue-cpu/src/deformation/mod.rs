@@ -168,8 +168,17 @@ pub struct CpuSolve {
     coarse: Option<Arc<CoarseSpace>>,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
-    /// The state and weights the last batch started from, for a replay.
-    batch_start: Option<(Vec<Vec3>, Vec<Vec3>, Vec<Mat3>, Vec<f32>)>,
+    /// Where the last batch of more than one iteration started, for a replay.
+    batch_start: Option<BatchStart>,
+}
+
+/// The state and the weights a batch started from.
+#[derive(Debug, Clone)]
+struct BatchStart {
+    current: Vec<Vec3>,
+    previous: Vec<Vec3>,
+    rotations: Vec<Mat3>,
+    omegas: Vec<f32>,
 }
 
 impl CpuSolve {
@@ -283,12 +292,12 @@ impl SolveDevice for CpuSolve {
             return Ok(Vec::new());
         };
         if omegas.len() > 1 {
-            self.batch_start = Some((
-                self.current.clone(),
-                self.previous.clone(),
-                self.rotations.clone(),
-                omegas.to_vec(),
-            ));
+            self.batch_start = Some(BatchStart {
+                current: self.current.clone(),
+                previous: self.previous.clone(),
+                rotations: self.rotations.clone(),
+                omegas: omegas.to_vec(),
+            });
         }
         Ok(omegas
             .iter()
@@ -297,13 +306,12 @@ impl SolveDevice for CpuSolve {
     }
 
     fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
-        let (Some(it), Some((current, previous, rotations, omegas))) =
-            (self.iteration, self.batch_start.take())
-        else {
+        let (Some(it), Some(start)) = (self.iteration, self.batch_start.take()) else {
             return Ok(());
         };
-        (self.current, self.previous, self.rotations) = (current, previous, rotations);
-        for &omega in omegas.iter().take(count) {
+        (self.current, self.previous, self.rotations) =
+            (start.current, start.previous, start.rotations);
+        for &omega in start.omegas.iter().take(count) {
             self.iterate(it, omega);
         }
         Ok(())

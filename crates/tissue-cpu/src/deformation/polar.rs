@@ -55,20 +55,6 @@ mod tests {
 
     use super::*;
 
-    /// Deterministic matrices with entries in [-1, 1].
-    fn matrices(count: usize) -> Vec<Mat3> {
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-        };
-        (0..count)
-            .map(|_| Mat3::from_cols_array(&[(); 9].map(|_| next())))
-            .collect()
-    }
-
     #[test]
     fn a_warm_rotation_is_the_svd_rotation_from_any_start() {
         let mut checked = 0;
@@ -77,7 +63,7 @@ mod tests {
             Mat3::from_rotation_x(3.1),
             Mat3::from_axis_angle(Vec3::new(1.0, 1.0, 0.0).normalize(), 1.5),
         ];
-        for (k, m) in matrices(3_000).into_iter().enumerate() {
+        for (k, m) in tissue_testkit::matrices(3_000).into_iter().enumerate() {
             let svd = crate::svd3::svd3(m);
             // Where the two smallest singular values nearly cancel the
             // maximum is nearly flat and any nearby rotation is as good.
@@ -99,7 +85,7 @@ mod tests {
 
     #[test]
     fn the_warm_polar_update_keeps_a_rotation_that_is_already_right() {
-        for m in matrices(500) {
+        for m in tissue_testkit::matrices(500) {
             let exact = rotation_of(m);
             let (r, settled) = polar_rotation(m, exact, 3);
             assert!(settled);

@@ -1,0 +1,50 @@
+//! Fixtures the tests of several crates share, written once. They are plain
+//! `glam` data (no tissue types), so that tissue-core's own unit tests can
+//! use them without a second copy of tissue-core in the build.
+
+use glam::{Mat3, Vec3};
+
+/// A regular octahedron of "radius" 1 around the origin, wound
+/// counter-clockwise seen from outside: vertices `±x, ±y, ±z` and eight
+/// triangles.
+pub fn octahedron() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let vertices = vec![
+        Vec3::X,
+        Vec3::NEG_X,
+        Vec3::Y,
+        Vec3::NEG_Y,
+        Vec3::Z,
+        Vec3::NEG_Z,
+    ];
+    let triangles = vec![
+        [0, 2, 4],
+        [2, 1, 4],
+        [1, 3, 4],
+        [3, 0, 4],
+        [2, 0, 5],
+        [1, 2, 5],
+        [3, 1, 5],
+        [0, 3, 5],
+    ];
+    (vertices, triangles)
+}
+
+/// A deterministic xorshift stream of numbers in `[-1, 1)`, the same on
+/// every platform, from `seed` (any non-zero value).
+pub fn xorshift(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed.max(1);
+    move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+    }
+}
+
+/// `count` deterministic 3x3 matrices with entries in `[-1, 1)`.
+pub fn matrices(count: usize) -> Vec<Mat3> {
+    let mut next = xorshift(0x2545_f491_4f6c_dd1d);
+    (0..count)
+        .map(|_| Mat3::from_cols_array(&[(); 9].map(|_| next())))
+        .collect()
+}
