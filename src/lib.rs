@@ -61,7 +61,7 @@ pub fn sample_with_progress(
 /// shell, turned outward if it faced inward.
 pub(crate) fn checked(surface: &SurfaceMesh) -> Result<SurfaceMesh, Error> {
     let mut surface = surface.clone();
-    validate(&mut surface).map_err(|source| Error::Mesh {
+    let _checked = validate(&mut surface).map_err(|source| Error::Mesh {
         path: Default::default(),
         source,
     })?;
