@@ -7,6 +7,7 @@ use tissue_solve::deflation_modes;
 use tissue_solve::{DeformParams, DeformReport, Iteration, LowModes, SolveDevice, Tracker};
 
 use crate::state::SLOTS;
+use crate::support::Scopes;
 use crate::{DeformState, GpuError, Pipelines};
 
 /// Stage 2 on the GPU for one particle model: the CPU path's tracker (the
@@ -193,11 +194,9 @@ impl GpuDeformer {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<DeformReport, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let report = self.tracker.solve((device, queue));
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(e.into());
-        }
+        scope.pop()?;
         report
     }
 }

@@ -149,7 +149,7 @@ type Step<'a> = (&'a GridKernel, wgpu::BindGroup, [u32; 2]);
 impl GridPipelines {
     /// Compiles every grid kernel for `device`; wgpu errors are returned.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let built = (|| {
             let grid = Compiler::new(device, "grid_build")?;
             let rows = Compiler::new(device, "neighbour_rows")?;
@@ -167,9 +167,7 @@ impl GridPipelines {
                 sort_rows: rows.kernel("sort_rows")?,
             })
         })();
-        if let Some(error) = pollster::block_on(scope.pop()) {
-            return Err(error.into());
-        }
+        scope.pop()?;
         built
     }
 

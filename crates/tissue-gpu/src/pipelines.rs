@@ -1,6 +1,7 @@
 //! The compiled kernels and the step that records them.
 
 use crate::state::DeformState;
+use crate::support::Scopes;
 use crate::{GpuError, shaders};
 
 /// One stage-2 kernel (a WGSL entry point bound to the state's buffers).
@@ -120,7 +121,7 @@ pub struct Pipelines {
 impl Pipelines {
     /// Compiles every kernel for `device`; any wgpu error is returned, not panicked on.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let built = (|| {
             Ok::<_, GpuError>(Self {
                 local_rotations: compile(device, Kernel::LocalRotations)?,
@@ -133,9 +134,7 @@ impl Pipelines {
                 deflate_apply: compile(device, Kernel::DeflateApply)?,
             })
         })();
-        if let Some(error) = pollster::block_on(scope.pop()) {
-            return Err(error.into());
-        }
+        scope.pop()?;
         built
     }
 

@@ -348,7 +348,7 @@ impl DeformState {
         device: &wgpu::Device,
         pipelines: &Pipelines,
     ) -> Result<Vec<wgpu::BindGroup>, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
             .into_iter()
             .map(|kernel| {
@@ -366,9 +366,7 @@ impl DeformState {
                 )
             })
             .collect();
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(e.into());
-        }
+        scope.pop()?;
         groups
     }
 

@@ -7,6 +7,7 @@
 use crate::GpuError;
 use crate::pipelines::{Kernel, Pipelines};
 use crate::state::{DeformState, read_buffer};
+use crate::support::Scopes;
 
 /// Timestamps of the longest iteration: a start and an end per kernel.
 const QUERIES: u32 = 2 * Kernel::DEFLATED_ITERATION.len() as u32;
@@ -40,7 +41,7 @@ impl KernelTimer {
                 "the device was opened without wgpu::Features::TIMESTAMP_QUERY".into(),
             ));
         }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
             label: Some("kernel timestamps"),
             ty: wgpu::QueryType::Timestamp,
@@ -52,9 +53,7 @@ impl KernelTimer {
             usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(e.into());
-        }
+        scope.pop()?;
         Ok(Self {
             queries,
             resolved,
@@ -72,7 +71,7 @@ impl KernelTimer {
         state: &DeformState,
         slot: u32,
     ) -> Result<IterationTimes, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("timed iteration"),
         });
@@ -93,9 +92,7 @@ impl KernelTimer {
         }
         encoder.resolve_query_set(&self.queries, 0..used, &self.resolved, 0);
         queue.submit([encoder.finish()]);
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(e.into());
-        }
+        scope.pop()?;
         let bytes = read_buffer(
             device,
             queue,
