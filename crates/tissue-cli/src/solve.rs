@@ -34,18 +34,16 @@ pub struct SolveArgs {
     #[arg(long, default_value_t = DeformParams::default().tolerance)]
     pub tolerance: f32,
     /// Remove the error of this many of the lowest modes exactly every
-    /// iteration (computed once per model, on either backend: 0.2 s at 10k
-    /// particles, 4 s at 100k; docs/METHOD.md). 0 turns it off. Default: 32
-    /// for `track`, where it brings small frames to at most 10 iterations;
+    /// iteration (computed once per model, on either backend; what it costs
+    /// and saves: docs/METHOD.md). 0 turns it off. Default: 32 for `track`;
     /// 0 for `deform`, whose one frame does not repay the preparation on
     /// large models.
     #[arg(long)]
     pub deflation: Option<usize>,
     /// Two-level solve on the CPU: every iteration removes the error's part
     /// that is constant over aggregates of particles (grid cells of this
-    /// many mean connection lengths) exactly; a solve from rest then takes
-    /// 12-18 iterations at 10k and 100k particles (docs/METHOD.md). 0 turns
-    /// it off. Where it is on, the CPU does not deflate; the GPU has no
+    /// many mean connection lengths) exactly (docs/METHOD.md, "Two-level
+    /// solve"). 0 turns it off. Where it is on, the CPU does not deflate; the GPU has no
     /// two-level solve yet and deflates instead.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     pub coarse: f32,

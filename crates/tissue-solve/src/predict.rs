@@ -16,9 +16,8 @@ pub struct FrameHistory {
 impl FrameHistory {
     /// The history of a model at rest: the rest shape is a solved frame
     /// (the exact answer for the rest surface), so the first solve's change
-    /// from it already gives the second frame a shape to fit (a sag grown
-    /// by 2 % of itself after a first frame of half of it: 2 iterations
-    /// instead of 11, deflated at 10k).
+    /// from it already gives the second frame a shape to fit
+    /// (docs/METHOD.md, "The rest shape is a solved frame").
     pub fn at_rest(rest: &[Vec3], depth: usize) -> Self {
         let mut history = Self::default();
         history.record(rest, true, depth);

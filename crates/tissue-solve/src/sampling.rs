@@ -19,14 +19,14 @@ use tissue_core::{
 use crate::grid::{grid_build, neighbour_rows};
 
 /// Field cell edge in initial radii `r0`: about 2.4 cells per particle inside.
-/// Smaller cells mean fewer candidate triangles per query (the hot path);
-/// `2 r0` made a query 3x slower on the phantom, `r0` costs a slower build.
+/// Smaller cells mean fewer candidate triangles per query (the hot path) and
+/// a slower build (docs/METHOD.md, "Neighbours and the surface field").
 pub const FIELD_CELL_IN_R0: f32 = 1.0;
 
 /// Verlet skin of the neighbour rows, in `r0`: rows are rebuilt when a particle
-/// moved (or its radius grew) by more than half of it. On the phantom at 10k,
-/// 0.8 rebuilt 21 times, 1.2 13 times, 1.6 9 times for a 3% gain in total time
-/// and rows a third longer; 1.2 keeps the rows short for the GPU path.
+/// moved (or its radius grew) by more than half of it. A wider skin rebuilds
+/// less often but makes every row longer; this one keeps the rows short for
+/// the GPU path (docs/METHOD.md, "Neighbours and the surface field").
 pub const SKIN_IN_R0: f32 = 1.2;
 
 /// Smallest exact-query margin of the surface field, in `r0`.
