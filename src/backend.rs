@@ -273,9 +273,14 @@ pub struct GpuSolver {
     queue: wgpu::Queue,
     deformer: GpuDeformer,
     embedding: EmbeddingKernel,
-    rest: Vec<Vec3>,
-    /// Read back after each solve.
-    current: Vec<Vec3>,
+}
+
+impl GpuSolver {
+    /// The GPU deformer, for what the facade does not wrap (its kernels and
+    /// buffers, the rotations).
+    pub fn deformer(&self) -> &GpuDeformer {
+        &self.deformer
+    }
 }
 
 /// Points bound to the particles, ready to be carried on the solver's device.
@@ -313,8 +318,6 @@ impl Solver {
                     queue,
                     deformer,
                     embedding,
-                    rest: model.positions.clone(),
-                    current: model.positions.clone(),
                 }))
             }
         })
@@ -348,7 +351,6 @@ impl Solver {
                     .deformer
                     .solve(&gpu.device, &gpu.queue)
                     .map_err(|e| gpu_error(format!("stage 2 on {}", gpu.name), e))?;
-                gpu.current = gpu.deformer.host_positions().to_vec();
                 Ok(report)
             }
         }
@@ -362,7 +364,6 @@ impl Solver {
                 gpu.deformer
                     .reset(&gpu.device, &gpu.queue)
                     .map_err(|e| gpu_error(format!("resetting stage 2 on {}", gpu.name), e))?;
-                gpu.current.clone_from(&gpu.rest);
             }
         }
         Ok(())
@@ -372,7 +373,7 @@ impl Solver {
     pub fn rest(&self) -> &[Vec3] {
         match self {
             Self::Cpu(cpu) => cpu.rest(),
-            Self::Gpu(gpu) => &gpu.rest,
+            Self::Gpu(gpu) => gpu.deformer.rest(),
         }
     }
 
@@ -380,7 +381,7 @@ impl Solver {
     pub fn positions(&self) -> &[Vec3] {
         match self {
             Self::Cpu(cpu) => cpu.positions(),
-            Self::Gpu(gpu) => &gpu.current,
+            Self::Gpu(gpu) => gpu.deformer.host_positions(),
         }
     }
 
@@ -391,8 +392,13 @@ impl Solver {
         let gpu = match self {
             Self::Cpu(_) => None,
             Self::Gpu(gpu) => Some(
-                GpuEmbedding::new(&gpu.device, &gpu.embedding, &embedding, gpu.rest.len())
-                    .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
+                GpuEmbedding::new(
+                    &gpu.device,
+                    &gpu.embedding,
+                    &embedding,
+                    gpu.deformer.rest().len(),
+                )
+                .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
             ),
         };
         Ok(Carrier { embedding, gpu })

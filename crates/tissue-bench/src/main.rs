@@ -244,6 +244,7 @@ fn open_gpu(timestamps: bool) -> (GpuFound, Option<Gpu>) {
                 timestamps_used: timestamp_query,
             },
             Some(Gpu {
+                name: adapter.get_info().name,
                 device,
                 queue,
                 timestamp_query,

@@ -4,12 +4,11 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use glam::Vec3;
 use serde::Serialize;
+use tissue::backend::{Device, Solver};
 use tissue_core::deform::interpolate;
 use tissue_core::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, RotationMethod};
-use tissue_gpu::GpuDeformer;
+use tissue_cpu::deformation::{DeformParams, RotationMethod};
 
 use crate::breakdown::{self, Breakdown};
 use crate::memory::GpuStateBytes;
@@ -18,6 +17,8 @@ use crate::stats::Summary;
 /// An opened GPU device and its queue.
 #[derive(Debug)]
 pub struct Gpu {
+    /// The adapter's name.
+    pub name: String,
     /// The device.
     pub device: wgpu::Device,
     /// Its queue.
@@ -26,55 +27,18 @@ pub struct Gpu {
     pub timestamp_query: bool,
 }
 
-/// Stage 2 on one backend.
-enum Solver<'a> {
-    Cpu(Box<Deformer>),
-    Gpu(&'a Gpu, Box<GpuDeformer>),
-}
-
-impl<'a> Solver<'a> {
-    fn new(gpu: Option<&'a Gpu>, model: &ParticleModel, params: DeformParams) -> Result<Self> {
-        Ok(match gpu {
-            None => Self::Cpu(Box::new(Deformer::new(model, params)?)),
-            Some(gpu) => Self::Gpu(
-                gpu,
-                Box::new(GpuDeformer::new(&gpu.device, &gpu.queue, model, params)?),
-            ),
-        })
-    }
-
-    fn reset(&mut self) -> Result<()> {
-        match self {
-            Self::Cpu(cpu) => cpu.reset(),
-            Self::Gpu(gpu, deformer) => deformer.reset(&gpu.device, &gpu.queue)?,
-        }
-        Ok(())
-    }
-
-    fn set_surface(&mut self, surface: &SurfaceMesh) -> Result<()> {
-        match self {
-            Self::Cpu(cpu) => cpu.set_surface(surface)?,
-            Self::Gpu(gpu, deformer) => deformer.set_surface(&gpu.device, &gpu.queue, surface)?,
-        }
-        Ok(())
-    }
-
-    /// Solves; the GPU solve submits its batches and waits on each one's step
-    /// norms, so the wall clock around it covers the device's work.
-    fn solve(&mut self) -> Result<DeformReport> {
-        match self {
-            Self::Cpu(cpu) => Ok(cpu.solve()),
-            Self::Gpu(gpu, deformer) => Ok(deformer.solve(&gpu.device, &gpu.queue)?),
-        }
-    }
-
-    /// The positions on the host: a copy on the CPU, a readback on the GPU.
-    fn positions(&self) -> Result<Vec<Vec3>> {
-        match self {
-            Self::Cpu(cpu) => Ok(cpu.positions().to_vec()),
-            Self::Gpu(gpu, deformer) => Ok(deformer.positions(&gpu.device, &gpu.queue)?),
-        }
-    }
+/// Stage 2 on the CPU (`gpu` `None`) or on the opened GPU, through the
+/// library's solver.
+fn solver_on(gpu: Option<&Gpu>, model: &ParticleModel, params: DeformParams) -> Result<Solver> {
+    let device = match gpu {
+        None => Device::Cpu,
+        Some(gpu) => Device::Gpu {
+            name: gpu.name.clone(),
+            device: gpu.device.clone(),
+            queue: gpu.queue.clone(),
+        },
+    };
+    Ok(Solver::new(device, model, params)?)
 }
 
 /// How many times to measure.
@@ -180,7 +144,7 @@ pub fn measure(
             ..defaults.clone()
         };
         let mut solver =
-            Solver::new(gpu, model, fixed.clone()).context("stage 2, fixed iterations")?;
+            solver_on(gpu, model, fixed.clone()).context("stage 2, fixed iterations")?;
         let mut per_iteration = Vec::new();
         let mut iterations_run = Vec::new();
         // One untimed solve first: shader compilation, first-touch of memory.
@@ -195,15 +159,18 @@ pub fn measure(
                 iterations_run.push(report.iterations);
             }
         }
-        let stages = match &solver {
-            Solver::Cpu(deformer) => breakdown::cpu(
+        let stages = match (&solver, gpu) {
+            (Solver::Cpu(deformer), _) => breakdown::cpu(
                 deformer,
                 &model.connections,
                 &fixed,
                 repeats.iterations_per_solve,
                 repeats.stage_samples,
             ),
-            Solver::Gpu(gpu, deformer) => breakdown::gpu(gpu, deformer, repeats.stage_samples),
+            (Solver::Gpu(on_gpu), Some(gpu)) => {
+                breakdown::gpu(gpu, on_gpu.deformer(), repeats.stage_samples)
+            }
+            (Solver::Gpu(_), None) => anyhow::bail!("a GPU solver without a GPU"),
         }
         .context("per-stage breakdown")?;
         let timing = IterationTiming {
@@ -215,7 +182,7 @@ pub fn measure(
     };
 
     let started = Instant::now();
-    let mut solver = Solver::new(gpu, model, defaults.clone()).context("stage 2")?;
+    let mut solver = solver_on(gpu, model, defaults.clone()).context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
     // What the solve runs: on the CPU the coarse space replaces deflation.
     let (deflation, coarse_aggregates) = match &solver {
@@ -223,15 +190,15 @@ pub fn measure(
             deformer.modes().map_or(0, |m| m.count()),
             deformer.coarse().map_or(0, |c| c.count()),
         ),
-        Solver::Gpu(..) => (defaults.deflation, 0),
+        Solver::Gpu(_) => (defaults.deflation, 0),
     };
     let gpu_state_bytes = match &solver {
         Solver::Cpu(_) => None,
-        Solver::Gpu(_, deformer) => Some(GpuStateBytes::of(deformer, model.len())),
+        Solver::Gpu(on_gpu) => Some(GpuStateBytes::of(on_gpu.deformer(), model.len())),
     };
     // From rest, the solver alone: the tracking prediction would carry a
     // rigid rotation there exactly, and hide the solver's convergence.
-    let mut from_rest = Solver::new(
+    let mut from_rest = solver_on(
         gpu,
         model,
         DeformParams {
@@ -270,7 +237,7 @@ pub fn measure(
         let started = Instant::now();
         solver.set_surface(frame)?;
         let report = solver.solve()?;
-        let positions = solver.positions()?;
+        let positions = solver.positions();
         latency.push(started.elapsed().as_secs_f64());
         iterations.push(report.iterations);
         anyhow::ensure!(

@@ -154,6 +154,11 @@ impl GpuDeformer {
         self.tracker.set_surface((device, queue), deformed)
     }
 
+    /// Rest particle positions.
+    pub fn rest(&self) -> &[Vec3] {
+        self.tracker.rest()
+    }
+
     /// The positions at the end of the last solve (read back by it), or
     /// after the last `set_surface` or `reset`.
     pub fn host_positions(&self) -> &[Vec3] {
