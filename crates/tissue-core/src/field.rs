@@ -595,18 +595,8 @@ mod tests {
 
     /// An octahedron of "radius" 1, outward.
     fn octahedron() -> SurfaceMesh {
-        let v = vec![Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
-        let t = vec![
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ];
-        SurfaceMesh::new(v, t)
+        let (vertices, triangles) = tissue_testkit::octahedron();
+        SurfaceMesh::new(vertices, triangles)
     }
 
     /// A tiny deterministic generator for test points.

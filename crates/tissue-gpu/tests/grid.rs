@@ -8,27 +8,12 @@ mod common;
 use glam::Vec3;
 use tissue_cpu::grid::{grid_build, neighbour_rows};
 use tissue_gpu::{GpuError, GridPipelines};
+use tissue_testkit::cloud;
 use wgpu::util::DeviceExt;
 
 /// A pair's distance may round to either side of its limit on the GPU
 /// (fused multiply-adds): allowed within this fraction of the limit.
 const ROW_TOLERANCE: f32 = 1e-5;
-
-/// A reproducible cloud in a box of `scale`, radii in [0.02, 0.05).
-fn cloud(n: usize, seed: u64, scale: Vec3) -> (Vec<Vec3>, Vec<f32>) {
-    let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    };
-    let p = (0..n)
-        .map(|_| Vec3::new(next(), next(), next()) * scale)
-        .collect();
-    let r = (0..n).map(|_| 0.02 + 0.03 * next()).collect();
-    (p, r)
-}
 
 /// Particles as the GPU holds them: xyz position, w radius.
 fn upload(device: &wgpu::Device, positions: &[Vec3], radii: &[f32]) -> wgpu::Buffer {

@@ -213,22 +213,9 @@ pub fn neighbour_rows(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use tissue_testkit::cloud;
 
-    fn cloud(n: usize, seed: u64, scale: Vec3) -> (Vec<Vec3>, Vec<f32>) {
-        let mut s = seed.wrapping_mul(0x9e3779b97f4a7c15) | 1;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let p = (0..n)
-            .map(|_| Vec3::new(next(), next(), next()) * scale)
-            .collect();
-        let r = (0..n).map(|_| 0.02 + 0.03 * next()).collect();
-        (p, r)
-    }
+    use super::*;
 
     fn brute(positions: &[Vec3], radii: &[f32], factor: f32, skin: f32) -> Vec<Vec<u32>> {
         (0..positions.len())

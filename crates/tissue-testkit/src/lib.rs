@@ -48,3 +48,21 @@ pub fn matrices(count: usize) -> Vec<Mat3> {
         .map(|_| Mat3::from_cols_array(&[(); 9].map(|_| next())))
         .collect()
 }
+
+/// A reproducible cloud of `n` particles in the box `[0, scale)`, with radii
+/// in `[0.02, 0.05)`: positions and radii from a xorshift stream seeded by
+/// `seed`.
+pub fn cloud(n: usize, seed: u64, scale: Vec3) -> (Vec<Vec3>, Vec<f32>) {
+    let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let positions = (0..n)
+        .map(|_| Vec3::new(next(), next(), next()) * scale)
+        .collect();
+    let radii = (0..n).map(|_| 0.02 + 0.03 * next()).collect();
+    (positions, radii)
+}
