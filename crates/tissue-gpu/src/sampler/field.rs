@@ -6,8 +6,8 @@ use tissue_core::SamplingParams;
 use tissue_core::field::{Nearest, Side, SurfaceField};
 use wgpu::util::DeviceExt;
 
+use super::buffers::{SamplingUniforms, storage};
 use super::kernels::compile;
-use super::{SamplingUniforms, storage};
 use crate::GpuError;
 use crate::state::{read_buffer, workgroups};
 use crate::support::{bind_group, scoped};

@@ -1,0 +1,628 @@
+//! The buffers of one stage-1 run: the mirror of the WGSL uniforms, one
+//! slot per iteration of a batch, and the particle, contact, force, row and
+//! convergence buffers the kernels bind, with the recording of a batch.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec3, Vec4};
+use tissue_core::field::SurfaceField;
+use tissue_core::{SamplingParams, SurfaceMode};
+use tissue_solve::sampling::{ForceOut, SKIN_IN_R0, SamplingState};
+
+use super::field::FieldBuffers;
+use super::kernels::{SamplingKernel, SamplingPipelines};
+use crate::GpuError;
+use crate::state::{read_buffer, workgroups};
+use crate::support::{bind_group, scoped, storage_init};
+
+/// Iterations one command buffer records: one uniform slot and one row of
+/// change partials each.
+pub const BATCH: u32 = 16;
+
+/// Mirror of WGSL `Sampling` (`shaders/shared/sampling.wgsl`): one
+/// iteration's parameters, one slot per iteration of a batch.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct SamplingUniforms {
+    /// Field grid corner (xyz) and cell edge (w).
+    pub field_origin: [f32; 4],
+    /// Field cells along x, y, z; w the triangle count.
+    pub field_dims: [u32; 4],
+    /// Where `field_cells` holds the CSR starts, candidates and candidate distances.
+    pub field_layout: [u32; 4],
+    /// Number of particles.
+    pub count: u32,
+    /// 0 projection, 1 paper force.
+    pub surface_mode: u32,
+    /// 1 when the wall counts in the compression.
+    pub wall_in_compression: u32,
+    /// Row of the partials `change` writes.
+    pub slot: u32,
+    /// Workgroups of a dispatch, the length of a partials row.
+    pub groups: u32,
+    /// `alpha` of eq. (4).
+    pub alpha: f32,
+    /// Force cutoff in `r_i + r_j`.
+    pub cutoff: f32,
+    /// `mu` of eq. (2).
+    pub mu: f32,
+    /// Ideal compression, eq. (7).
+    pub ideal: f32,
+    /// `eta` of eq. (8).
+    pub eta: f32,
+    /// `exp(max_log_radius_step)`.
+    pub radius_bound: f32,
+    /// `1 / radius_bound`.
+    pub radius_bound_inv: f32,
+    /// `r0 / m~`.
+    pub step_scale: f32,
+    /// `max_step r0`.
+    pub max_step: f32,
+    /// `m~`.
+    pub mass: f32,
+    /// Initial radius.
+    pub r0: f32,
+    /// Half the Verlet skin.
+    pub half_skin: f32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+impl SamplingUniforms {
+    /// The parameters for `count` particles of initial radius `r0` on
+    /// `field`, derived values computed as the CPU twins compute them.
+    pub fn new(field: &FieldBuffers, params: &SamplingParams, r0: f32, count: u32) -> Self {
+        let bound = params.max_log_radius_step.exp();
+        let (surface_mode, mu) = match params.surface_mode {
+            SurfaceMode::Projection => (0, 0.0),
+            SurfaceMode::PaperForce { mu } => (1, mu),
+        };
+        Self {
+            field_origin: field.origin,
+            field_dims: field.dims,
+            field_layout: field.layout,
+            count,
+            surface_mode,
+            wall_in_compression: u32::from(params.wall_in_compression),
+            slot: 0,
+            groups: 1,
+            alpha: params.alpha,
+            cutoff: params.force_cutoff,
+            mu,
+            ideal: params.ideal_compression(),
+            eta: params.eta,
+            radius_bound: bound,
+            radius_bound_inv: 1.0 / bound,
+            step_scale: r0 / params.mass,
+            max_step: params.max_step * r0,
+            mass: params.mass,
+            r0,
+            half_skin: 0.5 * (SKIN_IN_R0 * r0),
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
+        }
+    }
+}
+
+/// A storage buffer holding `contents` (an empty one gets 16 zero bytes: zero-sized
+/// bindings are invalid), checked against the device's limits; `what` says
+/// what it serves in the error.
+pub(super) fn storage(
+    device: &wgpu::Device,
+    label: &'static str,
+    contents: &[u8],
+    what: &dyn Fn() -> String,
+) -> Result<wgpu::Buffer, GpuError> {
+    storage_init(
+        device,
+        label,
+        contents,
+        &format!("the {label} buffer ({})", what()),
+    )
+}
+
+/// The buffers of one stage-1 run. States and contacts come in pairs used in
+/// turn: an iteration of parity `p` reads `states[p]`, `contacts[p]` and
+/// writes `states[1 - p]`, `contacts[1 - p]`.
+#[derive(Debug)]
+pub struct SamplingBuffers {
+    pub(super) count: u32,
+    uniforms_stride: u64,
+    uniforms: wgpu::Buffer,
+    pub(super) states: [wgpu::Buffer; 2],
+    pub(super) contacts: [wgpu::Buffer; 2],
+    forces: wgpu::Buffer,
+    offsets: wgpu::Buffer,
+    neighbours: wgpu::Buffer,
+    halt: wgpu::Buffer,
+    partials: wgpu::Buffer,
+    built: wgpu::Buffer,
+    field: FieldBuffers,
+    /// Workgroups `[x, y]` per kernel, in [`SamplingKernel::ALL`] order.
+    workgroups: [[u32; 2]; 5],
+    /// Length of a partials row (workgroups of `change`).
+    change_groups: u32,
+    /// Per kernel, per parity.
+    bind_groups: Vec<[wgpu::BindGroup; 2]>,
+}
+
+pub(super) fn vec4s(positions: &[Vec3], w: &[f32]) -> Vec<[f32; 4]> {
+    positions
+        .iter()
+        .zip(w)
+        .map(|(p, &w)| p.extend(w).to_array())
+        .collect()
+}
+
+impl SamplingBuffers {
+    /// Uploads `field` and `state` (into parity 0, which is also the
+    /// rows' build state) for particles of initial radius `r0`, and binds
+    /// them to `pipelines`' kernels. The neighbour rows start empty: set
+    /// them with [`SamplingBuffers::set_rows`] or [`SamplingBuffers::set_row_buffers`].
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipelines: &SamplingPipelines,
+        field: &SurfaceField,
+        state: &SamplingState,
+        params: &SamplingParams,
+        r0: f32,
+    ) -> Result<Self, GpuError> {
+        let n = state.positions.len();
+        for (what, got) in [
+            ("radii (one per particle)", state.radii.len()),
+            ("contacts (one per particle)", state.contact.len()),
+        ] {
+            if got != n {
+                return Err(GpuError::Length {
+                    what,
+                    expected: n,
+                    got,
+                });
+            }
+        }
+        let count = u32::try_from(n)
+            .ok()
+            .filter(|&c| c > 0 && c < u32::MAX)
+            .ok_or(GpuError::Length {
+                what: "particles (at least one, below u32::MAX)",
+                expected: 1,
+                got: n,
+            })?;
+        let limits = device.limits();
+        let mut workgroups_of = [[0u32; 2]; 5];
+        for kernel in SamplingKernel::ALL {
+            workgroups_of[kernel.index()] = workgroups(
+                count,
+                pipelines.workgroup_size(kernel),
+                limits.max_compute_workgroups_per_dimension,
+            )?;
+        }
+        let [cx, cy] = workgroups_of[SamplingKernel::Change.index()];
+        let change_groups = cx * cy;
+        let uniforms_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
+            .max(std::mem::size_of::<SamplingUniforms>() as u64);
+        let field = FieldBuffers::new(device, field)?;
+        let what = || format!("{n} particles");
+        let current = vec4s(&state.positions, &state.radii);
+        let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
+        let zeros = vec![0u8; n * 16];
+        let partials = vec![0u8; (BATCH * change_groups) as usize * 16];
+        let (states, contacts, forces, offsets, neighbours, halt, partials, built) =
+            scoped(device, || {
+                let s = |label: &'static str, bytes: &[u8]| storage(device, label, bytes, &what);
+                Ok((
+                    [
+                        s("state 0", bytemuck::cast_slice(&current))?,
+                        s("state 1", bytemuck::cast_slice(&current))?,
+                    ],
+                    [
+                        s("contact 0", bytemuck::cast_slice(&contact))?,
+                        s("contact 1", bytemuck::cast_slice(&contact))?,
+                    ],
+                    s("forces", &zeros)?,
+                    s("offsets", &vec![0u8; (n + 1) * 4])?,
+                    s("neighbours", &[])?,
+                    s("halt", &[0u8; 16])?,
+                    s("partials", &partials)?,
+                    s("built", bytemuck::cast_slice(&current))?,
+                ))
+            })?;
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("sampling uniforms"),
+            size: uniforms_stride * u64::from(BATCH),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut buffers = Self {
+            count,
+            uniforms_stride,
+            uniforms,
+            states,
+            contacts,
+            forces,
+            offsets,
+            neighbours,
+            halt,
+            partials,
+            built,
+            field,
+            workgroups: workgroups_of,
+            change_groups,
+            bind_groups: Vec::new(),
+        };
+        let mut uniforms = SamplingUniforms::new(&buffers.field, params, r0, count);
+        uniforms.groups = change_groups;
+        for slot in 0..BATCH {
+            uniforms.slot = slot;
+            queue.write_buffer(
+                &buffers.uniforms,
+                u64::from(slot) * uniforms_stride,
+                bytemuck::bytes_of(&uniforms),
+            );
+        }
+        buffers.bind(device, pipelines)?;
+        Ok(buffers)
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+
+    /// Always false: the buffers hold at least one particle.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    fn buffer(&self, name: &str, parity: usize) -> Option<&wgpu::Buffer> {
+        Some(match name {
+            "sampling" => &self.uniforms,
+            "current" => &self.states[parity],
+            "next" => &self.states[1 - parity],
+            "contact" => &self.contacts[parity],
+            "contact_next" => &self.contacts[1 - parity],
+            "forces" => &self.forces,
+            "offsets" => &self.offsets,
+            "neighbours" => &self.neighbours,
+            "halt" => &self.halt,
+            "partials" => &self.partials,
+            "built" => &self.built,
+            "field_cells" => &self.field.cells,
+            "field_triangles" => &self.field.triangles,
+            _ => return None,
+        })
+    }
+
+    fn bind(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+    ) -> Result<(), GpuError> {
+        let groups = scoped(device, || {
+            SamplingKernel::ALL
+                .into_iter()
+                .map(|kernel| {
+                    let group = |parity| {
+                        bind_group(
+                            device,
+                            pipelines.kernel(kernel),
+                            kernel.entry(),
+                            |name| self.buffer(name, parity),
+                            Some(std::mem::size_of::<SamplingUniforms>() as u64),
+                            "names no stage-1 buffer",
+                        )
+                    };
+                    Ok([group(0)?, group(1)?])
+                })
+                .collect::<Result<Vec<_>, GpuError>>()
+        })?;
+        self.bind_groups = groups;
+        Ok(())
+    }
+
+    /// Uploads neighbour rows (CSR, as `tissue_solve::grid::neighbour_rows` returns them).
+    pub fn set_rows(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+        offsets: &[u32],
+        neighbours: &[u32],
+    ) -> Result<(), GpuError> {
+        if offsets.len() != self.len() + 1 {
+            return Err(GpuError::Length {
+                what: "row offsets (particles + 1)",
+                expected: self.len() + 1,
+                got: offsets.len(),
+            });
+        }
+        let last = offsets.last().copied().unwrap_or(0) as usize;
+        if last != neighbours.len() {
+            return Err(GpuError::Length {
+                what: "neighbour indices (the last row offset)",
+                expected: last,
+                got: neighbours.len(),
+            });
+        }
+        let what = || format!("{} particles", self.len());
+        let (o, i) = scoped(device, || {
+            Ok((
+                storage(device, "offsets", bytemuck::cast_slice(offsets), &what)?,
+                storage(
+                    device,
+                    "neighbours",
+                    bytemuck::cast_slice(neighbours),
+                    &what,
+                )?,
+            ))
+        })?;
+        self.set_row_buffers(device, pipelines, o, i)
+    }
+
+    /// Takes neighbour rows already on the GPU: `offsets` (`count + 1` u32)
+    /// and `neighbours` (u32), as a GPU grid builds them.
+    pub fn set_row_buffers(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &SamplingPipelines,
+        offsets: wgpu::Buffer,
+        neighbours: wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        self.offsets = offsets;
+        self.neighbours = neighbours;
+        self.bind(device, pipelines)
+    }
+
+    /// Overwrites the state of `parity` (tests, or a fresh start).
+    pub fn write_state(
+        &self,
+        queue: &wgpu::Queue,
+        parity: usize,
+        state: &SamplingState,
+    ) -> Result<(), GpuError> {
+        for (what, got) in [
+            ("positions", state.positions.len()),
+            ("radii", state.radii.len()),
+            ("contacts", state.contact.len()),
+        ] {
+            if got != self.len() {
+                return Err(GpuError::Length {
+                    what,
+                    expected: self.len(),
+                    got,
+                });
+            }
+        }
+        let parity = parity & 1;
+        queue.write_buffer(
+            &self.states[parity],
+            0,
+            bytemuck::cast_slice(&vec4s(&state.positions, &state.radii)),
+        );
+        let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
+        queue.write_buffer(&self.contacts[parity], 0, bytemuck::cast_slice(&contact));
+        Ok(())
+    }
+
+    /// Overwrites the forces (tests of `radius_update` and `integrate`).
+    pub fn write_forces(&self, queue: &wgpu::Queue, forces: &[ForceOut]) -> Result<(), GpuError> {
+        if forces.len() != self.len() {
+            return Err(GpuError::Length {
+                what: "forces",
+                expected: self.len(),
+                got: forces.len(),
+            });
+        }
+        let data: Vec<[f32; 4]> = forces
+            .iter()
+            .map(|f| f.force.extend(f.compression).to_array())
+            .collect();
+        queue.write_buffer(&self.forces, 0, bytemuck::cast_slice(&data));
+        Ok(())
+    }
+
+    /// Reads the state of `parity` back (stalls until the GPU is done).
+    pub fn read_state(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        parity: usize,
+    ) -> Result<SamplingState, GpuError> {
+        let parity = parity & 1;
+        let bytes = read_buffer(device, queue, &self.states[parity], self.len() * 16)?;
+        let states: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let bytes = read_buffer(device, queue, &self.contacts[parity], self.len() * 16)?;
+        let contact: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        Ok(SamplingState {
+            positions: states.iter().map(|s| Vec3::new(s[0], s[1], s[2])).collect(),
+            radii: states.iter().map(|s| s[3]).collect(),
+            contact: contact.into_iter().map(Vec4::from_array).collect(),
+        })
+    }
+
+    /// Reads the last forces back.
+    pub fn read_forces(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<ForceOut>, GpuError> {
+        let bytes = read_buffer(device, queue, &self.forces, self.len() * 16)?;
+        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
+            .into_iter()
+            .map(|f| ForceOut {
+                force: Vec3::new(f[0], f[1], f[2]),
+                compression: f[3],
+            })
+            .collect())
+    }
+
+    /// Records, in one compute pass, `kernels` of iteration `slot` on the state
+    /// of `parity`.
+    pub fn record(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipelines: &SamplingPipelines,
+        kernels: &[SamplingKernel],
+        slot: u32,
+        parity: usize,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("tissue stage 1"),
+            timestamp_writes: None,
+        });
+        self.record_in(&mut pass, pipelines, kernels, slot, parity);
+    }
+
+    fn record_in(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pipelines: &SamplingPipelines,
+        kernels: &[SamplingKernel],
+        slot: u32,
+        parity: usize,
+    ) {
+        let offset = (u64::from(slot.min(BATCH - 1)) * self.uniforms_stride) as u32;
+        for &kernel in kernels {
+            let [x, y] = self.workgroups[kernel.index()];
+            pass.set_pipeline(&pipelines.kernel(kernel).pipeline);
+            pass.set_bind_group(0, &self.bind_groups[kernel.index()][parity & 1], &[offset]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+    }
+
+    /// Records `iterations` (at most [`BATCH`]) full iterations from the
+    /// state of `parity`, iteration `k` in slot `k`, after clearing the halt
+    /// flag: force, radius, move, change, rebuild check.
+    pub fn record_iterations(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipelines: &SamplingPipelines,
+        iterations: u32,
+        parity: usize,
+    ) {
+        encoder.clear_buffer(&self.halt, 0, None);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("tissue stage 1 iterations"),
+            timestamp_writes: None,
+        });
+        for slot in 0..iterations.min(BATCH) {
+            self.record_in(
+                &mut pass,
+                pipelines,
+                &SamplingKernel::ALL,
+                slot,
+                parity + slot as usize,
+            );
+        }
+    }
+
+    /// Reads the change partials of the first `slots` slots and the halt flag
+    /// (0, or the slot + 1 of the first iteration that needed a rebuild). Per
+    /// slot: (sum of squared free steps, free particles, sum of ln² r change), f64.
+    pub fn read_change(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        slots: u32,
+    ) -> Result<(Vec<[f64; 3]>, u32), GpuError> {
+        let row = self.change_groups as usize;
+        let rows = slots.min(BATCH) as usize;
+        let bytes = read_buffer(device, queue, &self.partials, rows * row * 16)?;
+        let all: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let sums = all
+            .chunks(row.max(1))
+            .map(|r| {
+                r.iter().fold([0.0f64; 3], |a, x| {
+                    [
+                        a[0] + f64::from(x[0]),
+                        a[1] + f64::from(x[1]),
+                        a[2] + f64::from(x[2]),
+                    ]
+                })
+            })
+            .collect();
+        let halt = read_buffer(device, queue, &self.halt, 4)?;
+        let halt = halt
+            .get(..4)
+            .map(bytemuck::pod_read_unaligned::<u32>)
+            .ok_or_else(|| GpuError::Map("the halt flag came back empty".into()))?;
+        Ok((sums, halt))
+    }
+
+    /// Copies the state of `parity` into the rows' build state.
+    pub(super) fn mark_built(&self, encoder: &mut wgpu::CommandEncoder, parity: usize) {
+        encoder.copy_buffer_to_buffer(&self.states[parity & 1], 0, &self.built, 0, None);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shaders;
+    use crate::support::assert_mirror;
+
+    #[test]
+    fn sampling_uniforms_match_the_wgsl_layout() {
+        assert_mirror!(
+            "imf_force",
+            "Sampling",
+            SamplingUniforms {
+                field_origin,
+                field_dims,
+                field_layout,
+                count,
+                surface_mode,
+                wall_in_compression,
+                slot,
+                groups,
+                alpha,
+                cutoff,
+                mu,
+                ideal,
+                eta,
+                radius_bound,
+                radius_bound_inv,
+                step_scale,
+                max_step,
+                mass,
+                r0,
+                half_skin,
+                pad0,
+                pad1,
+                pad2,
+            }
+        );
+    }
+
+    /// The names `SamplingBuffers::buffer` resolves: a kernel binding any
+    /// other would fail `SamplingBuffers::new` at run time.
+    #[test]
+    fn every_stage_1_kernel_binds_only_known_buffers() {
+        let known = [
+            "sampling",
+            "current",
+            "next",
+            "contact",
+            "contact_next",
+            "forces",
+            "offsets",
+            "neighbours",
+            "halt",
+            "partials",
+            "built",
+            "field_cells",
+            "field_triangles",
+        ];
+        for kernel in SamplingKernel::ALL {
+            let (file, _) = kernel.entry();
+            let module = shaders::module(file).unwrap_or_else(|e| panic!("{e}"));
+            for b in shaders::bindings(&module) {
+                assert!(known.contains(&b.name.as_str()), "{file}: `{}`", b.name);
+            }
+        }
+    }
+}
