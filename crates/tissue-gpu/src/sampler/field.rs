@@ -10,7 +10,7 @@ use super::buffers::{SamplingUniforms, storage};
 use super::kernels::compile;
 use crate::GpuError;
 use crate::state::{read_buffer, workgroups};
-use crate::support::{bind_group, scoped};
+use crate::support::{Scopes, bind_group, scoped};
 
 /// The surface field on the GPU: the same data as [`SurfaceField`], packed
 /// into the two buffers `shaders/shared/surface_field.wgsl` reads.
@@ -99,11 +99,9 @@ pub fn query_field(
         expected: u32::MAX as usize,
         got: n,
     })?;
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let scope = Scopes::push(device);
     let kernel = compile(device, "tests/surface_field", "field_query_test");
-    if let Some(e) = pollster::block_on(scope.pop()) {
-        return Err(e.into());
-    }
+    scope.pop()?;
     let kernel = kernel?;
     let buffers = FieldBuffers::new(device, field)?;
     let mut uniforms = SamplingUniforms::new(&buffers, &SamplingParams::default(), 1.0, count);

@@ -3,6 +3,7 @@
 
 use crate::GpuError;
 use crate::pipelines::CompiledKernel;
+use crate::support::Scopes;
 
 /// One stage-1 kernel (a WGSL entry point), in the order of an iteration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -54,7 +55,7 @@ pub struct SamplingPipelines {
 impl SamplingPipelines {
     /// Compiles every stage-1 kernel for `device`; wgpu errors are returned.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scope = Scopes::push(device);
         let built: Result<Vec<CompiledKernel>, GpuError> = SamplingKernel::ALL
             .into_iter()
             .map(|k| {
@@ -62,9 +63,7 @@ impl SamplingPipelines {
                 compile(device, file, entry)
             })
             .collect();
-        if let Some(error) = pollster::block_on(scope.pop()) {
-            return Err(error.into());
-        }
+        scope.pop()?;
         Ok(Self { kernels: built? })
     }
 

@@ -33,7 +33,7 @@ use tissue_solve::sampling::{
     Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, place_surface_particles, prepare,
 };
 
-use crate::support::scoped;
+use crate::support::{Scopes, scoped};
 use crate::{GpuError, GridPipelines};
 use buffers::{storage, vec4s};
 
@@ -69,13 +69,11 @@ pub fn sample(
     let pipelines = SamplingPipelines::new(device)?;
     let grid = GridPipelines::new(device)?;
     let clock = Instant::now();
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let scope = Scopes::push(device);
     let run = iterate(
         device, queue, &pipelines, &grid, &field, state, params, r0, progress,
     );
-    if let Some(e) = pollster::block_on(scope.pop()) {
-        return Err(e.into());
-    }
+    scope.pop()?;
     let (state, iterations, converged, rebuilds, neighbour_seconds) = run?;
     stages.iterations += clock.elapsed().as_secs_f64() - neighbour_seconds;
     stages.neighbours += neighbour_seconds;
