@@ -152,6 +152,12 @@ pub enum Error {
         /// The defect.
         source: MeshError,
     },
+    /// A particle model that breaks what every part of tissue relies on
+    /// ([`ParticleModel::validate`](crate::ParticleModel::validate)): lengths
+    /// that disagree, an index out of range, a non-finite value, connections
+    /// that are not symmetric.
+    #[error("invalid particle model: {0}")]
+    InvalidModel(String),
     /// A parameter out of range.
     #[error(transparent)]
     Param(#[from] ParamError),

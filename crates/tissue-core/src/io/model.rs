@@ -35,10 +35,11 @@ pub const PARTICLES_ARRAY: &str = "tissue_particles";
 
 /// Writes `model` to `path` as a VTK XML PolyData file (`.vtp`).
 ///
-/// The model is checked first (lengths agree, values finite, radii positive,
-/// indices in range, connections symmetric) so that everything written can be
-/// read back by [`load_model`]; an inconsistent model is refused with
-/// [`Error::Format`] and nothing is written. The extension is not checked;
+/// The model is checked first with [`ParticleModel::validate`] (lengths
+/// agree, values finite, radii positive, indices in range, connections
+/// symmetric) so that everything written can be read back by [`load_model`];
+/// an inconsistent model is refused with [`Error::Format`] and nothing is
+/// written. The extension is not checked;
 /// use `.vtp` so that ParaView recognises the file.
 ///
 /// # Example
@@ -61,7 +62,7 @@ pub const PARTICLES_ARRAY: &str = "tissue_particles";
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn save_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
-    check_model(model)
+    check_writable(model)
         .map_err(|message| format_error(path, format!("cannot write the model: {message}")))?;
     write_file(path, |w| write_model(model, w))
 }
@@ -71,7 +72,8 @@ pub fn save_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
 /// The connections are rebuilt from the line cells with
 /// [`Connections::from_pairs`]. A file that is not a tissue model, or that is
 /// truncated or inconsistent (array lengths, indices out of range, non-finite
-/// values, non-positive radii), is an [`Error::Format`] naming the problem.
+/// values, non-positive radii: what [`ParticleModel::validate`] refuses), is
+/// an [`Error::Format`] naming the problem.
 ///
 /// # Example
 ///
@@ -258,7 +260,7 @@ pub fn save_moved_particles(
         surface: deformed.clone(),
         ..model.clone()
     };
-    check_model(&moved).map_err(|message| format_error(path, message))?;
+    check_writable(&moved).map_err(|message| format_error(path, message))?;
     let displacement: Vec<Vec3> = current
         .iter()
         .zip(&model.positions)
@@ -315,121 +317,27 @@ fn write_file(
 // ---------------------------------------------------------------------------
 // Model consistency: what save refuses and load rejects
 
-/// Everything [`load_model`] would reject in a model, as a message.
-fn check_model(model: &ParticleModel) -> Result<(), String> {
-    let n = model.positions.len();
-    if n == 0 {
-        return Err("the model has no particles".into());
-    }
-    if model.radii.len() != n {
-        return Err(format!("{n} positions but {} radii", model.radii.len()));
-    }
-    if model.attachments.len() != n {
-        return Err(format!(
-            "{n} positions but {} attachments",
-            model.attachments.len()
-        ));
-    }
-    for (i, &p) in model.positions.iter().enumerate() {
-        if !p.is_finite() {
-            return Err(format!("particle {i}: position {p} is not finite"));
-        }
-    }
-    for (i, &r) in model.radii.iter().enumerate() {
-        if !(r.is_finite() && r > 0.0) {
-            return Err(format!(
-                "particle {i}: radius {r} is not a positive finite number"
-            ));
-        }
-    }
-    check_surface(&model.surface)?;
-    let triangles = model.surface.triangles.len();
-    for (i, a) in model.attachments.iter().enumerate() {
-        let Some(a) = a else { continue };
-        if a.triangle as usize >= triangles {
-            return Err(format!(
-                "particle {i}: attached to triangle {} but the surface has {triangles} triangles",
-                a.triangle
-            ));
-        }
-        if !a.barycentric.iter().all(|b| b.is_finite()) {
-            return Err(format!(
-                "particle {i}: barycentric coordinates {:?} are not finite",
-                a.barycentric
-            ));
-        }
-    }
-    check_connections(&model.connections, n)
-}
-
-fn check_surface(surface: &SurfaceMesh) -> Result<(), String> {
-    let vertices = surface.vertices.len();
-    for (v, &p) in surface.vertices.iter().enumerate() {
-        if !p.is_finite() {
-            return Err(format!("surface vertex {v}: position {p} is not finite"));
-        }
-    }
-    if surface.triangles.len() > i32::MAX as usize {
+/// What [`save_model`] and [`save_moved_particles`] refuse: a model that
+/// [`ParticleModel::validate`] refuses, or one with more triangles than the
+/// file's `Int32` `triangle` array can name.
+fn check_writable(model: &ParticleModel) -> Result<(), String> {
+    model.validate().map_err(validation_message)?;
+    if model.surface.triangles.len() > i32::MAX as usize {
         return Err(format!(
             "the surface has {} triangles; the `triangle` array holds at most {}",
-            surface.triangles.len(),
+            model.surface.triangles.len(),
             i32::MAX
         ));
     }
-    for (t, tri) in surface.triangles.iter().enumerate() {
-        if let Some(&v) = tri.iter().find(|&&v| v as usize >= vertices) {
-            return Err(format!(
-                "surface triangle {t} uses vertex {v} but the surface has {vertices} vertices"
-            ));
-        }
-    }
     Ok(())
 }
 
-/// The CSR invariants of [`Connections`]: `n + 1` monotone offsets, rows
-/// sorted strictly ascending, no self-connections, and symmetry. The file
-/// stores each pair once, so an asymmetric row would not survive the trip.
-fn check_connections(c: &Connections, n: usize) -> Result<(), String> {
-    if c.offsets.len() != n + 1 {
-        return Err(format!(
-            "connections have {} row offsets, expected {} (particles + 1)",
-            c.offsets.len(),
-            n + 1
-        ));
+/// The problem [`ParticleModel::validate`] found, to report as the file's.
+fn validation_message(error: Error) -> String {
+    match error {
+        Error::InvalidModel(message) => message,
+        other => other.to_string(),
     }
-    if c.offsets[0] != 0 || c.offsets[n] as usize != c.indices.len() {
-        return Err(format!(
-            "connection offsets run from {} to {}, expected 0 to {} (the number of indices)",
-            c.offsets[0],
-            c.offsets[n],
-            c.indices.len()
-        ));
-    }
-    if let Some(i) = c.offsets.windows(2).position(|w| w[0] > w[1]) {
-        return Err(format!("connection offsets decrease at particle {i}"));
-    }
-    for i in 0..n {
-        let row = c.of(i);
-        for (k, &j) in row.iter().enumerate() {
-            if j as usize >= n {
-                return Err(format!("particle {i} is connected to particle {j} of {n}"));
-            }
-            if j as usize == i {
-                return Err(format!("particle {i} is connected to itself"));
-            }
-            if k > 0 && row[k - 1] >= j {
-                return Err(format!(
-                    "the connections of particle {i} are not sorted ascending without repeats"
-                ));
-            }
-            if c.of(j as usize).binary_search(&(i as u32)).is_err() {
-                return Err(format!(
-                    "particle {i} is connected to {j} but {j} is not connected to {i}"
-                ));
-            }
-        }
-    }
-    Ok(())
 }
 
 fn check_points(points: &[Vec3]) -> Result<(), String> {
@@ -1064,7 +972,7 @@ fn parse_model(text: &str) -> Result<ParticleModel, String> {
         connections: Connections::from_pairs(n, lines.iter().map(|&[i, j]| (i, j))),
         surface,
     };
-    check_model(&model)?;
+    model.validate().map_err(validation_message)?;
     Ok(model)
 }
 
@@ -1462,37 +1370,9 @@ mod tests {
             // Only ASCII bytes are inserted, so the text stays UTF-8.
             let edited = String::from_utf8(bytes).unwrap();
             if let Ok(model) = parse_model(&edited) {
-                check_model(&model).unwrap();
+                model.validate().unwrap();
             }
         }
-    }
-
-    #[test]
-    fn inconsistent_models_are_refused_before_writing() {
-        let mut model = small_model();
-        model.radii.pop();
-        assert!(
-            check_model(&model)
-                .unwrap_err()
-                .contains("4 positions but 3 radii")
-        );
-
-        let mut model = small_model();
-        model.connections.indices[0] = 3; // row 0 becomes [3, 2]: unsorted, asymmetric
-        assert!(check_model(&model).is_err());
-
-        let mut model = small_model();
-        model.attachments[2] = Some(Attachment {
-            triangle: 9,
-            barycentric: [1.0, 0.0, 0.0],
-        });
-        assert!(check_model(&model).unwrap_err().contains("triangle 9"));
-
-        assert!(
-            check_model(&ParticleModel::default())
-                .unwrap_err()
-                .contains("no particles")
-        );
     }
 
     #[test]
