@@ -28,34 +28,19 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// Checks `model` and works out its plan.
+    /// Checks `model` ([`ParticleModel::validate`], and that it has surface
+    /// particles for the surface to move) and works out its plan.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::InvalidModel`] for a model [`ParticleModel::validate`]
+    /// refuses; [`Error::Deformation`] for one without surface particles.
     pub fn new(model: &ParticleModel) -> Result<Self, Error> {
-        let n = model.len();
-        if n == 0 {
-            return Err(Error::Deformation("the model has no particles".into()));
-        }
-        if model.connections.particles() != n {
-            return Err(Error::Deformation(format!(
-                "the model's connections describe {} particles, it has {n}",
-                model.connections.particles()
-            )));
-        }
+        model.validate()?;
         if model.attachments.iter().all(Option::is_none) {
             return Err(Error::Deformation(
                 "the model has no surface particles to follow the surface".into(),
             ));
-        }
-        if let Some(bad) = model
-            .attachments
-            .iter()
-            .flatten()
-            .find(|a| a.triangle as usize >= model.surface.triangles.len())
-        {
-            return Err(Error::Deformation(format!(
-                "a surface particle is attached to triangle {}, the surface has {}",
-                bad.triangle,
-                model.surface.triangles.len()
-            )));
         }
         let mut free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
         // A free particle with no path of connections to a control point has
@@ -160,4 +145,66 @@ fn anchored(connections: &Connections, free: &[bool]) -> Vec<bool> {
         }
     }
     reached
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+
+    use tissue_core::{Attachment, SurfaceMesh};
+
+    use super::*;
+
+    /// A tetrahedron with one interior particle connected to two attached ones.
+    fn small_model() -> ParticleModel {
+        let on = |triangle| {
+            Some(Attachment {
+                triangle,
+                barycentric: [0.5, 0.25, 0.25],
+            })
+        };
+        ParticleModel {
+            positions: vec![
+                Vec3::splat(0.2),
+                Vec3::new(0.25, 0.25, 0.0),
+                Vec3::new(0.3, 0.0, 0.3),
+            ],
+            radii: vec![0.1, 0.05, 0.05],
+            attachments: vec![None, on(0), on(1)],
+            connections: Connections::from_pairs(3, [(0, 1), (0, 2)]),
+            surface: SurfaceMesh::new(
+                vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+                vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+            ),
+        }
+    }
+
+    #[test]
+    fn only_interior_particles_move() {
+        assert_eq!(
+            Plan::new(&small_model()).unwrap().free,
+            [true, false, false]
+        );
+    }
+
+    #[test]
+    fn invalid_model_is_refused_by_its_validation() {
+        let mut model = small_model();
+        model.attachments[2] = Some(Attachment {
+            triangle: 4,
+            barycentric: [1.0, 0.0, 0.0],
+        });
+        assert!(matches!(Plan::new(&model), Err(Error::InvalidModel(_))));
+        let mut model = small_model();
+        model.connections.offsets.pop();
+        assert!(matches!(Plan::new(&model), Err(Error::InvalidModel(_))));
+    }
+
+    #[test]
+    fn model_without_surface_particles_is_refused() {
+        let mut model = small_model();
+        model.attachments = vec![None; 3];
+        let err = Plan::new(&model).unwrap_err();
+        assert!(err.to_string().contains("no surface particles"), "{err}");
+    }
 }
