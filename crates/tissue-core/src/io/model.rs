@@ -16,8 +16,8 @@ use std::str::FromStr;
 use glam::Vec3;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Property};
-use quick_xml::events::Event;
 
+use super::xml::{Element, parse_xml};
 use crate::error::Error;
 use crate::mesh::SurfaceMesh;
 use crate::model::{Attachment, Connections, ParticleModel};
@@ -533,144 +533,7 @@ fn write_values<T: Display>(
 }
 
 // ---------------------------------------------------------------------------
-// Reading the .vtp: a small element tree, then the layout on top of it
-
-/// An XML element with its attributes, text and children.
-#[derive(Debug, Default)]
-struct Element {
-    name: String,
-    attributes: Vec<(String, String)>,
-    text: String,
-    children: Vec<Element>,
-}
-
-impl Element {
-    fn attribute(&self, key: &str) -> Option<&str> {
-        self.attributes
-            .iter()
-            .find(|(k, _)| k == key)
-            .map(|(_, v)| v.as_str())
-    }
-
-    fn child(&self, name: &str) -> Option<&Element> {
-        self.children.iter().find(|c| c.name == name)
-    }
-
-    fn children_named<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Element> {
-        self.children.iter().filter(move |c| c.name == name)
-    }
-
-    /// The child `DataArray` whose `Name` is `name`.
-    fn data_array(&self, name: &str) -> Option<&Element> {
-        self.children_named("DataArray")
-            .find(|a| a.attribute("Name") == Some(name))
-    }
-}
-
-/// 1-based line of byte offset `pos` in `text`.
-fn line_of(text: &str, pos: u64) -> usize {
-    let end = usize::try_from(pos).unwrap_or(usize::MAX).min(text.len());
-    text.as_bytes()[..end]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
-}
-
-fn parse_xml(text: &str) -> Result<Element, String> {
-    let mut reader = quick_xml::Reader::from_str(text);
-    reader.config_mut().expand_empty_elements = true;
-    let mut stack: Vec<Element> = Vec::new();
-    let mut root: Option<Element> = None;
-    loop {
-        let event = reader.read_event().map_err(|e| {
-            format!(
-                "malformed XML at line {}: {e}",
-                line_of(text, reader.error_position())
-            )
-        })?;
-        match event {
-            Event::Start(start) => {
-                let mut element = Element {
-                    name: String::from_utf8_lossy(start.name().as_ref()).into_owned(),
-                    ..Element::default()
-                };
-                for attribute in start.attributes() {
-                    let attribute = attribute.map_err(|e| {
-                        format!(
-                            "malformed XML attribute at line {}: {e}",
-                            line_of(text, reader.buffer_position())
-                        )
-                    })?;
-                    let value = attribute.unescape_value().map_err(|e| {
-                        format!(
-                            "malformed XML attribute at line {}: {e}",
-                            line_of(text, reader.buffer_position())
-                        )
-                    })?;
-                    element.attributes.push((
-                        String::from_utf8_lossy(attribute.key.as_ref()).into_owned(),
-                        value.into_owned(),
-                    ));
-                }
-                if root.is_some() && stack.is_empty() {
-                    return Err(format!(
-                        "malformed XML at line {}: a second root element <{}>",
-                        line_of(text, reader.buffer_position()),
-                        element.name
-                    ));
-                }
-                stack.push(element);
-            }
-            Event::End(_) => {
-                // quick-xml checks that the end tag matches its start tag.
-                let Some(element) = stack.pop() else {
-                    return Err("malformed XML: an end tag without a start tag".into());
-                };
-                match stack.last_mut() {
-                    Some(parent) => parent.children.push(element),
-                    None => root = Some(element),
-                }
-            }
-            Event::Text(t) => {
-                let content = t.unescape().map_err(|e| {
-                    format!(
-                        "malformed XML text at line {}: {e}",
-                        line_of(text, reader.buffer_position())
-                    )
-                })?;
-                match stack.last_mut() {
-                    Some(element) => element.text.push_str(&content),
-                    None if content.trim().is_empty() => {}
-                    None => {
-                        return Err(format!(
-                            "malformed XML at line {}: text outside the root element",
-                            line_of(text, reader.buffer_position())
-                        ));
-                    }
-                }
-            }
-            Event::CData(data) => {
-                if let Some(element) = stack.last_mut() {
-                    element.text.push_str(&String::from_utf8_lossy(&data));
-                }
-            }
-            Event::Eof => break,
-            Event::Empty(_)
-            | Event::Comment(_)
-            | Event::Decl(_)
-            | Event::PI(_)
-            | Event::DocType(_) => {}
-        }
-    }
-    if let Some(open) = stack.last() {
-        return Err(format!(
-            "the file is truncated: element <{}> is never closed",
-            open.name
-        ));
-    }
-    root.ok_or_else(|| "no XML element found".to_string())
-}
+// Reading the .vtp: the layout on the element tree of `xml`
 
 /// The numbers of an ASCII `DataArray`: exactly `tuples` tuples of
 /// `components` values, each parsed as `T`.
