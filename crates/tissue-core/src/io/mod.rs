@@ -2,4 +2,5 @@
 
 pub mod model;
 pub mod surface;
+mod vtp;
 mod xml;

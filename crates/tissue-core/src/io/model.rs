@@ -7,16 +7,18 @@
 //! so what [`load_model`] reads back is bit-identical to what [`save_model`]
 //! wrote. The layout is described in `docs/FORMATS.md`.
 
-use std::fmt::Display;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
-use std::str::FromStr;
 
 use glam::Vec3;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Property};
 
+use super::vtp::{
+    count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
+    write_array, write_cells,
+};
 use super::xml::{Element, parse_xml};
 use crate::error::Error;
 use crate::mesh::SurfaceMesh;
@@ -475,220 +477,8 @@ fn write_poly_data(
     writeln!(w, "</VTKFile>")
 }
 
-/// A cell section of cells with `size` points each (VTK XML offsets are the
-/// end of each cell, without a leading zero).
-fn write_cells<T: Display>(
-    w: &mut dyn Write,
-    section: &str,
-    size: usize,
-    connectivity: impl Iterator<Item = T>,
-) -> io::Result<()> {
-    writeln!(w, "      <{section}>")?;
-    let mut cells = 0;
-    let counted = connectivity.inspect(|_| cells += 1);
-    // One cell a line, except for vertex cells.
-    let per_line = if size > 1 { size } else { 12 };
-    write_values(w, "Int64", "connectivity", 1, per_line, counted)?;
-    let cells = cells / size;
-    write_array(w, "Int64", "offsets", 1, (1..=cells).map(|c| c * size))?;
-    writeln!(w, "      </{section}>")
-}
-
-/// One ASCII `DataArray`, one tuple per line for vectors and a dozen values a
-/// line for scalars.
-fn write_array<T: Display>(
-    w: &mut dyn Write,
-    ty: &str,
-    name: &str,
-    components: usize,
-    values: impl Iterator<Item = T>,
-) -> io::Result<()> {
-    let per_line = if components > 1 { components } else { 12 };
-    write_values(w, ty, name, components, per_line, values)
-}
-
-/// One ASCII `DataArray` with `per_line` values a line. `{}` is Rust's
-/// shortest round-trip formatting, so floats read back bit-exactly.
-fn write_values<T: Display>(
-    w: &mut dyn Write,
-    ty: &str,
-    name: &str,
-    components: usize,
-    per_line: usize,
-    values: impl Iterator<Item = T>,
-) -> io::Result<()> {
-    write!(w, r#"        <DataArray type="{ty}" Name="{name}""#)?;
-    if components > 1 {
-        write!(w, r#" NumberOfComponents="{components}""#)?;
-    }
-    write!(w, r#" format="ascii">"#)?;
-    for (k, value) in values.enumerate() {
-        if k % per_line == 0 {
-            write!(w, "\n          {value}")?;
-        } else {
-            write!(w, " {value}")?;
-        }
-    }
-    writeln!(w, "\n        </DataArray>")
-}
-
 // ---------------------------------------------------------------------------
-// Reading the .vtp: the layout on the element tree of `xml`
-
-/// The numbers of an ASCII `DataArray`: exactly `tuples` tuples of
-/// `components` values, each parsed as `T`.
-fn values<T: FromStr>(
-    array: &Element,
-    what: &str,
-    components: usize,
-    tuples: usize,
-) -> Result<Vec<T>, String> {
-    match array.attribute("format") {
-        None | Some("ascii") => {}
-        Some(other) => {
-            return Err(format!(
-                "{what} is stored as format=\"{other}\"; tissue reads only ASCII arrays \
-                 (to re-save from ParaView, choose Data Mode \"Ascii\")"
-            ));
-        }
-    }
-    let declared = array.attribute("NumberOfComponents").unwrap_or("1");
-    if declared.trim().parse::<usize>().ok() != Some(components) {
-        return Err(format!(
-            "{what} has NumberOfComponents=\"{declared}\", expected {components}"
-        ));
-    }
-    let expected = components
-        .checked_mul(tuples)
-        .ok_or_else(|| format!("{what}: {tuples} tuples is beyond any real file"))?;
-    let mut out = Vec::with_capacity(expected.min(1 << 24));
-    for (k, token) in array.text.split_ascii_whitespace().enumerate() {
-        if k == expected {
-            return Err(format!(
-                "{what} has more than the {expected} values expected ({tuples} × {components})"
-            ));
-        }
-        let value = token
-            .parse()
-            .map_err(|_| format!("{what}: value {k} (`{token}`) is not a valid number"))?;
-        out.push(value);
-    }
-    if out.len() != expected {
-        return Err(format!(
-            "{what} has {} values, expected {expected} ({tuples} × {components})",
-            out.len()
-        ));
-    }
-    Ok(out)
-}
-
-/// A non-negative count attribute of the piece, if present.
-fn count_attribute(piece: &Element, key: &str) -> Result<Option<usize>, String> {
-    piece
-        .attribute(key)
-        .map(|s| {
-            s.trim()
-                .parse()
-                .map_err(|_| format!("the piece's {key}=\"{s}\" is not a count"))
-        })
-        .transpose()
-}
-
-/// The points of the piece, `NumberOfPoints` of them.
-fn piece_points(piece: &Element) -> Result<Vec<Vec3>, String> {
-    let n = count_attribute(piece, "NumberOfPoints")?
-        .ok_or("the piece's NumberOfPoints attribute is missing")?;
-    let array = piece
-        .child("Points")
-        .and_then(|p| p.child("DataArray"))
-        .ok_or("the <Points> array is missing")?;
-    let flat: Vec<f32> = values(array, "Points", 3, n)?;
-    Ok(flat
-        .chunks_exact(3)
-        .map(|c| Vec3::new(c[0], c[1], c[2]))
-        .collect())
-}
-
-/// Cells of `section` (`Verts`, `Lines`, `Polys`), each with exactly `K`
-/// points, all indices below `points`.
-fn piece_cells<const K: usize>(
-    piece: &Element,
-    section: &str,
-    points: usize,
-) -> Result<Vec<[u32; K]>, String> {
-    let attribute = format!("NumberOf{section}");
-    let declared = count_attribute(piece, &attribute)?;
-    let Some(element) = piece.child(section) else {
-        return match declared {
-            Some(d) if d > 0 => Err(format!(
-                "{attribute}=\"{d}\" but there is no <{section}> element"
-            )),
-            _ => Ok(Vec::new()),
-        };
-    };
-    let what = |name: &str| format!("{section} {name}");
-    let offsets_array = element
-        .data_array("offsets")
-        .ok_or_else(|| format!("the {} array is missing", what("offsets")))?;
-    let cells = match declared {
-        Some(d) => d,
-        None => offsets_array.text.split_ascii_whitespace().count(),
-    };
-    let offsets: Vec<i64> = values(offsets_array, &what("offsets"), 1, cells)?;
-    let connectivity_array = element
-        .data_array("connectivity")
-        .ok_or_else(|| format!("the {} array is missing", what("connectivity")))?;
-    let corners = cells
-        .checked_mul(K)
-        .ok_or_else(|| format!("{attribute}=\"{cells}\" is beyond any real file"))?;
-    let connectivity: Vec<i64> = values(connectivity_array, &what("connectivity"), 1, corners)?;
-    let kind = match section {
-        "Verts" => "vertex",
-        "Lines" => "line",
-        _ => "polygon",
-    };
-    let mut out = Vec::with_capacity(cells);
-    for (c, &offset) in offsets.iter().enumerate() {
-        if offset != ((c + 1) * K) as i64 {
-            return Err(format!(
-                "{kind} cell {c} does not have {K} points (offset {offset}); \
-                 a tissue model has only {kind} cells of {K} points"
-            ));
-        }
-        let mut cell = [0_u32; K];
-        for (slot, &index) in cell.iter_mut().zip(&connectivity[c * K..(c + 1) * K]) {
-            *slot = u32::try_from(index)
-                .ok()
-                .filter(|&i| (i as usize) < points)
-                .ok_or_else(|| format!("{kind} cell {c} refers to point {index} of {points}"))?;
-        }
-        out.push(cell);
-    }
-    Ok(out)
-}
-
-/// The `FieldData` array `name`, if present.
-fn field_array<'a>(poly_data: &'a Element, name: &str) -> Option<&'a Element> {
-    poly_data.child("FieldData")?.data_array(name)
-}
-
-/// The single integer in field-data array `array`.
-fn field_integer(array: &Element, name: &str) -> Result<i64, String> {
-    let value: Vec<i64> = values(array, &format!("`{name}`"), 1, 1)?;
-    Ok(value[0])
-}
-
-fn point_array<T: FromStr>(
-    point_data: &Element,
-    name: &str,
-    components: usize,
-    n: usize,
-) -> Result<Vec<T>, String> {
-    let array = point_data
-        .data_array(name)
-        .ok_or_else(|| format!("the PointData array `{name}` is missing"))?;
-    values(array, &format!("`{name}`"), components, n)
-}
+// Reading the .vtp
 
 fn parse_model(text: &str) -> Result<ParticleModel, String> {
     if text.trim().is_empty() {
