@@ -1,4 +1,4 @@
-//! Particle model files (VTK XML PolyData) and point files (CSV, PLY).
+//! Particle model files (VTK XML PolyData).
 //!
 //! A model is written as a `.vtp` that ParaView opens directly: one piece
 //! whose points are the particles followed by the rest surface's vertices,
@@ -7,22 +7,23 @@
 //! so what [`load_model`] reads back is bit-identical to what [`save_model`]
 //! wrote. The layout is described in `docs/FORMATS.md`.
 
-use std::fs::File;
-use std::io::{self, BufWriter, Write};
+use std::io::{self, Write};
 use std::path::Path;
 
 use glam::Vec3;
-use ply_rs_bw::parser::Parser;
-use ply_rs_bw::ply::{DefaultElement, Property};
 
 use super::vtp::{
     count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
     write_array, write_cells,
 };
 use super::xml::{Element, parse_xml};
+use super::{extension, format_error, read_text, write_file};
 use crate::error::Error;
 use crate::mesh::SurfaceMesh;
 use crate::model::{Attachment, Connections, ParticleModel};
+
+// Point files were first here; their old path keeps working.
+pub use super::points::{load_points, save_points};
 
 /// Name of the field-data array that marks a `.vtp` as a tissue model and
 /// carries its format version.
@@ -110,75 +111,6 @@ pub fn load_model(path: &Path) -> Result<ParticleModel, Error> {
     parse_model(&text).map_err(|message| format_error(path, message))
 }
 
-/// Writes particle positions to `path`, in the format its extension names:
-/// `.csv` (header `x,y,z`, one row per point) or `.ply` (ASCII, vertices
-/// only). Other extensions are [`Error::UnsupportedFormat`]; an empty slice or
-/// a non-finite coordinate is refused with [`Error::Format`], since
-/// [`load_points`] would not read the file back.
-///
-/// # Example
-///
-/// ```
-/// use tissue_core::Vec3;
-/// use tissue_core::io::model::{load_points, save_points};
-///
-/// let points = vec![Vec3::new(0.1, 0.2, 0.3), Vec3::new(-1.0, 2.5, 1e-30)];
-/// let dir = tempfile::tempdir()?;
-/// for name in ["points.csv", "points.ply"] {
-///     let path = dir.path().join(name);
-///     save_points(&points, &path)?;
-///     assert_eq!(load_points(&path)?, points);
-/// }
-/// # Ok::<(), Box<dyn std::error::Error>>(())
-/// ```
-pub fn save_points(points: &[Vec3], path: &Path) -> Result<(), Error> {
-    let kind = PointFormat::of(path)?;
-    check_points(points)
-        .map_err(|message| format_error(path, format!("cannot write the points: {message}")))?;
-    match kind {
-        PointFormat::Csv => write_file(path, |w| write_csv(points, w)),
-        PointFormat::Ply => write_file(path, |w| write_ply(points, w)),
-    }
-}
-
-/// Reads points from a `.csv` or `.ply` file (by extension).
-///
-/// CSV: three comma-separated numbers per line, optionally after a header
-/// line `x,y,z`; blank lines are skipped. A row with the wrong number of
-/// columns, a value that is not a number, or a non-finite value is an
-/// [`Error::Format`] naming the line. PLY (ASCII or binary): the `x`, `y`, `z`
-/// properties of the `vertex` element; other elements are ignored. A file with
-/// no points is an error, as is any other extension
-/// ([`Error::UnsupportedFormat`]).
-///
-/// # Example
-///
-/// ```
-/// use tissue_core::Vec3;
-/// use tissue_core::io::model::load_points;
-///
-/// let dir = tempfile::tempdir()?;
-/// let path = dir.path().join("targets.csv");
-/// std::fs::write(&path, "x,y,z\n1,2,3\n4.5,-6,0.25\n")?;
-/// assert_eq!(
-///     load_points(&path)?,
-///     vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(4.5, -6.0, 0.25)]
-/// );
-/// # Ok::<(), Box<dyn std::error::Error>>(())
-/// ```
-pub fn load_points(path: &Path) -> Result<Vec<Vec3>, Error> {
-    match PointFormat::of(path)? {
-        PointFormat::Csv => {
-            let text = read_text(path)?;
-            parse_csv(&text).map_err(|message| format_error(path, message))
-        }
-        PointFormat::Ply => {
-            let bytes = std::fs::read(path).map_err(|source| io_error(path, source))?;
-            parse_ply(&bytes).map_err(|message| format_error(path, message))
-        }
-    }
-}
-
 /// Writes a model in the format the extension of `path` names: `.vtp` is the
 /// full model ([`save_model`]); `.csv` and `.ply` are the particle positions
 /// alone ([`save_points`]), for tools that only want a point cloud. Any other
@@ -193,9 +125,6 @@ pub fn export_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
         }),
     }
 }
-
-// ---------------------------------------------------------------------------
-// Shared helpers
 
 /// Writes a stage-2 result: the particles of `model` where stage 2 moved them
 /// (`current`) and the `deformed` surface, laid out like the model file, with
@@ -272,50 +201,6 @@ pub fn save_moved_particles(
     write_file(path, |w| write_poly_data(&moved, Some(&displacement), w))
 }
 
-fn format_error(path: &Path, message: impl Into<String>) -> Error {
-    Error::Format {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
-}
-
-fn io_error(path: &Path, source: io::Error) -> Error {
-    Error::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
-fn extension(path: &Path) -> Option<String> {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-}
-
-fn read_text(path: &Path) -> Result<String, Error> {
-    let bytes = std::fs::read(path).map_err(|source| io_error(path, source))?;
-    String::from_utf8(bytes).map_err(|e| {
-        format_error(
-            path,
-            format!(
-                "not a text file (invalid UTF-8 at byte {})",
-                e.utf8_error().valid_up_to()
-            ),
-        )
-    })
-}
-
-fn write_file(
-    path: &Path,
-    body: impl FnOnce(&mut dyn Write) -> io::Result<()>,
-) -> Result<(), Error> {
-    let file = File::create(path).map_err(|source| io_error(path, source))?;
-    let mut w = BufWriter::new(file);
-    body(&mut w)
-        .and_then(|()| w.flush())
-        .map_err(|source| io_error(path, source))
-}
-
 // ---------------------------------------------------------------------------
 // Model consistency: what save refuses and load rejects
 
@@ -339,16 +224,6 @@ fn validation_message(error: Error) -> String {
     match error {
         Error::InvalidModel(message) => message,
         other => other.to_string(),
-    }
-}
-
-fn check_points(points: &[Vec3]) -> Result<(), String> {
-    if points.is_empty() {
-        return Err("there are no points".into());
-    }
-    match points.iter().position(|&p| !p.is_finite()) {
-        Some(i) => Err(format!("point {i} = {} is not finite", points[i])),
-        None => Ok(()),
     }
 }
 
@@ -629,148 +504,6 @@ fn parse_model(text: &str) -> Result<ParticleModel, String> {
     Ok(model)
 }
 
-// ---------------------------------------------------------------------------
-// Point files
-
-#[derive(Debug, Clone, Copy)]
-enum PointFormat {
-    Csv,
-    Ply,
-}
-
-impl PointFormat {
-    fn of(path: &Path) -> Result<Self, Error> {
-        match extension(path).as_deref() {
-            Some("csv") => Ok(Self::Csv),
-            Some("ply") => Ok(Self::Ply),
-            _ => Err(Error::UnsupportedFormat {
-                path: path.to_path_buf(),
-                expected: ".csv, .ply",
-            }),
-        }
-    }
-}
-
-fn write_csv(points: &[Vec3], w: &mut dyn Write) -> io::Result<()> {
-    writeln!(w, "x,y,z")?;
-    for p in points {
-        writeln!(w, "{},{},{}", p.x, p.y, p.z)?;
-    }
-    Ok(())
-}
-
-fn write_ply(points: &[Vec3], w: &mut dyn Write) -> io::Result<()> {
-    writeln!(w, "ply")?;
-    writeln!(w, "format ascii 1.0")?;
-    writeln!(w, "comment written by tissue")?;
-    writeln!(w, "element vertex {}", points.len())?;
-    for axis in ["x", "y", "z"] {
-        writeln!(w, "property float {axis}")?;
-    }
-    writeln!(w, "end_header")?;
-    for p in points {
-        writeln!(w, "{} {} {}", p.x, p.y, p.z)?;
-    }
-    Ok(())
-}
-
-/// Three numbers from one CSV line, or why not.
-fn csv_row(line: &str) -> Result<Vec3, String> {
-    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-    if fields.len() != 3 {
-        return Err(format!(
-            "expected 3 comma-separated values (x,y,z), found {}",
-            fields.len()
-        ));
-    }
-    let mut xyz = [0.0_f32; 3];
-    for (slot, field) in xyz.iter_mut().zip(&fields) {
-        let value: f32 = field
-            .parse()
-            .map_err(|_| format!("`{field}` is not a number"))?;
-        if !value.is_finite() {
-            return Err(format!("`{field}` is not a finite number"));
-        }
-        *slot = value;
-    }
-    Ok(Vec3::from_array(xyz))
-}
-
-fn parse_csv(text: &str) -> Result<Vec<Vec3>, String> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut points = Vec::new();
-    let mut seen_row = false;
-    for (k, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() {
-            continue;
-        }
-        let first = !seen_row;
-        seen_row = true;
-        match csv_row(line) {
-            Ok(p) => points.push(p),
-            Err(_) if first && is_csv_header(line) => {}
-            Err(message) => return Err(format!("line {}: {message}", k + 1)),
-        }
-    }
-    if points.is_empty() {
-        return Err("no points in the file".into());
-    }
-    Ok(points)
-}
-
-fn is_csv_header(line: &str) -> bool {
-    let fields: Vec<String> = line
-        .split(',')
-        .map(|f| f.trim().trim_matches('"').to_ascii_lowercase())
-        .collect();
-    fields == ["x", "y", "z"]
-}
-
-fn ply_scalar(property: &Property) -> Option<f32> {
-    Some(match *property {
-        Property::Float(v) => v,
-        Property::Double(v) => v as f32,
-        Property::Char(v) => f32::from(v),
-        Property::UChar(v) => f32::from(v),
-        Property::Short(v) => f32::from(v),
-        Property::UShort(v) => f32::from(v),
-        Property::Int(v) => v as f32,
-        Property::UInt(v) => v as f32,
-        _ => return None,
-    })
-}
-
-fn parse_ply(bytes: &[u8]) -> Result<Vec<Vec3>, String> {
-    let ply = Parser::<DefaultElement>::new()
-        .read_ply(&mut &bytes[..])
-        .map_err(|e| format!("not a readable PLY file: {e}"))?;
-    let vertices = ply
-        .payload
-        .get("vertex")
-        .ok_or("the PLY file has no `vertex` element")?;
-    let mut points = Vec::with_capacity(vertices.len());
-    for (i, vertex) in vertices.iter().enumerate() {
-        let mut xyz = [0.0_f32; 3];
-        for (slot, axis) in xyz.iter_mut().zip(["x", "y", "z"]) {
-            let property = vertex
-                .get(axis)
-                .ok_or_else(|| format!("vertex {i} has no `{axis}` property"))?;
-            *slot = ply_scalar(property)
-                .ok_or_else(|| format!("vertex {i}: `{axis}` is a list, not a number"))?;
-        }
-        let p = Vec3::from_array(xyz);
-        if !p.is_finite() {
-            return Err(format!("vertex {i} = {p} is not finite"));
-        }
-        points.push(p);
-    }
-    if points.is_empty() {
-        return Err("no points in the file".into());
-    }
-    Ok(points)
-}
-
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
@@ -1026,62 +759,5 @@ mod tests {
                 model.validate().unwrap();
             }
         }
-    }
-
-    #[test]
-    fn csv_header_is_optional_and_blank_lines_are_skipped() {
-        let expected = vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(-4.0, 0.5, 6.0)];
-        assert_eq!(parse_csv("x,y,z\n1,2,3\n\n-4, 0.5 ,6\n").unwrap(), expected);
-        assert_eq!(parse_csv("1,2,3\r\n-4,0.5,6\r\n").unwrap(), expected);
-        assert_eq!(
-            parse_csv("\u{feff}\"X\",\"Y\",\"Z\"\n1,2,3\n-4,0.5,6").unwrap(),
-            expected
-        );
-    }
-
-    #[test]
-    fn csv_errors_name_the_line() {
-        assert_eq!(
-            parse_csv("x,y,z\n1,2,3\n1,2\n").unwrap_err(),
-            "line 3: expected 3 comma-separated values (x,y,z), found 2"
-        );
-        assert_eq!(
-            parse_csv("x,y,z\n1,2,3\n1,two,3\n").unwrap_err(),
-            "line 3: `two` is not a number"
-        );
-        assert_eq!(
-            parse_csv("1,2,3\n1,2,NaN\n").unwrap_err(),
-            "line 2: `NaN` is not a finite number"
-        );
-        assert_eq!(
-            parse_csv("a,b,c\n1,2,3\n").unwrap_err(),
-            "line 1: `a` is not a number"
-        );
-        assert_eq!(parse_csv("x,y,z\n").unwrap_err(), "no points in the file");
-    }
-
-    #[test]
-    fn ply_with_doubles_and_extra_properties_is_read() {
-        let text = "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\n\
-                    property double y\nproperty double z\nproperty uchar red\n\
-                    element face 0\nproperty list uchar int vertex_indices\nend_header\n\
-                    1 2 3 255\n0.5 -1 0 0\n";
-        assert_eq!(
-            parse_ply(text.as_bytes()).unwrap(),
-            vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.5, -1.0, 0.0)]
-        );
-    }
-
-    #[test]
-    fn ply_without_vertices_is_rejected() {
-        let text = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\n\
-                    property float y\nproperty float z\nend_header\n";
-        assert_eq!(
-            parse_ply(text.as_bytes()).unwrap_err(),
-            "no points in the file"
-        );
-        let truncated = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n\
-                         property float y\nproperty float z\nend_header\n1 2 3\n";
-        assert!(parse_ply(truncated.as_bytes()).is_err());
     }
 }
