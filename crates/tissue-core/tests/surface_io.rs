@@ -50,24 +50,7 @@ fn tetrahedron() -> SurfaceMesh {
 
 /// A regular octahedron wound counter-clockwise seen from outside.
 fn octahedron() -> SurfaceMesh {
-    let vertices = vec![
-        Vec3::X,
-        Vec3::NEG_X,
-        Vec3::Y,
-        Vec3::NEG_Y,
-        Vec3::Z,
-        Vec3::NEG_Z,
-    ];
-    let triangles = vec![
-        [0, 2, 4],
-        [2, 1, 4],
-        [1, 3, 4],
-        [3, 0, 4],
-        [2, 0, 5],
-        [1, 2, 5],
-        [3, 1, 5],
-        [0, 3, 5],
-    ];
+    let (vertices, triangles) = tissue_testkit::octahedron();
     SurfaceMesh::new(vertices, triangles)
 }
 
@@ -192,12 +175,8 @@ fn shells(mesh: &SurfaceMesh) -> Vec<SurfaceMesh> {
 
 /// Coordinates that are awkward to print: thirds, tiny, huge, negative zero.
 fn awkward_octahedron() -> SurfaceMesh {
-    let mut mesh = octahedron();
-    mesh.vertices[0] = Vec3::new(1.0 / 3.0, 1e-30, -0.0);
-    mesh.vertices[1] = Vec3::new(-123_456.79, 0.1, 2.0 / 7.0);
-    mesh.vertices[2] = Vec3::new(f32::MIN_POSITIVE, 0.7, 1e-7);
-    mesh.vertices[4] = Vec3::new(0.3, 0.2, 3.4e38);
-    mesh
+    let (vertices, triangles) = tissue_testkit::awkward_octahedron();
+    SurfaceMesh::new(vertices, triangles)
 }
 
 #[test]

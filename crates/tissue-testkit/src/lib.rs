@@ -29,6 +29,18 @@ pub fn octahedron() -> (Vec<Vec3>, Vec<[u32; 3]>) {
     (vertices, triangles)
 }
 
+/// The [`octahedron`] with coordinates that are awkward to print and read
+/// back exactly: a third, subnormal-adjacent and huge values, a negative
+/// zero, a value near `f32::MAX`.
+pub fn awkward_octahedron() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let (mut vertices, triangles) = octahedron();
+    vertices[0] = Vec3::new(1.0 / 3.0, 1e-30, -0.0);
+    vertices[1] = Vec3::new(-123_456.79, 0.1, 2.0 / 7.0);
+    vertices[2] = Vec3::new(f32::MIN_POSITIVE, 0.7, 1e-7);
+    vertices[4] = Vec3::new(0.3, 0.2, 3.4e38);
+    (vertices, triangles)
+}
+
 /// A deterministic xorshift stream of numbers in `[-1, 1)`, the same on
 /// every platform, from `seed` (any non-zero value).
 pub fn xorshift(seed: u64) -> impl FnMut() -> f32 {

@@ -381,8 +381,6 @@ fn fan(polygon: &[u32], triangles: &mut Vec<[u32; 3]>) -> Result<(), usize> {
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
 
-    use glam::Vec3;
-
     use super::*;
 
     #[test]
@@ -395,26 +393,8 @@ mod tests {
 
     /// An octahedron with coordinates that are awkward to print.
     fn awkward_octahedron() -> SurfaceMesh {
-        SurfaceMesh::new(
-            vec![
-                Vec3::new(1.0 / 3.0, 1e-30, -0.0),
-                Vec3::new(-123_456.79, 0.1, 2.0 / 7.0),
-                Vec3::new(f32::MIN_POSITIVE, 0.7, 1e-7),
-                Vec3::NEG_Y,
-                Vec3::new(0.3, 0.2, 3.4e38),
-                Vec3::NEG_Z,
-            ],
-            vec![
-                [0, 2, 4],
-                [2, 1, 4],
-                [1, 3, 4],
-                [3, 0, 4],
-                [2, 0, 5],
-                [1, 2, 5],
-                [3, 1, 5],
-                [0, 3, 5],
-            ],
-        )
+        let (vertices, triangles) = tissue_testkit::awkward_octahedron();
+        SurfaceMesh::new(vertices, triangles)
     }
 
     /// Every prefix of a valid file, and the file with each byte replaced by
