@@ -274,13 +274,13 @@ fn check_connections(c: &Connections, n: usize) -> Result<(), String> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 
     use super::*;
 
     /// A tetrahedron with two interior particles and two attached ones.
-    fn small_model() -> ParticleModel {
+    pub(crate) fn small_model() -> ParticleModel {
         let surface = SurfaceMesh::new(
             vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
             vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],

@@ -14,7 +14,8 @@ use tissue_core::field::{Nearest, Side, SurfaceField};
 use tissue_core::{Error, SamplingParams, SurfaceMesh, SurfaceMode};
 pub use tissue_solve::sampling::{
     FIELD_CELL_IN_R0, FIELD_MARGIN_IN_R0, ForceOut, Prepared, Progress, SKIN_IN_R0, Sampled,
-    SamplingState, finish, initial_positions, initial_radius, place_surface_particles, prepare,
+    SamplingState, converged_after, finish, initial_positions, initial_radius,
+    place_surface_particles, prepare,
 };
 
 use crate::grid::neighbour_rows;
@@ -176,25 +177,14 @@ pub fn sample(
         let radii = radius_update(&state.radii, &forces, params);
         let (positions, contact) = integrate(&state, &forces, &field, params, r0);
         let (step_rms, radius_rms) = change(&state, &positions, &contact, &radii, r0);
-        if !(step_rms.is_finite() && radius_rms.is_finite()) {
-            return Err(Error::Sampling(format!(
-                "the particle state became non-finite at iteration {iterations}; \
-                 the parameters make the system unstable"
-            )));
-        }
+        let done = converged_after(iterations, step_rms, radius_rms, params, progress)?;
         state = SamplingState {
             positions,
             radii,
             contact,
         };
         iterations += 1;
-        progress(&Progress {
-            iteration: iterations,
-            max_iterations: params.max_iterations,
-            step_rms,
-            radius_rms,
-        });
-        if step_rms < params.step_tolerance && radius_rms < params.radius_tolerance {
+        if done {
             converged = true;
             break;
         }

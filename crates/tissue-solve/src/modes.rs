@@ -437,12 +437,9 @@ mod tests {
     use super::*;
     use crate::spectrum::laplacian_extremes;
 
-    /// A path of `n` free particles between two fixed ends, whose Laplacian
-    /// has the eigenpairs `2 - 2 cos(k pi / (n + 1))`, `sin(k pi i / (n + 1))`.
+    /// [`tissue_testkit::dirichlet_path`] as connections.
     fn dirichlet_path(n: usize) -> (Connections, Vec<bool>) {
-        let total = n + 2;
-        let pairs = (0..total - 1).map(|i| (i as u32, i as u32 + 1));
-        let free = (0..total).map(|i| i != 0 && i != total - 1).collect();
+        let (total, pairs, free) = tissue_testkit::dirichlet_path(n);
         (Connections::from_pairs(total, pairs), free)
     }
 

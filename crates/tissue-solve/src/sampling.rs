@@ -325,6 +325,32 @@ pub fn place_surface_particles(
     placed.into_iter().unzip()
 }
 
+/// Stage 1's convergence rule, the same on every device, after one more
+/// iteration (`done` before it) whose RMS step of interior particles (in
+/// `r0`) and RMS change of `ln r` are given: reports the progress and says
+/// whether the run has converged; a non-finite change is an error.
+pub fn converged_after(
+    done: usize,
+    step_rms: f32,
+    radius_rms: f32,
+    params: &SamplingParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<bool, Error> {
+    if !(step_rms.is_finite() && radius_rms.is_finite()) {
+        return Err(Error::Sampling(format!(
+            "the particle state became non-finite at iteration {done}; \
+             the parameters make the system unstable"
+        )));
+    }
+    progress(&Progress {
+        iteration: done + 1,
+        max_iterations: params.max_iterations,
+        step_rms,
+        radius_rms,
+    });
+    Ok(step_rms < params.step_tolerance && radius_rms < params.radius_tolerance)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -78,3 +78,14 @@ pub fn cloud(n: usize, seed: u64, scale: Vec3) -> (Vec<Vec3>, Vec<f32>) {
     let radii = (0..n).map(|_| 0.02 + 0.03 * next()).collect();
     (positions, radii)
 }
+
+/// A path of `n` free particles between two fixed ends: the particle count
+/// (`n + 2`), the connected pairs, and which particles are free. Its
+/// Laplacian over the free particles has the eigenpairs
+/// `2 - 2 cos(k pi / (n + 1))`, `sin(k pi i / (n + 1))`.
+pub fn dirichlet_path(n: usize) -> (usize, Vec<(u32, u32)>, Vec<bool>) {
+    let total = n + 2;
+    let pairs = (0..total as u32 - 1).map(|i| (i, i + 1)).collect();
+    let free = (0..total).map(|i| i != 0 && i != total - 1).collect();
+    (total, pairs, free)
+}

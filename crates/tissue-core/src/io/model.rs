@@ -509,37 +509,7 @@ mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 
     use super::*;
-
-    /// A tetrahedron with two interior particles and two attached ones.
-    fn small_model() -> ParticleModel {
-        let surface = SurfaceMesh::new(
-            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
-            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-        );
-        ParticleModel {
-            positions: vec![
-                Vec3::splat(0.2),
-                Vec3::new(0.1, 0.15, 0.1),
-                Vec3::new(0.25, 0.25, 0.0),
-                Vec3::new(0.3, 0.0, 0.3),
-            ],
-            radii: vec![0.1, 0.1, 0.05, 0.05],
-            attachments: vec![
-                None,
-                None,
-                Some(Attachment {
-                    triangle: 0,
-                    barycentric: [0.5, 0.25, 0.25],
-                }),
-                Some(Attachment {
-                    triangle: 1,
-                    barycentric: [0.4, 0.3, 0.3],
-                }),
-            ],
-            connections: Connections::from_pairs(4, [(0, 1), (0, 2), (1, 3), (2, 3)]),
-            surface,
-        }
-    }
+    use crate::model::tests::small_model;
 
     fn model_text(model: &ParticleModel) -> String {
         let mut bytes = Vec::new();

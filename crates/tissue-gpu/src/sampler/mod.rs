@@ -30,7 +30,8 @@ use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_solve::quality::quality_report;
 use tissue_solve::sampling::{
-    Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, place_surface_particles, prepare,
+    Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after,
+    place_surface_particles, prepare,
 };
 
 use crate::support::{Scopes, scoped};
@@ -174,20 +175,9 @@ fn iterate(
         let mut stop_after = None;
         for (k, &row) in sums.iter().take(ran as usize).enumerate() {
             let (step_rms, radius_rms) = finish_change(row, n, r0);
-            if !(step_rms.is_finite() && radius_rms.is_finite()) {
-                return Err(GpuError::Model(tissue_core::Error::Sampling(format!(
-                    "the particle state became non-finite at iteration {iterations}; \
-                     the parameters make the system unstable"
-                ))));
-            }
+            let done = converged_after(iterations, step_rms, radius_rms, params, progress)?;
             iterations += 1;
-            progress(&Progress {
-                iteration: iterations,
-                max_iterations: params.max_iterations,
-                step_rms,
-                radius_rms,
-            });
-            if step_rms < params.step_tolerance && radius_rms < params.radius_tolerance {
+            if done {
                 converged = true;
                 stop_after = Some(k as u32 + 1);
                 break;
