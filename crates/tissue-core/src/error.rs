@@ -6,14 +6,14 @@ use thiserror::Error;
 
 /// A parameter out of its range.
 #[derive(Debug, Clone, PartialEq, Error)]
-#[error("parameter `{name}` is {value}, expected {expected}")]
+#[error("parameter {name} is {value}, expected {expected}")]
 pub struct ParamError {
-    /// The parameter's name, as in `SamplingParams`.
+    /// The parameter's name, as its field in `SamplingParams` or `DeformParams`.
     pub name: &'static str,
     /// The value given, as written by Rust's shortest round-trip formatting.
     pub value: String,
     /// What it should be.
-    pub expected: &'static str,
+    pub expected: String,
 }
 
 /// A surface mesh that cannot be used: what is wrong, how often, and one place.

@@ -149,7 +149,7 @@ impl SamplingParams {
                 Err(ParamError {
                     name,
                     value: value.to_string(),
-                    expected,
+                    expected: expected.to_owned(),
                 })
             }
         }

@@ -2,7 +2,7 @@
 //! the defaults.
 
 use serde::{Deserialize, Serialize};
-use tissue_core::Error;
+use tissue_core::ParamError;
 
 /// Which force model stage 2 uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -114,51 +114,60 @@ impl Default for DeformParams {
 
 impl DeformParams {
     /// Checks every parameter, naming the first that is out of range.
-    pub fn validate(&self) -> Result<(), Error> {
-        let bad = |what: &str| Err(Error::Deformation(format!("deformation parameter {what}")));
-        if !(self.step_fraction > 0.0 && self.step_fraction < 1.0) {
-            return bad(&format!(
-                "step_fraction is {}, expected in (0, 1)",
-                self.step_fraction
-            ));
-        }
-        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
-            return bad(&format!(
-                "tolerance is {}, expected a positive number",
-                self.tolerance
-            ));
-        }
-        if self.history > MAX_HISTORY {
-            return bad(&format!(
-                "history is {}, expected 0 to {MAX_HISTORY} frames",
-                self.history
-            ));
-        }
-        if self.deflation > MAX_DEFLATION {
-            return bad(&format!(
-                "deflation is {}, expected 0 to {MAX_DEFLATION} modes",
-                self.deflation
-            ));
-        }
-        if !(self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse)) {
-            return bad(&format!(
-                "coarse is {}, expected 0 (off) or a cell of 1 to 1000 mean connection lengths",
-                self.coarse
-            ));
-        }
-        if !(1..=MAX_COARSE_AGGREGATES).contains(&self.coarse_max_aggregates) {
-            return bad(&format!(
-                "coarse_max_aggregates is {}, expected 1 to {MAX_COARSE_AGGREGATES}",
-                self.coarse_max_aggregates
-            ));
-        }
-        if self.max_iterations == 0 || self.max_iterations > 10_000_000 {
-            return bad(&format!(
-                "max_iterations is {}, expected 1 to 10,000,000",
-                self.max_iterations
-            ));
-        }
-        Ok(())
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let check = |ok: bool, name, value: &dyn std::fmt::Display, expected: String| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ParamError {
+                    name,
+                    value: value.to_string(),
+                    expected,
+                })
+            }
+        };
+        check(
+            self.step_fraction > 0.0 && self.step_fraction < 1.0,
+            "step_fraction",
+            &self.step_fraction,
+            "in (0, 1)".into(),
+        )?;
+        check(
+            self.tolerance > 0.0 && self.tolerance.is_finite(),
+            "tolerance",
+            &self.tolerance,
+            "a positive number".into(),
+        )?;
+        check(
+            self.history <= MAX_HISTORY,
+            "history",
+            &self.history,
+            format!("0 to {MAX_HISTORY} frames"),
+        )?;
+        check(
+            self.deflation <= MAX_DEFLATION,
+            "deflation",
+            &self.deflation,
+            format!("0 to {MAX_DEFLATION} modes"),
+        )?;
+        check(
+            self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse),
+            "coarse",
+            &self.coarse,
+            "0 (off) or a cell of 1 to 1000 mean connection lengths".into(),
+        )?;
+        check(
+            (1..=MAX_COARSE_AGGREGATES).contains(&self.coarse_max_aggregates),
+            "coarse_max_aggregates",
+            &self.coarse_max_aggregates,
+            format!("1 to {MAX_COARSE_AGGREGATES}"),
+        )?;
+        check(
+            (1..=10_000_000).contains(&self.max_iterations),
+            "max_iterations",
+            &self.max_iterations,
+            "1 to 10,000,000".into(),
+        )
     }
 }
 
@@ -195,6 +204,16 @@ mod tests {
             ..DeformParams::default()
         });
         assert!(err.contains("history is 17"), "{err}");
+        // A typed error, as the sampling parameters have: the field it names.
+        let typed = DeformParams {
+            history: MAX_HISTORY + 1,
+            ..DeformParams::default()
+        }
+        .validate();
+        assert!(
+            matches!(&typed, Err(ParamError { name: "history", value, .. }) if value == "17"),
+            "{typed:?}"
+        );
     }
 
     #[test]

@@ -121,7 +121,7 @@ impl<D: SolveDevice> Tracker<D> {
         params: DeformParams,
         prepare: impl FnOnce(&Plan, &DeformParams) -> Result<D, E>,
     ) -> Result<Self, E> {
-        params.validate()?;
+        params.validate().map_err(Error::from)?;
         let plan = Plan::new(model)?;
         let device = prepare(&plan, &params)?;
         let attachments = model
