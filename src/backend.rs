@@ -109,7 +109,7 @@ impl fmt::Display for Picked {
 }
 
 /// `error`, with what was being done; the model's own errors pass unchanged.
-pub fn gpu_error(context: impl Into<String>, error: GpuError) -> Error {
+pub(crate) fn gpu_error(context: impl Into<String>, error: GpuError) -> Error {
     match error {
         GpuError::Model(e) => e,
         other => Error::Gpu {

@@ -24,9 +24,27 @@ pub use tissue_core::io::model::{export_model, load_model, load_points, save_mod
 pub use tissue_core::io::surface::{load_closed_surface, load_surface, save_surface, weld};
 pub use tissue_core::validate::{Validation, validate};
 pub use tissue_core::*;
-pub use tissue_cpu::{Progress, Sampled, deformation, structures};
+pub use tissue_solve::sampling::{Progress, Sampled};
+pub use tissue_solve::structures;
 
 pub mod backend;
+
+/// Stage 2: the deformer (the CPU path; [`backend::Solver`] runs it on the
+/// chosen device), its parameters and its report.
+pub mod deformation {
+    pub use tissue_cpu::deformation::Deformer;
+    pub use tissue_solve::{DeformParams, DeformReport, ForceModel, RotationMethod, StopReason};
+}
+
+/// Under the facade, for tools and research code that need the parts:
+/// the device-neutral algorithm (plan, acceleration, prediction, modes,
+/// the tracker), and each device's kernels and buffers. These change more
+/// freely than the rest of the API.
+pub mod advanced {
+    pub use tissue_cpu as cpu;
+    pub use tissue_gpu as gpu;
+    pub use tissue_solve as solve;
+}
 
 /// Stage 1: fills a closed surface with `params.particles` particles relaxed
 /// to the paper's uniform state, and reports their quality.
