@@ -285,12 +285,12 @@ impl GpuSolver {
 
 /// Points bound to the particles, ready to be carried on the solver's device.
 #[derive(Debug)]
-pub struct Carrier {
+pub struct BoundPoints {
     embedding: Embedding,
     gpu: Option<GpuEmbedding>,
 }
 
-impl Carrier {
+impl BoundPoints {
     /// The points at rest.
     pub fn rest(&self) -> &[Vec3] {
         &self.embedding.points
@@ -387,7 +387,7 @@ impl Solver {
 
     /// Binds `points` (rest coordinates) to the rest particles, and on the
     /// GPU uploads the binding.
-    pub fn bind(&self, points: &[Vec3]) -> Result<Carrier, Error> {
+    pub fn bind(&self, points: &[Vec3]) -> Result<BoundPoints, Error> {
         let embedding = Embedding::new(self.rest(), points);
         let gpu = match self {
             Self::Cpu(_) => None,
@@ -401,12 +401,12 @@ impl Solver {
                 .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
             ),
         };
-        Ok(Carrier { embedding, gpu })
+        Ok(BoundPoints { embedding, gpu })
     }
 
-    /// Where `carrier`'s points are after the last solve.
-    pub fn carry(&self, carrier: &Carrier) -> Result<Vec<Vec3>, Error> {
-        match (self, &carrier.gpu) {
+    /// Where `bound`'s points are after the last solve.
+    pub fn carry(&self, bound: &BoundPoints) -> Result<Vec<Vec3>, Error> {
+        match (self, &bound.gpu) {
             (Self::Gpu(gpu), Some(on_gpu)) => on_gpu
                 .moved(
                     &gpu.device,
@@ -416,7 +416,7 @@ impl Solver {
                 )
                 .map_err(|e| gpu_error(format!("carrying points on {}", gpu.name), e)),
             (Self::Cpu(cpu), None) => {
-                Ok(carrier
+                Ok(bound
                     .embedding
                     .moved(cpu.rest(), cpu.positions(), cpu.rotations()))
             }

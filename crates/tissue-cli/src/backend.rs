@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::ValueEnum;
 
-pub use tissue::backend::{Carrier, Device, Solver};
+pub use tissue::backend::{BoundPoints, Device, Solver};
 
 /// Where the work runs (the command line's spelling of [`tissue::backend::Backend`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

@@ -10,7 +10,7 @@ use serde::Serialize;
 use tissue::SurfaceMesh;
 use tissue::structures::{RigidBinding, RigidMotion};
 
-use crate::backend::{Carrier, Solver};
+use crate::backend::{BoundPoints, Solver};
 use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
 
 /// Options naming what to carry, shared by `deform` and `track`.
@@ -54,9 +54,9 @@ impl Kind {
 #[derive(Debug)]
 enum Binding {
     /// Every vertex carried.
-    Deformable(Carrier),
+    Deformable(BoundPoints),
     /// The centre carried, the rotation fitted to the particles around it.
-    Rigid(RigidBinding, Carrier),
+    Rigid(RigidBinding, BoundPoints),
 }
 
 /// One internal structure, bound at rest.
@@ -75,7 +75,7 @@ pub struct Structure {
 pub struct Points {
     /// Where they came from.
     pub source: String,
-    carrier: Carrier,
+    carrier: BoundPoints,
 }
 
 /// Everything the particles carry.
