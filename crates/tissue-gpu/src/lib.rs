@@ -32,7 +32,7 @@ pub mod timing;
 
 pub use deformer::{GpuDeformer, GpuSolve};
 pub use grid::{GpuGrid, GpuRows, GridPipelines};
-pub use pipelines::{Kernel, Pipelines};
+pub use pipelines::{Kernel, KernelId, KernelSet, Pipelines};
 pub use sampler::SamplingPipelines;
 pub use state::{DeformState, SLOTS};
 pub use structures::{EmbeddingKernel, GpuEmbedding};

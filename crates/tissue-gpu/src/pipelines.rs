@@ -105,58 +105,73 @@ pub(crate) struct CompiledKernel {
     pub(crate) workgroup_size: u32,
 }
 
-/// The compiled stage-2 kernels, one field per kernel, built once per device.
-#[derive(Debug)]
-pub struct Pipelines {
-    pub(crate) local_rotations: CompiledKernel,
-    pub(crate) deformation_force: CompiledKernel,
-    pub(crate) integrate: CompiledKernel,
-    pub(crate) step_norms: CompiledKernel,
-    pub(crate) chebyshev: CompiledKernel,
-    pub(crate) deflate_project: CompiledKernel,
-    pub(crate) deflate_gains: CompiledKernel,
-    pub(crate) deflate_apply: CompiledKernel,
+/// A family of kernels: WGSL entry points named by an enum whose
+/// declaration order is the order of its per-kernel tables.
+pub trait KernelId: Copy + std::fmt::Debug + 'static {
+    /// Every kernel of the family, in the order of its tables.
+    const KERNELS: &'static [Self];
+
+    /// `(shader file, entry point)`.
+    fn entry(self) -> (&'static str, &'static str);
+
+    /// Position in [`KernelId::KERNELS`].
+    fn index(self) -> usize;
 }
 
-impl Pipelines {
-    /// Compiles every kernel for `device`; any wgpu error is returned, not panicked on.
+/// The compiled kernels of one family, one per kernel, built once per
+/// device: stage 2's ([`Pipelines`]) and stage 1's
+/// ([`crate::SamplingPipelines`]).
+#[derive(Debug)]
+pub struct KernelSet<K> {
+    kernels: Vec<CompiledKernel>,
+    family: std::marker::PhantomData<K>,
+}
+
+impl<K: KernelId> KernelSet<K> {
+    /// Compiles every kernel of the family for `device` (uniforms bound with
+    /// a dynamic offset); any wgpu error is returned, not panicked on.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
         let scope = Scopes::push(device);
-        let built = (|| {
-            Ok::<_, GpuError>(Self {
-                local_rotations: compile(device, Kernel::LocalRotations)?,
-                deformation_force: compile(device, Kernel::DeformationForce)?,
-                integrate: compile(device, Kernel::Integrate)?,
-                step_norms: compile(device, Kernel::StepNorms)?,
-                chebyshev: compile(device, Kernel::Chebyshev)?,
-                deflate_project: compile(device, Kernel::DeflateProject)?,
-                deflate_gains: compile(device, Kernel::DeflateGains)?,
-                deflate_apply: compile(device, Kernel::DeflateApply)?,
+        let built: Result<Vec<CompiledKernel>, GpuError> = K::KERNELS
+            .iter()
+            .map(|k| {
+                let (file, entry) = k.entry();
+                crate::support::compile(device, file, entry, true)
             })
-        })();
+            .collect();
         scope.pop()?;
-        built
+        Ok(Self {
+            kernels: built?,
+            family: std::marker::PhantomData,
+        })
     }
 
-    pub(crate) fn kernel(&self, kernel: Kernel) -> &CompiledKernel {
-        match kernel {
-            Kernel::LocalRotations => &self.local_rotations,
-            Kernel::DeformationForce => &self.deformation_force,
-            Kernel::Integrate => &self.integrate,
-            // The same pipeline; the state binds the update's buffers.
-            Kernel::StepNorms | Kernel::UpdateNorms => &self.step_norms,
-            Kernel::Chebyshev => &self.chebyshev,
-            Kernel::DeflateProject => &self.deflate_project,
-            Kernel::DeflateGains => &self.deflate_gains,
-            Kernel::DeflateApply => &self.deflate_apply,
-        }
+    pub(crate) fn kernel(&self, kernel: K) -> &CompiledKernel {
+        &self.kernels[kernel.index()]
     }
 
     /// Threads per workgroup of `kernel`, as its module declares.
-    pub fn workgroup_size(&self, kernel: Kernel) -> u32 {
+    pub fn workgroup_size(&self, kernel: K) -> u32 {
         self.kernel(kernel).workgroup_size
     }
+}
 
+impl KernelId for Kernel {
+    const KERNELS: &'static [Self] = &Kernel::ALL;
+
+    fn entry(self) -> (&'static str, &'static str) {
+        Kernel::entry(self)
+    }
+
+    fn index(self) -> usize {
+        Kernel::index(self)
+    }
+}
+
+/// The compiled stage-2 kernels, built once per device.
+pub type Pipelines = KernelSet<Kernel>;
+
+impl Pipelines {
     /// Records one dispatch of `kernel` over every particle, with the
     /// parameters of `slot` (see [`DeformState::write_params`]).
     pub fn dispatch(
@@ -224,21 +239,23 @@ impl Pipelines {
     }
 }
 
-fn compile(device: &wgpu::Device, kernel: Kernel) -> Result<CompiledKernel, GpuError> {
-    let (file, entry) = kernel.entry();
-    crate::support::compile(device, file, entry, true)
-}
-
 #[cfg(test)]
 mod tests {
-    use super::Kernel;
+    use super::{Kernel, KernelId};
+    use crate::sampler::SamplingKernel;
 
-    /// `index` is the declaration order; the per-kernel tables are in
-    /// `Kernel::ALL` order, so the two must agree.
-    #[test]
-    fn every_kernel_indexes_its_place_in_all() {
-        for (i, kernel) in Kernel::ALL.into_iter().enumerate() {
+    /// `index` is the declaration order; the per-kernel tables (the
+    /// compiled set, bind groups, workgroups) are in `KERNELS` order, so the
+    /// two must agree in every family.
+    fn assert_indexed<K: KernelId>() {
+        for (i, kernel) in K::KERNELS.iter().enumerate() {
             assert_eq!(kernel.index(), i, "{kernel:?}");
         }
+    }
+
+    #[test]
+    fn every_kernel_indexes_its_place_in_its_family() {
+        assert_indexed::<Kernel>();
+        assert_indexed::<SamplingKernel>();
     }
 }

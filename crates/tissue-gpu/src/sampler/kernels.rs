@@ -2,8 +2,7 @@
 //! their compiled pipelines.
 
 use crate::GpuError;
-use crate::pipelines::CompiledKernel;
-use crate::support::Scopes;
+use crate::pipelines::{CompiledKernel, KernelId, KernelSet};
 
 /// One stage-1 kernel (a WGSL entry point), in the order of an iteration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,36 +45,20 @@ impl SamplingKernel {
     }
 }
 
-/// The compiled stage-1 kernels, one field per kernel, built once per device.
-#[derive(Debug)]
-pub struct SamplingPipelines {
-    kernels: Vec<CompiledKernel>,
-}
+impl KernelId for SamplingKernel {
+    const KERNELS: &'static [Self] = &SamplingKernel::ALL;
 
-impl SamplingPipelines {
-    /// Compiles every stage-1 kernel for `device`; wgpu errors are returned.
-    pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scope = Scopes::push(device);
-        let built: Result<Vec<CompiledKernel>, GpuError> = SamplingKernel::ALL
-            .into_iter()
-            .map(|k| {
-                let (file, entry) = k.entry();
-                compile(device, file, entry)
-            })
-            .collect();
-        scope.pop()?;
-        Ok(Self { kernels: built? })
+    fn entry(self) -> (&'static str, &'static str) {
+        SamplingKernel::entry(self)
     }
 
-    pub(super) fn kernel(&self, kernel: SamplingKernel) -> &CompiledKernel {
-        &self.kernels[kernel.index()]
-    }
-
-    /// Threads per workgroup of `kernel`, as its module declares.
-    pub fn workgroup_size(&self, kernel: SamplingKernel) -> u32 {
-        self.kernel(kernel).workgroup_size
+    fn index(self) -> usize {
+        SamplingKernel::index(self)
     }
 }
+
+/// The compiled stage-1 kernels, built once per device.
+pub type SamplingPipelines = KernelSet<SamplingKernel>;
 
 /// A compute pipeline of `file::entry`, uniforms bound with a dynamic offset.
 pub(super) fn compile(
