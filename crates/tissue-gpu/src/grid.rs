@@ -42,9 +42,9 @@ use tissue_solve::grid::Grid;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
-use crate::pipelines::CompiledKernel;
+use crate::pipelines::{CompiledKernel, KernelId, KernelSet};
 use crate::state::{read_buffer, workgroups};
-use crate::support::{self, Scopes, bind_group, compile};
+use crate::support::{self, Scopes, bind_group};
 
 /// Mirror of WGSL `GridParams` (`shaders/shared/grid.wgsl`).
 #[repr(C)]
@@ -87,29 +87,87 @@ pub struct GridLayout {
     pub status: u32,
 }
 
-/// A kernel of the grid: its entry point's name and compiled pipeline (its
-/// own bind group layout holds only the bindings the entry point uses).
-#[derive(Debug)]
-struct GridKernel {
-    entry: &'static str,
-    compiled: CompiledKernel,
+/// A kernel of the grid and neighbour rows (a WGSL entry point of
+/// `grid_build.wgsl` or `neighbour_rows.wgsl`; its own bind group layout
+/// holds only the bindings the entry point uses).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GridKernel {
+    /// Bounds of the particles, by u32 atomics.
+    GridBounds,
+    /// The grid's origin, cell and dimensions, in one invocation.
+    GridLayout,
+    /// Particles per cell.
+    CellCount,
+    /// One level of the prefix sum: each block's sums.
+    ScanBlocks,
+    /// One level of the prefix sum: the blocks' offsets added back.
+    ScanAdd,
+    /// Particles into their cells.
+    CellScatter,
+    /// Each cell's run made ascending.
+    CellSort,
+    /// Particles in grid-cell order.
+    Reorder,
+    /// Entries per neighbour row.
+    CountRows,
+    /// The rows' entries.
+    FillRows,
+    /// Each row made ascending.
+    SortRows,
 }
 
-/// The compiled grid and neighbour-row kernels, one field per kernel.
-#[derive(Debug)]
-pub struct GridPipelines {
-    grid_bounds: GridKernel,
-    grid_layout: GridKernel,
-    cell_count: GridKernel,
-    scan_blocks: GridKernel,
-    scan_add: GridKernel,
-    cell_scatter: GridKernel,
-    cell_sort: GridKernel,
-    reorder: GridKernel,
-    count_rows: GridKernel,
-    fill_rows: GridKernel,
-    sort_rows: GridKernel,
+impl GridKernel {
+    /// Every grid kernel, in the order of the compiled set.
+    pub const ALL: [GridKernel; 11] = [
+        GridKernel::GridBounds,
+        GridKernel::GridLayout,
+        GridKernel::CellCount,
+        GridKernel::ScanBlocks,
+        GridKernel::ScanAdd,
+        GridKernel::CellScatter,
+        GridKernel::CellSort,
+        GridKernel::Reorder,
+        GridKernel::CountRows,
+        GridKernel::FillRows,
+        GridKernel::SortRows,
+    ];
 }
+
+impl KernelId for GridKernel {
+    const KERNELS: &'static [Self] = &GridKernel::ALL;
+    const DYNAMIC_UNIFORM: bool = false;
+
+    fn entry(self) -> (&'static str, &'static str) {
+        let entry = match self {
+            GridKernel::GridBounds => "grid_bounds",
+            GridKernel::GridLayout => "grid_layout",
+            GridKernel::CellCount => "cell_count",
+            GridKernel::ScanBlocks => "scan_blocks",
+            GridKernel::ScanAdd => "scan_add",
+            GridKernel::CellScatter => "cell_scatter",
+            GridKernel::CellSort => "cell_sort",
+            GridKernel::Reorder => "reorder",
+            GridKernel::CountRows => "count_rows",
+            GridKernel::FillRows => "fill_rows",
+            GridKernel::SortRows => "sort_rows",
+        };
+        let file = match self {
+            GridKernel::Reorder
+            | GridKernel::CountRows
+            | GridKernel::FillRows
+            | GridKernel::SortRows => "neighbour_rows",
+            _ => "grid_build",
+        };
+        (file, entry)
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// The compiled grid and neighbour-row kernels, built once per device.
+pub type GridPipelines = KernelSet<GridKernel>;
 
 /// A grid on the GPU. Valid once the queue has run the build (the buffers
 /// are used in submission order); the layout is only on the GPU.
@@ -144,37 +202,13 @@ pub struct GpuRows {
 type Named<'a> = [(&'a str, &'a wgpu::Buffer)];
 
 /// One recorded dispatch: kernel, its bind group, workgroups `[x, y]`.
-type Step<'a> = (&'a GridKernel, wgpu::BindGroup, [u32; 2]);
+type Step<'a> = (&'a CompiledKernel, wgpu::BindGroup, [u32; 2]);
 
 impl GridPipelines {
-    /// Compiles every grid kernel for `device`; wgpu errors are returned.
-    pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scope = Scopes::push(device);
-        let built = (|| {
-            let grid = Compiler::new(device, "grid_build")?;
-            let rows = Compiler::new(device, "neighbour_rows")?;
-            Ok::<_, GpuError>(Self {
-                grid_bounds: grid.kernel("grid_bounds")?,
-                grid_layout: grid.kernel("grid_layout")?,
-                cell_count: grid.kernel("cell_count")?,
-                scan_blocks: grid.kernel("scan_blocks")?,
-                scan_add: grid.kernel("scan_add")?,
-                cell_scatter: grid.kernel("cell_scatter")?,
-                cell_sort: grid.kernel("cell_sort")?,
-                reorder: rows.kernel("reorder")?,
-                count_rows: rows.kernel("count_rows")?,
-                fill_rows: rows.kernel("fill_rows")?,
-                sort_rows: rows.kernel("sort_rows")?,
-            })
-        })();
-        scope.pop()?;
-        built
-    }
-
     /// Levels of the prefix sum over `len` elements (one workgroup's block
     /// per element of the next level, until one block remains).
     pub fn scan_levels(&self, len: u32) -> u32 {
-        scan_lengths(len, self.scan_blocks.compiled.workgroup_size).len() as u32
+        scan_lengths(len, self.workgroup_size(GridKernel::ScanBlocks)).len() as u32
     }
 
     /// Sorts the first `count` particles of `positions` (`vec4`: xyz
@@ -279,7 +313,7 @@ impl GridPipelines {
                 ("indices", &placeholder),
             ];
             let mut steps = Vec::new();
-            for kernel in [&self.reorder, &self.count_rows] {
+            for kernel in [GridKernel::Reorder, GridKernel::CountRows] {
                 steps.push(self.step(device, kernel, named, count, &limits)?);
             }
             let scan = self.scan_steps(device, &offsets, count + 1, &limits)?;
@@ -316,9 +350,9 @@ impl GridPipelines {
                 ("offsets", &offsets),
                 ("indices", &indices),
             ];
-            let mut steps = vec![self.step(device, &self.fill_rows, named, count, &limits)?];
+            let mut steps = vec![self.step(device, GridKernel::FillRows, named, count, &limits)?];
             if sorted {
-                steps.push(self.step(device, &self.sort_rows, named, count, &limits)?);
+                steps.push(self.step(device, GridKernel::SortRows, named, count, &limits)?);
             }
             let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("neighbour_rows fill"),
@@ -433,13 +467,13 @@ impl GridPipelines {
             ("particles", &particles),
         ];
         let mut steps = vec![
-            self.step(device, &self.grid_bounds, named, count, &limits)?,
-            self.step(device, &self.grid_layout, named, 1, &limits)?,
-            self.step(device, &self.cell_count, named, count, &limits)?,
+            self.step(device, GridKernel::GridBounds, named, count, &limits)?,
+            self.step(device, GridKernel::GridLayout, named, 1, &limits)?,
+            self.step(device, GridKernel::CellCount, named, count, &limits)?,
         ];
         steps.extend(self.scan_steps(device, &cell_start, starts, &limits)?);
-        steps.push(self.step(device, &self.cell_scatter, named, count, &limits)?);
-        steps.push(self.step(device, &self.cell_sort, named, count, &limits)?);
+        steps.push(self.step(device, GridKernel::CellScatter, named, count, &limits)?);
+        steps.push(self.step(device, GridKernel::CellSort, named, count, &limits)?);
         encoder.clear_buffer(&bounds, 0, None);
         encoder.clear_buffer(&cell_start, 0, None);
         record(encoder, "grid_build", steps);
@@ -461,7 +495,7 @@ impl GridPipelines {
         len: u32,
         limits: &wgpu::Limits,
     ) -> Result<Vec<Step<'_>>, GpuError> {
-        let lengths = scan_lengths(len, self.scan_blocks.compiled.workgroup_size);
+        let lengths = scan_lengths(len, self.workgroup_size(GridKernel::ScanBlocks));
         // Level k's data is level k - 1's block totals; the last level's
         // single total goes to a spare word.
         let mut levels = vec![data.clone()];
@@ -488,7 +522,7 @@ impl GridPipelines {
                 ("scan_data", &levels[k]),
                 ("scan_sums", &levels[k + 1]),
             ];
-            steps.push(self.step(device, &self.scan_blocks, named, n, limits)?);
+            steps.push(self.step(device, GridKernel::ScanBlocks, named, n, limits)?);
         }
         for (k, &n) in lengths.iter().enumerate().rev().skip(1) {
             let named: &Named = &[
@@ -496,24 +530,26 @@ impl GridPipelines {
                 ("scan_data", &levels[k]),
                 ("scan_sums", &levels[k + 1]),
             ];
-            steps.push(self.step(device, &self.scan_add, named, n, limits)?);
+            steps.push(self.step(device, GridKernel::ScanAdd, named, n, limits)?);
         }
         Ok(steps)
     }
 
     /// One dispatch of `kernel` over `threads` threads, bound by name.
-    fn step<'a>(
+    fn step(
         &self,
         device: &wgpu::Device,
-        kernel: &'a GridKernel,
+        kernel: GridKernel,
         named: &Named,
         threads: u32,
         limits: &wgpu::Limits,
-    ) -> Result<Step<'a>, GpuError> {
+    ) -> Result<Step<'_>, GpuError> {
+        let compiled = self.kernel(kernel);
+        let (_, entry) = kernel.entry();
         let group = bind_group(
             device,
-            &kernel.compiled,
-            (kernel.entry, kernel.entry),
+            compiled,
+            (entry, entry),
             |name| {
                 named
                     .iter()
@@ -525,10 +561,10 @@ impl GridPipelines {
         )?;
         let dispatch = workgroups(
             threads,
-            kernel.compiled.workgroup_size,
+            compiled.workgroup_size,
             limits.max_compute_workgroups_per_dimension,
         )?;
-        Ok((kernel, group, dispatch))
+        Ok((compiled, group, dispatch))
     }
 }
 
@@ -592,7 +628,7 @@ fn record<'a>(
         timestamp_writes: None,
     });
     for (kernel, group, [x, y]) in steps {
-        pass.set_pipeline(&kernel.compiled.pipeline);
+        pass.set_pipeline(&kernel.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(x, y, 1);
     }
@@ -639,25 +675,6 @@ fn storage(
     bytes: u64,
 ) -> Result<wgpu::Buffer, GpuError> {
     support::storage(device, label, bytes, &format!("the {label} buffer"))
-}
-
-/// Compiles the entry points of one shader file.
-struct Compiler<'d> {
-    device: &'d wgpu::Device,
-    file: &'static str,
-}
-
-impl<'d> Compiler<'d> {
-    fn new(device: &'d wgpu::Device, file: &'static str) -> Result<Self, GpuError> {
-        Ok(Self { device, file })
-    }
-
-    fn kernel(&self, entry: &'static str) -> Result<GridKernel, GpuError> {
-        Ok(GridKernel {
-            entry,
-            compiled: compile(self.device, self.file, entry, false)?,
-        })
-    }
 }
 
 #[cfg(test)]

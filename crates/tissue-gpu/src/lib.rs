@@ -31,7 +31,7 @@ mod support;
 pub mod timing;
 
 pub use deformer::{GpuDeformer, GpuSolve};
-pub use grid::{GpuGrid, GpuRows, GridPipelines};
+pub use grid::{GpuGrid, GpuRows, GridKernel, GridPipelines};
 pub use pipelines::{Kernel, KernelId, KernelSet, Pipelines};
 pub use sampler::SamplingPipelines;
 pub use state::{DeformState, SLOTS};

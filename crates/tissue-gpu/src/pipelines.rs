@@ -111,6 +111,10 @@ pub trait KernelId: Copy + std::fmt::Debug + 'static {
     /// Every kernel of the family, in the order of its tables.
     const KERNELS: &'static [Self];
 
+    /// Whether the family's uniforms are bound with a dynamic offset (one
+    /// slot per iteration of a batch).
+    const DYNAMIC_UNIFORM: bool = true;
+
     /// `(shader file, entry point)`.
     fn entry(self) -> (&'static str, &'static str);
 
@@ -119,8 +123,8 @@ pub trait KernelId: Copy + std::fmt::Debug + 'static {
 }
 
 /// The compiled kernels of one family, one per kernel, built once per
-/// device: stage 2's ([`Pipelines`]) and stage 1's
-/// ([`crate::SamplingPipelines`]).
+/// device: stage 2's ([`Pipelines`]), stage 1's
+/// ([`crate::SamplingPipelines`]) and the grid's ([`crate::GridPipelines`]).
 #[derive(Debug)]
 pub struct KernelSet<K> {
     kernels: Vec<CompiledKernel>,
@@ -128,15 +132,15 @@ pub struct KernelSet<K> {
 }
 
 impl<K: KernelId> KernelSet<K> {
-    /// Compiles every kernel of the family for `device` (uniforms bound with
-    /// a dynamic offset); any wgpu error is returned, not panicked on.
+    /// Compiles every kernel of the family for `device`; any wgpu error is
+    /// returned, not panicked on.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
         let scope = Scopes::push(device);
         let built: Result<Vec<CompiledKernel>, GpuError> = K::KERNELS
             .iter()
             .map(|k| {
                 let (file, entry) = k.entry();
-                crate::support::compile(device, file, entry, true)
+                crate::support::compile(device, file, entry, K::DYNAMIC_UNIFORM)
             })
             .collect();
         scope.pop()?;
@@ -242,6 +246,7 @@ impl Pipelines {
 #[cfg(test)]
 mod tests {
     use super::{Kernel, KernelId};
+    use crate::grid::GridKernel;
     use crate::sampler::SamplingKernel;
 
     /// `index` is the declaration order; the per-kernel tables (the
@@ -257,5 +262,6 @@ mod tests {
     fn every_kernel_indexes_its_place_in_its_family() {
         assert_indexed::<Kernel>();
         assert_indexed::<SamplingKernel>();
+        assert_indexed::<GridKernel>();
     }
 }
