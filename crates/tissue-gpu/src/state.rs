@@ -52,6 +52,8 @@ pub struct DeformState {
     controls: Vec<u32>,
     /// Runs of consecutive control particles: `(first particle, first control, length)`.
     control_runs: Vec<(u32, usize, usize)>,
+    /// The staging buffer of every read back.
+    readback: Readback,
 }
 
 fn vec4s(points: &[Vec3]) -> Vec<[f32; 4]> {
@@ -244,6 +246,7 @@ impl DeformState {
             bind_groups: Vec::new(),
             controls,
             control_runs,
+            readback: Readback::default(),
         };
         state.bind_groups = state.bind_all(device, pipelines)?;
         for slot in 0..SLOTS {
@@ -534,7 +537,7 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Mat3>, GpuError> {
-        let bytes = read_buffer(
+        let bytes = self.readback.read(
             device,
             queue,
             &self.rotations,
@@ -556,7 +559,9 @@ impl DeformState {
     ) -> Result<Vec<Vec<[f32; 2]>>, GpuError> {
         let row = self.step_groups as usize;
         let rows = slots.min(SLOTS) as usize;
-        let bytes = read_buffer(device, queue, &self.partials, rows * row * 8)?;
+        let bytes = self
+            .readback
+            .read(device, queue, &self.partials, rows * row * 8)?;
         let all: Vec<[f32; 2]> = bytemuck::pod_collect_to_vec(&bytes);
         Ok(all.chunks(row.max(1)).map(<[_]>::to_vec).collect())
     }
@@ -567,7 +572,7 @@ impl DeformState {
         queue: &wgpu::Queue,
         buffer: &wgpu::Buffer,
     ) -> Result<Vec<Vec3>, GpuError> {
-        let bytes = read_buffer(device, queue, buffer, self.len() * 16)?;
+        let bytes = self.readback.read(device, queue, buffer, self.len() * 16)?;
         Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
             .into_iter()
             .map(|p| Vec3::new(p[0], p[1], p[2]))
@@ -575,44 +580,75 @@ impl DeformState {
     }
 }
 
-/// Copies the first `size` bytes of `buffer` to a mapped staging buffer and reads them.
+/// Copies the first `size` bytes of `buffer` to a new staging buffer and
+/// reads them (one-off reads; what is read every batch goes through a
+/// [`Readback`]).
 pub(crate) fn read_buffer(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     buffer: &wgpu::Buffer,
     size: usize,
 ) -> Result<Vec<u8>, GpuError> {
-    let size = (size as u64).div_ceil(4) * 4;
-    if size == 0 {
-        return Ok(Vec::new());
+    Readback::default().read(device, queue, buffer, size)
+}
+
+/// A staging buffer for reads back to the host, kept between reads and
+/// grown when a larger one is asked for: a solve reads its step norms back
+/// every batch, and would otherwise create a buffer each time.
+#[derive(Debug, Default)]
+pub(crate) struct Readback {
+    staging: std::sync::Mutex<Option<wgpu::Buffer>>,
+}
+
+impl Readback {
+    /// Copies the first `size` bytes of `buffer` to the staging buffer and
+    /// reads them (stalls until the GPU is done).
+    pub(crate) fn read(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        buffer: &wgpu::Buffer,
+        size: usize,
+    ) -> Result<Vec<u8>, GpuError> {
+        let size = (size as u64).div_ceil(4) * 4;
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        // A poisoned lock only means another read panicked; the buffer is
+        // unmapped or replaced below either way.
+        let mut kept = self.staging.lock().unwrap_or_else(|e| e.into_inner());
+        let staging = match kept.take() {
+            Some(staging) if staging.size() >= size => staging,
+            _ => device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+        };
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("readback"),
+        });
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        queue.submit([encoder.finish()]);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, ..size, move |result| {
+            // The receiver waits below; a failed send only means it gave up.
+            let _ = sender.send(result);
+        });
+        crate::wait(device)?;
+        receiver
+            .recv()
+            .map_err(|e| GpuError::Map(e.to_string()))?
+            .map_err(|e| GpuError::Map(e.to_string()))?;
+        let bytes = staging
+            .get_mapped_range(..size)
+            .map_err(|e| GpuError::Map(e.to_string()))?
+            .to_vec();
+        staging.unmap();
+        *kept = Some(staging);
+        Ok(bytes)
     }
-    let staging = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
-        size,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-        label: Some("readback"),
-    });
-    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-    queue.submit([encoder.finish()]);
-    let (sender, receiver) = std::sync::mpsc::channel();
-    staging.map_async(wgpu::MapMode::Read, .., move |result| {
-        // The receiver waits below; a failed send only means it gave up.
-        let _ = sender.send(result);
-    });
-    crate::wait(device)?;
-    receiver
-        .recv()
-        .map_err(|e| GpuError::Map(e.to_string()))?
-        .map_err(|e| GpuError::Map(e.to_string()))?;
-    let bytes = staging
-        .get_mapped_range(..)
-        .map_err(|e| GpuError::Map(e.to_string()))?
-        .to_vec();
-    staging.unmap();
-    Ok(bytes)
 }
 
 #[cfg(test)]

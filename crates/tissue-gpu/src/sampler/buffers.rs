@@ -11,7 +11,7 @@ use tissue_solve::sampling::{ForceOut, SKIN_IN_R0, SamplingState};
 use super::field::FieldBuffers;
 use super::kernels::{SamplingKernel, SamplingPipelines};
 use crate::GpuError;
-use crate::state::{read_buffer, workgroups};
+use crate::state::{Readback, read_buffer, workgroups};
 use crate::support::{bind_group, scoped, storage_init};
 
 /// Iterations one command buffer records: one uniform slot and one row of
@@ -148,6 +148,8 @@ pub struct SamplingBuffers {
     change_groups: u32,
     /// Per kernel, per parity.
     bind_groups: Vec<[wgpu::BindGroup; 2]>,
+    /// The staging buffer of the change read back every batch.
+    readback: Readback,
 }
 
 pub(super) fn vec4s(positions: &[Vec3], w: &[f32]) -> Vec<[f32; 4]> {
@@ -254,6 +256,7 @@ impl SamplingBuffers {
             workgroups: workgroups_of,
             change_groups,
             bind_groups: Vec::new(),
+            readback: Readback::default(),
         };
         let mut uniforms = SamplingUniforms::new(&buffers.field, params, r0, count);
         uniforms.groups = change_groups;
@@ -531,7 +534,9 @@ impl SamplingBuffers {
     ) -> Result<(Vec<[f64; 3]>, u32), GpuError> {
         let row = self.change_groups as usize;
         let rows = slots.min(BATCH) as usize;
-        let bytes = read_buffer(device, queue, &self.partials, rows * row * 16)?;
+        let bytes = self
+            .readback
+            .read(device, queue, &self.partials, rows * row * 16)?;
         let all: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
         let sums = all
             .chunks(row.max(1))
@@ -545,7 +550,7 @@ impl SamplingBuffers {
                 })
             })
             .collect();
-        let halt = read_buffer(device, queue, &self.halt, 4)?;
+        let halt = self.readback.read(device, queue, &self.halt, 4)?;
         let halt = halt
             .get(..4)
             .map(bytemuck::pod_read_unaligned::<u32>)
