@@ -4,11 +4,9 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use glam::Vec3;
 use serde::Serialize;
 use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, Deformer, RotationMethod, chebyshev_combine, deformation_force,
-    integrate, local_rotations, local_rotations_warm, steps,
+    Chebyshev, DeformParams, Deformer, Iteration, RotationMethod, SolveDevice,
 };
 use tissue_gpu::GpuDeformer;
 use tissue_gpu::timing::KernelTimer;
@@ -75,104 +73,74 @@ fn timed<T>(f: impl FnOnce() -> T) -> (f64, T) {
     (started.elapsed().as_secs_f64(), out)
 }
 
-/// The CPU iteration of `Deformer::solve`, pass by pass, through the public
-/// `tissue_cpu::deformation` functions on `deformer`'s current state (after
-/// `iterations` iterations of `params`), `samples` times each.
+/// The CPU iteration of `Deformer::solve`, pass by pass: the solve's own
+/// iteration (`CpuSolve::iterate_timed`) on a copy of `deformer`'s state
+/// (after `iterations` iterations of `params`), run on for `samples`
+/// iterations, each pass timed where it runs.
 pub fn cpu(
     deformer: &Deformer,
-    connections: &tissue_core::Connections,
     params: &DeformParams,
     iterations: usize,
     samples: usize,
 ) -> Result<Breakdown> {
-    let rest = deformer.rest();
-    let current = deformer.positions();
-    let warm = deformer.rotations();
     let plan = deformer.plan();
-    let alpha = plan.alpha(params);
     let mut chebyshev = Chebyshev::new(plan, params);
     let omega = (1..=iterations + 1)
         .map(|k| chebyshev.omega(k))
         .last()
         .unwrap_or(1.0);
-    // The Chebyshev combine's cost does not depend on which positions it
-    // mixes; the rest shape stands in for the previous iterate.
-    let previous = rest;
-    let rotations_of = |current: &[Vec3]| match params.rotations {
-        RotationMethod::Svd => local_rotations(rest, current, connections),
-        RotationMethod::WarmPolar => local_rotations_warm(rest, current, connections, warm),
+    let it = Iteration {
+        force: params.force,
+        rotations: params.rotations,
+        alpha: plan.alpha(params),
+        contraction: plan.contraction(params),
     };
-    let rotation_name = match params.rotations {
-        RotationMethod::Svd => "local_rotations (svd)",
-        RotationMethod::WarmPolar => "local_rotations_warm (warm polar)",
-    };
+    let mut solve = deformer.device().clone();
+    let Ok(()) = solve.begin((), it);
 
-    // With a coarse space or deflation, the plain step is corrected before
-    // the Chebyshev combine (`Deformer::solve`'s order).
-    let modes = deformer.modes().filter(|m| m.count() > 0);
-    let coarse = deformer.coarse();
-    let contraction = plan.contraction(params);
-    let correct = |plain: &mut Vec<Vec3>| {
-        if let Some(modes) = modes {
-            tissue_cpu::deformation::deflate(modes, current, plain, contraction);
-        }
-        if let Some(coarse) = coarse {
-            coarse.correct(current, plain, connections, contraction);
-        }
-    };
-
-    let mut times: [Vec<f64>; 5] = Default::default();
+    let mut times: [Vec<f64>; 6] = Default::default();
     let mut whole = Vec::new();
     // One untimed round first: first touch of the output allocations.
     for sample in 0..=samples {
-        let (t_rot, rotations) = timed(|| rotations_of(current));
-        let (t_force, force) =
-            timed(|| deformation_force(rest, current, &rotations, connections, params.force));
-        let (t_int, (plain, next)) = timed(|| {
-            let plain = integrate(current, &force, &plan.free, alpha);
-            let next = chebyshev_combine(&plain, previous, omega);
-            (plain, next)
+        let mut laps = [0.0f64; 6];
+        let (t_whole, norms) = timed(|| {
+            solve.iterate_timed(it, omega, &mut |pass, seconds| {
+                laps[pass as usize] += seconds;
+            })
         });
-        let mut corrected = plain.clone();
-        let (t_correct, ()) = timed(|| correct(&mut corrected));
-        let (t_steps, norms) = timed(|| steps(current, &plain));
-        std::hint::black_box((&next, &corrected, norms));
-        let (t_whole, out) = timed(|| {
-            let rotations = rotations_of(current);
-            let force = deformation_force(rest, current, &rotations, connections, params.force);
-            let mut plain = integrate(current, &force, &plan.free, alpha);
-            correct(&mut plain);
-            let norms = steps(current, &plain);
-            (chebyshev_combine(&plain, previous, omega), norms)
-        });
-        std::hint::black_box(out);
+        std::hint::black_box(norms);
         if sample > 0 {
-            for (list, t) in times
-                .iter_mut()
-                .zip([t_rot, t_force, t_int, t_correct, t_steps])
-            {
+            for (list, t) in times.iter_mut().zip(laps) {
                 list.push(t);
             }
             whole.push(t_whole);
         }
     }
-    let [rot, force, int, correction, steps] = times;
+    let [rotations, force, integrate, correction, norms, combine] = times;
+    let rotation_name = match params.rotations {
+        RotationMethod::Svd => "local_rotations (svd)",
+        RotationMethod::WarmPolar => "local_rotations_warm (warm polar)",
+    };
+    let integrate_and_combine = integrate.iter().zip(&combine).map(|(a, b)| a + b).collect();
     let mut passes = vec![
-        (rotation_name.to_owned(), rot),
+        (rotation_name.to_owned(), rotations),
         ("deformation_force".to_owned(), force),
-        ("integrate + chebyshev_combine".to_owned(), int),
+        (
+            "integrate + chebyshev_combine".to_owned(),
+            integrate_and_combine,
+        ),
     ];
-    if let Some(modes) = modes {
+    if let Some(modes) = deformer.modes() {
         passes.push((format!("deflate ({} modes)", modes.count()), correction));
-    } else if coarse.is_some() {
+    } else if deformer.coarse().is_some() {
         passes.push(("coarse correction (two-level)".to_owned(), correction));
     }
-    passes.push(("step norms".to_owned(), steps));
+    passes.push(("step norms".to_owned(), norms));
     Breakdown::new(
         "wall_clock",
         format!(
-            "each public tissue-cpu pass timed alone on the state after {iterations} \
-             iterations of the sag"
+            "each pass of the CPU iteration timed where it runs, over {samples} iterations \
+             from the state after {iterations} iterations of the sag"
         ),
         passes,
         &whole,

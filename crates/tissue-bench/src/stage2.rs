@@ -162,7 +162,6 @@ pub fn measure(
         let stages = match (&solver, gpu) {
             (Solver::Cpu(deformer), _) => breakdown::cpu(
                 deformer,
-                &model.connections,
                 &fixed,
                 repeats.iterations_per_solve,
                 repeats.stage_samples,

@@ -27,6 +27,7 @@ mod polar;
 
 use std::convert::Infallible;
 use std::sync::Arc;
+use std::time::Instant;
 
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
@@ -40,7 +41,8 @@ pub use tissue_solve::plan::Plan;
 pub use tissue_solve::predict::{FrameHistory, affine_fit, predict};
 pub use tissue_solve::report::{DeformReport, StopReason};
 pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
-use tissue_solve::tracker::{Iteration, SolveDevice, Tracker};
+use tissue_solve::tracker::Tracker;
+pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
 pub use kernels::{
     chebyshev_combine, deflate, deformation_force, integrate, local_rotations,
@@ -77,6 +79,11 @@ impl Deformer {
     /// Rest particle positions.
     pub fn rest(&self) -> &[Vec3] {
         self.tracker.rest()
+    }
+
+    /// The state and kernels the solves run on.
+    pub fn device(&self) -> &CpuSolve {
+        self.tracker.device()
     }
 
     /// Each particle's rotation (rest offsets onto current offsets) from the last iteration.
@@ -208,6 +215,22 @@ impl CpuSolve {
     /// One iteration with Chebyshev weight `omega`: the largest and RMS
     /// step the stopping rule measures.
     fn iterate(&mut self, it: Iteration, omega: f32) -> (f32, f32) {
+        self.iterate_with(it, omega, &mut Laps::off())
+    }
+
+    /// [`SolveDevice::run`]'s iteration, one at a time, telling `clock` how
+    /// many seconds each pass took (the benchmark's breakdown; the solve
+    /// runs the same passes untimed).
+    pub fn iterate_timed(
+        &mut self,
+        it: Iteration,
+        omega: f32,
+        clock: &mut dyn FnMut(Pass, f64),
+    ) -> (f32, f32) {
+        self.iterate_with(it, omega, &mut Laps::on(clock))
+    }
+
+    fn iterate_with(&mut self, it: Iteration, omega: f32, laps: &mut Laps<'_>) -> (f32, f32) {
         self.rotations = match it.rotations {
             RotationMethod::Svd => local_rotations(&self.rest, &self.current, &self.connections),
             RotationMethod::WarmPolar => local_rotations_warm(
@@ -217,6 +240,7 @@ impl CpuSolve {
                 &self.rotations,
             ),
         };
+        laps.lap(Pass::Rotations);
         let force = deformation_force(
             &self.rest,
             &self.current,
@@ -224,13 +248,16 @@ impl CpuSolve {
             &self.connections,
             it.force,
         );
+        laps.lap(Pass::Force);
         let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
+        laps.lap(Pass::Integrate);
         if let Some(m) = &self.modes {
             deflate(m, &self.current, &mut plain, it.contraction);
         }
         if let Some(c) = &self.coarse {
             c.correct(&self.current, &mut plain, &self.connections, it.contraction);
         }
+        laps.lap(Pass::Correction);
         // Deflated or two-level, the plain step no longer bounds the error of the
         // modes coupled to the rotations (re-fitting them lowers the
         // curvature below the Laplacian's, so the exact correction for
@@ -238,14 +265,65 @@ impl CpuSolve {
         // the geometric tail of the updates actually made instead.
         let plain_steps =
             (self.modes.is_none() && self.coarse.is_none()).then(|| steps(&self.current, &plain));
+        laps.lap(Pass::Norms);
         let next = if omega == 1.0 {
             plain
         } else {
             chebyshev_combine(&plain, &self.previous, omega)
         };
+        laps.lap(Pass::Combine);
         let measured = plain_steps.unwrap_or_else(|| steps(&self.current, &next));
+        laps.lap(Pass::Norms);
         self.previous = std::mem::replace(&mut self.current, next);
         measured
+    }
+}
+
+/// The passes of one CPU iteration, in order (the step norms come before
+/// the combine without a correction, after it with one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pass {
+    /// `local_rotations` or `local_rotations_warm`.
+    Rotations,
+    /// `deformation_force`.
+    Force,
+    /// `integrate`, the plain step.
+    Integrate,
+    /// The coarse correction or deflation (nothing without either).
+    Correction,
+    /// `steps`, what the stopping rule measures.
+    Norms,
+    /// `chebyshev_combine`.
+    Combine,
+}
+
+/// The clock of a timed iteration: each lap's seconds to `clock`; off, no
+/// clock is read.
+struct Laps<'a> {
+    clock: Option<&'a mut dyn FnMut(Pass, f64)>,
+    since: Option<Instant>,
+}
+
+impl<'a> Laps<'a> {
+    fn off() -> Self {
+        Self {
+            clock: None,
+            since: None,
+        }
+    }
+
+    fn on(clock: &'a mut dyn FnMut(Pass, f64)) -> Self {
+        Self {
+            clock: Some(clock),
+            since: Some(Instant::now()),
+        }
+    }
+
+    fn lap(&mut self, pass: Pass) {
+        if let (Some(clock), Some(since)) = (self.clock.as_mut(), self.since.as_mut()) {
+            clock(pass, since.elapsed().as_secs_f64());
+            *since = Instant::now();
+        }
     }
 }
 
