@@ -7,7 +7,9 @@
 //!   tracking prediction and its history ([`predict`]), the deflated modes
 //!   ([`modes`]), the deformed surface's checks and control points
 //!   ([`controls`]), how a solve went ([`report`]), and the one tracker
-//!   that runs frames on any device ([`tracker`], over [`SolveDevice`]).
+//!   that runs frames on any device ([`tracker`], over [`SolveDevice`]);
+//!   batches of iterations with the replay that stops every device at the
+//!   same iteration ([`batches`], stage 1's GPU loop too).
 //! - Stage 1: the initial radius and placement, the state the iterations
 //!   work on and the finish ([`sampling`]), and the quality report
 //!   ([`quality`]).
@@ -19,6 +21,7 @@
 //! The devices (`tissue-cpu`, `tissue-gpu`) implement kernels and buffers.
 
 pub mod acceleration;
+pub mod batches;
 pub mod controls;
 pub mod grid;
 pub mod modes;

@@ -9,6 +9,7 @@ use glam::{Mat3, Vec3};
 use tissue_core::{Error, ParticleModel, SurfaceMesh};
 
 use crate::acceleration::{Chebyshev, StoppingRule};
+use crate::batches::{Batches, run_batched};
 use crate::controls::check_same_topology;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel, RotationMethod};
@@ -225,12 +226,11 @@ impl<D: SolveDevice> Tracker<D> {
         let started = Instant::now();
         let p = &self.params;
         let rho = self.rho();
-        let (mut chebyshev, mut rule) = (
+        let (chebyshev, mut rule) = (
             Chebyshev::with_rho(p, rho),
             StoppingRule::with_rho(&self.plan, p, rho),
         );
         let mut stopped_by = StopReason::IterationCap;
-        let mut iterations = 0;
         let iteration = Iteration {
             force: p.force,
             rotations: p.rotations,
@@ -238,29 +238,20 @@ impl<D: SolveDevice> Tracker<D> {
             contraction: self.plan.contraction(p),
         };
         self.device.begin(cx, iteration)?;
-        while iterations < p.max_iterations {
-            let batch = self.device.batch().clamp(1, p.max_iterations - iterations);
-            // A batch replays exactly, so the weights may run ahead of the rule.
-            let omegas: Vec<f32> = (1..=batch)
-                .map(|k| chebyshev.omega(iterations + k))
-                .collect();
-            let steps = self.device.run(cx, &omegas)?;
-            let mut stop_after = None;
-            for (k, &(step, rms)) in steps.iter().enumerate() {
-                iterations += 1;
-                if let Some(reason) = rule.after(step, rms) {
+        let batch = self.device.batch();
+        let mut batches = SolveBatches {
+            device: &mut self.device,
+            cx,
+            chebyshev,
+        };
+        let (iterations, _) =
+            run_batched(&mut batches, p.max_iterations, batch, |_, &(step, rms)| {
+                let reason = rule.after(step, rms);
+                if let Some(reason) = reason {
                     stopped_by = reason;
-                    stop_after = Some(k + 1);
-                    break;
                 }
-            }
-            if let Some(done) = stop_after {
-                if done < batch {
-                    self.device.replay(cx, done)?;
-                }
-                break;
-            }
-        }
+                Ok(reason.is_some())
+            })?;
         let report = rule.report(iterations, stopped_by, started.elapsed().as_secs_f64());
         self.current = self.device.read_positions(cx)?;
         self.history
@@ -274,6 +265,30 @@ impl<D: SolveDevice> Tracker<D> {
         self.current.clone_from(&self.rest);
         self.history = FrameHistory::at_rest(&self.rest, self.params.history);
         Ok(())
+    }
+}
+
+/// A solve's batches on a device: the Chebyshev weights of each batch, which
+/// may run ahead of the stopping rule because a replay repeats them exactly.
+struct SolveBatches<'a, 'c, D: SolveDevice> {
+    device: &'a mut D,
+    cx: D::Context<'c>,
+    chebyshev: Chebyshev,
+}
+
+impl<D: SolveDevice> Batches for SolveBatches<'_, '_, D> {
+    type Measure = (f32, f32);
+    type Error = D::Error;
+
+    fn run(&mut self, done: usize, count: usize) -> Result<Vec<(f32, f32)>, D::Error> {
+        let omegas: Vec<f32> = (1..=count)
+            .map(|k| self.chebyshev.omega(done + k))
+            .collect();
+        self.device.run(self.cx, &omegas)
+    }
+
+    fn replay(&mut self, count: usize) -> Result<(), D::Error> {
+        self.device.replay(self.cx, count)
     }
 }
 

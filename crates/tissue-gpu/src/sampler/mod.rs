@@ -28,6 +28,7 @@ use std::time::Instant;
 use glam::Vec3;
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh};
+use tissue_solve::batches::{Batches, run_batched};
 use tissue_solve::quality::quality_report;
 use tissue_solve::sampling::{
     Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after,
@@ -121,29 +122,8 @@ fn iterate(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<(SamplingState, usize, bool, usize, f64), GpuError> {
     let n = state.positions.len();
-    let skin = SKIN_IN_R0 * r0;
-    let mut buffers = SamplingBuffers::new(device, queue, pipelines, field, &state, params, r0)?;
+    let buffers = SamplingBuffers::new(device, queue, pipelines, field, &state, params, r0)?;
     drop(state);
-    // Rows from the state of `parity`, which becomes their build state.
-    let build_rows = |buffers: &mut SamplingBuffers, parity: usize| -> Result<(), GpuError> {
-        let rows = grid.neighbour_rows(
-            device,
-            queue,
-            &buffers.states[parity],
-            buffers.count,
-            params.force_cutoff,
-            skin,
-            false,
-        )?;
-        buffers.set_row_buffers(device, pipelines, rows.offsets, rows.indices)?;
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sampling rows built"),
-        });
-        buffers.mark_built(&mut encoder, parity);
-        queue.submit([encoder.finish()]);
-        Ok(())
-    };
-    build_rows(&mut buffers, 0)?;
     let backup = |label| {
         device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
@@ -152,67 +132,157 @@ fn iterate(
             mapped_at_creation: false,
         })
     };
-    let backup_state = backup("backup state");
-    let backup_contact = backup("backup contact");
+    let mut run = SamplingBatches {
+        device,
+        queue,
+        pipelines,
+        grid,
+        params,
+        skin: SKIN_IN_R0 * r0,
+        r0,
+        backup_state: backup("backup state"),
+        backup_contact: backup("backup contact"),
+        buffers,
+        parity: 0,
+        start_parity: 0,
+        stale_rows: false,
+        rebuilds: 0,
+        neighbour_seconds: 0.0,
+    };
+    run.build_rows()?;
+    let (iterations, converged) = run_batched(
+        &mut run,
+        params.max_iterations,
+        BATCH as usize,
+        |done, &(step_rms, radius_rms)| {
+            Ok(converged_after(
+                done, step_rms, radius_rms, params, progress,
+            )?)
+        },
+    )?;
+    let state = run.buffers.read_state(device, queue, run.parity)?;
+    Ok((
+        state,
+        iterations,
+        converged,
+        run.rebuilds,
+        run.neighbour_seconds,
+    ))
+}
 
-    let mut parity = 0usize;
-    let mut iterations = 0usize;
-    let mut rebuilds = 0usize;
-    let mut neighbour_seconds = 0.0;
-    let mut converged = false;
-    while iterations < params.max_iterations {
-        let batch = BATCH.min((params.max_iterations - iterations) as u32);
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sampling batch"),
-        });
-        encoder.copy_buffer_to_buffer(&buffers.states[parity], 0, &backup_state, 0, None);
-        encoder.copy_buffer_to_buffer(&buffers.contacts[parity], 0, &backup_contact, 0, None);
-        buffers.record_iterations(&mut encoder, pipelines, batch, parity);
-        queue.submit([encoder.finish()]);
-        let (sums, halt) = buffers.read_change(device, queue, batch)?;
-        // A halt at slot s: iterations 0..=s ran, the rest did nothing.
-        let ran = if halt == 0 { batch } else { halt.min(batch) };
-        let mut stop_after = None;
-        for (k, &row) in sums.iter().take(ran as usize).enumerate() {
-            let (step_rms, radius_rms) = finish_change(row, n, r0);
-            let done = converged_after(iterations, step_rms, radius_rms, params, progress)?;
-            iterations += 1;
-            if done {
-                converged = true;
-                stop_after = Some(k as u32 + 1);
-                break;
-            }
-        }
-        if let Some(done) = stop_after {
-            if done < ran {
-                // Replay the batch up to the iteration where the test held.
-                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("sampling replay"),
-                });
-                encoder.copy_buffer_to_buffer(&backup_state, 0, &buffers.states[parity], 0, None);
-                encoder.copy_buffer_to_buffer(
-                    &backup_contact,
-                    0,
-                    &buffers.contacts[parity],
-                    0,
-                    None,
-                );
-                buffers.record_iterations(&mut encoder, pipelines, done, parity);
-                queue.submit([encoder.finish()]);
-            }
-            parity = (parity + done as usize) & 1;
-            break;
-        }
-        parity = (parity + ran as usize) & 1;
-        if halt != 0 && iterations < params.max_iterations {
-            let clock = Instant::now();
-            build_rows(&mut buffers, parity)?;
-            rebuilds += 1;
-            neighbour_seconds += clock.elapsed().as_secs_f64();
-        }
+/// Stage 1's batches on the GPU. The state alternates between two buffers
+/// (`parity`); the Verlet check halts a batch when the rows may miss a
+/// pair, and the next batch rebuilds them first.
+struct SamplingBatches<'a> {
+    device: &'a wgpu::Device,
+    queue: &'a wgpu::Queue,
+    pipelines: &'a SamplingPipelines,
+    grid: &'a GridPipelines,
+    params: &'a SamplingParams,
+    skin: f32,
+    r0: f32,
+    buffers: SamplingBuffers,
+    backup_state: wgpu::Buffer,
+    backup_contact: wgpu::Buffer,
+    /// Which of the two states is current.
+    parity: usize,
+    /// Which was current when the last batch started.
+    start_parity: usize,
+    /// The last batch was halted for a rebuild of the rows.
+    stale_rows: bool,
+    rebuilds: usize,
+    neighbour_seconds: f64,
+}
+
+impl SamplingBatches<'_> {
+    /// Rows from the current state, which becomes their build state.
+    fn build_rows(&mut self) -> Result<(), GpuError> {
+        let rows = self.grid.neighbour_rows(
+            self.device,
+            self.queue,
+            &self.buffers.states[self.parity],
+            self.buffers.count,
+            self.params.force_cutoff,
+            self.skin,
+            false,
+        )?;
+        self.buffers
+            .set_row_buffers(self.device, self.pipelines, rows.offsets, rows.indices)?;
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("sampling rows built"),
+            });
+        self.buffers.mark_built(&mut encoder, self.parity);
+        self.queue.submit([encoder.finish()]);
+        Ok(())
     }
-    let state = buffers.read_state(device, queue, parity)?;
-    Ok((state, iterations, converged, rebuilds, neighbour_seconds))
+
+    /// Records `count` iterations from the current state, after copying it
+    /// to the backups when `backup` (a batch's start) or from them (a replay).
+    fn record(&self, count: usize, backup: bool) {
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some(if backup {
+                    "sampling batch"
+                } else {
+                    "sampling replay"
+                }),
+            });
+        let (state, contact) = (
+            &self.buffers.states[self.parity],
+            &self.buffers.contacts[self.parity],
+        );
+        if backup {
+            encoder.copy_buffer_to_buffer(state, 0, &self.backup_state, 0, None);
+            encoder.copy_buffer_to_buffer(contact, 0, &self.backup_contact, 0, None);
+        } else {
+            encoder.copy_buffer_to_buffer(&self.backup_state, 0, state, 0, None);
+            encoder.copy_buffer_to_buffer(&self.backup_contact, 0, contact, 0, None);
+        }
+        let count = u32::try_from(count).unwrap_or(BATCH).min(BATCH);
+        self.buffers
+            .record_iterations(&mut encoder, self.pipelines, count, self.parity);
+        self.queue.submit([encoder.finish()]);
+    }
+}
+
+impl Batches for SamplingBatches<'_> {
+    /// The RMS step of particles not held by the wall (in `r0`) and the RMS
+    /// change of `ln r`.
+    type Measure = (f32, f32);
+    type Error = GpuError;
+
+    fn run(&mut self, _: usize, count: usize) -> Result<Vec<(f32, f32)>, GpuError> {
+        if self.stale_rows {
+            let clock = Instant::now();
+            self.build_rows()?;
+            self.rebuilds += 1;
+            self.neighbour_seconds += clock.elapsed().as_secs_f64();
+        }
+        self.start_parity = self.parity;
+        self.record(count, true);
+        let batch = u32::try_from(count).unwrap_or(BATCH).min(BATCH);
+        let (sums, halt) = self.buffers.read_change(self.device, self.queue, batch)?;
+        // A halt at slot s: iterations 0..=s ran, the rest did nothing.
+        let ran = if halt == 0 { batch } else { halt.min(batch) } as usize;
+        self.stale_rows = halt != 0;
+        self.parity = (self.start_parity + ran) & 1;
+        let n = self.buffers.len();
+        Ok(sums
+            .iter()
+            .take(ran)
+            .map(|&row| finish_change(row, n, self.r0))
+            .collect())
+    }
+
+    fn replay(&mut self, count: usize) -> Result<(), GpuError> {
+        self.parity = self.start_parity;
+        self.record(count, false);
+        self.parity = (self.start_parity + count) & 1;
+        Ok(())
+    }
 }
 
 /// Connections of eq. (9), `neighbour_rows(.., ratio, 0, sorted)`, on the GPU.
