@@ -27,7 +27,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use glam::Vec3;
-use tissue_core::{Error, ParticleModel, SamplingParams, SurfaceMesh};
+use tissue_core::{DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
@@ -420,9 +420,7 @@ impl Solver {
                     .embedding
                     .moved(cpu.rest(), cpu.positions(), cpu.rotations()))
             }
-            _ => Err(Error::Deformation(
-                "points bound on one backend were carried by another".into(),
-            )),
+            _ => Err(DeformError::OtherBackend.into()),
         }
     }
 }

@@ -117,6 +117,106 @@ pub enum MeshError {
     },
 }
 
+/// Why stage 1 could not produce a model.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SamplingError {
+    /// The surface has no vertices.
+    #[error("the surface has no vertices")]
+    NoVertices,
+    /// The surface encloses no positive volume.
+    #[error("the surface encloses no positive volume ({volume}); validate it first")]
+    NoVolume {
+        /// The signed volume.
+        volume: f64,
+    },
+    /// The surface field could not be built.
+    #[error("{0}")]
+    Field(String),
+    /// Too few random starting points fell inside the surface.
+    #[error("only {placed} of {attempts} random points fell inside the surface")]
+    RandomPlacement {
+        /// Points inside.
+        placed: usize,
+        /// Points tried.
+        attempts: usize,
+    },
+    /// The starting lattice did not fit inside the surface.
+    #[error(
+        "could not place {particles} lattice points inside the surface; is it closed and large enough?"
+    )]
+    LatticePlacement {
+        /// Particles asked for.
+        particles: usize,
+    },
+    /// The iterations diverged.
+    #[error(
+        "the particle state became non-finite at iteration {iteration}; the parameters make the system unstable"
+    )]
+    Unstable {
+        /// The iteration (counted from 0) whose state was not finite.
+        iteration: usize,
+    },
+    /// A particle's position or radius is not finite, so no grid holds it.
+    #[error("a particle's position or radius is not finite: no grid")]
+    NonFiniteParticle,
+    /// A grid or neighbour-row size that is not a finite number.
+    #[error("{what} must be finite, not {value}")]
+    NonFiniteSize {
+        /// Which size.
+        what: &'static str,
+        /// The value given.
+        value: String,
+    },
+}
+
+/// Why stage 2 cannot run or go on.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum DeformError {
+    /// The deformed surface has other counts than the rest surface.
+    #[error(
+        "the deformed surface has {vertices} vertices and {triangles} triangles; the model's rest surface has {rest_vertices} and {rest_triangles} (it must be the same mesh with moved vertices)"
+    )]
+    SurfaceSize {
+        /// Vertices of the deformed surface.
+        vertices: usize,
+        /// Its triangles.
+        triangles: usize,
+        /// Vertices of the rest surface.
+        rest_vertices: usize,
+        /// Its triangles.
+        rest_triangles: usize,
+    },
+    /// A triangle of the deformed surface differs from the rest surface's.
+    #[error(
+        "triangle {triangle} of the deformed surface is {deformed:?}, in the rest surface {rest:?} (it must be the same mesh with moved vertices)"
+    )]
+    TriangleMismatch {
+        /// The triangle.
+        triangle: usize,
+        /// Its corners in the deformed surface.
+        deformed: [u32; 3],
+        /// Its corners in the rest surface.
+        rest: [u32; 3],
+    },
+    /// A vertex of the deformed surface is NaN or infinite.
+    #[error("vertex {vertex} of the deformed surface is not finite: {value}")]
+    NonFiniteVertex {
+        /// The vertex.
+        vertex: usize,
+        /// Its coordinates.
+        value: glam::Vec3,
+    },
+    /// No particle is on the surface, so nothing follows it.
+    #[error("the model has no surface particles to follow the surface")]
+    NoControlPoints,
+    /// The two-level solve's coarse space cannot be built.
+    #[error("{0}")]
+    CoarseSpace(String),
+    /// Points bound on one backend were carried by a solver on another.
+    #[error("points bound on one backend were carried by another")]
+    OtherBackend,
+}
+
 /// Everything that can go wrong in tissue's core.
 #[derive(Debug, Error)]
 pub enum Error {
@@ -163,11 +263,11 @@ pub enum Error {
     Param(#[from] ParamError),
     /// Sampling could not produce a model.
     #[error("sampling failed: {0}")]
-    Sampling(String),
+    Sampling(#[from] SamplingError),
     /// Stage 2 cannot run: a surface that is not the model's, a model without
     /// control points, parameters out of range.
-    #[error("{0}")]
-    Deformation(String),
+    #[error(transparent)]
+    Deformation(#[from] DeformError),
     /// The GPU path failed: no adapter, a device limit, device loss, out of
     /// memory (the GPU crate's own error, as text, with what was being done).
     #[error("{context}: {message}")]

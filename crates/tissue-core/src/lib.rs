@@ -13,7 +13,7 @@ pub mod phantom;
 pub mod report;
 pub mod validate;
 
-pub use error::{Error, MeshError, ParamError};
+pub use error::{DeformError, Error, MeshError, ParamError, SamplingError};
 pub use mesh::SurfaceMesh;
 pub use model::{Attachment, Connections, ParticleModel};
 pub use params::{SamplingParams, SurfaceMode};

@@ -23,7 +23,7 @@ use std::time::Instant;
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
-use tissue_core::{Connections, Error};
+use tissue_core::{Connections, DeformError, Error};
 
 /// Marks a particle that belongs to no aggregate (a control point, or a
 /// particle held because nothing connects it to the surface).
@@ -61,9 +61,10 @@ impl CoarseSpace {
     ) -> Result<Self, Error> {
         let started = Instant::now();
         if !(cell > 0.0 && cell.is_finite()) {
-            return Err(Error::Deformation(format!(
+            return Err(DeformError::CoarseSpace(format!(
                 "the coarse space's cell is {cell}, expected a positive length"
-            )));
+            ))
+            .into());
         }
         let (mut cell, mut aggregate, mut count) = (cell, Vec::new(), 0);
         for _ in 0..MAX_GROWTH {
@@ -74,9 +75,10 @@ impl CoarseSpace {
             cell *= 1.25;
         }
         if count == 0 {
-            return Err(Error::Deformation(
+            return Err(DeformError::CoarseSpace(
                 "the coarse space has no aggregates: no particle is free".into(),
-            ));
+            )
+            .into());
         }
         let rows = coarse_laplacian(&aggregate, connections, count);
         let order = reverse_cuthill_mckee(&rows);
@@ -99,9 +101,9 @@ impl CoarseSpace {
             })
             .collect();
         let factor = Envelope::cholesky(&rows).ok_or_else(|| {
-            Error::Deformation(
+            Error::from(DeformError::CoarseSpace(
                 "the coarse Laplacian is not positive definite (a rounding failure)".into(),
-            )
+            ))
         })?;
         let mut space = Self {
             aggregate,

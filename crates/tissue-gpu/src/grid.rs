@@ -38,6 +38,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
+use tissue_core::SamplingError;
 use tissue_solve::grid::Grid;
 use wgpu::util::DeviceExt;
 
@@ -224,7 +225,10 @@ impl GridPipelines {
         cell: f32,
     ) -> Result<GpuGrid, GpuError> {
         if !cell.is_finite() {
-            return Err(invalid(format!("the grid cell must be finite, not {cell}")));
+            return Err(invalid(SamplingError::NonFiniteSize {
+                what: "the grid cell",
+                value: cell.to_string(),
+            }));
         }
         let empty = placeholder_for(device, positions);
         let positions = empty.as_ref().unwrap_or(positions);
@@ -270,9 +274,10 @@ impl GridPipelines {
         sorted: bool,
     ) -> Result<GpuRows, GpuError> {
         if !factor.is_finite() || !skin.is_finite() {
-            return Err(invalid(format!(
-                "the neighbour limit needs a finite factor and skin, not {factor} and {skin}"
-            )));
+            return Err(invalid(SamplingError::NonFiniteSize {
+                what: "the neighbour limit's factor and skin",
+                value: format!("{factor} and {skin}"),
+            }));
         }
         let empty = placeholder_for(device, positions);
         let positions = empty.as_ref().unwrap_or(positions);
@@ -637,14 +642,12 @@ fn record<'a>(
 fn check_status(status: u32) -> Result<(), GpuError> {
     match status {
         0 => Ok(()),
-        _ => Err(invalid(
-            "a particle's position or radius is not finite: no grid".into(),
-        )),
+        _ => Err(invalid(SamplingError::NonFiniteParticle)),
     }
 }
 
-fn invalid(message: String) -> GpuError {
-    GpuError::Model(tissue_core::Error::Sampling(message))
+fn invalid(error: SamplingError) -> GpuError {
+    GpuError::Model(error.into())
 }
 
 fn uniform(device: &wgpu::Device, params: &GridParams) -> wgpu::Buffer {

@@ -2,7 +2,7 @@
 //! every device: which particles move, the spectrum, the size, the floor.
 
 use glam::Vec3;
-use tissue_core::{Connections, Error, ParticleModel};
+use tissue_core::{Connections, DeformError, Error, ParticleModel};
 
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
@@ -38,9 +38,7 @@ impl Plan {
     pub fn new(model: &ParticleModel) -> Result<Self, Error> {
         model.validate()?;
         if model.attachments.iter().all(Option::is_none) {
-            return Err(Error::Deformation(
-                "the model has no surface particles to follow the surface".into(),
-            ));
+            return Err(DeformError::NoControlPoints.into());
         }
         let mut free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
         // A free particle with no path of connections to a control point has

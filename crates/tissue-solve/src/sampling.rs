@@ -12,8 +12,8 @@ use rayon::prelude::*;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::params::InitialPlacement;
 use tissue_core::{
-    Attachment, Connections, Error, ParticleModel, SamplingParams, SamplingReport, StageSeconds,
-    SurfaceMesh,
+    Attachment, Connections, Error, ParticleModel, SamplingError, SamplingParams, SamplingReport,
+    StageSeconds, SurfaceMesh,
 };
 
 use crate::grid::{grid_build, neighbour_rows};
@@ -85,9 +85,7 @@ pub fn initial_positions(
     r0: f32,
 ) -> Result<Vec<Vec3>, Error> {
     let mut rng = Pcg64::seed_from_u64(params.seed);
-    let (lo, hi) = mesh
-        .bounds()
-        .ok_or_else(|| Error::Sampling("the surface has no vertices".into()))?;
+    let (lo, hi) = mesh.bounds().ok_or(SamplingError::NoVertices)?;
     match params.initial {
         InitialPlacement::Random => {
             let mut points = Vec::with_capacity(params.particles);
@@ -101,10 +99,11 @@ pub fn initial_positions(
                     }
                 }
             }
-            Err(Error::Sampling(format!(
-                "only {} of {attempts} random points fell inside the surface",
-                points.len()
-            )))
+            Err(SamplingError::RandomPlacement {
+                placed: points.len(),
+                attempts,
+            }
+            .into())
         }
         InitialPlacement::Lattice => lattice(field, lo, hi, params, r0, &mut rng),
     }
@@ -179,9 +178,7 @@ fn lattice(
         edge *= ratio.clamp(0.7, 1.3);
     }
     let Some(points) = best else {
-        return Err(Error::Sampling(format!(
-            "could not place {n} lattice points inside the surface; is it closed and large enough?"
-        )));
+        return Err(SamplingError::LatticePlacement { particles: n }.into());
     };
     let mut keep = index::sample(rng, points.len(), n).into_vec();
     keep.sort_unstable();
@@ -216,9 +213,7 @@ pub fn prepare(mesh: &SurfaceMesh, params: &SamplingParams) -> Result<Prepared, 
     params.validate()?;
     let volume = mesh.signed_volume();
     if !(volume.is_finite() && volume > 0.0) {
-        return Err(Error::Sampling(format!(
-            "the surface encloses no positive volume ({volume}); validate it first"
-        )));
+        return Err(SamplingError::NoVolume { volume }.into());
     }
     let r0 = initial_radius(volume, params.particles);
     let mut stages = StageSeconds::default();
@@ -230,7 +225,8 @@ pub fn prepare(mesh: &SurfaceMesh, params: &SamplingParams) -> Result<Prepared, 
     // Exact answers are needed within the contact tolerance and the surface
     // band of the final placement; a wider margin costs build time.
     let margin = (2.0 * params.surface_band).max(FIELD_MARGIN_IN_R0) * r0;
-    let field = SurfaceField::new(mesh, FIELD_CELL_IN_R0 * r0, margin).map_err(Error::Sampling)?;
+    let field =
+        SurfaceField::new(mesh, FIELD_CELL_IN_R0 * r0, margin).map_err(SamplingError::Field)?;
     lap(&mut stages.field);
     let positions = initial_positions(mesh, &field, params, r0)?;
     // Particles in grid-cell order: neighbours then sit close in memory, which
@@ -337,10 +333,7 @@ pub fn converged_after(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<bool, Error> {
     if !(step_rms.is_finite() && radius_rms.is_finite()) {
-        return Err(Error::Sampling(format!(
-            "the particle state became non-finite at iteration {done}; \
-             the parameters make the system unstable"
-        )));
+        return Err(SamplingError::Unstable { iteration: done }.into());
     }
     progress(&Progress {
         iteration: done + 1,

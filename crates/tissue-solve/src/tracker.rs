@@ -193,7 +193,7 @@ impl<D: SolveDevice> Tracker<D> {
         cx: D::Context<'_>,
         deformed: &SurfaceMesh,
     ) -> Result<(), E> {
-        check_same_topology(&self.surface, deformed)?;
+        check_same_topology(&self.surface, deformed).map_err(Error::from)?;
         let controls: Vec<(usize, Vec3)> = self
             .attachments
             .iter()
