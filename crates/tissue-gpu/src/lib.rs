@@ -35,7 +35,7 @@ pub use grid::{GpuGrid, GpuRows, GridKernel, GridPipelines};
 pub use pipelines::{Kernel, KernelId, KernelSet, Pipelines};
 pub use sampler::SamplingPipelines;
 pub use state::{DeformState, SLOTS};
-pub use structures::{EmbeddingKernel, GpuEmbedding};
+pub use structures::{EmbeddingKernel, EmbeddingMoved, GpuEmbedding};
 
 use bytemuck::{Pod, Zeroable};
 

@@ -124,7 +124,8 @@ pub trait KernelId: Copy + std::fmt::Debug + 'static {
 
 /// The compiled kernels of one family, one per kernel, built once per
 /// device: stage 2's ([`Pipelines`]), stage 1's
-/// ([`crate::SamplingPipelines`]) and the grid's ([`crate::GridPipelines`]).
+/// ([`crate::SamplingPipelines`]), the grid's ([`crate::GridPipelines`]) and
+/// the structures' ([`crate::EmbeddingKernel`]).
 #[derive(Debug)]
 pub struct KernelSet<K> {
     kernels: Vec<CompiledKernel>,
@@ -248,6 +249,7 @@ mod tests {
     use super::{Kernel, KernelId};
     use crate::grid::GridKernel;
     use crate::sampler::SamplingKernel;
+    use crate::structures::EmbeddingMoved;
 
     /// `index` is the declaration order; the per-kernel tables (the
     /// compiled set, bind groups, workgroups) are in `KERNELS` order, so the
@@ -263,5 +265,6 @@ mod tests {
         assert_indexed::<Kernel>();
         assert_indexed::<SamplingKernel>();
         assert_indexed::<GridKernel>();
+        assert_indexed::<EmbeddingMoved>();
     }
 }

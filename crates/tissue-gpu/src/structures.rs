@@ -9,9 +9,9 @@
 use glam::Vec3;
 use tissue_solve::structures::Embedding;
 
-use crate::pipelines::CompiledKernel;
+use crate::pipelines::{KernelId, KernelSet};
 use crate::state::{DeformState, read_buffer, workgroups};
-use crate::support::{Scopes, compile, storage_init};
+use crate::support::{Scopes, storage_init};
 use crate::{GpuError, shaders};
 
 /// Mirror of WGSL `Carrier` (`shaders/embedding_moved.wgsl`).
@@ -38,10 +38,27 @@ pub struct EmbeddingParams {
     pub _pad: u32,
 }
 
+/// The one kernel of the structures' family: `embedding_moved.wgsl`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EmbeddingMoved;
+
+impl KernelId for EmbeddingMoved {
+    const KERNELS: &'static [Self] = &[EmbeddingMoved];
+    const DYNAMIC_UNIFORM: bool = false;
+
+    fn entry(self) -> (&'static str, &'static str) {
+        ("embedding_moved", "embedding_moved")
+    }
+
+    fn index(self) -> usize {
+        0
+    }
+}
+
 /// The compiled `embedding_moved` kernel, built once per device.
 #[derive(Debug)]
 pub struct EmbeddingKernel {
-    kernel: CompiledKernel,
+    kernel: KernelSet<EmbeddingMoved>,
     /// Carrier slots per point (`CARRIERS` in the shader).
     slots: usize,
 }
@@ -49,11 +66,8 @@ pub struct EmbeddingKernel {
 impl EmbeddingKernel {
     /// Compiles the kernel for `device`.
     pub fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
-        let scopes = Scopes::push(device);
-        let kernel = compile(device, "embedding_moved", "embedding_moved", false);
-        scopes.pop()?;
         Ok(Self {
-            kernel: kernel?,
+            kernel: KernelSet::new(device)?,
             slots: carrier_slots()?,
         })
     }
@@ -198,7 +212,7 @@ impl GpuEmbedding {
         if self.count == 0 {
             return Ok(Vec::new());
         }
-        let compiled = &kernel.kernel;
+        let compiled = kernel.kernel.kernel(EmbeddingMoved);
         let [x, y] = workgroups(
             self.count,
             compiled.workgroup_size,
