@@ -16,6 +16,27 @@ pub struct ParamError {
     pub expected: String,
 }
 
+impl ParamError {
+    /// `Ok` when `ok`, else the error naming `name`, its `value` and what
+    /// it should be: one check of a `validate`.
+    pub fn check(
+        ok: bool,
+        name: &'static str,
+        value: impl std::fmt::Display,
+        expected: impl Into<String>,
+    ) -> Result<(), Self> {
+        if ok {
+            Ok(())
+        } else {
+            Err(Self {
+                name,
+                value: value.to_string(),
+                expected: expected.into(),
+            })
+        }
+    }
+}
+
 /// A surface mesh that cannot be used: what is wrong, how often, and one place.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum MeshError {

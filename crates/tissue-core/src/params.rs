@@ -137,42 +137,26 @@ impl SamplingParams {
 
     /// Checks every parameter, naming the first that is out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
-        fn check(
-            ok: bool,
-            name: &'static str,
-            value: impl std::fmt::Display,
-            expected: &'static str,
-        ) -> Result<(), ParamError> {
-            if ok {
-                Ok(())
-            } else {
-                Err(ParamError {
-                    name,
-                    value: value.to_string(),
-                    expected: expected.to_owned(),
-                })
-            }
-        }
         let finite_pos = |x: f32| x.is_finite() && x > 0.0;
-        check(
+        ParamError::check(
             (4..=50_000_000).contains(&self.particles),
             "particles",
             self.particles,
             "between 4 and 50,000,000",
         )?;
-        check(
+        ParamError::check(
             self.alpha.is_finite() && self.alpha > 0.0 && self.alpha <= 1.0,
             "alpha",
             self.alpha,
             "in (0, 1]",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.ideal_neighbours),
             "ideal_neighbours",
             self.ideal_neighbours,
             "positive",
         )?;
-        check(
+        ParamError::check(
             self.equilibrium_ratio.is_finite()
                 && self.equilibrium_ratio > 0.0
                 && self.equilibrium_ratio < 1.0,
@@ -180,26 +164,26 @@ impl SamplingParams {
             self.equilibrium_ratio,
             "in (0, 1): the pair force must still repel at equilibrium",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.eta) && self.eta <= 1.0,
             "eta",
             self.eta,
             "in (0, 1]",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.max_log_radius_step) && self.max_log_radius_step <= 1.0,
             "max_log_radius_step",
             self.max_log_radius_step,
             "in (0, 1]",
         )?;
-        check(finite_pos(self.mass), "mass", self.mass, "positive")?;
-        check(
+        ParamError::check(finite_pos(self.mass), "mass", self.mass, "positive")?;
+        ParamError::check(
             finite_pos(self.max_step) && self.max_step <= 2.0,
             "max_step",
             self.max_step,
             "in (0, 2]",
         )?;
-        check(
+        ParamError::check(
             self.force_cutoff.is_finite()
                 && self.force_cutoff >= self.equilibrium_ratio
                 && self.force_cutoff <= 3.0,
@@ -207,34 +191,34 @@ impl SamplingParams {
             self.force_cutoff,
             "between equilibrium_ratio and 3",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.connection_ratio) && self.connection_ratio <= 3.0,
             "connection_ratio",
             self.connection_ratio,
             "in (0, 3]",
         )?;
         if let SurfaceMode::PaperForce { mu } = self.surface_mode {
-            check(finite_pos(mu), "mu", mu, "positive")?;
+            ParamError::check(finite_pos(mu), "mu", mu, "positive")?;
         }
-        check(
+        ParamError::check(
             (1..=1_000_000).contains(&self.max_iterations),
             "max_iterations",
             self.max_iterations,
             "between 1 and 1,000,000",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.step_tolerance),
             "step_tolerance",
             self.step_tolerance,
             "positive",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.radius_tolerance),
             "radius_tolerance",
             self.radius_tolerance,
             "positive",
         )?;
-        check(
+        ParamError::check(
             finite_pos(self.surface_band) && self.surface_band < 1.0,
             "surface_band",
             self.surface_band,

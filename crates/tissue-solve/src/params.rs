@@ -115,58 +115,47 @@ impl Default for DeformParams {
 impl DeformParams {
     /// Checks every parameter, naming the first that is out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
-        let check = |ok: bool, name, value: &dyn std::fmt::Display, expected: String| {
-            if ok {
-                Ok(())
-            } else {
-                Err(ParamError {
-                    name,
-                    value: value.to_string(),
-                    expected,
-                })
-            }
-        };
-        check(
+        ParamError::check(
             self.step_fraction > 0.0 && self.step_fraction < 1.0,
             "step_fraction",
-            &self.step_fraction,
-            "in (0, 1)".into(),
+            self.step_fraction,
+            "in (0, 1)",
         )?;
-        check(
+        ParamError::check(
             self.tolerance > 0.0 && self.tolerance.is_finite(),
             "tolerance",
-            &self.tolerance,
-            "a positive number".into(),
+            self.tolerance,
+            "a positive number",
         )?;
-        check(
+        ParamError::check(
             self.history <= MAX_HISTORY,
             "history",
-            &self.history,
+            self.history,
             format!("0 to {MAX_HISTORY} frames"),
         )?;
-        check(
+        ParamError::check(
             self.deflation <= MAX_DEFLATION,
             "deflation",
-            &self.deflation,
+            self.deflation,
             format!("0 to {MAX_DEFLATION} modes"),
         )?;
-        check(
+        ParamError::check(
             self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse),
             "coarse",
-            &self.coarse,
-            "0 (off) or a cell of 1 to 1000 mean connection lengths".into(),
+            self.coarse,
+            "0 (off) or a cell of 1 to 1000 mean connection lengths",
         )?;
-        check(
+        ParamError::check(
             (1..=MAX_COARSE_AGGREGATES).contains(&self.coarse_max_aggregates),
             "coarse_max_aggregates",
-            &self.coarse_max_aggregates,
+            self.coarse_max_aggregates,
             format!("1 to {MAX_COARSE_AGGREGATES}"),
         )?;
-        check(
+        ParamError::check(
             (1..=10_000_000).contains(&self.max_iterations),
             "max_iterations",
-            &self.max_iterations,
-            "1 to 10,000,000".into(),
+            self.max_iterations,
+            "1 to 10,000,000",
         )
     }
 }
