@@ -30,6 +30,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Mat3, Vec3};
+use rayon::prelude::*;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
 pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
 pub use tissue_solve::controls::check_same_topology;
@@ -354,7 +355,7 @@ impl SolveDevice for CpuSolve {
         self.current.copy_from_slice(positions);
         if let Some(turn) = turn {
             // The warm-started rotations turn with the surface too.
-            self.rotations.iter_mut().for_each(|r| *r = turn * *r);
+            self.rotations.par_iter_mut().for_each(|r| *r = turn * *r);
         }
         Ok(())
     }
