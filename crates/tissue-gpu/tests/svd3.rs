@@ -54,18 +54,7 @@ fn random_rotation(rng: &mut impl Rng) -> Mat3 {
 /// Random matrices (entries in [-1, 1], log-uniform scales) and adversarial ones.
 fn matrices() -> Vec<Mat3> {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0x5eed_5fd3);
-    let mut out = vec![
-        Mat3::ZERO,
-        Mat3::IDENTITY,
-        -Mat3::IDENTITY,
-        Mat3::from_diagonal(Vec3::new(1.0, -2.0, 3.0)),
-        Mat3::from_cols(Vec3::X, Vec3::X, Vec3::X),
-        Mat3::from_cols(
-            Vec3::new(1.0, 2.0, 3.0),
-            Vec3::new(4.0, 5.0, 6.0),
-            Vec3::new(7.0, 8.0, 9.0),
-        ),
-    ];
+    let mut out = tissue_testkit::small_svd_cases().to_vec();
     for _ in 0..8_000 {
         let scale = 10f32.powf(rng.random_range(-6.0..6.0));
         let entries: [f32; 9] = std::array::from_fn(|_| rng.random_range(-1.0f32..1.0));

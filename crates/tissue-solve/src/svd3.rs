@@ -472,19 +472,7 @@ mod tests {
 
     #[test]
     fn small_cases_satisfy_the_invariants() {
-        let cases = [
-            Mat3::ZERO,
-            Mat3::IDENTITY,
-            -Mat3::IDENTITY,
-            Mat3::from_diagonal(Vec3::new(1.0, -2.0, 3.0)),
-            Mat3::from_cols(Vec3::X, Vec3::X, Vec3::X),
-            Mat3::from_cols(
-                Vec3::new(1.0, 2.0, 3.0),
-                Vec3::new(4.0, 5.0, 6.0),
-                Vec3::new(7.0, 8.0, 9.0),
-            ),
-        ];
-        for m in cases {
+        for m in tissue_testkit::small_svd_cases() {
             let svd = svd3(m);
             let e = errors(m, &svd);
             assert!(e.iter().all(|x| *x < 1e-5), "{m}: errors {e:?}, {svd:?}");

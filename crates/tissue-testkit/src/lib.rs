@@ -53,6 +53,24 @@ pub fn xorshift(seed: u64) -> impl FnMut() -> f32 {
     }
 }
 
+/// The hand-picked 3x3 matrices every SVD test starts from: zero, the
+/// identity and its negative (a reflection), a diagonal with a negative
+/// entry, a rank-one and a rank-two matrix.
+pub fn small_svd_cases() -> [Mat3; 6] {
+    [
+        Mat3::ZERO,
+        Mat3::IDENTITY,
+        -Mat3::IDENTITY,
+        Mat3::from_diagonal(Vec3::new(1.0, -2.0, 3.0)),
+        Mat3::from_cols(Vec3::X, Vec3::X, Vec3::X),
+        Mat3::from_cols(
+            Vec3::new(1.0, 2.0, 3.0),
+            Vec3::new(4.0, 5.0, 6.0),
+            Vec3::new(7.0, 8.0, 9.0),
+        ),
+    ]
+}
+
 /// `count` deterministic 3x3 matrices with entries in `[-1, 1)`.
 pub fn matrices(count: usize) -> Vec<Mat3> {
     let mut next = xorshift(0x2545_f491_4f6c_dd1d);
