@@ -9,7 +9,8 @@ use glam::{Mat3, Quat, Vec3};
 use tissue::deform::{Affine, PointMap, Rigid, Twist, deform_surface, interpolate};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::{
-    DeformParams, Deformer, ForceModel, RotationMethod, deformation_force, local_rotations,
+    DeformParams, Deformer, Elastic, ForceModel, RotationMethod, deformation_force,
+    elastic_targets, local_rotations,
 };
 use tissue_cpu::structures::{Embedding, RigidBinding};
 
@@ -198,6 +199,40 @@ fn an_affine_map_is_reproduced_in_the_interior() {
     assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
 }
 
+/// The elastic force's corrected gradients take an affine map exactly, but
+/// its pair term does not pass the patch test (irregular neighbourhoods):
+/// what is left is measured and held.
+#[test]
+fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
+    let model = breast_model();
+    let affine = Affine {
+        matrix: Mat3::from_cols(
+            Vec3::new(1.2, 0.0, 0.05),
+            Vec3::new(0.1, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 0.85),
+        ),
+        translation: Vec3::new(2.0, 0.0, -1.0),
+        centre: Vec3::new(0.0, 0.0, 20.0),
+    };
+    let deformed = deform_surface(&model.surface, &affine);
+    let elastic = DeformParams {
+        force: ForceModel::Elastic,
+        ..DeformParams::default()
+    };
+    let deformer = solve(model, &deformed, elastic);
+    let (rms, max) = errors(model, &deformer, &affine);
+    let scale = max_displacement(model, &affine);
+    let size = deformer.size();
+    eprintln!(
+        "elastic affine: rms {:.4}%, max {:.4}% of the largest displacement {scale}; max {:.2e} of the size",
+        100.0 * rms / scale,
+        100.0 * max / scale,
+        max / size
+    );
+    assert!(rms <= 0.01 * scale, "rms {rms} > 1% of {scale}");
+    assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
+}
+
 #[test]
 fn svd_and_warm_polar_rotations_reach_the_same_solution() {
     let model = breast_model();
@@ -235,16 +270,22 @@ fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
         angle_per_length: 30f32.to_radians() / 4.0,
     };
     let deformed = deform_surface(&model.surface, &twist);
-    let deformer = solve(&model, &deformed, DeformParams::default());
-    let (rms, max) = errors(&model, &deformer, &twist);
-    let scale = max_displacement(&model, &twist);
-    eprintln!(
-        "twist: rms {:.3}%, max {:.3}% of the largest displacement {scale}",
-        100.0 * rms / scale,
-        100.0 * max / scale
-    );
-    assert!(rms <= 0.02 * scale, "rms {rms} > 2% of {scale}");
-    assert!(max <= 0.05 * scale, "max {max} > 5% of {scale}");
+    for force in [ForceModel::Symmetric, ForceModel::Elastic] {
+        let params = DeformParams {
+            force,
+            ..DeformParams::default()
+        };
+        let deformer = solve(&model, &deformed, params);
+        let (rms, max) = errors(&model, &deformer, &twist);
+        let scale = max_displacement(&model, &twist);
+        eprintln!(
+            "{force:?} twist: rms {:.3}%, max {:.3}% of the largest displacement {scale}",
+            100.0 * rms / scale,
+            100.0 * max / scale
+        );
+        assert!(rms <= 0.02 * scale, "{force:?}: rms {rms} > 2% of {scale}");
+        assert!(max <= 0.05 * scale, "{force:?}: max {max} > 5% of {scale}");
+    }
 }
 
 #[test]
@@ -267,18 +308,58 @@ fn the_force_vanishes_under_rigid_motion_for_both_models() {
             .fold(0.0f32, |m, x| m.max(x.abs()));
         assert!(off < 1e-5, "particle {i}: rotation off by {off}");
     }
-    for force in [ForceModel::Paper, ForceModel::Symmetric] {
+    let elastic = Elastic::new(&model.positions, &model.connections, 0.49);
+    let targets = elastic_targets(
+        &model.positions,
+        &current,
+        &model.connections,
+        &rotations,
+        &elastic,
+    );
+    for force in [
+        ForceModel::Paper,
+        ForceModel::Symmetric,
+        ForceModel::Elastic,
+    ] {
+        let targets = if force == ForceModel::Elastic {
+            &targets
+        } else {
+            &rotations
+        };
         let f = deformation_force(
             &model.positions,
             &current,
-            &rotations,
+            targets,
             &model.connections,
             force,
         );
         let worst = f.iter().map(|v| v.length()).fold(0.0, f32::max);
+        // The volume term's weight (24.5 times the shear's at 0.49) scales
+        // the rounding of `J - 1` in f32: held against what a 0.1 % change
+        // of volume gives instead.
+        let limit = if force == ForceModel::Elastic {
+            let swollen: Vec<Vec3> = current.iter().map(|&q| q * 1.000_33).collect();
+            let targets = elastic_targets(
+                &model.positions,
+                &swollen,
+                &model.connections,
+                &rotations,
+                &elastic,
+            );
+            let f = deformation_force(
+                &model.positions,
+                &swollen,
+                &targets,
+                &model.connections,
+                force,
+            );
+            0.1 * f.iter().map(|v| v.length()).fold(0.0, f32::max)
+        } else {
+            1e-3
+        };
         assert!(
-            worst < 1e-3,
-            "{force:?}: largest force {worst} under a rigid motion"
+            worst < limit,
+            "{force:?}: largest force {worst} under a rigid motion (limit {limit})"
         );
     }
 }
@@ -319,6 +400,70 @@ fn the_symmetric_force_is_the_energy_gradient() {
         ForceModel::Symmetric,
     );
     for k in [0usize, 17, 1234, 4321] {
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            let h = 1e-2f32;
+            let mut plus = current.clone();
+            plus[k] += h * axis;
+            let mut minus = current.clone();
+            minus[k] -= h * axis;
+            let gradient = (energy(&plus) - energy(&minus)) / (2.0 * f64::from(h));
+            let expected = f64::from(force[k].dot(axis));
+            assert!(
+                (-0.5 * gradient - expected).abs() <= 1e-2 * (1.0 + expected.abs()),
+                "particle {k} {axis}: -grad/2 {} vs force {expected}",
+                -0.5 * gradient
+            );
+        }
+    }
+}
+
+/// The elastic force is -1/2 the gradient of the energy with the volume
+/// term (rotations held): checked by central differences in `f64`.
+#[test]
+fn the_elastic_force_is_the_energy_gradient() {
+    let model = breast_model();
+    let affine = Affine {
+        matrix: Mat3::from_diagonal(Vec3::new(1.1, 0.95, 1.0)),
+        translation: Vec3::ZERO,
+        centre: Vec3::ZERO,
+    };
+    let current: Vec<Vec3> = model
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| affine.apply(p) + Vec3::splat(0.05 * ((i % 7) as f32 - 3.0)))
+        .collect();
+    let rotations = local_rotations(&model.positions, &current, &model.connections);
+    let elastic = Elastic::new(&model.positions, &model.connections, 0.45);
+    let rest = &model.positions;
+    // Particle `i`'s part of the energy, in `f64`.
+    let part = |q: &[Vec3], i: usize| -> f64 {
+        let mut e = 0.0f64;
+        let mut m = glam::DMat3::ZERO;
+        for &j in model.connections.of(i) {
+            let j = j as usize;
+            let d = (rest[j] - rest[i]).as_dvec3();
+            let c = (q[j] - q[i]).as_dvec3();
+            e += (c - rotations[i].as_dmat3() * d).length_squared();
+            m += glam::DMat3::from_cols(c * d.x, c * d.y, c * d.z);
+        }
+        let f = m * elastic.inverse_moments[i].as_dmat3();
+        e + f64::from(elastic.weights[i]) * (f.determinant() - 1.0).powi(2)
+    };
+    let targets = elastic_targets(rest, &current, &model.connections, &rotations, &elastic);
+    let force = deformation_force(
+        rest,
+        &current,
+        &targets,
+        &model.connections,
+        ForceModel::Elastic,
+    );
+    for k in [0usize, 17, 1234, 4321] {
+        // Only particle k and its neighbours' parts depend on q_k.
+        let near: Vec<usize> = std::iter::once(k)
+            .chain(model.connections.of(k).iter().map(|&j| j as usize))
+            .collect();
+        let energy = |q: &[Vec3]| near.iter().map(|&i| part(q, i)).sum::<f64>();
         for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
             let h = 1e-2f32;
             let mut plus = current.clone();

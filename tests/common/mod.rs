@@ -22,6 +22,24 @@ pub fn shared_mesh(name: &str) -> Option<PathBuf> {
     None
 }
 
+/// A case of `../shared/cases/` (its folder), or `None` (printing why) when
+/// that folder is absent. Under `CI=true` its absence is a failure.
+pub fn shared_case(name: &str) -> Option<PathBuf> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/cases")
+        .join(name);
+    if path.join("truth.json").exists() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI=true but the shared case {} is missing",
+        path.display()
+    );
+    eprintln!("SKIPPED: {} not found", path.display());
+    None
+}
+
 /// The acceptance numbers of stage 1 (issue 2), with the failing value named.
 pub fn assert_quality(what: &str, r: &SamplingReport) {
     assert!(

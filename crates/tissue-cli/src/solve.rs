@@ -19,6 +19,8 @@ pub enum Force {
     Paper,
     /// The symmetric force, the gradient of the rotation-aware energy (docs/METHOD.md).
     Symmetric,
+    /// The symmetric force plus a volume term set by `--poisson` (docs/METHOD.md, "Elastic model").
+    Elastic,
 }
 
 /// Stage-2 options shared by `deform` and `track`.
@@ -27,6 +29,9 @@ pub struct SolveArgs {
     /// Force model.
     #[arg(long, value_enum, default_value_t = Force::Symmetric)]
     pub force: Force,
+    /// Poisson ratio of the elastic force (0 to 0.499; soft tissue is 0.45 to 0.49).
+    #[arg(long, default_value_t = DeformParams::default().poisson)]
+    pub poisson: f32,
     /// Iteration cap per solve.
     #[arg(long, default_value_t = DeformParams::default().max_iterations)]
     pub max_iterations: usize,
@@ -61,7 +66,9 @@ impl SolveArgs {
             force: match self.force {
                 Force::Paper => ForceModel::Paper,
                 Force::Symmetric => ForceModel::Symmetric,
+                Force::Elastic => ForceModel::Elastic,
             },
+            poisson: self.poisson,
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
             deflation,
@@ -206,6 +213,7 @@ mod tests {
     fn deflation_defaults_to_none_for_one_frame_and_32_for_a_sequence() {
         let args = |deflation| SolveArgs {
             force: Force::Symmetric,
+            poisson: DeformParams::default().poisson,
             max_iterations: 100,
             tolerance: 1e-4,
             deflation,
@@ -225,6 +233,7 @@ mod tests {
     fn coarse_defaults_to_the_library_cell_and_refuses_tiny_cells() {
         let args = |coarse| SolveArgs {
             force: Force::Symmetric,
+            poisson: DeformParams::default().poisson,
             max_iterations: 100,
             tolerance: 1e-4,
             deflation: None,

@@ -4,7 +4,9 @@
 use glam::{Mat3, Vec3};
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_solve::deflation_modes;
-use tissue_solve::{DeformParams, DeformReport, Iteration, LowModes, SolveDevice, Tracker};
+use tissue_solve::{
+    DeformParams, DeformReport, ForceModel, Iteration, LowModes, SolveDevice, Tracker,
+};
 
 use crate::state::SLOTS;
 use crate::support::Scopes;
@@ -66,6 +68,15 @@ impl GpuDeformer {
         params: DeformParams,
     ) -> Result<Self, GpuError> {
         let tracker = Tracker::new(model, params, |plan, params| {
+            if params.force == ForceModel::Elastic {
+                return Err(GpuError::Model(tissue_core::Error::Param(
+                    tissue_core::ParamError {
+                        name: "force",
+                        value: "Elastic".into(),
+                        expected: "paper or symmetric on the GPU (the elastic force's kernels are CPU-only so far)".into(),
+                    },
+                )));
+            }
             let pipelines = Pipelines::new(device)?;
             let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
             if params.coarse > 0.0 {

@@ -428,7 +428,7 @@ impl DeformState {
             count: self.count,
             model: match model {
                 ForceModel::Paper => 0,
-                ForceModel::Symmetric => 1,
+                ForceModel::Symmetric | ForceModel::Elastic => 1,
             },
             alpha,
             omega,

@@ -1,7 +1,8 @@
 //! The algorithm of tissue, written once for every device: what belongs to
 //! neither the CPU nor the GPU path.
 //!
-//! - Stage 2: the parameters ([`params`]), what a solve knows before it
+//! - Stage 2: the parameters ([`params`]), the elastic model's
+//!   mathematics ([`elastic`]), what a solve knows before it
 //!   starts ([`plan`], with the Laplacian's spectrum from [`spectrum`]),
 //!   Chebyshev acceleration and the stopping rule ([`acceleration`]), the
 //!   tracking prediction and its history ([`predict`]), the deflated modes
@@ -23,6 +24,7 @@
 pub mod acceleration;
 pub mod batches;
 pub mod controls;
+pub mod elastic;
 pub mod grid;
 pub mod modes;
 pub mod params;

@@ -4,6 +4,8 @@
 use serde::{Deserialize, Serialize};
 use tissue_core::ParamError;
 
+pub use crate::elastic::MAX_POISSON;
+
 /// Which force model stage 2 uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -12,6 +14,10 @@ pub enum ForceModel {
     Paper,
     /// The symmetric variant, the exact gradient of the rotation-aware energy.
     Symmetric,
+    /// The symmetric force plus a volume term weighted by
+    /// [`DeformParams::poisson`] (the [`crate::elastic`] model): resists
+    /// volume change as soft tissue does.
+    Elastic,
 }
 
 /// How each particle's rotation is found every iteration.
@@ -50,6 +56,10 @@ pub struct DeformParams {
     pub tolerance: f32,
     /// Iteration cap.
     pub max_iterations: usize,
+    /// The Poisson ratio of the elastic force model (unused by the others):
+    /// 0 is the symmetric force, 0.5 incompressible. docs/METHOD.md,
+    /// "Elastic model", gives the measurements behind the default.
+    pub poisson: f32,
     /// Tracking: start a new frame from the current state carried by the
     /// least-squares affine map of the surface's move, plus the combination
     /// of the last frames' non-affine changes that best matches the
@@ -97,6 +107,7 @@ impl Default for DeformParams {
         Self {
             force: ForceModel::Symmetric,
             rotations: RotationMethod::WarmPolar,
+            poisson: 0.49,
             step_fraction: 0.9,
             chebyshev: true,
             warm_up: 0,
@@ -120,6 +131,12 @@ impl DeformParams {
             "step_fraction",
             self.step_fraction,
             "in (0, 1)",
+        )?;
+        ParamError::check(
+            (0.0..=MAX_POISSON).contains(&self.poisson),
+            "poisson",
+            self.poisson,
+            format!("in [0, {MAX_POISSON}] (0.5, incompressible, has no finite volume stiffness)"),
         )?;
         ParamError::check(
             self.tolerance > 0.0 && self.tolerance.is_finite(),

@@ -1,9 +1,12 @@
 //! What a stage-2 solve knows about a model before it starts, the same on
 //! every device: which particles move, the spectrum, the size, the floor.
 
+use std::sync::Arc;
+
 use glam::Vec3;
 use tissue_core::{Connections, DeformError, Error, ParticleModel};
 
+use crate::elastic::Elastic;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
 use crate::spectrum::laplacian_extremes;
@@ -25,6 +28,8 @@ pub struct Plan {
     pub size: f32,
     /// An RMS step below this is `f32` rounding at the model's coordinates.
     pub floor: f32,
+    /// The elastic model's rest data, for a solve with the elastic force.
+    pub elastic: Option<Arc<Elastic>>,
 }
 
 impl Plan {
@@ -78,7 +83,25 @@ impl Plan {
             lambda_max,
             size: (hi - lo).length(),
             floor: FLOOR_ULPS * f32::EPSILON * largest,
+            elastic: None,
         })
+    }
+
+    /// [`Plan::new`] for a solve under `params`: with the elastic force, the
+    /// largest eigenvalue is the elastic operator's ([`Elastic::lambda_max`],
+    /// in the Laplacian's units), which sets the step.
+    pub fn for_params(model: &ParticleModel, params: &DeformParams) -> Result<Self, Error> {
+        let mut plan = Self::new(model)?;
+        if params.force == ForceModel::Elastic {
+            let elastic = Elastic::new(&model.positions, &model.connections, params.poisson);
+            plan.lambda_max = plan.lambda_max.max(elastic.lambda_max(
+                &model.positions,
+                &model.connections,
+                &plan.free,
+            ));
+            plan.elastic = Some(Arc::new(elastic));
+        }
+        Ok(plan)
     }
 
     /// The step `alpha = sigma / m`: `step_fraction` of the largest stable
@@ -87,7 +110,7 @@ impl Plan {
     pub fn alpha(&self, params: &DeformParams) -> f32 {
         let limit = match params.force {
             ForceModel::Paper => 2.0,
-            ForceModel::Symmetric => 1.0,
+            ForceModel::Symmetric | ForceModel::Elastic => 1.0,
         };
         params.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE)
     }
@@ -97,7 +120,7 @@ impl Plan {
     pub fn contraction(&self, params: &DeformParams) -> f32 {
         let c = match params.force {
             ForceModel::Paper => 1.0,
-            ForceModel::Symmetric => 2.0,
+            ForceModel::Symmetric | ForceModel::Elastic => 2.0,
         };
         c * self.alpha(params)
     }

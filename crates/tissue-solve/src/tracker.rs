@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use glam::{Mat3, Vec3};
-use tissue_core::{Error, ParticleModel, SurfaceMesh};
+use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::acceleration::{Chebyshev, StoppingRule};
 use crate::batches::{Batches, run_batched};
@@ -123,7 +123,7 @@ impl<D: SolveDevice> Tracker<D> {
         prepare: impl FnOnce(&Plan, &DeformParams) -> Result<D, E>,
     ) -> Result<Self, E> {
         params.validate().map_err(Error::from)?;
-        let plan = Plan::new(model)?;
+        let plan = Plan::for_params(model, &params)?;
         let device = prepare(&plan, &params)?;
         let attachments = model
             .attachments
@@ -160,9 +160,29 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// Changes the parameters of the next solves (the tolerance between
     /// frames, say); the state is kept. What the device prepared once (the
-    /// coarse space, the modes, the step) stays as it was prepared.
+    /// coarse space, the modes, the step) stays as it was prepared, so the
+    /// force and (for the elastic force) the Poisson ratio cannot change.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
         params.validate()?;
+        // The plan's step and the elastic weights were made for these two.
+        ParamError::check(
+            params.force == self.params.force,
+            "force",
+            format!("{:?}", params.force),
+            format!(
+                "{:?}, the force this solve was prepared for",
+                self.params.force
+            ),
+        )?;
+        ParamError::check(
+            params.force != ForceModel::Elastic || params.poisson == self.params.poisson,
+            "poisson",
+            params.poisson,
+            format!(
+                "{}, the Poisson ratio this solve was prepared for",
+                self.params.poisson
+            ),
+        )?;
         self.params = params;
         Ok(())
     }

@@ -5,6 +5,7 @@
 use glam::{DVec3, Mat3, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
+use tissue_solve::elastic::{Elastic, offsets_product};
 use tissue_solve::modes::{LowModes, add_entries};
 use tissue_solve::params::ForceModel;
 use tissue_solve::svd3::rotation_of;
@@ -42,18 +43,6 @@ pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connection
         .collect()
 }
 
-/// `M_i = sum_j (q_j - q_i)(p_j - p_i)^T` over particle `i`'s connections:
-/// the matrix whose polar rotation maps its rest offsets onto its current ones.
-fn offsets_product(rest: &[Vec3], current: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
-    let mut m = Mat3::ZERO;
-    for &j in connections.of(i) {
-        let d = rest[j as usize] - rest[i];
-        let c = current[j as usize] - current[i];
-        m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
-    }
-    m
-}
-
 /// [`local_rotations`] by Müller et al.'s polar iteration, warm-started
 /// from `previous` (rest offsets onto current offsets, like `local_rotations`).
 pub fn local_rotations_warm(
@@ -68,7 +57,29 @@ pub fn local_rotations_warm(
         .collect()
 }
 
-/// The force on every particle, gathered over its connections.
+/// Per particle, the elastic model's target `T_i = R_i - H_i`
+/// ([`Elastic::target`]) from its rotation and its offsets.
+pub fn elastic_targets(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    rotations: &[Mat3],
+    elastic: &Elastic,
+) -> Vec<Mat3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| {
+            elastic.target(
+                i,
+                offsets_product(rest, current, connections, i),
+                rotations[i],
+            )
+        })
+        .collect()
+}
+
+/// The force on every particle, gathered over its connections; `rotations`
+/// are the elastic model's targets ([`elastic_targets`]) for its force.
 pub fn deformation_force(
     rest: &[Vec3],
     current: &[Vec3],
@@ -86,7 +97,9 @@ pub fn deformation_force(
                 let c = current[j] - current[i];
                 f += match model {
                     ForceModel::Paper => rotations[i] * d - c,
-                    ForceModel::Symmetric => (rotations[i] + rotations[j]) * d - 2.0 * c,
+                    ForceModel::Symmetric | ForceModel::Elastic => {
+                        (rotations[i] + rotations[j]) * d - 2.0 * c
+                    }
                 };
             }
             f

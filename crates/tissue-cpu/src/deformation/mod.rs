@@ -34,6 +34,7 @@ use rayon::prelude::*;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
 pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
 pub use tissue_solve::controls::check_same_topology;
+pub use tissue_solve::elastic::Elastic;
 pub use tissue_solve::modes::{LowModes, deflation_modes, low_modes};
 pub use tissue_solve::params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_DEFLATION, MAX_HISTORY, RotationMethod,
@@ -46,7 +47,7 @@ use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
 pub use kernels::{
-    chebyshev_combine, deflate, deformation_force, integrate, local_rotations,
+    chebyshev_combine, deflate, deformation_force, elastic_targets, integrate, local_rotations,
     local_rotations_warm, steps,
 };
 pub use polar::{polar_rotation, warm_rotation};
@@ -174,6 +175,8 @@ pub struct CpuSolve {
     modes: Option<Arc<LowModes>>,
     /// The coarse space of the two-level solve.
     coarse: Option<Arc<CoarseSpace>>,
+    /// The elastic model's rest data, with the elastic force.
+    elastic: Option<Arc<Elastic>>,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Where the last batch of more than one iteration started, for a replay.
@@ -194,7 +197,7 @@ impl CpuSolve {
     /// its deflated modes.
     pub fn new(model: &ParticleModel, plan: &Plan, params: &DeformParams) -> Self {
         let coarse = coarse_space(model, plan, params).map(Arc::new);
-        let modes = if coarse.is_some() {
+        let modes = if coarse.is_some() || params.force == ForceModel::Elastic {
             None
         } else {
             deflation_modes(model, plan, params).map(Arc::new)
@@ -208,6 +211,7 @@ impl CpuSolve {
             rotations: vec![Mat3::IDENTITY; model.len()],
             modes,
             coarse,
+            elastic: plan.elastic.clone(),
             iteration: None,
             batch_start: None,
         }
@@ -241,11 +245,20 @@ impl CpuSolve {
                 &self.rotations,
             ),
         };
+        let targets = self.elastic.as_deref().map(|elastic| {
+            elastic_targets(
+                &self.rest,
+                &self.current,
+                &self.connections,
+                &self.rotations,
+                elastic,
+            )
+        });
         laps.lap(Pass::Rotations);
         let force = deformation_force(
             &self.rest,
             &self.current,
-            &self.rotations,
+            targets.as_deref().unwrap_or(&self.rotations),
             &self.connections,
             it.force,
         );
@@ -414,7 +427,7 @@ pub fn coarse_space(
     plan: &Plan,
     params: &DeformParams,
 ) -> Option<CoarseSpace> {
-    if params.coarse == 0.0 {
+    if params.coarse == 0.0 || params.force == ForceModel::Elastic {
         return None;
     }
     let space = CoarseSpace::new(
