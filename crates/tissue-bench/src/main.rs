@@ -23,7 +23,7 @@ use glam::{Vec2, Vec3};
 use serde::Serialize;
 use tissue_core::deform::{Indentation, Rigid, Sag, deform_surface};
 use tissue_core::{SamplingParams, StageSeconds, SurfaceMesh};
-use tissue_cpu::deformation::DeformParams;
+use tissue_cpu::deformation::{DeformParams, ForceModel};
 
 use crate::machine::{Adapter, Machine};
 use crate::memory::{CpuModelBytes, IterationFloor};
@@ -66,6 +66,23 @@ struct Args {
     /// replaces deflation); 0 measures the solver without it.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     coarse: f32,
+    /// The stage-2 force model (`DeformParams::force`).
+    #[arg(long, value_enum, default_value_t = ForceName::Symmetric)]
+    force: ForceName,
+    /// The elastic force's Poisson ratio (`DeformParams::poisson`).
+    #[arg(long, default_value_t = DeformParams::default().poisson)]
+    poisson: f32,
+}
+
+/// A stage-2 force model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ForceName {
+    /// The paper's one-sided force.
+    Paper,
+    /// The symmetric force (rotation-aware energy).
+    Symmetric,
+    /// The symmetric force plus the volume term (`--poisson`).
+    Elastic,
 }
 
 /// A stage-2 backend.
@@ -295,6 +312,12 @@ fn run(args: &Args) -> Result<()> {
         }
     };
     let params = DeformParams {
+        force: match args.force {
+            ForceName::Paper => ForceModel::Paper,
+            ForceName::Symmetric => ForceModel::Symmetric,
+            ForceName::Elastic => ForceModel::Elastic,
+        },
+        poisson: args.poisson,
         deflation: args.deflation,
         coarse: args.coarse,
         ..DeformParams::default()

@@ -34,12 +34,12 @@ use crate::spectrum::lanczos_extremes;
 pub const FLAT_NEIGHBOURHOOD: f32 = 1e-3;
 
 /// How much stiffer than at rest the elastic operator may become where the
-/// solve goes: the volume term's stiffness grows with `cof(F)`, about
-/// `1 / sigma_min^2` for a particle compressed to `sigma_min` along one
-/// axis. On both breast phantoms at `nu` 0.49 the solve converges with a
-/// step up to 0.45 of the rest operator's and diverges at 0.5
-/// (docs/METHOD.md, "Elastic model"); 2.5 sets the default step at 0.36.
-pub const STIFFENING: f32 = 2.5;
+/// solve goes: the volume term's stiffness grows with `cof(F)`, whose
+/// entries are products of two stretches. After the shear phase that starts
+/// every elastic solve ([`crate::tracker::Tracker::solve`]), both breast
+/// phantoms at `nu` 0.49 diverge with 1.0 and converge with 1.5
+/// (docs/METHOD.md, "Elastic model"); 2.0 leaves a third more margin.
+pub const STIFFENING: f32 = 2.0;
 
 /// The largest Poisson ratio [`crate::params::DeformParams::poisson`] accepts:
 /// at 0.5 the volume term's weight is infinite.

@@ -124,6 +124,20 @@ impl Default for DeformParams {
 }
 
 impl DeformParams {
+    /// The parameters of the shear phase that starts every elastic solve
+    /// (the symmetric force, whose coarse space or deflated modes a device
+    /// prepares); `self` for the other forces.
+    pub fn shear(&self) -> Self {
+        let force = match self.force {
+            ForceModel::Elastic => ForceModel::Symmetric,
+            other => other,
+        };
+        Self {
+            force,
+            ..self.clone()
+        }
+    }
+
     /// Checks every parameter, naming the first that is out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
         ParamError::check(

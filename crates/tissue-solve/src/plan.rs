@@ -30,6 +30,9 @@ pub struct Plan {
     pub floor: f32,
     /// The elastic model's rest data, for a solve with the elastic force.
     pub elastic: Option<Arc<Elastic>>,
+    /// The largest eigenvalue the elastic force's step is set for
+    /// ([`Elastic::lambda_max`], in the Laplacian's units), with it.
+    pub elastic_lambda_max: Option<f32>,
 }
 
 impl Plan {
@@ -84,24 +87,32 @@ impl Plan {
             size: (hi - lo).length(),
             floor: FLOOR_ULPS * f32::EPSILON * largest,
             elastic: None,
+            elastic_lambda_max: None,
         })
     }
 
-    /// [`Plan::new`] for a solve under `params`: with the elastic force, the
-    /// largest eigenvalue is the elastic operator's ([`Elastic::lambda_max`],
-    /// in the Laplacian's units), which sets the step.
+    /// [`Plan::new`] for a solve under `params`: with the elastic force,
+    /// also the elastic model's rest data and the largest eigenvalue of its
+    /// operator ([`Elastic::lambda_max`], in the Laplacian's units), which
+    /// sets its step.
     pub fn for_params(model: &ParticleModel, params: &DeformParams) -> Result<Self, Error> {
         let mut plan = Self::new(model)?;
         if params.force == ForceModel::Elastic {
             let elastic = Elastic::new(&model.positions, &model.connections, params.poisson);
-            plan.lambda_max = plan.lambda_max.max(elastic.lambda_max(
-                &model.positions,
-                &model.connections,
-                &plan.free,
-            ));
+            let stiff = elastic.lambda_max(&model.positions, &model.connections, &plan.free);
+            plan.elastic_lambda_max = Some(stiff.max(plan.lambda_max));
             plan.elastic = Some(Arc::new(elastic));
         }
         Ok(plan)
+    }
+
+    /// The largest eigenvalue the step of `force` is set for: the
+    /// Laplacian's, or for the elastic force its operator's.
+    pub fn lambda_max_for(&self, force: ForceModel) -> f32 {
+        match (force, self.elastic_lambda_max) {
+            (ForceModel::Elastic, Some(stiff)) => stiff,
+            _ => self.lambda_max,
+        }
     }
 
     /// The step `alpha = sigma / m`: `step_fraction` of the largest stable
@@ -112,7 +123,7 @@ impl Plan {
             ForceModel::Paper => 2.0,
             ForceModel::Symmetric | ForceModel::Elastic => 1.0,
         };
-        params.step_fraction * limit / self.lambda_max.max(f32::MIN_POSITIVE)
+        params.step_fraction * limit / self.lambda_max_for(params.force).max(f32::MIN_POSITIVE)
     }
 
     /// `c alpha`: the plain step is `-c alpha L e` for the error `e` while the
@@ -127,20 +138,27 @@ impl Plan {
 
     /// The plain iteration `q <- (I - c alpha L) q + b` (`c = 2` symmetric, 1
     /// paper) contracts at `1 - 2 step_fraction lambda_min / lambda_max` for both.
+    /// With the elastic force, whose smallest eigenvalue is at least the
+    /// Laplacian's, `lambda_max` is its operator's.
     pub fn rho(&self, params: &DeformParams) -> f32 {
-        (1.0 - 2.0 * params.step_fraction * self.lambda_min / self.lambda_max).clamp(0.0, 0.9999)
+        let lambda_max = self.lambda_max_for(params.force);
+        (1.0 - 2.0 * params.step_fraction * self.lambda_min / lambda_max).clamp(0.0, 0.9999)
     }
 
     /// The contraction a solve's Chebyshev weights and stopping rule use:
     /// [`Plan::rho`]; with a coarse space, the two-level iteration's
     /// (`coarse_rho`, measured by the device that built it); with deflation,
-    /// what the modes leave ([`LowModes::rho`]).
+    /// what the modes leave ([`LowModes::rho`]). The elastic force runs
+    /// without either (both are made for the Laplacian): [`Plan::rho`].
     pub fn solve_rho(
         &self,
         params: &DeformParams,
         modes: Option<&LowModes>,
         coarse_rho: Option<f32>,
     ) -> f32 {
+        if params.force == ForceModel::Elastic {
+            return self.rho(params);
+        }
         match (coarse_rho, modes) {
             (Some(rho), _) => rho,
             (None, Some(m)) => m.rho(self, params),

@@ -356,9 +356,10 @@ pub fn svd3(m: Mat3) -> Svd3 {
     );
 
     // Clamp to exact order: the diagonal of r is already sorted up to rounding.
+    // (`max` then `min`, not `clamp`: a NaN from a diverged solve must not panic.)
     let sigma1 = r1.x.max(0.0);
-    let sigma2 = r2.y.clamp(0.0, sigma1);
-    let sigma3 = r3.z.clamp(-sigma2, sigma2);
+    let sigma2 = r2.y.max(0.0).min(sigma1);
+    let sigma3 = r3.z.max(-sigma2).min(sigma2);
     Svd3 {
         u: Mat3::from_cols(u1, u2, u3),
         sigma: Vec3::new(sigma1, sigma2, sigma3) * scale,
@@ -430,6 +431,20 @@ mod tests {
                 .max((svd.v.determinant() - 1.0).abs()),
             if norm > 0.0 { diff / norm } else { diff },
         ]
+    }
+
+    #[test]
+    fn a_matrix_with_nan_gives_a_result_and_no_panic() {
+        // A diverged solve hands the SVD NaN offsets; the solve reports the
+        // divergence, so the SVD must only return.
+        for m in [
+            Mat3::from_cols(Vec3::NAN, Vec3::X, Vec3::Y),
+            Mat3::from_cols(Vec3::X, Vec3::new(f32::NAN, 1.0, 0.0), Vec3::Z),
+            Mat3::from_cols_array(&[f32::NAN; 9]),
+            Mat3::from_cols(Vec3::INFINITY, Vec3::X, Vec3::Y),
+        ] {
+            let _ = rotation_of(m);
+        }
     }
 
     #[test]

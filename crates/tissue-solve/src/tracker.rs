@@ -30,7 +30,15 @@ pub struct Iteration {
     pub alpha: f32,
     /// `c alpha`, what turns an error into the plain step ([`Plan::contraction`]).
     pub contraction: f32,
+    /// Whether the device applies its correction (the coarse space or the
+    /// deflated modes, both made for the Laplacian): not for the elastic force.
+    pub correct: bool,
 }
+
+/// The shear phase of an elastic solve stops at this many times the
+/// solve's tolerance: it only has to bring every neighbourhood near its
+/// rest volume.
+pub const SHEAR_TOLERANCE: f32 = 10.0;
 
 /// What a device does for a stage-2 solve: kernels and buffers, nothing
 /// else. The iteration is the same on every device: rotations, force, the
@@ -198,7 +206,8 @@ impl<D: SolveDevice> Tracker<D> {
         &self.current
     }
 
-    /// The contraction the Chebyshev weights and the stopping rule use.
+    /// The contraction the Chebyshev weights and the stopping rule use (of
+    /// the last phase, for the elastic force).
     pub fn rho(&self) -> f32 {
         self.plan
             .solve_rho(&self.params, self.device.modes(), self.device.coarse_rho())
@@ -242,10 +251,58 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// Iterates until the stopping rule holds or the cap is reached, then
     /// reads the positions back and records them for the next prediction.
+    ///
+    /// With the elastic force the solve has two phases: the symmetric force
+    /// (with the device's correction) to [`SHEAR_TOLERANCE`] times the
+    /// tolerance, then the elastic force from there. The volume term's
+    /// stiffness grows with `cof(F)`; from rest, particles next to a moved
+    /// surface are stretched many times over and no step set at rest is
+    /// stable for them, while the shear phase leaves every neighbourhood
+    /// near its rest volume (docs/METHOD.md, "Elastic model"). The report
+    /// counts both phases' iterations.
     pub fn solve(&mut self, cx: D::Context<'_>) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
-        let p = &self.params;
-        let rho = self.rho();
+        let params = self.params.clone();
+        let mut report = if params.force == ForceModel::Elastic {
+            let shear = DeformParams {
+                tolerance: params.tolerance * SHEAR_TOLERANCE,
+                ..params.shear()
+            };
+            let first = self.phase(cx, &shear, params.max_iterations)?;
+            if first.stopped_by == StopReason::Diverged {
+                first
+            } else {
+                let left = params
+                    .max_iterations
+                    .saturating_sub(first.iterations)
+                    .max(1);
+                let mut second = self.phase(cx, &params, left)?;
+                second.iterations += first.iterations;
+                second.residual_history.splice(0..0, first.residual_history);
+                second
+            }
+        } else {
+            self.phase(cx, &params, params.max_iterations)?
+        };
+        report.seconds = started.elapsed().as_secs_f64();
+        self.current = self.device.read_positions(cx)?;
+        self.history
+            .record(&self.current, report.converged, self.params.history);
+        Ok(report)
+    }
+
+    /// One phase of a solve: `p`'s force from the current state until its
+    /// stopping rule holds or `cap` iterations.
+    fn phase(
+        &mut self,
+        cx: D::Context<'_>,
+        p: &DeformParams,
+        cap: usize,
+    ) -> Result<DeformReport, D::Error> {
+        let started = Instant::now();
+        let rho = self
+            .plan
+            .solve_rho(p, self.device.modes(), self.device.coarse_rho());
         let (chebyshev, mut rule) = (
             Chebyshev::with_rho(p, rho),
             StoppingRule::with_rho(&self.plan, p, rho),
@@ -256,6 +313,7 @@ impl<D: SolveDevice> Tracker<D> {
             rotations: p.rotations,
             alpha: self.plan.alpha(p),
             contraction: self.plan.contraction(p),
+            correct: p.force != ForceModel::Elastic,
         };
         self.device.begin(cx, iteration)?;
         let batch = self.device.batch();
@@ -264,19 +322,14 @@ impl<D: SolveDevice> Tracker<D> {
             cx,
             chebyshev,
         };
-        let (iterations, _) =
-            run_batched(&mut batches, p.max_iterations, batch, |_, &(step, rms)| {
-                let reason = rule.after(step, rms);
-                if let Some(reason) = reason {
-                    stopped_by = reason;
-                }
-                Ok(reason.is_some())
-            })?;
-        let report = rule.report(iterations, stopped_by, started.elapsed().as_secs_f64());
-        self.current = self.device.read_positions(cx)?;
-        self.history
-            .record(&self.current, report.converged, self.params.history);
-        Ok(report)
+        let (iterations, _) = run_batched(&mut batches, cap, batch, |_, &(step, rms)| {
+            let reason = rule.after(step, rms);
+            if let Some(reason) = reason {
+                stopped_by = reason;
+            }
+            Ok(reason.is_some())
+        })?;
+        Ok(rule.report(iterations, stopped_by, started.elapsed().as_secs_f64()))
     }
 
     /// Back to the rest shape (no warm start, no history but the rest).
@@ -362,6 +415,7 @@ mod tests {
         positions: Vec<Vec3>,
         turn: Option<Mat3>,
         replays: Vec<usize>,
+        begun: Vec<Iteration>,
     }
 
     impl Halving {
@@ -373,6 +427,7 @@ mod tests {
                 positions: model.positions.clone(),
                 turn: None,
                 replays: Vec::new(),
+                begun: Vec::new(),
             }
         }
     }
@@ -396,7 +451,9 @@ mod tests {
             Ok(())
         }
 
-        fn begin(&mut self, (): (), _: Iteration) -> Result<(), Infallible> {
+        fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
+            self.step = 1.0;
+            self.begun.push(iteration);
             Ok(())
         }
 
@@ -456,6 +513,40 @@ mod tests {
             // The device is left where the rule held, not at the batch's end.
             assert_eq!(device.step, single.step, "batch {batch}");
         }
+    }
+
+    #[test]
+    fn an_elastic_solve_starts_with_a_corrected_shear_phase() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
+            Ok::<_, Error>(Halving::new(1, &model))
+        })
+        .unwrap();
+        let Ok(report) = tracker.solve(());
+        let plan = tracker.plan().clone();
+        let device = tracker.device;
+        let [shear, elastic] = device.begun[..] else {
+            panic!("{:?}", device.begun);
+        };
+        assert_eq!((shear.force, shear.correct), (ForceModel::Symmetric, true));
+        assert_eq!(
+            (elastic.force, elastic.correct),
+            (ForceModel::Elastic, false)
+        );
+        // Each phase with its own step: the elastic operator is the stiffer.
+        assert_eq!(shear.alpha, plan.alpha(&params.shear()));
+        assert_eq!(elastic.alpha, plan.alpha(&params));
+        assert!(elastic.alpha < shear.alpha);
+        // The report counts both phases; the shear phase stops at a looser
+        // tolerance, so sooner than the elastic one.
+        let (one, _) = solved(1);
+        assert!(report.converged);
+        assert!(report.iterations > one.iterations, "{report:?} vs {one:?}");
+        assert_eq!(report.residual_history.len(), report.iterations);
     }
 
     #[test]

@@ -197,7 +197,7 @@ impl CpuSolve {
     /// its deflated modes.
     pub fn new(model: &ParticleModel, plan: &Plan, params: &DeformParams) -> Self {
         let coarse = coarse_space(model, plan, params).map(Arc::new);
-        let modes = if coarse.is_some() || params.force == ForceModel::Elastic {
+        let modes = if coarse.is_some() {
             None
         } else {
             deflation_modes(model, plan, params).map(Arc::new)
@@ -245,7 +245,11 @@ impl CpuSolve {
                 &self.rotations,
             ),
         };
-        let targets = self.elastic.as_deref().map(|elastic| {
+        let elastic = self
+            .elastic
+            .as_deref()
+            .filter(|_| it.force == ForceModel::Elastic);
+        let targets = elastic.map(|elastic| {
             elastic_targets(
                 &self.rest,
                 &self.current,
@@ -265,10 +269,12 @@ impl CpuSolve {
         laps.lap(Pass::Force);
         let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
         laps.lap(Pass::Integrate);
-        if let Some(m) = &self.modes {
+        let modes = self.modes.as_deref().filter(|_| it.correct);
+        let coarse = self.coarse.as_deref().filter(|_| it.correct);
+        if let Some(m) = modes {
             deflate(m, &self.current, &mut plain, it.contraction);
         }
-        if let Some(c) = &self.coarse {
+        if let Some(c) = coarse {
             c.correct(&self.current, &mut plain, &self.connections, it.contraction);
         }
         laps.lap(Pass::Correction);
@@ -278,7 +284,7 @@ impl CpuSolve {
         // fixed rotations under-corrects them): the error is bounded by
         // the geometric tail of the updates actually made instead.
         let plain_steps =
-            (self.modes.is_none() && self.coarse.is_none()).then(|| steps(&self.current, &plain));
+            (modes.is_none() && coarse.is_none()).then(|| steps(&self.current, &plain));
         laps.lap(Pass::Norms);
         let next = if omega == 1.0 {
             plain
@@ -427,7 +433,7 @@ pub fn coarse_space(
     plan: &Plan,
     params: &DeformParams,
 ) -> Option<CoarseSpace> {
-    if params.coarse == 0.0 || params.force == ForceModel::Elastic {
+    if params.coarse == 0.0 {
         return None;
     }
     let space = CoarseSpace::new(
@@ -436,7 +442,7 @@ pub fn coarse_space(
         &plan.free,
         params.coarse * model.mean_connection_length(),
         params.coarse_max_aggregates,
-        plan.contraction(params),
+        plan.contraction(&params.shear()),
     );
     match space {
         Ok(space) => {
