@@ -6,8 +6,9 @@
 //! - [`DeformState`]: the buffers of one particle model.
 //! - [`Pipelines::record_iterations`]: the step, rotations → force →
 //!   integrate → step norms → Chebyshev (deflated: rotations → force →
-//!   integrate → deflate → Chebyshev → the update's norms), K times into
-//!   one command buffer.
+//!   integrate → deflate → Chebyshev → the update's norms; elastic:
+//!   rotations → targets → force → …, never deflated), K times into one
+//!   command buffer.
 //! - [`GpuDeformer`]: stage 2 on the GPU, `tissue_solve::Tracker` over [`GpuSolve`].
 //! - [`GridPipelines`]: stage 1's uniform grid and neighbour rows
 //!   (`tissue_cpu::grid`) on the GPU, [`GpuGrid`] and [`GpuRows`].
@@ -115,7 +116,8 @@ impl From<wgpu::Error> for GpuError {
 pub struct Params {
     /// Number of particles.
     pub count: u32,
-    /// Force model: 0 the paper's, 1 symmetric.
+    /// Force model: 0 the paper's, 1 symmetric, 2 elastic (the symmetric
+    /// sum over the targets, bound as the force kernel's rotations).
     pub model: u32,
     /// Step `alpha = sigma / m`.
     pub alpha: f32,

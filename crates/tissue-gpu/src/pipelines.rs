@@ -9,7 +9,12 @@ use crate::{GpuError, shaders};
 pub enum Kernel {
     /// `local_rotations.wgsl`: `R_i` from `M_i` through the 3x3 SVD.
     LocalRotations,
-    /// `deformation_force.wgsl`: the force, paper or symmetric.
+    /// `elastic_targets.wgsl`: the elastic model's targets `T_i` from
+    /// `R_i` and `M_i` (only on a state given [`DeformState::set_elastic`]).
+    ElasticTargets,
+    /// `deformation_force.wgsl`: the force, paper or symmetric; on an
+    /// elastic state the symmetric sum over the targets instead of the
+    /// rotations (the elastic force).
     DeformationForce,
     /// `integrate.wgsl::integrate`: `q̂ = q + alpha F` into the plain buffer.
     Integrate,
@@ -33,8 +38,9 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 9] = [
+    pub const ALL: [Kernel; 10] = [
         Kernel::LocalRotations,
+        Kernel::ElasticTargets,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
@@ -48,6 +54,18 @@ impl Kernel {
     /// One iteration without deflation, in order.
     pub const ITERATION: [Kernel; 5] = [
         Kernel::LocalRotations,
+        Kernel::DeformationForce,
+        Kernel::Integrate,
+        Kernel::StepNorms,
+        Kernel::Chebyshev,
+    ];
+
+    /// One iteration with the elastic force, in order: the targets
+    /// between the rotations and the force. Never deflated: deflation
+    /// assumes the Laplacian's modes, which are not the elastic operator's.
+    pub const ELASTIC_ITERATION: [Kernel; 6] = [
+        Kernel::LocalRotations,
+        Kernel::ElasticTargets,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
@@ -71,6 +89,7 @@ impl Kernel {
     pub fn entry(self) -> (&'static str, &'static str) {
         match self {
             Kernel::LocalRotations => ("local_rotations", "local_rotations"),
+            Kernel::ElasticTargets => ("elastic_targets", "elastic_targets"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
             Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
@@ -225,7 +244,8 @@ impl Pipelines {
     /// iteration `k` with the parameters of slot `k`, in one compute pass,
     /// the kernels of [`DeformState::iteration`]: rotations, force, plain
     /// step, its norms, Chebyshev combine; deflated, rotations, force, plain
-    /// step, its deflation, Chebyshev combine, the update's norms.
+    /// step, its deflation, Chebyshev combine, the update's norms; with the
+    /// elastic force, the targets between the rotations and the force.
     pub fn record_iterations(
         &self,
         encoder: &mut wgpu::CommandEncoder,

@@ -41,6 +41,10 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../../../shaders/local_rotations.wgsl"),
     ),
     (
+        "elastic_targets",
+        include_str!("../../../shaders/elastic_targets.wgsl"),
+    ),
+    (
         "deformation_force",
         include_str!("../../../shaders/deformation_force.wgsl"),
     ),
@@ -356,6 +360,7 @@ mod tests {
     fn workgroup_sizes_come_from_the_modules() {
         for (shader, entry) in [
             ("local_rotations", "local_rotations"),
+            ("elastic_targets", "elastic_targets"),
             ("deformation_force", "deformation_force"),
             ("integrate", "integrate"),
             ("integrate", "chebyshev"),

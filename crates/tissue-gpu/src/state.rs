@@ -1,8 +1,9 @@
 //! The buffers of one particle model on the GPU.
 
 use glam::{Mat3, Vec3};
-use tissue_core::ParticleModel;
+use tissue_core::{ParamError, ParticleModel};
 use tissue_solve::ForceModel;
+use tissue_solve::elastic::Elastic;
 
 use crate::pipelines::{Kernel, Pipelines};
 use crate::support::{Scopes, bind_group, storage_init};
@@ -14,7 +15,8 @@ pub const SLOTS: u32 = 8;
 
 /// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused),
 /// rotations three `vec4` columns ([`Rotation`]); the deflation buffers
-/// hold 16 bytes each until [`DeformState::set_modes`] fills them.
+/// hold 16 bytes each until [`DeformState::set_modes`] fills them, the
+/// elastic model's until [`DeformState::set_elastic`] does.
 #[derive(Debug)]
 pub struct DeformState {
     pub(crate) count: u32,
@@ -27,6 +29,9 @@ pub struct DeformState {
     mode_groups: u32,
     /// Modes deflated each iteration (0: none, [`Kernel::ITERATION`]).
     modes: u32,
+    /// The elastic model's data is uploaded: [`Kernel::ELASTIC_ITERATION`],
+    /// the force kernel bound to `targets`.
+    elastic: bool,
     pub(crate) params: wgpu::Buffer,
     pub(crate) rest: wgpu::Buffer,
     pub(crate) current: wgpu::Buffer,
@@ -46,6 +51,13 @@ pub struct DeformState {
     pub(crate) projections: wgpu::Buffer,
     /// Per mode, the gain along it (`vec4`).
     pub(crate) gains: wgpu::Buffer,
+    /// Per particle `A_i^-1` of the elastic model ([`Rotation`] layout; 16 zero bytes without it).
+    pub(crate) inverse_moments: wgpu::Buffer,
+    /// Per particle the elastic model's volume weight `W_i` (16 zero bytes without it).
+    pub(crate) weights: wgpu::Buffer,
+    /// Per particle the elastic target `T_i` ([`Rotation`] layout), what
+    /// the force kernel reads in place of the rotations with the elastic force.
+    pub(crate) targets: wgpu::Buffer,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -96,6 +108,9 @@ impl DeformState {
             &self.scales,
             &self.projections,
             &self.gains,
+            &self.inverse_moments,
+            &self.weights,
+            &self.targets,
         ]
         .iter()
         .map(|b| b.size())
@@ -185,6 +200,9 @@ impl DeformState {
                 storage("scales", &[])?,
                 storage("projections", &[])?,
                 storage("gains", &[])?,
+                storage("inverse_moments", &[])?,
+                storage("weights", &[])?,
+                storage("targets", &[])?,
             ))
         })();
         let params = device.create_buffer(&wgpu::BufferDescriptor {
@@ -209,6 +227,9 @@ impl DeformState {
             scales,
             projections,
             gains,
+            inverse_moments,
+            weights,
+            targets,
         ) = built?;
 
         let controls: Vec<u32> = (0..count)
@@ -228,6 +249,7 @@ impl DeformState {
             step_groups,
             mode_groups,
             modes: 0,
+            elastic: false,
             params,
             rest,
             current,
@@ -243,6 +265,9 @@ impl DeformState {
             scales,
             projections,
             gains,
+            inverse_moments,
+            weights,
+            targets,
             bind_groups: Vec::new(),
             controls,
             control_runs,
@@ -264,7 +289,8 @@ impl DeformState {
     /// particle-major (`vectors[i * m + k]`, 0 at control points), `scales[k]` the
     /// factor `1 / (c alpha lambda_k) − 1` that turns mode `k`'s projection
     /// into its gain (see `tissue_solve::LowModes::deflate`).
-    /// Zero modes turn deflation off.
+    /// Zero modes turn deflation off. Refused on an elastic state
+    /// ([`DeformState::set_elastic`]): the modes are the Laplacian's.
     pub fn set_modes(
         &mut self,
         device: &wgpu::Device,
@@ -274,6 +300,9 @@ impl DeformState {
     ) -> Result<(), GpuError> {
         let n = self.len();
         let m = scales.len();
+        if self.elastic && m > 0 {
+            return Err(not_both(m));
+        }
         if vectors.len() != n * m {
             return Err(GpuError::Length {
                 what: "mode entries (one per particle and mode)",
@@ -333,10 +362,76 @@ impl DeformState {
         self.modes as usize
     }
 
-    /// The kernels of one iteration, in order: [`Kernel::DEFLATED_ITERATION`]
-    /// once [`DeformState::set_modes`] gave modes, else [`Kernel::ITERATION`].
-    pub fn iteration(&self) -> &'static [Kernel] {
+    /// Uploads the elastic model's rest data (`tissue_solve::Plan::elastic`)
+    /// for the elastic force: from now on every iteration computes the
+    /// targets after the rotations ([`Kernel::ELASTIC_ITERATION`]), and the
+    /// force kernel reads them where it read the rotations, in every
+    /// dispatch. Refused on a deflated state ([`DeformState::set_modes`]).
+    pub fn set_elastic(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        elastic: &Elastic,
+    ) -> Result<(), GpuError> {
         if self.modes > 0 {
+            return Err(not_both(self.modes()));
+        }
+        self.check_len(
+            "inverse moments (one per particle)",
+            elastic.inverse_moments.len(),
+        )?;
+        self.check_len("volume weights (one per particle)", elastic.weights.len())?;
+        let n = self.len();
+        let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
+        let inverse: Vec<Rotation> = elastic
+            .inverse_moments
+            .iter()
+            .map(|&a| Rotation::from(a))
+            .collect();
+        let identity = vec![Rotation::from(Mat3::IDENTITY); n];
+        let scopes = Scopes::push(device);
+        let built = (|| {
+            Ok::<_, GpuError>((
+                storage_init(
+                    device,
+                    "inverse_moments",
+                    bytemuck::cast_slice(&inverse),
+                    &what("inverse_moments"),
+                )?,
+                storage_init(
+                    device,
+                    "weights",
+                    bytemuck::cast_slice(&elastic.weights),
+                    &what("weights"),
+                )?,
+                storage_init(
+                    device,
+                    "targets",
+                    bytemuck::cast_slice(&identity),
+                    &what("targets"),
+                )?,
+            ))
+        })();
+        scopes.pop()?;
+        (self.inverse_moments, self.weights, self.targets) = built?;
+        self.elastic = true;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Whether [`DeformState::set_elastic`] gave the elastic model's data.
+    pub fn elastic(&self) -> bool {
+        self.elastic
+    }
+
+    /// The kernels of one iteration, in order: [`Kernel::ELASTIC_ITERATION`]
+    /// once [`DeformState::set_elastic`] gave the elastic model,
+    /// [`Kernel::DEFLATED_ITERATION`] once [`DeformState::set_modes`] gave
+    /// modes, else [`Kernel::ITERATION`].
+    pub fn iteration(&self) -> &'static [Kernel] {
+        if self.elastic {
+            &Kernel::ELASTIC_ITERATION
+        } else if self.modes > 0 {
             &Kernel::DEFLATED_ITERATION
         } else {
             &Kernel::ITERATION
@@ -345,7 +440,9 @@ impl DeformState {
 
     /// A bind group per kernel, in [`Kernel::ALL`] order. `UpdateNorms`
     /// is `step_norms` with `previous` (the old current, after the combine)
-    /// bound as its `plain`.
+    /// bound as its `plain`; on an elastic state `DeformationForce` has
+    /// `targets` bound as its `rotations`, so whatever dispatches it gathers
+    /// the elastic force.
     fn bind_all(
         &self,
         device: &wgpu::Device,
@@ -356,12 +453,14 @@ impl DeformState {
             .into_iter()
             .map(|kernel| {
                 let update = kernel == Kernel::UpdateNorms;
+                let targets = self.elastic && kernel == Kernel::DeformationForce;
                 bind_group(
                     device,
                     pipelines.kernel(kernel),
                     (kernel.entry().0, kernel.name()),
                     |name| match name {
                         "plain" if update => Some(&self.previous),
+                        "rotations" if targets => Some(&self.targets),
                         _ => self.buffer(name),
                     },
                     Some(std::mem::size_of::<Params>() as u64),
@@ -390,6 +489,9 @@ impl DeformState {
             "scales" => &self.scales,
             "projections" => &self.projections,
             "gains" => &self.gains,
+            "inverse_moments" => &self.inverse_moments,
+            "weights" => &self.weights,
+            "targets" => &self.targets,
             _ => return None,
         })
     }
@@ -422,13 +524,17 @@ impl DeformState {
         self.controls.len()
     }
 
-    /// The parameters of one iteration in `slot`, for this model.
+    /// The parameters of one iteration in `slot`, for this model. The
+    /// elastic force (`model` 2, the symmetric sum in the force kernel)
+    /// needs [`DeformState::set_elastic`], which binds the targets the sum
+    /// runs over.
     pub fn params(&self, model: ForceModel, alpha: f32, omega: f32, slot: u32) -> Params {
         Params {
             count: self.count,
             model: match model {
                 ForceModel::Paper => 0,
-                ForceModel::Symmetric | ForceModel::Elastic => 1,
+                ForceModel::Symmetric => 1,
+                ForceModel::Elastic => 2,
             },
             alpha,
             omega,
@@ -489,7 +595,8 @@ impl DeformState {
         Ok(())
     }
 
-    /// Overwrites every rotation (tests of the force kernel).
+    /// Overwrites every rotation (tests of the force kernel, whose elastic
+    /// force reads the targets instead, and of the targets kernel).
     pub fn write_rotations(&self, queue: &wgpu::Queue, rotations: &[Mat3]) -> Result<(), GpuError> {
         self.check_len("rotations", rotations.len())?;
         let data: Vec<Rotation> = rotations.iter().map(|&r| Rotation::from(r)).collect();
@@ -537,10 +644,32 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Mat3>, GpuError> {
+        self.read_matrices(device, queue, &self.rotations)
+    }
+
+    /// Reads the last elastic targets back (an elastic state's; without
+    /// [`DeformState::set_elastic`] there are none, and this is empty).
+    pub fn read_targets(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<Mat3>, GpuError> {
+        if !self.elastic {
+            return Ok(Vec::new());
+        }
+        self.read_matrices(device, queue, &self.targets)
+    }
+
+    fn read_matrices(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        buffer: &wgpu::Buffer,
+    ) -> Result<Vec<Mat3>, GpuError> {
         let bytes = self.readback.read(
             device,
             queue,
-            &self.rotations,
+            buffer,
             self.len() * std::mem::size_of::<Rotation>(),
         )?;
         Ok(bytemuck::pod_collect_to_vec::<u8, Rotation>(&bytes)
@@ -578,6 +707,17 @@ impl DeformState {
             .map(|p| Vec3::new(p[0], p[1], p[2]))
             .collect())
     }
+}
+
+/// The refusal of deflation (`modes` modes) together with the elastic force.
+fn not_both(modes: usize) -> GpuError {
+    GpuError::Model(tissue_core::Error::Param(ParamError {
+        name: "deflation",
+        value: modes.to_string(),
+        expected: "0 with the elastic force (the deflated modes are the Laplacian's, \
+                   not the elastic operator's)"
+            .into(),
+    }))
 }
 
 /// Copies the first `size` bytes of `buffer` to a new staging buffer and

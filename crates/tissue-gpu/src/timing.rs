@@ -9,8 +9,10 @@ use crate::pipelines::{Kernel, Pipelines};
 use crate::state::{DeformState, read_buffer};
 use crate::support::Scopes;
 
-/// Timestamps of the longest iteration: a start and an end per kernel.
+/// Timestamps of the longest iteration, the deflated one: a start and an
+/// end per kernel.
 const QUERIES: u32 = 2 * Kernel::DEFLATED_ITERATION.len() as u32;
+const _: () = assert!(Kernel::ELASTIC_ITERATION.len() <= Kernel::DEFLATED_ITERATION.len());
 
 /// GPU time of one iteration, from the device's own clock.
 #[derive(Clone, Debug, PartialEq)]

@@ -9,7 +9,8 @@ mod common;
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::deformation::{
-    DeformParams, ForceModel, Plan, deformation_force, integrate, local_rotations, low_modes,
+    DeformParams, Elastic, ForceModel, Plan, deformation_force, elastic_targets, integrate,
+    local_rotations, low_modes,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
 
@@ -161,6 +162,184 @@ fn deformation_force_matches_the_cpu_twin_for_both_models() {
                 "deformation_force {force_model:?}, n = {n}: worst {worst:e} (tolerance {tolerance:e})"
             );
         }
+    }
+}
+
+/// Largest entry of `a - b`.
+fn entry_difference(a: Mat3, b: Mat3) -> f32 {
+    (a - b)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f32, |m, x| m.max(x.abs()))
+}
+
+/// The elastic model of `model` at Poisson ratio 0.49 (the default), with
+/// every seventh particle's weight zeroed, so that the kernel's flat
+/// branch (`T_i = R_i`) runs beside the volume term.
+fn elastic_of(model: &ParticleModel) -> Elastic {
+    let mut elastic = Elastic::new(&model.positions, &model.connections, 0.49);
+    for w in elastic.weights.iter_mut().step_by(7) {
+        *w = 0.0;
+    }
+    elastic
+}
+
+#[test]
+fn elastic_targets_matches_the_cpu_twin() {
+    let Some((device, queue)) = common::gpu("elastic_targets parity") else {
+        return;
+    };
+    for n in SIZES {
+        let model = common::phantom(n);
+        let current = deformed(model);
+        let rotations = local_rotations(&model.positions, &current, &model.connections);
+        let elastic = elastic_of(model);
+        let expected = elastic_targets(
+            &model.positions,
+            &current,
+            &model.connections,
+            &rotations,
+            &elastic,
+        );
+        let (pipelines, mut state) = setup(&device, &queue, model);
+        assert!(
+            state
+                .read_targets(&device, &queue)
+                .is_ok_and(|t| t.is_empty()),
+            "n = {n}: a state without the elastic model has no targets"
+        );
+        state
+            .set_elastic(&device, &pipelines, &elastic)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(state.iteration(), &Kernel::ELASTIC_ITERATION[..]);
+        state
+            .write_current(&queue, &current)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state
+            .write_rotations(&queue, &rotations)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state.write_params(&queue, 0, state.params(ForceModel::Elastic, 0.0, 1.0, 0));
+        run(&device, &queue, &pipelines, &state, Kernel::ElasticTargets);
+        let got = state
+            .read_targets(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // T_i - R_i = -W_i (J_i - 1) cof(F_i) A_i^-1: J_i - 1 comes out
+        // of a sum of ~12 offset products to a few ulp of |F|^3 (~1), and
+        // W_i A_i^-1 is about W_i / a_i = 24.5 at Poisson ratio 0.49, which
+        // multiplies that rounding.
+        let tolerance = 2e-4;
+        let mut worst = 0.0f32;
+        let mut largest_volume_term = 0.0f32;
+        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+            if elastic.weights[i] == 0.0 {
+                assert_eq!(
+                    *g, rotations[i],
+                    "n = {n}, particle {i}: weight 0, so the target is the rotation"
+                );
+                continue;
+            }
+            let off = entry_difference(*g, *e);
+            worst = worst.max(off);
+            largest_volume_term = largest_volume_term.max(entry_difference(*e, rotations[i]));
+            assert!(
+                off <= tolerance,
+                "n = {n}, particle {i}: GPU target {g} vs CPU {e}, max entry difference {off:e} > tolerance {tolerance:e}"
+            );
+        }
+        assert!(
+            largest_volume_term > 0.01,
+            "n = {n}: the deformation barely changes volume ({largest_volume_term:e})"
+        );
+        eprintln!(
+            "elastic_targets, n = {n}: worst entry difference {worst:e} (tolerance {tolerance:e}), \
+             largest |T - R| entry {largest_volume_term:e}"
+        );
+    }
+}
+
+/// On an elastic state every dispatch of the force reads the targets: the
+/// GPU's rotations, targets and force in turn against the CPU's elastic
+/// force at the same positions. Deflation is refused there.
+#[test]
+fn an_elastic_state_gathers_the_force_over_the_targets() {
+    let Some((device, queue)) = common::gpu("elastic force parity") else {
+        return;
+    };
+    for n in SIZES {
+        let model = common::phantom(n);
+        let current = deformed(model);
+        let elastic = Elastic::new(&model.positions, &model.connections, 0.49);
+        let rotations = local_rotations(&model.positions, &current, &model.connections);
+        let targets = elastic_targets(
+            &model.positions,
+            &current,
+            &model.connections,
+            &rotations,
+            &elastic,
+        );
+        let expected = deformation_force(
+            &model.positions,
+            &current,
+            &targets,
+            &model.connections,
+            ForceModel::Elastic,
+        );
+        let symmetric = deformation_force(
+            &model.positions,
+            &current,
+            &rotations,
+            &model.connections,
+            ForceModel::Symmetric,
+        );
+        let (pipelines, mut state) = setup(&device, &queue, model);
+        state
+            .set_elastic(&device, &pipelines, &elastic)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let refused = state.set_modes(&device, &pipelines, &vec![0.0; model.len()], &[1.0]);
+        assert!(
+            matches!(refused, Err(tissue_gpu::GpuError::Model(_))),
+            "n = {n}: deflation of an elastic state: {refused:?}"
+        );
+        assert_eq!(state.modes(), 0);
+        state
+            .write_current(&queue, &current)
+            .unwrap_or_else(|e| panic!("{e}"));
+        state.write_params(&queue, 0, state.params(ForceModel::Elastic, 0.0, 1.0, 0));
+        for kernel in [
+            Kernel::LocalRotations,
+            Kernel::ElasticTargets,
+            Kernel::DeformationForce,
+        ] {
+            run(&device, &queue, &pipelines, &state, kernel);
+        }
+        let got = state
+            .read_force(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // About a dozen terms (T_i + T_j) d: the targets' difference (up
+        // to elastic_targets' tolerance, the rotations' SVD adding ~1e-6)
+        // times a spacing each, plus the force test's rounding.
+        let spacing = model.mean_connection_length();
+        let tolerance = 12.0 * 2e-4 * spacing;
+        let mut worst = 0.0f32;
+        let mut volume_force = 0.0f32;
+        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+            let off = (*g - *e).abs().max_element();
+            worst = worst.max(off);
+            volume_force = volume_force.max((*e - symmetric[i]).abs().max_element());
+            assert!(
+                off <= tolerance,
+                "n = {n}, particle {i}: GPU elastic force {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
+            );
+        }
+        assert!(
+            volume_force > 10.0 * tolerance,
+            "n = {n}: the volume term ({volume_force:e}) is lost in the tolerance {tolerance:e}"
+        );
+        eprintln!(
+            "deformation_force Elastic, n = {n}: worst {worst:e} = {:e} spacings \
+             (tolerance {tolerance:e}); the volume term moves it by up to {volume_force:e}",
+            worst / spacing
+        );
     }
 }
 
