@@ -322,3 +322,57 @@ fn deflation_runs_on_both_backends_and_agrees() {
         on_gpu[1].1
     );
 }
+
+/// `deform --force elastic` runs on the GPU too (it refused the elastic
+/// force until its kernels landed) and puts the tumour where the CPU does.
+#[test]
+fn the_elastic_force_runs_on_both_backends_and_agrees() {
+    if !gpu("deform --force elastic --backend gpu") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.vtp");
+    let breast = assets().join("phantom-breast.obj");
+    let out = tissue(&["sample", s(&breast), "-n", "1500", "-o", s(&model), "-q"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let run = |backend: &str| {
+        let out_dir = dir.path().join(backend);
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model),
+            "--surface",
+            s(&assets().join("phantom-sag.obj")),
+            "--rigid-structure",
+            s(&assets().join("phantom-tumour.obj")),
+            "--force",
+            "elastic",
+            "--backend",
+            backend,
+            "-q",
+            "-o",
+            s(&out_dir),
+        ]);
+        let printed = text(&out);
+        assert!(out.status.success(), "{backend}: {printed}");
+        assert!(!printed.contains("panicked"), "{printed}");
+        let report = json(&out_dir.join("report.json"));
+        assert_eq!(report["converged"], true, "{report}");
+        (
+            report["iterations"].as_u64().unwrap(),
+            vec3(&report["structures"][0]["moved_centroid"]),
+        )
+    };
+    let (cpu, on_gpu) = (run("cpu"), run("gpu"));
+    eprintln!("elastic (iterations, tumour centroid): CPU {cpu:?}, GPU {on_gpu:?}");
+    // The CPU's warm polar rotations against the GPU's SVD: each solve
+    // stops within about its tolerance of the answer, as in the test above.
+    let tolerance = 3.0 * 3e-5 * phantom_size();
+    let off = cpu.1.distance(on_gpu.1);
+    assert!(
+        off <= tolerance,
+        "elastic tumour centroid: CPU {} vs GPU {}, {off:e} mm > {tolerance:e} mm",
+        cpu.1,
+        on_gpu.1
+    );
+}

@@ -19,8 +19,11 @@ use crate::{DeformState, GpuError, Pipelines};
 /// `params.deflation`, the same modes as the CPU path's deflate the plain
 /// step every iteration. The two-level solve (`params.coarse`) has no
 /// kernels yet: the GPU deflates where the CPU path would use its coarse
-/// space. The positions are read back at the end of every solve and
-/// uploaded with a new frame's control points (both frame boundaries); the
+/// space. With the elastic force neither path corrects the plain step
+/// (both corrections assume the Laplacian operator): the GPU computes the
+/// targets after the rotations and gathers the force over them. The
+/// positions are read back at the end of every solve and uploaded with a
+/// new frame's control points (both frame boundaries); the
 /// step norms are read back once per [`SLOTS`] iterations, and a batch in
 /// which the rule held is replayed up to that iteration, so the iteration
 /// count equals the CPU's.
@@ -60,7 +63,9 @@ impl GpuDeformer {
     /// Checks `model` and `params`, estimates the Laplacian's extreme
     /// eigenvalues and, with `params.deflation`, its lowest modes (on the
     /// host, by the same calls as the CPU path, so both deflate the same
-    /// modes), compiles the kernels and uploads the model and the modes.
+    /// modes), compiles the kernels and uploads the model and the modes;
+    /// with the elastic force, the elastic model's rest data instead of
+    /// the modes, as the CPU path deflates nothing then.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -68,25 +73,26 @@ impl GpuDeformer {
         params: DeformParams,
     ) -> Result<Self, GpuError> {
         let tracker = Tracker::new(model, params, |plan, params| {
-            if params.force == ForceModel::Elastic {
-                return Err(GpuError::Model(tissue_core::Error::Param(
-                    tissue_core::ParamError {
-                        name: "force",
-                        value: "Elastic".into(),
-                        expected: "paper or symmetric on the GPU (the elastic force's kernels are CPU-only so far)".into(),
-                    },
-                )));
-            }
             let pipelines = Pipelines::new(device)?;
             let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-            if params.coarse > 0.0 {
+            // `CpuSolve::new`'s choice: the elastic operator is not the
+            // Laplacian, whose modes (or coarse space) correct the step.
+            let elastic = params.force == ForceModel::Elastic;
+            if params.coarse > 0.0 && !elastic {
                 log::info!(
                     "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
                     params.coarse,
                     params.deflation
                 );
             }
-            let modes = deflation_modes(model, plan, params);
+            if let Some(elastic) = &plan.elastic {
+                state.set_elastic(device, &pipelines, elastic)?;
+            }
+            let modes = if elastic {
+                None
+            } else {
+                deflation_modes(model, plan, params)
+            };
             if let Some(m) = &modes {
                 let scales: Vec<f32> = m
                     .gain_scales(plan.contraction(params))

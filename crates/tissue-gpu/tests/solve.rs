@@ -187,3 +187,81 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
         );
     }
 }
+
+/// The elastic force (Poisson ratio 0.49) on the sag from rest: neither
+/// path deflates nor runs the coarse space (both assume the Laplacian), so
+/// both run the same iteration and stop at the same one, within 1e-5 of
+/// the size of each other.
+#[test]
+fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
+    let Some((device, queue)) = common::gpu("elastic solve parity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        rotations: RotationMethod::Svd,
+        ..DeformParams::default()
+    };
+    assert!(params.deflation > 0 && params.coarse > 0.0, "{params:?}");
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params.clone());
+    assert!(cpu.modes().is_none() && cpu.coarse().is_none());
+    assert!(gpu.modes().is_none(), "the GPU deflates the elastic force");
+    assert!(gpu.state().elastic());
+    eprintln!(
+        "Elastic: CPU {} iterations, {:?}, {:.3} s; GPU {} iterations, {:?}, {:.3} s",
+        cpu_report.iterations,
+        cpu_report.stopped_by,
+        cpu_report.seconds,
+        gpu_report.iterations,
+        gpu_report.stopped_by,
+        gpu_report.seconds
+    );
+    assert!(cpu_report.converged, "{cpu_report:?}");
+    assert!(gpu_report.converged, "{gpu_report:?}");
+    assert_eq!(
+        cpu_report.iterations, gpu_report.iterations,
+        "the same iteration and stopping rule on both"
+    );
+    let got = gpu
+        .positions(&device, &queue)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let tolerance = 1e-5 * cpu.size();
+    let mut worst = 0.0f32;
+    for (i, (g, e)) in got.iter().zip(cpu.positions()).enumerate() {
+        let off = g.distance(*e);
+        worst = worst.max(off);
+        assert!(
+            off <= tolerance,
+            "Elastic, particle {i}: GPU {g} vs CPU {e}, distance {off:e} > tolerance {tolerance:e} (1e-5 of the size)"
+        );
+    }
+    // The volume term matters: the symmetric solve lands elsewhere.
+    let mut symmetric = tissue_cpu::deformation::Deformer::new(
+        model,
+        DeformParams {
+            force: ForceModel::Symmetric,
+            ..params
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    symmetric
+        .set_surface(&tissue_core::deform::sagged_breast())
+        .unwrap_or_else(|e| panic!("{e}"));
+    symmetric.solve();
+    let apart = symmetric
+        .positions()
+        .iter()
+        .zip(cpu.positions())
+        .map(|(s, e)| s.distance(*e))
+        .fold(0.0f32, f32::max);
+    assert!(
+        apart > 100.0 * tolerance,
+        "the elastic and symmetric solves differ by {apart:e} only"
+    );
+    eprintln!(
+        "Elastic: worst distance {worst:e} = {:e} of the size; the symmetric solve lies up to {apart:e} away",
+        worst / cpu.size()
+    );
+}
