@@ -1,6 +1,7 @@
 //! Criterion micro-benchmarks of the GPU stage-2 kernels on the bundled
 //! phantom at 10,000 particles: rotations by the 3x3 SVD, the force, the
-//! plain step, and one whole iteration (all five kernels in one pass), on the
+//! plain step, and one whole iteration (all five kernels in one pass); the
+//! elastic force's targets and its iteration (six kernels), on the
 //! adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name or the default one.
 //!
 //! Every sample records the dispatch, submits it and waits for the queue, so
@@ -17,7 +18,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use tissue::deform::{Sag, deform_surface};
 use tissue::{SamplingParams, phantom};
-use tissue_cpu::deformation::DeformParams;
+use tissue_cpu::deformation::{DeformParams, ForceModel};
 use tissue_gpu::{GpuDeformer, Kernel};
 
 const PARTICLES: usize = 10_000;
@@ -46,27 +47,42 @@ fn gpu_kernels(c: &mut Criterion) {
         max_iterations: 24,
         ..DeformParams::default()
     };
-    let mut deformer =
-        GpuDeformer::new(&device, &queue, &sampled.model, params).expect("the GPU deformer");
-    deformer
-        .set_surface(&device, &queue, &deform_surface(&breast, &Sag::default()))
-        .expect("the sagged surface");
-    deformer.solve(&device, &queue).expect("24 iterations");
-    let (pipelines, state) = (deformer.pipelines(), deformer.state());
+    let sagged = deform_surface(&breast, &Sag::default());
+    let part_way = |params: DeformParams| {
+        let mut deformer =
+            GpuDeformer::new(&device, &queue, &sampled.model, params).expect("the GPU deformer");
+        deformer
+            .set_surface(&device, &queue, &sagged)
+            .expect("the sagged surface");
+        deformer.solve(&device, &queue).expect("24 iterations");
+        deformer
+    };
+    let symmetric = part_way(params.clone());
+    let elastic = part_way(DeformParams {
+        force: ForceModel::Elastic,
+        ..params
+    });
     let wait = || {
         device
             .poll(wgpu::PollType::wait_indefinitely())
             .expect("the queue finishes");
     };
 
-    for (kernel, name) in [
-        (Kernel::LocalRotations, "gpu local_rotations (SVD) 10k"),
+    for (deformer, kernel, name) in [
         (
+            &symmetric,
+            Kernel::LocalRotations,
+            "gpu local_rotations (SVD) 10k",
+        ),
+        (
+            &symmetric,
             Kernel::DeformationForce,
             "gpu deformation_force (symmetric) 10k",
         ),
-        (Kernel::Integrate, "gpu integrate 10k"),
+        (&symmetric, Kernel::Integrate, "gpu integrate 10k"),
+        (&elastic, Kernel::ElasticTargets, "gpu elastic_targets 10k"),
     ] {
+        let (pipelines, state) = (deformer.pipelines(), deformer.state());
         c.bench_function(name, |b| {
             b.iter(|| {
                 let mut encoder = device.create_command_encoder(&Default::default());
@@ -76,14 +92,26 @@ fn gpu_kernels(c: &mut Criterion) {
             })
         });
     }
-    c.bench_function("gpu deformation iteration (all five kernels) 10k", |b| {
-        b.iter(|| {
-            let mut encoder = device.create_command_encoder(&Default::default());
-            pipelines.record_iterations(&mut encoder, state, 1);
-            queue.submit([encoder.finish()]);
-            wait();
-        })
-    });
+    for (deformer, name) in [
+        (
+            &symmetric,
+            "gpu deformation iteration (all five kernels) 10k",
+        ),
+        (
+            &elastic,
+            "gpu elastic deformation iteration (all six kernels) 10k",
+        ),
+    ] {
+        let (pipelines, state) = (deformer.pipelines(), deformer.state());
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                let mut encoder = device.create_command_encoder(&Default::default());
+                pipelines.record_iterations(&mut encoder, state, 1);
+                queue.submit([encoder.finish()]);
+                wait();
+            })
+        });
+    }
 }
 
 criterion_group! {
