@@ -75,10 +75,7 @@ impl GpuDeformer {
         let tracker = Tracker::new(model, params, |plan, params| {
             let pipelines = Pipelines::new(device)?;
             let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-            // `CpuSolve::new`'s choice: the elastic operator is not the
-            // Laplacian, whose modes (or coarse space) correct the step.
-            let elastic = params.force == ForceModel::Elastic;
-            if params.coarse > 0.0 && !elastic {
+            if params.coarse > 0.0 {
                 log::info!(
                     "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
                     params.coarse,
@@ -88,14 +85,12 @@ impl GpuDeformer {
             if let Some(elastic) = &plan.elastic {
                 state.set_elastic(device, &pipelines, elastic)?;
             }
-            let modes = if elastic {
-                None
-            } else {
-                deflation_modes(model, plan, params)
-            };
+            // The modes correct the symmetric force, an elastic solve's
+            // shear phase included (`Iteration::correct`).
+            let modes = deflation_modes(model, plan, params);
             if let Some(m) = &modes {
                 let scales: Vec<f32> = m
-                    .gain_scales(plan.contraction(params))
+                    .gain_scales(plan.contraction(&params.shear()))
                     .map(|scale| scale as f32)
                     .collect();
                 state.set_modes(device, &pipelines, m.vectors(), &scales)?;
@@ -252,6 +247,8 @@ impl SolveDevice for GpuSolve {
         iteration: Iteration,
     ) -> Result<(), GpuError> {
         self.iteration = Some(iteration);
+        self.state
+            .set_phase(iteration.force == ForceModel::Elastic, iteration.correct);
         let state = &self.state;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve start"),

@@ -1,7 +1,7 @@
 //! The buffers of one particle model on the GPU.
 
 use glam::{Mat3, Vec3};
-use tissue_core::{ParamError, ParticleModel};
+use tissue_core::ParticleModel;
 use tissue_solve::ForceModel;
 use tissue_solve::elastic::Elastic;
 
@@ -29,9 +29,16 @@ pub struct DeformState {
     mode_groups: u32,
     /// Modes deflated each iteration (0: none, [`Kernel::ITERATION`]).
     modes: u32,
-    /// The elastic model's data is uploaded: [`Kernel::ELASTIC_ITERATION`],
-    /// the force kernel bound to `targets`.
+    /// The elastic model's data is uploaded ([`DeformState::set_elastic`]).
     elastic: bool,
+    /// The phase the next iterations run ([`DeformState::set_phase`]): the
+    /// elastic force, with [`Kernel::ELASTIC_ITERATION`] and the force
+    /// kernel bound to `targets` (an elastic state's only).
+    elastic_phase: bool,
+    /// Whether the next iterations deflate (a deflated state's only).
+    correct_phase: bool,
+    /// The force kernel's bind group with `targets` as its `rotations`.
+    elastic_force: Option<wgpu::BindGroup>,
     pub(crate) params: wgpu::Buffer,
     pub(crate) rest: wgpu::Buffer,
     pub(crate) current: wgpu::Buffer,
@@ -250,6 +257,9 @@ impl DeformState {
             mode_groups,
             modes: 0,
             elastic: false,
+            elastic_phase: false,
+            correct_phase: true,
+            elastic_force: None,
             params,
             rest,
             current,
@@ -300,9 +310,6 @@ impl DeformState {
     ) -> Result<(), GpuError> {
         let n = self.len();
         let m = scales.len();
-        if self.elastic && m > 0 {
-            return Err(not_both(m));
-        }
         if vectors.len() != n * m {
             return Err(GpuError::Length {
                 what: "mode entries (one per particle and mode)",
@@ -373,9 +380,6 @@ impl DeformState {
         pipelines: &Pipelines,
         elastic: &Elastic,
     ) -> Result<(), GpuError> {
-        if self.modes > 0 {
-            return Err(not_both(self.modes()));
-        }
         self.check_len(
             "inverse moments (one per particle)",
             elastic.inverse_moments.len(),
@@ -415,8 +419,19 @@ impl DeformState {
         scopes.pop()?;
         (self.inverse_moments, self.weights, self.targets) = built?;
         self.elastic = true;
+        self.elastic_phase = true;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
+    }
+
+    /// Sets what the next iterations run: the elastic force (an elastic
+    /// state's targets after the rotations, the force gathered over them)
+    /// or the state's symmetric or paper force; `correct`, whether a
+    /// deflated state deflates. An elastic solve's shear phase is
+    /// `(false, true)`, its elastic phase `(true, false)`.
+    pub fn set_phase(&mut self, elastic: bool, correct: bool) {
+        self.elastic_phase = elastic && self.elastic;
+        self.correct_phase = correct;
     }
 
     /// Whether [`DeformState::set_elastic`] gave the elastic model's data.
@@ -425,13 +440,14 @@ impl DeformState {
     }
 
     /// The kernels of one iteration, in order: [`Kernel::ELASTIC_ITERATION`]
-    /// once [`DeformState::set_elastic`] gave the elastic model,
-    /// [`Kernel::DEFLATED_ITERATION`] once [`DeformState::set_modes`] gave
-    /// modes, else [`Kernel::ITERATION`].
+    /// in the elastic phase ([`DeformState::set_elastic`], then
+    /// [`DeformState::set_phase`]), [`Kernel::DEFLATED_ITERATION`] where
+    /// [`DeformState::set_modes`] gave modes and the phase corrects, else
+    /// [`Kernel::ITERATION`].
     pub fn iteration(&self) -> &'static [Kernel] {
-        if self.elastic {
+        if self.elastic_phase {
             &Kernel::ELASTIC_ITERATION
-        } else if self.modes > 0 {
+        } else if self.modes > 0 && self.correct_phase {
             &Kernel::DEFLATED_ITERATION
         } else {
             &Kernel::ITERATION
@@ -440,35 +456,42 @@ impl DeformState {
 
     /// A bind group per kernel, in [`Kernel::ALL`] order. `UpdateNorms`
     /// is `step_norms` with `previous` (the old current, after the combine)
-    /// bound as its `plain`; on an elastic state `DeformationForce` has
-    /// `targets` bound as its `rotations`, so whatever dispatches it gathers
-    /// the elastic force.
+    /// bound as its `plain`. On an elastic state, also `DeformationForce`
+    /// with `targets` bound as its `rotations` ([`DeformState::bind_group`]
+    /// gives it in the elastic phase, so whatever dispatches the force
+    /// there gathers the elastic force).
     fn bind_all(
-        &self,
+        &mut self,
         device: &wgpu::Device,
         pipelines: &Pipelines,
     ) -> Result<Vec<wgpu::BindGroup>, GpuError> {
         let scope = Scopes::push(device);
+        let group = |kernel: Kernel, targets: bool| {
+            let update = kernel == Kernel::UpdateNorms;
+            bind_group(
+                device,
+                pipelines.kernel(kernel),
+                (kernel.entry().0, kernel.name()),
+                |name| match name {
+                    "plain" if update => Some(&self.previous),
+                    "rotations" if targets => Some(&self.targets),
+                    _ => self.buffer(name),
+                },
+                Some(std::mem::size_of::<Params>() as u64),
+                "names no stage-2 buffer",
+            )
+        };
         let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
             .into_iter()
-            .map(|kernel| {
-                let update = kernel == Kernel::UpdateNorms;
-                let targets = self.elastic && kernel == Kernel::DeformationForce;
-                bind_group(
-                    device,
-                    pipelines.kernel(kernel),
-                    (kernel.entry().0, kernel.name()),
-                    |name| match name {
-                        "plain" if update => Some(&self.previous),
-                        "rotations" if targets => Some(&self.targets),
-                        _ => self.buffer(name),
-                    },
-                    Some(std::mem::size_of::<Params>() as u64),
-                    "names no stage-2 buffer",
-                )
-            })
+            .map(|kernel| group(kernel, false))
             .collect();
+        let elastic_force = if self.elastic {
+            Some(group(Kernel::DeformationForce, true))
+        } else {
+            None
+        };
         scope.pop()?;
+        self.elastic_force = elastic_force.transpose()?;
         groups
     }
 
@@ -497,7 +520,10 @@ impl DeformState {
     }
 
     pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {
-        &self.bind_groups[kernel.index()]
+        match (&self.elastic_force, kernel) {
+            (Some(group), Kernel::DeformationForce) if self.elastic_phase => group,
+            _ => &self.bind_groups[kernel.index()],
+        }
     }
 
     pub(crate) fn workgroups(&self, kernel: Kernel) -> [u32; 2] {
@@ -707,17 +733,6 @@ impl DeformState {
             .map(|p| Vec3::new(p[0], p[1], p[2]))
             .collect())
     }
-}
-
-/// The refusal of deflation (`modes` modes) together with the elastic force.
-fn not_both(modes: usize) -> GpuError {
-    GpuError::Model(tissue_core::Error::Param(ParamError {
-        name: "deflation",
-        value: modes.to_string(),
-        expected: "0 with the elastic force (the deflated modes are the Laplacian's, \
-                   not the elastic operator's)"
-            .into(),
-    }))
 }
 
 /// Copies the first `size` bytes of `buffer` to a new staging buffer and
