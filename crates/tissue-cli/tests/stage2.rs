@@ -619,6 +619,22 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
             ],
             vec!["history is 17", "0 to 16 frames"],
         ),
+        (
+            vec![
+                "deform".into(),
+                "--model".into(),
+                model.clone(),
+                "--surface".into(),
+                sag.clone(),
+                "--force".into(),
+                "elastic".into(),
+                "--poisson".into(),
+                "0.5".into(),
+                "--output-dir".into(),
+                d("out"),
+            ],
+            vec!["poisson is 0.5", "[0, 0.499]", "incompressible"],
+        ),
     ];
     for (args, expected) in cases {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();

@@ -120,6 +120,9 @@ pub struct Tracker<D> {
     current: Vec<Vec3>,
     /// The last converged solutions, for the prediction.
     history: FrameHistory,
+    /// The state is a converged solve's with the elastic force, so an
+    /// elastic solve may start from it without the shear phase.
+    elastic_warm: bool,
 }
 
 impl<D: SolveDevice> Tracker<D> {
@@ -148,6 +151,7 @@ impl<D: SolveDevice> Tracker<D> {
             attachments,
             rest: model.positions.clone(),
             current: model.positions.clone(),
+            elastic_warm: false,
         })
     }
 
@@ -252,43 +256,73 @@ impl<D: SolveDevice> Tracker<D> {
     /// Iterates until the stopping rule holds or the cap is reached, then
     /// reads the positions back and records them for the next prediction.
     ///
-    /// With the elastic force the solve has two phases: the symmetric force
-    /// (with the device's correction) to [`SHEAR_TOLERANCE`] times the
-    /// tolerance, then the elastic force from there. The volume term's
-    /// stiffness grows with `cof(F)`; from rest, particles next to a moved
-    /// surface are stretched many times over and no step set at rest is
-    /// stable for them, while the shear phase leaves every neighbourhood
-    /// near its rest volume (docs/METHOD.md, "Elastic model"). The report
-    /// counts both phases' iterations.
+    /// With the elastic force a solve from rest (or after a solve that did
+    /// not converge) has two phases: the symmetric force (with the device's
+    /// correction) to [`SHEAR_TOLERANCE`] times the tolerance, then the
+    /// elastic force from there. The volume term's stiffness grows with
+    /// `cof(F)`; from rest, particles next to a moved surface are stretched
+    /// many times over and no step set at rest is stable for them, while
+    /// the shear phase leaves every neighbourhood near its rest volume
+    /// (docs/METHOD.md, "Elastic model"). A tracking frame after a
+    /// converged elastic solve starts from the prediction with the elastic
+    /// force alone (the shear phase would lead away from the last solution),
+    /// and solves again with both phases from the frame's start if that
+    /// diverges. The report counts every iteration run.
     pub fn solve(&mut self, cx: D::Context<'_>) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
         let params = self.params.clone();
-        let mut report = if params.force == ForceModel::Elastic {
-            let shear = DeformParams {
-                tolerance: params.tolerance * SHEAR_TOLERANCE,
-                ..params.shear()
-            };
-            let first = self.phase(cx, &shear, params.max_iterations)?;
-            if first.stopped_by == StopReason::Diverged {
-                first
+        let mut report = if params.force != ForceModel::Elastic {
+            self.phase(cx, &params, params.max_iterations)?
+        } else if self.elastic_warm {
+            let warm = self.phase(cx, &params, params.max_iterations)?;
+            if warm.stopped_by == StopReason::Diverged {
+                log::warn!(
+                    "the elastic solve diverged from the predicted start after {} iterations; \
+                     solving the frame again after a shear phase",
+                    warm.iterations
+                );
+                self.device.reset(cx)?;
+                self.device.write_positions(cx, &self.current, None)?;
+                let mut again = self.shear_then_elastic(cx, &params)?;
+                again.iterations += warm.iterations;
+                again.residual_history.splice(0..0, warm.residual_history);
+                again
             } else {
-                let left = params
-                    .max_iterations
-                    .saturating_sub(first.iterations)
-                    .max(1);
-                let mut second = self.phase(cx, &params, left)?;
-                second.iterations += first.iterations;
-                second.residual_history.splice(0..0, first.residual_history);
-                second
+                warm
             }
         } else {
-            self.phase(cx, &params, params.max_iterations)?
+            self.shear_then_elastic(cx, &params)?
         };
         report.seconds = started.elapsed().as_secs_f64();
         self.current = self.device.read_positions(cx)?;
         self.history
             .record(&self.current, report.converged, self.params.history);
+        self.elastic_warm = params.force == ForceModel::Elastic && report.converged;
         Ok(report)
+    }
+
+    /// The elastic force's two phases: the shear phase, then the elastic one.
+    fn shear_then_elastic(
+        &mut self,
+        cx: D::Context<'_>,
+        params: &DeformParams,
+    ) -> Result<DeformReport, D::Error> {
+        let shear = DeformParams {
+            tolerance: params.tolerance * SHEAR_TOLERANCE,
+            ..params.shear()
+        };
+        let first = self.phase(cx, &shear, params.max_iterations)?;
+        if first.stopped_by == StopReason::Diverged {
+            return Ok(first);
+        }
+        let left = params
+            .max_iterations
+            .saturating_sub(first.iterations)
+            .max(1);
+        let mut second = self.phase(cx, params, left)?;
+        second.iterations += first.iterations;
+        second.residual_history.splice(0..0, first.residual_history);
+        Ok(second)
     }
 
     /// One phase of a solve: `p`'s force from the current state until its
@@ -335,6 +369,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// Back to the rest shape (no warm start, no history but the rest).
     pub fn reset(&mut self, cx: D::Context<'_>) -> Result<(), D::Error> {
         self.device.reset(cx)?;
+        self.elastic_warm = false;
         self.current.clone_from(&self.rest);
         self.history = FrameHistory::at_rest(&self.rest, self.params.history);
         Ok(())
@@ -416,6 +451,9 @@ mod tests {
         turn: Option<Mat3>,
         replays: Vec<usize>,
         begun: Vec<Iteration>,
+        /// The next elastic iteration reports a non-finite step.
+        diverge_once: bool,
+        resets: usize,
     }
 
     impl Halving {
@@ -428,6 +466,8 @@ mod tests {
                 turn: None,
                 replays: Vec::new(),
                 begun: Vec::new(),
+                diverge_once: false,
+                resets: 0,
             }
         }
     }
@@ -459,6 +499,10 @@ mod tests {
 
         fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
             assert!(omegas.len() <= self.batch);
+            let elastic = self.begun.last().map(|it| it.force) == Some(ForceModel::Elastic);
+            if elastic && std::mem::take(&mut self.diverge_once) {
+                return Ok(vec![(f32::NAN, f32::NAN)]);
+            }
             self.batch_start = self.step;
             Ok(omegas
                 .iter()
@@ -481,6 +525,7 @@ mod tests {
 
         fn reset(&mut self, (): ()) -> Result<(), Infallible> {
             self.step = 1.0;
+            self.resets += 1;
             Ok(())
         }
     }
@@ -528,9 +573,8 @@ mod tests {
         .unwrap();
         let Ok(report) = tracker.solve(());
         let plan = tracker.plan().clone();
-        let device = tracker.device;
-        let [shear, elastic] = device.begun[..] else {
-            panic!("{:?}", device.begun);
+        let [shear, elastic] = tracker.device.begun[..] else {
+            panic!("{:?}", tracker.device.begun);
         };
         assert_eq!((shear.force, shear.correct), (ForceModel::Symmetric, true));
         assert_eq!(
@@ -547,6 +591,40 @@ mod tests {
         assert!(report.converged);
         assert!(report.iterations > one.iterations, "{report:?} vs {one:?}");
         assert_eq!(report.residual_history.len(), report.iterations);
+        // The next frame starts from a converged elastic solve: the elastic
+        // phase alone. After a reset, both again.
+        let Ok(next) = tracker.solve(());
+        assert!(next.converged);
+        assert_eq!(tracker.device.begun.len(), 3);
+        assert_eq!(tracker.device.begun[2].force, ForceModel::Elastic);
+        let Ok(()) = tracker.reset(());
+        let Ok(_) = tracker.solve(());
+        let forces: Vec<ForceModel> = tracker.device.begun[3..]
+            .iter()
+            .map(|it| it.force)
+            .collect();
+        assert_eq!(forces, [ForceModel::Symmetric, ForceModel::Elastic]);
+        // A warm frame that diverges is solved again from the frame's start,
+        // the shear phase first; the report counts the lost iteration too.
+        tracker.device.diverge_once = true;
+        let resets = tracker.device.resets;
+        let Ok(again) = tracker.solve(());
+        assert!(again.converged, "{again:?}");
+        assert_eq!(tracker.device.resets, resets + 1);
+        let forces: Vec<ForceModel> = tracker.device.begun[5..]
+            .iter()
+            .map(|it| it.force)
+            .collect();
+        assert_eq!(
+            forces,
+            [
+                ForceModel::Elastic,
+                ForceModel::Symmetric,
+                ForceModel::Elastic
+            ]
+        );
+        assert_eq!(again.residual_history.len(), again.iterations);
+        assert!(again.iterations > report.iterations, "{again:?}");
     }
 
     #[test]
