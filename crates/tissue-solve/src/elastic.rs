@@ -22,7 +22,7 @@
 //! the symmetric force's shape: a device computes `T_i` where it computes
 //! `R_i` and gathers the same sum, with no atomics.
 
-use glam::{DVec3, Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
@@ -123,53 +123,66 @@ impl Elastic {
     /// force of a small displacement `u` from rest is `-2 K u`; for the
     /// pair term alone `K = L`), by 40 Lanczos steps with a 2 % margin.
     pub fn rest_lambda_max(&self, rest: &[Vec3], connections: &Connections, free: &[bool]) -> f32 {
-        let n = rest.len();
         let apply = |u: &[f64]| -> Vec<f64> {
-            let at = |i: usize| -> DVec3 {
-                if free[i] {
-                    DVec3::new(u[3 * i], u[3 * i + 1], u[3 * i + 2])
-                } else {
-                    DVec3::ZERO
-                }
-            };
-            // Per particle, the linearised `H_i = W_i tr(G_i) A_i^-1`, with
-            // `G_i = sum_j (u_j - u_i) b_ij^T`, `b_ij = A_i^-1 d_ij`.
-            let h: Vec<glam::DMat3> = (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    if self.weights[i] == 0.0 {
-                        return glam::DMat3::ZERO;
-                    }
-                    let inverse = self.inverse_moments[i].as_dmat3();
-                    let mut trace = 0.0;
-                    for &j in connections.of(i) {
-                        let b = inverse * (rest[j as usize] - rest[i]).as_dvec3();
-                        trace += (at(j as usize) - at(i)).dot(b);
-                    }
-                    inverse * (f64::from(self.weights[i]) * trace)
-                })
+            let u: Vec<DVec3> = u
+                .chunks_exact(3)
+                .map(|c| DVec3::new(c[0], c[1], c[2]))
                 .collect();
-            let rows: Vec<DVec3> = (0..n)
-                .into_par_iter()
-                .map(|j| {
-                    if !free[j] {
-                        return DVec3::ZERO;
-                    }
-                    // -f / 2 with f_j = sum_i [-2 (u_j - u_i) - (H_i + H_j) d_ij].
-                    let mut k = DVec3::ZERO;
-                    for &i in connections.of(j) {
-                        let i = i as usize;
-                        let d = (rest[j] - rest[i]).as_dvec3();
-                        k += (at(j) - at(i)) + 0.5 * ((h[i] + h[j]) * d);
-                    }
-                    k
-                })
-                .collect();
-            rows.iter().flat_map(|r| r.to_array()).collect()
+            self.rest_operator(rest, connections, free, &u)
+                .iter()
+                .flat_map(|r| r.to_array())
+                .collect()
         };
         let start: Vec<bool> = free.iter().flat_map(|&f| [f; 3]).collect();
         let (_, hi) = lanczos_extremes(&start, apply, 40);
         hi
+    }
+
+    /// `K u`: the model's operator at rest applied to a displacement `u` of
+    /// the free particles (entries of fixed ones are read as zero), in the
+    /// units of the connection Laplacian: the force of a small displacement
+    /// `u` from rest is `-2 K u`, and for the pair term alone `K = L`.
+    pub fn rest_operator(
+        &self,
+        rest: &[Vec3],
+        connections: &Connections,
+        free: &[bool],
+        u: &[DVec3],
+    ) -> Vec<DVec3> {
+        let at = |i: usize| if free[i] { u[i] } else { DVec3::ZERO };
+        // Per particle, the linearised `H_i = W_i tr(G_i) A_i^-1`, with
+        // `G_i = sum_j (u_j - u_i) b_ij^T`, `b_ij = A_i^-1 d_ij`.
+        let h: Vec<DMat3> = (0..rest.len())
+            .into_par_iter()
+            .map(|i| {
+                if self.weights[i] == 0.0 {
+                    return DMat3::ZERO;
+                }
+                let inverse = self.inverse_moments[i].as_dmat3();
+                let mut trace = 0.0;
+                for &j in connections.of(i) {
+                    let b = inverse * (rest[j as usize] - rest[i]).as_dvec3();
+                    trace += (at(j as usize) - at(i)).dot(b);
+                }
+                inverse * (f64::from(self.weights[i]) * trace)
+            })
+            .collect();
+        (0..rest.len())
+            .into_par_iter()
+            .map(|j| {
+                if !free[j] {
+                    return DVec3::ZERO;
+                }
+                // -f / 2 with f_j = sum_i [-2 (u_j - u_i) - (H_i + H_j) d_ij].
+                let mut k = DVec3::ZERO;
+                for &i in connections.of(j) {
+                    let i = i as usize;
+                    let d = (rest[j] - rest[i]).as_dvec3();
+                    k += (at(j) - at(i)) + 0.5 * ((h[i] + h[j]) * d);
+                }
+                k
+            })
+            .collect()
     }
 }
 
