@@ -31,6 +31,19 @@ pub struct CarryArgs {
     pub rigid_structures: Vec<PathBuf>,
 }
 
+impl CarryArgs {
+    /// The files these options read, as `(what, path)`.
+    pub fn inputs(&self) -> Vec<(&'static str, &Path)> {
+        let points = self.points.iter().map(|p| ("points file", p.as_path()));
+        let structures = self
+            .structures
+            .iter()
+            .chain(&self.rigid_structures)
+            .map(|p| ("structure", p.as_path()));
+        points.chain(structures).collect()
+    }
+}
+
 /// How a structure moves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]

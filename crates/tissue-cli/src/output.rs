@@ -78,6 +78,62 @@ pub struct Destination<'a> {
     pub surface: &'a str,
 }
 
+/// The files a solve into `to` writes for `carried`, report included.
+pub fn planned_outputs(to: &Destination<'_>, carried: &Carried) -> Vec<PathBuf> {
+    let mut files = vec![to.dir.join(PARTICLES_FILE)];
+    if carried.points.is_some() {
+        files.push(to.dir.join(POINTS_FILE));
+    }
+    files.extend(carried.structures.iter().map(|s| to.dir.join(&s.name)));
+    files.push(
+        to.report
+            .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf),
+    );
+    files
+}
+
+/// Refuses, before any work, an output that is one of the `inputs` (as
+/// `(what, path)`) or another output: a run must never replace the files it
+/// reads, nor write two results to one file.
+pub fn refuse_overwriting(outputs: &[PathBuf], inputs: &[(&str, &Path)]) -> Result<()> {
+    let outputs: Vec<(&PathBuf, PathBuf)> = outputs.iter().map(|o| (o, resolved(o))).collect();
+    for (k, (output, resolved_output)) in outputs.iter().enumerate() {
+        for &(what, input) in inputs {
+            if *resolved_output == resolved(input) {
+                bail!(
+                    "the output {} would overwrite the {what} {}: choose another output path \
+                     (inputs are never replaced)",
+                    output.display(),
+                    input.display()
+                );
+            }
+        }
+        if let Some((other, _)) = outputs[..k].iter().find(|(_, r)| r == resolved_output) {
+            bail!(
+                "two outputs would be written to one file: {} and {}",
+                other.display(),
+                output.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `path` made absolute with its folder's links resolved (the file itself
+/// need not exist), to compare outputs with inputs.
+pub fn resolved(path: &Path) -> PathBuf {
+    if let Ok(full) = path.canonicalize() {
+        return full;
+    }
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    match (absolute.parent(), absolute.file_name()) {
+        (Some(parent), Some(name)) => parent
+            .canonicalize()
+            .map_or_else(|_| absolute.clone(), |p| p.join(name)),
+        _ => absolute,
+    }
+}
+
 /// Carries everything along with the solved particles and writes the results.
 pub fn write_solution(
     to: Destination<'_>,
@@ -166,7 +222,8 @@ pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
         std::fs::create_dir_all(parent)
             .with_context(|| format!("creating {}", parent.display()))?;
     }
-    std::fs::write(path, json + "\n").with_context(|| format!("writing {}", path.display()))
+    tissue::io::write_atomically(path, |out| writeln!(out, "{json}"))?;
+    Ok(())
 }
 
 impl SolveReport {

@@ -108,6 +108,9 @@ fn params_of(args: &SampleArgs) -> Result<SamplingParams> {
 pub fn sample(args: &SampleArgs) -> Result<()> {
     let params = params_of(args)?;
     check_output(&args.output, &["vtp", "csv", "ply"])?;
+    let mut outputs = vec![args.output.clone()];
+    outputs.extend(args.report.clone());
+    crate::output::refuse_overwriting(&outputs, &[("surface", args.surface.as_path())])?;
     let options = tissue::io::surface::LoadOptions {
         largest_shell: args.largest_shell,
     };
@@ -119,8 +122,7 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
     let sampled = sample_on(&device, &surface, &params, args.quiet)?;
     tissue::export_model(&sampled.model, &args.output)?;
     if let Some(path) = &args.report {
-        let json = serde_json::to_string_pretty(&sampled.report)?;
-        std::fs::write(path, json + "\n").with_context(|| format!("writing {}", path.display()))?;
+        crate::output::write_json(path, &sampled.report)?;
     }
     if !args.quiet {
         print_report(&sampled.report);

@@ -10,7 +10,7 @@ use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
-use crate::output::{Destination, write_solution};
+use crate::output::{Destination, planned_outputs, refuse_overwriting, write_solution};
 
 /// The force of stage 2.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -165,6 +165,18 @@ pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Re
     Ok(deformed)
 }
 
+impl DeformArgs {
+    /// Every file the command reads, as `(what, path)`.
+    fn inputs(&self) -> Vec<(&'static str, &Path)> {
+        let mut inputs = vec![
+            ("model", self.model.as_path()),
+            ("deformed surface", self.surface.as_path()),
+        ];
+        inputs.extend(self.carry.inputs());
+        inputs
+    }
+}
+
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let params = args.solve.params(Frames::One)?;
@@ -172,15 +184,16 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
     let carried = Carried::load(&args.carry, &solver)?;
-    std::fs::create_dir_all(&args.output_dir)
-        .with_context(|| format!("creating {}", args.output_dir.display()))?;
-    let solve = solver.solve()?;
     let destination = Destination {
         dir: &args.output_dir,
         report: args.report.as_deref(),
         model: &args.model.display().to_string(),
         surface: &args.surface.display().to_string(),
     };
+    refuse_overwriting(&planned_outputs(&destination, &carried), &args.inputs())?;
+    std::fs::create_dir_all(&args.output_dir)
+        .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    let solve = solver.solve()?;
     let report = write_solution(
         destination,
         &model,

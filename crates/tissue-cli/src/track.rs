@@ -1,7 +1,7 @@
 //! `tissue track`: a sequence of deformed surfaces, each solve starting from
 //! the previous solution (warm start), one output folder per frame.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -11,7 +11,9 @@ use tissue::deformation::DeformParams;
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
-use crate::output::{Destination, convergence, write_json, write_solution};
+use crate::output::{
+    Destination, convergence, planned_outputs, refuse_overwriting, write_json, write_solution,
+};
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model};
 
 /// The summary of a tracking run.
@@ -94,9 +96,25 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let carried = Carried::load(&args.carry, &solver)?;
+    let model_name = args.model.display().to_string();
+    // Every frame's files and the summary, against every input, before any work.
+    let mut inputs: Vec<(&str, &Path)> = vec![("model", args.model.as_path())];
+    inputs.extend(frames.iter().map(|f| ("frame", f.as_path())));
+    inputs.extend(args.carry.inputs());
+    let mut outputs = vec![args.output_dir.join(TRACK_FILE)];
+    for k in 0..frames.len() {
+        let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
+        let destination = Destination {
+            dir: &dir,
+            report: None,
+            model: &model_name,
+            surface: "",
+        };
+        outputs.extend(planned_outputs(&destination, &carried));
+    }
+    refuse_overwriting(&outputs, &inputs)?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
-    let model_name = args.model.display().to_string();
     let mut reports = Vec::new();
     for (k, frame) in frames.iter().enumerate() {
         let deformed = load_deformed(frame, &mut solver, &model.surface)?;

@@ -668,3 +668,94 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
         "a failed run left an output folder"
     );
 }
+
+/// No output may replace an input (issue 15): each run below names an
+/// input as an output, is refused before any work with both named, and
+/// leaves every input byte for byte as it was.
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let d = |name: &str| dir.path().join(name).to_str().unwrap().to_owned();
+    let sag = d("sag.obj");
+    std::fs::copy(assets().join("phantom-sag.obj"), &sag).unwrap();
+    let breast = d("breast.obj");
+    std::fs::copy(assets().join("phantom-breast.obj"), &breast).unwrap();
+    // The points file sits where `deform -o <dir>` writes its moved points.
+    std::fs::create_dir(d("results")).unwrap();
+    let points = d("results/points.csv");
+    std::fs::write(&points, "x,y,z\n1,2,30\n").unwrap();
+    // The tumour sits where `track -o <dir>` writes the first frame's.
+    std::fs::create_dir(d("results/frame-0001")).unwrap();
+    let tumour = d("results/frame-0001/tumour.obj");
+    std::fs::copy(assets().join("phantom-tumour.obj"), &tumour).unwrap();
+    let inputs = [&model, &sag, &breast, &points, &tumour];
+    let before: Vec<Vec<u8>> = inputs.iter().map(|p| std::fs::read(p).unwrap()).collect();
+    let results = d("results");
+    let cases: Vec<(Vec<&str>, [&str; 2])> = vec![
+        (
+            vec![
+                "deform",
+                "--model",
+                &model,
+                "--surface",
+                &sag,
+                "--points",
+                &points,
+                "-o",
+                &results,
+            ],
+            ["results/points.csv", "the points file"],
+        ),
+        (
+            vec![
+                "deform",
+                "--model",
+                &model,
+                "--surface",
+                &sag,
+                "-o",
+                &results,
+                "--report",
+                &model,
+            ],
+            ["would overwrite the model", "model.vtp"],
+        ),
+        (
+            vec![
+                "track",
+                "--model",
+                &model,
+                "--frames",
+                &sag,
+                "--structure",
+                &tumour,
+                "-o",
+                &results,
+            ],
+            ["frame-0001/tumour.obj", "would overwrite the structure"],
+        ),
+        (
+            vec![
+                "sample", &breast, "-n", "300", "-o", &model, "--report", &breast,
+            ],
+            ["would overwrite the surface", "breast.obj"],
+        ),
+    ];
+    for (args, expected) in &cases {
+        let out = tissue(args);
+        let message = text(&out);
+        assert!(!out.status.success(), "{args:?} was accepted: {message}");
+        for expect in expected {
+            assert!(
+                message.contains(expect),
+                "{args:?}: expected `{expect}` in {message}"
+            );
+        }
+        assert!(!message.contains("panicked"), "{message}");
+    }
+    for (path, old) in inputs.iter().zip(&before) {
+        assert_eq!(&std::fs::read(path).unwrap(), old, "{path} changed");
+    }
+}

@@ -17,7 +17,7 @@
 //! written so they read back bit for bit.
 
 use std::fs;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 use crate::error::{Error, MeshError};
@@ -352,16 +352,7 @@ pub fn save_surface(mesh: &SurfaceMesh, path: &Path) -> Result<(), Error> {
             ),
         });
     }
-    let io_error = |source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let file = fs::File::create(path).map_err(io_error)?;
-    let mut out = BufWriter::new(file);
-    format
-        .write(mesh, &mut out)
-        .and_then(|()| out.flush())
-        .map_err(io_error)
+    super::write_atomically(path, |mut out| format.write(mesh, &mut out))
 }
 
 /// Splits a polygon into the fan of triangles around its first corner;
