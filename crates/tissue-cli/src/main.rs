@@ -63,6 +63,10 @@ fn main() -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
+            if let Some(unfinished) = err.downcast_ref::<output::Unfinished>() {
+                eprintln!("warning: {}", unfinished.message);
+                return ExitCode::from(unfinished.status.exit_code());
+            }
             eprintln!("error: {}", message(&err));
             ExitCode::FAILURE
         }

@@ -50,6 +50,8 @@ pub struct SolveReport {
     pub seconds: f64,
     /// Whether the stopping rule held before the iteration cap.
     pub converged: bool,
+    /// `converged`, `not_converged` or `diverged` (the exit code's meaning).
+    pub status: Status,
     /// Which rule ended the solve.
     pub stopped_by: StopReason,
     /// Largest distance a particle moved from rest.
@@ -64,6 +66,58 @@ pub struct SolveReport {
     /// The error estimate after every iteration.
     pub residual_history: Vec<f32>,
 }
+
+/// How a solve ended, as `report.json` and `track.json` say and the exit
+/// code tells a script: 0 converged, 2 not converged, 3 diverged (1 is any
+/// other error: a refused input, a file that cannot be read or written).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// The stopping rule held.
+    Converged,
+    /// The iteration cap came first: the result is written but not final.
+    NotConverged,
+    /// The state became non-finite: nothing is written.
+    Diverged,
+}
+
+impl Status {
+    /// The status of a solve that stopped by `stopped_by`.
+    pub fn of(converged: bool, stopped_by: StopReason) -> Self {
+        match (converged, stopped_by) {
+            (_, StopReason::Diverged) => Self::Diverged,
+            (true, _) => Self::Converged,
+            (false, _) => Self::NotConverged,
+        }
+    }
+
+    /// The process's exit code for this status.
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Self::Converged => 0,
+            Self::NotConverged => 2,
+            Self::Diverged => 3,
+        }
+    }
+}
+
+/// A run that finished its work but whose solve did not converge or
+/// diverged: `main` prints it and exits with [`Status::exit_code`].
+#[derive(Debug)]
+pub struct Unfinished {
+    /// How the solve ended.
+    pub status: Status,
+    /// What happened and where the results (if any) are.
+    pub message: String,
+}
+
+impl std::fmt::Display for Unfinished {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Unfinished {}
 
 /// Where a solve's files go, and what to call its inputs in the report.
 #[derive(Debug, Clone, Copy)]
@@ -146,12 +200,15 @@ pub fn write_solution(
 ) -> Result<SolveReport> {
     let current = solver.positions();
     if let Some(i) = current.iter().position(|p| !p.is_finite()) {
-        bail!(
-            "the solve diverged: particle {i} is at {} after {} iterations \
-             (try the default --force symmetric)",
-            current[i],
-            solve.iterations
-        );
+        return Err(Unfinished {
+            status: Status::Diverged,
+            message: format!(
+                "the solve diverged: particle {i} is at {} after {} iterations; nothing was written \
+                 (try the default --force symmetric)",
+                current[i], solve.iterations
+            ),
+        }
+        .into());
     }
     std::fs::create_dir_all(to.dir).with_context(|| format!("creating {}", to.dir.display()))?;
     let mut files: Vec<PathBuf> = Vec::new();
@@ -204,6 +261,7 @@ pub fn write_solution(
         residual: solve.residual,
         seconds: solve.seconds,
         converged: solve.converged,
+        status: Status::of(solve.converged, solve.stopped_by),
         stopped_by: solve.stopped_by,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
@@ -260,5 +318,28 @@ pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
             "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
         ),
         StopReason::Diverged => "DIVERGED: the state became non-finite".into(),
+    }
+}
+
+#[cfg(test)]
+mod status_tests {
+    use super::*;
+
+    #[test]
+    fn each_way_a_solve_ends_has_its_status_and_exit_code() {
+        let cases = [
+            (true, StopReason::Tolerance, Status::Converged, 0),
+            (true, StopReason::FloatPrecision, Status::Converged, 0),
+            (false, StopReason::IterationCap, Status::NotConverged, 2),
+            (false, StopReason::Diverged, Status::Diverged, 3),
+        ];
+        for (converged, stopped_by, status, code) in cases {
+            assert_eq!(Status::of(converged, stopped_by), status);
+            assert_eq!(status.exit_code(), code);
+        }
+        assert_eq!(
+            serde_json::to_value(Status::NotConverged).ok(),
+            Some(serde_json::json!("not_converged"))
+        );
     }
 }

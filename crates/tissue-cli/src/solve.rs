@@ -10,7 +10,9 @@ use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
-use crate::output::{Destination, planned_outputs, refuse_overwriting, write_solution};
+use crate::output::{
+    Destination, Status, Unfinished, planned_outputs, refuse_overwriting, write_solution,
+};
 
 /// The force of stage 2.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -212,6 +214,19 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             println!("{line}");
         }
         println!("  wrote {}", report.files.join(", "));
+    }
+    if report.status != Status::Converged {
+        return Err(Unfinished {
+            status: report.status,
+            message: format!(
+                "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \
+                 the results in {} are not final: raise --max-iterations",
+                report.iterations,
+                report.residual,
+                args.output_dir.display()
+            ),
+        }
+        .into());
     }
     Ok(())
 }

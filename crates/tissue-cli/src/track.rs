@@ -12,7 +12,8 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, convergence, planned_outputs, refuse_overwriting, write_json, write_solution,
+    Destination, Status, Unfinished, convergence, planned_outputs, refuse_overwriting, write_json,
+    write_solution,
 };
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model};
 
@@ -72,6 +73,8 @@ struct Totals {
     seconds: f64,
     /// Whether every frame converged.
     converged: bool,
+    /// `converged` when every frame did, else `not_converged` (the exit code's meaning).
+    status: Status,
 }
 
 /// `track.json`.
@@ -172,6 +175,11 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         solve_seconds: reports.iter().map(|f| f.seconds).sum(),
         seconds: started.elapsed().as_secs_f64(),
         converged: reports.iter().all(|f| f.converged),
+        status: if reports.iter().all(|f| f.converged) {
+            Status::Converged
+        } else {
+            Status::NotConverged
+        },
     };
     let path = args.output_dir.join(TRACK_FILE);
     let summary = format!(
@@ -187,6 +195,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         }
     );
     let count = totals.frames;
+    let status = totals.status;
+    let unconverged = reports.iter().filter(|f| !f.converged).count();
     write_json(
         &path,
         &TrackReport {
@@ -203,6 +213,16 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             args.output_dir.display(),
             path.display()
         );
+    }
+    if status != Status::Converged {
+        return Err(Unfinished {
+            status,
+            message: format!(
+                "{unconverged} of {count} frames did NOT converge ({}): raise --max-iterations",
+                path.display()
+            ),
+        }
+        .into());
     }
     Ok(())
 }

@@ -759,3 +759,51 @@ fn outputs_never_overwrite_inputs() {
         assert_eq!(&std::fs::read(path).unwrap(), old, "{path} changed");
     }
 }
+
+/// A solve that does not converge writes its results, says so in
+/// `report.json` / `track.json` (`status`), warns, and exits 2, so that a
+/// script can tell (issue 15); a converged one says `converged` and exits 0.
+#[test]
+fn an_unconverged_solve_exits_2_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let sag = s(&assets().join("phantom-sag.obj")).to_owned();
+    let d = |name: &str| dir.path().join(name).to_str().unwrap().to_owned();
+    for (command, cap, code, status) in [
+        ("deform", "2", Some(2), "not_converged"),
+        ("deform", "5000", Some(0), "converged"),
+        ("track", "2", Some(2), "not_converged"),
+    ] {
+        let out_dir = d(&format!("{command}-{cap}"));
+        let frames_flag = if command == "deform" {
+            "--surface"
+        } else {
+            "--frames"
+        };
+        let out = tissue(&[
+            command,
+            "--model",
+            &model,
+            frames_flag,
+            &sag,
+            "--max-iterations",
+            cap,
+            "-o",
+            &out_dir,
+            "-q",
+        ]);
+        let message = text(&out);
+        assert_eq!(out.status.code(), code, "{command} cap {cap}: {message}");
+        let report = if command == "deform" {
+            json(&Path::new(&out_dir).join("report.json"))
+        } else {
+            json(&Path::new(&out_dir).join("track.json"))["totals"].clone()
+        };
+        assert_eq!(report["status"], status, "{report}");
+        if code == Some(2) {
+            assert!(message.contains("NOT converge"), "{message}");
+            assert!(Path::new(&out_dir).exists());
+        }
+    }
+}
