@@ -242,7 +242,7 @@ pub fn sample_on(
 ) -> Result<Sampled, Error> {
     params.validate()?;
     let surface = &crate::checked(surface)?;
-    match device {
+    let sampled = match device {
         Device::Cpu => tissue_cpu::sample(surface, params, progress),
         Device::Gpu {
             name,
@@ -250,7 +250,8 @@ pub fn sample_on(
             queue,
         } => tissue_gpu::sampler::sample(device, queue, surface, params, progress)
             .map_err(|e| gpu_error(format!("sampling on {name}"), e)),
-    }
+    }?;
+    crate::carries_rotations(sampled)
 }
 
 /// Stage 2 on the chosen device, with the positions of the last solve at

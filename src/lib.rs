@@ -72,7 +72,15 @@ pub fn sample_with_progress(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Sampled, Error> {
     params.validate()?;
-    tissue_cpu::sample(&checked(surface)?, params, progress)
+    carries_rotations(tissue_cpu::sample(&checked(surface)?, params, progress)?)
+}
+
+/// `sampled`, unless stage 2 could not use its model: no particle inside,
+/// or too many that cannot carry a rotation
+/// ([`tissue_solve::quality::check_usable`]).
+pub(crate) fn carries_rotations(sampled: Sampled) -> Result<Sampled, Error> {
+    tissue_solve::quality::check_usable(&sampled.model)?;
+    Ok(sampled)
 }
 
 /// `surface` validated for stage 1: one closed, consistently oriented
@@ -101,5 +109,5 @@ pub(crate) fn checked(surface: &SurfaceMesh) -> Result<SurfaceMesh, Error> {
 pub fn sample_file(path: &Path, params: &SamplingParams) -> Result<Sampled, Error> {
     params.validate()?;
     let surface = load_closed_surface(path)?;
-    tissue_cpu::sample(&surface, params, &mut |_| {})
+    carries_rotations(tissue_cpu::sample(&surface, params, &mut |_| {})?)
 }

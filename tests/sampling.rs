@@ -10,6 +10,14 @@ fn sample(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
     tissue::sample(mesh, params).unwrap_or_else(|e| panic!("sampling failed: {e}"))
 }
 
+/// Stage 1 alone, without the facade's refusal of a model stage 2 cannot
+/// use (`tissue_solve::quality::check_usable`): what the paper's own
+/// choices give.
+fn sample_unchecked(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
+    tissue::advanced::cpu::sample(mesh, params, &mut |_| {})
+        .unwrap_or_else(|e| panic!("sampling failed: {e}"))
+}
+
 #[test]
 fn phantom_at_10k_meets_the_quality_targets() {
     let sampled = sample(
@@ -135,15 +143,16 @@ fn the_papers_connection_threshold_connects_nothing_and_ours_gives_twelve() {
     let ours = sample(&mesh, &SamplingParams::with_particles(3_000));
     assert_eq!(SamplingParams::default().connection_ratio, 0.9);
     assert_eq!(ours.report.connections.median, 12.0);
-    let papers = sample(
-        &mesh,
-        &SamplingParams {
-            connection_ratio: 0.6,
-            ..SamplingParams::with_particles(3_000)
-        },
-    );
+    let papers_params = SamplingParams {
+        connection_ratio: 0.6,
+        ..SamplingParams::with_particles(3_000)
+    };
+    let papers = sample_unchecked(&mesh, &papers_params);
     assert_eq!(papers.report.connections.median, 0.0);
     assert!(papers.model.connections.pairs() * 100 < ours.model.connections.pairs());
+    // Such a model cannot carry rotations: the facade refuses it.
+    let err = tissue::sample(&mesh, &papers_params).unwrap_err();
+    assert!(err.to_string().contains("cannot carry rotations"), "{err}");
 }
 
 #[test]
@@ -153,7 +162,7 @@ fn the_literal_paper_preset_runs_and_shows_why_it_is_not_the_default() {
         max_iterations: 300,
         ..SamplingParams::paper(2_000)
     };
-    let paper = sample(&mesh, &params);
+    let paper = sample_unchecked(&mesh, &params);
     eprintln!("paper preset: {:?}", paper.report);
     assert_eq!(paper.model.len(), 2_000);
     assert_eq!(
@@ -242,10 +251,15 @@ fn an_inward_facing_surface_is_turned_around_and_sampled() {
 
 #[test]
 fn a_handful_of_particles_still_works() {
-    let sampled = sample(
-        &phantom::default_tumour(),
-        &SamplingParams::with_particles(4),
-    );
+    let params = SamplingParams::with_particles(4);
+    let sampled = sample_unchecked(&phantom::default_tumour(), &params);
     assert_eq!(sampled.model.len(), 4);
     assert!(sampled.report.max_outside <= 0.01);
+    // All four lie on the surface: the facade refuses the model, by name.
+    let err = tissue::sample(&phantom::default_tumour(), &params).unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("all 4 particles lie on the surface"),
+        "{err}"
+    );
 }

@@ -177,6 +177,32 @@ pub enum SamplingError {
         /// The iteration (counted from 0) whose state was not finite.
         iteration: usize,
     },
+    /// Every particle lies on the surface: stage 2 would have nothing to move.
+    #[error(
+        "all {particles} particles lie on the surface, none inside for the deformation to move: \
+         sample more particles"
+    )]
+    NoInterior {
+        /// Particles in the model.
+        particles: usize,
+    },
+    /// Too many particles have too few connections, or all of them in one
+    /// plane, to carry a rotation: the model is too coarse for its shape.
+    #[error(
+        "{weak} of {particles} particles have fewer than 3 connections or all of them in one plane \
+         ({percent:.0} %, at most {limit:.0} % allowed), so the model cannot carry rotations: \
+         sample more particles (the thinnest part of the shape needs several across)"
+    )]
+    TooFewConnections {
+        /// Particles that cannot carry a rotation.
+        weak: usize,
+        /// Particles in the model.
+        particles: usize,
+        /// `weak` as a percentage.
+        percent: f64,
+        /// The largest percentage accepted.
+        limit: f64,
+    },
     /// A particle's position or radius is not finite, so no grid holds it.
     #[error("a particle's position or radius is not finite: no grid")]
     NonFiniteParticle,

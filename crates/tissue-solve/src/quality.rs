@@ -203,3 +203,124 @@ mod tests {
         assert_eq!(quantile(&v, 1.0), 5.0);
     }
 }
+
+/// The largest share of particles (in %) that may lack the connections to
+/// carry a rotation before [`check_usable`] refuses a model.
+pub const MAX_WEAK_PERCENT: f64 = 5.0;
+
+/// Refuses a model whose particles all lie on the surface (stage 2 would
+/// move nothing), or in which more than [`MAX_WEAK_PERCENT`] of the particles
+/// have fewer than 3 connections or all of them in one plane
+/// (`det A / (tr A / 3)^3` below [`crate::elastic::FLAT_NEIGHBOURHOOD`] for
+/// the moment matrix `A` of their offsets): such a particle has no
+/// rotation to find, and stage 2 would move it as if it had none. Too few
+/// particles for the shape (`--particles 10`, or a slab one particle
+/// thick) is what makes them.
+pub fn check_usable(model: &ParticleModel) -> Result<(), tissue_core::SamplingError> {
+    if model.attachments.iter().all(Option::is_some) {
+        return Err(tissue_core::SamplingError::NoInterior {
+            particles: model.len(),
+        });
+    }
+    let weak = (0..model.len())
+        .into_par_iter()
+        .filter(|&i| {
+            let row = model.connections.of(i);
+            if row.len() < 3 {
+                return true;
+            }
+            let mut a = glam::Mat3::ZERO;
+            for &j in row {
+                let d = model.positions[j as usize] - model.positions[i];
+                a += glam::Mat3::from_cols(d * d.x, d * d.y, d * d.z);
+            }
+            let scale = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
+            let round = scale > 0.0
+                && a.determinant() > crate::elastic::FLAT_NEIGHBOURHOOD * scale * scale * scale;
+            !round
+        })
+        .count();
+    let particles = model.len();
+    let percent = 100.0 * weak as f64 / particles.max(1) as f64;
+    if percent > MAX_WEAK_PERCENT {
+        return Err(tissue_core::SamplingError::TooFewConnections {
+            weak,
+            particles,
+            percent,
+            limit: MAX_WEAK_PERCENT,
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod usable_tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+
+    use tissue_core::{Attachment, Connections, SamplingError, SurfaceMesh};
+
+    use super::*;
+
+    /// A 4x4x4 lattice of unit spacing, pairs closer than `reach` connected;
+    /// `surface` marks the outer layer attached.
+    fn lattice(reach: f32, flat: bool, surface: bool) -> ParticleModel {
+        let mut positions = Vec::new();
+        for x in 0..4 {
+            for y in 0..4 {
+                for z in 0..if flat { 1 } else { 4 } {
+                    positions.push(Vec3::new(x as f32, y as f32, z as f32));
+                }
+            }
+        }
+        let n = positions.len();
+        let mut pairs = Vec::new();
+        for i in 0..n {
+            for j in i + 1..n {
+                if positions[i].distance(positions[j]) < reach {
+                    pairs.push((i as u32, j as u32));
+                }
+            }
+        }
+        let on = Some(Attachment {
+            triangle: 0,
+            barycentric: [1.0, 0.0, 0.0],
+        });
+        let attachments = positions
+            .iter()
+            .map(|p| {
+                let outer = p.x == 0.0 || p.x == 3.0 || p.y == 0.0 || p.y == 3.0;
+                if surface || outer { on } else { None }
+            })
+            .collect();
+        ParticleModel {
+            radii: vec![0.5; n],
+            attachments,
+            connections: Connections::from_pairs(n, pairs),
+            surface: SurfaceMesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![[0, 1, 2]]),
+            positions,
+        }
+    }
+
+    #[test]
+    fn a_model_that_cannot_carry_rotations_is_refused() {
+        // Connected in 3D: usable.
+        assert!(check_usable(&lattice(1.5, false, false)).is_ok());
+        // Every particle attached to the surface: nothing to move.
+        assert!(matches!(
+            check_usable(&lattice(1.5, false, true)),
+            Err(SamplingError::NoInterior { particles: 64 })
+        ));
+        // One layer thick: every neighbourhood is flat.
+        let err = check_usable(&lattice(1.5, true, false)).unwrap_err();
+        assert!(
+            matches!(err, SamplingError::TooFewConnections { weak: 16, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("sample more particles"), "{err}");
+        // Too short a reach: no connections at all.
+        assert!(matches!(
+            check_usable(&lattice(0.5, false, false)),
+            Err(SamplingError::TooFewConnections { weak: 64, .. })
+        ));
+    }
+}
