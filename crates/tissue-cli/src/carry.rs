@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
-use tissue::SurfaceMesh;
+use tissue::field::SurfaceField;
 use tissue::structures::{RigidBinding, RigidMotion};
+use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{BoundPoints, Solver};
 use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
@@ -63,6 +64,73 @@ impl Kind {
     }
 }
 
+/// Points farther outside the model's rest surface than this many mean
+/// connection lengths are flagged: no particle neighbourhood holds them,
+/// and they are carried by extrapolation (a wrong frame or units, most
+/// likely). docs/FORMATS.md, "Exit codes and files".
+pub const OUTSIDE_SPACINGS: f32 = 1.0;
+
+/// How many of a set of rest points lie outside the model's rest surface
+/// by more than [`OUTSIDE_SPACINGS`], and the farthest.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Outside {
+    /// Points beyond the tolerance.
+    pub count: usize,
+    /// The largest distance outside the rest surface of any point (0 when
+    /// every point is inside).
+    pub max_mm: f32,
+}
+
+impl Outside {
+    /// `points` measured against `rest`'s field; `tolerance` in model units.
+    fn of(field: &SurfaceField, points: &[Vec3], tolerance: f32) -> Self {
+        points.iter().fold(Self::default(), |o, &p| {
+            let d = field.signed_distance(p).max(0.0);
+            Self {
+                count: o.count + usize::from(d > tolerance),
+                max_mm: o.max_mm.max(d),
+            }
+        })
+    }
+}
+
+/// The rest surface's field and the tolerance of [`Outside`], for a model.
+pub struct OutsideCheck {
+    field: SurfaceField,
+    tolerance: f32,
+}
+
+impl OutsideCheck {
+    /// For a model with rest surface `rest` and mean connection length `spacing`.
+    pub fn new(rest: &SurfaceMesh, spacing: f32) -> Result<Self> {
+        let diagonal = rest
+            .bounds()
+            .map_or(1.0, |(lo, hi)| (hi - lo).length())
+            .max(f32::MIN_POSITIVE);
+        let tolerance = OUTSIDE_SPACINGS * spacing.max(1e-6 * diagonal);
+        let cell = (diagonal / 64.0).max(tolerance);
+        let field = SurfaceField::new(rest, cell, 2.0 * cell)
+            .map_err(|e| anyhow::anyhow!("the model's rest surface: {e}"))?;
+        Ok(Self { field, tolerance })
+    }
+
+    fn check(&self, what: &str, points: &[Vec3]) -> Outside {
+        let outside = Outside::of(&self.field, points, self.tolerance);
+        if outside.count > 0 {
+            log::warn!(
+                "{} of {} points of {what} lie outside the model's rest surface, up to {:.2} \
+                 (more than one particle spacing, {:.2}): they are carried by extrapolation; \
+                 check their frame and units",
+                outside.count,
+                points.len(),
+                outside.max_mm,
+                self.tolerance
+            );
+        }
+        outside
+    }
+}
+
 /// How the structure is bound to the rest particles.
 #[derive(Debug)]
 enum Binding {
@@ -81,6 +149,8 @@ pub struct Structure {
     pub source: String,
     rest: SurfaceMesh,
     binding: Binding,
+    /// Its rest vertices outside the model's rest surface.
+    pub outside: Outside,
 }
 
 /// Landmark points bound at rest.
@@ -89,6 +159,8 @@ pub struct Points {
     /// Where they came from.
     pub source: String,
     carrier: BoundPoints,
+    /// The points outside the model's rest surface.
+    pub outside: Outside,
 }
 
 /// Everything the particles carry.
@@ -124,6 +196,8 @@ pub struct StructureReport {
     /// taking rest coordinates to moved ones.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transform: Option<[[f32; 4]; 4]>,
+    /// Its rest vertices outside the model's rest surface (flagged).
+    pub outside: Outside,
 }
 
 /// A structure after a solve.
@@ -137,14 +211,33 @@ pub struct MovedStructure {
 
 impl Carried {
     /// Reads and binds what `args` names to the solver's rest particles.
-    pub fn load(args: &CarryArgs, solver: &Solver) -> Result<Self> {
+    /// Reads and binds what `args` names; warns of points or vertices
+    /// outside `model`'s rest surface ([`Outside`]).
+    pub fn load(args: &CarryArgs, solver: &Solver, model: &ParticleModel) -> Result<Self> {
         let names = output_names(&args.structures, &args.rigid_structures)?;
+        let any = args.points.is_some()
+            || !args.structures.is_empty()
+            || !args.rigid_structures.is_empty();
+        let check = if any {
+            Some(OutsideCheck::new(
+                &model.surface,
+                model.mean_connection_length(),
+            )?)
+        } else {
+            None
+        };
         let points = match &args.points {
             Some(path) => {
                 let points = tissue::load_points(path)?;
+                let source = path.display().to_string();
+                let outside = check
+                    .as_ref()
+                    .map(|c| c.check(&source, &points))
+                    .unwrap_or_default();
                 Some(Points {
-                    source: path.display().to_string(),
+                    source,
                     carrier: solver.bind(&points)?,
+                    outside,
                 })
             }
             None => None,
@@ -159,9 +252,21 @@ impl Carried {
         let structures = named
             .into_iter()
             .zip(names)
-            .map(|((kind, source, mesh), name)| Structure::bind(name, source, kind, mesh, solver))
+            .map(|((kind, source, mesh), name)| {
+                let mut structure = Structure::bind(name, source, kind, mesh, solver)?;
+                if let Some(check) = &check {
+                    structure.outside = check.check(&structure.source, &structure.rest.vertices);
+                }
+                Ok(structure)
+            })
             .collect::<Result<_>>()?;
         Ok(Self { points, structures })
+    }
+
+    /// Whether a point or structure was flagged as outside the organ.
+    pub fn flagged(&self) -> bool {
+        self.points.as_ref().is_some_and(|p| p.outside.count > 0)
+            || self.structures.iter().any(|s| s.outside.count > 0)
     }
 
     /// Where the points and structures are for the solver's current state.
@@ -208,6 +313,7 @@ impl Structure {
             source,
             rest: mesh,
             binding,
+            outside: Outside::default(),
         })
     }
 
@@ -259,6 +365,7 @@ impl Structure {
                 max_vertex_displacement_mm,
                 rotation_degrees: motion.as_ref().map(rotation_degrees),
                 transform: motion.as_ref().map(RigidMotion::homogeneous),
+                outside: self.outside,
             },
         })
     }

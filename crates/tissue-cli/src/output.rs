@@ -27,6 +27,8 @@ pub struct PointsReport {
     pub count: usize,
     /// Largest distance a point moved.
     pub max_displacement_mm: f32,
+    /// The points outside the model's rest surface (flagged).
+    pub outside: crate::carry::Outside,
 }
 
 /// The JSON report of one solve (`report.json`).
@@ -68,8 +70,9 @@ pub struct SolveReport {
 }
 
 /// How a solve ended, as `report.json` and `track.json` say and the exit
-/// code tells a script: 0 converged, 2 not converged, 3 diverged (1 is any
-/// other error: a refused input, a file that cannot be read or written).
+/// code tells a script: 0 converged, 2 not converged, 3 diverged, 4
+/// converged but flagged (1 is any other error: a refused input, a file
+/// that cannot be read or written).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
@@ -79,6 +82,9 @@ pub enum Status {
     NotConverged,
     /// The state became non-finite: nothing is written.
     Diverged,
+    /// The solve converged, but points or structures lie outside the
+    /// organ (`outside` in the report): the results are written and flagged.
+    Flagged,
 }
 
 impl Status {
@@ -97,6 +103,7 @@ impl Status {
             Self::Converged => 0,
             Self::NotConverged => 2,
             Self::Diverged => 3,
+            Self::Flagged => 4,
         }
     }
 }
@@ -232,6 +239,7 @@ pub fn write_solution(
                     .zip(&moved)
                     .map(|(a, b)| a.distance(*b))
                     .fold(0.0, f32::max),
+                outside: source.outside,
             })
         }
         _ => None,
@@ -261,7 +269,10 @@ pub fn write_solution(
         residual: solve.residual,
         seconds: solve.seconds,
         converged: solve.converged,
-        status: Status::of(solve.converged, solve.stopped_by),
+        status: match Status::of(solve.converged, solve.stopped_by) {
+            Status::Converged if carried.flagged() => Status::Flagged,
+            status => status,
+        },
         stopped_by: solve.stopped_by,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),

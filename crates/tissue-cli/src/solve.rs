@@ -134,6 +134,7 @@ pub fn load_model(
         );
     }
     let model = tissue::load_model(path)?;
+    tissue::io::model::check_placement(&model).with_context(|| format!("{}", path.display()))?;
     let solver = Solver::new(device, &model, params)
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
     Ok((model, solver))
@@ -185,7 +186,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
     let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
-    let carried = Carried::load(&args.carry, &solver)?;
+    let carried = Carried::load(&args.carry, &solver, &model)?;
     let destination = Destination {
         dir: &args.output_dir,
         report: args.report.as_deref(),
@@ -215,20 +216,26 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         }
         println!("  wrote {}", report.files.join(", "));
     }
-    if report.status != Status::Converged {
-        return Err(Unfinished {
-            status: report.status,
-            message: format!(
-                "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \
-                 the results in {} are not final: raise --max-iterations",
-                report.iterations,
-                report.residual,
-                args.output_dir.display()
-            ),
-        }
-        .into());
+    let message = match report.status {
+        Status::Converged => return Ok(()),
+        Status::Flagged => format!(
+            "points or structures lie outside the model's rest surface (`outside` in the report); \
+             the results in {} are carried by extrapolation there",
+            args.output_dir.display()
+        ),
+        _ => format!(
+            "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \
+             the results in {} are not final: raise --max-iterations",
+            report.iterations,
+            report.residual,
+            args.output_dir.display()
+        ),
+    };
+    Err(Unfinished {
+        status: report.status,
+        message,
     }
-    Ok(())
+    .into())
 }
 
 #[cfg(test)]

@@ -98,7 +98,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let frames = expand(&args.frames)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
-    let carried = Carried::load(&args.carry, &solver)?;
+    let carried = Carried::load(&args.carry, &solver, &model)?;
     let model_name = args.model.display().to_string();
     // Every frame's files and the summary, against every input, before any work.
     let mut inputs: Vec<(&str, &Path)> = vec![("model", args.model.as_path())];
@@ -175,10 +175,12 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         solve_seconds: reports.iter().map(|f| f.seconds).sum(),
         seconds: started.elapsed().as_secs_f64(),
         converged: reports.iter().all(|f| f.converged),
-        status: if reports.iter().all(|f| f.converged) {
-            Status::Converged
-        } else {
+        status: if !reports.iter().all(|f| f.converged) {
             Status::NotConverged
+        } else if carried.flagged() {
+            Status::Flagged
+        } else {
+            Status::Converged
         },
     };
     let path = args.output_dir.join(TRACK_FILE);
@@ -214,15 +216,17 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             path.display()
         );
     }
-    if status != Status::Converged {
-        return Err(Unfinished {
-            status,
-            message: format!(
-                "{unconverged} of {count} frames did NOT converge ({}): raise --max-iterations",
-                path.display()
-            ),
-        }
-        .into());
-    }
-    Ok(())
+    let message = match status {
+        Status::Converged => return Ok(()),
+        Status::Flagged => format!(
+            "points or structures lie outside the model's rest surface ({}): \
+             they are carried by extrapolation",
+            path.display()
+        ),
+        _ => format!(
+            "{unconverged} of {count} frames did NOT converge ({}): raise --max-iterations",
+            path.display()
+        ),
+    };
+    Err(Unfinished { status, message }.into())
 }

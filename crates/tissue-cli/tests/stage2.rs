@@ -807,3 +807,103 @@ fn an_unconverged_solve_exits_2_and_says_so() {
         }
     }
 }
+
+/// A landmark far outside the organ (a wrong frame or units) is carried by
+/// extrapolation: the results are written, the report's `outside` counts it,
+/// `status` says `flagged`, and the run exits 4 with a warning (issue 15).
+/// Points inside give none of that.
+#[test]
+fn a_landmark_outside_the_organ_is_flagged_and_exits_4() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let sag = s(&assets().join("phantom-sag.obj")).to_owned();
+    let d = |name: &str| dir.path().join(name).to_str().unwrap().to_owned();
+    std::fs::write(d("far.csv"), "x,y,z\n15,-10,25\n200,0,0\n").unwrap();
+    std::fs::write(d("near.csv"), "x,y,z\n15,-10,25\n").unwrap();
+    for (points, code, status, outside) in [
+        ("far.csv", Some(4), "flagged", 1),
+        ("near.csv", Some(0), "converged", 0),
+    ] {
+        let out_dir = d(&format!("out-{points}"));
+        let out = tissue(&[
+            "deform",
+            "--model",
+            &model,
+            "--surface",
+            &sag,
+            "--points",
+            &d(points),
+            "-o",
+            &out_dir,
+            "-q",
+        ]);
+        let message = text(&out);
+        assert_eq!(out.status.code(), code, "{points}: {message}");
+        let report = json(&Path::new(&out_dir).join("report.json"));
+        assert_eq!(report["status"], status, "{report}");
+        assert_eq!(report["points"]["outside"]["count"], outside, "{report}");
+        if outside > 0 {
+            // 200 mm in x from the phantom's skin: about 130 mm outside.
+            let max = report["points"]["outside"]["max_mm"].as_f64().unwrap();
+            assert!(max > 100.0, "{report}");
+            assert!(
+                message.contains("outside the model's rest surface"),
+                "{message}"
+            );
+            assert!(Path::new(&out_dir).join("points.csv").exists());
+        }
+    }
+}
+
+/// A hand-edited model (a particle moved far outside, a surface particle
+/// moved off its attachment) is refused before any work, naming the
+/// particle, and exits 1; the model as sampled is accepted (issue 15).
+#[test]
+fn a_hand_edited_model_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sag = s(&assets().join("phantom-sag.obj")).to_owned();
+    let free = (0..model.len()).find(|&i| !model.is_surface(i)).unwrap();
+    let surface = (0..model.len()).find(|&i| model.is_surface(i)).unwrap();
+    let mut far = model.clone();
+    far.positions[free].x = 9999.0;
+    let mut off = model.clone();
+    off.positions[surface] += Vec3::splat(5.0 * model.mean_connection_length());
+    for (name, edited, says) in [
+        ("far.vtp", &far, format!("particle {free} at")),
+        ("off.vtp", &off, format!("surface particle {surface} at")),
+    ] {
+        let path = dir.path().join(name);
+        tissue::save_model(edited, &path).unwrap();
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&path),
+            "--surface",
+            &sag,
+            "-o",
+            s(&dir.path().join(format!("out-{name}"))),
+            "-q",
+        ]);
+        let message = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{name}: {message}");
+        assert!(
+            message.contains(&says),
+            "{name}: expected `{says}` in {message}"
+        );
+        assert!(message.contains("edited or damaged"), "{message}");
+        assert!(!dir.path().join(format!("out-{name}")).exists());
+    }
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model_path),
+        "--surface",
+        &sag,
+        "-o",
+        s(&dir.path().join("out-good")),
+        "-q",
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+}
