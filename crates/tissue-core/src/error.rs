@@ -253,6 +253,21 @@ pub enum DeformError {
         /// Its coordinates.
         value: glam::Vec3,
     },
+    /// The deformed surface encloses an implausible volume: turned inside
+    /// out (mirrored), collapsed, or in other units than the rest surface.
+    #[error(
+        "the deformed surface encloses {ratio:.3} times the rest surface's volume; soft tissue keeps \
+         its volume, so anything outside {min} to {max} is refused (a mirrored or inside-out \
+         surface is negative; other units change it by a power of ten)"
+    )]
+    ImplausibleVolume {
+        /// Deformed over rest volume (signed).
+        ratio: f64,
+        /// The smallest ratio accepted.
+        min: f64,
+        /// The largest ratio accepted.
+        max: f64,
+    },
     /// No particle is on the surface, so nothing follows it.
     #[error("the model has no surface particles to follow the surface")]
     NoControlPoints,

@@ -2,7 +2,13 @@
 
 use tissue_core::{DeformError, SurfaceMesh};
 
-/// The deformed surface must be the rest surface with moved vertices.
+/// The range of deformed over rest volume [`check_same_topology`] accepts:
+/// soft tissue keeps its volume within a few per cent, so a surface outside
+/// it was mirrored, turned inside out, collapsed or given in other units.
+pub const VOLUME_RATIO: (f64, f64) = (0.5, 2.0);
+
+/// The deformed surface must be the rest surface with moved vertices,
+/// enclosing a plausible volume ([`VOLUME_RATIO`] of the rest volume).
 pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result<(), DeformError> {
     if deformed.vertices.len() != rest.vertices.len()
         || deformed.triangles.len() != rest.triangles.len()
@@ -28,7 +34,55 @@ pub fn check_same_topology(rest: &SurfaceMesh, deformed: &SurfaceMesh) -> Result
             value: deformed.vertices[v],
         });
     }
+    let rest_volume = rest.signed_volume();
+    // A rest surface without a positive volume gives nothing to compare with.
+    if rest_volume > 0.0 {
+        let ratio = deformed.signed_volume() / rest_volume;
+        let (min, max) = VOLUME_RATIO;
+        if !(min..=max).contains(&ratio) {
+            return Err(DeformError::ImplausibleVolume { ratio, min, max });
+        }
+    }
     Ok(())
+}
+
+#[cfg(test)]
+mod volume_tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+
+    use glam::Vec3;
+
+    use super::*;
+
+    #[test]
+    fn a_mirrored_collapsed_or_rescaled_surface_is_refused() {
+        let (vertices, triangles) = tissue_testkit::octahedron();
+        let rest = SurfaceMesh::new(vertices.clone(), triangles.clone());
+        assert!(rest.signed_volume() > 0.0);
+        let moved = |f: &dyn Fn(Vec3) -> Vec3| {
+            SurfaceMesh::new(vertices.iter().map(|&v| f(v)).collect(), triangles.clone())
+        };
+        // A sag-like change of shape (volume within a few per cent) passes.
+        assert!(check_same_topology(&rest, &moved(&|v| v + Vec3::Z * 0.1 * v.x * v.x)).is_ok());
+        assert!(check_same_topology(&rest, &moved(&|v| v * 1.1)).is_ok());
+        for (what, f, sign) in [
+            (
+                "mirrored",
+                &(|v: Vec3| v * Vec3::new(-1.0, 1.0, 1.0)) as &dyn Fn(Vec3) -> Vec3,
+                -1.0,
+            ),
+            ("collapsed", &|v: Vec3| v * Vec3::new(1.0, 1.0, 0.01), 1.0),
+            ("in metres", &|v: Vec3| v * 1e-3, 1.0),
+            ("in millimetres", &|v: Vec3| v * 1e3, 1.0),
+        ] {
+            let err = check_same_topology(&rest, &moved(f)).unwrap_err();
+            let DeformError::ImplausibleVolume { ratio, .. } = err else {
+                panic!("{what}: {err:?}");
+            };
+            assert_eq!(ratio.signum(), sign, "{what}: {ratio}");
+            assert!(err.to_string().contains("volume"), "{err}");
+        }
+    }
 }
 
 #[cfg(test)]
