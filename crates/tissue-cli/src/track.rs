@@ -12,8 +12,8 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, Status, Unfinished, convergence, planned_outputs, refuse_overwriting, write_json,
-    write_solution,
+    Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, refuse_overwriting,
+    write_json, write_solution,
 };
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model};
 
@@ -87,6 +87,38 @@ struct TrackReport {
     totals: Totals,
 }
 
+/// Removes what an earlier `track` into `dir` left that this run of
+/// `frames` frames would not replace: its `track.json` (rewritten only at
+/// the end, so a cut-off run must not leave the old summary beside the new
+/// frames) and its frame folders past this run's last (`frame-NNNN` holding
+/// a `report.json`: nothing else is touched).
+fn remove_stale(dir: &Path, frames: usize) -> Result<()> {
+    let summary = dir.join(TRACK_FILE);
+    if summary.exists() {
+        std::fs::remove_file(&summary)
+            .with_context(|| format!("removing the earlier {}", summary.display()))?;
+    }
+    let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(number) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix("frame-"))
+            .filter(|n| n.len() == 4)
+            .and_then(|n| n.parse::<usize>().ok())
+        else {
+            continue;
+        };
+        let folder = entry.path();
+        if number > frames && folder.join(REPORT_FILE).is_file() {
+            log::info!("removing {}, left by an earlier run", folder.display());
+            std::fs::remove_dir_all(&folder)
+                .with_context(|| format!("removing the earlier {}", folder.display()))?;
+        }
+    }
+    Ok(())
+}
+
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
@@ -118,6 +150,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     refuse_overwriting(&outputs, &inputs)?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    remove_stale(&args.output_dir, frames.len())?;
     let mut reports = Vec::new();
     for (k, frame) in frames.iter().enumerate() {
         let deformed = load_deformed(frame, &mut solver, &model.surface)?;

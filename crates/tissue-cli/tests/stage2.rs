@@ -907,3 +907,53 @@ fn a_hand_edited_model_is_refused() {
     ]);
     assert!(out.status.success(), "{}", text(&out));
 }
+
+/// A rerun of `track` with fewer frames into the same folder leaves no
+/// frame folder or summary of the earlier run (issue 15): only this run's
+/// frames and its own `track.json`; a folder the user put there stays.
+#[test]
+fn a_shorter_rerun_of_track_leaves_no_stale_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let (three, one) = (dir.path().join("three"), dir.path().join("one"));
+    std::fs::create_dir(&three).unwrap();
+    std::fs::create_dir(&one).unwrap();
+    for (k, name) in [
+        "phantom-sag.obj",
+        "phantom-indentation.obj",
+        "phantom-sag.obj",
+    ]
+    .iter()
+    .enumerate()
+    {
+        std::fs::copy(assets().join(name), three.join(format!("f{k}.obj"))).unwrap();
+    }
+    std::fs::copy(assets().join("phantom-indentation.obj"), one.join("f0.obj")).unwrap();
+    let out = dir.path().join("out");
+    let run = |frames: &Path| {
+        let pattern = frames.join("*.obj");
+        let result = tissue(&[
+            "track",
+            "--model",
+            &model,
+            "--frames",
+            s(&pattern),
+            "-o",
+            s(&out),
+            "-q",
+        ]);
+        assert!(result.status.success(), "{}", text(&result));
+    };
+    run(&three);
+    assert!(out.join("frame-0003/report.json").exists());
+    std::fs::create_dir(out.join("frame-9999")).unwrap();
+    std::fs::write(out.join("frame-9999/notes.txt"), "mine").unwrap();
+    run(&one);
+    assert!(out.join("frame-0001/report.json").exists());
+    assert!(!out.join("frame-0002").exists());
+    assert!(!out.join("frame-0003").exists());
+    assert!(out.join("frame-9999/notes.txt").exists(), "not ours: kept");
+    let summary = json(&out.join("track.json"));
+    assert_eq!(summary["frames"].as_array().unwrap().len(), 1, "{summary}");
+}
