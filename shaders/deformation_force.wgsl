@@ -19,8 +19,7 @@
 const PAPER: u32 = 0u;
 
 fn rotation(k: u32) -> mat3x3<f32> {
-    let r = rotations[k];
-    return mat3x3<f32>(r.x_axis.xyz, r.y_axis.xyz, r.z_axis.xyz);
+    return matrix_of(rotations[k]);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

@@ -5,22 +5,16 @@
 // T_i = R_i. Twin: `tissue_cpu::deformation::elastic_targets`.
 
 #import shared/layout
+#import shared/offsets
 
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> rest: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> current: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> offsets: array<u32>;
-@group(0) @binding(4) var<storage, read> indices: array<u32>;
+// Bindings 1 to 4 (rest, current, offsets, indices): shared/offsets.
 @group(0) @binding(5) var<storage, read> rotations: array<Rotation>;
 // Per particle A_i⁻¹ (zero for a flat neighbourhood), as three columns.
 @group(0) @binding(6) var<storage, read> inverse_moments: array<Rotation>;
 // Per particle the volume term's weight W_i.
 @group(0) @binding(7) var<storage, read> weights: array<f32>;
 @group(0) @binding(8) var<storage, read_write> targets: array<Rotation>;
-
-fn columns(r: Rotation) -> mat3x3<f32> {
-    return mat3x3<f32>(r.x_axis.xyz, r.y_axis.xyz, r.z_axis.xyz);
-}
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_targets(
@@ -37,20 +31,11 @@ fn elastic_targets(
         targets[i] = rotations[i];
         return;
     }
-    // M_i as local_rotations.wgsl sums it.
-    var m = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
-    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
-        let j = indices[k];
-        let d = rest[j].xyz - rest[i].xyz;
-        let c = current[j].xyz - current[i].xyz;
-        m += mat3x3<f32>(c * d.x, c * d.y, c * d.z);
-    }
-    let inverse = columns(inverse_moments[i]);
-    let f = m * inverse;
+    let inverse = matrix_of(inverse_moments[i]);
+    let f = offsets_product(i) * inverse;
     // cof(F) = det(F) F⁻ᵀ: its columns are cross products of F's, and
     // det F = F_x · (F_y × F_z), glam's order.
     let cofactor = mat3x3<f32>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
     let jacobian = dot(f[0], cofactor[0]);
-    let t = columns(rotations[i]) - (w * (jacobian - 1.0)) * cofactor * inverse;
-    targets[i] = Rotation(vec4<f32>(t[0], 0.0), vec4<f32>(t[1], 0.0), vec4<f32>(t[2], 0.0));
+    targets[i] = stored(matrix_of(rotations[i]) - (w * (jacobian - 1.0)) * cofactor * inverse);
 }

@@ -49,7 +49,7 @@ fn embedding_moved(
         }
         let j = carrier.particle;
         let r = rotations[j];
-        let turned = mat3x3<f32>(r.x_axis.xyz, r.y_axis.xyz, r.z_axis.xyz) * (x - rest[j].xyz);
+        let turned = matrix_of(r) * (x - rest[j].xyz);
         sum += carrier.weight * (current[j].xyz + turned);
     }
     moved[i] = vec4<f32>(sum, 0.0);

@@ -251,7 +251,7 @@ pub fn sample_on(
         } => tissue_gpu::sampler::sample(device, queue, surface, params, progress)
             .map_err(|e| gpu_error(format!("sampling on {name}"), e)),
     }?;
-    crate::carries_rotations(sampled)
+    crate::usable(sampled)
 }
 
 /// Stage 2 on the chosen device, with the positions of the last solve at

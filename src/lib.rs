@@ -72,13 +72,13 @@ pub fn sample_with_progress(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Sampled, Error> {
     params.validate()?;
-    carries_rotations(tissue_cpu::sample(&checked(surface)?, params, progress)?)
+    usable(tissue_cpu::sample(&checked(surface)?, params, progress)?)
 }
 
 /// `sampled`, unless stage 2 could not use its model: no particle inside,
 /// or too many that cannot carry a rotation
 /// ([`tissue_solve::quality::check_usable`]).
-pub(crate) fn carries_rotations(sampled: Sampled) -> Result<Sampled, Error> {
+pub(crate) fn usable(sampled: Sampled) -> Result<Sampled, Error> {
     tissue_solve::quality::check_usable(&sampled.model)?;
     Ok(sampled)
 }
@@ -109,5 +109,5 @@ pub(crate) fn checked(surface: &SurfaceMesh) -> Result<SurfaceMesh, Error> {
 pub fn sample_file(path: &Path, params: &SamplingParams) -> Result<Sampled, Error> {
     params.validate()?;
     let surface = load_closed_surface(path)?;
-    carries_rotations(tissue_cpu::sample(&surface, params, &mut |_| {})?)
+    usable(tissue_cpu::sample(&surface, params, &mut |_| {})?)
 }

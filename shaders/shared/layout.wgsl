@@ -32,6 +32,16 @@ struct Rotation {
     z_axis: vec4<f32>,
 }
 
+// A stored 3x3 matrix (a rotation, a target, an inverse moment) as a matrix.
+fn matrix_of(r: Rotation) -> mat3x3<f32> {
+    return mat3x3<f32>(r.x_axis.xyz, r.y_axis.xyz, r.z_axis.xyz);
+}
+
+// A 3x3 matrix in its stored layout.
+fn stored(m: mat3x3<f32>) -> Rotation {
+    return Rotation(vec4<f32>(m[0], 0.0), vec4<f32>(m[1], 0.0), vec4<f32>(m[2], 0.0));
+}
+
 // Beyond 65,535 workgroups the dispatch is two-dimensional, row by row.
 fn flat_workgroup(workgroup: vec3<u32>, groups: vec3<u32>) -> u32 {
     return workgroup.x + workgroup.y * groups.x;

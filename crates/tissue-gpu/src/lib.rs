@@ -24,6 +24,7 @@
 mod deformer;
 pub mod grid;
 mod pipelines;
+mod readback;
 pub mod sampler;
 pub mod shaders;
 mod state;

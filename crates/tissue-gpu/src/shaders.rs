@@ -16,6 +16,10 @@ pub const SHARED: &[(&str, &str)] = &[
         include_str!("../../../shaders/shared/layout.wgsl"),
     ),
     (
+        "shared/offsets",
+        include_str!("../../../shaders/shared/offsets.wgsl"),
+    ),
+    (
         "shared/svd3",
         include_str!("../../../shaders/shared/svd3.wgsl"),
     ),

@@ -6,6 +6,7 @@ use tissue_solve::ForceModel;
 use tissue_solve::elastic::Elastic;
 
 use crate::pipelines::{Kernel, Pipelines};
+pub(crate) use crate::readback::{Readback, read_buffer};
 use crate::support::{Scopes, bind_group, storage_init};
 use crate::{GpuError, Params, Rotation};
 
@@ -732,77 +733,6 @@ impl DeformState {
             .into_iter()
             .map(|p| Vec3::new(p[0], p[1], p[2]))
             .collect())
-    }
-}
-
-/// Copies the first `size` bytes of `buffer` to a new staging buffer and
-/// reads them (one-off reads; what is read every batch goes through a
-/// [`Readback`]).
-pub(crate) fn read_buffer(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    buffer: &wgpu::Buffer,
-    size: usize,
-) -> Result<Vec<u8>, GpuError> {
-    Readback::default().read(device, queue, buffer, size)
-}
-
-/// A staging buffer for reads back to the host, kept between reads and
-/// grown when a larger one is asked for: a solve reads its step norms back
-/// every batch, and would otherwise create a buffer each time.
-#[derive(Debug, Default)]
-pub(crate) struct Readback {
-    staging: std::sync::Mutex<Option<wgpu::Buffer>>,
-}
-
-impl Readback {
-    /// Copies the first `size` bytes of `buffer` to the staging buffer and
-    /// reads them (stalls until the GPU is done).
-    pub(crate) fn read(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        buffer: &wgpu::Buffer,
-        size: usize,
-    ) -> Result<Vec<u8>, GpuError> {
-        let size = (size as u64).div_ceil(4) * 4;
-        if size == 0 {
-            return Ok(Vec::new());
-        }
-        // A poisoned lock only means another read panicked; the buffer is
-        // unmapped or replaced below either way.
-        let mut kept = self.staging.lock().unwrap_or_else(|e| e.into_inner());
-        let staging = match kept.take() {
-            Some(staging) if staging.size() >= size => staging,
-            _ => device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
-        };
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("readback"),
-        });
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        queue.submit([encoder.finish()]);
-        let (sender, receiver) = std::sync::mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, ..size, move |result| {
-            // The receiver waits below; a failed send only means it gave up.
-            let _ = sender.send(result);
-        });
-        crate::wait(device)?;
-        receiver
-            .recv()
-            .map_err(|e| GpuError::Map(e.to_string()))?
-            .map_err(|e| GpuError::Map(e.to_string()))?;
-        let bytes = staging
-            .get_mapped_range(..size)
-            .map_err(|e| GpuError::Map(e.to_string()))?
-            .to_vec();
-        staging.unmap();
-        *kept = Some(staging);
-        Ok(bytes)
     }
 }
 

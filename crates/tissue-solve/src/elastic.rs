@@ -66,14 +66,11 @@ impl Elastic {
             .into_par_iter()
             .map(|i| {
                 let a = moment(rest, connections, i);
-                let scale = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
-                let det = a.determinant();
-                let round = scale > 0.0 && det > FLAT_NEIGHBOURHOOD * scale * scale * scale;
-                if !round {
+                if !is_round(a) {
                     return (Mat3::ZERO, 0.0);
                 }
-                // lambda / 2 = nu / (1 - 2 nu) mu with mu = a_i.
-                (a.inverse(), ratio * scale)
+                // lambda / 2 = nu / (1 - 2 nu) mu with mu = a_i = tr(A_i) / 3.
+                (a.inverse(), ratio * a.diagonal().element_sum() / 3.0)
             })
             .unzip();
         Self {
@@ -186,8 +183,16 @@ impl Elastic {
     }
 }
 
+/// Whether a neighbourhood with moment matrix `a` spans three dimensions:
+/// `det A / (tr A / 3)^3` at least [`FLAT_NEIGHBOURHOOD`] (false for fewer
+/// than three connections, or all of them in a plane or on a line).
+pub fn is_round(a: Mat3) -> bool {
+    let scale = a.diagonal().element_sum() / 3.0;
+    scale > 0.0 && a.determinant() > FLAT_NEIGHBOURHOOD * scale * scale * scale
+}
+
 /// `A_i = sum_j d_ij d_ij^T` over particle `i`'s connections at rest.
-fn moment(rest: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
+pub fn moment(rest: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
     let mut a = Mat3::ZERO;
     for &j in connections.of(i) {
         let d = rest[j as usize] - rest[i];

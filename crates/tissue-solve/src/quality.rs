@@ -225,19 +225,11 @@ pub fn check_usable(model: &ParticleModel) -> Result<(), tissue_core::SamplingEr
     let weak = (0..model.len())
         .into_par_iter()
         .filter(|&i| {
-            let row = model.connections.of(i);
-            if row.len() < 3 {
-                return true;
-            }
-            let mut a = glam::Mat3::ZERO;
-            for &j in row {
-                let d = model.positions[j as usize] - model.positions[i];
-                a += glam::Mat3::from_cols(d * d.x, d * d.y, d * d.z);
-            }
-            let scale = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
-            let round = scale > 0.0
-                && a.determinant() > crate::elastic::FLAT_NEIGHBOURHOOD * scale * scale * scale;
-            !round
+            !crate::elastic::is_round(crate::elastic::moment(
+                &model.positions,
+                &model.connections,
+                i,
+            ))
         })
         .count();
     let particles = model.len();
