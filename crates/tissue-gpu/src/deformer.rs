@@ -320,3 +320,79 @@ impl SolveDevice for GpuSolve {
         crate::wait(device)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
+    use super::*;
+    use tissue_core::SamplingParams;
+
+    /// A device of wgpu's no-op backend: its buffers are host memory,
+    /// allocated fallibly; its buffer size unlimited (so neither wgpu nor
+    /// we refuse a size before the allocation does); its kernels do nothing.
+    fn noop_device() -> (wgpu::Device, wgpu::Queue) {
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle();
+        descriptor.backends = wgpu::Backends::NOOP;
+        descriptor.backend_options.noop.enable = true;
+        // Without indirect-call validation, whose u32 offsets would cap
+        // buffers at 4 GiB.
+        descriptor
+            .flags
+            .remove(wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL);
+        descriptor.backend_options.noop.limits = Some(wgpu::Limits {
+            max_buffer_size: u64::MAX,
+            ..wgpu::Limits::unlimited()
+        });
+        let instance = wgpu::Instance::new(descriptor);
+        let adapter = pollster::block_on(instance.request_adapter(&Default::default()))
+            .expect("the no-op backend has an adapter");
+        pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .expect("the no-op adapter opens a device")
+    }
+
+    /// A small phantom model and its surface pushed out by 2 %.
+    fn model_and_frame() -> (ParticleModel, SurfaceMesh) {
+        let breast = tissue_core::phantom::default_breast();
+        let sampled =
+            tissue_cpu::sample(&breast, &SamplingParams::with_particles(400), &mut |_| {})
+                .expect("the phantom samples");
+        let mut frame = sampled.model.surface.clone();
+        for v in &mut frame.vertices {
+            *v *= 1.02;
+        }
+        (sampled.model, frame)
+    }
+
+    fn solve_on_noop(least_staging: u64) -> Result<DeformReport, GpuError> {
+        let (device, queue) = noop_device();
+        let (model, frame) = model_and_frame();
+        let mut deformer = GpuDeformer::new(&device, &queue, &model, DeformParams::default())?;
+        deformer.tracker.device_mut().state.readback.least = least_staging;
+        deformer.set_surface(&device, &queue, &frame)?;
+        deformer.solve(&device, &queue)
+    }
+
+    #[test]
+    fn a_solve_on_the_noop_device_runs_to_its_end() {
+        // The control for the test below: on this device the whole solve
+        // runs (its kernels do nothing, so no step is taken), and only the
+        // staging buffer's size differs there.
+        let report = solve_on_noop(0).expect("the solve runs on the no-op device");
+        assert!(report.iterations >= 1, "{report:?}");
+    }
+
+    #[test]
+    fn a_buffer_the_device_cannot_allocate_inside_a_solve_is_out_of_memory() {
+        // The solve's first read back asks for a 4 EiB staging buffer:
+        // within the device's limits, beyond any memory. wgpu raises
+        // out-of-memory inside the solve; it must come back typed, not as
+        // a panic from wgpu's default error handler.
+        match solve_on_noop(1 << 62) {
+            Err(GpuError::OutOfMemory(why)) => assert!(why.contains("readback"), "{why}"),
+            other => panic!("expected GpuError::OutOfMemory, got {other:?}"),
+        }
+    }
+}

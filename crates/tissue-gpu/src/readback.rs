@@ -21,6 +21,10 @@ pub(crate) fn read_buffer(
 #[derive(Debug, Default)]
 pub(crate) struct Readback {
     staging: std::sync::Mutex<Option<wgpu::Buffer>>,
+    /// Tests only: the least size of a staging buffer this one creates, to
+    /// make a read inside a solve ask for more memory than the device has.
+    #[cfg(test)]
+    pub(crate) least: u64,
 }
 
 impl Readback {
@@ -40,11 +44,15 @@ impl Readback {
         // A poisoned lock only means another read panicked; the buffer is
         // unmapped or replaced below either way.
         let mut kept = self.staging.lock().unwrap_or_else(|e| e.into_inner());
+        #[cfg(test)]
+        let allocated = size.max(self.least);
+        #[cfg(not(test))]
+        let allocated = size;
         let staging = match kept.take() {
             Some(staging) if staging.size() >= size => staging,
             _ => device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("readback"),
-                size,
+                size: allocated,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),

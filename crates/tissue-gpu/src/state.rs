@@ -73,7 +73,7 @@ pub struct DeformState {
     /// Runs of consecutive control particles: `(first particle, first control, length)`.
     control_runs: Vec<(u32, usize, usize)>,
     /// The staging buffer of every read back.
-    readback: Readback,
+    pub(crate) readback: Readback,
 }
 
 fn vec4s(points: &[Vec3]) -> Vec<[f32; 4]> {

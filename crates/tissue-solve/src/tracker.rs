@@ -160,6 +160,12 @@ impl<D: SolveDevice> Tracker<D> {
         &self.device
     }
 
+    /// The device's kernels and buffers, to change (tests that make a
+    /// device fail inside a solve).
+    pub fn device_mut(&mut self) -> &mut D {
+        &mut self.device
+    }
+
     /// The solve's plan: free particles, spectrum, size, float floor.
     pub fn plan(&self) -> &Plan {
         &self.plan
