@@ -24,6 +24,7 @@
 mod deformer;
 pub mod grid;
 mod pipelines;
+pub mod quiet;
 mod readback;
 pub mod sampler;
 pub mod shaders;
@@ -181,14 +182,12 @@ pub fn device_from_env() -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), G
 /// The adapter [`device_from_env`] opens, for a caller that asks for its own
 /// device (the benchmark adds `TIMESTAMP_QUERY` where the adapter has it).
 pub fn adapter_from_env() -> Result<wgpu::Adapter, GpuError> {
-    let instance =
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle().with_env());
+    let (instance, adapters) = quiet::instance_and_adapters();
     // wgpu's own `initialize_adapter_from_env` panics when the named adapter
     // is missing; the same choice here returns an error instead.
     let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
         Ok(wanted) => {
             let wanted = wanted.to_lowercase();
-            let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
             let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
             adapters
                 .into_iter()
@@ -199,10 +198,12 @@ pub fn adapter_from_env() -> Result<wgpu::Adapter, GpuError> {
                     ))
                 })?
         }
-        Err(_) => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
-            ..Default::default()
-        }))
+        Err(_) => quiet::hushed(|| {
+            pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+                ..Default::default()
+            }))
+        })
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?,
     };
     Ok(adapter)

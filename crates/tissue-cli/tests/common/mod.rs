@@ -68,3 +68,43 @@ pub fn gpu(test: &str) -> bool {
         Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
     }
 }
+
+/// The bundled phantom sampled by `tissue sample` at 2,000 particles, read back.
+pub fn sampled_model(dir: &Path) -> (PathBuf, tissue::ParticleModel) {
+    let path = dir.join("model.vtp");
+    let breast = assets().join("phantom-breast.obj");
+    let out = tissue(&[
+        "sample",
+        s(&breast),
+        "-n",
+        "2000",
+        "-o",
+        s(&path),
+        "--quiet",
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let model = tissue::load_model(&path).unwrap();
+    (path, model)
+}
+
+/// Bounding-box diagonal of the rest particles (`Deformer::size`).
+pub fn size(model: &tissue::ParticleModel) -> f32 {
+    let (lo, hi) = model.positions.iter().fold(
+        (tissue::Vec3::splat(f32::MAX), tissue::Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    (hi - lo).length()
+}
+
+/// One named `DataArray` of an ASCII `.vtp`, as numbers.
+pub fn vtp_array(text: &str, name: &str) -> Vec<f32> {
+    let tag = format!("Name=\"{name}\"");
+    let start = text.find(&tag).unwrap_or_else(|| panic!("no array {name}"));
+    let body = &text[start..];
+    let open = body.find('>').unwrap() + 1;
+    let close = body.find("</DataArray>").unwrap();
+    body[open..close]
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect()
+}
