@@ -33,7 +33,9 @@ pub mod backend;
 /// chosen device), its parameters and its report.
 pub mod deformation {
     pub use tissue_cpu::deformation::Deformer;
-    pub use tissue_solve::{DeformParams, DeformReport, ForceModel, RotationMethod, StopReason};
+    pub use tissue_solve::{
+        DeformParams, DeformReport, ForceModel, RotationMethod, StopReason, check_same_topology,
+    };
 }
 
 /// Under the facade, for tools and research code that need the parts:

@@ -71,8 +71,9 @@ pub struct SolveReport {
 
 /// How a solve ended, as `report.json` and `track.json` say and the exit
 /// code tells a script: 0 converged, 2 not converged, 3 diverged, 4
-/// converged but flagged (1 is any other error: a refused input, a file
-/// that cannot be read or written).
+/// converged but flagged, 130 a `track` stopped by Ctrl-C before its last
+/// frame (1 is any other error: a refused input, a file that cannot be read
+/// or written).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
@@ -85,6 +86,10 @@ pub enum Status {
     /// The solve converged, but points or structures lie outside the
     /// organ (`outside` in the report): the results are written and flagged.
     Flagged,
+    /// `track.json` of a run with frames still to solve: written after
+    /// every frame but the last, and left so by a run that was stopped
+    /// (Ctrl-C, or killed); `tissue track --resume` continues it.
+    Incomplete,
 }
 
 impl Status {
@@ -104,6 +109,7 @@ impl Status {
             Self::NotConverged => 2,
             Self::Diverged => 3,
             Self::Flagged => 4,
+            Self::Incomplete => 130,
         }
     }
 }

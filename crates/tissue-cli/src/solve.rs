@@ -140,12 +140,12 @@ pub fn load_model(
     Ok((model, solver))
 }
 
-/// Reads a deformed surface and places the control points on it.
-///
-/// `load_surface` keeps the file's winding, while sampling turns an
-/// inward-facing surface outward; a deformed surface whose every triangle is
-/// the rest triangle reversed is the same mesh, and is turned the same way.
-pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
+/// Reads the deformed surface at `path` and checks it against `rest` (the
+/// same mesh with moved vertices, a plausible volume: see
+/// `tissue::deformation::check_same_topology`). A surface wound like the
+/// file the model was sampled from, where sampling reversed it, is turned
+/// the same way.
+pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
     let mut deformed = tissue::load_surface(path)?;
     let reversed = deformed.triangles.len() == rest.triangles.len()
         && deformed
@@ -162,6 +162,14 @@ pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Re
             t.swap(1, 2);
         }
     }
+    tissue::deformation::check_same_topology(rest, &deformed)
+        .map_err(|err| anyhow!("{}: {}", path.display(), err))?;
+    Ok(deformed)
+}
+
+/// [`read_deformed`], then the surface given to `solver` (a frame boundary).
+pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
+    let deformed = read_deformed(path, rest)?;
     solver
         .set_surface(&deformed)
         .map_err(|err| anyhow!("{}: {}", path.display(), err))?;

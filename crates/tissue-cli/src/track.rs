@@ -1,11 +1,16 @@
 //! `tissue track`: a sequence of deformed surfaces, each solve starting from
-//! the previous solution (warm start), one output folder per frame.
+//! the previous solution (warm start), one output folder per frame; every
+//! frame checked before the first solve, the summary rewritten after every
+//! frame, Ctrl-C honoured between frames, and a cut-off run resumable.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
+use serde_json::Value;
 use tissue::deformation::DeformParams;
 
 use crate::backend::{self, BackendArgs};
@@ -15,7 +20,7 @@ use crate::output::{
     Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, refuse_overwriting,
     write_json, write_solution,
 };
-use crate::solve::{Frames, SolveArgs, load_deformed, load_model};
+use crate::solve::{Frames, SolveArgs, load_deformed, load_model, read_deformed};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -43,6 +48,13 @@ pub struct TrackArgs {
     pub history: usize,
     #[command(flatten)]
     pub backend: BackendArgs,
+    /// Continue a run into the same folder that was stopped before its last
+    /// frame (Ctrl-C, or killed): the frames its `track.json` lists as done
+    /// are kept, the first missing one starts from the rest shape. Refused
+    /// unless the model, the frames, the carried files and the solve's
+    /// parameters are those of that run.
+    #[arg(long)]
+    pub resume: bool,
     /// Print nothing but errors.
     #[arg(long, short)]
     pub quiet: bool,
@@ -62,42 +74,70 @@ struct FrameReport {
     structures: Vec<StructureReport>,
 }
 
-/// Totals over all frames.
+/// Totals over the frames done.
 #[derive(Debug, Serialize)]
 struct Totals {
+    /// Frames solved and written.
     frames: usize,
+    /// Frames the run was asked to solve.
+    planned: usize,
     iterations: usize,
     /// Seconds in the solves.
     solve_seconds: f64,
-    /// Seconds of the whole run: loading, solving and writing.
+    /// Seconds of this run (a resumed one's own): loading, checking,
+    /// solving and writing.
     seconds: f64,
-    /// Whether every frame converged.
+    /// Whether every frame done converged.
     converged: bool,
-    /// `converged` when every frame did, else `not_converged` (the exit code's meaning).
+    /// `incomplete` until the last frame is written; then `converged` when
+    /// every frame did, `not_converged` when one did not, `flagged` when
+    /// carried points or structures lie outside the organ (the exit code's
+    /// meaning).
     status: Status,
+    /// The first frame (from 1) this run solved, when it resumed an earlier
+    /// one; that frame started from the rest shape.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    resumed_at: Option<usize>,
+}
+
+/// What a run was asked to do, kept in `track.json` so that `--resume`
+/// continues only the same run.
+#[derive(Debug, Serialize)]
+struct Plan<'a> {
+    model: &'a Path,
+    frames: &'a [PathBuf],
+    points: Option<&'a Path>,
+    structures: &'a [PathBuf],
+    rigid_structures: &'a [PathBuf],
+    params: &'a DeformParams,
 }
 
 /// `track.json`.
 #[derive(Debug, Serialize)]
-struct TrackReport {
-    model: String,
+struct TrackReport<'a> {
+    model: &'a str,
     /// Where stage 2 ran: `cpu`, or the GPU adapter's name and graphics backend.
     backend: String,
-    frames: Vec<FrameReport>,
+    /// The frames done, in order ([`FrameReport`]s; a resumed run keeps
+    /// those of the run it continues as they were).
+    frames: &'a [Value],
     totals: Totals,
+    /// What the run was asked to do ([`Plan`]).
+    plan: &'a Value,
 }
 
 /// Removes what an earlier `track` into `dir` left that this run of
-/// `frames` frames would not replace: its `track.json` (rewritten only at
-/// the end, so a cut-off run must not leave the old summary beside the new
-/// frames) and its frame folders past this run's last (`frame-NNNN` holding
-/// a `report.json`: nothing else is touched).
-fn remove_stale(dir: &Path, frames: usize) -> Result<()> {
+/// `frames` frames would not replace: its `track.json` unless `keep_summary`
+/// (a resumed run's), its frame folders past this run's last (`frame-NNNN`
+/// holding a `report.json`), and the temporary files of a write that was
+/// killed (`.NAME.XXXXXX.part`); nothing else is touched.
+fn remove_stale(dir: &Path, frames: usize, keep_summary: bool) -> Result<()> {
     let summary = dir.join(TRACK_FILE);
-    if summary.exists() {
+    if summary.exists() && !keep_summary {
         std::fs::remove_file(&summary)
             .with_context(|| format!("removing the earlier {}", summary.display()))?;
     }
+    remove_parts(dir)?;
     let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
     for entry in entries.flatten() {
         let name = entry.file_name();
@@ -119,6 +159,126 @@ fn remove_stale(dir: &Path, frames: usize) -> Result<()> {
     Ok(())
 }
 
+/// Removes the temporary files a killed write left in `dir` and in its
+/// `frame-NNNN` folders: hidden, named `.NAME.XXXXXX.part`
+/// (`tissue::io::write_atomically`).
+fn remove_parts(dir: &Path) -> Result<()> {
+    let mut folders = vec![dir.to_path_buf()];
+    let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if path.is_dir() && name.starts_with("frame-") {
+            folders.push(path);
+        }
+    }
+    for folder in folders {
+        let Ok(entries) = std::fs::read_dir(&folder) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            let name = name.to_string_lossy();
+            if name.starts_with('.') && name.ends_with(".part") && entry.path().is_file() {
+                log::info!(
+                    "removing {}, left by a write that was cut off",
+                    entry.path().display()
+                );
+                std::fs::remove_file(entry.path())
+                    .with_context(|| format!("removing {}", entry.path().display()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The frames an earlier run into `dir` finished, from its `track.json`,
+/// for `--resume`: refused unless that run's plan is `plan`; the frames it
+/// lists, in order, up to the first whose folder lost its `report.json`.
+fn resumed(summary: &Path, plan: &Value) -> Result<Vec<Value>> {
+    if !summary.is_file() {
+        bail!(
+            "--resume: {} does not exist, so there is no run to continue; run without --resume",
+            summary.display()
+        );
+    }
+    let text = std::fs::read_to_string(summary)
+        .with_context(|| format!("--resume: reading {}", summary.display()))?;
+    let earlier: Value = serde_json::from_str(&text)
+        .with_context(|| format!("--resume: {} is not a track summary", summary.display()))?;
+    let Some(earlier_plan) = earlier.get("plan").and_then(Value::as_object) else {
+        bail!(
+            "--resume: {} holds no `plan` (written by an older tissue?): run without --resume",
+            summary.display()
+        );
+    };
+    if let Some(object) = plan.as_object() {
+        for (key, value) in object {
+            if earlier_plan.get(key) != Some(value) {
+                bail!(
+                    "--resume: this run's {key} differ from those of the run in {}: \
+                     resume with the same model, frames, carried files and options, \
+                     or run without --resume",
+                    summary.display()
+                );
+            }
+        }
+    }
+    let mut done = Vec::new();
+    for frame in earlier["frames"].as_array().into_iter().flatten() {
+        let finished = frame["folder"]
+            .as_str()
+            .is_some_and(|folder| Path::new(folder).join(REPORT_FILE).is_file());
+        if !finished {
+            break;
+        }
+        done.push(frame.clone());
+    }
+    Ok(done)
+}
+
+/// Ctrl-C presses so far: the first asks the run to stop after the frame in
+/// hand, the second stops it at once (every file is written to a temporary
+/// one and renamed, so none is left cut off). `None` when no handler could
+/// be installed (another one is: the run cannot be stopped between frames).
+fn interrupt_count() -> Option<Arc<AtomicUsize>> {
+    let presses = Arc::new(AtomicUsize::new(0));
+    let seen = Arc::clone(&presses);
+    let installed = ctrlc::set_handler(move || {
+        if seen.fetch_add(1, Ordering::SeqCst) == 0 {
+            eprintln!("stopping after the frame in hand (Ctrl-C again to stop now)");
+        } else {
+            std::process::exit(i32::from(Status::Incomplete.exit_code()));
+        }
+    });
+    match installed {
+        Ok(()) => Some(presses),
+        Err(e) => {
+            log::warn!("Ctrl-C will stop the run at once, not between frames: {e}");
+            None
+        }
+    }
+}
+
+/// The totals over the frames `done` (JSON [`FrameReport`]s).
+fn totals(done: &[Value], planned: usize, status: Status, started: Instant) -> Totals {
+    Totals {
+        frames: done.len(),
+        planned,
+        iterations: done
+            .iter()
+            .filter_map(|f| f["iterations"].as_u64())
+            .map(|i| i as usize)
+            .sum(),
+        solve_seconds: done.iter().filter_map(|f| f["seconds"].as_f64()).sum(),
+        seconds: started.elapsed().as_secs_f64(),
+        converged: done.iter().all(|f| f["converged"] == Value::Bool(true)),
+        status,
+        resumed_at: None,
+    }
+}
+
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
@@ -136,7 +296,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let mut inputs: Vec<(&str, &Path)> = vec![("model", args.model.as_path())];
     inputs.extend(frames.iter().map(|f| ("frame", f.as_path())));
     inputs.extend(args.carry.inputs());
-    let mut outputs = vec![args.output_dir.join(TRACK_FILE)];
+    let path = args.output_dir.join(TRACK_FILE);
+    let mut outputs = vec![path.clone()];
     for k in 0..frames.len() {
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let destination = Destination {
@@ -148,11 +309,44 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         outputs.extend(planned_outputs(&destination, &carried));
     }
     refuse_overwriting(&outputs, &inputs)?;
+    // Every frame read and checked before the first solve: a bad frame
+    // stops the run before anything is written.
+    for frame in &frames {
+        read_deformed(frame, &model.surface)?;
+    }
+    let plan = serde_json::from_str::<Value>(&serde_json::to_string(&Plan {
+        model: &args.model,
+        frames: &frames,
+        points: args.carry.points.as_deref(),
+        structures: &args.carry.structures,
+        rigid_structures: &args.carry.rigid_structures,
+        params: &params,
+    })?)?;
+    let mut done = if args.resume {
+        resumed(&path, &plan)?
+    } else {
+        Vec::new()
+    };
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
-    remove_stale(&args.output_dir, frames.len())?;
-    let mut reports = Vec::new();
-    for (k, frame) in frames.iter().enumerate() {
+    remove_stale(&args.output_dir, frames.len(), args.resume)?;
+    let resumed_at = (args.resume && !done.is_empty()).then_some(done.len() + 1);
+    if resumed_at.is_some() && !args.quiet {
+        println!(
+            "resuming at frame {} of {} (the frames before it are done)",
+            done.len() + 1,
+            frames.len()
+        );
+    }
+    let presses = interrupt_count();
+    let stop_asked = || {
+        presses
+            .as_ref()
+            .is_some_and(|p| p.load(Ordering::SeqCst) > 0)
+    };
+    let first = done.len();
+    let mut status = Status::Incomplete;
+    for (k, frame) in frames.iter().enumerate().skip(first) {
         let deformed = load_deformed(frame, &mut solver, &model.surface)?;
         let solve = solver.solve()?;
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
@@ -163,7 +357,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             model: &model_name,
             surface: &surface,
         };
-        let report = write_solution(
+        let report = match write_solution(
             destination,
             &model,
             &solver,
@@ -171,7 +365,26 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             &carried,
             &params,
             solve,
-        )?;
+        ) {
+            Ok(report) => report,
+            Err(err) => {
+                // A diverged frame ends the run; the summary says so.
+                if let Some(unfinished) = err.downcast_ref::<Unfinished>() {
+                    write_summary(
+                        &path,
+                        &model_name,
+                        &solver,
+                        &done,
+                        &plan,
+                        frames.len(),
+                        unfinished.status,
+                        started,
+                        resumed_at,
+                    )?;
+                }
+                return Err(err);
+            }
+        };
         if !args.quiet {
             let moved: Vec<String> = report
                 .structures
@@ -192,7 +405,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             }
             println!("{line}");
         }
-        reports.push(FrameReport {
+        done.push(serde_json::to_value(FrameReport {
             frame: surface,
             folder: dir.display().to_string(),
             iterations: report.iterations,
@@ -200,49 +413,63 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             converged: report.converged,
             residual: report.residual,
             structures: report.structures,
-        });
+        })?);
+        let last = k + 1 == frames.len();
+        if !last {
+            write_summary(
+                &path,
+                &model_name,
+                &solver,
+                &done,
+                &plan,
+                frames.len(),
+                status,
+                started,
+                resumed_at,
+            )?;
+            if stop_asked() {
+                break;
+            }
+        }
     }
-    let totals = Totals {
-        frames: reports.len(),
-        iterations: reports.iter().map(|f| f.iterations).sum(),
-        solve_seconds: reports.iter().map(|f| f.seconds).sum(),
-        seconds: started.elapsed().as_secs_f64(),
-        converged: reports.iter().all(|f| f.converged),
-        status: if !reports.iter().all(|f| f.converged) {
+    if done.len() == frames.len() {
+        status = if !done.iter().all(|f| f["converged"] == Value::Bool(true)) {
             Status::NotConverged
         } else if carried.flagged() {
             Status::Flagged
         } else {
             Status::Converged
-        },
-    };
-    let path = args.output_dir.join(TRACK_FILE);
-    let summary = format!(
-        "tracked {} frames: {} iterations, {:.3} s solving, {:.3} s in all, {}",
-        totals.frames,
-        totals.iterations,
-        totals.solve_seconds,
-        totals.seconds,
-        if totals.converged {
-            "all converged"
-        } else {
-            "NOT all converged: raise --max-iterations"
-        }
-    );
-    let count = totals.frames;
-    let status = totals.status;
-    let unconverged = reports.iter().filter(|f| !f.converged).count();
-    write_json(
+        };
+    }
+    let totals = write_summary(
         &path,
-        &TrackReport {
-            model: model_name,
-            backend: solver.backend(),
-            frames: reports,
-            totals,
-        },
+        &model_name,
+        &solver,
+        &done,
+        &plan,
+        frames.len(),
+        status,
+        started,
+        resumed_at,
     )?;
-    if !args.quiet {
-        println!("{summary}");
+    let count = totals.frames;
+    let unconverged = done
+        .iter()
+        .filter(|f| f["converged"] != Value::Bool(true))
+        .count();
+    if !args.quiet && status != Status::Incomplete {
+        println!(
+            "tracked {} frames: {} iterations, {:.3} s solving, {:.3} s in all, {}",
+            totals.frames,
+            totals.iterations,
+            totals.solve_seconds,
+            totals.seconds,
+            if totals.converged {
+                "all converged"
+            } else {
+                "NOT all converged: raise --max-iterations"
+            }
+        );
         println!(
             "  wrote {} (frame-0001 .. frame-{count:04}) and {}",
             args.output_dir.display(),
@@ -251,6 +478,13 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     }
     let message = match status {
         Status::Converged => return Ok(()),
+        Status::Incomplete => format!(
+            "stopped by Ctrl-C after frame {count} of {}; {} says so, and the same command \
+             with --resume continues from frame {}",
+            frames.len(),
+            path.display(),
+            count + 1
+        ),
         Status::Flagged => format!(
             "points or structures lie outside the model's rest surface ({}): \
              they are carried by extrapolation",
@@ -262,4 +496,32 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         ),
     };
     Err(Unfinished { status, message }.into())
+}
+
+/// Writes `track.json` for the frames `done` so far; its totals.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one summary, written from two places"
+)]
+fn write_summary(
+    path: &Path,
+    model: &str,
+    solver: &crate::backend::Solver,
+    done: &[Value],
+    plan: &Value,
+    planned: usize,
+    status: Status,
+    started: Instant,
+    resumed_at: Option<usize>,
+) -> Result<Totals> {
+    let mut report = TrackReport {
+        model,
+        backend: solver.backend(),
+        frames: done,
+        totals: totals(done, planned, status, started),
+        plan,
+    };
+    report.totals.resumed_at = resumed_at;
+    write_json(path, &report)?;
+    Ok(report.totals)
 }

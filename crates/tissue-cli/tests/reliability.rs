@@ -7,7 +7,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{assets, json, s, sampled_model, text, tissue};
+use common::{assets, json, s, sampled_model, size, text, tissue, vtp_array};
 use tissue::Vec3;
 
 /// No output may replace an input (issue 15): each run below names an
@@ -330,4 +330,185 @@ fn a_quiet_run_prints_nothing_on_a_headless_machine() {
             text(&out)
         );
     }
+}
+
+/// `frames` frames from the rest skin towards the sagged phantom's, as
+/// `dir/frames/skin-K.obj`; the pattern that names them.
+fn sag_frames(dir: &Path, model: &tissue::ParticleModel, frames: usize) -> String {
+    use tissue::deform::{Sag, deform_surface, interpolate};
+    let sagged = deform_surface(&model.surface, &Sag::default());
+    let folder = dir.join("frames");
+    std::fs::create_dir_all(&folder).unwrap();
+    for k in 1..=frames {
+        let frame = interpolate(&model.surface, &sagged, k as f32 / frames as f32).unwrap();
+        tissue::save_surface(&frame, &folder.join(format!("skin-{k}.obj"))).unwrap();
+    }
+    s(&folder.join("*.obj")).to_owned()
+}
+
+/// `track` reads and checks every frame before it solves the first (issue
+/// 15): a broken last frame stops the run before anything is written,
+/// naming the file.
+#[test]
+fn track_checks_every_frame_before_solving_the_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let pattern = sag_frames(dir.path(), &model, 3);
+    // The fourth frame has lost a triangle.
+    let mut broken = model.surface.clone();
+    broken.triangles.pop();
+    let broken_path = dir.path().join("frames/skin-4.obj");
+    tissue::save_surface(&broken, &broken_path).unwrap();
+    let out_dir = dir.path().join("out");
+    let out = tissue(&[
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        &pattern,
+        "-o",
+        s(&out_dir),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(text(&out).contains("skin-4.obj"), "{}", text(&out));
+    assert!(
+        !out_dir.join("frame-0001").exists(),
+        "a frame was solved before the bad one was found"
+    );
+}
+
+/// Ctrl-C during `track` finishes the frame in hand, writes the summary
+/// (status `incomplete`, the frames done) and exits 130; `--resume`
+/// continues from the next frame, and its last frame agrees with an
+/// uninterrupted run's to well within the solve's tolerance. A resume with
+/// other options, or with nothing to resume, is refused.
+#[test]
+fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    // Enough that the signal lands long before the last frame.
+    let frames = 30;
+    let pattern = sag_frames(dir.path(), &model, frames);
+    let model_arg = s(&model_path).to_owned();
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "track",
+            "--model",
+            &model_arg,
+            "--frames",
+            &pattern,
+            "-o",
+            s(out),
+        ]
+        .map(str::to_owned)
+        .to_vec()
+    };
+
+    let whole = dir.path().join("whole");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(args(&whole))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+
+    // Stopped by SIGINT once the first frame is reported.
+    let cut = dir.path().join("cut");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(args(&cut))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    while !line.starts_with("frame 1/") {
+        line.clear();
+        let read = std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
+        assert!(read > 0, "track ended before its first frame");
+    }
+    let killed = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    let mut printed = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut printed).unwrap();
+    assert_eq!(status.code(), Some(130), "{printed}");
+    assert!(printed.contains("--resume"), "{printed}");
+    let summary = json(&cut.join("track.json"));
+    let done = summary["frames"].as_array().unwrap().len();
+    assert!((1..frames).contains(&done), "{summary}");
+    assert_eq!(summary["totals"]["status"], "incomplete", "{summary}");
+    assert_eq!(summary["totals"]["planned"], frames, "{summary}");
+    assert!(cut.join(format!("frame-{done:04}/report.json")).exists());
+    assert!(!cut.join(format!("frame-{:04}", done + 1)).exists());
+
+    // Other options: refused, naming what differs.
+    let mut other = args(&cut);
+    other.extend(["--resume", "--tolerance", "1e-3"].map(str::to_owned));
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(&other)
+        .output()
+        .unwrap();
+    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
+    assert!(
+        text(&refused).contains("params differ"),
+        "{}",
+        text(&refused)
+    );
+
+    let mut again = args(&cut);
+    again.push("--resume".into());
+    let resumed = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(&again)
+        .output()
+        .unwrap();
+    assert!(resumed.status.success(), "{}", text(&resumed));
+    assert!(
+        text(&resumed).contains(&format!("resuming at frame {}", done + 1)),
+        "{}",
+        text(&resumed)
+    );
+    let summary = json(&cut.join("track.json"));
+    assert_eq!(summary["frames"].as_array().unwrap().len(), frames);
+    assert_eq!(summary["totals"]["status"], "converged", "{summary}");
+    assert_eq!(summary["totals"]["resumed_at"], done + 1, "{summary}");
+
+    let last = format!("frame-{frames:04}/particles.vtp");
+    let displacement = |dir: &Path| {
+        vtp_array(
+            &std::fs::read_to_string(dir.join(&last)).unwrap(),
+            "displacement",
+        )
+    };
+    let (a, b) = (displacement(&whole), displacement(&cut));
+    assert_eq!(a.len(), b.len());
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "stopped after frame {done}; the last frames differ by {worst} (size {})",
+        size(&model)
+    );
+    assert!(
+        worst < 1e-4 * size(&model),
+        "the resumed run's last frame is {worst} from the uninterrupted run's"
+    );
+
+    // Nothing to resume in a fresh folder.
+    let mut fresh = args(&dir.path().join("fresh"));
+    fresh.push("--resume".into());
+    let nothing = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(&fresh)
+        .output()
+        .unwrap();
+    assert_eq!(nothing.status.code(), Some(1), "{}", text(&nothing));
+    assert!(
+        text(&nothing).contains("no run to continue"),
+        "{}",
+        text(&nothing)
+    );
 }
