@@ -512,3 +512,70 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
         text(&nothing)
     );
 }
+
+/// SIGKILL while a file is being written leaves the previous good file,
+/// never a cut-off one (issue 15): `tissue sample` writes a model over an
+/// earlier one and is killed as soon as its temporary file appears; the
+/// model file then still loads, and is the earlier one byte for byte unless
+/// the rename won the race (then it is the whole new one).
+#[test]
+fn a_write_killed_midway_leaves_the_previous_file_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let breast = assets().join("phantom-breast.obj");
+    let model = dir.path().join("model.vtp");
+    let sample = |seed: &str| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"));
+        command.args([
+            "sample",
+            s(&breast),
+            "-n",
+            "20000",
+            "--seed",
+            seed,
+            "--backend",
+            "cpu",
+            "-q",
+            "-o",
+            s(&model),
+        ]);
+        command
+    };
+    let first = sample("1").output().unwrap();
+    assert!(first.status.success(), "{}", text(&first));
+    let good = std::fs::read(&model).unwrap();
+    let mut caught = 0;
+    for attempt in 0..3 {
+        let mut child = sample(&format!("{}", attempt + 2)).spawn().unwrap();
+        let started = std::time::Instant::now();
+        let mut killed_writing = false;
+        while started.elapsed() < std::time::Duration::from_secs(120) {
+            let writing = std::fs::read_dir(dir.path())
+                .unwrap()
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().ends_with(".part"));
+            if writing {
+                child.kill().unwrap();
+                killed_writing = true;
+                break;
+            }
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let status = child.wait().unwrap();
+        let now = std::fs::read(&model).unwrap();
+        tissue::load_model(&model).unwrap_or_else(|e| {
+            panic!("attempt {attempt}: the model file is damaged after SIGKILL ({status}): {e}")
+        });
+        if killed_writing && now == good {
+            caught += 1;
+        }
+        // Put the good file back for the next attempt if the new one landed.
+        std::fs::write(&model, &good).unwrap();
+    }
+    assert!(
+        caught > 0,
+        "no attempt killed the process while it was writing (the test did not test)"
+    );
+}
