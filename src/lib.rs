@@ -34,7 +34,8 @@ pub mod backend;
 pub mod deformation {
     pub use tissue_cpu::deformation::Deformer;
     pub use tissue_solve::{
-        DeformParams, DeformReport, ForceModel, RotationMethod, StopReason, check_same_topology,
+        DeformParams, DeformReport, ForceModel, Inversions, RotationMethod, StopReason,
+        check_same_topology, inversions,
     };
 }
 

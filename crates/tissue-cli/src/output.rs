@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use tissue::deformation::{DeformParams, DeformReport, StopReason};
+use tissue::deformation::{DeformParams, DeformReport, Inversions, StopReason, inversions};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::Solver;
@@ -63,6 +63,9 @@ pub struct SolveReport {
     /// The landmark points, when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub points: Option<PointsReport>,
+    /// Particles the solve turned inside out (local volume ratio at or
+    /// below 0; `tissue::deformation::inversions`): flagged.
+    pub inverted: Inversions,
     /// The files written, report included.
     pub files: Vec<String>,
     /// The error estimate after every iteration.
@@ -84,7 +87,8 @@ pub enum Status {
     /// The state became non-finite: nothing is written.
     Diverged,
     /// The solve converged, but points or structures lie outside the
-    /// organ (`outside` in the report): the results are written and flagged.
+    /// organ (`outside` in the report) or particles are inverted
+    /// (`inverted`): the results are written and flagged.
     Flagged,
     /// `track.json` of a run with frames still to solve: written after
     /// every frame but the last, and left so by a run that was stopped
@@ -265,6 +269,7 @@ pub fn write_solution(
         .zip(solver.rest())
         .map(|(q, p)| q.distance(*p))
         .fold(0.0, f32::max);
+    let inverted = inversions(solver.rest(), current, &model.connections);
     let report = SolveReport {
         model: to.model.to_owned(),
         surface: to.surface.to_owned(),
@@ -276,13 +281,14 @@ pub fn write_solution(
         seconds: solve.seconds,
         converged: solve.converged,
         status: match Status::of(solve.converged, solve.stopped_by) {
-            Status::Converged if carried.flagged() => Status::Flagged,
+            Status::Converged if carried.flagged() || inverted.count > 0 => Status::Flagged,
             status => status,
         },
         stopped_by: solve.stopped_by,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
         points,
+        inverted,
         files: files.iter().map(|p| p.display().to_string()).collect(),
         residual_history: solve.residual_history,
     };
@@ -320,7 +326,42 @@ impl SolveReport {
                 p.count, p.source, p.max_displacement_mm
             ));
         }
+        lines.extend(
+            self.flags()
+                .into_iter()
+                .map(|f| format!("{indent}FLAGGED: {f}")),
+        );
         lines
+    }
+
+    /// What makes a converged solve implausible, one line each (empty when
+    /// nothing does).
+    pub fn flags(&self) -> Vec<String> {
+        let mut flags = Vec::new();
+        let outside = self.points.as_ref().map_or(0, |p| p.outside.count)
+            + self
+                .structures
+                .iter()
+                .map(|s| s.outside.count)
+                .sum::<usize>();
+        if outside > 0 {
+            flags.push(format!(
+                "{outside} points or structure vertices lie outside the model's rest surface \
+                 (`outside` in the report): they are carried by extrapolation"
+            ));
+        }
+        if self.inverted.count > 0 {
+            flags.push(format!(
+                "{} particles are turned inside out (local volume ratio down to {:.2}, first \
+                 particle {}; `inverted` in the report): the solve folded the tissue, as \
+                 the symmetric force does under a deep, narrow indentation (try --force \
+                 elastic), or the surface has crossed or pushed-through vertices",
+                self.inverted.count,
+                self.inverted.min_volume_ratio,
+                self.inverted.first.unwrap_or_default()
+            ));
+        }
+        flags
     }
 }
 

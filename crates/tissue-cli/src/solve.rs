@@ -227,9 +227,9 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let message = match report.status {
         Status::Converged => return Ok(()),
         Status::Flagged => format!(
-            "points or structures lie outside the model's rest surface (`outside` in the report); \
-             the results in {} are carried by extrapolation there",
-            args.output_dir.display()
+            "the solve converged, but its result is flagged ({}): {}",
+            args.output_dir.display(),
+            report.flags().join("; ")
         ),
         _ => format!(
             "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \

@@ -71,6 +71,10 @@ struct FrameReport {
     seconds: f64,
     converged: bool,
     residual: f32,
+    /// As in `report.json`: `flagged` when a check failed ([`Status`]).
+    status: Status,
+    /// Particles the solve turned inside out.
+    inverted: usize,
     structures: Vec<StructureReport>,
 }
 
@@ -412,6 +416,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             seconds: report.seconds,
             converged: report.converged,
             residual: report.residual,
+            status: report.status,
+            inverted: report.inverted.count,
             structures: report.structures,
         })?);
         let last = k + 1 == frames.len();
@@ -435,7 +441,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     if done.len() == frames.len() {
         status = if !done.iter().all(|f| f["converged"] == Value::Bool(true)) {
             Status::NotConverged
-        } else if carried.flagged() {
+        } else if done.iter().any(|f| f["status"] == "flagged") {
             Status::Flagged
         } else {
             Status::Converged
@@ -486,8 +492,9 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             count + 1
         ),
         Status::Flagged => format!(
-            "points or structures lie outside the model's rest surface ({}): \
-             they are carried by extrapolation",
+            "{} of {count} frames are flagged ({}, `status` of each frame): points or \
+             structures outside the organ, or particles turned inside out",
+            done.iter().filter(|f| f["status"] == "flagged").count(),
             path.display()
         ),
         _ => format!(

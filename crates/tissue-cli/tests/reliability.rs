@@ -579,3 +579,56 @@ fn a_write_killed_midway_leaves_the_previous_file_whole() {
         "no attempt killed the process while it was writing (the test did not test)"
     );
 }
+
+/// Particles turned inside out by a solve are flagged (issue 15): a poke
+/// 40 mm deep and 15 mm wide into the phantom's tip folds the tissue under
+/// the default force; the report counts the inverted particles, `status`
+/// is `flagged` and the exit code 4. The bundled indentation, a gentle
+/// one, inverts nothing.
+#[test]
+fn particles_turned_inside_out_are_flagged_and_exit_4() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let vertices = &model.surface.vertices;
+    let tip = vertices
+        .iter()
+        .copied()
+        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
+    let mut poked = model.surface.clone();
+    for v in &mut poked.vertices {
+        let d = v.distance(tip);
+        if d < 15.0 {
+            v.z -= 40.0 * (1.0 - d / 15.0);
+        }
+    }
+    let poked_path = dir.path().join("poked.obj");
+    tissue::save_surface(&poked, &poked_path).unwrap();
+    let deform = |surface: &Path, out: &str| {
+        let out_dir = dir.path().join(out);
+        let result = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(surface),
+            "-o",
+            s(&out_dir),
+        ]);
+        (result, json(&out_dir.join("report.json")))
+    };
+    let (out, report) = deform(&poked_path, "poked");
+    assert_eq!(out.status.code(), Some(4), "{}", text(&out));
+    assert!(text(&out).contains("turned inside out"), "{}", text(&out));
+    assert_eq!(report["status"], "flagged", "{report}");
+    assert_eq!(report["converged"], true, "{report}");
+    assert!(
+        report["inverted"]["count"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+    assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() <= 0.0);
+
+    let (out, report) = deform(&assets().join("phantom-indentation.obj"), "gentle");
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(report["inverted"]["count"], 0, "{report}");
+    assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() > 0.2);
+}

@@ -26,6 +26,7 @@ pub mod batches;
 pub mod controls;
 pub mod elastic;
 pub mod grid;
+pub mod inversion;
 pub mod modes;
 pub mod params;
 pub mod plan;
@@ -40,6 +41,7 @@ pub mod tracker;
 
 pub use acceleration::{Chebyshev, StoppingRule};
 pub use controls::check_same_topology;
+pub use inversion::{Inversions, inversions};
 pub use modes::{LowModes, deflation_modes, low_modes};
 pub use params::{DeformParams, ForceModel, RotationMethod};
 pub use plan::Plan;
