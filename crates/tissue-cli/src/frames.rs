@@ -1,7 +1,7 @@
 //! Expanding a frame pattern into an ordered list of files.
 
 use std::cmp::Ordering;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
@@ -17,11 +17,51 @@ pub fn expand(pattern: &str) -> Result<Vec<PathBuf>> {
             files.push(path);
         }
     }
+    refuse_unreadable_names(pattern)?;
     if files.is_empty() {
         bail!("--frames '{pattern}' matches no file");
     }
     files.sort_by(|a, b| natural_order(&a.to_string_lossy(), &b.to_string_lossy()));
     Ok(files)
+}
+
+/// Refuses a file whose name is not UTF-8 and would match `pattern`'s last
+/// part: the pattern matcher skips such names without a word, and a
+/// sequence with a frame left out is a wrong result. (Checked in the
+/// pattern's folder when that folder has no wildcard, as in
+/// `frames/*.obj`.)
+fn refuse_unreadable_names(pattern: &str) -> Result<()> {
+    let path = Path::new(pattern);
+    let (Some(folder), Some(name)) = (path.parent(), path.file_name().and_then(|n| n.to_str()))
+    else {
+        return Ok(());
+    };
+    let folder_text = folder.to_string_lossy();
+    if folder_text.contains(['*', '?', '[']) {
+        return Ok(());
+    }
+    let Ok(matcher) = glob::Pattern::new(name) else {
+        return Ok(());
+    };
+    let folder = if folder_text.is_empty() {
+        Path::new(".")
+    } else {
+        folder
+    };
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        if name.to_str().is_none() && matcher.matches(&name.to_string_lossy()) {
+            bail!(
+                "--frames '{pattern}': {} has a name that is not valid UTF-8, which the pattern \
+                 cannot match; rename it (or move it away) so that no frame is left out",
+                entry.path().to_string_lossy()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Compares names chunk by chunk: digit runs by value (then by length, so

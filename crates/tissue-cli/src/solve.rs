@@ -145,8 +145,26 @@ pub fn load_model(
 /// `tissue::deformation::check_same_topology`). A surface wound like the
 /// file the model was sampled from, where sampling reversed it, is turned
 /// the same way.
+///
+/// The file's vertices are taken as written when they are as many as the
+/// rest surface's (two that touch in this frame stay two), else with exact
+/// duplicates merged (a file that repeats vertices along seams, or an STL
+/// file, which repeats every corner), whichever matches.
 pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
-    let mut deformed = tissue::load_surface(path)?;
+    let written = tissue::load_surface_as_written(path)?;
+    let stl = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
+    let mut deformed = if written.vertices.len() == rest.vertices.len() {
+        written
+    } else {
+        let welded = tissue::weld(&written, 0.0);
+        if welded.vertices.len() == rest.vertices.len() || stl {
+            welded
+        } else {
+            written
+        }
+    };
     let reversed = deformed.triangles.len() == rest.triangles.len()
         && deformed
             .triangles
@@ -162,8 +180,15 @@ pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
             t.swap(1, 2);
         }
     }
-    tissue::deformation::check_same_topology(rest, &deformed)
-        .map_err(|err| anyhow!("{}: {}", path.display(), err))?;
+    tissue::deformation::check_same_topology(rest, &deformed).map_err(|err| {
+        let hint = if stl && deformed.vertices.len() < rest.vertices.len() {
+            " (an STL file stores no shared vertices, so vertices that touch in this frame \
+             merge when it is read: save deformed frames as OBJ or PLY)"
+        } else {
+            ""
+        };
+        anyhow!("{}: {}{hint}", path.display(), err)
+    })?;
     Ok(deformed)
 }
 

@@ -632,3 +632,62 @@ fn particles_turned_inside_out_are_flagged_and_exit_4() {
     assert_eq!(report["inverted"]["count"], 0, "{report}");
     assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() > 0.2);
 }
+
+/// A frame in which two vertices touch is still the rest mesh (issue 15:
+/// it was welded to one vertex fewer and refused); an STL frame, which
+/// stores every corner, is welded back to the rest mesh.
+#[test]
+fn frames_with_touching_vertices_and_stl_frames_are_read_as_the_rest_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let mut touching = model.surface.clone();
+    touching.vertices[10] = touching.vertices[11];
+    let obj = dir.path().join("touching.obj");
+    tissue::save_surface(&touching, &obj).unwrap();
+    let mut moved = model.surface.clone();
+    for v in &mut moved.vertices {
+        v.z *= 0.98;
+    }
+    let stl = dir.path().join("moved.stl");
+    tissue::save_surface(&moved, &stl).unwrap();
+    for (surface, out) in [(&obj, "touching"), (&stl, "stl")] {
+        let result = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(surface),
+            "-o",
+            s(&dir.path().join(out)),
+        ]);
+        assert!(result.status.success(), "{out}: {}", text(&result));
+    }
+}
+
+/// A frame whose name is not UTF-8 is not skipped without a word (issue
+/// 15): the pattern cannot match it, so `track` refuses to run and names it.
+#[cfg(unix)]
+#[test]
+fn a_frame_with_a_name_that_is_not_utf8_is_refused_not_skipped() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    let sag = assets().join("phantom-sag.obj");
+    std::fs::copy(&sag, frames.join("a.obj")).unwrap();
+    let odd = std::ffi::OsStr::from_bytes(b"b\xff.obj");
+    std::fs::copy(&sag, frames.join(odd)).unwrap();
+    let out = tissue(&[
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        s(&frames.join("*.obj")),
+        "-o",
+        s(&dir.path().join("out")),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(text(&out).contains("not valid UTF-8"), "{}", text(&out));
+    assert!(!dir.path().join("out/frame-0001").exists());
+}

@@ -137,6 +137,20 @@ impl Format {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn load_surface(path: &Path) -> Result<SurfaceMesh, Error> {
+    Ok(weld(&load_surface_as_written(path)?, 0.0))
+}
+
+/// Reads a surface file with its vertices as the file lists them: no two
+/// merged, even where they coincide ([`load_surface`] welds those). A
+/// deformed frame needs this: two vertices that touch in one frame are
+/// still two vertices of the rest mesh. (An STL file lists three corners
+/// per triangle and no shared vertex: read as written it has three times
+/// as many vertices as triangles.)
+///
+/// # Errors
+///
+/// Those of [`load_surface`].
+pub fn load_surface_as_written(path: &Path) -> Result<SurfaceMesh, Error> {
     let format = Format::of(path)?;
     let bytes = fs::read(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
@@ -157,7 +171,7 @@ pub fn load_surface(path: &Path) -> Result<SurfaceMesh, Error> {
         }));
     }
     validate::check_indices(&parsed).map_err(mesh_error)?;
-    Ok(weld(&parsed, 0.0))
+    Ok(parsed)
 }
 
 /// Reads a surface and checks that it bounds one solid: [`load_surface`],
