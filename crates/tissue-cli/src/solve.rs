@@ -189,6 +189,22 @@ pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
         };
         anyhow!("{}: {}{hint}", path.display(), err)
     })?;
+    if let Some([a, b]) = tissue::crossing::first_crossing(&deformed) {
+        // A rest surface that crosses itself (the model was sampled from
+        // it) makes its frames cross too: that is no new defect.
+        if tissue::crossing::first_crossing(rest).is_none() {
+            bail!(
+                "{}: the deformed surface passes through itself (triangles {a} and {b} cross): \
+                 a skin pushed through the opposite side or folded over has no tissue shape \
+                 behind it",
+                path.display()
+            );
+        }
+        log::warn!(
+            "{}: triangles {a} and {b} cross, as the rest surface's do",
+            path.display()
+        );
+    }
     Ok(deformed)
 }
 

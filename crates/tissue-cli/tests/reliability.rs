@@ -691,3 +691,44 @@ fn a_frame_with_a_name_that_is_not_utf8_is_refused_not_skipped() {
     assert!(text(&out).contains("not valid UTF-8"), "{}", text(&out));
     assert!(!dir.path().join("out/frame-0001").exists());
 }
+
+/// A deformed skin that passes through itself is refused, naming two
+/// triangles that cross (issue 15): the phantom's tip pushed 80 mm down,
+/// through its own base. A 40 mm poke stays inside and is solved.
+#[test]
+fn a_skin_pushed_through_itself_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let tip = model
+        .surface
+        .vertices
+        .iter()
+        .copied()
+        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
+    let out_dir = dir.path().join("out");
+    let mut pushed = model.surface.clone();
+    for v in &mut pushed.vertices {
+        let d = v.distance(tip);
+        if d < 15.0 {
+            v.z -= 80.0 * (1.0 - d / 15.0);
+        }
+    }
+    let path = dir.path().join("through.obj");
+    tissue::save_surface(&pushed, &path).unwrap();
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model_path),
+        "--surface",
+        s(&path),
+        "-o",
+        s(&out_dir),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        text(&out).contains("passes through itself"),
+        "{}",
+        text(&out)
+    );
+    assert!(!out_dir.join("particles.vtp").exists());
+}

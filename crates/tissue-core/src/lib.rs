@@ -2,6 +2,7 @@
 //! reports, errors and file formats. Backend-agnostic: the CPU path
 //! (`tissue-cpu`) and the GPU path build on these types.
 
+pub mod crossing;
 pub mod deform;
 pub mod error;
 pub mod field;
