@@ -732,3 +732,81 @@ fn a_skin_pushed_through_itself_is_refused() {
     );
     assert!(!out_dir.join("particles.vtp").exists());
 }
+
+/// 300 frames of `track` at 3,000 particles (issue 15): the skin sags and
+/// recovers 13 times (a period of 23 frames), starting and ending at rest.
+/// No drift: the last frame's particles are back at rest within 1e-4 of
+/// the size. Flat effort: the last cycle's frames take no more iterations
+/// than the first cycle's, two more at most.
+#[test]
+fn a_300_frame_soak_does_not_drift() {
+    use tissue::deform::{Sag, deform_surface, interpolate};
+    let dir = tempfile::tempdir().unwrap();
+    let breast = assets().join("phantom-breast.obj");
+    let model_path = dir.path().join("model.vtp");
+    let out = tissue(&[
+        "sample",
+        s(&breast),
+        "-n",
+        "3000",
+        "-o",
+        s(&model_path),
+        "-q",
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let model = tissue::load_model(&model_path).unwrap();
+    let sagged = deform_surface(&model.surface, &Sag::default());
+    let (period, frames) = (23, 300);
+    let shapes = dir.path().join("shapes");
+    let folder = dir.path().join("frames");
+    std::fs::create_dir(&shapes).unwrap();
+    std::fs::create_dir(&folder).unwrap();
+    for phase in 0..period {
+        let t = 0.5 * (1.0 - (std::f32::consts::TAU * phase as f32 / period as f32).cos());
+        let shape = interpolate(&model.surface, &sagged, t).unwrap();
+        tissue::save_surface(&shape, &shapes.join(format!("phase-{phase}.obj"))).unwrap();
+    }
+    // One file per phase, linked once per frame that shows it.
+    for k in 0..frames {
+        std::fs::hard_link(
+            shapes.join(format!("phase-{}.obj", k % period)),
+            folder.join(format!("frame-{k:03}.obj")),
+        )
+        .unwrap();
+    }
+    let out_dir = dir.path().join("out");
+    let out = tissue(&[
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        s(&folder.join("*.obj")),
+        "-o",
+        s(&out_dir),
+        "-q",
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let summary = json(&out_dir.join("track.json"));
+    let iterations: Vec<u64> = summary["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["iterations"].as_u64().unwrap())
+        .collect();
+    assert_eq!(iterations.len(), frames);
+    let first: u64 = iterations[1..period].iter().copied().max().unwrap();
+    let last: u64 = iterations[frames - period..].iter().copied().max().unwrap();
+    eprintln!("iterations: first cycle at most {first}, last cycle at most {last}");
+    assert!(last <= first + 2, "{iterations:?}");
+
+    let back = vtp_array(
+        &std::fs::read_to_string(out_dir.join(format!("frame-{frames:04}/particles.vtp"))).unwrap(),
+        "displacement",
+    );
+    let drift = back.iter().fold(0.0f32, |m, d| m.max(d.abs()));
+    eprintln!("drift {drift} (size {})", size(&model));
+    assert!(
+        drift <= 1e-4 * size(&model),
+        "the last frame is {drift} from rest"
+    );
+}
