@@ -72,6 +72,18 @@ pub enum MeshError {
         /// Number of vertices.
         vertices: usize,
     },
+    /// A bounding-box diagonal outside `validate::SIZE_RANGE`.
+    #[error(
+        "the surface is {diagonal:e} across (its bounding-box diagonal): tissue computes with sizes from {:e} to {:e} in the file's units (an organ is about 0.1 in metres, 100 in millimetres); rescale it",
+        range.0,
+        range.1
+    )]
+    Size {
+        /// The bounding-box diagonal.
+        diagonal: f64,
+        /// The sizes accepted.
+        range: (f64, f64),
+    },
     /// A triangle with (near) zero area or repeated corners.
     #[error(
         "{count} degenerate triangles (zero area or repeated corners), e.g. triangle {example} at {at:?}"

@@ -8,12 +8,13 @@
 //! 1. empty ([`MeshError::Empty`]),
 //! 2. non-finite coordinates ([`MeshError::NonFinite`]),
 //! 3. indices out of range ([`MeshError::IndexOutOfRange`]),
-//! 4. degenerate triangles ([`MeshError::Degenerate`]),
-//! 5. edges shared by more than two triangles ([`MeshError::NonManifold`]),
-//! 6. boundary edges ([`MeshError::Open`]),
-//! 7. neighbours wound in opposite directions ([`MeshError::InconsistentOrientation`]),
-//! 8. more than one edge-connected piece ([`MeshError::SeveralShells`]),
-//! 9. no enclosed volume ([`MeshError::ZeroVolume`]).
+//! 4. a size outside [`SIZE_RANGE`] ([`MeshError::Size`]),
+//! 5. degenerate triangles ([`MeshError::Degenerate`]),
+//! 6. edges shared by more than two triangles ([`MeshError::NonManifold`]),
+//! 7. boundary edges ([`MeshError::Open`]),
+//! 8. neighbours wound in opposite directions ([`MeshError::InconsistentOrientation`]),
+//! 9. more than one edge-connected piece ([`MeshError::SeveralShells`]),
+//! 10. no enclosed volume ([`MeshError::ZeroVolume`]).
 //!
 //! Everything is a linear pass or one sort of the edges, so a mesh with a
 //! million triangles validates in a fraction of a second.
@@ -22,7 +23,7 @@
 //! single point (both keep the inside well defined for point sampling).
 //!
 //! A surface with stray pieces beside the organ (scanner specks, a detached
-//! fragment) fails check 8; [`keep_largest_shell`] drops all but the piece
+//! fragment) fails check 9; [`keep_largest_shell`] drops all but the piece
 //! enclosing the most volume, for a caller who asks for that explicitly.
 
 use glam::{DVec3, Vec3};
@@ -33,6 +34,14 @@ use crate::mesh::SurfaceMesh;
 /// A triangle is degenerate when its area is below this times the squared
 /// bounding-box diagonal (or when two of its corners are the same vertex).
 pub const DEGENERATE_AREA: f64 = 1e-12;
+
+/// The bounding-box diagonals a surface may have, in its own units: an
+/// organ is about 0.1 across in metres, 100 in millimetres, 1e5 in
+/// micrometres. Beyond these, single-precision squares and cubes of the
+/// particle spacing underflow or overflow (a phantom in millimetres scaled
+/// by 1e-30 made every particle every other's neighbour, and sampling took
+/// a minute to fail).
+pub const SIZE_RANGE: (f64, f64) = (1e-6, 1e9);
 
 /// A closed surface encloses no volume when `|volume|` is below this times the
 /// cubed bounding-box diagonal.
@@ -210,6 +219,12 @@ pub fn validate(mesh: &mut SurfaceMesh) -> Result<Validation, MeshError> {
     check_finite(mesh)?;
     check_indices(mesh)?;
     let diagonal = bounding_diagonal(mesh);
+    if !(SIZE_RANGE.0..=SIZE_RANGE.1).contains(&diagonal) {
+        return Err(MeshError::Size {
+            diagonal,
+            range: SIZE_RANGE,
+        });
+    }
     check_degenerate(mesh, diagonal)?;
     check_edges(mesh)?;
 
@@ -546,6 +561,30 @@ mod tests {
             vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
             vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
         )
+    }
+
+    #[test]
+    fn sizes_outside_the_range_are_refused_naming_the_size() {
+        for (scale, accepted) in [
+            (1e-30, false),
+            (1e-7, false),
+            (1e-5, true),
+            (1e8, true),
+            (1e10, false),
+        ] {
+            let mut mesh = tetrahedron();
+            for v in &mut mesh.vertices {
+                *v *= scale;
+            }
+            match validate(&mut mesh) {
+                Ok(_) => assert!(accepted, "scale {scale} accepted"),
+                Err(MeshError::Size { diagonal, .. }) => {
+                    assert!(!accepted, "scale {scale} refused");
+                    assert!((diagonal / (f64::from(scale) * 3f64.sqrt()) - 1.0).abs() < 1e-3);
+                }
+                Err(other) => panic!("scale {scale}: {other}"),
+            }
+        }
     }
 
     #[test]
