@@ -41,7 +41,10 @@ pub struct GpuSolve {
     /// The modes deflated every iteration, as the CPU path computes them;
     /// `None` without deflation or when none came out.
     modes: Option<LowModes>,
+    /// `current` at a batch's start, for a replay (a copy target that no
+    /// kernel binds: raw).
     backup_current: wgpu::Buffer,
+    /// `previous` at a batch's start, likewise.
     backup_previous: wgpu::Buffer,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
@@ -253,7 +256,7 @@ impl SolveDevice for GpuSolve {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve start"),
         });
-        encoder.copy_buffer_to_buffer(&state.current, 0, &state.previous, 0, None);
+        encoder.copy_buffer_to_buffer(state.current.buffer(), 0, state.previous.buffer(), 0, None);
         queue.submit([encoder.finish()]);
         Ok(())
     }
@@ -275,8 +278,8 @@ impl SolveDevice for GpuSolve {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve batch"),
         });
-        encoder.copy_buffer_to_buffer(&state.current, 0, &self.backup_current, 0, None);
-        encoder.copy_buffer_to_buffer(&state.previous, 0, &self.backup_previous, 0, None);
+        encoder.copy_buffer_to_buffer(state.current.buffer(), 0, &self.backup_current, 0, None);
+        encoder.copy_buffer_to_buffer(state.previous.buffer(), 0, &self.backup_previous, 0, None);
         self.pipelines.record_iterations(&mut encoder, state, batch);
         queue.submit([encoder.finish()]);
         let n = state.len() as f64;
@@ -296,8 +299,8 @@ impl SolveDevice for GpuSolve {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve replay"),
         });
-        encoder.copy_buffer_to_buffer(&self.backup_current, 0, &state.current, 0, None);
-        encoder.copy_buffer_to_buffer(&self.backup_previous, 0, &state.previous, 0, None);
+        encoder.copy_buffer_to_buffer(&self.backup_current, 0, state.current.buffer(), 0, None);
+        encoder.copy_buffer_to_buffer(&self.backup_previous, 0, state.previous.buffer(), 0, None);
         let count = u32::try_from(count).map_or(self.slots, |c| c.min(self.slots));
         self.pipelines.record_iterations(&mut encoder, state, count);
         queue.submit([encoder.finish()]);
@@ -315,7 +318,13 @@ impl SolveDevice for GpuSolve {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("reset"),
         });
-        encoder.copy_buffer_to_buffer(&self.state.rest, 0, &self.state.current, 0, None);
+        encoder.copy_buffer_to_buffer(
+            self.state.rest.buffer(),
+            0,
+            self.state.current.buffer(),
+            0,
+            None,
+        );
         queue.submit([encoder.finish()]);
         crate::wait(device)
     }

@@ -36,16 +36,19 @@
 //! kernel then does nothing, and the host returns an error when it reads
 //! the count ([`GpuGrid::read`] likewise).
 
+use std::mem::offset_of;
+
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
 use tissue_core::SamplingError;
 use tissue_solve::grid::Grid;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
+use crate::buffer::{Storage, xyz};
 use crate::pipelines::{CompiledKernel, KernelId, KernelSet};
-use crate::state::{read_buffer, workgroups};
-use crate::support::{self, Scopes, bind_group};
+use crate::readback::{Readback, read_buffer};
+use crate::state::workgroups;
+use crate::support::{Scopes, bind_group};
 
 /// Mirror of WGSL `GridParams` (`shaders/shared/grid.wgsl`).
 #[repr(C)]
@@ -171,7 +174,8 @@ impl KernelId for GridKernel {
 pub type GridPipelines = KernelSet<GridKernel>;
 
 /// A grid on the GPU. Valid once the queue has run the build (the buffers
-/// are used in submission order); the layout is only on the GPU.
+/// are used in submission order); the layout is only on the GPU. The
+/// buffers are raw, for a caller to bind in its own kernels.
 #[derive(Debug)]
 pub struct GpuGrid {
     /// One [`GridLayout`].
@@ -187,6 +191,7 @@ pub struct GpuGrid {
 }
 
 /// Neighbour rows on the GPU: row `i` is `indices[offsets[i]..offsets[i + 1]]`.
+/// The buffers are raw, for a caller to bind in its own kernels.
 #[derive(Debug)]
 pub struct GpuRows {
     /// `count + 1` u32.
@@ -301,59 +306,63 @@ impl GridPipelines {
                 ..params
             };
             let uniform = uniform(device, &params);
-            let in_cell_order = storage(device, "in_cell_order", u64::from(count) * 16)?;
-            let offsets = storage(device, "offsets", (u64::from(count) + 1) * 4)?;
-            let summary = storage(device, "neighbour_rows summary", 8)?;
+            let in_cell_order = storage::<[f32; 4]>(device, "in_cell_order", count)?;
+            let offsets = storage::<u32>(device, "offsets", count + 1)?;
+            // The total entry count, then the layout's status.
+            let summary = storage::<u32>(device, "neighbour_rows summary", 2)?;
             // `count_rows` and `fill_rows` share one search, which names
             // `indices`; counting never writes it, so a placeholder binds.
-            let placeholder = storage(device, "indices placeholder", 4)?;
+            let placeholder = storage::<u32>(device, "indices placeholder", 1)?;
             let named: &Named = &[
                 ("params", &uniform),
                 ("positions", positions),
                 ("grid", &grid.layout),
                 ("cell_start", &grid.cell_start),
                 ("particles", &grid.particles),
-                ("in_cell_order", &in_cell_order),
-                ("offsets", &offsets),
-                ("indices", &placeholder),
+                ("in_cell_order", in_cell_order.buffer()),
+                ("offsets", offsets.buffer()),
+                ("indices", placeholder.buffer()),
             ];
             let mut steps = Vec::new();
             for kernel in [GridKernel::Reorder, GridKernel::CountRows] {
                 steps.push(self.step(device, kernel, named, count, &limits)?);
             }
             let scan = self.scan_steps(device, &offsets, count + 1, &limits)?;
-            encoder.clear_buffer(&offsets, 0, None);
+            encoder.clear_buffer(offsets.buffer(), 0, None);
             record(
                 &mut encoder,
                 "neighbour_rows count",
                 steps.into_iter().chain(scan),
             );
             // The total is the last offset; the status tells whether there was a grid.
-            encoder.copy_buffer_to_buffer(&offsets, u64::from(count) * 4, &summary, 0, 4);
-            let status = std::mem::offset_of!(GridLayout, status) as u64;
-            encoder.copy_buffer_to_buffer(&grid.layout, status, &summary, 4, 4);
+            let word = size_of::<u32>() as u64;
+            let last = u64::from(count) * word;
+            let status = offset_of!(GridLayout, status) as u64;
+            encoder.copy_buffer_to_buffer(offsets.buffer(), last, summary.buffer(), 0, word);
+            encoder.copy_buffer_to_buffer(&grid.layout, status, summary.buffer(), word, word);
             queue.submit([encoder.finish()]);
             Ok::<_, GpuError>((grid, uniform, in_cell_order, offsets, summary))
         })();
         scopes.pop()?;
         let (grid, uniform, in_cell_order, offsets, summary) = counted?;
-        let words: Vec<u32> =
-            bytemuck::pod_collect_to_vec(&read_buffer(device, queue, &summary, 8)?);
-        let [entries, status] = [words[0], words[1]];
+        let (entries, status) = match summary.read(device, queue, &Readback::default())?[..] {
+            [entries, status] => (entries, status),
+            _ => return Err(GpuError::Map("the rows' summary came back short".into())),
+        };
         check_status(status)?;
 
         let scopes = Scopes::push(device);
         let filled = (|| {
-            let indices = storage(device, "indices", u64::from(entries.max(1)) * 4)?;
+            let indices = storage::<u32>(device, "indices", entries)?;
             let named: &Named = &[
                 ("params", &uniform),
                 ("positions", positions),
                 ("grid", &grid.layout),
                 ("cell_start", &grid.cell_start),
                 ("particles", &grid.particles),
-                ("in_cell_order", &in_cell_order),
-                ("offsets", &offsets),
-                ("indices", &indices),
+                ("in_cell_order", in_cell_order.buffer()),
+                ("offsets", offsets.buffer()),
+                ("indices", indices.buffer()),
             ];
             let mut steps = vec![self.step(device, GridKernel::FillRows, named, count, &limits)?];
             if sorted {
@@ -368,8 +377,8 @@ impl GridPipelines {
         })();
         scopes.pop()?;
         Ok(GpuRows {
-            offsets,
-            indices: filled?,
+            offsets: offsets.into_buffer(),
+            indices: filled?.into_buffer(),
             count,
             entries,
         })
@@ -392,8 +401,8 @@ impl GridPipelines {
         let limits = device.limits();
         let scopes = Scopes::push(device);
         let built = (|| {
-            let data = storage(device, "scan", values.len() as u64 * 4)?;
-            queue.write_buffer(&data, 0, bytemuck::cast_slice(values));
+            let data = storage::<u32>(device, "scan", len)?;
+            data.write(queue, 0, values)?;
             let steps = self.scan_steps(device, &data, len, &limits)?;
             let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("exclusive_scan"),
@@ -403,13 +412,7 @@ impl GridPipelines {
             Ok::<_, GpuError>(data)
         })();
         scopes.pop()?;
-        let data = built?;
-        Ok(bytemuck::pod_collect_to_vec(&read_buffer(
-            device,
-            queue,
-            &data,
-            values.len() * 4,
-        )?))
+        built?.read(device, queue, &Readback::default())
     }
 
     /// Records the grid build of `positions` into `encoder`.
@@ -451,25 +454,25 @@ impl GridPipelines {
             ..params
         };
         let uniform = uniform(device, &params);
-        let bytes = |n: u32| u64::from(n) * 4;
-        let bounds = storage(device, "bounds", 32)?;
-        let layout = storage(device, "grid", size_of::<GridLayout>() as u64)?;
-        let cell_of = storage(device, "cell_of", bytes(count))?;
-        let cell_start = storage(device, "cell_start", bytes(starts))?;
-        let arrival = storage(device, "arrival", bytes(count))?;
-        let arrived = storage(device, "arrived", bytes(count))?;
-        let particles = storage(device, "particles", bytes(count))?;
+        // Order-preserving keys of the bounds' corners and the largest radius.
+        let bounds = storage::<u32>(device, "bounds", 8)?;
+        let layout = storage::<GridLayout>(device, "grid", 1)?;
+        let cell_of = storage::<u32>(device, "cell_of", count)?;
+        let cell_start = storage::<u32>(device, "cell_start", starts)?;
+        let arrival = storage::<u32>(device, "arrival", count)?;
+        let arrived = storage::<u32>(device, "arrived", count)?;
+        let particles = storage::<u32>(device, "particles", count)?;
         let named: &Named = &[
             ("params", &uniform),
             ("positions", positions),
-            ("bounds", &bounds),
-            ("grid", &layout),
-            ("cell_of", &cell_of),
-            ("cell_counts", &cell_start),
-            ("cell_start", &cell_start),
-            ("arrival", &arrival),
-            ("arrived", &arrived),
-            ("particles", &particles),
+            ("bounds", bounds.buffer()),
+            ("grid", layout.buffer()),
+            ("cell_of", cell_of.buffer()),
+            ("cell_counts", cell_start.buffer()),
+            ("cell_start", cell_start.buffer()),
+            ("arrival", arrival.buffer()),
+            ("arrived", arrived.buffer()),
+            ("particles", particles.buffer()),
         ];
         let mut steps = vec![
             self.step(device, GridKernel::GridBounds, named, count, &limits)?,
@@ -479,13 +482,13 @@ impl GridPipelines {
         steps.extend(self.scan_steps(device, &cell_start, starts, &limits)?);
         steps.push(self.step(device, GridKernel::CellScatter, named, count, &limits)?);
         steps.push(self.step(device, GridKernel::CellSort, named, count, &limits)?);
-        encoder.clear_buffer(&bounds, 0, None);
-        encoder.clear_buffer(&cell_start, 0, None);
+        encoder.clear_buffer(bounds.buffer(), 0, None);
+        encoder.clear_buffer(cell_start.buffer(), 0, None);
         record(encoder, "grid_build", steps);
         Ok(GpuGrid {
-            layout,
-            cell_start,
-            particles,
+            layout: layout.into_buffer(),
+            cell_start: cell_start.into_buffer(),
+            particles: particles.into_buffer(),
             count,
             capacity: starts - 1,
         })
@@ -496,7 +499,7 @@ impl GridPipelines {
     fn scan_steps(
         &self,
         device: &wgpu::Device,
-        data: &wgpu::Buffer,
+        data: &Storage<u32>,
         len: u32,
         limits: &wgpu::Limits,
     ) -> Result<Vec<Step<'_>>, GpuError> {
@@ -505,9 +508,9 @@ impl GridPipelines {
         // single total goes to a spare word.
         let mut levels = vec![data.clone()];
         for &n in &lengths[1..] {
-            levels.push(storage(device, "scan level", u64::from(n) * 4)?);
+            levels.push(storage(device, "scan level", n)?);
         }
-        levels.push(storage(device, "scan total", 4)?);
+        levels.push(storage(device, "scan total", 1)?);
         let uniforms: Vec<wgpu::Buffer> = lengths
             .iter()
             .map(|&len| {
@@ -524,16 +527,16 @@ impl GridPipelines {
         for (k, &n) in lengths.iter().enumerate() {
             let named: &Named = &[
                 ("params", &uniforms[k]),
-                ("scan_data", &levels[k]),
-                ("scan_sums", &levels[k + 1]),
+                ("scan_data", levels[k].buffer()),
+                ("scan_sums", levels[k + 1].buffer()),
             ];
             steps.push(self.step(device, GridKernel::ScanBlocks, named, n, limits)?);
         }
         for (k, &n) in lengths.iter().enumerate().rev().skip(1) {
             let named: &Named = &[
                 ("params", &uniforms[k]),
-                ("scan_data", &levels[k]),
-                ("scan_sums", &levels[k + 1]),
+                ("scan_data", levels[k].buffer()),
+                ("scan_sums", levels[k + 1].buffer()),
             ];
             steps.push(self.step(device, GridKernel::ScanAdd, named, n, limits)?);
         }
@@ -577,22 +580,17 @@ impl GpuGrid {
     /// Reads the grid back as the CPU's [`Grid`] (waits for the GPU). A
     /// non-finite position gives an error.
     pub fn read(&self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Grid, GpuError> {
-        let layout: GridLayout = bytemuck::pod_read_unaligned(&read_buffer(
-            device,
-            queue,
-            &self.layout,
-            size_of::<GridLayout>(),
-        )?);
+        let layout: GridLayout = read_buffer(device, queue, &self.layout, 1)?
+            .pop()
+            .ok_or_else(|| GpuError::Map("the grid's layout came back empty".into()))?;
         check_status(layout.status)?;
         let cells = layout.dims[3].min(self.capacity) as usize;
-        let cell_start = read_buffer(device, queue, &self.cell_start, (cells + 1) * 4)?;
-        let particles = read_buffer(device, queue, &self.particles, self.count as usize * 4)?;
         Ok(Grid {
-            origin: Vec3::new(layout.origin[0], layout.origin[1], layout.origin[2]),
+            origin: xyz(layout.origin),
             cell: layout.cell,
             dims: [layout.dims[0], layout.dims[1], layout.dims[2]],
-            cell_start: bytemuck::pod_collect_to_vec(&cell_start),
-            particles: bytemuck::pod_collect_to_vec(&particles),
+            cell_start: read_buffer(device, queue, &self.cell_start, cells + 1)?,
+            particles: read_buffer(device, queue, &self.particles, self.count as usize)?,
         })
     }
 }
@@ -605,11 +603,9 @@ impl GpuRows {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
-        let offsets = read_buffer(device, queue, &self.offsets, (self.count as usize + 1) * 4)?;
-        let indices = read_buffer(device, queue, &self.indices, self.entries as usize * 4)?;
         Ok((
-            bytemuck::pod_collect_to_vec(&offsets),
-            bytemuck::pod_collect_to_vec(&indices),
+            read_buffer(device, queue, &self.offsets, self.count as usize + 1)?,
+            read_buffer(device, queue, &self.indices, self.entries as usize)?,
         ))
     }
 }
@@ -670,14 +666,13 @@ fn placeholder_for(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Option<wgpu:
     })
 }
 
-/// A zeroed storage buffer of `bytes` (at least 16, so that it binds),
-/// refused beyond the device's limits.
-fn storage(
+/// A storage buffer of `len` zeroed elements, refused beyond the device's limits.
+fn storage<T: Pod>(
     device: &wgpu::Device,
     label: &'static str,
-    bytes: u64,
-) -> Result<wgpu::Buffer, GpuError> {
-    support::storage(device, label, bytes, &format!("the {label} buffer"))
+    len: u32,
+) -> Result<Storage<T>, GpuError> {
+    Storage::zeroed(device, label, len as usize, &format!("the {label} buffer"))
 }
 
 #[cfg(test)]

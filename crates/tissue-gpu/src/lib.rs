@@ -21,6 +21,7 @@
 //! The library takes `&Device, &Queue` and chooses no adapter; asks for no
 //! optional features and only default limits.
 
+mod buffer;
 mod deformer;
 pub mod grid;
 mod pipelines;

@@ -1,18 +1,22 @@
 //! Reads from GPU buffers back to the host: one staging buffer kept
-//! between reads ([`Readback`]), or a one-off one ([`read_buffer`]).
+//! between reads ([`Readback`]), or a one-off one ([`read_buffer`]). A
+//! typed storage buffer reads itself through one
+//! ([`crate::buffer::Storage::read`]).
+
+use bytemuck::Pod;
 
 use crate::GpuError;
 
-/// Copies the first `size` bytes of `buffer` to a new staging buffer and
-/// reads them (one-off reads; what is read every batch goes through a
-/// [`Readback`]).
-pub(crate) fn read_buffer(
+/// Reads the first `len` elements of `buffer` through a new staging buffer
+/// (one-off reads of buffers kept raw; what is read every batch goes
+/// through a kept [`Readback`]).
+pub(crate) fn read_buffer<T: Pod>(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     buffer: &wgpu::Buffer,
-    size: usize,
-) -> Result<Vec<u8>, GpuError> {
-    Readback::default().read(device, queue, buffer, size)
+    len: usize,
+) -> Result<Vec<T>, GpuError> {
+    Readback::default().read_as(device, queue, buffer, len)
 }
 
 /// A staging buffer for reads back to the host, kept between reads and
@@ -28,9 +32,22 @@ pub(crate) struct Readback {
 }
 
 impl Readback {
+    /// Reads the first `len` elements of type `T` of `buffer` back (stalls
+    /// until the GPU is done).
+    pub(crate) fn read_as<T: Pod>(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        buffer: &wgpu::Buffer,
+        len: usize,
+    ) -> Result<Vec<T>, GpuError> {
+        let bytes = self.read(device, queue, buffer, len * std::mem::size_of::<T>())?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+
     /// Copies the first `size` bytes of `buffer` to the staging buffer and
     /// reads them (stalls until the GPU is done).
-    pub(crate) fn read(
+    fn read(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,

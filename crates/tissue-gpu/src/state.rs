@@ -5,19 +5,21 @@ use tissue_core::ParticleModel;
 use tissue_solve::ForceModel;
 use tissue_solve::elastic::Elastic;
 
+use crate::buffer::{Storage, vec4};
 use crate::pipelines::{Kernel, Pipelines};
-pub(crate) use crate::readback::{Readback, read_buffer};
-use crate::support::{Scopes, bind_group, storage_init};
+use crate::readback::Readback;
+use crate::support::{Scopes, bind_group, scoped};
 use crate::{GpuError, Params, Rotation};
 
 /// Iterations one command buffer records: one uniform slot and one row of
 /// step-norm partials each; the host reads the partials back once per batch.
 pub const SLOTS: u32 = 8;
 
-/// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused),
-/// rotations three `vec4` columns ([`Rotation`]); the deflation buffers
-/// hold 16 bytes each until [`DeformState::set_modes`] fills them, the
-/// elastic model's until [`DeformState::set_elastic`] does.
+/// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused,
+/// `Storage<[f32; 4]>`), rotations three `vec4` columns
+/// (`Storage<Rotation>`); the deflation buffers are empty (16 bytes each)
+/// until [`DeformState::set_modes`] fills them, the elastic model's until
+/// [`DeformState::set_elastic`] does.
 #[derive(Debug)]
 pub struct DeformState {
     pub(crate) count: u32,
@@ -40,32 +42,44 @@ pub struct DeformState {
     correct_phase: bool,
     /// The force kernel's bind group with `targets` as its `rotations`.
     elastic_force: Option<wgpu::BindGroup>,
+    /// [`SLOTS`] [`Params`], `params_stride` bytes apart: a uniform buffer,
+    /// raw, as its slots sit at the dynamic offset alignment.
     pub(crate) params: wgpu::Buffer,
-    pub(crate) rest: wgpu::Buffer,
-    pub(crate) current: wgpu::Buffer,
-    pub(crate) previous: wgpu::Buffer,
-    pub(crate) plain: wgpu::Buffer,
-    pub(crate) rotations: wgpu::Buffer,
-    pub(crate) force: wgpu::Buffer,
-    pub(crate) free: wgpu::Buffer,
-    pub(crate) offsets: wgpu::Buffer,
-    pub(crate) indices: wgpu::Buffer,
-    pub(crate) partials: wgpu::Buffer,
-    /// The modes, particle-major, `modes` per particle (16 zero bytes without deflation).
-    pub(crate) vectors: wgpu::Buffer,
+    /// The rest positions.
+    pub(crate) rest: Storage<[f32; 4]>,
+    /// The current positions.
+    pub(crate) current: Storage<[f32; 4]>,
+    /// The positions one iteration back (the Chebyshev weights need them).
+    pub(crate) previous: Storage<[f32; 4]>,
+    /// The last plain step `q̂`.
+    pub(crate) plain: Storage<[f32; 4]>,
+    /// Per particle its rotation.
+    pub(crate) rotations: Storage<Rotation>,
+    /// Per particle its force.
+    pub(crate) force: Storage<[f32; 4]>,
+    /// Per particle 1 when the solve moves it.
+    pub(crate) free: Storage<u32>,
+    /// The connections' row starts (CSR, `count + 1`).
+    pub(crate) offsets: Storage<u32>,
+    /// The connections' entries (CSR).
+    pub(crate) indices: Storage<u32>,
+    /// Per slot, per step_norms workgroup, `(max |q̂ − q|², sum |q̂ − q|²)`.
+    pub(crate) partials: Storage<[f32; 2]>,
+    /// The modes, particle-major, `modes` per particle (empty without deflation).
+    pub(crate) vectors: Storage<f32>,
     /// Per mode, `1 / (c alpha lambda_k) − 1`.
-    pub(crate) scales: wgpu::Buffer,
+    pub(crate) scales: Storage<f32>,
     /// Per deflate_project workgroup and mode, its share of the projection (`vec4`).
-    pub(crate) projections: wgpu::Buffer,
+    pub(crate) projections: Storage<[f32; 4]>,
     /// Per mode, the gain along it (`vec4`).
-    pub(crate) gains: wgpu::Buffer,
-    /// Per particle `A_i^-1` of the elastic model ([`Rotation`] layout; 16 zero bytes without it).
-    pub(crate) inverse_moments: wgpu::Buffer,
-    /// Per particle the elastic model's volume weight `W_i` (16 zero bytes without it).
-    pub(crate) weights: wgpu::Buffer,
-    /// Per particle the elastic target `T_i` ([`Rotation`] layout), what
-    /// the force kernel reads in place of the rotations with the elastic force.
-    pub(crate) targets: wgpu::Buffer,
+    pub(crate) gains: Storage<[f32; 4]>,
+    /// Per particle `A_i^-1` of the elastic model (empty without it).
+    pub(crate) inverse_moments: Storage<Rotation>,
+    /// Per particle the elastic model's volume weight `W_i` (empty without it).
+    pub(crate) weights: Storage<f32>,
+    /// Per particle the elastic target `T_i`, what the force kernel reads
+    /// in place of the rotations with the elastic force.
+    pub(crate) targets: Storage<Rotation>,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -74,10 +88,6 @@ pub struct DeformState {
     control_runs: Vec<(u32, usize, usize)>,
     /// The staging buffer of every read back.
     pub(crate) readback: Readback,
-}
-
-fn vec4s(points: &[Vec3]) -> Vec<[f32; 4]> {
-    points.iter().map(|p| p.extend(0.0).to_array()).collect()
 }
 
 /// Workgroups `[x, y]` covering `count` threads in groups of `size`; beyond
@@ -100,29 +110,7 @@ pub fn workgroups(count: u32, size: u32, per_dimension: u32) -> Result<[u32; 2],
 impl DeformState {
     /// Bytes of every GPU buffer this state holds, as allocated.
     pub fn buffer_bytes(&self) -> u64 {
-        [
-            &self.params,
-            &self.rest,
-            &self.current,
-            &self.previous,
-            &self.plain,
-            &self.rotations,
-            &self.force,
-            &self.free,
-            &self.offsets,
-            &self.indices,
-            &self.partials,
-            &self.vectors,
-            &self.scales,
-            &self.projections,
-            &self.gains,
-            &self.inverse_moments,
-            &self.weights,
-            &self.targets,
-        ]
-        .iter()
-        .map(|b| b.size())
-        .sum()
+        self.named().iter().map(|(_, b)| b.size()).sum()
     }
 
     /// Uploads `model` (rest = current = previous = the rest positions,
@@ -177,69 +165,6 @@ impl DeformState {
         let params_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
             .max(std::mem::size_of::<Params>() as u64);
 
-        let storage = |label: &'static str, contents: &[u8]| {
-            storage_init(
-                device,
-                label,
-                contents,
-                &format!("the {label} buffer ({n} particles)"),
-            )
-        };
-        let rest_positions = vec4s(&model.positions);
-        let rest_bytes: &[u8] = bytemuck::cast_slice(&rest_positions);
-        let identity = vec![Rotation::from(Mat3::IDENTITY); n];
-        let free: Vec<u32> = free.iter().map(|&f| u32::from(f)).collect();
-        let zeros = vec![0u8; rest_bytes.len()];
-        let partials = vec![[0.0f32; 2]; (SLOTS * step_groups) as usize];
-        let scopes = Scopes::push(device);
-        let built = (|| {
-            Ok::<_, GpuError>((
-                storage("rest", rest_bytes)?,
-                storage("current", rest_bytes)?,
-                storage("previous", rest_bytes)?,
-                storage("plain", rest_bytes)?,
-                storage("rotations", bytemuck::cast_slice(&identity))?,
-                storage("force", &zeros)?,
-                storage("free", bytemuck::cast_slice(&free))?,
-                storage("offsets", bytemuck::cast_slice(&model.connections.offsets))?,
-                storage("indices", bytemuck::cast_slice(&model.connections.indices))?,
-                storage("partials", bytemuck::cast_slice(&partials))?,
-                storage("vectors", &[])?,
-                storage("scales", &[])?,
-                storage("projections", &[])?,
-                storage("gains", &[])?,
-                storage("inverse_moments", &[])?,
-                storage("weights", &[])?,
-                storage("targets", &[])?,
-            ))
-        })();
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("params"),
-            size: params_stride * u64::from(SLOTS),
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        scopes.pop()?;
-        let (
-            rest,
-            current,
-            previous,
-            plain,
-            rotations,
-            force,
-            free,
-            offsets,
-            indices,
-            partials,
-            vectors,
-            scales,
-            projections,
-            gains,
-            inverse_moments,
-            weights,
-            targets,
-        ) = built?;
-
         let controls: Vec<u32> = (0..count)
             .filter(|&i| model.attachments[i as usize].is_some())
             .collect();
@@ -250,40 +175,62 @@ impl DeformState {
                 _ => control_runs.push((i, k, 1)),
             }
         }
-        let mut state = Self {
-            count,
-            params_stride,
-            workgroups: workgroups_of,
-            step_groups,
-            mode_groups,
-            modes: 0,
-            elastic: false,
-            elastic_phase: false,
-            correct_phase: true,
-            elastic_force: None,
-            params,
-            rest,
-            current,
-            previous,
-            plain,
-            rotations,
-            force,
-            free,
-            offsets,
-            indices,
-            partials,
-            vectors,
-            scales,
-            projections,
-            gains,
-            inverse_moments,
-            weights,
-            targets,
-            bind_groups: Vec::new(),
-            controls,
-            control_runs,
-            readback: Readback::default(),
-        };
+        let what = |label: &str| format!("the {label} buffer ({n} particles)");
+        let rest: Vec<[f32; 4]> = model.positions.iter().map(|&p| vec4(p, 0.0)).collect();
+        let identity = vec![Rotation::from(Mat3::IDENTITY); n];
+        let free: Vec<u32> = free.iter().map(|&f| u32::from(f)).collect();
+        let (offsets, indices) = (&model.connections.offsets, &model.connections.indices);
+        let mut state = scoped(device, || {
+            Ok(Self {
+                count,
+                params_stride,
+                workgroups: workgroups_of,
+                step_groups,
+                mode_groups,
+                modes: 0,
+                elastic: false,
+                elastic_phase: false,
+                correct_phase: true,
+                elastic_force: None,
+                params: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("params"),
+                    size: params_stride * u64::from(SLOTS),
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+                rest: Storage::init(device, "rest", &rest, &what("rest"))?,
+                current: Storage::init(device, "current", &rest, &what("current"))?,
+                previous: Storage::init(device, "previous", &rest, &what("previous"))?,
+                plain: Storage::init(device, "plain", &rest, &what("plain"))?,
+                rotations: Storage::init(device, "rotations", &identity, &what("rotations"))?,
+                force: Storage::zeroed(device, "force", n, &what("force"))?,
+                free: Storage::init(device, "free", &free, &what("free"))?,
+                offsets: Storage::init(device, "offsets", offsets, &what("offsets"))?,
+                indices: Storage::init(device, "indices", indices, &what("indices"))?,
+                partials: Storage::zeroed(
+                    device,
+                    "partials",
+                    (SLOTS * step_groups) as usize,
+                    &what("partials"),
+                )?,
+                vectors: Storage::init(device, "vectors", &[], &what("vectors"))?,
+                scales: Storage::init(device, "scales", &[], &what("scales"))?,
+                projections: Storage::init(device, "projections", &[], &what("projections"))?,
+                gains: Storage::init(device, "gains", &[], &what("gains"))?,
+                inverse_moments: Storage::init(
+                    device,
+                    "inverse_moments",
+                    &[],
+                    &what("inverse_moments"),
+                )?,
+                weights: Storage::init(device, "weights", &[], &what("weights"))?,
+                targets: Storage::init(device, "targets", &[], &what("targets"))?,
+                bind_groups: Vec::new(),
+                controls,
+                control_runs,
+                readback: Readback::default(),
+            })
+        })?;
         state.bind_groups = state.bind_all(device, pipelines)?;
         for slot in 0..SLOTS {
             state.write_params(
@@ -329,37 +276,14 @@ impl DeformState {
             })?;
         let what = |buffer: &str| format!("the {buffer} buffer ({m} modes, {n} particles)");
         let rows = self.mode_groups as usize * m;
-        let scopes = Scopes::push(device);
-        let built = (|| {
-            Ok::<_, GpuError>((
-                storage_init(
-                    device,
-                    "vectors",
-                    bytemuck::cast_slice(vectors),
-                    &what("vectors"),
-                )?,
-                storage_init(
-                    device,
-                    "scales",
-                    bytemuck::cast_slice(scales),
-                    &what("scales"),
-                )?,
-                storage_init(
-                    device,
-                    "projections",
-                    bytemuck::cast_slice(&vec![[0.0f32; 4]; rows]),
-                    &what("projections"),
-                )?,
-                storage_init(
-                    device,
-                    "gains",
-                    bytemuck::cast_slice(&vec![[0.0f32; 4]; m]),
-                    &what("gains"),
-                )?,
+        (self.vectors, self.scales, self.projections, self.gains) = scoped(device, || {
+            Ok((
+                Storage::init(device, "vectors", vectors, &what("vectors"))?,
+                Storage::init(device, "scales", scales, &what("scales"))?,
+                Storage::zeroed(device, "projections", rows, &what("projections"))?,
+                Storage::zeroed(device, "gains", m, &what("gains"))?,
             ))
-        })();
-        scopes.pop()?;
-        (self.vectors, self.scales, self.projections, self.gains) = built?;
+        })?;
         self.modes = modes;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
@@ -394,31 +318,18 @@ impl DeformState {
             .map(|&a| Rotation::from(a))
             .collect();
         let identity = vec![Rotation::from(Mat3::IDENTITY); n];
-        let scopes = Scopes::push(device);
-        let built = (|| {
-            Ok::<_, GpuError>((
-                storage_init(
+        (self.inverse_moments, self.weights, self.targets) = scoped(device, || {
+            Ok((
+                Storage::init(
                     device,
                     "inverse_moments",
-                    bytemuck::cast_slice(&inverse),
+                    &inverse,
                     &what("inverse_moments"),
                 )?,
-                storage_init(
-                    device,
-                    "weights",
-                    bytemuck::cast_slice(&elastic.weights),
-                    &what("weights"),
-                )?,
-                storage_init(
-                    device,
-                    "targets",
-                    bytemuck::cast_slice(&identity),
-                    &what("targets"),
-                )?,
+                Storage::init(device, "weights", &elastic.weights, &what("weights"))?,
+                Storage::init(device, "targets", &identity, &what("targets"))?,
             ))
-        })();
-        scopes.pop()?;
-        (self.inverse_moments, self.weights, self.targets) = built?;
+        })?;
         self.elastic = true;
         self.elastic_phase = true;
         self.bind_groups = self.bind_all(device, pipelines)?;
@@ -474,8 +385,8 @@ impl DeformState {
                 pipelines.kernel(kernel),
                 (kernel.entry().0, kernel.name()),
                 |name| match name {
-                    "plain" if update => Some(&self.previous),
-                    "rotations" if targets => Some(&self.targets),
+                    "plain" if update => Some(self.previous.buffer()),
+                    "rotations" if targets => Some(self.targets.buffer()),
                     _ => self.buffer(name),
                 },
                 Some(std::mem::size_of::<Params>() as u64),
@@ -496,28 +407,36 @@ impl DeformState {
         groups
     }
 
+    /// Every buffer, by the WGSL variable's name the kernels bind it to.
+    fn named(&self) -> [(&'static str, &wgpu::Buffer); 18] {
+        [
+            ("params", &self.params),
+            ("rest", self.rest.buffer()),
+            ("current", self.current.buffer()),
+            ("previous", self.previous.buffer()),
+            ("plain", self.plain.buffer()),
+            ("rotations", self.rotations.buffer()),
+            ("force", self.force.buffer()),
+            ("free", self.free.buffer()),
+            ("offsets", self.offsets.buffer()),
+            ("indices", self.indices.buffer()),
+            ("partials", self.partials.buffer()),
+            ("vectors", self.vectors.buffer()),
+            ("scales", self.scales.buffer()),
+            ("projections", self.projections.buffer()),
+            ("gains", self.gains.buffer()),
+            ("inverse_moments", self.inverse_moments.buffer()),
+            ("weights", self.weights.buffer()),
+            ("targets", self.targets.buffer()),
+        ]
+    }
+
+    /// The buffer bound to the WGSL variable `name`, if any.
     fn buffer(&self, name: &str) -> Option<&wgpu::Buffer> {
-        Some(match name {
-            "params" => &self.params,
-            "rest" => &self.rest,
-            "current" => &self.current,
-            "previous" => &self.previous,
-            "plain" => &self.plain,
-            "rotations" => &self.rotations,
-            "force" => &self.force,
-            "free" => &self.free,
-            "offsets" => &self.offsets,
-            "indices" => &self.indices,
-            "partials" => &self.partials,
-            "vectors" => &self.vectors,
-            "scales" => &self.scales,
-            "projections" => &self.projections,
-            "gains" => &self.gains,
-            "inverse_moments" => &self.inverse_moments,
-            "weights" => &self.weights,
-            "targets" => &self.targets,
-            _ => return None,
-        })
+        self.named()
+            .into_iter()
+            .find(|&(n, _)| n == name)
+            .map(|(_, b)| b)
     }
 
     pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {
@@ -603,14 +522,9 @@ impl DeformState {
                 got: points.len(),
             });
         }
-        let stride = std::mem::size_of::<[f32; 4]>() as u64;
         for &(first, from, len) in &self.control_runs {
-            let run = vec4s(&points[from..from + len]);
-            queue.write_buffer(
-                &self.current,
-                u64::from(first) * stride,
-                bytemuck::cast_slice(&run),
-            );
+            self.current
+                .write_points(queue, first as usize, &points[from..from + len])?;
         }
         Ok(())
     }
@@ -618,8 +532,7 @@ impl DeformState {
     /// Overwrites every current position (tests, or a fresh start).
     pub fn write_current(&self, queue: &wgpu::Queue, positions: &[Vec3]) -> Result<(), GpuError> {
         self.check_len("current positions", positions.len())?;
-        queue.write_buffer(&self.current, 0, bytemuck::cast_slice(&vec4s(positions)));
-        Ok(())
+        self.current.write_points(queue, 0, positions)
     }
 
     /// Overwrites every rotation (tests of the force kernel, whose elastic
@@ -627,15 +540,13 @@ impl DeformState {
     pub fn write_rotations(&self, queue: &wgpu::Queue, rotations: &[Mat3]) -> Result<(), GpuError> {
         self.check_len("rotations", rotations.len())?;
         let data: Vec<Rotation> = rotations.iter().map(|&r| Rotation::from(r)).collect();
-        queue.write_buffer(&self.rotations, 0, bytemuck::cast_slice(&data));
-        Ok(())
+        self.rotations.write(queue, 0, &data)
     }
 
     /// Overwrites every force (tests of the integrate kernel).
     pub fn write_force(&self, queue: &wgpu::Queue, force: &[Vec3]) -> Result<(), GpuError> {
         self.check_len("forces", force.len())?;
-        queue.write_buffer(&self.force, 0, bytemuck::cast_slice(&vec4s(force)));
-        Ok(())
+        self.force.write_points(queue, 0, force)
     }
 
     /// Reads the current positions back (stalls until the GPU is done: frame boundaries only).
@@ -644,7 +555,7 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Vec3>, GpuError> {
-        self.read_points(device, queue, &self.current)
+        self.current.read_points(device, queue, &self.readback)
     }
 
     /// Reads the last plain step `q̂` back.
@@ -653,7 +564,7 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Vec3>, GpuError> {
-        self.read_points(device, queue, &self.plain)
+        self.plain.read_points(device, queue, &self.readback)
     }
 
     /// Reads the last forces back.
@@ -662,7 +573,7 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Vec3>, GpuError> {
-        self.read_points(device, queue, &self.force)
+        self.force.read_points(device, queue, &self.readback)
     }
 
     /// Reads the last rotations back.
@@ -681,28 +592,18 @@ impl DeformState {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<Mat3>, GpuError> {
-        if !self.elastic {
-            return Ok(Vec::new());
-        }
         self.read_matrices(device, queue, &self.targets)
     }
 
+    /// Reads `buffer`'s matrices back.
     fn read_matrices(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-        buffer: &wgpu::Buffer,
+        buffer: &Storage<Rotation>,
     ) -> Result<Vec<Mat3>, GpuError> {
-        let bytes = self.readback.read(
-            device,
-            queue,
-            buffer,
-            self.len() * std::mem::size_of::<Rotation>(),
-        )?;
-        Ok(bytemuck::pod_collect_to_vec::<u8, Rotation>(&bytes)
-            .into_iter()
-            .map(Mat3::from)
-            .collect())
+        let read = buffer.read(device, queue, &self.readback)?;
+        Ok(read.into_iter().map(Mat3::from).collect())
     }
 
     /// Reads the step-norm partials of the first `slots` slots: per slot,
@@ -715,24 +616,10 @@ impl DeformState {
     ) -> Result<Vec<Vec<[f32; 2]>>, GpuError> {
         let row = self.step_groups as usize;
         let rows = slots.min(SLOTS) as usize;
-        let bytes = self
-            .readback
-            .read(device, queue, &self.partials, rows * row * 8)?;
-        let all: Vec<[f32; 2]> = bytemuck::pod_collect_to_vec(&bytes);
+        let all = self
+            .partials
+            .read_first(device, queue, &self.readback, rows * row)?;
         Ok(all.chunks(row.max(1)).map(<[_]>::to_vec).collect())
-    }
-
-    fn read_points(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        buffer: &wgpu::Buffer,
-    ) -> Result<Vec<Vec3>, GpuError> {
-        let bytes = self.readback.read(device, queue, buffer, self.len() * 16)?;
-        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
-            .into_iter()
-            .map(|p| Vec3::new(p[0], p[1], p[2]))
-            .collect())
     }
 }
 

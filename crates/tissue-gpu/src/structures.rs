@@ -9,9 +9,11 @@
 use glam::Vec3;
 use tissue_solve::structures::Embedding;
 
+use crate::buffer::Storage;
 use crate::pipelines::{KernelId, KernelSet};
-use crate::state::{DeformState, read_buffer, workgroups};
-use crate::support::{Scopes, storage_init};
+use crate::readback::Readback;
+use crate::state::{DeformState, workgroups};
+use crate::support::{Scopes, scoped};
 use crate::{GpuError, shaders};
 
 /// Mirror of WGSL `Carrier` (`shaders/embedding_moved.wgsl`).
@@ -93,11 +95,16 @@ fn carrier_slots() -> Result<usize, GpuError> {
 /// An [`Embedding`]'s points and carriers on the GPU.
 #[derive(Debug)]
 pub struct GpuEmbedding {
+    /// Number of points.
     count: u32,
+    /// One [`EmbeddingParams`] (a uniform buffer: raw).
     params: wgpu::Buffer,
-    points: wgpu::Buffer,
-    carriers: wgpu::Buffer,
-    moved: wgpu::Buffer,
+    /// The points where the rest positions place them (`vec4`, w unused).
+    points: Storage<[f32; 4]>,
+    /// Per point, its carrier slots.
+    carriers: Storage<Carrier>,
+    /// Per point, where the kernel moved it (`vec4`, w unused).
+    moved: Storage<[f32; 4]>,
 }
 
 impl GpuEmbedding {
@@ -152,41 +159,20 @@ impl GpuEmbedding {
             carriers: kernel.slots as u32,
             _pad: 0,
         };
-        let points: Vec<[f32; 4]> = embedding
-            .points
-            .iter()
-            .map(|p| p.extend(0.0).to_array())
-            .collect();
         let what = format!("an embedding of {count} points");
-        let scopes = Scopes::push(device);
-        let built = (|| {
-            Ok::<_, GpuError>((
-                storage_init(
-                    device,
-                    "embedded points",
-                    bytemuck::cast_slice(&points),
-                    &what,
-                )?,
-                storage_init(device, "carriers", bytemuck::cast_slice(&carriers), &what)?,
-                storage_init(device, "moved points", &vec![0u8; count * 16], &what)?,
-            ))
-        })();
-        let params_buffer = {
+        scoped(device, || {
             use wgpu::util::DeviceExt;
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("embedding params"),
-                contents: bytemuck::bytes_of(&params),
-                usage: wgpu::BufferUsages::UNIFORM,
+            Ok(Self {
+                count: params.count,
+                points: Storage::points(device, "embedded points", &embedding.points, &what)?,
+                carriers: Storage::init(device, "carriers", &carriers, &what)?,
+                moved: Storage::zeroed(device, "moved points", count, &what)?,
+                params: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("embedding params"),
+                    contents: bytemuck::bytes_of(&params),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                }),
             })
-        };
-        scopes.pop()?;
-        let (points, carriers, moved) = built?;
-        Ok(Self {
-            count: params.count,
-            params: params_buffer,
-            points,
-            carriers,
-            moved,
         })
     }
 
@@ -221,12 +207,12 @@ impl GpuEmbedding {
         let scopes = Scopes::push(device);
         let buffers = [
             ("embedding", &self.params),
-            ("points", &self.points),
-            ("carriers", &self.carriers),
-            ("rest", &state.rest),
-            ("current", &state.current),
-            ("rotations", &state.rotations),
-            ("moved", &self.moved),
+            ("points", self.points.buffer()),
+            ("carriers", self.carriers.buffer()),
+            ("rest", state.rest.buffer()),
+            ("current", state.current.buffer()),
+            ("rotations", state.rotations.buffer()),
+            ("moved", self.moved.buffer()),
         ];
         let entries: Vec<wgpu::BindGroupEntry> = compiled
             .bindings
@@ -258,10 +244,6 @@ impl GpuEmbedding {
         }
         queue.submit([encoder.finish()]);
         scopes.pop()?;
-        let bytes = read_buffer(device, queue, &self.moved, self.len() * 16)?;
-        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
-            .into_iter()
-            .map(|p| Vec3::new(p[0], p[1], p[2]))
-            .collect())
+        self.moved.read_points(device, queue, &Readback::default())
     }
 }

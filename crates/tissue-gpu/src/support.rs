@@ -1,7 +1,8 @@
 //! What every kernel family of this crate shares: compiling an entry point
 //! with its bind group layout from naga's reflection, bind groups built by
-//! the WGSL variables' names, storage buffers checked against the device's
-//! limits, and error scopes that turn wgpu's errors into [`GpuError`]s.
+//! the WGSL variables' names, the device's limits on a storage buffer
+//! (which [`crate::buffer::Storage`] checks), and error scopes that turn
+//! wgpu's errors into [`GpuError`]s.
 
 use std::borrow::Cow;
 use std::num::NonZeroU64;
@@ -113,54 +114,6 @@ pub(crate) fn bind_group<'a>(
         layout: &kernel.layout,
         entries: &entries,
     }))
-}
-
-/// A zeroed storage buffer of at least `bytes` (16 at least, so that it
-/// binds, and a whole number of words), or the limit it would break; `what`
-/// names it in the error.
-pub(crate) fn storage(
-    device: &wgpu::Device,
-    label: &'static str,
-    bytes: u64,
-    what: &str,
-) -> Result<wgpu::Buffer, GpuError> {
-    let size = bytes.max(16).next_multiple_of(4);
-    check_size(device, size, what)?;
-    Ok(device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size,
-        usage: wgpu::BufferUsages::STORAGE
-            | wgpu::BufferUsages::COPY_SRC
-            | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    }))
-}
-
-/// A storage buffer holding `contents` (16 zero bytes when empty: a binding
-/// may not be empty), or the limit it would break; `what` names it in the error.
-pub(crate) fn storage_init(
-    device: &wgpu::Device,
-    label: &'static str,
-    contents: &[u8],
-    what: &str,
-) -> Result<wgpu::Buffer, GpuError> {
-    use wgpu::util::DeviceExt;
-    let padded = [0u8; 16];
-    let contents = if contents.is_empty() {
-        &padded[..]
-    } else {
-        contents
-    };
-    check_size(device, contents.len() as u64, what)?;
-    Ok(
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_DST
-                | wgpu::BufferUsages::COPY_SRC,
-        }),
-    )
 }
 
 /// An error naming the limit when a storage binding of `size` bytes is

@@ -6,7 +6,8 @@
 
 use crate::GpuError;
 use crate::pipelines::{Kernel, Pipelines};
-use crate::state::{DeformState, read_buffer};
+use crate::readback::read_buffer;
+use crate::state::DeformState;
 use crate::support::Scopes;
 
 /// Timestamps of the longest iteration, the deflated one: a start and an
@@ -28,7 +29,10 @@ pub struct IterationTimes {
 /// A query set and its resolve buffer for timing the kernels of one iteration.
 #[derive(Debug)]
 pub struct KernelTimer {
+    /// Two timestamps per kernel of an iteration.
     queries: wgpu::QuerySet,
+    /// The timestamps resolved, `u64` each (a query resolve buffer, not a
+    /// storage one: raw).
     resolved: wgpu::Buffer,
     /// Nanoseconds per timestamp tick (`Queue::get_timestamp_period`).
     period_ns: f64,
@@ -95,13 +99,7 @@ impl KernelTimer {
         encoder.resolve_query_set(&self.queries, 0..used, &self.resolved, 0);
         queue.submit([encoder.finish()]);
         scope.pop()?;
-        let bytes = read_buffer(
-            device,
-            queue,
-            &self.resolved,
-            used as usize * wgpu::QUERY_SIZE as usize,
-        )?;
-        let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&bytes);
+        let ticks: Vec<u64> = read_buffer(device, queue, &self.resolved, used as usize)?;
         let ms = |from: u64, to: u64| to.saturating_sub(from) as f64 * self.period_ns / 1e6;
         let kernels = iteration
             .iter()

@@ -11,8 +11,10 @@ use tissue_solve::sampling::{ForceOut, SKIN_IN_R0, SamplingState};
 use super::field::FieldBuffers;
 use super::kernels::{SamplingKernel, SamplingPipelines};
 use crate::GpuError;
-use crate::state::{Readback, read_buffer, workgroups};
-use crate::support::{bind_group, scoped, storage_init};
+use crate::buffer::{Storage, vec4, xyz};
+use crate::readback::Readback;
+use crate::state::workgroups;
+use crate::support::{bind_group, scoped};
 
 /// Iterations one command buffer records: one uniform slot and one row of
 /// change partials each.
@@ -108,19 +110,34 @@ impl SamplingUniforms {
     }
 }
 
-/// A storage buffer holding `contents` (an empty one gets 16 zero bytes: zero-sized
-/// bindings are invalid), checked against the device's limits; `what` says
+/// A storage buffer holding `contents` ([`Storage::init`]); `what` says
 /// what it serves in the error.
-pub(super) fn storage(
+pub(super) fn storage<T: Pod>(
     device: &wgpu::Device,
     label: &'static str,
-    contents: &[u8],
+    contents: &[T],
     what: &dyn Fn() -> String,
-) -> Result<wgpu::Buffer, GpuError> {
-    storage_init(
+) -> Result<Storage<T>, GpuError> {
+    Storage::init(
         device,
         label,
         contents,
+        &format!("the {label} buffer ({})", what()),
+    )
+}
+
+/// A storage buffer of `len` zeroed elements ([`Storage::zeroed`]); `what`
+/// says what it serves in the error.
+pub(super) fn zeroed<T: Pod>(
+    device: &wgpu::Device,
+    label: &'static str,
+    len: usize,
+    what: &dyn Fn() -> String,
+) -> Result<Storage<T>, GpuError> {
+    Storage::zeroed(
+        device,
+        label,
+        len,
         &format!("the {label} buffer ({})", what()),
     )
 }
@@ -130,17 +147,31 @@ pub(super) fn storage(
 /// writes `states[1 - p]`, `contacts[1 - p]`.
 #[derive(Debug)]
 pub struct SamplingBuffers {
+    /// Number of particles.
     pub(super) count: u32,
+    /// Bytes from one uniform slot to the next.
     uniforms_stride: u64,
+    /// [`BATCH`] [`SamplingUniforms`], `uniforms_stride` apart (a uniform
+    /// buffer: raw, as its slots sit at the dynamic offset alignment).
     uniforms: wgpu::Buffer,
-    pub(super) states: [wgpu::Buffer; 2],
-    pub(super) contacts: [wgpu::Buffer; 2],
-    forces: wgpu::Buffer,
+    /// The two particle states: xyz position, w radius.
+    pub(super) states: [Storage<[f32; 4]>; 2],
+    /// The two contact arrays (`vec4` each).
+    pub(super) contacts: [Storage<[f32; 4]>; 2],
+    /// Per particle: xyz force, w compression.
+    forces: Storage<[f32; 4]>,
+    /// The neighbour rows' starts (`count + 1` u32; raw, as
+    /// [`SamplingBuffers::set_row_buffers`] takes rows built elsewhere).
     offsets: wgpu::Buffer,
+    /// The neighbour rows' entries (u32; raw, likewise).
     neighbours: wgpu::Buffer,
-    halt: wgpu::Buffer,
-    partials: wgpu::Buffer,
-    built: wgpu::Buffer,
+    /// 0, or the slot + 1 of the first iteration that needed a rebuild.
+    halt: Storage<u32>,
+    /// Per slot, per `change` workgroup: its share of the change sums (`vec4`).
+    partials: Storage<[f32; 4]>,
+    /// The state the neighbour rows were built from.
+    built: Storage<[f32; 4]>,
+    /// The surface field.
     field: FieldBuffers,
     /// Workgroups `[x, y]` per kernel, in [`SamplingKernel::ALL`] order.
     workgroups: [[u32; 2]; 5],
@@ -152,12 +183,9 @@ pub struct SamplingBuffers {
     readback: Readback,
 }
 
+/// Particles as the kernels hold them: xyz the position, w from `w`.
 pub(super) fn vec4s(positions: &[Vec3], w: &[f32]) -> Vec<[f32; 4]> {
-    positions
-        .iter()
-        .zip(w)
-        .map(|(p, &w)| p.extend(w).to_array())
-        .collect()
+    positions.iter().zip(w).map(|(&p, &w)| vec4(p, w)).collect()
 }
 
 impl SamplingBuffers {
@@ -212,26 +240,24 @@ impl SamplingBuffers {
         let what = || format!("{n} particles");
         let current = vec4s(&state.positions, &state.radii);
         let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
-        let zeros = vec![0u8; n * 16];
-        let partials = vec![0u8; (BATCH * change_groups) as usize * 16];
+        let partials = (BATCH * change_groups) as usize;
         let (states, contacts, forces, offsets, neighbours, halt, partials, built) =
             scoped(device, || {
-                let s = |label: &'static str, bytes: &[u8]| storage(device, label, bytes, &what);
                 Ok((
                     [
-                        s("state 0", bytemuck::cast_slice(&current))?,
-                        s("state 1", bytemuck::cast_slice(&current))?,
+                        storage(device, "state 0", &current, &what)?,
+                        storage(device, "state 1", &current, &what)?,
                     ],
                     [
-                        s("contact 0", bytemuck::cast_slice(&contact))?,
-                        s("contact 1", bytemuck::cast_slice(&contact))?,
+                        storage(device, "contact 0", &contact, &what)?,
+                        storage(device, "contact 1", &contact, &what)?,
                     ],
-                    s("forces", &zeros)?,
-                    s("offsets", &vec![0u8; (n + 1) * 4])?,
-                    s("neighbours", &[])?,
-                    s("halt", &[0u8; 16])?,
-                    s("partials", &partials)?,
-                    s("built", bytemuck::cast_slice(&current))?,
+                    zeroed(device, "forces", n, &what)?,
+                    storage(device, "offsets", &vec![0u32; n + 1], &what)?.into_buffer(),
+                    storage::<u32>(device, "neighbours", &[], &what)?.into_buffer(),
+                    zeroed(device, "halt", 1, &what)?,
+                    zeroed(device, "partials", partials, &what)?,
+                    storage(device, "built", &current, &what)?,
                 ))
             })?;
         let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
@@ -282,21 +308,22 @@ impl SamplingBuffers {
         self.count == 0
     }
 
+    /// The buffer bound to the WGSL variable `name` in an iteration of `parity`.
     fn buffer(&self, name: &str, parity: usize) -> Option<&wgpu::Buffer> {
         Some(match name {
             "sampling" => &self.uniforms,
-            "current" => &self.states[parity],
-            "next" => &self.states[1 - parity],
-            "contact" => &self.contacts[parity],
-            "contact_next" => &self.contacts[1 - parity],
-            "forces" => &self.forces,
+            "current" => self.states[parity].buffer(),
+            "next" => self.states[1 - parity].buffer(),
+            "contact" => self.contacts[parity].buffer(),
+            "contact_next" => self.contacts[1 - parity].buffer(),
+            "forces" => self.forces.buffer(),
             "offsets" => &self.offsets,
             "neighbours" => &self.neighbours,
-            "halt" => &self.halt,
-            "partials" => &self.partials,
-            "built" => &self.built,
-            "field_cells" => &self.field.cells,
-            "field_triangles" => &self.field.triangles,
+            "halt" => self.halt.buffer(),
+            "partials" => self.partials.buffer(),
+            "built" => self.built.buffer(),
+            "field_cells" => self.field.cells.buffer(),
+            "field_triangles" => self.field.triangles.buffer(),
             _ => return None,
         })
     }
@@ -354,16 +381,11 @@ impl SamplingBuffers {
         let what = || format!("{} particles", self.len());
         let (o, i) = scoped(device, || {
             Ok((
-                storage(device, "offsets", bytemuck::cast_slice(offsets), &what)?,
-                storage(
-                    device,
-                    "neighbours",
-                    bytemuck::cast_slice(neighbours),
-                    &what,
-                )?,
+                storage(device, "offsets", offsets, &what)?,
+                storage(device, "neighbours", neighbours, &what)?,
             ))
         })?;
-        self.set_row_buffers(device, pipelines, o, i)
+        self.set_row_buffers(device, pipelines, o.into_buffer(), i.into_buffer())
     }
 
     /// Takes neighbour rows already on the GPU: `offsets` (`count + 1` u32)
@@ -401,14 +423,9 @@ impl SamplingBuffers {
             }
         }
         let parity = parity & 1;
-        queue.write_buffer(
-            &self.states[parity],
-            0,
-            bytemuck::cast_slice(&vec4s(&state.positions, &state.radii)),
-        );
+        self.states[parity].write(queue, 0, &vec4s(&state.positions, &state.radii))?;
         let contact: Vec<[f32; 4]> = state.contact.iter().map(|c| c.to_array()).collect();
-        queue.write_buffer(&self.contacts[parity], 0, bytemuck::cast_slice(&contact));
-        Ok(())
+        self.contacts[parity].write(queue, 0, &contact)
     }
 
     /// Overwrites the forces (tests of `radius_update` and `integrate`).
@@ -422,10 +439,9 @@ impl SamplingBuffers {
         }
         let data: Vec<[f32; 4]> = forces
             .iter()
-            .map(|f| f.force.extend(f.compression).to_array())
+            .map(|f| vec4(f.force, f.compression))
             .collect();
-        queue.write_buffer(&self.forces, 0, bytemuck::cast_slice(&data));
-        Ok(())
+        self.forces.write(queue, 0, &data)
     }
 
     /// Reads the state of `parity` back (stalls until the GPU is done).
@@ -436,12 +452,11 @@ impl SamplingBuffers {
         parity: usize,
     ) -> Result<SamplingState, GpuError> {
         let parity = parity & 1;
-        let bytes = read_buffer(device, queue, &self.states[parity], self.len() * 16)?;
-        let states: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
-        let bytes = read_buffer(device, queue, &self.contacts[parity], self.len() * 16)?;
-        let contact: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let once = Readback::default();
+        let states = self.states[parity].read(device, queue, &once)?;
+        let contact = self.contacts[parity].read(device, queue, &once)?;
         Ok(SamplingState {
-            positions: states.iter().map(|s| Vec3::new(s[0], s[1], s[2])).collect(),
+            positions: states.iter().map(|&s| xyz(s)).collect(),
             radii: states.iter().map(|s| s[3]).collect(),
             contact: contact.into_iter().map(Vec4::from_array).collect(),
         })
@@ -453,11 +468,11 @@ impl SamplingBuffers {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<ForceOut>, GpuError> {
-        let bytes = read_buffer(device, queue, &self.forces, self.len() * 16)?;
-        Ok(bytemuck::pod_collect_to_vec::<u8, [f32; 4]>(&bytes)
+        let forces = self.forces.read(device, queue, &Readback::default())?;
+        Ok(forces
             .into_iter()
             .map(|f| ForceOut {
-                force: Vec3::new(f[0], f[1], f[2]),
+                force: xyz(f),
                 compression: f[3],
             })
             .collect())
@@ -507,7 +522,7 @@ impl SamplingBuffers {
         iterations: u32,
         parity: usize,
     ) {
-        encoder.clear_buffer(&self.halt, 0, None);
+        encoder.clear_buffer(self.halt.buffer(), 0, None);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("tissue stage 1 iterations"),
             timestamp_writes: None,
@@ -534,10 +549,9 @@ impl SamplingBuffers {
     ) -> Result<(Vec<[f64; 3]>, u32), GpuError> {
         let row = self.change_groups as usize;
         let rows = slots.min(BATCH) as usize;
-        let bytes = self
-            .readback
-            .read(device, queue, &self.partials, rows * row * 16)?;
-        let all: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+        let all = self
+            .partials
+            .read_first(device, queue, &self.readback, rows * row)?;
         let sums = all
             .chunks(row.max(1))
             .map(|r| {
@@ -550,17 +564,19 @@ impl SamplingBuffers {
                 })
             })
             .collect();
-        let halt = self.readback.read(device, queue, &self.halt, 4)?;
-        let halt = halt
-            .get(..4)
-            .map(bytemuck::pod_read_unaligned::<u32>)
+        let halt = self
+            .halt
+            .read(device, queue, &self.readback)?
+            .first()
+            .copied()
             .ok_or_else(|| GpuError::Map("the halt flag came back empty".into()))?;
         Ok((sums, halt))
     }
 
     /// Copies the state of `parity` into the rows' build state.
     pub(super) fn mark_built(&self, encoder: &mut wgpu::CommandEncoder, parity: usize) {
-        encoder.copy_buffer_to_buffer(&self.states[parity & 1], 0, &self.built, 0, None);
+        let state = self.states[parity & 1].buffer();
+        encoder.copy_buffer_to_buffer(state, 0, self.built.buffer(), 0, None);
     }
 }
 

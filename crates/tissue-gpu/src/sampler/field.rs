@@ -6,22 +6,28 @@ use tissue_core::SamplingParams;
 use tissue_core::field::{Nearest, Side, SurfaceField};
 use wgpu::util::DeviceExt;
 
-use super::buffers::{SamplingUniforms, storage};
+use super::buffers::{SamplingUniforms, storage, zeroed};
 use super::kernels::compile;
 use crate::GpuError;
-use crate::state::{read_buffer, workgroups};
+use crate::buffer::{Storage, vec4, xyz};
+use crate::readback::Readback;
+use crate::state::workgroups;
 use crate::support::{Scopes, bind_group, scoped};
 
 /// The surface field on the GPU: the same data as [`SurfaceField`], packed
 /// into the two buffers `shaders/shared/surface_field.wgsl` reads.
 #[derive(Debug)]
 pub struct FieldBuffers {
-    /// Cell states, CSR starts, candidates, candidate distances (f32 bits).
-    pub(crate) cells: wgpu::Buffer,
+    /// Cell states, CSR starts, candidates, candidate distances (f32 bits):
+    /// four sections of u32 words, where `layout` says.
+    pub(crate) cells: Storage<u32>,
     /// Per triangle: three corners and seven normals, `vec4` each.
-    pub(crate) triangles: wgpu::Buffer,
+    pub(crate) triangles: Storage<[f32; 4]>,
+    /// The field grid's corner (xyz) and cell edge (w).
     pub(super) origin: [f32; 4],
+    /// Cells along x, y, z; w the triangle count.
     pub(super) dims: [u32; 4],
+    /// Where `cells` holds the CSR starts, candidates and candidate distances.
     pub(super) layout: [u32; 4],
 }
 
@@ -55,20 +61,15 @@ impl FieldBuffers {
                 corners
                     .iter()
                     .chain(normals.iter())
-                    .map(|v| v.extend(0.0).to_array())
+                    .map(|&v| vec4(v, 0.0))
                     .collect::<Vec<_>>()
             })
             .collect();
         let what = || format!("{cells} cells, {} triangles", field.corners.len());
         let (cells_buffer, triangles_buffer) = scoped(device, || {
             Ok((
-                storage(device, "field_cells", bytemuck::cast_slice(&packed), &what)?,
-                storage(
-                    device,
-                    "field_triangles",
-                    bytemuck::cast_slice(&geometry),
-                    &what,
-                )?,
+                storage(device, "field_cells", &packed, &what)?,
+                storage(device, "field_triangles", &geometry, &what)?,
             ))
         })?;
         Ok(Self {
@@ -107,8 +108,7 @@ pub fn query_field(
     let mut uniforms = SamplingUniforms::new(&buffers, &SamplingParams::default(), 1.0, count);
     uniforms.groups = 1;
     let what = || format!("{n} query points");
-    let points4: Vec<[f32; 4]> = points.iter().map(|p| p.extend(0.0).to_array()).collect();
-    let answers_size = n * 64;
+    let points4: Vec<[f32; 4]> = points.iter().map(|&p| vec4(p, 0.0)).collect();
     let [x, y] = workgroups(
         count,
         kernel.workgroup_size,
@@ -120,18 +120,20 @@ pub fn query_field(
             contents: bytemuck::bytes_of(&uniforms),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let points_buffer = storage(device, "points", bytemuck::cast_slice(&points4), &what)?;
-        let answers = storage(device, "answers", &vec![0u8; answers_size], &what)?;
+        let points_buffer = storage(device, "points", &points4, &what)?;
+        // Four `vec4` per point: the side, distance and triangle, the
+        // point, the normal, the barycentric coordinates.
+        let answers: Storage<[f32; 4]> = zeroed(device, "answers", n * 4, &what)?;
         let group = bind_group(
             device,
             &kernel,
             ("tests/surface_field", "field query"),
             |name| match name {
                 "sampling" => Some(&uniform),
-                "points" => Some(&points_buffer),
-                "answers" => Some(&answers),
-                "field_cells" => Some(&buffers.cells),
-                "field_triangles" => Some(&buffers.triangles),
+                "points" => Some(points_buffer.buffer()),
+                "answers" => Some(answers.buffer()),
+                "field_cells" => Some(buffers.cells.buffer()),
+                "field_triangles" => Some(buffers.triangles.buffer()),
                 _ => None,
             },
             None,
@@ -152,8 +154,7 @@ pub fn query_field(
         queue.submit([encoder.finish()]);
         Ok(answers)
     })?;
-    let bytes = read_buffer(device, queue, &answers, answers_size)?;
-    let raw: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&bytes);
+    let raw = answers.read(device, queue, &Readback::default())?;
     Ok(raw
         .chunks_exact(4)
         .map(|a| match a[0][0].to_bits() {
@@ -161,8 +162,8 @@ pub fn query_field(
             1 => Side::DeepOutside,
             _ => Side::Near(Nearest {
                 distance: a[0][1],
-                point: Vec3::new(a[1][0], a[1][1], a[1][2]),
-                normal: Vec3::new(a[2][0], a[2][1], a[2][2]),
+                point: xyz(a[1]),
+                normal: xyz(a[2]),
                 triangle: a[0][2].to_bits(),
                 barycentric: [a[3][0], a[3][1], a[3][2]],
             }),

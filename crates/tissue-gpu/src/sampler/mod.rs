@@ -182,7 +182,10 @@ struct SamplingBatches<'a> {
     skin: f32,
     r0: f32,
     buffers: SamplingBuffers,
+    /// The current state at a batch's start, for a replay (a copy target
+    /// that no kernel binds: raw).
     backup_state: wgpu::Buffer,
+    /// The current contacts at a batch's start, likewise.
     backup_contact: wgpu::Buffer,
     /// Which of the two states is current.
     parity: usize,
@@ -200,7 +203,7 @@ impl SamplingBatches<'_> {
         let rows = self.grid.neighbour_rows(
             self.device,
             self.queue,
-            &self.buffers.states[self.parity],
+            self.buffers.states[self.parity].buffer(),
             self.buffers.count,
             self.params.force_cutoff,
             self.skin,
@@ -231,8 +234,8 @@ impl SamplingBatches<'_> {
                 }),
             });
         let (state, contact) = (
-            &self.buffers.states[self.parity],
-            &self.buffers.contacts[self.parity],
+            self.buffers.states[self.parity].buffer(),
+            self.buffers.contacts[self.parity].buffer(),
         );
         if backup {
             encoder.copy_buffer_to_buffer(state, 0, &self.backup_state, 0, None);
@@ -302,14 +305,9 @@ fn connections(
     })?;
     let what = || format!("{n} particles");
     let placed = scoped(device, || {
-        storage(
-            device,
-            "placed",
-            bytemuck::cast_slice(&vec4s(positions, radii)),
-            &what,
-        )
+        storage(device, "placed", &vec4s(positions, radii), &what)
     })?;
-    let rows = grid.neighbour_rows(device, queue, &placed, count, ratio, 0.0, true)?;
+    let rows = grid.neighbour_rows(device, queue, placed.buffer(), count, ratio, 0.0, true)?;
     let (offsets, indices) = rows.read(device, queue)?;
     Ok(Connections { offsets, indices })
 }
