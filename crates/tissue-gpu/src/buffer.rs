@@ -229,7 +229,105 @@ impl Storage<[f32; 4]> {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
     use super::*;
+
+    /// A device from the environment (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`),
+    /// or `None` after saying the test is skipped, as the integration
+    /// tests do (under `CI=true` a missing adapter fails).
+    fn gpu(test: &str) -> Option<(wgpu::Device, wgpu::Queue)> {
+        match crate::device_from_env() {
+            Ok((_, device, queue)) => Some((device, queue)),
+            Err(GpuError::NoAdapter(why)) => {
+                assert!(
+                    std::env::var("CI").as_deref() != Ok("true"),
+                    "{test}: no GPU adapter under CI=true ({why})"
+                );
+                eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
+                None
+            }
+            Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
+        }
+    }
+
+    #[test]
+    fn elements_are_written_and_read_where_they_belong() {
+        let Some((device, queue)) = gpu("storage elements") else {
+            return;
+        };
+        let readback = Readback::default();
+        let buffer = Storage::init(&device, "test", &[1u32, 2, 3, 4, 5], "a test buffer").unwrap();
+        buffer.write(&queue, 3, &[40, 50]).unwrap();
+        let read = |n| buffer.read_first(&device, &queue, &readback, n);
+        assert_eq!(
+            buffer.read(&device, &queue, &readback).unwrap(),
+            [1, 2, 3, 40, 50]
+        );
+        assert_eq!(read(2).unwrap(), [1, 2]);
+        // Past the end: refused, and nothing is written.
+        assert!(matches!(
+            buffer.write(&queue, 4, &[0, 0]),
+            Err(GpuError::Length {
+                expected: 1,
+                got: 2,
+                ..
+            })
+        ));
+        assert!(matches!(
+            buffer.write(&queue, 6, &[0]),
+            Err(GpuError::Length {
+                expected: 0,
+                got: 1,
+                ..
+            })
+        ));
+        assert!(matches!(
+            read(6),
+            Err(GpuError::Length {
+                expected: 5,
+                got: 6,
+                ..
+            })
+        ));
+        assert_eq!(read(5).unwrap(), [1, 2, 3, 40, 50]);
+    }
+
+    #[test]
+    fn empty_buffers_bind_and_zeroed_ones_read_zero() {
+        let Some((device, queue)) = gpu("empty and zeroed storage") else {
+            return;
+        };
+        let readback = Readback::default();
+        let empty = Storage::<f32>::init(&device, "empty", &[], "an empty buffer").unwrap();
+        assert_eq!(empty.buffer().size(), 16);
+        assert!(empty.read(&device, &queue, &readback).unwrap().is_empty());
+        let none = Storage::<u32>::zeroed(&device, "none", 0, "no elements").unwrap();
+        assert_eq!(none.buffer().size(), 16);
+        let zeroed = Storage::<[f32; 4]>::zeroed(&device, "zeroed", 3, "three points").unwrap();
+        assert_eq!(zeroed.buffer().size(), 48);
+        assert_eq!(
+            zeroed.read_points(&device, &queue, &readback).unwrap(),
+            [Vec3::ZERO; 3]
+        );
+        let p = Vec3::new(1.0, -2.0, 0.5);
+        zeroed.write_points(&queue, 1, &[p]).unwrap();
+        assert_eq!(
+            zeroed.read(&device, &queue, &readback).unwrap(),
+            [[0.0; 4], [1.0, -2.0, 0.5, 0.0], [0.0; 4]]
+        );
+    }
+
+    #[test]
+    fn a_buffer_beyond_the_device_limits_is_refused_by_name() {
+        let Some((device, _)) = gpu("storage limits") else {
+            return;
+        };
+        let too_many = device.limits().max_storage_buffer_binding_size / 16 + 1;
+        match Storage::<[f32; 4]>::zeroed(&device, "huge", too_many as usize, "the huge buffer") {
+            Err(GpuError::LimitExceeded { what, .. }) => assert_eq!(what, "the huge buffer"),
+            other => panic!("expected GpuError::LimitExceeded, got {other:?}"),
+        }
+    }
 
     #[test]
     fn element_bytes_saturate_instead_of_wrapping() {
