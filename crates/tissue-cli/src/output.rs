@@ -190,6 +190,51 @@ pub fn refuse_overwriting(outputs: &[PathBuf], inputs: &[(&str, &Path)]) -> Resu
     Ok(())
 }
 
+/// Removes from `to.dir` what an earlier solve into it wrote (the `files`
+/// of the report it left, `to`'s report or the folder's `report.json`) and
+/// this one will not write again (`planned`), so that the folder holds
+/// only this run's results: a rerun without `--points` leaves no old
+/// `points.csv`. Never an input, and nothing a report of ours did not
+/// list; a report that cannot be read as ours removes nothing.
+pub fn remove_earlier_outputs(
+    to: &Destination<'_>,
+    planned: &[PathBuf],
+    inputs: &[(&str, &Path)],
+) -> Result<()> {
+    let reports = [
+        to.report.map(Path::to_path_buf),
+        Some(to.dir.join(REPORT_FILE)),
+    ];
+    let planned: Vec<PathBuf> = planned.iter().map(|p| resolved(p)).collect();
+    let inputs: Vec<PathBuf> = inputs.iter().map(|(_, p)| resolved(p)).collect();
+    for report in reports.iter().flatten() {
+        let Ok(text) = std::fs::read_to_string(report) else {
+            continue;
+        };
+        let Ok(earlier) = serde_json::from_str::<serde_json::Value>(&text) else {
+            continue;
+        };
+        let Some(files) = earlier.get("files").and_then(|f| f.as_array()) else {
+            continue;
+        };
+        for file in files.iter().filter_map(|f| f.as_str()) {
+            // Only the name: the earlier run may have named the folder
+            // from somewhere else.
+            let Some(name) = Path::new(file).file_name() else {
+                continue;
+            };
+            let path = to.dir.join(name);
+            let full = resolved(&path);
+            if path.is_file() && !planned.contains(&full) && !inputs.contains(&full) {
+                log::info!("removing {}, written by an earlier run", path.display());
+                std::fs::remove_file(&path)
+                    .with_context(|| format!("removing the earlier {}", path.display()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// `path` made absolute with its folder's links resolved (the file itself
 /// need not exist), to compare outputs with inputs.
 pub fn resolved(path: &Path) -> PathBuf {

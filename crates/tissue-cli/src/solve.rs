@@ -11,7 +11,8 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{
-    Destination, Status, Unfinished, planned_outputs, refuse_overwriting, write_solution,
+    Destination, Status, Unfinished, planned_outputs, refuse_overwriting, remove_earlier_outputs,
+    write_solution,
 };
 
 /// The force of stage 2.
@@ -242,9 +243,11 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         model: &args.model.display().to_string(),
         surface: &args.surface.display().to_string(),
     };
-    refuse_overwriting(&planned_outputs(&destination, &carried), &args.inputs())?;
+    let planned = planned_outputs(&destination, &carried);
+    refuse_overwriting(&planned, &args.inputs())?;
     std::fs::create_dir_all(&args.output_dir)
         .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    remove_earlier_outputs(&destination, &planned, &args.inputs())?;
     let solve = solver.solve()?;
     let report = write_solution(
         destination,

@@ -18,7 +18,7 @@ use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
     Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, refuse_overwriting,
-    write_json, write_solution,
+    remove_earlier_outputs, write_json, write_solution,
 };
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model, read_deformed};
 
@@ -361,6 +361,11 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             model: &model_name,
             surface: &surface,
         };
+        remove_earlier_outputs(
+            &destination,
+            &planned_outputs(&destination, &carried),
+            &inputs,
+        )?;
         let report = match write_solution(
             destination,
             &model,

@@ -141,7 +141,7 @@ fn bad_input_fails_with_a_message_and_no_panic() {
     for (args, expect) in cases {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let out = tissue(&args);
-        assert!(!out.status.success(), "{args:?} succeeded");
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
         let message = text(&out);
         assert!(
             message.contains(expect),
@@ -156,7 +156,7 @@ fn bad_input_fails_with_a_message_and_no_panic() {
     let empty = dir.path().join("empty.stl");
     std::fs::write(&empty, b"").unwrap();
     let out = tissue(&["sample", s(&empty), "-n", "100", "-o", s(&out_file)]);
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(1));
     assert!(text(&out).contains("empty.stl"), "{}", text(&out));
 
     let params = dir.path().join("params.json");
@@ -171,7 +171,7 @@ fn bad_input_fails_with_a_message_and_no_panic() {
         "--params",
         s(&params),
     ]);
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(1));
     assert!(text(&out).contains("not_a_parameter"), "{}", text(&out));
 }
 
@@ -208,7 +208,7 @@ fn params_file_and_presets_reach_the_sampler() {
     );
     // The paper's 0.6 connects nothing: the model is refused, not written.
     let out = run("0.6");
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(1));
     assert!(
         text(&out).contains("cannot carry rotations"),
         "{}",

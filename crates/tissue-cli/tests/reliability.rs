@@ -87,7 +87,7 @@ fn outputs_never_overwrite_inputs() {
     for (args, expected) in &cases {
         let out = tissue(args);
         let message = text(&out);
-        assert!(!out.status.success(), "{args:?} was accepted: {message}");
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {message}");
         for expect in expected {
             assert!(
                 message.contains(expect),
@@ -909,4 +909,79 @@ fn unusable_models_are_not_written_and_a_diverged_solve_exits_3() {
     assert_eq!(out.status.code(), Some(3), "{}", text(&out));
     assert!(text(&out).contains("diverged"), "{}", text(&out));
     assert!(!out_dir.join("particles.vtp").exists());
+}
+
+/// A rerun into the same folder leaves none of the earlier run's files
+/// that it does not write again (issue 15): the report's `files` of the
+/// earlier `deform`, and of each earlier `track` frame, name what to
+/// remove; a file the user put there stays.
+#[test]
+fn a_rerun_leaves_no_files_of_the_earlier_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let sag = assets().join("phantom-sag.obj");
+    let tumour = assets().join("phantom-tumour.obj");
+    let points = dir.path().join("points.csv");
+    std::fs::write(&points, "x,y,z\n15,-10,25\n").unwrap();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    std::fs::copy(&sag, frames.join("f1.obj")).unwrap();
+    let out = dir.path().join("out");
+    let track = dir.path().join("track");
+    let run = |carry: &[&str]| {
+        let mut deform = vec![
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&sag),
+            "-o",
+            s(&out),
+            "-q",
+        ];
+        deform.extend(carry);
+        let result = tissue(&deform);
+        assert!(result.status.success(), "{}", text(&result));
+        let pattern = frames.join("*.obj");
+        let mut tracked = vec![
+            "track",
+            "--model",
+            s(&model_path),
+            "--frames",
+            s(&pattern),
+            "-o",
+            s(&track),
+            "-q",
+        ];
+        tracked.extend(carry);
+        let result = tissue(&tracked);
+        assert!(result.status.success(), "{}", text(&result));
+    };
+    run(&["--points", s(&points), "--structure", s(&tumour)]);
+    for written in [
+        out.join("points.csv"),
+        out.join("phantom-tumour.obj"),
+        track.join("frame-0001/points.csv"),
+        track.join("frame-0001/phantom-tumour.obj"),
+    ] {
+        assert!(written.exists(), "{}", written.display());
+    }
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    run(&[]);
+    for stale in [
+        out.join("points.csv"),
+        out.join("phantom-tumour.obj"),
+        track.join("frame-0001/points.csv"),
+        track.join("frame-0001/phantom-tumour.obj"),
+    ] {
+        assert!(
+            !stale.exists(),
+            "{} is left from the earlier run",
+            stale.display()
+        );
+    }
+    assert!(out.join("particles.vtp").exists());
+    assert!(out.join("notes.txt").exists(), "not ours: kept");
+    let report = json(&out.join("report.json"));
+    assert_eq!(report["files"].as_array().unwrap().len(), 2, "{report}");
 }
