@@ -342,6 +342,14 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             frames.len()
         );
     }
+    let summary = Summary {
+        path: &path,
+        model: &model_name,
+        plan: &plan,
+        planned: frames.len(),
+        started,
+        resumed_at,
+    };
     let presses = interrupt_count();
     let stop_asked = || {
         presses
@@ -379,17 +387,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             Err(err) => {
                 // A diverged frame ends the run; the summary says so.
                 if let Some(unfinished) = err.downcast_ref::<Unfinished>() {
-                    write_summary(
-                        &path,
-                        &model_name,
-                        &solver,
-                        &done,
-                        &plan,
-                        frames.len(),
-                        unfinished.status,
-                        started,
-                        resumed_at,
-                    )?;
+                    summary.write(&solver, &done, unfinished.status)?;
                 }
                 return Err(err);
             }
@@ -427,17 +425,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         })?);
         let last = k + 1 == frames.len();
         if !last {
-            write_summary(
-                &path,
-                &model_name,
-                &solver,
-                &done,
-                &plan,
-                frames.len(),
-                status,
-                started,
-                resumed_at,
-            )?;
+            summary.write(&solver, &done, status)?;
             if stop_asked() {
                 break;
             }
@@ -452,17 +440,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             Status::Converged
         };
     }
-    let totals = write_summary(
-        &path,
-        &model_name,
-        &solver,
-        &done,
-        &plan,
-        frames.len(),
-        status,
-        started,
-        resumed_at,
-    )?;
+    let totals = summary.write(&solver, &done, status)?;
     let count = totals.frames;
     let unconverged = done
         .iter()
@@ -510,30 +488,33 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     Err(Unfinished { status, message }.into())
 }
 
-/// Writes `track.json` for the frames `done` so far; its totals.
-#[allow(
-    clippy::too_many_arguments,
-    reason = "one summary, written from two places"
-)]
-fn write_summary(
-    path: &Path,
-    model: &str,
-    solver: &crate::backend::Solver,
-    done: &[Value],
-    plan: &Value,
+/// What `track.json` says besides the frames: written after every frame.
+struct Summary<'a> {
+    path: &'a Path,
+    model: &'a str,
+    plan: &'a Value,
     planned: usize,
-    status: Status,
     started: Instant,
     resumed_at: Option<usize>,
-) -> Result<Totals> {
-    let mut report = TrackReport {
-        model,
-        backend: solver.backend(),
-        frames: done,
-        totals: totals(done, planned, status, started),
-        plan,
-    };
-    report.totals.resumed_at = resumed_at;
-    write_json(path, &report)?;
-    Ok(report.totals)
+}
+
+impl Summary<'_> {
+    /// Writes `track.json` for the frames `done` so far; its totals.
+    fn write(
+        &self,
+        solver: &crate::backend::Solver,
+        done: &[Value],
+        status: Status,
+    ) -> Result<Totals> {
+        let mut report = TrackReport {
+            model: self.model,
+            backend: solver.backend(),
+            frames: done,
+            totals: totals(done, self.planned, status, self.started),
+            plan: self.plan,
+        };
+        report.totals.resumed_at = self.resumed_at;
+        write_json(self.path, &report)?;
+        Ok(report.totals)
+    }
 }

@@ -10,6 +10,25 @@ use std::path::Path;
 use common::{assets, json, s, sampled_model, size, text, tissue, vtp_array};
 use tissue::Vec3;
 
+/// `surface` with the vertices within 15 mm of its highest one pushed down
+/// by up to `depth` (fully at that vertex, fading to nothing 15 mm away):
+/// a narrow poke into the phantom's tip (its base at z = 0, its tip at 55).
+fn poked(surface: &tissue::SurfaceMesh, depth: f32) -> tissue::SurfaceMesh {
+    let tip = surface
+        .vertices
+        .iter()
+        .copied()
+        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
+    let mut poked = surface.clone();
+    for v in &mut poked.vertices {
+        let d = v.distance(tip);
+        if d < 15.0 {
+            v.z -= depth * (1.0 - d / 15.0);
+        }
+    }
+    poked
+}
+
 /// No output may replace an input (issue 15): each run below names an
 /// input as an output, is refused before any work with both named, and
 /// leaves every input byte for byte as it was.
@@ -404,11 +423,9 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
         .to_vec()
     };
 
+    let run = |args: &[String]| tissue(&args.iter().map(String::as_str).collect::<Vec<_>>());
     let whole = dir.path().join("whole");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(args(&whole))
-        .output()
-        .unwrap();
+    let out = run(&args(&whole));
     assert!(out.status.success(), "{}", text(&out));
 
     // Stopped by SIGINT once the first frame is reported.
@@ -447,10 +464,7 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
     // Other options: refused, naming what differs.
     let mut other = args(&cut);
     other.extend(["--resume", "--tolerance", "1e-3"].map(str::to_owned));
-    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(&other)
-        .output()
-        .unwrap();
+    let refused = run(&other);
     assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
     assert!(
         text(&refused).contains("params differ"),
@@ -460,10 +474,7 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
 
     let mut again = args(&cut);
     again.push("--resume".into());
-    let resumed = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(&again)
-        .output()
-        .unwrap();
+    let resumed = run(&again);
     assert!(resumed.status.success(), "{}", text(&resumed));
     assert!(
         text(&resumed).contains(&format!("resuming at frame {}", done + 1)),
@@ -501,10 +512,7 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
     // Nothing to resume in a fresh folder.
     let mut fresh = args(&dir.path().join("fresh"));
     fresh.push("--resume".into());
-    let nothing = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(&fresh)
-        .output()
-        .unwrap();
+    let nothing = run(&fresh);
     assert_eq!(nothing.status.code(), Some(1), "{}", text(&nothing));
     assert!(
         text(&nothing).contains("no run to continue"),
@@ -589,18 +597,7 @@ fn a_write_killed_midway_leaves_the_previous_file_whole() {
 fn particles_turned_inside_out_are_flagged_and_exit_4() {
     let dir = tempfile::tempdir().unwrap();
     let (model_path, model) = sampled_model(dir.path());
-    let vertices = &model.surface.vertices;
-    let tip = vertices
-        .iter()
-        .copied()
-        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
-    let mut poked = model.surface.clone();
-    for v in &mut poked.vertices {
-        let d = v.distance(tip);
-        if d < 15.0 {
-            v.z -= 40.0 * (1.0 - d / 15.0);
-        }
-    }
+    let poked = poked(&model.surface, 40.0);
     let poked_path = dir.path().join("poked.obj");
     tissue::save_surface(&poked, &poked_path).unwrap();
     let deform = |surface: &Path, out: &str| {
@@ -699,20 +696,8 @@ fn a_frame_with_a_name_that_is_not_utf8_is_refused_not_skipped() {
 fn a_skin_pushed_through_itself_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let (model_path, model) = sampled_model(dir.path());
-    let tip = model
-        .surface
-        .vertices
-        .iter()
-        .copied()
-        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
     let out_dir = dir.path().join("out");
-    let mut pushed = model.surface.clone();
-    for v in &mut pushed.vertices {
-        let d = v.distance(tip);
-        if d < 15.0 {
-            v.z -= 80.0 * (1.0 - d / 15.0);
-        }
-    }
+    let pushed = poked(&model.surface, 80.0);
     let path = dir.path().join("through.obj");
     tissue::save_surface(&pushed, &path).unwrap();
     let out = tissue(&[
@@ -879,19 +864,7 @@ fn unusable_models_are_not_written_and_a_diverged_solve_exits_3() {
     }
 
     let (model_path, model) = sampled_model(dir.path());
-    let tip = model
-        .surface
-        .vertices
-        .iter()
-        .copied()
-        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
-    let mut poked = model.surface.clone();
-    for v in &mut poked.vertices {
-        let d = v.distance(tip);
-        if d < 15.0 {
-            v.z -= 40.0 * (1.0 - d / 15.0);
-        }
-    }
+    let poked = poked(&model.surface, 40.0);
     let poked_path = dir.path().join("poked.obj");
     tissue::save_surface(&poked, &poked_path).unwrap();
     let out_dir = dir.path().join("out");

@@ -81,22 +81,14 @@ fn pierces(p: DVec3, q: DVec3, t: &[DVec3; 3]) -> bool {
 mod tests {
     use super::*;
 
-    /// A regular octahedron of radius `r` centred at `centre`.
+    /// The shared octahedron (radius 1, counter-clockwise from outside),
+    /// scaled to radius `r` and centred at `centre`.
     fn octahedron(centre: Vec3, r: f32) -> SurfaceMesh {
-        let v = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z]
-            .map(|d| centre + d * r)
-            .to_vec();
-        let triangles = vec![
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ];
-        SurfaceMesh::new(v, triangles)
+        let (vertices, triangles) = tissue_testkit::octahedron();
+        SurfaceMesh::new(
+            vertices.iter().map(|&v| centre + v * r).collect(),
+            triangles,
+        )
     }
 
     /// Two meshes as one.
