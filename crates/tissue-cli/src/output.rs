@@ -235,6 +235,38 @@ pub fn remove_earlier_outputs(
     Ok(())
 }
 
+/// Makes sure, before any work, that each of `outputs` can be written: its
+/// folder is created if missing, and a file can be made there (a probe,
+/// removed at once). A path under a regular file, a read-only folder or a
+/// full disk then fails here, naming the output, instead of after a
+/// sampling or a solve.
+pub fn prepare_outputs(outputs: &[PathBuf]) -> Result<()> {
+    for output in outputs {
+        let folder = match output.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => parent,
+            _ => Path::new("."),
+        };
+        std::fs::create_dir_all(folder).with_context(|| {
+            format!(
+                "cannot write {}: creating its folder {}",
+                output.display(),
+                folder.display()
+            )
+        })?;
+        tempfile::Builder::new()
+            .prefix(".tissue-probe.")
+            .tempfile_in(folder)
+            .with_context(|| {
+                format!(
+                    "cannot write {}: its folder {} does not take new files",
+                    output.display(),
+                    folder.display()
+                )
+            })?;
+    }
+    Ok(())
+}
+
 /// `path` made absolute with its folder's links resolved (the file itself
 /// need not exist), to compare outputs with inputs.
 pub fn resolved(path: &Path) -> PathBuf {

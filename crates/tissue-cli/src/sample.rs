@@ -111,6 +111,7 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
     let mut outputs = vec![args.output.clone()];
     outputs.extend(args.report.clone());
     crate::output::refuse_overwriting(&outputs, &[("surface", args.surface.as_path())])?;
+    crate::output::prepare_outputs(&outputs)?;
     let options = tissue::io::surface::LoadOptions {
         largest_shell: args.largest_shell,
     };

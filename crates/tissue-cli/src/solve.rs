@@ -11,8 +11,8 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{
-    Destination, Status, Unfinished, planned_outputs, refuse_overwriting, remove_earlier_outputs,
-    write_solution,
+    Destination, Status, Unfinished, planned_outputs, prepare_outputs, refuse_overwriting,
+    remove_earlier_outputs, write_solution,
 };
 
 /// The force of stage 2.
@@ -245,8 +245,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     };
     let planned = planned_outputs(&destination, &carried);
     refuse_overwriting(&planned, &args.inputs())?;
-    std::fs::create_dir_all(&args.output_dir)
-        .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    prepare_outputs(&planned)?;
     remove_earlier_outputs(&destination, &planned, &args.inputs())?;
     let solve = solver.solve()?;
     let report = write_solution(

@@ -17,8 +17,8 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, refuse_overwriting,
-    remove_earlier_outputs, write_json, write_solution,
+    Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, prepare_outputs,
+    refuse_overwriting, remove_earlier_outputs, write_json, write_solution,
 };
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model, read_deformed};
 
@@ -331,8 +331,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     } else {
         Vec::new()
     };
-    std::fs::create_dir_all(&args.output_dir)
-        .with_context(|| format!("creating {}", args.output_dir.display()))?;
+    prepare_outputs(&[path.clone()])?;
     remove_stale(&args.output_dir, frames.len(), args.resume)?;
     let resumed_at = (args.resume && !done.is_empty()).then_some(done.len() + 1);
     if resumed_at.is_some() && !args.quiet {

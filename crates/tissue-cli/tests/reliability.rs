@@ -958,3 +958,44 @@ fn a_rerun_leaves_no_files_of_the_earlier_run() {
     let report = json(&out.join("report.json"));
     assert_eq!(report["files"].as_array().unwrap().len(), 2, "{report}");
 }
+
+/// Output paths are checked before any work (issue 15): an output under a
+/// regular file is refused before the surface is even read (a broken
+/// surface is not what the error names) and before a solve.
+#[test]
+fn outputs_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "").unwrap();
+    let broken = dir.path().join("broken.obj");
+    std::fs::write(&broken, "v 0 0 0\nf 1 2 3\n").unwrap();
+    let out = tissue(&[
+        "sample",
+        s(&broken),
+        "-n",
+        "2000",
+        "-o",
+        s(&file.join("model.vtp")),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(text(&out).contains("cannot write"), "{}", text(&out));
+    assert!(!text(&out).contains("broken.obj"), "{}", text(&out));
+
+    let (model_path, _) = sampled_model(dir.path());
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model_path),
+        "--surface",
+        s(&assets().join("phantom-sag.obj")),
+        "-o",
+        s(&file.join("out")),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(text(&out).contains("cannot write"), "{}", text(&out));
+    assert!(
+        !text(&out).contains("iterations"),
+        "it solved first: {}",
+        text(&out)
+    );
+}
