@@ -331,7 +331,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     } else {
         Vec::new()
     };
-    prepare_outputs(&[path.clone()])?;
+    prepare_outputs(std::slice::from_ref(&path))?;
     remove_stale(&args.output_dir, frames.len(), args.resume)?;
     let resumed_at = (args.resume && !done.is_empty()).then_some(done.len() + 1);
     if resumed_at.is_some() && !args.quiet {
