@@ -202,12 +202,17 @@ pub enum SamplingError {
     /// plane, to carry a rotation: the model is too coarse for its shape.
     #[error(
         "{weak} of {particles} particles have fewer than 3 connections or all of them in one plane \
-         ({percent:.0} %, at most {limit:.0} % allowed), so the model cannot carry rotations: \
-         sample more particles (the thinnest part of the shape needs several across)"
+         ({percent:.0} %, at most {limit:.0} % allowed), e.g. particle {example} at {at:?}, so the \
+         model cannot carry rotations: sample more particles (the thinnest part of the shape, \
+         there, needs several across)"
     )]
     TooFewConnections {
         /// Particles that cannot carry a rotation.
         weak: usize,
+        /// The first of them, in the thin part of the shape.
+        example: usize,
+        /// Its position.
+        at: [f32; 3],
         /// Particles in the model.
         particles: usize,
         /// `weak` as a percentage.

@@ -222,7 +222,7 @@ pub fn check_usable(model: &ParticleModel) -> Result<(), tissue_core::SamplingEr
             particles: model.len(),
         });
     }
-    let weak = (0..model.len())
+    let flat: Vec<usize> = (0..model.len())
         .into_par_iter()
         .filter(|&i| {
             !crate::elastic::is_round(crate::elastic::moment(
@@ -231,12 +231,15 @@ pub fn check_usable(model: &ParticleModel) -> Result<(), tissue_core::SamplingEr
                 i,
             ))
         })
-        .count();
-    let particles = model.len();
+        .collect();
+    let (weak, particles) = (flat.len(), model.len());
     let percent = 100.0 * weak as f64 / particles.max(1) as f64;
     if percent > MAX_WEAK_PERCENT {
+        let example = flat[0];
         return Err(tissue_core::SamplingError::TooFewConnections {
             weak,
+            example,
+            at: model.positions[example].to_array(),
             particles,
             percent,
             limit: MAX_WEAK_PERCENT,
@@ -309,6 +312,8 @@ mod usable_tests {
             "{err:?}"
         );
         assert!(err.to_string().contains("sample more particles"), "{err}");
+        // It points at the thin part: particle 0 of the slab, at the origin.
+        assert!(err.to_string().contains("particle 0 at [0.0, 0.0, 0.0]"), "{err}");
         // Too short a reach: no connections at all.
         assert!(matches!(
             check_usable(&lattice(0.5, false, false)),
