@@ -313,7 +313,10 @@ mod usable_tests {
         );
         assert!(err.to_string().contains("sample more particles"), "{err}");
         // It points at the thin part: particle 0 of the slab, at the origin.
-        assert!(err.to_string().contains("particle 0 at [0.0, 0.0, 0.0]"), "{err}");
+        assert!(
+            err.to_string().contains("particle 0 at [0.0, 0.0, 0.0]"),
+            "{err}"
+        );
         // Too short a reach: no connections at all.
         assert!(matches!(
             check_usable(&lattice(0.5, false, false)),
