@@ -56,6 +56,9 @@ pub struct SolveReport {
     pub status: Status,
     /// Which rule ended the solve.
     pub stopped_by: StopReason,
+    /// How many times the elastic phase diverged and ran again with half
+    /// the step (0 for the other forces).
+    pub elastic_retries: usize,
     /// Largest distance a particle moved from rest.
     pub max_displacement_mm: f32,
     /// Where each structure went.
@@ -362,6 +365,7 @@ pub fn write_solution(
             status => status,
         },
         stopped_by: solve.stopped_by,
+        elastic_retries: solve.elastic_retries,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
         points,

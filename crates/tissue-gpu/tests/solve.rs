@@ -267,3 +267,66 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         worst / cpu.size()
     );
 }
+
+/// A deep, narrow indentation (the tip pushed 40 mm down by a probe 15 mm
+/// wide) with the elastic force: on both devices the first elastic phase
+/// diverges and runs again with half the step (the tracker's retry, written
+/// once), and both converge after the same iterations, within 1e-5 of the
+/// size of each other.
+#[test]
+fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
+    let Some((device, queue)) = common::gpu("elastic retry parity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let tip = model
+        .surface
+        .vertices
+        .iter()
+        .copied()
+        .fold(
+            glam::Vec3::splat(f32::MIN),
+            |a, b| if b.z > a.z { b } else { a },
+        );
+    let probe = tissue_core::deform::Indentation {
+        centre: tip,
+        direction: glam::Vec3::NEG_Z,
+        depth_mm: 40.0,
+        radius_mm: 15.0,
+    };
+    let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        rotations: RotationMethod::Svd,
+        coarse: 0.0,
+        ..DeformParams::default()
+    };
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_on_both(&device, &queue, model, params, &poked);
+    eprintln!(
+        "poke: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
+        cpu_report.iterations,
+        cpu_report.elastic_retries,
+        cpu_report.stopped_by,
+        gpu_report.iterations,
+        gpu_report.elastic_retries,
+        gpu_report.stopped_by
+    );
+    assert!(cpu_report.elastic_retries >= 1, "{cpu_report:?}");
+    assert_eq!(cpu_report.elastic_retries, gpu_report.elastic_retries);
+    assert!(cpu_report.converged && gpu_report.converged);
+    assert_eq!(cpu_report.iterations, gpu_report.iterations);
+    let got = gpu
+        .positions(&device, &queue)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let worst = got
+        .iter()
+        .zip(cpu.positions())
+        .map(|(g, e)| g.distance(*e))
+        .fold(0.0f32, f32::max);
+    assert!(
+        worst <= 1e-5 * cpu.size(),
+        "worst distance {worst:e} = {:e} of the size",
+        worst / cpu.size()
+    );
+}

@@ -126,6 +126,7 @@ impl StoppingRule {
             ),
             stopped_by,
             seconds,
+            elastic_retries: 0,
         }
     }
 }

@@ -32,4 +32,8 @@ pub struct DeformReport {
     pub stopped_by: StopReason,
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
+    /// How many times the elastic phase diverged and ran again with half
+    /// the step (`tracker::ELASTIC_RETRIES` at most; 0 for the other forces).
+    #[serde(default)]
+    pub elastic_retries: usize,
 }

@@ -88,15 +88,37 @@ pub fn solve_sag_on_both(
     tissue_gpu::GpuDeformer,
     tissue_cpu::deformation::DeformReport,
 ) {
-    let sagged = tissue_core::deform::sagged_breast();
+    solve_on_both(
+        device,
+        queue,
+        model,
+        params,
+        &tissue_core::deform::sagged_breast(),
+    )
+}
+
+/// `model` solved for `deformed` from rest on the CPU (the GPU's twin
+/// parameters) and on the GPU: both deformers and reports.
+pub fn solve_on_both(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    model: &ParticleModel,
+    params: tissue_cpu::deformation::DeformParams,
+    deformed: &tissue_core::SurfaceMesh,
+) -> (
+    tissue_cpu::deformation::Deformer,
+    tissue_cpu::deformation::DeformReport,
+    tissue_gpu::GpuDeformer,
+    tissue_cpu::deformation::DeformReport,
+) {
     let mut cpu =
         tissue_cpu::deformation::Deformer::new(model, tissue_gpu::GpuDeformer::cpu_twin(&params))
             .unwrap_or_else(|e| panic!("{e}"));
-    cpu.set_surface(&sagged).unwrap_or_else(|e| panic!("{e}"));
+    cpu.set_surface(deformed).unwrap_or_else(|e| panic!("{e}"));
     let cpu_report = cpu.solve();
     let mut gpu = tissue_gpu::GpuDeformer::new(device, queue, model, params)
         .unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(device, queue, &sagged)
+    gpu.set_surface(device, queue, deformed)
         .unwrap_or_else(|e| panic!("{e}"));
     let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)
