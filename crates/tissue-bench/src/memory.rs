@@ -54,7 +54,7 @@ pub struct GpuStateBytes {
     pub state_total: u64,
     /// `state_total` over the particle count.
     pub state_per_particle: f64,
-    /// Everything the deformer holds: the state and the two backups a batch
+    /// Everything the deformer holds: the state and the three backups a batch
     /// is replayed from.
     pub deformer_total: u64,
     /// `deformer_total` over the particle count.

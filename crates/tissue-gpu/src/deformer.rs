@@ -5,7 +5,8 @@ use glam::{Mat3, Vec3};
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_solve::deflation_modes;
 use tissue_solve::{
-    DeformParams, DeformReport, ForceModel, Iteration, LowModes, SolveDevice, Tracker,
+    DeformParams, DeformReport, ForceModel, Iteration, LowModes, RotationMethod, SolveDevice,
+    Tracker,
 };
 
 use crate::state::SLOTS;
@@ -14,8 +15,11 @@ use crate::{DeformState, GpuError, Pipelines};
 
 /// Stage 2 on the GPU for one particle model: the CPU path's tracker (the
 /// same step `alpha` from `lambda_max`, the same spectral Chebyshev `rho`,
-/// the same prediction and stopping rule), with rotations always by the
-/// SVD (`RotationMethod::Svd`; `params.rotations` is not consulted). With
+/// the same prediction and stopping rule), with the rotations of
+/// `params.rotations`: by the SVD every iteration, or by the polar update
+/// warm-started from each particle's last rotation (the SVD's where it does
+/// not settle), the stored rotations turned with the surface at a frame
+/// boundary as the CPU path turns them. With
 /// `params.deflation`, the same modes as the CPU path's deflate the plain
 /// step every iteration. The two-level solve (`params.coarse`) has no
 /// kernels yet: the GPU deflates where the CPU path would use its coarse
@@ -25,8 +29,9 @@ use crate::{DeformState, GpuError, Pipelines};
 /// positions are read back at the end of every solve and uploaded with a
 /// new frame's control points (both frame boundaries); the
 /// step norms are read back once per [`SLOTS`] iterations, and a batch in
-/// which the rule held is replayed up to that iteration, so the iteration
-/// count equals the CPU's.
+/// which the rule held is replayed up to that iteration (from the positions
+/// and, warm-started, the rotations at its start), so the iteration count
+/// equals the CPU's.
 #[derive(Debug)]
 pub struct GpuDeformer {
     tracker: Tracker<GpuSolve>,
@@ -46,6 +51,9 @@ pub struct GpuSolve {
     backup_current: wgpu::Buffer,
     /// `previous` at a batch's start, likewise.
     backup_previous: wgpu::Buffer,
+    /// `rotations` at a batch's start, likewise: a warm-started replay
+    /// starts from them.
+    backup_rotations: wgpu::Buffer,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Iterations of the last batch, whose weights the slots still hold.
@@ -54,8 +62,9 @@ pub struct GpuSolve {
 
 impl GpuDeformer {
     /// The parameters under which the CPU path runs the solve the GPU runs
-    /// under `params`, its twin: the same, without the two-level solve
-    /// (`coarse`), which has no kernels yet (the GPU deflates instead).
+    /// under `params`, its twin: the same (the rotation method included),
+    /// without the two-level solve (`coarse`), which has no kernels yet
+    /// (the GPU deflates instead).
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
         DeformParams {
             coarse: 0.0,
@@ -98,17 +107,21 @@ impl GpuDeformer {
                     .collect();
                 state.set_modes(device, &pipelines, m.vectors(), &scales)?;
             }
-            let backup = |label| {
+            let backup = |label, bytes: u64| {
                 device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some(label),
-                    size: state.len() as u64 * 16,
+                    size: state.len() as u64 * bytes,
                     usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 })
             };
             Ok::<_, GpuError>(GpuSolve {
-                backup_current: backup("backup current"),
-                backup_previous: backup("backup previous"),
+                backup_current: backup("backup current", 16),
+                backup_previous: backup("backup previous", 16),
+                backup_rotations: backup(
+                    "backup rotations",
+                    std::mem::size_of::<crate::Rotation>() as u64,
+                ),
                 pipelines,
                 state,
                 modes,
@@ -136,10 +149,13 @@ impl GpuDeformer {
     }
 
     /// Bytes of every GPU buffer the deformer holds: the state's (with the
-    /// modes, when deflated), and the two backups a batch is replayed from.
+    /// modes, when deflated), and the three backups a batch is replayed from.
     pub fn buffer_bytes(&self) -> u64 {
         let gpu = self.tracker.device();
-        gpu.state.buffer_bytes() + gpu.backup_current.size() + gpu.backup_previous.size()
+        gpu.state.buffer_bytes()
+            + gpu.backup_current.size()
+            + gpu.backup_previous.size()
+            + gpu.backup_rotations.size()
     }
 
     /// The model's size (bounding-box diagonal at rest).
@@ -236,12 +252,23 @@ impl SolveDevice for GpuSolve {
 
     fn write_positions(
         &mut self,
-        (_, queue): Self::Context<'_>,
+        (device, queue): Self::Context<'_>,
         positions: &[Vec3],
-        _turn: Option<Mat3>,
+        turn: Option<Mat3>,
     ) -> Result<(), GpuError> {
-        // The rotations come from the SVD every iteration: nothing to turn.
-        self.state.write_current(queue, positions)
+        self.state.write_current(queue, positions)?;
+        if let Some(turn) = turn {
+            // The warm-started rotations turn with the surface too, on the
+            // GPU: one matrix up, one dispatch.
+            self.state.write_turn(queue, turn)?;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("turn rotations"),
+            });
+            self.pipelines
+                .dispatch(&mut encoder, &self.state, crate::Kernel::TurnRotations, 0);
+            queue.submit([encoder.finish()]);
+        }
+        Ok(())
     }
 
     fn begin(
@@ -252,6 +279,7 @@ impl SolveDevice for GpuSolve {
         self.iteration = Some(iteration);
         self.state
             .set_phase(iteration.force == ForceModel::Elastic, iteration.correct);
+        self.state.set_rotations(iteration.rotations);
         let state = &self.state;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve start"),
@@ -280,6 +308,15 @@ impl SolveDevice for GpuSolve {
         });
         encoder.copy_buffer_to_buffer(state.current.buffer(), 0, &self.backup_current, 0, None);
         encoder.copy_buffer_to_buffer(state.previous.buffer(), 0, &self.backup_previous, 0, None);
+        if it.rotations == RotationMethod::WarmPolar {
+            encoder.copy_buffer_to_buffer(
+                state.rotations.buffer(),
+                0,
+                &self.backup_rotations,
+                0,
+                None,
+            );
+        }
         self.pipelines.record_iterations(&mut encoder, state, batch);
         queue.submit([encoder.finish()]);
         let n = state.len() as f64;
@@ -301,6 +338,18 @@ impl SolveDevice for GpuSolve {
         });
         encoder.copy_buffer_to_buffer(&self.backup_current, 0, state.current.buffer(), 0, None);
         encoder.copy_buffer_to_buffer(&self.backup_previous, 0, state.previous.buffer(), 0, None);
+        if self
+            .iteration
+            .is_some_and(|it| it.rotations == RotationMethod::WarmPolar)
+        {
+            encoder.copy_buffer_to_buffer(
+                &self.backup_rotations,
+                0,
+                state.rotations.buffer(),
+                0,
+                None,
+            );
+        }
         let count = u32::try_from(count).map_or(self.slots, |c| c.min(self.slots));
         self.pipelines.record_iterations(&mut encoder, state, count);
         queue.submit([encoder.finish()]);
@@ -315,6 +364,9 @@ impl SolveDevice for GpuSolve {
     }
 
     fn reset(&mut self, (device, queue): Self::Context<'_>) -> Result<(), GpuError> {
+        // The rotations start from the identity again, as the CPU path's.
+        self.state
+            .write_rotations(queue, &vec![Mat3::IDENTITY; self.state.len()])?;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("reset"),
         });

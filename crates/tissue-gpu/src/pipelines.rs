@@ -9,6 +9,15 @@ use crate::{GpuError, shaders};
 pub enum Kernel {
     /// `local_rotations.wgsl`: `R_i` from `M_i` through the 3x3 SVD.
     LocalRotations,
+    /// `local_rotations.wgsl::local_rotations_warm`: `R_i` by the polar
+    /// update warm-started from the stored `R_i`, the SVD's where it does
+    /// not settle (`RotationMethod::WarmPolar`; it stands in for
+    /// [`Kernel::LocalRotations`] in the `WARM_*` iterations).
+    LocalRotationsWarm,
+    /// `local_rotations.wgsl::turn_rotations`: every stored rotation
+    /// premultiplied by the state's turn (a frame boundary's; in no
+    /// iteration, see [`DeformState::write_turn`]).
+    TurnRotations,
     /// `elastic_targets.wgsl`: the elastic model's targets `T_i` from
     /// `R_i` and `M_i` (only on a state given [`DeformState::set_elastic`]).
     ElasticTargets,
@@ -38,8 +47,10 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 10] = [
+    pub const ALL: [Kernel; 12] = [
         Kernel::LocalRotations,
+        Kernel::LocalRotationsWarm,
+        Kernel::TurnRotations,
         Kernel::ElasticTargets,
         Kernel::DeformationForce,
         Kernel::Integrate,
@@ -85,10 +96,36 @@ impl Kernel {
         Kernel::UpdateNorms,
     ];
 
+    /// [`Kernel::ITERATION`] with the warm-started rotations.
+    pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
+
+    /// [`Kernel::ELASTIC_ITERATION`] with the warm-started rotations.
+    pub const WARM_ELASTIC_ITERATION: [Kernel; 6] = Kernel::warm(Kernel::ELASTIC_ITERATION);
+
+    /// [`Kernel::DEFLATED_ITERATION`] with the warm-started rotations.
+    pub const WARM_DEFLATED_ITERATION: [Kernel; 8] = Kernel::warm(Kernel::DEFLATED_ITERATION);
+
+    /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
+    /// [`Kernel::LocalRotations`], so each warm list is its SVD list but
+    /// for the rotations.
+    const fn warm<const N: usize>(iteration: [Kernel; N]) -> [Kernel; N] {
+        let mut out = iteration;
+        let mut k = 0;
+        while k < N {
+            if matches!(out[k], Kernel::LocalRotations) {
+                out[k] = Kernel::LocalRotationsWarm;
+            }
+            k += 1;
+        }
+        out
+    }
+
     /// `(shader file, entry point)`.
     pub fn entry(self) -> (&'static str, &'static str) {
         match self {
             Kernel::LocalRotations => ("local_rotations", "local_rotations"),
+            Kernel::LocalRotationsWarm => ("local_rotations", "local_rotations_warm"),
+            Kernel::TurnRotations => ("local_rotations", "turn_rotations"),
             Kernel::ElasticTargets => ("elastic_targets", "elastic_targets"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
@@ -242,7 +279,8 @@ impl Pipelines {
 
     /// The step: `iterations` solver iterations (at most [`crate::SLOTS`]),
     /// iteration `k` with the parameters of slot `k`, in one compute pass,
-    /// the kernels of [`DeformState::iteration`]: rotations, force, plain
+    /// the kernels of [`DeformState::iteration`]: rotations (by the SVD or
+    /// warm-started, [`DeformState::set_rotations`]), force, plain
     /// step, its norms, Chebyshev combine; deflated, rotations, force, plain
     /// step, its deflation, Chebyshev combine, the update's norms; with the
     /// elastic force, the targets between the rotations and the force.
@@ -277,6 +315,30 @@ mod tests {
     fn assert_indexed<K: KernelId>() {
         for (i, kernel) in K::KERNELS.iter().enumerate() {
             assert_eq!(kernel.index(), i, "{kernel:?}");
+        }
+    }
+
+    #[test]
+    fn the_warm_iterations_differ_from_the_svd_ones_only_in_the_rotations() {
+        for (svd, warm) in [
+            (&Kernel::ITERATION[..], &Kernel::WARM_ITERATION[..]),
+            (
+                &Kernel::ELASTIC_ITERATION[..],
+                &Kernel::WARM_ELASTIC_ITERATION[..],
+            ),
+            (
+                &Kernel::DEFLATED_ITERATION[..],
+                &Kernel::WARM_DEFLATED_ITERATION[..],
+            ),
+        ] {
+            assert_eq!(svd.len(), warm.len());
+            for (&s, &w) in svd.iter().zip(warm) {
+                match s {
+                    Kernel::LocalRotations => assert_eq!(w, Kernel::LocalRotationsWarm),
+                    other => assert_eq!(w, other),
+                }
+            }
+            assert!(warm.contains(&Kernel::LocalRotationsWarm));
         }
     }
 

@@ -24,6 +24,10 @@ pub const SHARED: &[(&str, &str)] = &[
         include_str!("../../../shaders/shared/svd3.wgsl"),
     ),
     (
+        "shared/polar",
+        include_str!("../../../shaders/shared/polar.wgsl"),
+    ),
+    (
         "shared/sampling",
         include_str!("../../../shaders/shared/sampling.wgsl"),
     ),
@@ -364,6 +368,8 @@ mod tests {
     fn workgroup_sizes_come_from_the_modules() {
         for (shader, entry) in [
             ("local_rotations", "local_rotations"),
+            ("local_rotations", "local_rotations_warm"),
+            ("local_rotations", "turn_rotations"),
             ("elastic_targets", "elastic_targets"),
             ("deformation_force", "deformation_force"),
             ("integrate", "integrate"),

@@ -2,8 +2,8 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
-use tissue_solve::ForceModel;
 use tissue_solve::elastic::Elastic;
+use tissue_solve::{ForceModel, RotationMethod};
 
 use crate::buffer::{Storage, vec4};
 use crate::pipelines::{Kernel, Pipelines};
@@ -40,6 +40,9 @@ pub struct DeformState {
     elastic_phase: bool,
     /// Whether the next iterations deflate (a deflated state's only).
     correct_phase: bool,
+    /// Whether the next iterations warm-start the rotations
+    /// ([`DeformState::set_rotations`]): the `WARM_*` iterations.
+    warm: bool,
     /// The force kernel's bind group with `targets` as its `rotations`.
     elastic_force: Option<wgpu::BindGroup>,
     /// [`SLOTS`] [`Params`], `params_stride` bytes apart: a uniform buffer,
@@ -55,6 +58,9 @@ pub struct DeformState {
     pub(crate) plain: Storage<[f32; 4]>,
     /// Per particle its rotation.
     pub(crate) rotations: Storage<Rotation>,
+    /// The turn [`Kernel::TurnRotations`] premultiplies the rotations by
+    /// (one matrix, [`DeformState::write_turn`]).
+    pub(crate) turn: Storage<Rotation>,
     /// Per particle its force.
     pub(crate) force: Storage<[f32; 4]>,
     /// Per particle 1 when the solve moves it.
@@ -191,6 +197,7 @@ impl DeformState {
                 elastic: false,
                 elastic_phase: false,
                 correct_phase: true,
+                warm: false,
                 elastic_force: None,
                 params: device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("params"),
@@ -203,6 +210,12 @@ impl DeformState {
                 previous: Storage::init(device, "previous", &rest, &what("previous"))?,
                 plain: Storage::init(device, "plain", &rest, &what("plain"))?,
                 rotations: Storage::init(device, "rotations", &identity, &what("rotations"))?,
+                turn: Storage::init(
+                    device,
+                    "turn",
+                    &identity[..1],
+                    "the turn buffer (one matrix)",
+                )?,
                 force: Storage::zeroed(device, "force", n, &what("force"))?,
                 free: Storage::init(device, "free", &free, &what("free"))?,
                 offsets: Storage::init(device, "offsets", offsets, &what("offsets"))?,
@@ -346,6 +359,13 @@ impl DeformState {
         self.correct_phase = correct;
     }
 
+    /// Sets how the next iterations find the rotations: by the SVD, or by
+    /// the polar update warm-started from the stored rotations (the `WARM_*`
+    /// iterations of [`DeformState::iteration`]).
+    pub fn set_rotations(&mut self, rotations: RotationMethod) {
+        self.warm = rotations == RotationMethod::WarmPolar;
+    }
+
     /// Whether [`DeformState::set_elastic`] gave the elastic model's data.
     pub fn elastic(&self) -> bool {
         self.elastic
@@ -355,14 +375,17 @@ impl DeformState {
     /// in the elastic phase ([`DeformState::set_elastic`], then
     /// [`DeformState::set_phase`]), [`Kernel::DEFLATED_ITERATION`] where
     /// [`DeformState::set_modes`] gave modes and the phase corrects, else
-    /// [`Kernel::ITERATION`].
+    /// [`Kernel::ITERATION`]; each as its `WARM_*` list when the rotations
+    /// are warm-started ([`DeformState::set_rotations`]).
     pub fn iteration(&self) -> &'static [Kernel] {
-        if self.elastic_phase {
-            &Kernel::ELASTIC_ITERATION
-        } else if self.modes > 0 && self.correct_phase {
-            &Kernel::DEFLATED_ITERATION
-        } else {
-            &Kernel::ITERATION
+        let deflated = self.modes > 0 && self.correct_phase;
+        match (self.elastic_phase, deflated, self.warm) {
+            (true, _, false) => &Kernel::ELASTIC_ITERATION,
+            (true, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
+            (false, true, false) => &Kernel::DEFLATED_ITERATION,
+            (false, true, true) => &Kernel::WARM_DEFLATED_ITERATION,
+            (false, false, false) => &Kernel::ITERATION,
+            (false, false, true) => &Kernel::WARM_ITERATION,
         }
     }
 
@@ -408,7 +431,7 @@ impl DeformState {
     }
 
     /// Every buffer, by the WGSL variable's name the kernels bind it to.
-    fn named(&self) -> [(&'static str, &wgpu::Buffer); 18] {
+    fn named(&self) -> [(&'static str, &wgpu::Buffer); 19] {
         [
             ("params", &self.params),
             ("rest", self.rest.buffer()),
@@ -416,6 +439,7 @@ impl DeformState {
             ("previous", self.previous.buffer()),
             ("plain", self.plain.buffer()),
             ("rotations", self.rotations.buffer()),
+            ("turn", self.turn.buffer()),
             ("force", self.force.buffer()),
             ("free", self.free.buffer()),
             ("offsets", self.offsets.buffer()),
@@ -541,6 +565,12 @@ impl DeformState {
         self.check_len("rotations", rotations.len())?;
         let data: Vec<Rotation> = rotations.iter().map(|&r| Rotation::from(r)).collect();
         self.rotations.write(queue, 0, &data)
+    }
+
+    /// Sets the turn [`Kernel::TurnRotations`] applies (taking effect at
+    /// the next submit).
+    pub fn write_turn(&self, queue: &wgpu::Queue, turn: Mat3) -> Result<(), GpuError> {
+        self.turn.write(queue, 0, &[Rotation::from(turn)])
     }
 
     /// Overwrites every force (tests of the integrate kernel).
