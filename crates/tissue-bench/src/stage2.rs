@@ -246,9 +246,10 @@ pub fn measure(
             model.len()
         );
     }
-    let rotations = match (gpu, defaults.rotations) {
-        (Some(_), _) | (None, RotationMethod::Svd) => "svd",
-        (None, RotationMethod::WarmPolar) => "warm_polar",
+    // Both devices find the rotations as the parameters say.
+    let rotations = match defaults.rotations {
+        RotationMethod::Svd => "svd",
+        RotationMethod::WarmPolar => "warm_polar",
     };
     Ok(Stage2 {
         rotations: rotations.to_owned(),
