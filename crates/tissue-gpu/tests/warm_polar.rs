@@ -196,25 +196,33 @@ fn turn_rotations_premultiplies_every_rotation() {
     }
 }
 
-/// The sag from rest at 2,000 particles with warm rotations on both paths:
-/// the same iterations (one either way, if the reductions' rounding tips
-/// the rule) and positions within 1e-5 of the size, the SVD test's tolerance.
+/// The sag from rest at 2,000 particles with warm rotations on both paths,
+/// deflated (both forces) and not: the same iterations (one either way, if
+/// the reductions' rounding tips the rule) and positions within 1e-5 of the
+/// size, the SVD test's tolerance.
 #[test]
 fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
     let Some((device, queue)) = common::gpu("warm whole solve parity") else {
         return;
     };
     let model = common::phantom(2_000);
-    for force in [ForceModel::Symmetric, ForceModel::Paper] {
+    let deflated = DeformParams::default().deflation;
+    assert!(deflated > 0);
+    for (force, deflation) in [
+        (ForceModel::Symmetric, deflated),
+        (ForceModel::Paper, deflated),
+        (ForceModel::Symmetric, 0),
+    ] {
         let params = DeformParams {
             force,
+            deflation,
             rotations: RotationMethod::WarmPolar,
             ..DeformParams::default()
         };
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
-            "{force:?}, warm: CPU {} iterations, {:?}; GPU {} iterations, {:?}",
+            "{force:?}, {deflation} modes, warm: CPU {} iterations, {:?}; GPU {} iterations, {:?}",
             cpu_report.iterations,
             cpu_report.stopped_by,
             gpu_report.iterations,
@@ -249,7 +257,7 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             .map(|(g, c)| entry_difference(*g, *c))
             .fold(0.0f32, f32::max);
         eprintln!(
-            "{force:?}, warm: worst distance {worst:e} = {:e} of the size; worst rotation entry {worst_rotation:e}",
+            "{force:?}, {deflation} modes, warm: worst distance {worst:e} = {:e} of the size; worst rotation entry {worst_rotation:e}",
             worst / cpu.size()
         );
     }
@@ -338,4 +346,80 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
     );
     // The rigid turns moved the stored rotations by about their angle.
     assert!(turned_by[5] > 0.1 && turned_by[6] > 0.1, "{turned_by:?}");
+}
+
+/// The elastic force with warm rotations: the sag from rest (the deflated
+/// shear phase, then the elastic phase) and a deep, narrow poke whose
+/// elastic phase diverges and runs again from the end of the shear phase
+/// with the rotations it left. The same iterations and retries on both
+/// paths, positions within 1e-5 of the size.
+#[test]
+fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
+    let Some((device, queue)) = common::gpu("warm elastic parity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        rotations: RotationMethod::WarmPolar,
+        coarse: 0.0,
+        ..DeformParams::default()
+    };
+    let tip = model
+        .surface
+        .vertices
+        .iter()
+        .copied()
+        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
+    let probe = tissue_core::deform::Indentation {
+        centre: tip,
+        direction: Vec3::NEG_Z,
+        depth_mm: 40.0,
+        radius_mm: 15.0,
+    };
+    let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
+    for (name, surface) in [
+        ("sag", tissue_core::deform::sagged_breast()),
+        ("poke", poked),
+    ] {
+        let (cpu, cpu_report, gpu, gpu_report) =
+            common::solve_on_both(&device, &queue, model, params.clone(), &surface);
+        eprintln!(
+            "warm elastic {name}: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
+            cpu_report.iterations,
+            cpu_report.elastic_retries,
+            cpu_report.stopped_by,
+            gpu_report.iterations,
+            gpu_report.elastic_retries,
+            gpu_report.stopped_by
+        );
+        assert!(cpu_report.converged && gpu_report.converged, "{name}");
+        assert_eq!(
+            cpu_report.elastic_retries, gpu_report.elastic_retries,
+            "{name}"
+        );
+        assert!(
+            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+            "{name}: CPU {} iterations, GPU {}",
+            cpu_report.iterations,
+            gpu_report.iterations
+        );
+        let got = gpu
+            .positions(&device, &queue)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let worst = got
+            .iter()
+            .zip(cpu.positions())
+            .map(|(g, e)| g.distance(*e))
+            .fold(0.0f32, f32::max);
+        eprintln!(
+            "warm elastic {name}: worst distance {:e} of the size",
+            worst / cpu.size()
+        );
+        assert!(
+            worst <= 1e-5 * cpu.size(),
+            "{name}: worst distance {worst:e} = {:e} of the size",
+            worst / cpu.size()
+        );
+    }
 }
