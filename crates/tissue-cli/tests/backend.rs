@@ -365,8 +365,9 @@ fn the_elastic_force_runs_on_both_backends_and_agrees() {
     };
     let (cpu, on_gpu) = (run("cpu"), run("gpu"));
     eprintln!("elastic (iterations, tumour centroid): CPU {cpu:?}, GPU {on_gpu:?}");
-    // The CPU's warm polar rotations against the GPU's SVD: each solve
-    // stops within about its tolerance of the answer, as in the test above.
+    // The CPU's two-level shear phase against the GPU's deflated one: each
+    // solve stops within about its tolerance of the answer, as in the test
+    // above.
     let tolerance = 3.0 * 3e-5 * phantom_size();
     let off = cpu.1.distance(on_gpu.1);
     assert!(
