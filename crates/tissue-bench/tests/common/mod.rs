@@ -121,10 +121,10 @@ pub const CPU_PASSES: [&str; 5] = [
     "step norms",
 ];
 
-/// The GPU kernels of one iteration with the defaults (32 modes
-/// deflated), in dispatch order.
+/// The GPU kernels of one iteration with the defaults (warm polar
+/// rotations, 32 modes deflated), in dispatch order.
 pub const GPU_PASSES: [&str; 8] = [
-    "local_rotations",
+    "local_rotations_warm",
     "deformation_force",
     "integrate",
     "deflate_project",
