@@ -17,13 +17,16 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, REPORT_FILE, Status, Unfinished, convergence, planned_outputs, prepare_outputs,
-    refuse_overwriting, remove_earlier_outputs, write_json, write_solution,
+    Destination, PARTICLES_FILE, REPORT_FILE, Status, Unfinished, convergence, planned_outputs,
+    prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_json, write_solution,
 };
 use crate::solve::{Frames, SolveArgs, load_deformed, load_model, read_deformed};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
+
+/// The frames' particles as one ParaView collection (a time series).
+pub const COLLECTION_FILE: &str = "track.pvd";
 
 /// Options of `tissue track`.
 #[derive(Debug, clap::Args)]
@@ -131,15 +134,17 @@ struct TrackReport<'a> {
 }
 
 /// Removes what an earlier `track` into `dir` left that this run of
-/// `frames` frames would not replace: its `track.json` unless `keep_summary`
-/// (a resumed run's), its frame folders past this run's last (`frame-NNNN`
+/// `frames` frames would not replace: its `track.json` and `track.pvd`
+/// unless `keep_summary` (a resumed run's), its frame folders past this run's last (`frame-NNNN`
 /// holding a `report.json`), and the temporary files of a write that was
 /// killed (`.NAME.XXXXXX.part`); nothing else is touched.
 fn remove_stale(dir: &Path, frames: usize, keep_summary: bool) -> Result<()> {
-    let summary = dir.join(TRACK_FILE);
-    if summary.exists() && !keep_summary {
-        std::fs::remove_file(&summary)
-            .with_context(|| format!("removing the earlier {}", summary.display()))?;
+    for name in [TRACK_FILE, COLLECTION_FILE] {
+        let summary = dir.join(name);
+        if summary.exists() && !keep_summary {
+            std::fs::remove_file(&summary)
+                .with_context(|| format!("removing the earlier {}", summary.display()))?;
+        }
     }
     remove_parts(dir)?;
     let entries = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
@@ -301,7 +306,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     inputs.extend(frames.iter().map(|f| ("frame", f.as_path())));
     inputs.extend(args.carry.inputs());
     let path = args.output_dir.join(TRACK_FILE);
-    let mut outputs = vec![path.clone()];
+    let mut outputs = vec![path.clone(), args.output_dir.join(COLLECTION_FILE)];
     for k in 0..frames.len() {
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let destination = Destination {
@@ -514,6 +519,30 @@ impl Summary<'_> {
         };
         report.totals.resumed_at = self.resumed_at;
         write_json(self.path, &report)?;
+        write_collection(&self.path.with_file_name(COLLECTION_FILE), done.len())?;
         Ok(report.totals)
     }
+}
+
+/// Writes `track.pvd`: a ParaView collection of the first `frames` frames'
+/// `particles.vtp`, frame k at time step k, so that the run opens as one
+/// animation. Paths are relative to the collection's folder.
+fn write_collection(path: &Path, frames: usize) -> Result<()> {
+    tissue::io::write_atomically(path, |out| {
+        writeln!(out, r#"<?xml version="1.0"?>"#)?;
+        writeln!(
+            out,
+            r#"<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">"#
+        )?;
+        writeln!(out, "  <Collection>")?;
+        for k in 1..=frames {
+            writeln!(
+                out,
+                r#"    <DataSet timestep="{k}" group="" part="0" file="frame-{k:04}/{PARTICLES_FILE}"/>"#
+            )?;
+        }
+        writeln!(out, "  </Collection>")?;
+        writeln!(out, "</VTKFile>")
+    })?;
+    Ok(())
 }

@@ -359,6 +359,30 @@ fn track_solves_every_frame_in_order_and_writes_each() {
     }
     assert!(printed.contains(" ms"), "{printed}");
 
+    // The frames' particles as one ParaView animation: frame k at time k,
+    // each file there.
+    let collection = std::fs::read_to_string(out_dir.join("track.pvd")).unwrap();
+    assert!(
+        collection.contains(r#"<VTKFile type="Collection""#),
+        "{collection}"
+    );
+    let listed: Vec<&str> = collection
+        .lines()
+        .filter_map(|l| l.split("file=\"").nth(1))
+        .filter_map(|rest| rest.split('"').next())
+        .collect();
+    assert_eq!(
+        listed,
+        [
+            "frame-0001/particles.vtp",
+            "frame-0002/particles.vtp",
+            "frame-0003/particles.vtp"
+        ]
+    );
+    for (k, file) in listed.iter().enumerate() {
+        assert!(out_dir.join(file).is_file(), "{file}");
+        assert!(collection.contains(&format!(r#"timestep="{}""#, k + 1)));
+    }
     let summary = json(&out_dir.join("track.json"));
     let entries = summary["frames"].as_array().unwrap();
     assert_eq!(entries.len(), 3);
