@@ -33,7 +33,7 @@ mod welding;
 pub use self::welding::weld;
 
 /// The surface file extensions [`load_surface`] and [`save_surface`] accept.
-pub const SURFACE_EXTENSIONS: &str = "stl, obj, ply, vtk";
+pub const SURFACE_EXTENSIONS: &str = "stl, obj, ply, vtk, vtp";
 
 /// [`load_closed_surface`] welds vertices closer than this times the
 /// bounding-box diagonal: about one unit in the last place of an `f32`,
@@ -61,6 +61,7 @@ enum Format {
     Obj,
     Ply,
     Vtk,
+    Vtp,
 }
 
 impl Format {
@@ -74,6 +75,7 @@ impl Format {
             Some("obj") => Ok(Self::Obj),
             Some("ply") => Ok(Self::Ply),
             Some("vtk") => Ok(Self::Vtk),
+            Some("vtp") => Ok(Self::Vtp),
             _ => Err(Error::UnsupportedFormat {
                 path: path.to_path_buf(),
                 expected: SURFACE_EXTENSIONS,
@@ -88,6 +90,7 @@ impl Format {
             Self::Obj => obj::read_obj(bytes),
             Self::Ply => ply::read_ply(bytes),
             Self::Vtk => vtk::read_vtk(bytes),
+            Self::Vtp => vtk::read_vtp(bytes),
         }
     }
 
@@ -97,11 +100,13 @@ impl Format {
             Self::Stl => stl::write_stl(mesh, out),
             Self::Ply => ply::write_ply(mesh, out),
             Self::Vtk => vtk::write_vtk(mesh, out),
+            Self::Vtp => vtk::write_vtp(mesh, out),
         }
     }
 }
 
-/// Reads a triangle surface from an STL, OBJ, PLY or legacy VTK file.
+/// Reads a triangle surface from an STL, OBJ, PLY, legacy VTK or VTK XML
+/// PolyData (`.vtp`) file.
 ///
 /// Vertices at exactly the same position are merged and vertices no
 /// triangle uses are dropped (see [`weld`] with tolerance 0); the surface is

@@ -1,6 +1,7 @@
 //! Legacy VTK: PolyData (`POLYGONS`, `TRIANGLE_STRIPS`) or the surface
 //! cells of an UnstructuredGrid, ASCII or binary, read through `vtkio`;
-//! written as legacy ASCII PolyData.
+//! written as legacy ASCII PolyData. VTK XML PolyData (`.vtp`): read and
+//! written through `vtkio`.
 
 use std::io::{Cursor, Write};
 
@@ -10,12 +11,185 @@ use super::fan;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
-    use vtkio::model::{DataSet, Piece};
-
     let vtk = vtkio::Vtk::parse_legacy_be(Cursor::new(bytes))
         .map_err(|e| format!("cannot parse legacy VTK: {e}"))?;
-    let mut mesh = SurfaceMesh::default();
+    surface_of(vtk.data)
+}
+
+/// VTK XML PolyData (`.vtp`, 3D Slicer's model format and ParaView's):
+/// inline ASCII or base64 binary, appended, compressed or not, read through
+/// `vtkio`; the polygons and strips of every piece.
+pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
+    let converted = raw_appended_as_base64(bytes)?;
+    let bytes = converted.as_deref().unwrap_or(bytes);
+    let vtk = vtkio::Vtk::parse_xml(Cursor::new(bytes))
+        .map_err(|e| format!("cannot parse VTK XML: {e}"))?;
     match vtk.data {
+        vtkio::model::DataSet::PolyData { .. } => surface_of(vtk.data),
+        _ => Err("a VTK XML file but not PolyData (.vtp holds a surface as PolyData)".into()),
+    }
+}
+
+/// A VTK XML file whose appended data is raw binary (ParaView's default
+/// when it saves "binary" data), rewritten with that data base64-encoded,
+/// the one appended encoding `vtkio` reads; `None` when it has no raw
+/// appended data. Each array's block is encoded as VTK encodes it: header
+/// and data together when uncompressed; the header, then the data, when
+/// compressed (`compressor` set on `<VTKFile>`).
+fn raw_appended_as_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
+    use base64::Engine as _;
+    use base64::engine::general_purpose::STANDARD;
+
+    const TAG: &[u8] = b"<AppendedData";
+    let Some(tag) = find(bytes, TAG, 0) else {
+        return Ok(None);
+    };
+    let tag_end = find(bytes, b">", tag).ok_or("an unterminated <AppendedData> tag")?;
+    let attributes = String::from_utf8_lossy(&bytes[tag..tag_end]);
+    if !attributes.contains(r#"encoding="raw""#) {
+        return Ok(None);
+    }
+    let underscore = find(bytes, b"_", tag_end).ok_or("raw appended data without its `_` mark")?;
+    let raw = &bytes[underscore + 1..];
+    let xml = String::from_utf8_lossy(&bytes[..tag]).into_owned();
+    let file_tag = xml
+        .find("<VTKFile")
+        .map(|start| &xml[start..start + xml[start..].find('>').unwrap_or(0)])
+        .ok_or("no <VTKFile> element")?;
+    let header_bytes = if file_tag.contains(r#"header_type="UInt64""#) {
+        8
+    } else {
+        4
+    };
+    let big_endian = file_tag.contains(r#"byte_order="BigEndian""#);
+    let compressed = file_tag.contains("compressor=");
+    let number = |at: usize| -> Result<usize, String> {
+        let word = raw
+            .get(at..at + header_bytes)
+            .ok_or("raw appended data ends inside a block header")?;
+        let mut eight = [0u8; 8];
+        if big_endian {
+            eight[8 - header_bytes..].copy_from_slice(word);
+            Ok(u64::from_be_bytes(eight) as usize)
+        } else {
+            eight[..header_bytes].copy_from_slice(word);
+            Ok(u64::from_le_bytes(eight) as usize)
+        }
+    };
+    // Every array's offset, in the order they come.
+    let mut offsets: Vec<usize> = Vec::new();
+    let mut at = 0;
+    while let Some(found) = xml[at..].find(r#"offset=""#) {
+        let start = at + found + r#"offset=""#.len();
+        let end = start + xml[start..].find('"').ok_or("an unterminated offset")?;
+        offsets.push(
+            xml[start..end]
+                .parse()
+                .map_err(|_| "an offset that is not a number")?,
+        );
+        at = end;
+    }
+    let mut sorted = offsets.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    let mut encoded = String::new();
+    let mut moved = std::collections::HashMap::new();
+    let mut raw_end = 0;
+    for &offset in &sorted {
+        moved.insert(offset, encoded.len());
+        if compressed {
+            let blocks = number(offset)?;
+            let header = header_bytes * (3 + blocks);
+            let data: usize = (0..blocks)
+                .map(|b| number(offset + header_bytes * (3 + b)))
+                .sum::<Result<usize, String>>()?;
+            let end = offset + header + data;
+            let block = raw
+                .get(offset..end)
+                .ok_or("raw appended data ends inside a block")?;
+            // A full last block is written as a partial size of 0, which
+            // vtkio reads as an empty one: give its full size instead.
+            let mut head = block[..header].to_vec();
+            if blocks > 0 && number(offset + 2 * header_bytes)? == 0 {
+                let full = head[header_bytes..2 * header_bytes].to_vec();
+                head[2 * header_bytes..3 * header_bytes].copy_from_slice(&full);
+            }
+            encoded.push_str(&STANDARD.encode(&head));
+            encoded.push_str(&STANDARD.encode(&block[header..]));
+            raw_end = raw_end.max(end);
+        } else {
+            let end = offset + header_bytes + number(offset)?;
+            let block = raw
+                .get(offset..end)
+                .ok_or("raw appended data ends inside a block")?;
+            encoded.push_str(&STANDARD.encode(block));
+            raw_end = raw_end.max(end);
+        }
+    }
+    let mut out = String::with_capacity(xml.len() + encoded.len() + 64);
+    let mut at = 0;
+    for (found, _) in xml.match_indices(r#"offset=""#) {
+        let start = found + r#"offset=""#.len();
+        let end = start + xml[start..].find('"').unwrap_or(0);
+        let old: usize = xml[start..end].parse().unwrap_or(0);
+        out.push_str(&xml[at..start]);
+        out.push_str(&moved.get(&old).copied().unwrap_or(old).to_string());
+        at = end;
+    }
+    out.push_str(&xml[at..]);
+    out.push_str(&attributes.replace(r#"encoding="raw""#, r#"encoding="base64""#));
+    out.push_str(">\n_");
+    out.push_str(&encoded);
+    let mut rewritten = out.into_bytes();
+    rewritten.extend_from_slice(&raw[raw_end.min(raw.len())..]);
+    Ok(Some(rewritten))
+}
+
+/// Where `needle` first occurs in `bytes` at or after `from`.
+fn find(bytes: &[u8], needle: &[u8], from: usize) -> Option<usize> {
+    bytes
+        .get(from..)?
+        .windows(needle.len())
+        .position(|w| w == needle)
+        .map(|p| from + p)
+}
+
+/// Writes `mesh` as VTK XML PolyData through `vtkio` (binary, as vtkio
+/// writes it; ParaView and 3D Slicer read it).
+pub(super) fn write_vtp(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
+    use vtkio::model::{ByteOrder, DataSet, IOBuffer, PolyDataPiece, Version, VertexNumbers, Vtk};
+    let points: Vec<f32> = mesh.vertices.iter().flat_map(|v| v.to_array()).collect();
+    let connectivity: Vec<u64> = mesh
+        .triangles
+        .iter()
+        .flat_map(|t| t.map(u64::from))
+        .collect();
+    let offsets: Vec<u64> = (1..=mesh.triangles.len() as u64).map(|k| 3 * k).collect();
+    let vtk = Vtk {
+        version: Version::Auto,
+        byte_order: ByteOrder::LittleEndian,
+        title: String::new(),
+        file_path: None,
+        data: DataSet::inline(PolyDataPiece {
+            points: IOBuffer::F32(points),
+            polys: Some(VertexNumbers::XML {
+                connectivity,
+                offsets,
+            }),
+            ..Default::default()
+        }),
+    };
+    vtk.write_xml(&mut *out)
+        .map_err(|e| std::io::Error::other(e.to_string()))
+}
+
+/// The triangles of a VTK dataset: the polygons (fanned) and strips of
+/// PolyData, or the surface cells of an UnstructuredGrid.
+fn surface_of(data: vtkio::model::DataSet) -> Result<SurfaceMesh, String> {
+    use vtkio::model::{DataSet, Piece};
+
+    let mut mesh = SurfaceMesh::default();
+    match data {
         DataSet::PolyData { pieces, .. } => {
             for piece in pieces {
                 let Piece::Inline(piece) = piece else {
