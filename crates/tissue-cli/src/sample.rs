@@ -22,7 +22,7 @@ pub enum Preset {
 /// Options of `tissue sample`.
 #[derive(Debug, clap::Args)]
 pub struct SampleArgs {
-    /// Closed surface: .stl, .obj, .ply or legacy .vtk.
+    /// Closed surface: .stl, .obj, .ply, legacy .vtk or VTK XML .vtp (3D Slicer, ParaView).
     surface: PathBuf,
     /// Number of particles.
     #[arg(long, short = 'n')]
