@@ -187,4 +187,74 @@ fn a_vtp_that_is_no_surface_is_refused_naming_the_file() {
     .unwrap();
     let err = load_surface(&grid).unwrap_err();
     assert!(err.to_string().contains("grid.vtp"), "{err}");
+    // Raw appended data cut short, or claiming absurd sizes: refused, no panic.
+    let whole = dir.path().join("whole.vtp");
+    appended_raw_octahedron(&whole, Some(Block::Partial));
+    let bytes = std::fs::read(&whole).unwrap();
+    let tag = bytes
+        .windows(15)
+        .position(|w| w == br#"encoding="raw">"#.as_slice())
+        .unwrap();
+    let marker = tag + bytes[tag..].iter().position(|&b| b == b'_').unwrap() + 1;
+    for cut in [marker + 3, marker + 20, bytes.len() - 40] {
+        let short = dir.path().join(format!("short-{cut}.vtp"));
+        std::fs::write(&short, &bytes[..cut]).unwrap();
+        let err = load_surface(&short).unwrap_err();
+        assert!(err.to_string().contains("short-"), "{err}");
+    }
+    let mut absurd = bytes.clone();
+    absurd[marker..marker + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+    let huge = dir.path().join("huge.vtp");
+    std::fs::write(&huge, &absurd).unwrap();
+    assert!(load_surface(&huge).is_err());
+}
+
+/// A `.vtp` cut anywhere, whatever its encoding, or with well-formed XML
+/// around a points array too short for its count, is refused naming the
+/// file: never a panic.
+#[test]
+fn a_vtp_cut_anywhere_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.vtp");
+    save_surface(&octahedron(), &whole).unwrap();
+    let appended = dir.path().join("appended.vtp");
+    appended_raw_octahedron(&appended, Some(Block::Partial));
+    for source in [&whole, &appended] {
+        let bytes = std::fs::read(source).unwrap();
+        for cut in (1..bytes.len()).step_by(7) {
+            let short = dir.path().join("short.vtp");
+            std::fs::write(&short, &bytes[..cut]).unwrap();
+            let outcome = std::panic::catch_unwind(|| load_surface(&short));
+            match outcome {
+                Ok(Ok(mesh)) => panic!(
+                    "{} cut at {cut}: read {} vertices",
+                    source.display(),
+                    mesh.vertices.len()
+                ),
+                Ok(Err(err)) => assert!(err.to_string().contains("short.vtp"), "{err}"),
+                Err(_) => panic!(
+                    "{} cut at {cut} of {}: the reader panicked",
+                    source.display(),
+                    bytes.len()
+                ),
+            }
+        }
+    }
+    // The points array of the written file shortened inside its XML.
+    let text = std::fs::read_to_string(&whole).unwrap();
+    let points = text.find("Name=\"Points\"").unwrap();
+    let open = points + text[points..].find('>').unwrap() + 1;
+    let close = open + text[open..].find('<').unwrap();
+    let payload = text[open..close].trim();
+    for keep in [0, 4, payload.len() / 2] {
+        let shorter = format!("{}{}{}", &text[..open], &payload[..keep], &text[close..]);
+        let short = dir.path().join("short.vtp");
+        std::fs::write(&short, shorter).unwrap();
+        let outcome = std::panic::catch_unwind(|| load_surface(&short));
+        assert!(
+            matches!(outcome, Ok(Err(_))),
+            "points cut to {keep} characters: {:?}",
+            outcome.map(|r| r.map(|m| m.vertices.len()))
+        );
+    }
 }

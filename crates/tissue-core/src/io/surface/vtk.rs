@@ -11,9 +11,23 @@ use super::fan;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
-    let vtk = vtkio::Vtk::parse_legacy_be(Cursor::new(bytes))
-        .map_err(|e| format!("cannot parse legacy VTK: {e}"))?;
+    let vtk = guarded(|| {
+        vtkio::Vtk::parse_legacy_be(Cursor::new(bytes))
+            .map_err(|e| format!("cannot parse legacy VTK: {e}"))
+    })?;
     surface_of(vtk.data)
+}
+
+/// Runs a `vtkio` parse, turning a panic inside it into an error: it
+/// unwraps on some damaged files (a data array shorter than its count).
+fn guarded<T>(parse: impl FnOnce() -> Result<T, String>) -> Result<T, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse)).unwrap_or_else(|_| {
+        Err(
+            "the VTK reader failed on this file: it is damaged, or an array is shorter \
+             than its count"
+                .into(),
+        )
+    })
 }
 
 /// VTK XML PolyData (`.vtp`, 3D Slicer's model format and ParaView's):
@@ -22,8 +36,9 @@ pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
 pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
     let converted = raw_appended_as_base64(bytes)?;
     let bytes = converted.as_deref().unwrap_or(bytes);
-    let vtk = vtkio::Vtk::parse_xml(Cursor::new(bytes))
-        .map_err(|e| format!("cannot parse VTK XML: {e}"))?;
+    let vtk = guarded(|| {
+        vtkio::Vtk::parse_xml(Cursor::new(bytes)).map_err(|e| format!("cannot parse VTK XML: {e}"))
+    })?;
     match vtk.data {
         vtkio::model::DataSet::PolyData { .. } => surface_of(vtk.data),
         _ => Err("a VTK XML file but not PolyData (.vtp holds a surface as PolyData)".into()),
@@ -95,18 +110,32 @@ fn raw_appended_as_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
     let mut encoded = String::new();
     let mut moved = std::collections::HashMap::new();
     let mut raw_end = 0;
+    let beyond = || "raw appended data ends inside a block".to_string();
     for &offset in &sorted {
+        if offset > raw.len() {
+            return Err(format!(
+                "an appended offset of {offset} bytes, past the {} bytes of data",
+                raw.len()
+            ));
+        }
         moved.insert(offset, encoded.len());
         if compressed {
             let blocks = number(offset)?;
+            if blocks > raw.len() / header_bytes {
+                return Err(beyond());
+            }
             let header = header_bytes * (3 + blocks);
-            let data: usize = (0..blocks)
-                .map(|b| number(offset + header_bytes * (3 + b)))
-                .sum::<Result<usize, String>>()?;
-            let end = offset + header + data;
-            let block = raw
-                .get(offset..end)
-                .ok_or("raw appended data ends inside a block")?;
+            let mut data = 0usize;
+            for b in 0..blocks {
+                data = data
+                    .checked_add(number(offset + header_bytes * (3 + b))?)
+                    .ok_or_else(beyond)?;
+            }
+            let end = offset
+                .checked_add(header)
+                .and_then(|e| e.checked_add(data))
+                .ok_or_else(beyond)?;
+            let block = raw.get(offset..end).ok_or_else(beyond)?;
             // A full last block is written as a partial size of 0, which
             // vtkio reads as an empty one: give its full size instead.
             let mut head = block[..header].to_vec();
@@ -118,10 +147,10 @@ fn raw_appended_as_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
             encoded.push_str(&STANDARD.encode(&block[header..]));
             raw_end = raw_end.max(end);
         } else {
-            let end = offset + header_bytes + number(offset)?;
-            let block = raw
-                .get(offset..end)
-                .ok_or("raw appended data ends inside a block")?;
+            let end = (offset + header_bytes)
+                .checked_add(number(offset)?)
+                .ok_or_else(beyond)?;
+            let block = raw.get(offset..end).ok_or_else(beyond)?;
             encoded.push_str(&STANDARD.encode(block));
             raw_end = raw_end.max(end);
         }
