@@ -7,7 +7,6 @@
 //! (`tracker::ELASTIC_RETRIES`), it converges and folds nothing.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
-use glam::Vec3;
 use tissue::deform::{Indentation, deform_surface};
 use tissue::deformation::{DeformParams, Deformer, ForceModel, StopReason, inversions};
 use tissue::{SamplingParams, phantom};
@@ -19,18 +18,7 @@ fn poked_model() -> (tissue::ParticleModel, tissue::SurfaceMesh) {
     )
     .unwrap()
     .model;
-    let tip = model
-        .surface
-        .vertices
-        .iter()
-        .copied()
-        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
-    let probe = Indentation {
-        centre: tip,
-        direction: Vec3::NEG_Z,
-        depth_mm: 40.0,
-        radius_mm: 15.0,
-    };
+    let probe = Indentation::down_at_top(&model.surface, 40.0, 15.0).unwrap();
     let poked = deform_surface(&model.surface, &probe);
     (model, poked)
 }

@@ -151,7 +151,7 @@ pub fn load_model(
 /// rest surface's (two that touch in this frame stay two), else with exact
 /// duplicates merged (a file that repeats vertices along seams, or an STL
 /// file, which repeats every corner), whichever matches.
-pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
+pub fn read_frame(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
     let written = tissue::load_surface_as_written(path)?;
     let stl = path
         .extension()
@@ -190,6 +190,15 @@ pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
         };
         anyhow!("{}: {}{hint}", path.display(), err)
     })?;
+    Ok(deformed)
+}
+
+/// [`read_frame`], and refused if it passes through itself (two triangles
+/// cross), unless the rest surface already does: the whole check of a
+/// deformed surface. `track` runs it on every frame before its first
+/// solve, then reads each frame again with [`read_frame`] alone.
+pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
+    let deformed = read_frame(path, rest)?;
     if let Some([a, b]) = tissue::crossing::first_crossing(&deformed) {
         // A rest surface that crosses itself (the model was sampled from
         // it) makes its frames cross too: that is no new defect.
@@ -209,13 +218,11 @@ pub fn read_deformed(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
     Ok(deformed)
 }
 
-/// [`read_deformed`], then the surface given to `solver` (a frame boundary).
-pub fn load_deformed(path: &Path, solver: &mut Solver, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
-    let deformed = read_deformed(path, rest)?;
+/// `deformed`, read from `path`, given to `solver` (a frame boundary).
+pub fn set_deformed(path: &Path, solver: &mut Solver, deformed: &SurfaceMesh) -> Result<()> {
     solver
-        .set_surface(&deformed)
-        .map_err(|err| anyhow!("{}: {}", path.display(), err))?;
-    Ok(deformed)
+        .set_surface(deformed)
+        .map_err(|err| anyhow!("{}: {}", path.display(), err))
 }
 
 impl DeformArgs {
@@ -235,7 +242,8 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let params = args.solve.params(Frames::One)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
-    let deformed = load_deformed(&args.surface, &mut solver, &model.surface)?;
+    let deformed = read_deformed(&args.surface, &model.surface)?;
+    set_deformed(&args.surface, &mut solver, &deformed)?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let destination = Destination {
         dir: &args.output_dir,

@@ -20,7 +20,7 @@ use crate::output::{
     Destination, PARTICLES_FILE, REPORT_FILE, Status, Unfinished, convergence, planned_outputs,
     prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_json, write_solution,
 };
-use crate::solve::{Frames, SolveArgs, load_deformed, load_model, read_deformed};
+use crate::solve::{Frames, SolveArgs, load_model, read_deformed, read_frame, set_deformed};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -137,7 +137,7 @@ struct TrackReport<'a> {
 /// `frames` frames would not replace: its `track.json` and `track.pvd`
 /// unless `keep_summary` (a resumed run's), its frame folders past this run's last (`frame-NNNN`
 /// holding a `report.json`), and the temporary files of a write that was
-/// killed (`.NAME.XXXXXX.part`); nothing else is touched.
+/// killed (`.NAME.<random>.part`); nothing else is touched.
 fn remove_stale(dir: &Path, frames: usize, keep_summary: bool) -> Result<()> {
     for name in [TRACK_FILE, COLLECTION_FILE] {
         let summary = dir.join(name);
@@ -169,7 +169,7 @@ fn remove_stale(dir: &Path, frames: usize, keep_summary: bool) -> Result<()> {
 }
 
 /// Removes the temporary files a killed write left in `dir` and in its
-/// `frame-NNNN` folders: hidden, named `.NAME.XXXXXX.part`
+/// `frame-NNNN` folders: hidden, named `.NAME.<random>.part`
 /// (`tissue::io::write_atomically`).
 fn remove_parts(dir: &Path) -> Result<()> {
     let mut folders = vec![dir.to_path_buf()];
@@ -363,7 +363,9 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let first = done.len();
     let mut status = Status::Incomplete;
     for (k, frame) in frames.iter().enumerate().skip(first) {
-        let deformed = load_deformed(frame, &mut solver, &model.surface)?;
+        // Checked whole before the first solve: read again, not re-checked.
+        let deformed = read_frame(frame, &model.surface)?;
+        set_deformed(frame, &mut solver, &deformed)?;
         let solve = solver.solve()?;
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let surface = frame.display().to_string();

@@ -273,6 +273,24 @@ impl Indentation {
         )
     }
 
+    /// A probe pushing straight down (`-z`) at `mesh`'s highest vertex (the
+    /// phantom's tip, 55 mm above its chest wall): with a depth near the
+    /// height and a small radius, the deep, narrow indentation the solver
+    /// tests use. `None` for a mesh without vertices.
+    pub fn down_at_top(mesh: &SurfaceMesh, depth_mm: f32, radius_mm: f32) -> Option<Self> {
+        let top = mesh
+            .vertices
+            .iter()
+            .copied()
+            .reduce(|a, b| if b.z > a.z { b } else { a })?;
+        Some(Self {
+            centre: top,
+            direction: Vec3::NEG_Z,
+            depth_mm,
+            radius_mm,
+        })
+    }
+
     /// An indentation where the ray from `origin` along `ray` first crosses
     /// `mesh`, pushing along minus the outward normal there.
     ///

@@ -279,21 +279,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
         return;
     };
     let model = common::phantom(2_000);
-    let tip = model
-        .surface
-        .vertices
-        .iter()
-        .copied()
-        .fold(
-            glam::Vec3::splat(f32::MIN),
-            |a, b| if b.z > a.z { b } else { a },
-        );
-    let probe = tissue_core::deform::Indentation {
-        centre: tip,
-        direction: glam::Vec3::NEG_Z,
-        depth_mm: 40.0,
-        radius_mm: 15.0,
-    };
+    let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
+        .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
     let params = DeformParams {
         force: ForceModel::Elastic,

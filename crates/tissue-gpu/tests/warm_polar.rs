@@ -365,18 +365,8 @@ fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
         coarse: 0.0,
         ..DeformParams::default()
     };
-    let tip = model
-        .surface
-        .vertices
-        .iter()
-        .copied()
-        .fold(Vec3::splat(f32::MIN), |a, b| if b.z > a.z { b } else { a });
-    let probe = tissue_core::deform::Indentation {
-        centre: tip,
-        direction: Vec3::NEG_Z,
-        depth_mm: 40.0,
-        radius_mm: 15.0,
-    };
+    let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
+        .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
     for (name, surface) in [
         ("sag", tissue_core::deform::sagged_breast()),
