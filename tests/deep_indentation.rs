@@ -1,10 +1,12 @@
 //! A deep, narrow indentation: the phantom's tip pushed 40 mm down (of its
 //! 55 mm height) by a probe 15 mm wide. The symmetric force folds the
 //! tissue under it (particles turned inside out, which `tissue deform`
-//! flags); the elastic force's step, set from the stiffness at rest, is too
-//! long for the particles compressed there and its first elastic phase
-//! diverges; run again from the end of the shear phase with half the step
-//! (`tracker::ELASTIC_RETRIES`), it converges and folds nothing.
+//! flags). The elastic phase diverges twice: with its two-level solve,
+//! linearised where the phase starts (the particles under the probe are
+//! far from it), and without it with the step set from the stiffness at
+//! rest, too long for the particles compressed there. Run again from the
+//! end of the shear phase with half the step (`tracker::ELASTIC_RETRIES`),
+//! it converges and folds nothing.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
 use tissue::deform::{Indentation, deform_surface};

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, Deformer, ForceModel, Iteration, RotationMethod, SolveDevice,
+    Chebyshev, DeformParams, Deformer, Iteration, RotationMethod, SolveDevice,
 };
 use tissue_gpu::GpuDeformer;
 use tissue_gpu::timing::KernelTimer;
@@ -94,7 +94,8 @@ pub fn cpu(
         rotations: params.rotations,
         alpha: plan.alpha(params),
         contraction: plan.contraction(params),
-        correct: params.force != ForceModel::Elastic,
+        correct: true,
+        relinearise: true,
     };
     let mut solve = deformer.device().clone();
     let Ok(()) = solve.begin((), it);

@@ -27,10 +27,10 @@ use tissue_core::{Connections, DeformError, Error};
 
 /// Marks a particle that belongs to no aggregate (a control point, or a
 /// particle held because nothing connects it to the surface).
-const OUTSIDE: u32 = u32::MAX;
+pub(crate) const OUTSIDE: u32 = u32::MAX;
 
 /// Power iterations that estimate the two-level iteration's contraction.
-const RATE_ITERATIONS: usize = 40;
+pub(crate) const RATE_ITERATIONS: usize = 40;
 
 /// Aggregates of free particles and the factored coarse Laplacian.
 #[derive(Debug, Clone)]
@@ -60,46 +60,11 @@ impl CoarseSpace {
         contraction: f32,
     ) -> Result<Self, Error> {
         let started = Instant::now();
-        if !(cell > 0.0 && cell.is_finite()) {
-            return Err(DeformError::CoarseSpace(format!(
-                "the coarse space's cell is {cell}, expected a positive length"
-            ))
-            .into());
-        }
-        let (mut cell, mut aggregate, mut count) = (cell, Vec::new(), 0);
-        for _ in 0..MAX_GROWTH {
-            (aggregate, count) = aggregates(rest, connections, free, cell);
-            if count <= max_aggregates.max(1) {
-                break;
-            }
-            cell *= 1.25;
-        }
-        if count == 0 {
-            return Err(DeformError::CoarseSpace(
-                "the coarse space has no aggregates: no particle is free".into(),
-            )
-            .into());
-        }
-        let rows = coarse_laplacian(&aggregate, connections, count);
-        let order = reverse_cuthill_mckee(&rows);
-        let mut rank = vec![0u32; count];
-        for (k, &a) in order.iter().enumerate() {
-            rank[a as usize] = k as u32;
-        }
-        for a in aggregate.iter_mut().filter(|a| **a != OUTSIDE) {
-            *a = rank[*a as usize];
-        }
-        let rows: Vec<Vec<(u32, f64)>> = order
-            .iter()
-            .map(|&a| {
-                let mut row: Vec<(u32, f64)> = rows[a as usize]
-                    .iter()
-                    .map(|&(b, w)| (rank[b as usize], w))
-                    .collect();
-                row.sort_unstable_by_key(|&(b, _)| b);
-                row
-            })
-            .collect();
+        let Aggregates {
+            aggregate,
+            rows,
+            cell,
+        } = Aggregates::new(rest, connections, free, cell, max_aggregates)?;
         let factor = Envelope::cholesky(&rows).ok_or_else(|| {
             Error::from(DeformError::CoarseSpace(
                 "the coarse Laplacian is not positive definite (a rounding failure)".into(),
@@ -196,21 +161,7 @@ impl CoarseSpace {
     fn spectral_radius(&self, connections: &Connections, contraction: f32) -> f32 {
         let n = self.aggregate.len();
         let inside = |i: usize| self.aggregate[i] != OUTSIDE;
-        let mut v: Vec<Vec3> = (0..n)
-            .map(|i| {
-                if !inside(i) {
-                    return Vec3::ZERO;
-                }
-                let t = (i as f32 * 0.618_034).fract();
-                Vec3::new(t, (t * 7.31).fract(), (t * 13.17).fract()) - 0.5
-            })
-            .collect();
-        let norm = |v: &[Vec3]| {
-            v.par_iter()
-                .map(|x| f64::from(x.length_squared()))
-                .sum::<f64>()
-                .sqrt()
-        };
+        let mut v = power_start(inside, n);
         let mut radius = 0.0;
         for _ in 0..RATE_ITERATIONS {
             let scale = norm(&v);
@@ -240,6 +191,104 @@ impl CoarseSpace {
         }
         radius.clamp(0.0, 0.9999)
     }
+}
+
+/// The free particles grouped into aggregates (numbered in reverse
+/// Cuthill-McKee order of the coarse graph) and the coarse Laplacian's rows
+/// in that order: what the two-level solves share.
+#[derive(Debug, Clone)]
+pub(crate) struct Aggregates {
+    /// Per particle: its aggregate, or [`OUTSIDE`].
+    pub(crate) aggregate: Vec<u32>,
+    /// The rows of `P^T L P`, each sorted by column.
+    pub(crate) rows: Vec<Vec<(u32, f64)>>,
+    /// The edge of the cells the aggregates were made of.
+    pub(crate) cell: f32,
+}
+
+impl Aggregates {
+    /// The aggregates of the free particles in grid cells of edge `cell`,
+    /// grown (by factors of 1.25) until there are at most `max_aggregates`.
+    pub(crate) fn new(
+        rest: &[Vec3],
+        connections: &Connections,
+        free: &[bool],
+        cell: f32,
+        max_aggregates: usize,
+    ) -> Result<Self, Error> {
+        if !(cell > 0.0 && cell.is_finite()) {
+            return Err(DeformError::CoarseSpace(format!(
+                "the coarse space's cell is {cell}, expected a positive length"
+            ))
+            .into());
+        }
+        let (mut cell, mut aggregate, mut count) = (cell, Vec::new(), 0);
+        for _ in 0..MAX_GROWTH {
+            (aggregate, count) = aggregates(rest, connections, free, cell);
+            if count <= max_aggregates.max(1) {
+                break;
+            }
+            cell *= 1.25;
+        }
+        if count == 0 {
+            return Err(DeformError::CoarseSpace(
+                "the coarse space has no aggregates: no particle is free".into(),
+            )
+            .into());
+        }
+        let rows = coarse_laplacian(&aggregate, connections, count);
+        let order = reverse_cuthill_mckee(&rows);
+        let mut rank = vec![0u32; count];
+        for (k, &a) in order.iter().enumerate() {
+            rank[a as usize] = k as u32;
+        }
+        for a in aggregate.iter_mut().filter(|a| **a != OUTSIDE) {
+            *a = rank[*a as usize];
+        }
+        let rows = order
+            .iter()
+            .map(|&a| {
+                let mut row: Vec<(u32, f64)> = rows[a as usize]
+                    .iter()
+                    .map(|&(b, w)| (rank[b as usize], w))
+                    .collect();
+                row.sort_unstable_by_key(|&(b, _)| b);
+                row
+            })
+            .collect();
+        Ok(Self {
+            aggregate,
+            rows,
+            cell,
+        })
+    }
+
+    /// Number of aggregates.
+    pub(crate) fn count(&self) -> usize {
+        self.rows.len()
+    }
+}
+
+/// A start for power iteration with every mode in it: a fixed,
+/// irregular vector over the particles `inside` says are free.
+pub(crate) fn power_start(inside: impl Fn(usize) -> bool, n: usize) -> Vec<Vec3> {
+    (0..n)
+        .map(|i| {
+            if !inside(i) {
+                return Vec3::ZERO;
+            }
+            let t = (i as f32 * 0.618_034).fract();
+            Vec3::new(t, (t * 7.31).fract(), (t * 13.17).fract()) - 0.5
+        })
+        .collect()
+}
+
+/// The Euclidean norm of a field of vectors.
+pub(crate) fn norm(v: &[Vec3]) -> f64 {
+    v.par_iter()
+        .map(|x| f64::from(x.length_squared()))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// Cells the coarse space grows by at most to stay within its aggregate
@@ -353,7 +402,7 @@ fn reverse_cuthill_mckee(rows: &[Vec<(u32, f64)>]) -> Vec<u32> {
 /// row `i` holds columns `first[i]..=i`, where `first[i]` is the row's first
 /// nonzero in the matrix (Cholesky fills nothing outside the envelope).
 #[derive(Debug, Clone)]
-struct Envelope {
+pub(crate) struct Envelope {
     first: Vec<usize>,
     /// Where each row starts in `values`.
     start: Vec<usize>,
@@ -364,7 +413,7 @@ impl Envelope {
     /// Factors the symmetric positive definite matrix given by `rows`
     /// (each sorted by column, both triangles present); `None` when a pivot
     /// is not positive.
-    fn cholesky(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
+    pub(crate) fn cholesky(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
         let n = rows.len();
         let first: Vec<usize> = rows
             .iter()
@@ -414,6 +463,23 @@ impl Envelope {
 
     /// Solves `L L^T x = b` in place for three right-hand sides at once.
     fn solve(&self, b: &mut [DVec3]) {
+        self.solve_in_place(b);
+    }
+
+    /// Solves `L L^T x = b` in place for one right-hand side.
+    pub(crate) fn solve_scalar(&self, b: &mut [f64]) {
+        self.solve_in_place(b);
+    }
+
+    /// The forward and backward substitutions, for any right-hand side
+    /// that scales and subtracts.
+    fn solve_in_place<T>(&self, b: &mut [T])
+    where
+        T: Copy
+            + std::ops::SubAssign
+            + std::ops::Mul<f64, Output = T>
+            + std::ops::Div<f64, Output = T>,
+    {
         let n = self.len();
         for i in 0..n {
             let row = &self.values[self.start[i]..self.start[i + 1]];

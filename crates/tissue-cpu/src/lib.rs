@@ -9,6 +9,7 @@
 //! their shaders.
 
 pub mod coarse;
+pub mod coarse_elastic;
 pub mod deformation;
 pub mod sampling;
 

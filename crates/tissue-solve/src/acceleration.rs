@@ -102,7 +102,7 @@ impl StoppingRule {
         let rate = self.rho.max(observed.min(0.999));
         let error = max_step / (1.0 - rate) / self.size;
         self.history.push(error);
-        if !error.is_finite() {
+        if !(error.is_finite() && rms_step.is_finite()) {
             Some(StopReason::Diverged)
         } else if n > 1 && error < self.tolerance {
             Some(StopReason::Tolerance)

@@ -100,6 +100,14 @@ pub struct DeformParams {
     /// and a solve as many multiply-adds per iteration, so it must stay
     /// small beside the model.
     pub coarse_max_aggregates: usize,
+    /// The elastic phase's two-level solve: where the CPU runs the
+    /// two-level solve ([`DeformParams::coarse`] on), the elastic operator,
+    /// linearised where each elastic phase starts, is corrected over
+    /// aggregates of the same cells, grown until there are at most this
+    /// many (three unknowns each, its factor about `(3 n)^(5/3)` numbers,
+    /// made again every solve from rest). 0 turns it off. The default
+    /// and what it saves: docs/METHOD.md, "Elastic model".
+    pub elastic_coarse_max_aggregates: usize,
 }
 
 impl Default for DeformParams {
@@ -119,6 +127,7 @@ impl Default for DeformParams {
             deflation_max_particles: 200_000,
             coarse: 2.0,
             coarse_max_aggregates: 10_000,
+            elastic_coarse_max_aggregates: 1_000,
         }
     }
 }
@@ -183,6 +192,12 @@ impl DeformParams {
             format!("1 to {MAX_COARSE_AGGREGATES}"),
         )?;
         ParamError::check(
+            self.elastic_coarse_max_aggregates <= MAX_ELASTIC_COARSE_AGGREGATES,
+            "elastic_coarse_max_aggregates",
+            self.elastic_coarse_max_aggregates,
+            format!("0 (off) to {MAX_ELASTIC_COARSE_AGGREGATES}"),
+        )?;
+        ParamError::check(
             (1..=10_000_000).contains(&self.max_iterations),
             "max_iterations",
             self.max_iterations,
@@ -199,6 +214,11 @@ pub const MAX_HISTORY: usize = 16;
 /// The most aggregates [`DeformParams::coarse_max_aggregates`] may allow:
 /// the factor of 50,000 holds about 70 million numbers (0.5 GB).
 pub const MAX_COARSE_AGGREGATES: usize = 50_000;
+
+/// The most aggregates [`DeformParams::elastic_coarse_max_aggregates`] may
+/// allow: three unknowns each, the factor of 15,000 unknowns holds about
+/// 40 million numbers, and it is made again every solve from rest.
+pub const MAX_ELASTIC_COARSE_AGGREGATES: usize = 5_000;
 
 /// The most modes [`DeformParams::deflation`] may ask for: each costs a
 /// pass over the particles per iteration and `4 n` bytes.
@@ -252,6 +272,7 @@ mod tests {
         let defaults = DeformParams::default();
         assert_eq!(defaults.coarse, 2.0);
         assert_eq!(defaults.coarse_max_aggregates, 10_000);
+        assert_eq!(defaults.elastic_coarse_max_aggregates, 1_000);
         for (coarse, says) in [
             (0.5, "coarse is 0.5"),
             (-1.0, "coarse is -1"),
@@ -269,6 +290,14 @@ mod tests {
             ..DeformParams::default()
         });
         assert!(err.contains("coarse_max_aggregates is 50001"), "{err}");
+        let err = refusal(&DeformParams {
+            elastic_coarse_max_aggregates: MAX_ELASTIC_COARSE_AGGREGATES + 1,
+            ..DeformParams::default()
+        });
+        assert!(
+            err.contains("elastic_coarse_max_aggregates is 5001"),
+            "{err}"
+        );
         assert!(
             DeformParams {
                 coarse: 0.0,

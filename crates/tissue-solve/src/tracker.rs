@@ -30,9 +30,15 @@ pub struct Iteration {
     pub alpha: f32,
     /// `c alpha`, what turns an error into the plain step ([`Plan::contraction`]).
     pub contraction: f32,
-    /// Whether the device applies its correction (the coarse space or the
-    /// deflated modes, both made for the Laplacian): not for the elastic force.
+    /// Whether the device applies its correction: with the symmetric and
+    /// the paper's force the Laplacian's (the coarse space or the deflated
+    /// modes), with the elastic force the elastic operator's, where the
+    /// device has one (the Laplacian's is never applied to it).
     pub correct: bool,
+    /// An elastic phase that starts from a state of its own (after the
+    /// shear phase), not from the last elastic solve: a device whose
+    /// elastic correction is linearised at a state makes it again here.
+    pub relinearise: bool,
 }
 
 /// The shear phase of an elastic solve stops at this many times the
@@ -41,14 +47,17 @@ pub struct Iteration {
 pub const SHEAR_TOLERANCE: f32 = 10.0;
 
 /// How many times an elastic phase that diverged is run again from the end
-/// of the shear phase, each time with half the step before. The step is
-/// set from the stiffness at rest ([`crate::elastic::STIFFENING`] times
-/// it); a particle compressed far more than the rest of the model (a deep,
-/// narrow indentation) can be stiffer still. Measured on the phantom at
-/// 2,000 particles poked 40 mm deep and 15 mm wide at its tip: the full
-/// step diverges after 22 iterations, half the step converges (docs/METHOD.md,
+/// of the shear phase: first without the device's correction, where it ran
+/// with one, then each time with half the step before. The correction is
+/// linearised where the phase starts and the step is set from the
+/// stiffness at rest ([`crate::elastic::STIFFENING`] times it); a particle
+/// compressed far more than the rest of the model (a deep, narrow
+/// indentation) can be stiffer still, and far from that linearisation.
+/// Measured on the phantom at 2,000 particles poked 40 mm deep and 15 mm
+/// wide at its tip: the corrected phase diverges after 6 iterations, the
+/// uncorrected full step after 22, half the step converges (docs/METHOD.md,
 /// "Elastic model").
-pub const ELASTIC_RETRIES: usize = 2;
+pub const ELASTIC_RETRIES: usize = 3;
 
 /// What a device does for a stage-2 solve: kernels and buffers, nothing
 /// else. The iteration is the same on every device: rotations, force, the
@@ -72,6 +81,13 @@ pub trait SolveDevice {
 
     /// The two-level iteration's contraction, where the device runs one.
     fn coarse_rho(&self) -> Option<f32> {
+        None
+    }
+
+    /// The contraction of the elastic phase's iteration where the device
+    /// corrects it (asked after [`SolveDevice::begin`] of an elastic phase);
+    /// `None` runs it on the plan's rate for the elastic operator.
+    fn elastic_rho(&self) -> Option<f32> {
         None
     }
 
@@ -133,6 +149,9 @@ pub struct Tracker<D> {
     /// The state is a converged solve's with the elastic force, so an
     /// elastic solve may start from it without the shear phase.
     elastic_warm: bool,
+    /// Whether that solve's elastic phase ran with the device's correction
+    /// (a warm frame runs as it did).
+    elastic_correct: bool,
 }
 
 impl<D: SolveDevice> Tracker<D> {
@@ -162,6 +181,7 @@ impl<D: SolveDevice> Tracker<D> {
             rest: model.positions.clone(),
             current: model.positions.clone(),
             elastic_warm: false,
+            elastic_correct: true,
         })
     }
 
@@ -288,9 +308,10 @@ impl<D: SolveDevice> Tracker<D> {
         let started = Instant::now();
         let params = self.params.clone();
         let mut report = if params.force != ForceModel::Elastic {
-            self.phase(cx, &params, params.max_iterations)?
+            self.phase(cx, &params, params.max_iterations, true, false)?
         } else if self.elastic_warm {
-            let warm = self.phase(cx, &params, params.max_iterations)?;
+            let correct = self.elastic_correct;
+            let warm = self.phase(cx, &params, params.max_iterations, correct, false)?;
             if warm.stopped_by == StopReason::Diverged {
                 log::warn!(
                     "the elastic solve diverged from the predicted start after {} iterations; \
@@ -329,17 +350,18 @@ impl<D: SolveDevice> Tracker<D> {
             tolerance: params.tolerance * SHEAR_TOLERANCE,
             ..params.shear()
         };
-        let first = self.phase(cx, &shear, params.max_iterations)?;
+        let first = self.phase(cx, &shear, params.max_iterations, true, false)?;
         if first.stopped_by == StopReason::Diverged {
             return Ok(first);
         }
         let after_shear = self.device.read_positions(cx)?;
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let mut elastic = params.clone();
-        let mut retries = 0;
+        let (mut correct, mut retries) = (true, 0);
         loop {
             let left = params.max_iterations.saturating_sub(used).max(1);
-            let mut second = self.phase(cx, &elastic, left)?;
+            let mut second = self.phase(cx, &elastic, left, correct, true)?;
+            let corrected = correct && self.device.elastic_rho().is_some();
             used += second.iterations;
             history.append(&mut second.residual_history);
             let again = second.stopped_by == StopReason::Diverged
@@ -349,46 +371,63 @@ impl<D: SolveDevice> Tracker<D> {
                 second.iterations = used;
                 second.residual_history = history;
                 second.elastic_retries = retries;
+                self.elastic_correct = correct;
                 return Ok(second);
             }
             retries += 1;
-            elastic.step_fraction *= 0.5;
-            log::warn!(
-                "the elastic phase diverged after {} iterations; solving it again from the end \
-                 of the shear phase with a step {} times the first",
-                second.iterations,
-                elastic.step_fraction / params.step_fraction
-            );
+            if corrected {
+                correct = false;
+                log::warn!(
+                    "the elastic phase diverged after {} iterations with its two-level solve; \
+                     solving it again from the end of the shear phase without it",
+                    second.iterations
+                );
+            } else {
+                elastic.step_fraction *= 0.5;
+                log::warn!(
+                    "the elastic phase diverged after {} iterations; solving it again from the \
+                     end of the shear phase with a step {} times the first",
+                    second.iterations,
+                    elastic.step_fraction / params.step_fraction
+                );
+            }
             self.device.reset(cx)?;
             self.device.write_positions(cx, &after_shear, None)?;
         }
     }
 
     /// One phase of a solve: `p`'s force from the current state until its
-    /// stopping rule holds or `cap` iterations.
+    /// stopping rule holds or `cap` iterations; `correct` and `relinearise`
+    /// as in [`Iteration`].
     fn phase(
         &mut self,
         cx: D::Context<'_>,
         p: &DeformParams,
         cap: usize,
+        correct: bool,
+        relinearise: bool,
     ) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
-        let rho = self
-            .plan
-            .solve_rho(p, self.device.modes(), self.device.coarse_rho());
-        let (chebyshev, mut rule) = (
-            Chebyshev::with_rho(p, rho),
-            StoppingRule::with_rho(&self.plan, p, rho),
-        );
-        let mut stopped_by = StopReason::IterationCap;
         let iteration = Iteration {
             force: p.force,
             rotations: p.rotations,
             alpha: self.plan.alpha(p),
             contraction: self.plan.contraction(p),
-            correct: p.force != ForceModel::Elastic,
+            correct,
+            relinearise,
         };
         self.device.begin(cx, iteration)?;
+        let rho = match (p.force, self.device.elastic_rho()) {
+            (ForceModel::Elastic, Some(rho)) => rho,
+            _ => self
+                .plan
+                .solve_rho(p, self.device.modes(), self.device.coarse_rho()),
+        };
+        let (chebyshev, mut rule) = (
+            Chebyshev::with_rho(p, rho),
+            StoppingRule::with_rho(&self.plan, p, rho),
+        );
+        let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
         let mut batches = SolveBatches {
             device: &mut self.device,
@@ -492,6 +531,10 @@ mod tests {
         begun: Vec<Iteration>,
         /// The next elastic iteration reports a non-finite step.
         diverge_once: bool,
+        /// How many elastic phases in a row diverge.
+        diverge_phases: usize,
+        /// Whether the device corrects the elastic phase (its contraction).
+        elastic_correction: Option<f32>,
         resets: usize,
     }
 
@@ -506,6 +549,8 @@ mod tests {
                 replays: Vec::new(),
                 begun: Vec::new(),
                 diverge_once: false,
+                diverge_phases: 0,
+                elastic_correction: None,
                 resets: 0,
             }
         }
@@ -533,7 +578,16 @@ mod tests {
         fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
             self.step = 1.0;
             self.begun.push(iteration);
+            if iteration.force == ForceModel::Elastic && self.diverge_phases > 0 {
+                self.diverge_phases -= 1;
+                self.diverge_once = true;
+            }
             Ok(())
+        }
+
+        fn elastic_rho(&self) -> Option<f32> {
+            let corrected = self.begun.last().is_some_and(|it| it.correct);
+            self.elastic_correction.filter(|_| corrected)
         }
 
         fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
@@ -616,10 +670,13 @@ mod tests {
             panic!("{:?}", tracker.device.begun);
         };
         assert_eq!((shear.force, shear.correct), (ForceModel::Symmetric, true));
+        // The elastic phase with the device's own correction, made again
+        // where it starts.
         assert_eq!(
-            (elastic.force, elastic.correct),
-            (ForceModel::Elastic, false)
+            (elastic.force, elastic.correct, elastic.relinearise),
+            (ForceModel::Elastic, true, true)
         );
+        assert!(!shear.relinearise);
         // Each phase with its own step: the elastic operator is the stiffer.
         assert_eq!(shear.alpha, plan.alpha(&params.shear()));
         assert_eq!(elastic.alpha, plan.alpha(&params));
@@ -635,7 +692,11 @@ mod tests {
         let Ok(next) = tracker.solve(());
         assert!(next.converged);
         assert_eq!(tracker.device.begun.len(), 3);
-        assert_eq!(tracker.device.begun[2].force, ForceModel::Elastic);
+        let warm = tracker.device.begun[2];
+        assert_eq!(
+            (warm.force, warm.correct, warm.relinearise),
+            (ForceModel::Elastic, true, false)
+        );
         let Ok(()) = tracker.reset(());
         let Ok(_) = tracker.solve(());
         let forces: Vec<ForceModel> = tracker.device.begun[3..]
@@ -664,6 +725,73 @@ mod tests {
         );
         assert_eq!(again.residual_history.len(), again.iterations);
         assert!(again.iterations > report.iterations, "{again:?}");
+    }
+
+    /// A state gone to NaN reads as a largest step of 0 where the maximum
+    /// skips NaN (`f32::max`); its RMS step is NaN, and the rule says
+    /// diverged, not converged.
+    #[test]
+    fn a_step_that_is_not_a_number_is_divergence() {
+        let model = star();
+        let params = DeformParams::default();
+        let plan = Plan::for_params(&model, &params).unwrap();
+        for (max, rms) in [(0.0, f32::NAN), (f32::NAN, 0.0), (f32::INFINITY, 1.0)] {
+            let mut rule = StoppingRule::new(&plan, &params);
+            assert_eq!(rule.after(1.0, 1.0), None);
+            assert_eq!(
+                rule.after(max, rms),
+                Some(StopReason::Diverged),
+                "{max} {rms}"
+            );
+        }
+    }
+
+    /// A diverged elastic phase runs again from the end of the shear
+    /// phase: first without the device's correction where it had one (the
+    /// same step), then with half the step; the next warm frame runs as the
+    /// phase that converged did.
+    #[test]
+    fn a_diverged_elastic_phase_drops_the_correction_before_the_step() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        for correction in [Some(0.5), None] {
+            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
+                let mut device = Halving::new(1, &model);
+                device.elastic_correction = correction;
+                device.diverge_phases = 2;
+                Ok::<_, Error>(device)
+            })
+            .unwrap();
+            let Ok(report) = tracker.solve(());
+            assert!(report.converged, "{report:?}");
+            assert_eq!(report.elastic_retries, 2);
+            let elastic: Vec<(bool, f32)> = tracker.device.begun[1..]
+                .iter()
+                .map(|it| (it.correct, it.alpha))
+                .collect();
+            let alpha = tracker.plan().alpha(&params);
+            let halved = tracker.plan().alpha(&DeformParams {
+                step_fraction: 0.5 * params.step_fraction,
+                ..params.clone()
+            });
+            let quartered = tracker.plan().alpha(&DeformParams {
+                step_fraction: 0.25 * params.step_fraction,
+                ..params.clone()
+            });
+            let expected = if correction.is_some() {
+                vec![(true, alpha), (false, alpha), (false, halved)]
+            } else {
+                vec![(true, alpha), (true, halved), (true, quartered)]
+            };
+            assert_eq!(elastic, expected, "{correction:?}");
+            let Ok(next) = tracker.solve(());
+            assert!(next.converged);
+            let warm = tracker.device.begun[4];
+            assert_eq!(warm.correct, correction.is_none(), "{correction:?}");
+        }
     }
 
     #[test]

@@ -52,7 +52,8 @@ pub use kernels::{
 };
 pub use polar::{polar_rotation, warm_rotation};
 
-use crate::coarse::CoarseSpace;
+use crate::coarse::{Aggregates, CoarseSpace};
+use crate::coarse_elastic::ElasticCoarse;
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between
@@ -177,6 +178,11 @@ pub struct CpuSolve {
     coarse: Option<Arc<CoarseSpace>>,
     /// The elastic model's rest data, with the elastic force.
     elastic: Option<Arc<Elastic>>,
+    /// The aggregates of the elastic phase's two-level solve.
+    elastic_aggregates: Option<Arc<Aggregates>>,
+    /// The elastic phase's coarse correction, linearised where the last
+    /// elastic phase after a shear phase started.
+    elastic_coarse: Option<Arc<ElasticCoarse>>,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Where the last batch of more than one iteration started, for a replay.
@@ -202,6 +208,7 @@ impl CpuSolve {
         } else {
             deflation_modes(model, plan, params).map(Arc::new)
         };
+        let elastic_aggregates = elastic_aggregates(model, plan, params).map(Arc::new);
         Self {
             rest: model.positions.clone(),
             connections: model.connections.clone(),
@@ -212,9 +219,52 @@ impl CpuSolve {
             modes,
             coarse,
             elastic: plan.elastic.clone(),
+            elastic_aggregates,
+            elastic_coarse: None,
             iteration: None,
             batch_start: None,
         }
+    }
+
+    /// Makes the elastic phase's coarse correction at the current state
+    /// where `iteration` starts an elastic phase of its own, or none was
+    /// made for its step; a warm-started phase keeps the last one. A
+    /// failure leaves the phase uncorrected, with a warning.
+    fn linearise(&mut self, iteration: Iteration) {
+        let (Some(aggregates), Some(elastic)) =
+            (self.elastic_aggregates.as_deref(), self.elastic.as_deref())
+        else {
+            return;
+        };
+        let current = self
+            .elastic_coarse
+            .as_deref()
+            .is_some_and(|c| c.contraction() == iteration.contraction);
+        if current && !iteration.relinearise {
+            return;
+        }
+        self.elastic_coarse = match ElasticCoarse::new(
+            aggregates,
+            &self.rest,
+            &self.current,
+            &self.connections,
+            elastic,
+            iteration.contraction,
+        ) {
+            Ok(c) => {
+                log::info!(
+                    "elastic two-level solve: {} aggregates, contraction {:.3}, prepared in {:.3} s",
+                    aggregates.count(),
+                    c.rho(),
+                    c.seconds()
+                );
+                Some(Arc::new(c))
+            }
+            Err(e) => {
+                log::warn!("the elastic phase runs without its two-level solve: {e}");
+                None
+            }
+        };
     }
 
     /// One iteration with Chebyshev weight `omega`: the largest and RMS
@@ -269,13 +319,29 @@ impl CpuSolve {
         laps.lap(Pass::Force);
         let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
         laps.lap(Pass::Integrate);
-        let modes = self.modes.as_deref().filter(|_| it.correct);
-        let coarse = self.coarse.as_deref().filter(|_| it.correct);
+        // The Laplacian's corrections never apply to the elastic force.
+        let laplacian = it.correct && it.force != ForceModel::Elastic;
+        let modes = self.modes.as_deref().filter(|_| laplacian);
+        let coarse = self.coarse.as_deref().filter(|_| laplacian);
         if let Some(m) = modes {
             deflate(m, &self.current, &mut plain, it.contraction);
         }
         if let Some(c) = coarse {
             c.correct(&self.current, &mut plain, &self.connections, it.contraction);
+        }
+        let elastic_coarse = self
+            .elastic_coarse
+            .as_deref()
+            .zip(self.elastic_aggregates.as_deref())
+            .filter(|_| it.correct && it.force == ForceModel::Elastic);
+        if let Some((c, aggregates)) = elastic_coarse {
+            c.correct(
+                aggregates,
+                &self.rest,
+                &self.current,
+                &mut plain,
+                &self.connections,
+            );
         }
         laps.lap(Pass::Correction);
         // Deflated or two-level, the plain step no longer bounds the error of the
@@ -283,8 +349,8 @@ impl CpuSolve {
         // curvature below the Laplacian's, so the exact correction for
         // fixed rotations under-corrects them): the error is bounded by
         // the geometric tail of the updates actually made instead.
-        let plain_steps =
-            (modes.is_none() && coarse.is_none()).then(|| steps(&self.current, &plain));
+        let corrected = modes.is_some() || coarse.is_some() || elastic_coarse.is_some();
+        let plain_steps = (!corrected).then(|| steps(&self.current, &plain));
         laps.lap(Pass::Norms);
         let next = if omega == 1.0 {
             plain
@@ -365,6 +431,13 @@ impl SolveDevice for CpuSolve {
         self.coarse.as_deref().map(CoarseSpace::rho)
     }
 
+    fn elastic_rho(&self) -> Option<f32> {
+        self.iteration
+            .filter(|it| it.correct && it.force == ForceModel::Elastic)
+            .and(self.elastic_coarse.as_deref())
+            .map(ElasticCoarse::rho)
+    }
+
     fn write_positions(
         &mut self,
         (): (),
@@ -381,6 +454,9 @@ impl SolveDevice for CpuSolve {
 
     fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
         self.previous.clone_from(&self.current);
+        if iteration.force == ForceModel::Elastic && iteration.correct {
+            self.linearise(iteration);
+        }
         self.iteration = Some(iteration);
         Ok(())
     }
@@ -460,4 +536,27 @@ pub fn coarse_space(
             None
         }
     }
+}
+
+/// The aggregates of the elastic phase's two-level solve under `params`:
+/// with the elastic force and the two-level solve on, the cells of
+/// `coarse` grown until there are at most `elastic_coarse_max_aggregates`;
+/// none otherwise, or (with a warning) where they cannot be made.
+fn elastic_aggregates(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+) -> Option<Aggregates> {
+    if plan.elastic.is_none() || params.coarse == 0.0 || params.elastic_coarse_max_aggregates == 0 {
+        return None;
+    }
+    Aggregates::new(
+        &model.positions,
+        &model.connections,
+        &plan.free,
+        params.coarse * model.mean_connection_length(),
+        params.elastic_coarse_max_aggregates,
+    )
+    .inspect_err(|e| log::warn!("the elastic phase runs without its two-level solve: {e}"))
+    .ok()
 }
