@@ -192,9 +192,9 @@ fn deflation_runs_on_both_backends_and_agrees() {
     );
 }
 
-/// The defaults on both backends: the CPU solves two-level (in fewer
-/// iterations than deflated), the GPU, which has no coarse kernels yet,
-/// deflates; the answers agree within their tolerances.
+/// The defaults on both backends: both solve two-level (in fewer
+/// iterations than deflated, in the same number on both); the answers
+/// agree within their tolerances.
 #[test]
 fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     let model = tissue::sample(
@@ -231,6 +231,12 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
 
     let Some(device) = gpu() else { return };
     let on_gpu = solve(device, &defaults);
+    assert!(
+        on_gpu.0.abs_diff(two_level.0) <= 1,
+        "GPU {} iterations, CPU {}",
+        on_gpu.0,
+        two_level.0
+    );
     let worst = apart(&on_gpu.1, &two_level.1);
     assert!(
         worst <= tolerance,

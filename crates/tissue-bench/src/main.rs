@@ -58,12 +58,13 @@ struct Args {
     no_timestamps: bool,
     /// Deflate this many of the Laplacian's lowest modes in stage 2
     /// (`DeformParams::deflation`, the library's default), on every
-    /// backend; 0 measures the solver without it.
+    /// backend, where the two-level solve is off; 0 measures the solver
+    /// without it.
     #[arg(long, default_value_t = DeformParams::default().deflation)]
     deflation: usize,
     /// The two-level solve's cell in mean connection lengths
-    /// (`DeformParams::coarse`, the library's default; CPU only, where it
-    /// replaces deflation); 0 measures the solver without it.
+    /// (`DeformParams::coarse`, the library's default; on both backends,
+    /// where it replaces deflation); 0 measures the solver without it.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     coarse: f32,
     /// The stage-2 force model (`DeformParams::force`).

@@ -183,13 +183,19 @@ pub fn measure(
     let started = Instant::now();
     let mut solver = solver_on(gpu, model, defaults.clone()).context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
-    // What the solve runs: on the CPU the coarse space replaces deflation.
+    // What the solve runs: on both devices the coarse space replaces deflation.
     let (deflation, coarse_aggregates) = match &solver {
         Solver::Cpu(deformer) => (
             deformer.modes().map_or(0, |m| m.count()),
             deformer.coarse().map_or(0, |c| c.count()),
         ),
-        Solver::Gpu(_) => (defaults.deflation, 0),
+        Solver::Gpu(on_gpu) => {
+            let deformer = on_gpu.deformer();
+            (
+                deformer.modes().map_or(0, |m| m.count()),
+                deformer.state().aggregates(),
+            )
+        }
     };
     let gpu_state_bytes = match &solver {
         Solver::Cpu(_) => None,

@@ -48,11 +48,10 @@ pub struct SolveArgs {
     /// large models.
     #[arg(long)]
     pub deflation: Option<usize>,
-    /// Two-level solve on the CPU: every iteration removes the error's part
-    /// that is constant over aggregates of particles (grid cells of this
-    /// many mean connection lengths) exactly (docs/METHOD.md, "Two-level
-    /// solve"). 0 turns it off. Where it is on, the CPU does not deflate; the GPU has no
-    /// two-level solve yet and deflates instead.
+    /// Two-level solve: every iteration removes the error's part that is
+    /// constant over aggregates of particles (grid cells of this many mean
+    /// connection lengths) exactly (docs/METHOD.md, "Two-level solve"), on
+    /// both backends. 0 turns it off. Where it is on, neither backend deflates.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     pub coarse: f32,
 }

@@ -1,5 +1,5 @@
 //! The two-level solve of the elastic phase: the coarse correction of
-//! [`crate::coarse`] for the elastic operator linearised where the phase
+//! [`tissue_solve::coarse`] for the elastic operator linearised where the phase
 //! starts, three unknowns (a translation) per aggregate.
 //!
 //! The elastic force's operator for a small displacement `u` (rotations
@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 use tissue_solve::elastic::{Elastic, cofactor, offsets_product};
 
-use crate::coarse::{Aggregates, Envelope, OUTSIDE, RATE_ITERATIONS, norm, power_start};
+use tissue_solve::coarse::{Aggregates, Envelope, OUTSIDE, RATE_ITERATIONS, norm, power_start};
 
 /// The elastic operator's coarse correction, linearised at one state.
 #[derive(Debug, Clone)]
@@ -199,7 +199,7 @@ impl ElasticCoarse {
     }
 
     /// The spectral radius of `E = (I - Pi)(I - c alpha K)` by power
-    /// iteration, as [`crate::coarse::CoarseSpace`] estimates its own.
+    /// iteration, as [`tissue_solve::coarse::CoarseSpace`] estimates its own.
     fn spectral_radius(
         &self,
         aggregates: &Aggregates,

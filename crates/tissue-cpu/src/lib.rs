@@ -8,7 +8,9 @@
 //! SVD, structures) are there too, re-exported here as this path's twins of
 //! their shaders.
 
-pub mod coarse;
+/// The two-level solve's coarse space, written once in `tissue-solve`
+/// (its correction is the CPU's kernel).
+pub use tissue_solve::coarse;
 pub mod coarse_elastic;
 pub mod deformation;
 pub mod sampling;

@@ -3,6 +3,7 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::{ParticleModel, SurfaceMesh};
+use tissue_solve::coarse::{CoarseSpace, coarse_space};
 use tissue_solve::deflation_modes;
 use tissue_solve::{
     DeformParams, DeformReport, ForceModel, Iteration, LowModes, RotationMethod, SolveDevice,
@@ -19,13 +20,13 @@ use crate::{DeformState, GpuError, Pipelines};
 /// `params.rotations`: by the SVD every iteration, or by the polar update
 /// warm-started from each particle's last rotation (the SVD's where it does
 /// not settle), the stored rotations turned with the surface at a frame
-/// boundary as the CPU path turns them. With
-/// `params.deflation`, the same modes as the CPU path's deflate the plain
-/// step every iteration. The two-level solve (`params.coarse`) has no
-/// kernels yet: the GPU deflates where the CPU path would use its coarse
-/// space. With the elastic force neither path corrects the plain step
-/// (both corrections assume the Laplacian operator): the GPU computes the
-/// targets after the rotations and gathers the force over them. The
+/// boundary as the CPU path turns them. With `params.coarse`, the CPU
+/// path's coarse space (the same aggregates and factor, made on the host)
+/// corrects the plain step every iteration (`shaders/coarse.wgsl`); without
+/// it, with `params.deflation`, the same modes as the CPU path's deflate
+/// it. The elastic phase runs uncorrected: the CPU path's elastic
+/// two-level solve has no kernels here yet. With the elastic force the GPU
+/// computes the targets after the rotations and gathers the force over them. The
 /// positions are read back at the end of every solve and uploaded with a
 /// new frame's control points (both frame boundaries); the
 /// step norms are read back once per [`SLOTS`] iterations, and a batch in
@@ -44,8 +45,10 @@ pub struct GpuSolve {
     pipelines: Pipelines,
     state: DeformState,
     /// The modes deflated every iteration, as the CPU path computes them;
-    /// `None` without deflation or when none came out.
+    /// `None` without deflation, with the coarse space, or when none came out.
     modes: Option<LowModes>,
+    /// The two-level iteration's contraction, with the coarse space.
+    coarse_rho: Option<f32>,
     /// `current` at a batch's start, for a replay (a copy target that no
     /// kernel binds: raw).
     backup_current: wgpu::Buffer,
@@ -62,12 +65,12 @@ pub struct GpuSolve {
 
 impl GpuDeformer {
     /// The parameters under which the CPU path runs the solve the GPU runs
-    /// under `params`, its twin: the same (the rotation method included),
-    /// without the two-level solve (`coarse`), which has no kernels yet
-    /// (the GPU deflates instead).
+    /// under `params`, its twin: the same (the rotation method and the
+    /// two-level solve included), without the elastic phase's two-level
+    /// solve (`elastic_coarse_max_aggregates`), which has no kernels here yet.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
         DeformParams {
-            coarse: 0.0,
+            elastic_coarse_max_aggregates: 0,
             ..params.clone()
         }
     }
@@ -87,19 +90,20 @@ impl GpuDeformer {
         let tracker = Tracker::new(model, params, |plan, params| {
             let pipelines = Pipelines::new(device)?;
             let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-            if params.coarse > 0.0 {
-                log::info!(
-                    "the GPU path has no two-level solve yet (coarse {}): it deflates {} modes instead",
-                    params.coarse,
-                    params.deflation
-                );
-            }
             if let Some(elastic) = &plan.elastic {
                 state.set_elastic(device, &pipelines, elastic)?;
             }
-            // The modes correct the symmetric force, an elastic solve's
-            // shear phase included (`Iteration::correct`).
-            let modes = deflation_modes(model, plan, params);
+            // The coarse space, or else the modes, correct the symmetric
+            // force, an elastic solve's shear phase included
+            // (`Iteration::correct`), as on the CPU path.
+            let coarse = coarse_space(model, plan, params);
+            if let Some(space) = &coarse {
+                state.set_coarse(device, &pipelines, space)?;
+            }
+            let modes = match coarse {
+                Some(_) => None,
+                None => deflation_modes(model, plan, params),
+            };
             if let Some(m) = &modes {
                 let scales: Vec<f32> = m
                     .gain_scales(plan.contraction(&params.shear()))
@@ -125,6 +129,7 @@ impl GpuDeformer {
                 pipelines,
                 state,
                 modes,
+                coarse_rho: coarse.as_ref().map(CoarseSpace::rho),
                 iteration: None,
                 slots: 0,
             })
@@ -248,6 +253,10 @@ impl SolveDevice for GpuSolve {
 
     fn modes(&self) -> Option<&LowModes> {
         self.modes.as_ref()
+    }
+
+    fn coarse_rho(&self) -> Option<f32> {
+        self.coarse_rho
     }
 
     fn write_positions(

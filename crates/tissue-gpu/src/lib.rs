@@ -22,6 +22,7 @@
 //! optional features and only default limits.
 
 mod buffer;
+mod coarse;
 mod deformer;
 pub mod grid;
 mod pipelines;

@@ -43,11 +43,23 @@ pub enum Kernel {
     /// after the combine: the step a deflated solve's stopping rule takes
     /// (the CPU's `steps(current, next)`).
     UpdateNorms,
+    /// `coarse.wgsl::coarse_residual`: per particle `(L e')_i` from the
+    /// plain step, for the two-level solve.
+    CoarseResidual,
+    /// `coarse.wgsl::coarse_restrict`: per aggregate the sum of its
+    /// particles' residuals.
+    CoarseRestrict,
+    /// `coarse.wgsl::coarse_solve`: one workgroup solves the coarse
+    /// Laplacian by its Cholesky factor.
+    CoarseSolve,
+    /// `coarse.wgsl::coarse_apply`: the coarse solution subtracted from
+    /// the plain step of every particle of its aggregate.
+    CoarseApply,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 12] = [
+    pub const ALL: [Kernel; 16] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -60,6 +72,10 @@ impl Kernel {
         Kernel::DeflateGains,
         Kernel::DeflateApply,
         Kernel::UpdateNorms,
+        Kernel::CoarseResidual,
+        Kernel::CoarseRestrict,
+        Kernel::CoarseSolve,
+        Kernel::CoarseApply,
     ];
 
     /// One iteration without deflation, in order.
@@ -96,6 +112,21 @@ impl Kernel {
         Kernel::UpdateNorms,
     ];
 
+    /// One iteration of the two-level solve, in order: the plain step is
+    /// corrected over the aggregates before the combine (where deflation
+    /// would be), and the norms are of the update the combine made.
+    pub const COARSE_ITERATION: [Kernel; 9] = [
+        Kernel::LocalRotations,
+        Kernel::DeformationForce,
+        Kernel::Integrate,
+        Kernel::CoarseResidual,
+        Kernel::CoarseRestrict,
+        Kernel::CoarseSolve,
+        Kernel::CoarseApply,
+        Kernel::Chebyshev,
+        Kernel::UpdateNorms,
+    ];
+
     /// [`Kernel::ITERATION`] with the warm-started rotations.
     pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
 
@@ -104,6 +135,9 @@ impl Kernel {
 
     /// [`Kernel::DEFLATED_ITERATION`] with the warm-started rotations.
     pub const WARM_DEFLATED_ITERATION: [Kernel; 8] = Kernel::warm(Kernel::DEFLATED_ITERATION);
+
+    /// [`Kernel::COARSE_ITERATION`] with the warm-started rotations.
+    pub const WARM_COARSE_ITERATION: [Kernel; 9] = Kernel::warm(Kernel::COARSE_ITERATION);
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
     /// [`Kernel::LocalRotations`], so each warm list is its SVD list but
@@ -134,6 +168,10 @@ impl Kernel {
             Kernel::DeflateProject => ("deflate", "deflate_project"),
             Kernel::DeflateGains => ("deflate", "deflate_gains"),
             Kernel::DeflateApply => ("deflate", "deflate_apply"),
+            Kernel::CoarseResidual => ("coarse", "coarse_residual"),
+            Kernel::CoarseRestrict => ("coarse", "coarse_restrict"),
+            Kernel::CoarseSolve => ("coarse", "coarse_solve"),
+            Kernel::CoarseApply => ("coarse", "coarse_apply"),
         }
     }
 

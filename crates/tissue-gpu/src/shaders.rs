@@ -62,6 +62,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../../../shaders/step_norms.wgsl"),
     ),
     ("deflate", include_str!("../../../shaders/deflate.wgsl")),
+    ("coarse", include_str!("../../../shaders/coarse.wgsl")),
     (
         "tests/svd3",
         include_str!("../../../shaders/tests/svd3.wgsl"),
@@ -378,6 +379,10 @@ mod tests {
             ("deflate", "deflate_project"),
             ("deflate", "deflate_gains"),
             ("deflate", "deflate_apply"),
+            ("coarse", "coarse_residual"),
+            ("coarse", "coarse_restrict"),
+            ("coarse", "coarse_solve"),
+            ("coarse", "coarse_apply"),
             ("imf_force", "imf_force"),
             ("radius_update", "radius_update"),
             ("sampling_integrate", "integrate"),

@@ -2,10 +2,12 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
+use tissue_solve::coarse::CoarseSpace;
 use tissue_solve::elastic::Elastic;
 use tissue_solve::{ForceModel, RotationMethod};
 
 use crate::buffer::{Storage, vec4};
+use crate::coarse::CoarseBuffers;
 use crate::pipelines::{Kernel, Pipelines};
 use crate::readback::Readback;
 use crate::support::{Scopes, bind_group, scoped};
@@ -86,6 +88,9 @@ pub struct DeformState {
     /// Per particle the elastic target `T_i`, what the force kernel reads
     /// in place of the rotations with the elastic force.
     pub(crate) targets: Storage<Rotation>,
+    /// The two-level solve's coarse space (empty until
+    /// [`DeformState::set_coarse`]).
+    coarse: CoarseBuffers,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -153,8 +158,13 @@ impl DeformState {
         })?;
         let mut workgroups_of = [[1u32; 2]; Kernel::ALL.len()];
         for kernel in Kernel::ALL {
-            // One workgroup sums the projections over all the others.
-            if kernel != Kernel::DeflateGains {
+            // One workgroup sums the projections over all the others, one
+            // solves the coarse system; the restriction runs per aggregate
+            // (set with the coarse space).
+            if !matches!(
+                kernel,
+                Kernel::DeflateGains | Kernel::CoarseSolve | Kernel::CoarseRestrict
+            ) {
                 workgroups_of[kernel.index()] = workgroups(
                     count,
                     pipelines.workgroup_size(kernel),
@@ -238,6 +248,7 @@ impl DeformState {
                 )?,
                 weights: Storage::init(device, "weights", &[], &what("weights"))?,
                 targets: Storage::init(device, "targets", &[], &what("targets"))?,
+                coarse: CoarseBuffers::empty(device)?,
                 bind_groups: Vec::new(),
                 controls,
                 control_runs,
@@ -359,6 +370,31 @@ impl DeformState {
         self.correct_phase = correct;
     }
 
+    /// Uploads the two-level solve's coarse space (the CPU path's, made on
+    /// the host): the next iterations that correct run
+    /// [`Kernel::COARSE_ITERATION`] instead of deflating.
+    pub fn set_coarse(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        space: &CoarseSpace,
+    ) -> Result<(), GpuError> {
+        let coarse = CoarseBuffers::upload(device, space, self.len())?;
+        self.workgroups[Kernel::CoarseRestrict.index()] = workgroups(
+            coarse.aggregates,
+            pipelines.workgroup_size(Kernel::CoarseRestrict),
+            device.limits().max_compute_workgroups_per_dimension,
+        )?;
+        self.coarse = coarse;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Number of aggregates of the uploaded coarse space (0: none).
+    pub fn aggregates(&self) -> usize {
+        self.coarse.aggregates as usize
+    }
+
     /// Sets how the next iterations find the rotations: by the SVD, or by
     /// the polar update warm-started from the stored rotations (the `WARM_*`
     /// iterations of [`DeformState::iteration`]).
@@ -378,14 +414,17 @@ impl DeformState {
     /// [`Kernel::ITERATION`]; each as its `WARM_*` list when the rotations
     /// are warm-started ([`DeformState::set_rotations`]).
     pub fn iteration(&self) -> &'static [Kernel] {
+        let two_level = self.coarse.aggregates > 0 && self.correct_phase;
         let deflated = self.modes > 0 && self.correct_phase;
-        match (self.elastic_phase, deflated, self.warm) {
-            (true, _, false) => &Kernel::ELASTIC_ITERATION,
-            (true, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
-            (false, true, false) => &Kernel::DEFLATED_ITERATION,
-            (false, true, true) => &Kernel::WARM_DEFLATED_ITERATION,
-            (false, false, false) => &Kernel::ITERATION,
-            (false, false, true) => &Kernel::WARM_ITERATION,
+        match (self.elastic_phase, two_level, deflated, self.warm) {
+            (true, _, _, false) => &Kernel::ELASTIC_ITERATION,
+            (true, _, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
+            (false, true, _, false) => &Kernel::COARSE_ITERATION,
+            (false, true, _, true) => &Kernel::WARM_COARSE_ITERATION,
+            (false, false, true, false) => &Kernel::DEFLATED_ITERATION,
+            (false, false, true, true) => &Kernel::WARM_DEFLATED_ITERATION,
+            (false, false, false, false) => &Kernel::ITERATION,
+            (false, false, false, true) => &Kernel::WARM_ITERATION,
         }
     }
 
@@ -431,8 +470,8 @@ impl DeformState {
     }
 
     /// Every buffer, by the WGSL variable's name the kernels bind it to.
-    fn named(&self) -> [(&'static str, &wgpu::Buffer); 19] {
-        [
+    fn named(&self) -> Vec<(&'static str, &wgpu::Buffer)> {
+        let mut named = vec![
             ("params", &self.params),
             ("rest", self.rest.buffer()),
             ("current", self.current.buffer()),
@@ -452,7 +491,9 @@ impl DeformState {
             ("inverse_moments", self.inverse_moments.buffer()),
             ("weights", self.weights.buffer()),
             ("targets", self.targets.buffer()),
-        ]
+        ];
+        named.extend(self.coarse.named());
+        named
     }
 
     /// The buffer bound to the WGSL variable `name`, if any.

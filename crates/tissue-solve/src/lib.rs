@@ -23,6 +23,7 @@
 
 pub mod acceleration;
 pub mod batches;
+pub mod coarse;
 pub mod controls;
 pub mod elastic;
 pub mod grid;

@@ -89,11 +89,10 @@ pub struct DeformParams {
     pub deflation_max_particles: usize,
     /// Two-level solve: the edge of the grid cells whose free particles form
     /// one aggregate of the coarse space, in mean connection lengths; every
-    /// iteration then removes the error's part in that space exactly (the
-    /// CPU crate's `coarse` module). 0 turns it off. The default and what it
-    /// saves: docs/METHOD.md, "Two-level solve". Where it is on, the CPU path
-    /// does not deflate; the GPU path has no coarse correction yet and
-    /// deflates instead.
+    /// iteration then removes the error's part in that space exactly
+    /// ([`crate::coarse`]; the GPU's kernels in `shaders/coarse.wgsl`). 0
+    /// turns it off. The default and what it saves: docs/METHOD.md,
+    /// "Two-level solve". Where it is on, neither path deflates.
     pub coarse: f32,
     /// The coarse space's cells grow (by factors of 1.25) until there are at
     /// most this many aggregates: its factor takes about `n^(5/3)` numbers

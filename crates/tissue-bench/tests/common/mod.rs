@@ -122,8 +122,21 @@ pub const CPU_PASSES: [&str; 5] = [
 ];
 
 /// The GPU kernels of one iteration with the defaults (warm polar
-/// rotations, 32 modes deflated), in dispatch order.
-pub const GPU_PASSES: [&str; 8] = [
+/// rotations, the two-level solve), in dispatch order.
+pub const GPU_PASSES: [&str; 9] = [
+    "local_rotations_warm",
+    "deformation_force",
+    "integrate",
+    "coarse_residual",
+    "coarse_restrict",
+    "coarse_solve",
+    "coarse_apply",
+    "chebyshev",
+    "step_norms (update)",
+];
+
+/// The GPU kernels of one deflated iteration (`--coarse 0`), in dispatch order.
+pub const GPU_DEFLATED_PASSES: [&str; 8] = [
     "local_rotations_warm",
     "deformation_force",
     "integrate",

@@ -52,8 +52,8 @@ pub use kernels::{
 };
 pub use polar::{polar_rotation, warm_rotation};
 
-use crate::coarse::{Aggregates, CoarseSpace};
 use crate::coarse_elastic::ElasticCoarse;
+use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between
@@ -499,42 +499,6 @@ impl SolveDevice for CpuSolve {
         self.current.clone_from(&self.rest);
         self.rotations.fill(Mat3::IDENTITY);
         Ok(())
-    }
-}
-
-/// The coarse space a CPU solve of `model` uses under `params`: none with
-/// `coarse` 0, or (with a warning) where it cannot be built.
-pub fn coarse_space(
-    model: &ParticleModel,
-    plan: &Plan,
-    params: &DeformParams,
-) -> Option<CoarseSpace> {
-    if params.coarse == 0.0 {
-        return None;
-    }
-    let space = CoarseSpace::new(
-        &model.positions,
-        &model.connections,
-        &plan.free,
-        params.coarse * model.mean_connection_length(),
-        params.coarse_max_aggregates,
-        plan.contraction(&params.shear()),
-    );
-    match space {
-        Ok(space) => {
-            log::info!(
-                "two-level solve: {} aggregates in cells of {:.3}, contraction {:.3}, prepared in {:.3} s",
-                space.count(),
-                space.cell(),
-                space.rho(),
-                space.seconds()
-            );
-            Some(space)
-        }
-        Err(e) => {
-            log::warn!("no two-level solve: {e}");
-            None
-        }
     }
 }
 

@@ -3,7 +3,7 @@
 //!
 //! For fixed rotations the plain step is `s = -c alpha L e` for the error
 //! `e` (`L` the Dirichlet Laplacian over free particles, `c alpha` the
-//! [`Plan::contraction`](crate::deformation::Plan::contraction)), so the
+//! [`Plan::contraction`](crate::plan::Plan::contraction)), so the
 //! error after it, `e' = e + s`, has `L e' = -s / (c alpha) + L s`: known
 //! without knowing `e`. The coarse space is piecewise constant over
 //! aggregates (the free particles in one cell of a grid of edge `cell`),
@@ -23,14 +23,17 @@ use std::time::Instant;
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
-use tissue_core::{Connections, DeformError, Error};
+use tissue_core::{Connections, DeformError, Error, ParticleModel};
+
+use crate::params::DeformParams;
+use crate::plan::Plan;
 
 /// Marks a particle that belongs to no aggregate (a control point, or a
 /// particle held because nothing connects it to the surface).
-pub(crate) const OUTSIDE: u32 = u32::MAX;
+pub const OUTSIDE: u32 = u32::MAX;
 
 /// Power iterations that estimate the two-level iteration's contraction.
-pub(crate) const RATE_ITERATIONS: usize = 40;
+pub const RATE_ITERATIONS: usize = 40;
 
 /// Aggregates of free particles and the factored coarse Laplacian.
 #[derive(Debug, Clone)]
@@ -90,6 +93,16 @@ impl CoarseSpace {
     /// The edge of the grid cells the aggregates were made of.
     pub fn cell(&self) -> f32 {
         self.cell
+    }
+
+    /// Per particle its aggregate (in the factor's order), or [`OUTSIDE`].
+    pub fn aggregate(&self) -> &[u32] {
+        &self.aggregate
+    }
+
+    /// The Cholesky factor of `P^T L P`.
+    pub fn factor(&self) -> &Envelope {
+        &self.factor
     }
 
     /// Seconds the preparation took.
@@ -193,23 +206,60 @@ impl CoarseSpace {
     }
 }
 
+/// The coarse space a solve of `model` uses under `params` (on either
+/// device): none with `coarse` 0, or (with a warning) where it cannot be
+/// built.
+pub fn coarse_space(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+) -> Option<CoarseSpace> {
+    if params.coarse == 0.0 {
+        return None;
+    }
+    let space = CoarseSpace::new(
+        &model.positions,
+        &model.connections,
+        &plan.free,
+        params.coarse * model.mean_connection_length(),
+        params.coarse_max_aggregates,
+        plan.contraction(&params.shear()),
+    );
+    match space {
+        Ok(space) => {
+            log::info!(
+                "two-level solve: {} aggregates in cells of {:.3}, contraction {:.3}, prepared in {:.3} s",
+                space.count(),
+                space.cell(),
+                space.rho(),
+                space.seconds()
+            );
+            Some(space)
+        }
+        Err(e) => {
+            log::warn!("no two-level solve: {e}");
+            None
+        }
+    }
+}
+
 /// The free particles grouped into aggregates (numbered in reverse
 /// Cuthill-McKee order of the coarse graph) and the coarse Laplacian's rows
 /// in that order: what the two-level solves share.
 #[derive(Debug, Clone)]
-pub(crate) struct Aggregates {
+pub struct Aggregates {
     /// Per particle: its aggregate, or [`OUTSIDE`].
-    pub(crate) aggregate: Vec<u32>,
+    pub aggregate: Vec<u32>,
     /// The rows of `P^T L P`, each sorted by column.
-    pub(crate) rows: Vec<Vec<(u32, f64)>>,
+    pub rows: Vec<Vec<(u32, f64)>>,
     /// The edge of the cells the aggregates were made of.
-    pub(crate) cell: f32,
+    pub cell: f32,
 }
 
 impl Aggregates {
     /// The aggregates of the free particles in grid cells of edge `cell`,
     /// grown (by factors of 1.25) until there are at most `max_aggregates`.
-    pub(crate) fn new(
+    pub fn new(
         rest: &[Vec3],
         connections: &Connections,
         free: &[bool],
@@ -264,14 +314,14 @@ impl Aggregates {
     }
 
     /// Number of aggregates.
-    pub(crate) fn count(&self) -> usize {
+    pub fn count(&self) -> usize {
         self.rows.len()
     }
 }
 
 /// A start for power iteration with every mode in it: a fixed,
 /// irregular vector over the particles `inside` says are free.
-pub(crate) fn power_start(inside: impl Fn(usize) -> bool, n: usize) -> Vec<Vec3> {
+pub fn power_start(inside: impl Fn(usize) -> bool, n: usize) -> Vec<Vec3> {
     (0..n)
         .map(|i| {
             if !inside(i) {
@@ -284,7 +334,7 @@ pub(crate) fn power_start(inside: impl Fn(usize) -> bool, n: usize) -> Vec<Vec3>
 }
 
 /// The Euclidean norm of a field of vectors.
-pub(crate) fn norm(v: &[Vec3]) -> f64 {
+pub fn norm(v: &[Vec3]) -> f64 {
     v.par_iter()
         .map(|x| f64::from(x.length_squared()))
         .sum::<f64>()
@@ -401,8 +451,9 @@ fn reverse_cuthill_mckee(rows: &[Vec<(u32, f64)>]) -> Vec<u32> {
 /// A lower-triangular Cholesky factor stored by rows within its envelope:
 /// row `i` holds columns `first[i]..=i`, where `first[i]` is the row's first
 /// nonzero in the matrix (Cholesky fills nothing outside the envelope).
+/// Built by [`Envelope::cholesky`]; read by the devices' coarse solves.
 #[derive(Debug, Clone)]
-pub(crate) struct Envelope {
+pub struct Envelope {
     first: Vec<usize>,
     /// Where each row starts in `values`.
     start: Vec<usize>,
@@ -413,7 +464,7 @@ impl Envelope {
     /// Factors the symmetric positive definite matrix given by `rows`
     /// (each sorted by column, both triangles present); `None` when a pivot
     /// is not positive.
-    pub(crate) fn cholesky(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
+    pub fn cholesky(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
         let n = rows.len();
         let first: Vec<usize> = rows
             .iter()
@@ -457,8 +508,51 @@ impl Envelope {
         })
     }
 
-    fn len(&self) -> usize {
+    /// Number of rows.
+    pub fn len(&self) -> usize {
         self.first.len()
+    }
+
+    /// Whether the factor has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.first.is_empty()
+    }
+
+    /// Row `i`: its first column and its entries from there to the
+    /// diagonal, the diagonal last.
+    pub fn row(&self, i: usize) -> (usize, &[f64]) {
+        (
+            self.first[i],
+            &self.values[self.start[i]..self.start[i + 1]],
+        )
+    }
+
+    /// The strictly lower entries by column, for a substitution that
+    /// sweeps columns: per column `j` (`starts[j]..starts[j + 1]`) the
+    /// rows `i > j` whose envelope reaches it and `L_ij`.
+    pub fn columns(&self) -> (Vec<u32>, Vec<u32>, Vec<f64>) {
+        let n = self.len();
+        let mut counts = vec![0u32; n + 1];
+        for i in 0..n {
+            for j in self.first[i]..i {
+                counts[j + 1] += 1;
+            }
+        }
+        for j in 0..n {
+            counts[j + 1] += counts[j];
+        }
+        let total = counts[n] as usize;
+        let (mut rows, mut values) = (vec![0u32; total], vec![0.0f64; total]);
+        let mut next = counts.clone();
+        for i in 0..n {
+            let (first, row) = self.row(i);
+            for (j, &l) in (first..i).zip(row) {
+                let at = next[j] as usize;
+                (rows[at], values[at]) = (i as u32, l);
+                next[j] += 1;
+            }
+        }
+        (counts, rows, values)
     }
 
     /// Solves `L L^T x = b` in place for three right-hand sides at once.
@@ -467,7 +561,7 @@ impl Envelope {
     }
 
     /// Solves `L L^T x = b` in place for one right-hand side.
-    pub(crate) fn solve_scalar(&self, b: &mut [f64]) {
+    pub fn solve_scalar(&self, b: &mut [f64]) {
         self.solve_in_place(b);
     }
 
@@ -605,7 +699,7 @@ mod tests {
     #[test]
     fn the_two_level_iteration_contracts_far_faster_than_the_plain_one() {
         let (rest, connections, free) = grid(18);
-        let (lambda_min, lambda_max) = crate::deformation::laplacian_extremes(&connections, &free);
+        let (lambda_min, lambda_max) = crate::spectrum::laplacian_extremes(&connections, &free);
         // The symmetric force at step fraction 0.9: `c alpha = 1.8 / lambda_max`.
         let contraction = 1.8 / lambda_max;
         let plain = 1.0 - contraction * lambda_min;

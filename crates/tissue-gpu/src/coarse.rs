@@ -1,0 +1,160 @@
+//! The two-level solve's data on the GPU: the CPU path's coarse space
+//! ([`CoarseSpace`], made once on the host, the same aggregates, factor and
+//! contraction) in the buffers `shaders/coarse.wgsl` reads.
+
+use tissue_solve::coarse::{CoarseSpace, OUTSIDE};
+
+use crate::GpuError;
+use crate::buffer::Storage;
+use crate::support::scoped;
+
+/// The coarse space's buffers; empty (16 bytes each) until
+/// [`CoarseBuffers::upload`] fills them.
+#[derive(Debug)]
+pub(crate) struct CoarseBuffers {
+    /// Number of aggregates (0: no coarse space).
+    pub(crate) aggregates: u32,
+    /// Per particle its aggregate, or [`OUTSIDE`].
+    aggregate: Storage<u32>,
+    /// Per particle `(L e')_i` (`vec4`).
+    residual: Storage<[f32; 4]>,
+    /// Per aggregate the start of its particles in `members` (aggregates + 1).
+    member_starts: Storage<u32>,
+    /// The particles of each aggregate, aggregate by aggregate.
+    members: Storage<u32>,
+    /// Per aggregate the restricted residual, then the coarse solution (`vec4`).
+    coarse: Storage<[f32; 4]>,
+    /// The factor's rows: where each starts in `row_values` (aggregates + 1).
+    row_starts: Storage<u32>,
+    /// Each row's entries from its first column to the diagonal.
+    row_values: Storage<f32>,
+    /// The factor's strictly lower entries by column: where each starts.
+    column_starts: Storage<u32>,
+    /// Their rows.
+    column_rows: Storage<u32>,
+    /// Their values.
+    column_values: Storage<f32>,
+}
+
+impl CoarseBuffers {
+    /// No coarse space: every buffer empty.
+    pub(crate) fn empty(device: &wgpu::Device) -> Result<Self, GpuError> {
+        let what = |name: &str| format!("the {name} buffer (no coarse space)");
+        Ok(Self {
+            aggregates: 0,
+            aggregate: Storage::init(device, "aggregate", &[], &what("aggregate"))?,
+            residual: Storage::init(device, "residual", &[], &what("residual"))?,
+            member_starts: Storage::init(device, "member_starts", &[], &what("member_starts"))?,
+            members: Storage::init(device, "members", &[], &what("members"))?,
+            coarse: Storage::init(device, "coarse", &[], &what("coarse"))?,
+            row_starts: Storage::init(device, "row_starts", &[], &what("row_starts"))?,
+            row_values: Storage::init(device, "row_values", &[], &what("row_values"))?,
+            column_starts: Storage::init(device, "column_starts", &[], &what("column_starts"))?,
+            column_rows: Storage::init(device, "column_rows", &[], &what("column_rows"))?,
+            column_values: Storage::init(device, "column_values", &[], &what("column_values"))?,
+        })
+    }
+
+    /// `space`'s aggregates and factor for a model of `particles`
+    /// particles; the factor in `f32`.
+    pub(crate) fn upload(
+        device: &wgpu::Device,
+        space: &CoarseSpace,
+        particles: usize,
+    ) -> Result<Self, GpuError> {
+        let aggregate = space.aggregate();
+        if aggregate.len() != particles {
+            return Err(GpuError::Length {
+                what: "coarse aggregates (one per particle)",
+                expected: particles,
+                got: aggregate.len(),
+            });
+        }
+        let count = space.count();
+        let aggregates = u32::try_from(count).map_err(|_| GpuError::LimitExceeded {
+            limit: "u32 aggregate index",
+            what: "the coarse space's aggregates".into(),
+            asked: count as u64,
+            allowed: u64::from(u32::MAX),
+        })?;
+        // Members, aggregate by aggregate, each in particle order.
+        let mut member_starts = vec![0u32; count + 1];
+        for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
+            member_starts[a as usize + 1] += 1;
+        }
+        for a in 0..count {
+            member_starts[a + 1] += member_starts[a];
+        }
+        let mut next = member_starts.clone();
+        let mut members = vec![0u32; member_starts[count] as usize];
+        for (i, &a) in aggregate.iter().enumerate() {
+            if a != OUTSIDE {
+                members[next[a as usize] as usize] = i as u32;
+                next[a as usize] += 1;
+            }
+        }
+        let factor = space.factor();
+        let mut row_starts = Vec::with_capacity(count + 1);
+        let mut row_values = Vec::new();
+        row_starts.push(0u32);
+        for i in 0..factor.len() {
+            let (_, row) = factor.row(i);
+            row_values.extend(row.iter().map(|&v| v as f32));
+            row_starts.push(row_values.len() as u32);
+        }
+        let (column_starts, column_rows, column_values) = factor.columns();
+        let column_values: Vec<f32> = column_values.iter().map(|&v| v as f32).collect();
+        let what = |name: &str| format!("the {name} buffer ({count} aggregates)");
+        scoped(device, || {
+            Ok(Self {
+                aggregates,
+                aggregate: Storage::init(device, "aggregate", aggregate, &what("aggregate"))?,
+                residual: Storage::zeroed(device, "residual", particles, &what("residual"))?,
+                member_starts: Storage::init(
+                    device,
+                    "member_starts",
+                    &member_starts,
+                    &what("member_starts"),
+                )?,
+                members: Storage::init(device, "members", &members, &what("members"))?,
+                coarse: Storage::zeroed(device, "coarse", count, &what("coarse"))?,
+                row_starts: Storage::init(device, "row_starts", &row_starts, &what("row_starts"))?,
+                row_values: Storage::init(device, "row_values", &row_values, &what("row_values"))?,
+                column_starts: Storage::init(
+                    device,
+                    "column_starts",
+                    &column_starts,
+                    &what("column_starts"),
+                )?,
+                column_rows: Storage::init(
+                    device,
+                    "column_rows",
+                    &column_rows,
+                    &what("column_rows"),
+                )?,
+                column_values: Storage::init(
+                    device,
+                    "column_values",
+                    &column_values,
+                    &what("column_values"),
+                )?,
+            })
+        })
+    }
+
+    /// The buffers by the names the shader gives them.
+    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 10] {
+        [
+            ("aggregate", self.aggregate.buffer()),
+            ("residual", self.residual.buffer()),
+            ("member_starts", self.member_starts.buffer()),
+            ("members", self.members.buffer()),
+            ("coarse", self.coarse.buffer()),
+            ("row_starts", self.row_starts.buffer()),
+            ("row_values", self.row_values.buffer()),
+            ("column_starts", self.column_starts.buffer()),
+            ("column_rows", self.column_rows.buffer()),
+            ("column_values", self.column_values.buffer()),
+        ]
+    }
+}
