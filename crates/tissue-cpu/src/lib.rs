@@ -11,7 +11,9 @@
 /// The two-level solve's coarse space, written once in `tissue-solve`
 /// (its correction is the CPU's kernel).
 pub use tissue_solve::coarse;
-pub mod coarse_elastic;
+/// The elastic phase's two-level solve, written once in `tissue-solve`
+/// (its correction is the CPU's kernel).
+pub use tissue_solve::coarse_elastic;
 pub mod deformation;
 pub mod sampling;
 

@@ -2,7 +2,7 @@
 //! ([`CoarseSpace`], made once on the host, the same aggregates, factor and
 //! contraction) in the buffers `shaders/coarse.wgsl` reads.
 
-use tissue_solve::coarse::{CoarseSpace, OUTSIDE};
+use tissue_solve::coarse::{CoarseSpace, Envelope, OUTSIDE};
 
 use crate::GpuError;
 use crate::buffer::Storage;
@@ -77,33 +77,9 @@ impl CoarseBuffers {
             asked: count as u64,
             allowed: u64::from(u32::MAX),
         })?;
-        // Members, aggregate by aggregate, each in particle order.
-        let mut member_starts = vec![0u32; count + 1];
-        for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
-            member_starts[a as usize + 1] += 1;
-        }
-        for a in 0..count {
-            member_starts[a + 1] += member_starts[a];
-        }
-        let mut next = member_starts.clone();
-        let mut members = vec![0u32; member_starts[count] as usize];
-        for (i, &a) in aggregate.iter().enumerate() {
-            if a != OUTSIDE {
-                members[next[a as usize] as usize] = i as u32;
-                next[a as usize] += 1;
-            }
-        }
-        let factor = space.factor();
-        let mut row_starts = Vec::with_capacity(count + 1);
-        let mut row_values = Vec::new();
-        row_starts.push(0u32);
-        for i in 0..factor.len() {
-            let (_, row) = factor.row(i);
-            row_values.extend(row.iter().map(|&v| v as f32));
-            row_starts.push(row_values.len() as u32);
-        }
-        let (column_starts, column_rows, column_values) = factor.columns();
-        let column_values: Vec<f32> = column_values.iter().map(|&v| v as f32).collect();
+        let (member_starts, members) = members_of(aggregate, count);
+        let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
+            factor_of(space.factor());
         let what = |name: &str| format!("the {name} buffer ({count} aggregates)");
         scoped(device, || {
             Ok(Self {
@@ -157,4 +133,48 @@ impl CoarseBuffers {
             ("column_values", self.column_values.buffer()),
         ]
     }
+}
+
+/// Per aggregate the start of its particles in the member list (`count + 1`
+/// entries), and the list, aggregate by aggregate, each in particle order.
+pub(crate) fn members_of(aggregate: &[u32], count: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut starts = vec![0u32; count + 1];
+    for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
+        starts[a as usize + 1] += 1;
+    }
+    for a in 0..count {
+        starts[a + 1] += starts[a];
+    }
+    let mut next = starts.clone();
+    let mut members = vec![0u32; starts[count] as usize];
+    for (i, &a) in aggregate.iter().enumerate() {
+        if a != OUTSIDE {
+            members[next[a as usize] as usize] = i as u32;
+            next[a as usize] += 1;
+        }
+    }
+    (starts, members)
+}
+
+/// A factor's rows (where each starts, its entries from its first column
+/// to the diagonal) and its strictly lower entries by column (where each
+/// starts, their rows, their values), in `f32`.
+#[allow(clippy::type_complexity, reason = "the five arrays the shaders read")]
+pub(crate) fn factor_of(
+    factor: &Envelope,
+) -> ((Vec<u32>, Vec<f32>), (Vec<u32>, Vec<u32>, Vec<f32>)) {
+    let mut row_starts = Vec::with_capacity(factor.len() + 1);
+    let mut row_values = Vec::new();
+    row_starts.push(0u32);
+    for i in 0..factor.len() {
+        let (_, row) = factor.row(i);
+        row_values.extend(row.iter().map(|&v| v as f32));
+        row_starts.push(row_values.len() as u32);
+    }
+    let (column_starts, column_rows, column_values) = factor.columns();
+    let column_values = column_values.iter().map(|&v| v as f32).collect();
+    (
+        (row_starts, row_values),
+        (column_starts, column_rows, column_values),
+    )
 }

@@ -1,10 +1,14 @@
 //! Stage 2 on the GPU: `tissue_solve::Tracker` over [`GpuSolve`], the
 //! kernels and buffers of one model.
 
+use std::sync::Arc;
+
 use glam::{Mat3, Vec3};
-use tissue_core::{ParticleModel, SurfaceMesh};
-use tissue_solve::coarse::{CoarseSpace, coarse_space};
+use tissue_core::{Connections, ParticleModel, SurfaceMesh};
+use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
+use tissue_solve::coarse_elastic::{ElasticCoarse, elastic_aggregates};
 use tissue_solve::deflation_modes;
+use tissue_solve::elastic::Elastic;
 use tissue_solve::{
     DeformParams, DeformReport, ForceModel, Iteration, LowModes, RotationMethod, SolveDevice,
     Tracker,
@@ -49,6 +53,11 @@ pub struct GpuSolve {
     modes: Option<LowModes>,
     /// The two-level iteration's contraction, with the coarse space.
     coarse_rho: Option<f32>,
+    /// What the host linearises the elastic phase from, with its two-level
+    /// solve (the elastic force, `coarse` and `elastic_coarse_max_aggregates` on).
+    elastic_host: Option<ElasticHost>,
+    /// The elastic phase's correction in hand (its contraction, its step).
+    elastic_coarse: Option<ElasticCoarse>,
     /// `current` at a batch's start, for a replay (a copy target that no
     /// kernel binds: raw).
     backup_current: wgpu::Buffer,
@@ -63,16 +72,22 @@ pub struct GpuSolve {
     slots: u32,
 }
 
+/// The rest data the host needs to make the elastic phase's correction.
+#[derive(Debug)]
+struct ElasticHost {
+    rest: Vec<Vec3>,
+    connections: Connections,
+    elastic: Arc<Elastic>,
+    aggregates: Aggregates,
+}
+
 impl GpuDeformer {
     /// The parameters under which the CPU path runs the solve the GPU runs
-    /// under `params`, its twin: the same (the rotation method and the
-    /// two-level solve included), without the elastic phase's two-level
-    /// solve (`elastic_coarse_max_aggregates`), which has no kernels here yet.
+    /// under `params`, its twin: the same, now that every correction the
+    /// CPU path runs (the two-level solve, the elastic phase's, deflation)
+    /// has its kernels here.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
-        DeformParams {
-            elastic_coarse_max_aggregates: 0,
-            ..params.clone()
-        }
+        params.clone()
     }
 
     /// Checks `model` and `params`, estimates the Laplacian's extreme
@@ -104,6 +119,18 @@ impl GpuDeformer {
                 Some(_) => None,
                 None => deflation_modes(model, plan, params),
             };
+            let elastic_host = match (&plan.elastic, elastic_aggregates(model, plan, params)) {
+                (Some(elastic), Some(aggregates)) => {
+                    state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
+                    Some(ElasticHost {
+                        rest: model.positions.clone(),
+                        connections: model.connections.clone(),
+                        elastic: Arc::clone(elastic),
+                        aggregates,
+                    })
+                }
+                _ => None,
+            };
             if let Some(m) = &modes {
                 let scales: Vec<f32> = m
                     .gain_scales(plan.contraction(&params.shear()))
@@ -130,6 +157,8 @@ impl GpuDeformer {
                 state,
                 modes,
                 coarse_rho: coarse.as_ref().map(CoarseSpace::rho),
+                elastic_host,
+                elastic_coarse: None,
                 iteration: None,
                 slots: 0,
             })
@@ -242,6 +271,51 @@ impl GpuDeformer {
     }
 }
 
+impl GpuSolve {
+    /// Makes the elastic phase's correction at the current positions (read
+    /// back) on the host, as the CPU path makes its own, and uploads it; a
+    /// failure leaves the phase uncorrected, with a warning.
+    fn linearise(
+        &mut self,
+        (device, queue): (&wgpu::Device, &wgpu::Queue),
+        iteration: Iteration,
+    ) -> Result<(), GpuError> {
+        if self.elastic_host.is_none() {
+            return Ok(());
+        }
+        let current = self.read_positions((device, queue))?;
+        let Some(host) = &self.elastic_host else {
+            return Ok(());
+        };
+        match ElasticCoarse::new(
+            &host.aggregates,
+            &host.rest,
+            &current,
+            &host.connections,
+            &host.elastic,
+            iteration.contraction,
+        ) {
+            Ok(coarse) => {
+                self.state
+                    .linearise_elastic(device, &self.pipelines, &coarse)?;
+                log::info!(
+                    "elastic two-level solve: {} aggregates, contraction {:.3}, prepared in {:.3} s",
+                    host.aggregates.count(),
+                    coarse.rho(),
+                    coarse.seconds()
+                );
+                self.elastic_coarse = Some(coarse);
+            }
+            Err(e) => {
+                log::warn!("the elastic phase runs without its two-level solve: {e}");
+                self.state.forget_elastic_linearisation();
+                self.elastic_coarse = None;
+            }
+        }
+        Ok(())
+    }
+}
+
 impl SolveDevice for GpuSolve {
     type Error = GpuError;
     type Context<'a> = (&'a wgpu::Device, &'a wgpu::Queue);
@@ -257,6 +331,13 @@ impl SolveDevice for GpuSolve {
 
     fn coarse_rho(&self) -> Option<f32> {
         self.coarse_rho
+    }
+
+    fn elastic_rho(&self) -> Option<f32> {
+        self.iteration
+            .filter(|it| it.correct && it.force == ForceModel::Elastic)
+            .and(self.elastic_coarse.as_ref())
+            .map(ElasticCoarse::rho)
     }
 
     fn write_positions(
@@ -285,6 +366,9 @@ impl SolveDevice for GpuSolve {
         (device, queue): Self::Context<'_>,
         iteration: Iteration,
     ) -> Result<(), GpuError> {
+        if ElasticCoarse::is_needed_anew(self.elastic_coarse.as_ref(), &iteration) {
+            self.linearise((device, queue), iteration)?;
+        }
         self.iteration = Some(iteration);
         self.state
             .set_phase(iteration.force == ForceModel::Elastic, iteration.correct);

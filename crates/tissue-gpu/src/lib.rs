@@ -23,6 +23,7 @@
 
 mod buffer;
 mod coarse;
+mod coarse_elastic;
 mod deformer;
 pub mod grid;
 mod pipelines;

@@ -55,11 +55,28 @@ pub enum Kernel {
     /// `coarse.wgsl::coarse_apply`: the coarse solution subtracted from
     /// the plain step of every particle of its aggregate.
     CoarseApply,
+    /// `coarse_elastic.wgsl::elastic_step_of`: per particle the plain step,
+    /// 0 outside the elastic aggregates.
+    ElasticStep,
+    /// `coarse_elastic.wgsl::elastic_change_of`: per particle the volume
+    /// term's linearised change `sqrt(W_i) g_i . s`.
+    ElasticChange,
+    /// `coarse_elastic.wgsl::elastic_residual_of`: per particle `(K e')_j`.
+    ElasticResidual,
+    /// `coarse_elastic.wgsl::elastic_restrict`: per elastic aggregate the
+    /// sum of its particles' residuals.
+    ElasticRestrict,
+    /// `coarse_elastic.wgsl::elastic_solve`: one workgroup solves the
+    /// elastic coarse matrix by its Cholesky factor.
+    ElasticSolve,
+    /// `coarse_elastic.wgsl::elastic_apply`: the solution subtracted from
+    /// the plain step of every particle of its aggregate.
+    ElasticApply,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 16] = [
+    pub const ALL: [Kernel; 22] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -76,6 +93,12 @@ impl Kernel {
         Kernel::CoarseRestrict,
         Kernel::CoarseSolve,
         Kernel::CoarseApply,
+        Kernel::ElasticStep,
+        Kernel::ElasticChange,
+        Kernel::ElasticResidual,
+        Kernel::ElasticRestrict,
+        Kernel::ElasticSolve,
+        Kernel::ElasticApply,
     ];
 
     /// One iteration without deflation, in order.
@@ -127,6 +150,24 @@ impl Kernel {
         Kernel::UpdateNorms,
     ];
 
+    /// One iteration of the elastic phase with its two-level solve, in
+    /// order: the elastic correction between the plain step and the
+    /// combine, the norms of the update the combine made.
+    pub const CORRECTED_ELASTIC_ITERATION: [Kernel; 12] = [
+        Kernel::LocalRotations,
+        Kernel::ElasticTargets,
+        Kernel::DeformationForce,
+        Kernel::Integrate,
+        Kernel::ElasticStep,
+        Kernel::ElasticChange,
+        Kernel::ElasticResidual,
+        Kernel::ElasticRestrict,
+        Kernel::ElasticSolve,
+        Kernel::ElasticApply,
+        Kernel::Chebyshev,
+        Kernel::UpdateNorms,
+    ];
+
     /// [`Kernel::ITERATION`] with the warm-started rotations.
     pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
 
@@ -138,6 +179,10 @@ impl Kernel {
 
     /// [`Kernel::COARSE_ITERATION`] with the warm-started rotations.
     pub const WARM_COARSE_ITERATION: [Kernel; 9] = Kernel::warm(Kernel::COARSE_ITERATION);
+
+    /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
+    pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
+        Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
     /// [`Kernel::LocalRotations`], so each warm list is its SVD list but
@@ -172,6 +217,12 @@ impl Kernel {
             Kernel::CoarseRestrict => ("coarse", "coarse_restrict"),
             Kernel::CoarseSolve => ("coarse", "coarse_solve"),
             Kernel::CoarseApply => ("coarse", "coarse_apply"),
+            Kernel::ElasticStep => ("coarse_elastic", "elastic_step_of"),
+            Kernel::ElasticChange => ("coarse_elastic", "elastic_change_of"),
+            Kernel::ElasticResidual => ("coarse_elastic", "elastic_residual_of"),
+            Kernel::ElasticRestrict => ("coarse_elastic", "elastic_restrict"),
+            Kernel::ElasticSolve => ("coarse_elastic", "elastic_solve"),
+            Kernel::ElasticApply => ("coarse_elastic", "elastic_apply"),
         }
     }
 

@@ -64,6 +64,10 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("deflate", include_str!("../../../shaders/deflate.wgsl")),
     ("coarse", include_str!("../../../shaders/coarse.wgsl")),
     (
+        "coarse_elastic",
+        include_str!("../../../shaders/coarse_elastic.wgsl"),
+    ),
+    (
         "tests/svd3",
         include_str!("../../../shaders/tests/svd3.wgsl"),
     ),
@@ -383,6 +387,12 @@ mod tests {
             ("coarse", "coarse_restrict"),
             ("coarse", "coarse_solve"),
             ("coarse", "coarse_apply"),
+            ("coarse_elastic", "elastic_step_of"),
+            ("coarse_elastic", "elastic_change_of"),
+            ("coarse_elastic", "elastic_residual_of"),
+            ("coarse_elastic", "elastic_restrict"),
+            ("coarse_elastic", "elastic_solve"),
+            ("coarse_elastic", "elastic_apply"),
             ("imf_force", "imf_force"),
             ("radius_update", "radius_update"),
             ("sampling_integrate", "integrate"),

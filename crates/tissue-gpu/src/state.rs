@@ -2,12 +2,14 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
-use tissue_solve::coarse::CoarseSpace;
+use tissue_solve::coarse::{Aggregates, CoarseSpace};
+use tissue_solve::coarse_elastic::ElasticCoarse;
 use tissue_solve::elastic::Elastic;
 use tissue_solve::{ForceModel, RotationMethod};
 
 use crate::buffer::{Storage, vec4};
 use crate::coarse::CoarseBuffers;
+use crate::coarse_elastic::ElasticCoarseBuffers;
 use crate::pipelines::{Kernel, Pipelines};
 use crate::readback::Readback;
 use crate::support::{Scopes, bind_group, scoped};
@@ -91,6 +93,8 @@ pub struct DeformState {
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
     coarse: CoarseBuffers,
+    /// The elastic phase's (empty until [`DeformState::set_elastic_aggregates`]).
+    elastic_coarse: ElasticCoarseBuffers,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -163,7 +167,11 @@ impl DeformState {
             // (set with the coarse space).
             if !matches!(
                 kernel,
-                Kernel::DeflateGains | Kernel::CoarseSolve | Kernel::CoarseRestrict
+                Kernel::DeflateGains
+                    | Kernel::CoarseSolve
+                    | Kernel::CoarseRestrict
+                    | Kernel::ElasticSolve
+                    | Kernel::ElasticRestrict
             ) {
                 workgroups_of[kernel.index()] = workgroups(
                     count,
@@ -249,6 +257,7 @@ impl DeformState {
                 weights: Storage::init(device, "weights", &[], &what("weights"))?,
                 targets: Storage::init(device, "targets", &[], &what("targets"))?,
                 coarse: CoarseBuffers::empty(device)?,
+                elastic_coarse: ElasticCoarseBuffers::empty(device)?,
                 bind_groups: Vec::new(),
                 controls,
                 control_runs,
@@ -390,6 +399,44 @@ impl DeformState {
         Ok(())
     }
 
+    /// Uploads the elastic phase's aggregates; its corrected iterations run
+    /// once [`DeformState::linearise_elastic`] gave a linearisation.
+    pub fn set_elastic_aggregates(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        aggregates: &Aggregates,
+    ) -> Result<(), GpuError> {
+        let buffers = ElasticCoarseBuffers::with_aggregates(device, aggregates, self.len())?;
+        self.workgroups[Kernel::ElasticRestrict.index()] = workgroups(
+            buffers.aggregates,
+            pipelines.workgroup_size(Kernel::ElasticRestrict),
+            device.limits().max_compute_workgroups_per_dimension,
+        )?;
+        self.elastic_coarse = buffers;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Uploads the elastic operator linearised at a state (the host's
+    /// [`ElasticCoarse`] over the aggregates given before).
+    pub fn linearise_elastic(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        coarse: &ElasticCoarse,
+    ) -> Result<(), GpuError> {
+        self.elastic_coarse.linearise(device, coarse)?;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Runs the elastic phase uncorrected until the next
+    /// [`DeformState::linearise_elastic`] (the host could not make one).
+    pub fn forget_elastic_linearisation(&mut self) {
+        self.elastic_coarse.linearised = false;
+    }
+
     /// Number of aggregates of the uploaded coarse space (0: none).
     pub fn aggregates(&self) -> usize {
         self.coarse.aggregates as usize
@@ -416,7 +463,10 @@ impl DeformState {
     pub fn iteration(&self) -> &'static [Kernel] {
         let two_level = self.coarse.aggregates > 0 && self.correct_phase;
         let deflated = self.modes > 0 && self.correct_phase;
+        let elastic_corrected = self.elastic_coarse.linearised && self.correct_phase;
         match (self.elastic_phase, two_level, deflated, self.warm) {
+            (true, _, _, false) if elastic_corrected => &Kernel::CORRECTED_ELASTIC_ITERATION,
+            (true, _, _, true) if elastic_corrected => &Kernel::WARM_CORRECTED_ELASTIC_ITERATION,
             (true, _, _, false) => &Kernel::ELASTIC_ITERATION,
             (true, _, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
             (false, true, _, false) => &Kernel::COARSE_ITERATION,
@@ -493,6 +543,7 @@ impl DeformState {
             ("targets", self.targets.buffer()),
         ];
         named.extend(self.coarse.named());
+        named.extend(self.elastic_coarse.named());
         named
     }
 

@@ -10,11 +10,12 @@ use crate::readback::read_buffer;
 use crate::state::DeformState;
 use crate::support::Scopes;
 
-/// Timestamps of the longest iteration, the two-level one: a start and an
-/// end per kernel.
-const QUERIES: u32 = 2 * Kernel::COARSE_ITERATION.len() as u32;
-const _: () = assert!(Kernel::ELASTIC_ITERATION.len() <= Kernel::COARSE_ITERATION.len());
-const _: () = assert!(Kernel::DEFLATED_ITERATION.len() <= Kernel::COARSE_ITERATION.len());
+/// Timestamps of the longest iteration, the corrected elastic one: a start
+/// and an end per kernel.
+const QUERIES: u32 = 2 * Kernel::CORRECTED_ELASTIC_ITERATION.len() as u32;
+const _: () = assert!(Kernel::COARSE_ITERATION.len() <= Kernel::CORRECTED_ELASTIC_ITERATION.len());
+const _: () =
+    assert!(Kernel::DEFLATED_ITERATION.len() <= Kernel::CORRECTED_ELASTIC_ITERATION.len());
 
 /// GPU time of one iteration, from the device's own clock.
 #[derive(Clone, Debug, PartialEq)]

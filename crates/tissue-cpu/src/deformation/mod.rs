@@ -52,8 +52,8 @@ pub use kernels::{
 };
 pub use polar::{polar_rotation, warm_rotation};
 
-use crate::coarse_elastic::ElasticCoarse;
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
+use tissue_solve::coarse_elastic::{ElasticCoarse, elastic_aggregates};
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between
@@ -236,11 +236,7 @@ impl CpuSolve {
         else {
             return;
         };
-        let current = self
-            .elastic_coarse
-            .as_deref()
-            .is_some_and(|c| c.contraction() == iteration.contraction);
-        if current && !iteration.relinearise {
+        if !ElasticCoarse::is_needed_anew(self.elastic_coarse.as_deref(), &iteration) {
             return;
         }
         self.elastic_coarse = match ElasticCoarse::new(
@@ -500,27 +496,4 @@ impl SolveDevice for CpuSolve {
         self.rotations.fill(Mat3::IDENTITY);
         Ok(())
     }
-}
-
-/// The aggregates of the elastic phase's two-level solve under `params`:
-/// with the elastic force and the two-level solve on, the cells of
-/// `coarse` grown until there are at most `elastic_coarse_max_aggregates`;
-/// none otherwise, or (with a warning) where they cannot be made.
-fn elastic_aggregates(
-    model: &ParticleModel,
-    plan: &Plan,
-    params: &DeformParams,
-) -> Option<Aggregates> {
-    if plan.elastic.is_none() || params.coarse == 0.0 || params.elastic_coarse_max_aggregates == 0 {
-        return None;
-    }
-    Aggregates::new(
-        &model.positions,
-        &model.connections,
-        &plan.free,
-        params.coarse * model.mean_connection_length(),
-        params.elastic_coarse_max_aggregates,
-    )
-    .inspect_err(|e| log::warn!("the elastic phase runs without its two-level solve: {e}"))
-    .ok()
 }

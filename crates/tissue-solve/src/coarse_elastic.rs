@@ -1,5 +1,5 @@
 //! The two-level solve of the elastic phase: the coarse correction of
-//! [`tissue_solve::coarse`] for the elastic operator linearised where the phase
+//! [`crate::coarse`] for the elastic operator linearised where the phase
 //! starts, three unknowns (a translation) per aggregate.
 //!
 //! The elastic force's operator for a small displacement `u` (rotations
@@ -7,7 +7,7 @@
 //! term's Gauss-Newton part: `K = L + 1/2 sum_i W_i g_i g_i^T`, with `g_i`
 //! the gradient of `J_i = det F_i`, whose entries are `cof(F_i) A_i^-1 d_ij`
 //! at neighbour `j` and minus their sum at `i` (module
-//! [`tissue_solve::elastic`]). Unlike the Laplacian, `K` depends on the
+//! [`crate::elastic`]). Unlike the Laplacian, `K` depends on the
 //! state through `cof(F_i)`, which turns with the particle's rotation; a
 //! coarse matrix built at rest (`cof F = I`) diverged on the breast phantoms
 //! (docs/METHOD.md, "Elastic model"). So `P^T K P` is assembled at the
@@ -21,9 +21,14 @@ use std::time::Instant;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
-use tissue_solve::elastic::{Elastic, cofactor, offsets_product};
 
-use tissue_solve::coarse::{Aggregates, Envelope, OUTSIDE, RATE_ITERATIONS, norm, power_start};
+use tissue_core::ParticleModel;
+
+use crate::coarse::{Aggregates, Envelope, OUTSIDE, RATE_ITERATIONS, norm, power_start};
+use crate::elastic::{Elastic, cofactor, offsets_product};
+use crate::params::{DeformParams, ForceModel};
+use crate::plan::Plan;
+use crate::tracker::Iteration;
 
 /// The elastic operator's coarse correction, linearised at one state.
 #[derive(Debug, Clone)]
@@ -46,7 +51,7 @@ impl ElasticCoarse {
     /// `P^T K P` over `aggregates` with `K` linearised at `current`,
     /// factored, and the two-level iteration's contraction for the plain
     /// step's `contraction` (`c alpha`) estimated by power iteration.
-    pub(crate) fn new(
+    pub fn new(
         aggregates: &Aggregates,
         rest: &[Vec3],
         current: &[Vec3],
@@ -99,6 +104,34 @@ impl ElasticCoarse {
     /// Seconds the assembly, the factor and the estimate took.
     pub fn seconds(&self) -> f64 {
         self.seconds
+    }
+
+    /// Per particle `cof(F_i) A_i^-1` at the state (zero where the
+    /// neighbourhood is flat).
+    pub fn gradients(&self) -> &[DMat3] {
+        &self.gradients
+    }
+
+    /// Per particle the volume weight `W_i`.
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// The Cholesky factor of `P^T K P`, unknown `3 a + axis` for
+    /// aggregate `a`.
+    pub fn factor(&self) -> &Envelope {
+        &self.factor
+    }
+
+    /// Whether an elastic phase run with `iteration` needs the correction
+    /// made again at its start: it starts a phase of its own
+    /// ([`Iteration::relinearise`]), or the correction in hand (if any) was
+    /// made for another step. Only for a corrected elastic phase.
+    pub fn is_needed_anew(existing: Option<&Self>, iteration: &Iteration) -> bool {
+        if iteration.force != ForceModel::Elastic || !iteration.correct {
+            return false;
+        }
+        iteration.relinearise || existing.is_none_or(|c| c.contraction != iteration.contraction)
     }
 
     /// `K u` at the state, over the particles `aggregates` holds free
@@ -156,7 +189,7 @@ impl ElasticCoarse {
     /// error `e`) into the two-level one: subtracts the `K`-orthogonal
     /// projection onto the coarse space of the error left after it, whose
     /// `K e' = -s / (c alpha) + K s` is known without `e`.
-    pub(crate) fn correct(
+    pub fn correct(
         &self,
         aggregates: &Aggregates,
         rest: &[Vec3],
@@ -199,7 +232,7 @@ impl ElasticCoarse {
     }
 
     /// The spectral radius of `E = (I - Pi)(I - c alpha K)` by power
-    /// iteration, as [`tissue_solve::coarse::CoarseSpace`] estimates its own.
+    /// iteration, as [`crate::coarse::CoarseSpace`] estimates its own.
     fn spectral_radius(
         &self,
         aggregates: &Aggregates,
@@ -300,14 +333,63 @@ fn assemble(
         .collect()
 }
 
+/// The aggregates of the elastic phase's two-level solve under `params`:
+/// with the elastic force and the two-level solve on, the cells of
+/// `coarse` grown until there are at most `elastic_coarse_max_aggregates`;
+/// none otherwise, or (with a warning) where they cannot be made.
+pub fn elastic_aggregates(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+) -> Option<Aggregates> {
+    if plan.elastic.is_none() || params.coarse == 0.0 || params.elastic_coarse_max_aggregates == 0 {
+        return None;
+    }
+    Aggregates::new(
+        &model.positions,
+        &model.connections,
+        &plan.free,
+        params.coarse * model.mean_connection_length(),
+        params.elastic_coarse_max_aggregates,
+    )
+    .inspect_err(|e| log::warn!("the elastic phase runs without its two-level solve: {e}"))
+    .ok()
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use glam::Mat3;
 
     use super::*;
-    use crate::deformation::{deformation_force, elastic_targets};
-    use tissue_solve::params::ForceModel;
+
+    /// The elastic force `f_j = sum_i [(T_i + T_j) d_ij - 2 e_ij]` with the
+    /// targets for `rotations` (the devices' kernels compute the same).
+    fn elastic_force(
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        rotations: &[Mat3],
+        elastic: &Elastic,
+    ) -> Vec<Vec3> {
+        let targets: Vec<Mat3> = (0..rest.len())
+            .map(|i| {
+                let m = offsets_product(rest, current, connections, i);
+                elastic.target(i, m, rotations[i])
+            })
+            .collect();
+        (0..rest.len())
+            .map(|j| {
+                let mut f = Vec3::ZERO;
+                for &i in connections.of(j) {
+                    let i = i as usize;
+                    let (d, e) = (rest[j] - rest[i], current[j] - current[i]);
+                    f += (targets[i] + targets[j]) * d - 2.0 * e;
+                }
+                f
+            })
+            .collect()
+    }
 
     /// An 8x8x8 grid of unit spacing jittered by up to 0.2, pairs closer
     /// than 1.5 connected, the outer layer fixed.
@@ -392,10 +474,7 @@ mod tests {
         let u = displacement(&aggregates, &rest);
         let k = coarse.operator(&aggregates, &rest, &connections, &u);
         let rotations = vec![r; rest.len()];
-        let force = |q: &[Vec3]| {
-            let targets = elastic_targets(&rest, q, &connections, &rotations, &elastic);
-            deformation_force(&rest, q, &targets, &connections, ForceModel::Elastic)
-        };
+        let force = |q: &[Vec3]| elastic_force(&rest, q, &connections, &rotations, &elastic);
         let moved = |sign: f32| -> Vec<Vec3> {
             current
                 .iter()

@@ -1,0 +1,191 @@
+// The elastic phase's two-level correction, twin of
+// `tissue_solve::coarse_elastic::ElasticCoarse::correct`, in six passes
+// between `integrate` and `chebyshev`. The elastic operator at the state the
+// phase started from, K = L + 1/2 sum_i W_i g_i g_i^T (g_i the gradient of
+// J_i, its entry at neighbour j G_i d_ij with G_i = cof(F_i) A_i^-1 there),
+// gives K e' = −s / (c alpha) + K s for the error after the plain step s;
+// its projection onto the aggregates' translations (three unknowns each) is
+// removed:
+// - `elastic_step`, per particle: s_i, 0 outside the aggregates (w = 1 inside);
+// - `elastic_change`, per particle: sqrt(W_i) g_i . s, the uploaded
+//   `elastic_gradients` being sqrt(W_i) G_i;
+// - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha);
+// - `elastic_restrict`, per aggregate: the sum over its particles, three
+//   entries of `elastic_coarse`;
+// - `elastic_solve`, one workgroup: the coarse matrix's Cholesky factor
+//   over the 3 n unknowns, forward by columns, backward by rows;
+// - `elastic_apply`, per particle: q̂_i −= the solution at its aggregate.
+// The CPU computes in f64, here in f32.
+
+#import shared/layout
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> rest: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> current: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> plain: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> offsets: array<u32>;
+@group(0) @binding(5) var<storage, read> indices: array<u32>;
+// Per particle its elastic aggregate, or OUTSIDE.
+@group(0) @binding(6) var<storage, read> elastic_aggregate: array<u32>;
+// Per particle s_i (w: 1 inside an aggregate, 0 outside).
+@group(0) @binding(7) var<storage, read_write> elastic_step: array<vec4<f32>>;
+// Per particle sqrt(W_i) cof(F_i) A_i^-1 at the phase's start (0: flat).
+@group(0) @binding(8) var<storage, read> elastic_gradients: array<Rotation>;
+// Per particle sqrt(W_i) g_i . s.
+@group(0) @binding(9) var<storage, read_write> elastic_change: array<f32>;
+// Per particle (K e')_j.
+@group(0) @binding(10) var<storage, read_write> elastic_residual: array<vec4<f32>>;
+@group(0) @binding(11) var<storage, read> elastic_member_starts: array<u32>;
+@group(0) @binding(12) var<storage, read> elastic_members: array<u32>;
+// Three entries per aggregate: the restricted residual, then the solution;
+// its length is three times the number of aggregates.
+@group(0) @binding(13) var<storage, read_write> elastic_coarse: array<f32>;
+@group(0) @binding(14) var<storage, read> elastic_row_starts: array<u32>;
+@group(0) @binding(15) var<storage, read> elastic_row_values: array<f32>;
+@group(0) @binding(16) var<storage, read> elastic_column_starts: array<u32>;
+@group(0) @binding(17) var<storage, read> elastic_column_rows: array<u32>;
+@group(0) @binding(18) var<storage, read> elastic_column_values: array<f32>;
+
+const OUTSIDE: u32 = 0xffffffffu;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_step_of(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
+        return;
+    }
+    if (elastic_aggregate[i] == OUTSIDE) {
+        elastic_step[i] = vec4<f32>(0.0);
+    } else {
+        elastic_step[i] = vec4<f32>(plain[i].xyz - current[i].xyz, 1.0);
+    }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_change_of(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
+        return;
+    }
+    let g = matrix_of(elastic_gradients[i]);
+    let p = rest[i].xyz;
+    let s = elastic_step[i].xyz;
+    var change = 0.0;
+    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
+        let j = indices[k];
+        change += dot(elastic_step[j].xyz - s, g * (rest[j].xyz - p));
+    }
+    elastic_change[i] = change;
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_residual_of(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let j = particle_index(workgroup, groups, local);
+    if (j >= params.count) {
+        return;
+    }
+    let own = elastic_step[j];
+    if (own.w == 0.0) {
+        elastic_residual[j] = vec4<f32>(0.0);
+        return;
+    }
+    // c alpha: c = 2 for the elastic (symmetric) force.
+    let contraction = select(2.0, 1.0, params.model == 0u) * params.alpha;
+    let h_j = elastic_change[j] * matrix_of(elastic_gradients[j]);
+    let p = rest[j].xyz;
+    var k = vec3<f32>(0.0);
+    for (var n = offsets[j]; n < offsets[j + 1u]; n++) {
+        let i = indices[n];
+        let d = p - rest[i].xyz;
+        let h_i = elastic_change[i] * matrix_of(elastic_gradients[i]);
+        k += (own.xyz - elastic_step[i].xyz) + 0.5 * ((h_i + h_j) * d);
+    }
+    elastic_residual[j] = vec4<f32>(k - own.xyz / contraction, 0.0);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_restrict(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let a = particle_index(workgroup, groups, local);
+    // (`params` read by every pass: the batch binds it at a dynamic offset.)
+    if (3u * a >= arrayLength(&elastic_coarse) || params.count == 0u) {
+        return;
+    }
+    var sum = vec3<f32>(0.0);
+    for (var k = elastic_member_starts[a]; k < elastic_member_starts[a + 1u]; k++) {
+        sum += elastic_residual[elastic_members[k]].xyz;
+    }
+    elastic_coarse[3u * a] = sum.x;
+    elastic_coarse[3u * a + 1u] = sum.y;
+    elastic_coarse[3u * a + 2u] = sum.z;
+}
+
+// L L^T x = b in place in `elastic_coarse`, by one workgroup, as
+// `coarse.wgsl::coarse_solve` does for one coordinate.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_solve(@builtin(local_invocation_index) local: u32) {
+    let n = select(arrayLength(&elastic_coarse), 0u, params.count == 0u);
+    for (var j = 0u; j < n; j++) {
+        let y = elastic_coarse[j] / elastic_row_values[elastic_row_starts[j + 1u] - 1u];
+        let end = elastic_column_starts[j + 1u];
+        for (var k = elastic_column_starts[j] + local; k < end; k += WORKGROUP_SIZE) {
+            let i = elastic_column_rows[k];
+            elastic_coarse[i] -= elastic_column_values[k] * y;
+        }
+        storageBarrier();
+        workgroupBarrier();
+        if (local == 0u) {
+            elastic_coarse[j] = y;
+        }
+    }
+    storageBarrier();
+    workgroupBarrier();
+    for (var step = 0u; step < n; step++) {
+        let i = n - 1u - step;
+        let start = elastic_row_starts[i];
+        let diagonal = elastic_row_starts[i + 1u] - 1u;
+        let x = elastic_coarse[i] / elastic_row_values[diagonal];
+        let first = i + start - diagonal;
+        for (var k = start + local; k < diagonal; k += WORKGROUP_SIZE) {
+            let j = first + (k - start);
+            elastic_coarse[j] -= elastic_row_values[k] * x;
+        }
+        storageBarrier();
+        workgroupBarrier();
+        if (local == 0u) {
+            elastic_coarse[i] = x;
+        }
+    }
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_apply(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
+        return;
+    }
+    let a = elastic_aggregate[i];
+    if (a != OUTSIDE) {
+        let x = vec3<f32>(elastic_coarse[3u * a], elastic_coarse[3u * a + 1u], elastic_coarse[3u * a + 2u]);
+        plain[i] = vec4<f32>(plain[i].xyz - x, 0.0);
+    }
+}
