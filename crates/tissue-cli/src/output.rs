@@ -15,6 +15,8 @@ use crate::carry::{Carried, StructureReport};
 pub const PARTICLES_FILE: &str = "particles.vtp";
 /// The moved landmark points.
 pub const POINTS_FILE: &str = "points.csv";
+/// The moved landmark points, when they came from a 3D Slicer markups file.
+pub const MARKUPS_FILE: &str = "points.mrk.json";
 /// The JSON report of a solve.
 pub const REPORT_FILE: &str = "report.json";
 
@@ -155,8 +157,8 @@ pub struct Destination<'a> {
 /// The files a solve into `to` writes for `carried`, report included.
 pub fn planned_outputs(to: &Destination<'_>, carried: &Carried) -> Vec<PathBuf> {
     let mut files = vec![to.dir.join(PARTICLES_FILE)];
-    if carried.points.is_some() {
-        files.push(to.dir.join(POINTS_FILE));
+    if let Some(points) = &carried.points {
+        files.push(to.dir.join(points.output_name()));
     }
     files.extend(carried.structures.iter().map(|s| to.dir.join(&s.name)));
     files.push(
@@ -317,8 +319,11 @@ pub fn write_solution(
     let (points, structures) = carried.moved(solver)?;
     let points = match (points, &carried.points) {
         (Some(moved), Some(source)) => {
-            let path = to.dir.join(POINTS_FILE);
-            tissue::save_points(&moved, &path)?;
+            let path = to.dir.join(source.output_name());
+            match &source.markups {
+                Some(markups) => tissue::io::markups::save_markups(markups, &moved, &path)?,
+                None => tissue::save_points(&moved, &path)?,
+            }
             files.push(path);
             Some(PointsReport {
                 source: source.source.clone(),

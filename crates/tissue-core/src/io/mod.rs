@@ -1,14 +1,17 @@
 //! File formats: surfaces (STL, OBJ, PLY, legacy VTK) in [`surface`],
 //! particle models (VTK XML PolyData) in [`model`], point files (CSV, PLY)
-//! in [`points`].
+//! in [`points`], 3D Slicer's markups in [`markups`], in the coordinate
+//! systems of [`space`].
 
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
 use crate::error::Error;
 
+pub mod markups;
 pub mod model;
 pub mod points;
+pub mod space;
 pub mod surface;
 mod vtp;
 mod xml;
