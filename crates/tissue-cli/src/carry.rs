@@ -188,6 +188,8 @@ pub struct Carried {
     pub points: Option<Points>,
     /// Structures, deformable ones first, each in the order given.
     pub structures: Vec<Structure>,
+    /// The coordinate system of the model and the surfaces (`--space`).
+    pub space: Space,
 }
 
 /// Where one structure went, as the JSON report holds it.
@@ -214,6 +216,10 @@ pub struct StructureReport {
     /// taking rest coordinates to moved ones.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transform: Option<[[f32; 4]; 4]>,
+    /// For a rigid structure, the ITK transform file its motion is written
+    /// to ([`Structure::transform_file`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transform_file: Option<String>,
     /// Its rest vertices outside the model's rest surface (flagged).
     pub outside: Outside,
 }
@@ -287,7 +293,11 @@ impl Carried {
                 Ok(structure)
             })
             .collect::<Result<_>>()?;
-        Ok(Self { points, structures })
+        Ok(Self {
+            points,
+            structures,
+            space: args.space,
+        })
     }
 
     /// Whether a point or structure was flagged as outside the organ.
@@ -354,6 +364,24 @@ impl Structure {
         })
     }
 
+    /// For a rigid structure, the file name of its motion as an ITK
+    /// transform: `tumour.obj` -> `tumour-rigid.tfm` (and `tumour-rigid.obj`
+    /// -> `tumour-rigid.tfm`).
+    pub fn transform_file(&self) -> Option<String> {
+        if self.kind() != Kind::Rigid {
+            return None;
+        }
+        let stem = Path::new(&self.name)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("structure");
+        Some(if stem.ends_with("-rigid") {
+            format!("{stem}.tfm")
+        } else {
+            format!("{stem}-rigid.tfm")
+        })
+    }
+
     /// How the structure moves.
     pub fn kind(&self) -> Kind {
         match self.binding {
@@ -402,6 +430,7 @@ impl Structure {
                 max_vertex_displacement_mm,
                 rotation_degrees: motion.as_ref().map(rotation_degrees),
                 transform: motion.as_ref().map(RigidMotion::homogeneous),
+                transform_file: self.transform_file(),
                 outside: self.outside,
             },
         })

@@ -161,6 +161,13 @@ pub fn planned_outputs(to: &Destination<'_>, carried: &Carried) -> Vec<PathBuf> 
         files.push(to.dir.join(points.output_name()));
     }
     files.extend(carried.structures.iter().map(|s| to.dir.join(&s.name)));
+    files.extend(
+        carried
+            .structures
+            .iter()
+            .filter_map(|s| s.transform_file())
+            .map(|name| to.dir.join(name)),
+    );
     files.push(
         to.report
             .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf),
@@ -343,6 +350,15 @@ pub fn write_solution(
         let path = to.dir.join(&structure.report.name);
         tissue::save_surface(&structure.mesh, &path)?;
         files.push(path);
+    }
+    for structure in &structures {
+        let report = &structure.report;
+        if let (Some(transform), Some(name)) = (&report.transform, &report.transform_file) {
+            let path = to.dir.join(name);
+            let motion = tissue::io::itk::Affine::from_rows(transform);
+            tissue::io::itk::save_motion_tfm(&motion, carried.space, &path)?;
+            files.push(path);
+        }
     }
     let report_path = to
         .report

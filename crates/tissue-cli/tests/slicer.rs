@@ -204,3 +204,103 @@ fn bad_markups_are_refused_naming_the_defect() {
         assert!(!out_dir.join("report.json").exists(), "{name}");
     }
 }
+
+/// An ITK text transform file as ITK applies it: `T(x) = A (x - c) + c + t`
+/// with `A` the first nine `Parameters` row by row, `t` the last three and
+/// `c` the `FixedParameters`.
+fn itk_transform(text: &str) -> impl Fn(glam::DVec3) -> glam::DVec3 + use<> {
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "#Insight Transform File V1.0");
+    assert_eq!(lines[2], "Transform: AffineTransform_double_3_3");
+    let numbers = |key: &str| -> Vec<f64> {
+        let line = lines.iter().find(|l| l.starts_with(key)).unwrap();
+        line[key.len()..]
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect()
+    };
+    let p = numbers("Parameters:");
+    let c = numbers("FixedParameters:");
+    let a = glam::DMat3::from_cols_array(&[p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8]])
+        .transpose();
+    let t = glam::DVec3::new(p[9], p[10], p[11]);
+    let c = glam::DVec3::new(c[0], c[1], c[2]);
+    move |x| a * (x - c) + c + t
+}
+
+/// A rigid structure's motion is written beside it as `<stem>-rigid.tfm`:
+/// the resampling transform in LPS, which takes each moved vertex (as the
+/// report's 4x4 puts it) back to its rest place, for LPS and RAS surfaces.
+#[test]
+fn a_rigid_structure_s_motion_is_written_as_an_itk_transform() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let (rigid, surface) = rigid_motion(dir.path(), &model);
+    let tumour_path = dir.path().join("tumour.obj");
+    tissue::save_surface(&tissue::phantom::default_tumour(), &tumour_path).unwrap();
+    let tumour = tissue::load_surface(&tumour_path).unwrap();
+    let tolerance = 1e-3 * size(&model);
+    for space in ["lps", "ras"] {
+        let signs = space.parse::<Space>().unwrap().signs_to(Space::Lps);
+        let out_dir = dir.path().join(format!("out-{space}"));
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&surface),
+            "--rigid-structure",
+            s(&tumour_path),
+            "--space",
+            space,
+            "--output-dir",
+            s(&out_dir),
+        ]);
+        assert!(out.status.success(), "{}", text(&out));
+        let report = json(&out_dir.join("report.json"));
+        let entry = &report["structures"][0];
+        assert_eq!(entry["transform_file"], "tumour-rigid.tfm");
+        assert!(
+            report["files"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|f| f.as_str().unwrap().ends_with("tumour-rigid.tfm")),
+            "{report}"
+        );
+        let rows: Vec<Vec<f64>> = entry["transform"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                r.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_f64().unwrap())
+                    .collect()
+            })
+            .collect();
+        let report_map = |x: glam::DVec3| {
+            glam::DVec3::new(
+                rows[0][0] * x.x + rows[0][1] * x.y + rows[0][2] * x.z + rows[0][3],
+                rows[1][0] * x.x + rows[1][1] * x.y + rows[1][2] * x.z + rows[1][3],
+                rows[2][0] * x.x + rows[2][1] * x.y + rows[2][2] * x.z + rows[2][3],
+            )
+        };
+        let file =
+            itk_transform(&std::fs::read_to_string(out_dir.join("tumour-rigid.tfm")).unwrap());
+        for &x in &tumour.vertices {
+            let x = x.as_dvec3();
+            let moved = report_map(x);
+            // The known motion, as a check on the report itself.
+            assert!(moved.as_vec3().distance(rigid.apply(x.as_vec3())) < tolerance);
+            let back = file(moved * signs);
+            assert!(
+                back.distance(x * signs) < 1e-4,
+                "--space {space}: the .tfm takes the moved {moved} (LPS {}) to {back}, not {}",
+                moved * signs,
+                x * signs
+            );
+        }
+    }
+}

@@ -1,13 +1,14 @@
 //! File formats: surfaces (STL, OBJ, PLY, legacy VTK) in [`surface`],
 //! particle models (VTK XML PolyData) in [`model`], point files (CSV, PLY)
-//! in [`points`], 3D Slicer's markups in [`markups`], in the coordinate
-//! systems of [`space`].
+//! in [`points`], 3D Slicer's markups in [`markups`] and ITK transform
+//! files in [`itk`], in the coordinate systems of [`space`].
 
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
 use crate::error::Error;
 
+pub mod itk;
 pub mod markups;
 pub mod model;
 pub mod points;
