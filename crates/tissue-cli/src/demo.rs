@@ -159,6 +159,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: &skin,
+            field: None,
         };
         let report = write_solution(
             destination,

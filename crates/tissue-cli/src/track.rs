@@ -323,6 +323,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: "",
+            field: None,
         };
         outputs.extend(planned_outputs(&destination, &carried));
     }
@@ -384,6 +385,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: &surface,
+            field: None,
         };
         remove_earlier_outputs(
             &destination,

@@ -304,3 +304,213 @@ fn a_rigid_structure_s_motion_is_written_as_an_itk_transform() {
         }
     }
 }
+
+/// A NRRD file as its specification describes it, read here without our
+/// writer's code: the header's fields, then the data (raw or gzip).
+struct Nrrd {
+    fields: std::collections::HashMap<String, String>,
+    data: Vec<f32>,
+}
+
+impl Nrrd {
+    fn read(path: &Path) -> Self {
+        use std::io::Read;
+        let bytes = std::fs::read(path).unwrap();
+        let end = bytes
+            .windows(2)
+            .position(|w| w == b"\n\n")
+            .expect("a blank line ends the header");
+        let header = std::str::from_utf8(&bytes[..end]).unwrap();
+        let mut lines = header.lines();
+        assert!(lines.next().unwrap().starts_with("NRRD000"));
+        let fields = lines
+            .filter(|l| !l.starts_with('#'))
+            .map(|l| {
+                let (key, value) = l.split_once(": ").unwrap_or_else(|| panic!("{l}"));
+                (key.to_owned(), value.to_owned())
+            })
+            .collect::<std::collections::HashMap<_, _>>();
+        let body = &bytes[end + 2..];
+        let raw = match fields["encoding"].as_str() {
+            "raw" => body.to_vec(),
+            "gzip" | "gz" => {
+                let mut out = Vec::new();
+                flate2::read::GzDecoder::new(body)
+                    .read_to_end(&mut out)
+                    .unwrap();
+                out
+            }
+            other => panic!("encoding {other}"),
+        };
+        assert_eq!(fields["type"], "float");
+        assert_eq!(fields["endian"], "little");
+        let data = raw
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        Self { fields, data }
+    }
+
+    fn numbers(text: &str) -> Vec<f64> {
+        text.split(|c: char| "(), ".contains(c))
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse().unwrap())
+            .collect()
+    }
+
+    /// Trilinear interpolation at `p` (LPS) of a vector field whose space
+    /// directions are diagonal.
+    fn interpolate(&self, p: Vec3) -> Vec3 {
+        let sizes: Vec<usize> = self.fields["sizes"]
+            .split_whitespace()
+            .map(|t| t.parse().unwrap())
+            .collect();
+        let origin = Self::numbers(&self.fields["space origin"]);
+        let directions = Self::numbers(self.fields["space directions"].trim_start_matches("none"));
+        let step = [directions[0], directions[4], directions[8]];
+        let n = [sizes[1], sizes[2], sizes[3]];
+        let mut base = [0usize; 3];
+        let mut t = [0f64; 3];
+        for a in 0..3 {
+            let g = (f64::from(p[a]) - origin[a]) / step[a];
+            assert!(g >= 0.0 && g <= (n[a] - 1) as f64, "{p} is off the grid");
+            base[a] = (g.floor() as usize).min(n[a] - 2);
+            t[a] = g - base[a] as f64;
+        }
+        let mut sum = [0f64; 3];
+        for corner in 0..8 {
+            let mut w = 1.0;
+            let mut at = base;
+            for a in 0..3 {
+                let up = corner >> a & 1 == 1;
+                w *= if up { t[a] } else { 1.0 - t[a] };
+                at[a] += usize::from(up);
+            }
+            let index = 3 * ((at[2] * n[1] + at[1]) * n[0] + at[0]);
+            for (c, s) in sum.iter_mut().enumerate() {
+                *s += w * f64::from(self.data[index + c]);
+            }
+        }
+        Vec3::new(sum[0] as f32, sum[1] as f32, sum[2] as f32)
+    }
+}
+
+/// `deform --displacement-field` on the bundled sag: the NRRD file, read by
+/// the reader above, interpolated at each moved particle (in LPS), gives
+/// its rest minus moved position (the resampling direction) within 1 % of
+/// the largest displacement, for LPS and RAS surfaces.
+#[test]
+fn the_displacement_field_takes_the_moved_particles_back_to_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sag = common::assets().join("phantom-sag.obj");
+    let n = model.len();
+    for space in ["lps", "ras"] {
+        let signs = space
+            .parse::<Space>()
+            .unwrap()
+            .signs_to(Space::Lps)
+            .as_vec3();
+        let out_dir = dir.path().join(format!("out-{space}"));
+        let field_path = dir.path().join(format!("field-{space}.nrrd"));
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&sag),
+            "--space",
+            space,
+            "--displacement-field",
+            s(&field_path),
+            "--output-dir",
+            s(&out_dir),
+        ]);
+        assert!(out.status.success(), "{}", text(&out));
+        let report = json(&out_dir.join("report.json"));
+        assert_eq!(report["displacement_field"]["file"], s(&field_path));
+        assert!(
+            report["files"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|f| f == s(&field_path)),
+            "{report}"
+        );
+        let nrrd = Nrrd::read(&field_path);
+        for (key, value) in [
+            ("dimension", "4"),
+            ("space", "left-posterior-superior"),
+            ("kinds", "vector domain domain domain"),
+        ] {
+            assert_eq!(nrrd.fields[key], value);
+        }
+        let vtp = std::fs::read_to_string(out_dir.join("particles.vtp")).unwrap();
+        let moved: Vec<Vec3> = common::vtp_array(&vtp, "Points")
+            .chunks_exact(3)
+            .take(n)
+            .map(|c| Vec3::new(c[0], c[1], c[2]))
+            .collect();
+        let largest = model
+            .positions
+            .iter()
+            .zip(&moved)
+            .map(|(p, q)| p.distance(*q))
+            .fold(0.0, f32::max);
+        assert!(largest > 5.0, "the sag moved particles {largest} mm");
+        let mut worst = 0.0_f32;
+        for (i, (&p, &q)) in model.positions.iter().zip(&moved).enumerate() {
+            let got = nrrd.interpolate(q * signs);
+            let expected = (p - q) * signs;
+            let error = got.distance(expected);
+            worst = worst.max(error);
+            if error > 0.01 * largest {
+                eprintln!("{i} {p} {q} err {error}");
+            }
+            assert!(
+                error <= 0.01 * largest,
+                "--space {space}, particle {i}: the field gives {got}, rest minus moved is \
+                 {expected} (LPS), error {error} > 1 % of {largest}"
+            );
+        }
+        eprintln!("--space {space}: worst {worst} mm of {largest} mm");
+    }
+}
+
+/// A displacement field that cannot be written as asked is refused before
+/// the solve (exit 1), naming the option's file and the defect.
+#[test]
+fn bad_displacement_field_options_are_refused_before_the_solve() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let sag = common::assets().join("phantom-sag.obj");
+    for (file, spacing, expected) in [
+        ("field.vtk", "2", "name it <name>.nrrd"),
+        ("field.nrrd", "0", "not a positive length"),
+        ("field.nrrd", "-3", "not a positive length"),
+        ("field.nrrd", "0.01", "choose a larger field spacing"),
+    ] {
+        let field = dir.path().join(file);
+        let out_dir = dir.path().join("out");
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&sag),
+            "--displacement-field",
+            s(&field),
+            &format!("--field-spacing={spacing}"),
+            "--output-dir",
+            s(&out_dir),
+        ]);
+        let message = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{file} {spacing}: {message}");
+        assert!(
+            message.contains(expected) && message.contains(file),
+            "{file} {spacing}: `{message}` lacks `{expected}`"
+        );
+        assert!(!message.contains("iterations"), "{message}");
+        assert!(!field.exists() && !out_dir.join("report.json").exists());
+    }
+}

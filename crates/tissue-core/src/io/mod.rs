@@ -1,7 +1,8 @@
 //! File formats: surfaces (STL, OBJ, PLY, legacy VTK) in [`surface`],
 //! particle models (VTK XML PolyData) in [`model`], point files (CSV, PLY)
-//! in [`points`], 3D Slicer's markups in [`markups`] and ITK transform
-//! files in [`itk`], in the coordinate systems of [`space`].
+//! in [`points`], 3D Slicer's markups in [`markups`], ITK transform files
+//! in [`itk`] and displacement fields in [`nrrd`], in the coordinate
+//! systems of [`space`].
 
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
@@ -11,6 +12,7 @@ use crate::error::Error;
 pub mod itk;
 pub mod markups;
 pub mod model;
+pub mod nrrd;
 pub mod points;
 pub mod space;
 pub mod surface;
