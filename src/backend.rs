@@ -26,7 +26,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use tissue_core::{DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
 use tissue_cpu::structures::Embedding;
@@ -381,6 +381,18 @@ impl Solver {
         match self {
             Self::Cpu(cpu) => cpu.positions(),
             Self::Gpu(gpu) => gpu.deformer.host_positions(),
+        }
+    }
+
+    /// Each particle's rotation (rest offsets onto current offsets) after
+    /// the last solve; on the GPU, read back (a frame boundary).
+    pub fn rotations(&self) -> Result<Vec<Mat3>, Error> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.rotations().to_vec()),
+            Self::Gpu(gpu) => gpu
+                .deformer
+                .read_rotations(&gpu.device, &gpu.queue)
+                .map_err(|e| gpu_error(format!("reading rotations from {}", gpu.name), e)),
         }
     }
 

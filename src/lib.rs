@@ -27,7 +27,7 @@ pub use tissue_core::io::surface::{
 pub use tissue_core::validate::{Validation, validate};
 pub use tissue_core::*;
 pub use tissue_solve::sampling::{Progress, Sampled};
-pub use tissue_solve::structures;
+pub use tissue_solve::{resampling, structures};
 
 pub mod backend;
 

@@ -8,19 +8,29 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::field::SurfaceField;
+use tissue::io::markups::{Markups, is_markups, load_markups};
+use tissue::io::space::Space;
 use tissue::structures::{RigidBinding, RigidMotion};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{BoundPoints, Solver};
-use crate::output::{PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
+use crate::output::{MARKUPS_FILE, PARTICLES_FILE, POINTS_FILE, REPORT_FILE};
 
 /// Options naming what to carry, shared by `deform` and `track`.
 #[derive(Debug, clap::Args)]
 pub struct CarryArgs {
-    /// Landmark points to carry (.csv or .ply); the moved points are written
-    /// as `points.csv`, in input order.
+    /// Landmark points to carry (.csv, .ply, or a 3D Slicer markups file
+    /// .mrk.json); the moved points are written as `points.csv`, in input
+    /// order, or, for markups, as `points.mrk.json` with the same labels and
+    /// coordinate system.
     #[arg(long, value_name = "FILE")]
     pub points: Option<PathBuf>,
+    /// The coordinate system of the model and the surfaces: `lps` (how 3D
+    /// Slicer saves models) or `ras`. Markups in the other system are
+    /// converted on reading and back on writing; transform files (.tfm,
+    /// .nrrd) are written in LPS, as ITK and Slicer read them.
+    #[arg(long, default_value = "lps", value_parser = parse_space)]
+    pub space: Space,
     /// An internal structure that deforms with the tissue (any surface file);
     /// every vertex is carried. Written under its own file name. Repeatable.
     #[arg(long = "structure", value_name = "FILE")]
@@ -43,6 +53,11 @@ impl CarryArgs {
             .map(|p| ("structure", p.as_path()));
         points.chain(structures).collect()
     }
+}
+
+/// `--space`: `lps` or `ras`, in any case.
+fn parse_space(text: &str) -> Result<Space, String> {
+    text.parse()
 }
 
 /// How a structure moves.
@@ -158,6 +173,9 @@ pub struct Structure {
 pub struct Points {
     /// Where they came from.
     pub source: String,
+    /// The markups file they were read from, written back moved; `None`
+    /// for a CSV or PLY file.
+    pub markups: Option<Markups>,
     carrier: BoundPoints,
     /// The points outside the model's rest surface.
     pub outside: Outside,
@@ -170,6 +188,8 @@ pub struct Carried {
     pub points: Option<Points>,
     /// Structures, deformable ones first, each in the order given.
     pub structures: Vec<Structure>,
+    /// The coordinate system of the model and the surfaces (`--space`).
+    pub space: Space,
 }
 
 /// Where one structure went, as the JSON report holds it.
@@ -196,6 +216,10 @@ pub struct StructureReport {
     /// taking rest coordinates to moved ones.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transform: Option<[[f32; 4]; 4]>,
+    /// For a rigid structure, the ITK transform file its motion is written
+    /// to ([`Structure::transform_file`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transform_file: Option<String>,
     /// Its rest vertices outside the model's rest surface (flagged).
     pub outside: Outside,
 }
@@ -228,7 +252,15 @@ impl Carried {
         };
         let points = match &args.points {
             Some(path) => {
-                let points = tissue::load_points(path)?;
+                let markups = if is_markups(path) {
+                    Some(load_markups(path, args.space)?)
+                } else {
+                    None
+                };
+                let points = match &markups {
+                    Some(markups) => markups.points().to_vec(),
+                    None => tissue::load_points(path)?,
+                };
                 let source = path.display().to_string();
                 let outside = check
                     .as_ref()
@@ -236,6 +268,7 @@ impl Carried {
                     .unwrap_or_default();
                 Some(Points {
                     source,
+                    markups,
                     carrier: solver.bind(&points)?,
                     outside,
                 })
@@ -260,7 +293,11 @@ impl Carried {
                 Ok(structure)
             })
             .collect::<Result<_>>()?;
-        Ok(Self { points, structures })
+        Ok(Self {
+            points,
+            structures,
+            space: args.space,
+        })
     }
 
     /// Whether a point or structure was flagged as outside the organ.
@@ -285,6 +322,16 @@ impl Carried {
 }
 
 impl Points {
+    /// The file name the moved points are written under: `points.mrk.json`
+    /// for markups, else `points.csv`.
+    pub fn output_name(&self) -> &'static str {
+        if self.markups.is_some() {
+            MARKUPS_FILE
+        } else {
+            POINTS_FILE
+        }
+    }
+
     /// The points at rest, in input order.
     pub fn rest(&self) -> &[Vec3] {
         self.carrier.rest()
@@ -314,6 +361,24 @@ impl Structure {
             rest: mesh,
             binding,
             outside: Outside::default(),
+        })
+    }
+
+    /// For a rigid structure, the file name of its motion as an ITK
+    /// transform: `tumour.obj` -> `tumour-rigid.tfm` (and `tumour-rigid.obj`
+    /// -> `tumour-rigid.tfm`).
+    pub fn transform_file(&self) -> Option<String> {
+        if self.kind() != Kind::Rigid {
+            return None;
+        }
+        let stem = Path::new(&self.name)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("structure");
+        Some(if stem.ends_with("-rigid") {
+            format!("{stem}.tfm")
+        } else {
+            format!("{stem}-rigid.tfm")
         })
     }
 
@@ -365,6 +430,7 @@ impl Structure {
                 max_vertex_displacement_mm,
                 rotation_degrees: motion.as_ref().map(rotation_degrees),
                 transform: motion.as_ref().map(RigidMotion::homogeneous),
+                transform_file: self.transform_file(),
                 outside: self.outside,
             },
         })
@@ -435,7 +501,7 @@ fn output_names(deformable: &[PathBuf], rigid: &[PathBuf]) -> Result<Vec<String>
                 path.display()
             );
         }
-        if [PARTICLES_FILE, POINTS_FILE, REPORT_FILE].contains(&name.as_str()) {
+        if [PARTICLES_FILE, POINTS_FILE, MARKUPS_FILE, REPORT_FILE].contains(&name.as_str()) {
             bail!(
                 "{}: a structure may not be called {name}, the name of another output file",
                 path.display()

@@ -127,6 +127,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
                 Structure::bind(name.into(), source, kind, tumour.clone(), &solver)
             })
             .collect::<Result<_>>()?,
+        space: tissue::io::space::Space::Lps,
     };
 
     let cases = [
@@ -158,6 +159,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: &skin,
+            field: None,
         };
         let report = write_solution(
             destination,
@@ -196,7 +198,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     write_json(&out.join(DEMO_FILE), &summary)?;
     say(format!(
         "wrote {}: model.vtp, breast.obj, tumour.obj, breast-sag.obj, breast-indentation.obj,\n  \
-         sag/ and indentation/ (particles.vtp, tumour.obj, tumour-rigid.obj, report.json), {DEMO_FILE}",
+         sag/ and indentation/ (particles.vtp, tumour.obj, tumour-rigid.obj, tumour-rigid.tfm, report.json), {DEMO_FILE}",
         folder(out)
     ));
     say(format!(

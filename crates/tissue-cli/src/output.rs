@@ -15,6 +15,8 @@ use crate::carry::{Carried, StructureReport};
 pub const PARTICLES_FILE: &str = "particles.vtp";
 /// The moved landmark points.
 pub const POINTS_FILE: &str = "points.csv";
+/// The moved landmark points, when they came from a 3D Slicer markups file.
+pub const MARKUPS_FILE: &str = "points.mrk.json";
 /// The JSON report of a solve.
 pub const REPORT_FILE: &str = "report.json";
 
@@ -66,6 +68,9 @@ pub struct SolveReport {
     /// The landmark points, when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub points: Option<PointsReport>,
+    /// The displacement field, when asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub displacement_field: Option<FieldReport>,
     /// Particles the solve turned inside out (local volume ratio at or
     /// below 0; `tissue::deformation::inversions`): flagged.
     pub inverted: Inversions,
@@ -139,6 +144,28 @@ impl std::fmt::Display for Unfinished {
 
 impl std::error::Error for Unfinished {}
 
+/// A displacement field to write (`deform --displacement-field`).
+#[derive(Debug, Clone, Copy)]
+pub struct FieldRequest<'a> {
+    /// The `.nrrd` file.
+    pub path: &'a Path,
+    /// The grid spacing, in the model's units.
+    pub spacing: f32,
+}
+
+/// The displacement field in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct FieldReport {
+    /// The file written.
+    pub file: String,
+    /// The grid spacing.
+    pub spacing_mm: f32,
+    /// Grid points along x, y, z.
+    pub sizes: [usize; 3],
+    /// The longest displacement on the grid.
+    pub max_mm: f32,
+}
+
 /// Where a solve's files go, and what to call its inputs in the report.
 #[derive(Debug, Clone, Copy)]
 pub struct Destination<'a> {
@@ -150,15 +177,25 @@ pub struct Destination<'a> {
     pub model: &'a str,
     /// The deformed surface, as named in the report.
     pub surface: &'a str,
+    /// The displacement field to write, if any.
+    pub field: Option<FieldRequest<'a>>,
 }
 
 /// The files a solve into `to` writes for `carried`, report included.
 pub fn planned_outputs(to: &Destination<'_>, carried: &Carried) -> Vec<PathBuf> {
     let mut files = vec![to.dir.join(PARTICLES_FILE)];
-    if carried.points.is_some() {
-        files.push(to.dir.join(POINTS_FILE));
+    if let Some(points) = &carried.points {
+        files.push(to.dir.join(points.output_name()));
     }
     files.extend(carried.structures.iter().map(|s| to.dir.join(&s.name)));
+    files.extend(
+        carried
+            .structures
+            .iter()
+            .filter_map(|s| s.transform_file())
+            .map(|name| to.dir.join(name)),
+    );
+    files.extend(to.field.map(|f| f.path.to_path_buf()));
     files.push(
         to.report
             .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf),
@@ -317,8 +354,11 @@ pub fn write_solution(
     let (points, structures) = carried.moved(solver)?;
     let points = match (points, &carried.points) {
         (Some(moved), Some(source)) => {
-            let path = to.dir.join(POINTS_FILE);
-            tissue::save_points(&moved, &path)?;
+            let path = to.dir.join(source.output_name());
+            match &source.markups {
+                Some(markups) => tissue::io::markups::save_markups(markups, &moved, &path)?,
+                None => tissue::save_points(&moved, &path)?,
+            }
             files.push(path);
             Some(PointsReport {
                 source: source.source.clone(),
@@ -339,6 +379,37 @@ pub fn write_solution(
         tissue::save_surface(&structure.mesh, &path)?;
         files.push(path);
     }
+    for structure in &structures {
+        let report = &structure.report;
+        if let (Some(transform), Some(name)) = (&report.transform, &report.transform_file) {
+            let path = to.dir.join(name);
+            let motion = tissue::io::itk::Affine::from_rows(transform);
+            tissue::io::itk::save_motion_tfm(&motion, carried.space, &path)?;
+            files.push(path);
+        }
+    }
+    let displacement_field = match to.field {
+        Some(request) => {
+            let field = tissue::resampling::resampling_field(
+                solver.rest(),
+                current,
+                &solver.rotations()?,
+                &model.connections,
+                deformed,
+                request.spacing,
+            )
+            .map_err(|e| anyhow::anyhow!("{}: {e}", request.path.display()))?;
+            tissue::io::nrrd::save_displacement_field(&field, carried.space, request.path)?;
+            files.push(request.path.to_path_buf());
+            Some(FieldReport {
+                file: request.path.display().to_string(),
+                spacing_mm: field.spacing,
+                sizes: field.dims,
+                max_mm: field.values.iter().map(|v| v.length()).fold(0.0, f32::max),
+            })
+        }
+        None => None,
+    };
     let report_path = to
         .report
         .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf);
@@ -369,6 +440,7 @@ pub fn write_solution(
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
         points,
+        displacement_field,
         inverted,
         files: files.iter().map(|p| p.display().to_string()).collect(),
         residual_history: solve.residual_history,

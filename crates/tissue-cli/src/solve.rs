@@ -11,8 +11,8 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{
-    Destination, Status, Unfinished, planned_outputs, prepare_outputs, refuse_overwriting,
-    remove_earlier_outputs, write_solution,
+    Destination, FieldRequest, Status, Unfinished, planned_outputs, prepare_outputs,
+    refuse_overwriting, remove_earlier_outputs, write_solution,
 };
 
 /// The force of stage 2.
@@ -109,6 +109,16 @@ pub struct DeformArgs {
     /// Write the JSON report here instead of `<output-dir>/report.json`.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Also write the interior's displacement on a regular grid as a NRRD
+    /// file, which 3D Slicer loads as a grid transform: in LPS, at each point
+    /// of the deformed configuration the vector to where that tissue is at
+    /// rest (the resampling direction; docs/FORMATS.md).
+    #[arg(long, value_name = "FILE.nrrd")]
+    pub displacement_field: Option<PathBuf>,
+    /// Grid spacing of `--displacement-field`, in the model's units
+    /// (default: half the model's mean connection length).
+    #[arg(long, value_name = "MM", requires = "displacement_field")]
+    pub field_spacing: Option<f32>,
     #[command(flatten)]
     pub solve: SolveArgs,
     #[command(flatten)]
@@ -227,13 +237,42 @@ pub fn set_deformed(path: &Path, solver: &mut Solver, deformed: &SurfaceMesh) ->
 impl DeformArgs {
     /// Every file the command reads, as `(what, path)`.
     fn inputs(&self) -> Vec<(&'static str, &Path)> {
-        let mut inputs = vec![
+        let mut inputs: Vec<(&'static str, &Path)> = vec![
             ("model", self.model.as_path()),
             ("deformed surface", self.surface.as_path()),
         ];
         inputs.extend(self.carry.inputs());
         inputs
     }
+}
+
+/// The default grid spacing of `--displacement-field`, in mean connection
+/// lengths (docs/FORMATS.md, "The interior's motion").
+pub const FIELD_SPACINGS: f32 = 0.5;
+
+/// `--displacement-field` and `--field-spacing`, checked before any work:
+/// a `.nrrd` name, a positive spacing (half the model's mean connection
+/// length by default: docs/FORMATS.md), a grid that is not too large around
+/// `deformed`.
+fn field_request<'a>(
+    path: &'a Path,
+    spacing: Option<f32>,
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+) -> Result<FieldRequest<'a>> {
+    let nrrd = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("nrrd"));
+    if !nrrd {
+        bail!(
+            "{}: a displacement field is written as NRRD: name it <name>.nrrd",
+            path.display()
+        );
+    }
+    let spacing = spacing.unwrap_or_else(|| FIELD_SPACINGS * model.mean_connection_length());
+    tissue::resampling::field_grid(deformed, spacing)
+        .map_err(|e| anyhow!("--displacement-field {}: {e}", path.display()))?;
+    Ok(FieldRequest { path, spacing })
 }
 
 /// `tissue deform`.
@@ -244,11 +283,16 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let deformed = read_deformed(&args.surface, &model.surface)?;
     set_deformed(&args.surface, &mut solver, &deformed)?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
+    let field = match &args.displacement_field {
+        Some(path) => Some(field_request(path, args.field_spacing, &model, &deformed)?),
+        None => None,
+    };
     let destination = Destination {
         dir: &args.output_dir,
         report: args.report.as_deref(),
         model: &args.model.display().to_string(),
         surface: &args.surface.display().to_string(),
+        field,
     };
     let planned = planned_outputs(&destination, &carried);
     refuse_overwriting(&planned, &args.inputs())?;

@@ -12,6 +12,7 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::Value;
 use tissue::deformation::DeformParams;
+use tissue::io::space::Space;
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
@@ -116,7 +117,15 @@ struct Plan<'a> {
     points: Option<&'a Path>,
     structures: &'a [PathBuf],
     rigid_structures: &'a [PathBuf],
+    /// `--space`, left out when LPS (the default), so that the plans of
+    /// runs made before the option compare equal.
+    #[serde(skip_serializing_if = "is_lps")]
+    space: Space,
     params: &'a DeformParams,
+}
+
+fn is_lps(space: &Space) -> bool {
+    *space == Space::Lps
 }
 
 /// `track.json`.
@@ -314,6 +323,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: "",
+            field: None,
         };
         outputs.extend(planned_outputs(&destination, &carried));
     }
@@ -329,6 +339,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         points: args.carry.points.as_deref(),
         structures: &args.carry.structures,
         rigid_structures: &args.carry.rigid_structures,
+        space: args.carry.space,
         params: &params,
     })?)?;
     let mut done = if args.resume {
@@ -374,6 +385,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             report: None,
             model: &model_name,
             surface: &surface,
+            field: None,
         };
         remove_earlier_outputs(
             &destination,

@@ -4,6 +4,7 @@
 
 pub mod crossing;
 pub mod deform;
+pub mod displacement;
 pub mod error;
 pub mod field;
 pub mod io;

@@ -16,7 +16,8 @@
 //!   ([`quality`]).
 //! - Host algorithms both devices use on the host: the uniform grid and
 //!   neighbour rows ([`grid`]), the 3x3 SVD and polar rotation ([`svd3`]),
-//!   and structures bound to particles ([`structures`]). The CPU path takes
+//!   and structures bound to particles ([`structures`]), and the
+//!   displacement field they carry back to rest ([`resampling`]). The CPU path takes
 //!   these as its twins of the shaders of the same name.
 //!
 //! The devices (`tissue-cpu`, `tissue-gpu`) implement kernels and buffers.
@@ -35,6 +36,7 @@ pub mod plan;
 pub mod predict;
 pub mod quality;
 pub mod report;
+pub mod resampling;
 pub mod sampling;
 pub mod spectrum;
 pub mod structures;

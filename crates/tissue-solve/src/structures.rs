@@ -51,6 +51,23 @@ pub fn k_nearest(grid: &Grid, positions: &[Vec3], p: Vec3, k: usize) -> Vec<(u32
     best
 }
 
+/// The particles that carry a point at `x`: its `CARRIERS` nearest of
+/// `particles` (binned in `grid`), with weights `(1 - (d / h)^2)^2`
+/// summing to one, `h` a little beyond the farthest.
+pub fn carriers_of(grid: &Grid, particles: &[Vec3], x: Vec3) -> Vec<(u32, f32)> {
+    let near = k_nearest(grid, particles, x, CARRIERS);
+    let h = near.last().map_or(1.0, |n| n.1) * 1.1 + 1e-12;
+    let mut weights: Vec<(u32, f32)> = near
+        .iter()
+        .map(|&(j, d)| (j, (1.0 - (d / h).powi(2)).powi(2)))
+        .collect();
+    let total: f32 = weights.iter().map(|w| w.1).sum();
+    for w in &mut weights {
+        w.1 /= total;
+    }
+    weights
+}
+
 impl Embedding {
     /// Binds `points` to the `CARRIERS` nearest of the rest `particles`.
     pub fn new(particles: &[Vec3], points: &[Vec3]) -> Self {
@@ -58,19 +75,7 @@ impl Embedding {
         let grid = grid_build(particles, spacing);
         let carriers = points
             .par_iter()
-            .map(|&x| {
-                let near = k_nearest(&grid, particles, x, CARRIERS);
-                let h = near.last().map_or(1.0, |n| n.1) * 1.1 + 1e-12;
-                let mut weights: Vec<(u32, f32)> = near
-                    .iter()
-                    .map(|&(j, d)| (j, (1.0 - (d / h).powi(2)).powi(2)))
-                    .collect();
-                let total: f32 = weights.iter().map(|w| w.1).sum();
-                for w in &mut weights {
-                    w.1 /= total;
-                }
-                weights
-            })
+            .map(|&x| carriers_of(&grid, particles, x))
             .collect();
         Self {
             points: points.to_vec(),
@@ -209,7 +214,7 @@ impl RigidBinding {
 }
 
 /// About the mean spacing of a particle cloud, for grid cells.
-fn typical_spacing(particles: &[Vec3]) -> f32 {
+pub fn typical_spacing(particles: &[Vec3]) -> f32 {
     let (lo, hi) = particles.iter().fold(
         (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
         |(lo, hi), &p| (lo.min(p), hi.max(p)),

@@ -1,14 +1,20 @@
 //! File formats: surfaces (STL, OBJ, PLY, legacy VTK) in [`surface`],
 //! particle models (VTK XML PolyData) in [`model`], point files (CSV, PLY)
-//! in [`points`].
+//! in [`points`], 3D Slicer's markups in [`markups`], ITK transform files
+//! in [`itk`] and displacement fields in [`nrrd`], in the coordinate
+//! systems of [`space`].
 
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
 use crate::error::Error;
 
+pub mod itk;
+pub mod markups;
 pub mod model;
+pub mod nrrd;
 pub mod points;
+pub mod space;
 pub mod surface;
 mod vtp;
 mod xml;
