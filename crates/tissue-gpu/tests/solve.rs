@@ -114,16 +114,7 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             gpu_report.iterations,
             deflated.iterations
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let tolerance = 1e-5 * cpu.size();
-        for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
-            assert!(
-                g.distance(*c) <= tolerance,
-                "{force:?}, particle {i}: GPU {g} vs CPU {c}, tolerance {tolerance:e}"
-            );
-        }
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &format!("{force:?}"));
     }
 }
 
@@ -388,19 +379,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let worst = got
-            .iter()
-            .zip(cpu.positions())
-            .map(|(g, e)| g.distance(*e))
-            .fold(0.0f32, f32::max);
-        assert!(
-            worst <= 1e-5 * cpu.size(),
-            "coarse {coarse}: worst distance {worst:e} = {:e} of the size",
-            worst / cpu.size()
-        );
+        let context = format!("poke, coarse {coarse}");
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
     }
 }
 
@@ -457,14 +437,5 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
         gpu_report.iterations,
         uncorrected.iterations
     );
-    let got = gpu
-        .positions(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let tolerance = 1e-5 * cpu.size();
-    for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
-        assert!(
-            g.distance(*c) <= tolerance,
-            "particle {i}: GPU {g} vs CPU {c}, tolerance {tolerance:e}"
-        );
-    }
+    common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "corrected elastic");
 }

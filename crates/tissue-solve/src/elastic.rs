@@ -237,28 +237,7 @@ mod tests {
     /// A 6x6x6 grid of unit spacing jittered by up to 0.2, its pairs closer
     /// than 1.5 connected, the outer layer fixed.
     fn jittered_block() -> (Vec<Vec3>, Connections, Vec<bool>) {
-        let mut next = tissue_testkit::xorshift(7);
-        let n = 6;
-        let mut positions = Vec::new();
-        let mut free = Vec::new();
-        for x in 0..n {
-            for y in 0..n {
-                for z in 0..n {
-                    let jitter = Vec3::new(next(), next(), next()) * 0.2;
-                    positions.push(Vec3::new(x as f32, y as f32, z as f32) + jitter);
-                    let inside = |c: usize| c > 0 && c < n - 1;
-                    free.push(inside(x) && inside(y) && inside(z));
-                }
-            }
-        }
-        let mut pairs = Vec::new();
-        for i in 0..positions.len() {
-            for j in i + 1..positions.len() {
-                if positions[i].distance(positions[j]) < 1.5 {
-                    pairs.push((i as u32, j as u32));
-                }
-            }
-        }
+        let (positions, pairs, free) = tissue_testkit::jittered_grid(6, 7);
         let connections = Connections::from_pairs(positions.len(), pairs);
         (positions, connections, free)
     }

@@ -107,3 +107,30 @@ pub fn dirichlet_path(n: usize) -> (usize, Vec<(u32, u32)>, Vec<bool>) {
     let free = (0..total).map(|i| i != 0 && i != total - 1).collect();
     (total, pairs, free)
 }
+
+/// An `n x n x n` grid of unit spacing, each point jittered by up to 0.2 in
+/// every axis (`xorshift(seed)`), its pairs closer than 1.5 connected, the
+/// outer layer fixed: the positions, the pairs, and which points are free.
+pub fn jittered_grid(n: usize, seed: u64) -> (Vec<Vec3>, Vec<(u32, u32)>, Vec<bool>) {
+    let mut next = xorshift(seed);
+    let (mut positions, mut free) = (Vec::new(), Vec::new());
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let jitter = Vec3::new(next(), next(), next()) * 0.2;
+                positions.push(Vec3::new(x as f32, y as f32, z as f32) + jitter);
+                let inside = |c: usize| c > 0 && c < n - 1;
+                free.push(inside(x) && inside(y) && inside(z));
+            }
+        }
+    }
+    let mut pairs = Vec::new();
+    for i in 0..positions.len() {
+        for j in i + 1..positions.len() {
+            if positions[i].distance(positions[j]) < 1.5 {
+                pairs.push((i as u32, j as u32));
+            }
+        }
+    }
+    (positions, pairs, free)
+}

@@ -123,3 +123,30 @@ pub fn solve_on_both(
     let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)
 }
+
+/// Asserts that every position `gpu` holds lies within `fraction` of the
+/// model's size of `cpu`'s; returns the worst distance, as a fraction of
+/// the size. `context` names the case in a failure.
+pub fn assert_same_positions(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    gpu: &tissue_gpu::GpuDeformer,
+    cpu: &tissue_cpu::deformation::Deformer,
+    fraction: f32,
+    context: &str,
+) -> f32 {
+    let got = gpu
+        .positions(device, queue)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let tolerance = fraction * cpu.size();
+    let mut worst = 0.0f32;
+    for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
+        let off = g.distance(*c);
+        worst = worst.max(off);
+        assert!(
+            off <= tolerance,
+            "{context}, particle {i}: GPU {g} vs CPU {c}, distance {off:e} > {tolerance:e}"
+        );
+    }
+    worst / cpu.size()
+}
