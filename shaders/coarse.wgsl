@@ -7,8 +7,8 @@
 // - `coarse_residual`, per particle: (L e')_i over the free particles
 //   (those in an aggregate; the others read as 0);
 // - `coarse_restrict`, per aggregate: the sum over its particles;
-// - `coarse_solve`, one workgroup: the coarse Laplacian's Cholesky factor,
-//   forward by columns and backward by rows, in place;
+// - `coarse_forward` and `coarse_backward`, one workgroup each: the coarse
+//   Laplacian's Cholesky factor, forward by columns, backward by rows, in place;
 // - `coarse_apply`, per particle: q̂_i −= the solution at its aggregate.
 // The CPU sums and solves in f64, here in f32: both agree within rounding.
 
@@ -90,13 +90,16 @@ fn coarse_restrict(
     coarse[a] = vec4<f32>(sum, 0.0);
 }
 
-// L L^T x = b in place in `coarse`, by one workgroup: each step's updates
-// are spread over its threads, a barrier between steps.
+// L L^T x = b in place in `coarse`, by one workgroup each way (two
+// dispatches: one long one stopped short on llvmpipe past about 10,000
+// steps): each step's updates are spread over the threads, a barrier
+// between steps.
+
+// Forward, L y = b by columns: y_j = b_j / L_jj, then b_i −= L_ij y_j for
+// the rows below that reach column j.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn coarse_solve(@builtin(local_invocation_index) local: u32) {
+fn coarse_forward(@builtin(local_invocation_index) local: u32) {
     let n = select(arrayLength(&coarse), 0u, params.count == 0u);
-    // Forward, L y = b by columns: y_j = b_j / L_jj, then b_i −= L_ij y_j
-    // for the rows below that reach column j.
     for (var j = 0u; j < n; j++) {
         let y = coarse[j].xyz / row_values[row_starts[j + 1u] - 1u];
         for (var k = column_starts[j] + local; k < column_starts[j + 1u]; k += WORKGROUP_SIZE) {
@@ -109,10 +112,13 @@ fn coarse_solve(@builtin(local_invocation_index) local: u32) {
             coarse[j] = vec4<f32>(y, 0.0);
         }
     }
-    storageBarrier();
-    workgroupBarrier();
-    // Backward, L^T x = y by rows: x_i = y_i / L_ii, then y_j −= L_ij x_i
-    // for the columns of row i.
+}
+
+// Backward, L^T x = y by rows: x_i = y_i / L_ii, then y_j −= L_ij x_i for
+// the columns of row i.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn coarse_backward(@builtin(local_invocation_index) local: u32) {
+    let n = select(arrayLength(&coarse), 0u, params.count == 0u);
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
         let start = row_starts[i];

@@ -12,8 +12,9 @@
 // - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha);
 // - `elastic_restrict`, per aggregate: the sum over its particles, three
 //   entries of `elastic_coarse`;
-// - `elastic_solve`, one workgroup: the coarse matrix's Cholesky factor
-//   over the 3 n unknowns, forward by columns, backward by rows;
+// - `elastic_forward` and `elastic_backward`, one workgroup each: the
+//   coarse matrix's Cholesky factor over the 3 n unknowns, forward by
+//   columns, backward by rows;
 // - `elastic_apply`, per particle: q̂_i −= the solution at its aggregate.
 // The CPU computes in f64, here in f32.
 
@@ -135,10 +136,10 @@ fn elastic_restrict(
     elastic_coarse[3u * a + 2u] = sum.z;
 }
 
-// L L^T x = b in place in `elastic_coarse`, by one workgroup, as
-// `coarse.wgsl::coarse_solve` does for one coordinate.
+// L L^T x = b in place in `elastic_coarse`, by one workgroup each way, as
+// `coarse.wgsl::coarse_forward` and `coarse_backward` do for one coordinate.
 @compute @workgroup_size(WORKGROUP_SIZE)
-fn elastic_solve(@builtin(local_invocation_index) local: u32) {
+fn elastic_forward(@builtin(local_invocation_index) local: u32) {
     let n = select(arrayLength(&elastic_coarse), 0u, params.count == 0u);
     for (var j = 0u; j < n; j++) {
         let y = elastic_coarse[j] / elastic_row_values[elastic_row_starts[j + 1u] - 1u];
@@ -153,8 +154,11 @@ fn elastic_solve(@builtin(local_invocation_index) local: u32) {
             elastic_coarse[j] = y;
         }
     }
-    storageBarrier();
-    workgroupBarrier();
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_backward(@builtin(local_invocation_index) local: u32) {
+    let n = select(arrayLength(&elastic_coarse), 0u, params.count == 0u);
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
         let start = elastic_row_starts[i];

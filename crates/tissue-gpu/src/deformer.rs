@@ -72,6 +72,15 @@ pub struct GpuSolve {
     slots: u32,
 }
 
+/// The most unknowns a coarse solve on the GPU takes (aggregates of the
+/// two-level solve, three per aggregate of the elastic phase's): each
+/// substitution runs in one workgroup, a barrier a row, and on llvmpipe a
+/// dispatch of 8,617 rows stopped short (the solve came back half done, and
+/// the iteration diverged: the phantom at 100,000 particles), while 6,033
+/// ran whole. Larger models deflate, or run the elastic phase uncorrected,
+/// until the multilevel solve (issue 17).
+pub const GPU_COARSE_UNKNOWNS: usize = 4_096;
+
 /// The rest data the host needs to make the elastic phase's correction.
 #[derive(Debug)]
 struct ElasticHost {
@@ -111,7 +120,17 @@ impl GpuDeformer {
             // The coarse space, or else the modes, correct the symmetric
             // force, an elastic solve's shear phase included
             // (`Iteration::correct`), as on the CPU path.
-            let coarse = coarse_space(model, plan, params);
+            let coarse = coarse_space(model, plan, params).filter(|space| {
+                let fits = space.count() <= GPU_COARSE_UNKNOWNS;
+                if !fits {
+                    log::warn!(
+                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} aggregates, \
+                         this model has {}: it deflates instead (raise `coarse` for larger cells)",
+                        space.count()
+                    );
+                }
+                fits
+            });
             if let Some(space) = &coarse {
                 state.set_coarse(device, &pipelines, space)?;
             }
@@ -119,7 +138,18 @@ impl GpuDeformer {
                 Some(_) => None,
                 None => deflation_modes(model, plan, params),
             };
-            let elastic_host = match (&plan.elastic, elastic_aggregates(model, plan, params)) {
+            let elastic_aggregates = elastic_aggregates(model, plan, params).filter(|a| {
+                let fits = 3 * a.count() <= GPU_COARSE_UNKNOWNS;
+                if !fits {
+                    log::warn!(
+                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns, the \
+                         elastic phase's would have {}: it runs uncorrected",
+                        3 * a.count()
+                    );
+                }
+                fits
+            });
+            let elastic_host = match (&plan.elastic, elastic_aggregates) {
                 (Some(elastic), Some(aggregates)) => {
                     state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
                     Some(ElasticHost {

@@ -36,7 +36,7 @@ pub mod structures;
 mod support;
 pub mod timing;
 
-pub use deformer::{GpuDeformer, GpuSolve};
+pub use deformer::{GPU_COARSE_UNKNOWNS, GpuDeformer, GpuSolve};
 pub use grid::{GpuGrid, GpuRows, GridKernel, GridPipelines};
 pub use pipelines::{Kernel, KernelId, KernelSet, Pipelines};
 pub use sampler::SamplingPipelines;

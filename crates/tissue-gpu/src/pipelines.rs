@@ -49,9 +49,11 @@ pub enum Kernel {
     /// `coarse.wgsl::coarse_restrict`: per aggregate the sum of its
     /// particles' residuals.
     CoarseRestrict,
-    /// `coarse.wgsl::coarse_solve`: one workgroup solves the coarse
-    /// Laplacian by its Cholesky factor.
-    CoarseSolve,
+    /// `coarse.wgsl::coarse_forward`: one workgroup, the forward
+    /// substitution of the coarse Laplacian's Cholesky factor.
+    CoarseForward,
+    /// `coarse.wgsl::coarse_backward`: one workgroup, the backward one.
+    CoarseBackward,
     /// `coarse.wgsl::coarse_apply`: the coarse solution subtracted from
     /// the plain step of every particle of its aggregate.
     CoarseApply,
@@ -66,9 +68,11 @@ pub enum Kernel {
     /// `coarse_elastic.wgsl::elastic_restrict`: per elastic aggregate the
     /// sum of its particles' residuals.
     ElasticRestrict,
-    /// `coarse_elastic.wgsl::elastic_solve`: one workgroup solves the
-    /// elastic coarse matrix by its Cholesky factor.
-    ElasticSolve,
+    /// `coarse_elastic.wgsl::elastic_forward`: one workgroup, the forward
+    /// substitution of the elastic coarse matrix's Cholesky factor.
+    ElasticForward,
+    /// `coarse_elastic.wgsl::elastic_backward`: one workgroup, the backward one.
+    ElasticBackward,
     /// `coarse_elastic.wgsl::elastic_apply`: the solution subtracted from
     /// the plain step of every particle of its aggregate.
     ElasticApply,
@@ -76,7 +80,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 22] = [
+    pub const ALL: [Kernel; 24] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -91,13 +95,15 @@ impl Kernel {
         Kernel::UpdateNorms,
         Kernel::CoarseResidual,
         Kernel::CoarseRestrict,
-        Kernel::CoarseSolve,
+        Kernel::CoarseForward,
+        Kernel::CoarseBackward,
         Kernel::CoarseApply,
         Kernel::ElasticStep,
         Kernel::ElasticChange,
         Kernel::ElasticResidual,
         Kernel::ElasticRestrict,
-        Kernel::ElasticSolve,
+        Kernel::ElasticForward,
+        Kernel::ElasticBackward,
         Kernel::ElasticApply,
     ];
 
@@ -138,13 +144,14 @@ impl Kernel {
     /// One iteration of the two-level solve, in order: the plain step is
     /// corrected over the aggregates before the combine (where deflation
     /// would be), and the norms are of the update the combine made.
-    pub const COARSE_ITERATION: [Kernel; 9] = [
+    pub const COARSE_ITERATION: [Kernel; 10] = [
         Kernel::LocalRotations,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::CoarseResidual,
         Kernel::CoarseRestrict,
-        Kernel::CoarseSolve,
+        Kernel::CoarseForward,
+        Kernel::CoarseBackward,
         Kernel::CoarseApply,
         Kernel::Chebyshev,
         Kernel::UpdateNorms,
@@ -153,7 +160,7 @@ impl Kernel {
     /// One iteration of the elastic phase with its two-level solve, in
     /// order: the elastic correction between the plain step and the
     /// combine, the norms of the update the combine made.
-    pub const CORRECTED_ELASTIC_ITERATION: [Kernel; 12] = [
+    pub const CORRECTED_ELASTIC_ITERATION: [Kernel; 13] = [
         Kernel::LocalRotations,
         Kernel::ElasticTargets,
         Kernel::DeformationForce,
@@ -162,7 +169,8 @@ impl Kernel {
         Kernel::ElasticChange,
         Kernel::ElasticResidual,
         Kernel::ElasticRestrict,
-        Kernel::ElasticSolve,
+        Kernel::ElasticForward,
+        Kernel::ElasticBackward,
         Kernel::ElasticApply,
         Kernel::Chebyshev,
         Kernel::UpdateNorms,
@@ -178,10 +186,10 @@ impl Kernel {
     pub const WARM_DEFLATED_ITERATION: [Kernel; 8] = Kernel::warm(Kernel::DEFLATED_ITERATION);
 
     /// [`Kernel::COARSE_ITERATION`] with the warm-started rotations.
-    pub const WARM_COARSE_ITERATION: [Kernel; 9] = Kernel::warm(Kernel::COARSE_ITERATION);
+    pub const WARM_COARSE_ITERATION: [Kernel; 10] = Kernel::warm(Kernel::COARSE_ITERATION);
 
     /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
+    pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 13] =
         Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
@@ -215,13 +223,15 @@ impl Kernel {
             Kernel::DeflateApply => ("deflate", "deflate_apply"),
             Kernel::CoarseResidual => ("coarse", "coarse_residual"),
             Kernel::CoarseRestrict => ("coarse", "coarse_restrict"),
-            Kernel::CoarseSolve => ("coarse", "coarse_solve"),
+            Kernel::CoarseForward => ("coarse", "coarse_forward"),
+            Kernel::CoarseBackward => ("coarse", "coarse_backward"),
             Kernel::CoarseApply => ("coarse", "coarse_apply"),
             Kernel::ElasticStep => ("coarse_elastic", "elastic_step_of"),
             Kernel::ElasticChange => ("coarse_elastic", "elastic_change_of"),
             Kernel::ElasticResidual => ("coarse_elastic", "elastic_residual_of"),
             Kernel::ElasticRestrict => ("coarse_elastic", "elastic_restrict"),
-            Kernel::ElasticSolve => ("coarse_elastic", "elastic_solve"),
+            Kernel::ElasticForward => ("coarse_elastic", "elastic_forward"),
+            Kernel::ElasticBackward => ("coarse_elastic", "elastic_backward"),
             Kernel::ElasticApply => ("coarse_elastic", "elastic_apply"),
         }
     }

@@ -92,7 +92,7 @@ pub struct DeformState {
     pub(crate) targets: Storage<Rotation>,
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
-    coarse: CoarseBuffers,
+    pub(crate) coarse: CoarseBuffers,
     /// The elastic phase's (empty until [`DeformState::set_elastic_aggregates`]).
     elastic_coarse: ElasticCoarseBuffers,
     /// One per kernel, in [`Kernel::ALL`] order.
@@ -163,14 +163,16 @@ impl DeformState {
         let mut workgroups_of = [[1u32; 2]; Kernel::ALL.len()];
         for kernel in Kernel::ALL {
             // One workgroup sums the projections over all the others, one
-            // solves the coarse system; the restriction runs per aggregate
-            // (set with the coarse space).
+            // runs each substitution of a coarse solve; the restrictions run
+            // per aggregate (set with their coarse space).
             if !matches!(
                 kernel,
                 Kernel::DeflateGains
-                    | Kernel::CoarseSolve
+                    | Kernel::CoarseForward
+                    | Kernel::CoarseBackward
                     | Kernel::CoarseRestrict
-                    | Kernel::ElasticSolve
+                    | Kernel::ElasticForward
+                    | Kernel::ElasticBackward
                     | Kernel::ElasticRestrict
             ) {
                 workgroups_of[kernel.index()] = workgroups(

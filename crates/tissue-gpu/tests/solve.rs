@@ -439,3 +439,34 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
     );
     common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "corrected elastic");
 }
+
+/// A coarse space larger than the GPU's one-workgroup solve takes
+/// (`GPU_COARSE_UNKNOWNS`) is not uploaded: the GPU deflates instead, as
+/// it did before it had the two-level solve, and still converges.
+#[test]
+fn a_coarse_space_too_large_for_the_gpu_falls_back_to_deflation() {
+    let Some((device, queue)) = common::gpu("coarse space limit") else {
+        return;
+    };
+    let model = common::phantom(10_000);
+    // Cells of one spacing: nearly every free particle its own aggregate.
+    let params = DeformParams {
+        coarse: 1.0,
+        ..DeformParams::default()
+    };
+    let cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let aggregates = cpu.coarse().map_or(0, |c| c.count());
+    assert!(
+        aggregates > tissue_gpu::GPU_COARSE_UNKNOWNS,
+        "{aggregates} aggregates"
+    );
+    let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(gpu.state().aggregates(), 0);
+    assert_eq!(gpu.modes().map(|m| m.count()), Some(32));
+    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.converged, "{report:?}");
+}

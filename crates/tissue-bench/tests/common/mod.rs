@@ -123,13 +123,14 @@ pub const CPU_PASSES: [&str; 5] = [
 
 /// The GPU kernels of one iteration with the defaults (warm polar
 /// rotations, the two-level solve), in dispatch order.
-pub const GPU_PASSES: [&str; 9] = [
+pub const GPU_PASSES: [&str; 10] = [
     "local_rotations_warm",
     "deformation_force",
     "integrate",
     "coarse_residual",
     "coarse_restrict",
-    "coarse_solve",
+    "coarse_forward",
+    "coarse_backward",
     "coarse_apply",
     "chebyshev",
     "step_norms (update)",
