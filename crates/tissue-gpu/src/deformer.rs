@@ -317,30 +317,19 @@ impl GpuSolve {
         let Some(host) = &self.elastic_host else {
             return Ok(());
         };
-        match ElasticCoarse::new(
+        self.elastic_coarse = ElasticCoarse::at_phase_start(
             &host.aggregates,
             &host.rest,
             &current,
             &host.connections,
             &host.elastic,
             iteration.contraction,
-        ) {
-            Ok(coarse) => {
-                self.state
-                    .linearise_elastic(device, &self.pipelines, &coarse)?;
-                log::info!(
-                    "elastic two-level solve: {} aggregates, contraction {:.3}, prepared in {:.3} s",
-                    host.aggregates.count(),
-                    coarse.rho(),
-                    coarse.seconds()
-                );
-                self.elastic_coarse = Some(coarse);
-            }
-            Err(e) => {
-                log::warn!("the elastic phase runs without its two-level solve: {e}");
-                self.state.forget_elastic_linearisation();
-                self.elastic_coarse = None;
-            }
+        );
+        match &self.elastic_coarse {
+            Some(coarse) => self
+                .state
+                .linearise_elastic(device, &self.pipelines, coarse)?,
+            None => self.state.forget_elastic_linearisation(),
         }
         Ok(())
     }

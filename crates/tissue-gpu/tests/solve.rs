@@ -33,23 +33,9 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             gpu_report.converged,
             "{force:?}: the GPU solve did not converge: {gpu_report:?}"
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let tolerance = 1e-5 * cpu.size();
-        let mut worst = 0.0f32;
-        for (i, (g, e)) in got.iter().zip(cpu.positions()).enumerate() {
-            let off = g.distance(*e);
-            worst = worst.max(off);
-            assert!(
-                off <= tolerance,
-                "{force:?}, particle {i}: GPU {g} vs CPU {e}, distance {off:e} > tolerance {tolerance:e} (1e-5 of the size)"
-            );
-        }
-        eprintln!(
-            "{force:?}: worst distance {worst:e} = {:e} of the size",
-            worst / cpu.size()
-        );
+        let context = format!("{force:?}");
+        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
+        eprintln!("{force:?}: worst distance {worst:e} of the size");
     }
 }
 
@@ -235,23 +221,9 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
             "{force:?}: {} iterations deflated, {undeflated_report:?} undeflated",
             gpu_report.iterations
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let tolerance = 1e-5 * cpu.size();
-        let mut worst = 0.0f32;
-        for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
-            let off = g.distance(*c);
-            worst = worst.max(off);
-            assert!(
-                off <= tolerance,
-                "{force:?}, particle {i}: GPU {g} vs CPU {c}, distance {off:e} > tolerance {tolerance:e} (1e-5 of the size)"
-            );
-        }
-        eprintln!(
-            "{force:?} deflated: worst distance {worst:e} = {:e} of the size",
-            worst / cpu.size()
-        );
+        let context = format!("{force:?} deflated");
+        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
+        eprintln!("{force:?} deflated: worst distance {worst:e} of the size");
     }
 }
 
@@ -293,19 +265,8 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         cpu_report.iterations, gpu_report.iterations,
         "the same iteration and stopping rule on both"
     );
-    let got = gpu
-        .positions(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "Elastic");
     let tolerance = 1e-5 * cpu.size();
-    let mut worst = 0.0f32;
-    for (i, (g, e)) in got.iter().zip(cpu.positions()).enumerate() {
-        let off = g.distance(*e);
-        worst = worst.max(off);
-        assert!(
-            off <= tolerance,
-            "Elastic, particle {i}: GPU {g} vs CPU {e}, distance {off:e} > tolerance {tolerance:e} (1e-5 of the size)"
-        );
-    }
     // The volume term matters: the symmetric solve lands elsewhere.
     let mut symmetric = tissue_cpu::deformation::Deformer::new(
         model,
@@ -330,8 +291,7 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         "the elastic and symmetric solves differ by {apart:e} only"
     );
     eprintln!(
-        "Elastic: worst distance {worst:e} = {:e} of the size; the symmetric solve lies up to {apart:e} away",
-        worst / cpu.size()
+        "Elastic: worst distance {worst:e} of the size; the symmetric solve lies up to {apart:e} away"
     );
 }
 

@@ -235,19 +235,8 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let tolerance = 1e-5 * cpu.size();
-        let mut worst = 0.0f32;
-        for (i, (g, e)) in got.iter().zip(cpu.positions()).enumerate() {
-            let off = g.distance(*e);
-            worst = worst.max(off);
-            assert!(
-                off <= tolerance,
-                "{force:?}, particle {i}: GPU {g} vs CPU {e}, distance {off:e} > tolerance {tolerance:e}"
-            );
-        }
+        let context = format!("{force:?}, {deflation} modes, warm");
+        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
         let rotations = gpu
             .read_rotations(&device, &queue)
             .unwrap_or_else(|e| panic!("{e}"));
@@ -257,8 +246,7 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             .map(|(g, c)| entry_difference(*g, *c))
             .fold(0.0f32, f32::max);
         eprintln!(
-            "{force:?}, {deflation} modes, warm: worst distance {worst:e} = {:e} of the size; worst rotation entry {worst_rotation:e}",
-            worst / cpu.size()
+            "{force:?}, {deflation} modes, warm: worst distance {worst:e} of the size; worst rotation entry {worst_rotation:e}"
         );
     }
 }
@@ -394,22 +382,8 @@ fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        let got = gpu
-            .positions(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let worst = got
-            .iter()
-            .zip(cpu.positions())
-            .map(|(g, e)| g.distance(*e))
-            .fold(0.0f32, f32::max);
-        eprintln!(
-            "warm elastic {name}: worst distance {:e} of the size",
-            worst / cpu.size()
-        );
-        assert!(
-            worst <= 1e-5 * cpu.size(),
-            "{name}: worst distance {worst:e} = {:e} of the size",
-            worst / cpu.size()
-        );
+        let context = format!("warm elastic {name}");
+        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
+        eprintln!("warm elastic {name}: worst distance {worst:e} of the size");
     }
 }

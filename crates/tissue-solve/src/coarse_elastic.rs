@@ -90,6 +90,34 @@ impl ElasticCoarse {
         Ok(space)
     }
 
+    /// [`ElasticCoarse::new`] as a device makes it at a phase's start: told
+    /// to the log, and `None` (a warning: the phase then runs uncorrected)
+    /// where it cannot be made.
+    pub fn at_phase_start(
+        aggregates: &Aggregates,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        elastic: &Elastic,
+        contraction: f32,
+    ) -> Option<Self> {
+        match Self::new(aggregates, rest, current, connections, elastic, contraction) {
+            Ok(coarse) => {
+                log::info!(
+                    "elastic two-level solve: {} aggregates, contraction {:.3}, prepared in {:.3} s",
+                    aggregates.count(),
+                    coarse.rho(),
+                    coarse.seconds()
+                );
+                Some(coarse)
+            }
+            Err(e) => {
+                log::warn!("the elastic phase runs without its two-level solve: {e}");
+                None
+            }
+        }
+    }
+
     /// The contraction of the two-level iteration, for Chebyshev and the
     /// stopping rule: its spectral radius, estimated by power iteration.
     pub fn rho(&self) -> f32 {

@@ -239,28 +239,15 @@ impl CpuSolve {
         if !ElasticCoarse::is_needed_anew(self.elastic_coarse.as_deref(), &iteration) {
             return;
         }
-        self.elastic_coarse = match ElasticCoarse::new(
+        self.elastic_coarse = ElasticCoarse::at_phase_start(
             aggregates,
             &self.rest,
             &self.current,
             &self.connections,
             elastic,
             iteration.contraction,
-        ) {
-            Ok(c) => {
-                log::info!(
-                    "elastic two-level solve: {} aggregates, contraction {:.3}, prepared in {:.3} s",
-                    aggregates.count(),
-                    c.rho(),
-                    c.seconds()
-                );
-                Some(Arc::new(c))
-            }
-            Err(e) => {
-                log::warn!("the elastic phase runs without its two-level solve: {e}");
-                None
-            }
-        };
+        )
+        .map(Arc::new);
     }
 
     /// One iteration with Chebyshev weight `omega`: the largest and RMS
@@ -450,9 +437,7 @@ impl SolveDevice for CpuSolve {
 
     fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
         self.previous.clone_from(&self.current);
-        if iteration.force == ForceModel::Elastic && iteration.correct {
-            self.linearise(iteration);
-        }
+        self.linearise(iteration);
         self.iteration = Some(iteration);
         Ok(())
     }
