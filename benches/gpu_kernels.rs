@@ -81,6 +81,7 @@ fn gpu_kernels(c: &mut Criterion) {
         ),
         (&symmetric, Kernel::Integrate, "gpu integrate 10k"),
         (&elastic, Kernel::ElasticTargets, "gpu elastic_targets 10k"),
+        (&elastic, Kernel::ElasticForce, "gpu elastic_force 10k"),
     ] {
         let (pipelines, state) = (deformer.pipelines(), deformer.state());
         c.bench_function(name, |b| {

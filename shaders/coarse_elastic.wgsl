@@ -2,13 +2,14 @@
 // `tissue_solve::coarse_elastic::ElasticCoarse::correct`, in six passes
 // between `integrate` and `chebyshev`. The elastic operator at the state the
 // phase started from, K = L + 1/2 sum_i W_i g_i g_i^T (g_i the gradient of
-// J_i, its entry at neighbour j G_i d_ij with G_i = cof(F_i) A_i^-1 there),
+// J_i, its entry at neighbour j cof(F_i) c_ij = C_i d_ij + S_i (mu_j - mu_i)
+// with C_i = cof(F_i) B_i and S_i = a_i cof(F_i) there),
 // gives K e' = −s / (c alpha) + K s for the error after the plain step s;
 // its projection onto the aggregates' translations (three unknowns each) is
 // removed:
 // - `elastic_step`, per particle: s_i, 0 outside the aggregates (w = 1 inside);
 // - `elastic_change`, per particle: sqrt(W_i) g_i . s, the uploaded
-//   `elastic_gradients` being sqrt(W_i) G_i;
+//   `elastic_gradients` being sqrt(W_i) C_i and sqrt(W_i) S_i;
 // - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha);
 // - `elastic_restrict`, per aggregate: the sum over its particles, three
 //   entries of `elastic_coarse`;
@@ -30,8 +31,8 @@
 @group(0) @binding(6) var<storage, read> elastic_aggregate: array<u32>;
 // Per particle s_i (w: 1 inside an aggregate, 0 outside).
 @group(0) @binding(7) var<storage, read_write> elastic_step: array<vec4<f32>>;
-// Per particle sqrt(W_i) cof(F_i) A_i^-1 at the phase's start (0: flat).
-@group(0) @binding(8) var<storage, read> elastic_gradients: array<Rotation>;
+// Per particle sqrt(W_i) C_i and sqrt(W_i) S_i at the phase's start (0: flat).
+@group(0) @binding(8) var<storage, read> elastic_gradients: array<ElasticGradient>;
 // Per particle sqrt(W_i) g_i . s.
 @group(0) @binding(9) var<storage, read_write> elastic_change: array<f32>;
 // Per particle (K e')_j.
@@ -46,6 +47,8 @@
 @group(0) @binding(16) var<storage, read> elastic_column_starts: array<u32>;
 @group(0) @binding(17) var<storage, read> elastic_column_rows: array<u32>;
 @group(0) @binding(18) var<storage, read> elastic_column_values: array<f32>;
+// The multipliers mu_i.
+@group(0) @binding(19) var<storage, read> elastic_particles: array<ElasticParticle>;
 
 const OUTSIDE: u32 = 0xffffffffu;
 
@@ -76,13 +79,16 @@ fn elastic_change_of(
     if (i >= params.count) {
         return;
     }
-    let g = matrix_of(elastic_gradients[i]);
+    let c = matrix_of(elastic_gradients[i].correction);
+    let scale = matrix_of(elastic_gradients[i].scale);
     let p = rest[i].xyz;
+    let mu = elastic_particles[i].multiplier.xyz;
     let s = elastic_step[i].xyz;
     var change = 0.0;
     for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
         let j = indices[k];
-        change += dot(elastic_step[j].xyz - s, g * (rest[j].xyz - p));
+        let entry = c * (rest[j].xyz - p) + scale * (elastic_particles[j].multiplier.xyz - mu);
+        change += dot(elastic_step[j].xyz - s, entry);
     }
     elastic_change[i] = change;
 }
@@ -104,14 +110,18 @@ fn elastic_residual_of(
     }
     // c alpha: c = 2 for the elastic (symmetric) force.
     let contraction = select(2.0, 1.0, params.model == 0u) * params.alpha;
-    let h_j = elastic_change[j] * matrix_of(elastic_gradients[j]);
+    let h_j = elastic_change[j] * matrix_of(elastic_gradients[j].correction);
+    let n_j = elastic_change[j] * matrix_of(elastic_gradients[j].scale);
     let p = rest[j].xyz;
+    let mu = elastic_particles[j].multiplier.xyz;
     var k = vec3<f32>(0.0);
     for (var n = offsets[j]; n < offsets[j + 1u]; n++) {
         let i = indices[n];
         let d = p - rest[i].xyz;
-        let h_i = elastic_change[i] * matrix_of(elastic_gradients[i]);
-        k += (own.xyz - elastic_step[i].xyz) + 0.5 * ((h_i + h_j) * d);
+        let h_i = elastic_change[i] * matrix_of(elastic_gradients[i].correction);
+        let n_i = elastic_change[i] * matrix_of(elastic_gradients[i].scale);
+        k += (own.xyz - elastic_step[i].xyz)
+            + 0.5 * ((h_i + h_j) * d + (n_i + n_j) * (mu - elastic_particles[i].multiplier.xyz));
     }
     elastic_residual[j] = vec4<f32>(k - own.xyz / contraction, 0.0);
 }

@@ -1,9 +1,8 @@
 // Stage 2, eq. (14): the force on each particle, gathered over its
 // connections (no atomics). params.model 0: the paper's one-sided
 // F_j = Σ_i [R_i (p_j − p_i) − (q_j − q_i)]; 1: the symmetric
-// F_j = Σ_i [(R_i + R_j)(p_j − p_i) − 2 (q_j − q_i)], −½ the energy's gradient;
-// 2: the elastic force, the same sum with the targets T_i of
-// elastic_targets.wgsl, which the host binds as `rotations`.
+// F_j = Σ_i [(R_i + R_j)(p_j − p_i) − 2 (q_j − q_i)], −½ the energy's gradient.
+// (The elastic force has a kernel of its own: elastic_targets.wgsl.)
 // Twin: `tissue_cpu::deformation::deformation_force`.
 
 #import shared/layout

@@ -1,20 +1,81 @@
-// Stage 2, the elastic model's targets (`tissue_solve::elastic`): per
-// particle T_i = R_i − W_i (J_i − 1) cof(F_i) A_i⁻¹, with the corrected
-// gradient F_i = M_i A_i⁻¹ and J_i = det F_i; the force kernel gathers the
-// symmetric sum over T in place of R. Where W_i = 0 (a flat neighbourhood)
-// T_i = R_i. Twin: `tissue_cpu::deformation::elastic_targets`.
+// Stage 2, the elastic model (`tissue_solve::elastic`): each particle's
+// terms of the force, then the force gathered over them (no atomics).
+// - `elastic_targets` (rotation by the SVD) and `elastic_targets_warm`
+//   (warm-started from the rotation of M_i): with M_i = Σ_j e_ij d_ijᵀ and
+//   N_i = Σ_j e_ij (μ_j − μ_i)ᵀ, the consistent gradient
+//   F_i = M_i B_iᵀ + a_i N_i, R_i its polar rotation,
+//   Q_i = a_i (F_i − R_i) + W_i (J_i − 1) cof(F_i), the target
+//   T_i = M_i A_i⁻¹ − Q_i B_i and the stress U_i = a_i Q_i. A flat
+//   neighbourhood (a_i = 0) keeps the pair term: T_i = R_i (of M_i), U_i = 0.
+//   Twin: `tissue_cpu::deformation::elastic_terms` (`Elastic::terms`).
+// - `elastic_force`: f_k = Σ_i [(T_i + T_k) d_ik − (U_i + U_k)(μ_k − μ_i) − 2 e_ik].
+//   Twin: `tissue_cpu::deformation::elastic_force` (`Elastic::force_on`).
 
 #import shared/layout
-#import shared/offsets
+#import shared/svd3
+#import shared/polar
 
 @group(0) @binding(0) var<uniform> params: Params;
-// Bindings 1 to 4 (rest, current, offsets, indices): shared/offsets.
+@group(0) @binding(1) var<storage, read> rest: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> current: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> offsets: array<u32>;
+@group(0) @binding(4) var<storage, read> indices: array<u32>;
+// Per particle the rotation of M_i (this iteration's).
 @group(0) @binding(5) var<storage, read> rotations: array<Rotation>;
-// Per particle A_i⁻¹ (zero for a flat neighbourhood), as three columns.
-@group(0) @binding(6) var<storage, read> inverse_moments: array<Rotation>;
-// Per particle the volume term's weight W_i.
-@group(0) @binding(7) var<storage, read> weights: array<f32>;
-@group(0) @binding(8) var<storage, read_write> targets: array<Rotation>;
+@group(0) @binding(6) var<storage, read> elastic_particles: array<ElasticParticle>;
+@group(0) @binding(7) var<storage, read_write> elastic_terms: array<ElasticTerms>;
+@group(0) @binding(8) var<storage, read_write> force: array<vec4<f32>>;
+
+// M_i and N_i over particle i's connections.
+struct Products {
+    offsets: mat3x3<f32>,
+    multipliers: mat3x3<f32>,
+}
+
+fn products(i: u32) -> Products {
+    let zero = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var m = zero;
+    var n = zero;
+    let mu_i = elastic_particles[i].multiplier.xyz;
+    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
+        let j = indices[k];
+        let d = rest[j].xyz - rest[i].xyz;
+        let e = current[j].xyz - current[i].xyz;
+        m += mat3x3<f32>(e * d.x, e * d.y, e * d.z);
+        let u = elastic_particles[j].multiplier.xyz - mu_i;
+        n += mat3x3<f32>(e * u.x, e * u.y, e * u.z);
+    }
+    return Products(m, n);
+}
+
+// Particle i's terms with its rotation found by `warm` (the warm polar
+// update from the rotation of M_i) or the SVD.
+fn terms_of(i: u32, warm: bool) {
+    let particle = elastic_particles[i];
+    let a = particle.correction.x_axis.w;
+    let zero = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    if (a == 0.0) {
+        elastic_terms[i] = ElasticTerms(rotations[i], stored(zero));
+        return;
+    }
+    let w = particle.inverse.x_axis.w;
+    let inverse = matrix_of(particle.inverse);
+    let correction = matrix_of(particle.correction);
+    let p = products(i);
+    let f = p.offsets * transpose(correction) + a * p.multipliers;
+    var r: mat3x3<f32>;
+    if (warm) {
+        r = warm_rotation(f, matrix_of(rotations[i]));
+    } else {
+        r = rotation_of(f);
+    }
+    // cof(F) = det(F) F⁻ᵀ: its columns are cross products of F's.
+    let cofactor = mat3x3<f32>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
+    // det F = F_x · (F_y × F_z), glam's order.
+    let jacobian = dot(f[0], cofactor[0]);
+    let q = a * (f - r) + (w * (jacobian - 1.0)) * cofactor;
+    elastic_terms[i] = ElasticTerms(stored(p.offsets * inverse - q * correction), stored(a * q));
+}
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_targets(
@@ -26,16 +87,44 @@ fn elastic_targets(
     if (i >= params.count) {
         return;
     }
-    let w = weights[i];
-    if (w == 0.0) {
-        targets[i] = rotations[i];
+    terms_of(i, false);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_targets_warm(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
         return;
     }
-    let inverse = matrix_of(inverse_moments[i]);
-    let f = offsets_product(i) * inverse;
-    // cof(F) = det(F) F⁻ᵀ: its columns are cross products of F's, and
-    // det F = F_x · (F_y × F_z), glam's order.
-    let cofactor = mat3x3<f32>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
-    let jacobian = dot(f[0], cofactor[0]);
-    targets[i] = stored(matrix_of(rotations[i]) - (w * (jacobian - 1.0)) * cofactor * inverse);
+    terms_of(i, true);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_force(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let k = particle_index(workgroup, groups, local);
+    if (k >= params.count) {
+        return;
+    }
+    let t_k = matrix_of(elastic_terms[k].rest_term);
+    let u_k = matrix_of(elastic_terms[k].multiplier_term);
+    let mu_k = elastic_particles[k].multiplier.xyz;
+    var f = vec3<f32>(0.0);
+    for (var n = offsets[k]; n < offsets[k + 1u]; n++) {
+        let i = indices[n];
+        let d = rest[k].xyz - rest[i].xyz;
+        let e = current[k].xyz - current[i].xyz;
+        let terms = elastic_terms[i];
+        f += (matrix_of(terms.rest_term) + t_k) * d
+            - (matrix_of(terms.multiplier_term) + u_k) * (mu_k - elastic_particles[i].multiplier.xyz)
+            - 2.0 * e;
+    }
+    force[k] = vec4<f32>(f, 0.0);
 }

@@ -9,8 +9,8 @@ use glam::{Mat3, Quat, Vec3};
 use tissue::deform::{Affine, PointMap, Rigid, Twist, deform_surface, interpolate};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::{
-    DeformParams, Deformer, Elastic, ForceModel, RotationMethod, deformation_force,
-    elastic_targets, local_rotations,
+    DeformParams, Deformer, Elastic, ForceModel, RotationMethod, deformation_force, elastic_force,
+    elastic_terms, local_rotations,
 };
 use tissue_cpu::structures::{Embedding, RigidBinding};
 
@@ -199,9 +199,10 @@ fn an_affine_map_is_reproduced_in_the_interior() {
     assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
 }
 
-/// The elastic force's corrected gradients take an affine map exactly, but
-/// its pair term does not pass the patch test (irregular neighbourhoods):
-/// what is left is measured and held.
+/// The patch test: the elastic force's consistent gradients make an affine
+/// move of the surface an equilibrium, so the interior follows it to the
+/// solve's tolerance: every interior particle within 1e-4 of the model's
+/// size (issue 14; 1.7e-5 measured, 2.5e-3 with least-squares gradients).
 #[test]
 fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
     let model = breast_model();
@@ -229,8 +230,7 @@ fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
         100.0 * max / scale,
         max / size
     );
-    assert!(rms <= 0.01 * scale, "rms {rms} > 1% of {scale}");
-    assert!(max <= 0.03 * scale, "max {max} > 3% of {scale}");
+    assert!(max <= 1e-4 * size, "max {max} > 1e-4 of the size {size}");
 }
 
 #[test]
@@ -285,6 +285,10 @@ fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
         );
         assert!(rms <= 0.02 * scale, "{force:?}: rms {rms} > 2% of {scale}");
         assert!(max <= 0.05 * scale, "{force:?}: max {max} > 5% of {scale}");
+        if force == ForceModel::Elastic {
+            // Issue 14: RMS at most 0.2 % (0.030 % measured).
+            assert!(rms <= 0.002 * scale, "elastic: rms {rms} > 0.2% of {scale}");
+        }
     }
 }
 
@@ -308,52 +312,46 @@ fn the_force_vanishes_under_rigid_motion_for_both_models() {
             .fold(0.0f32, |m, x| m.max(x.abs()));
         assert!(off < 1e-5, "particle {i}: rotation off by {off}");
     }
-    let elastic = Elastic::new(&model.positions, &model.connections, 0.49);
-    let targets = elastic_targets(
-        &model.positions,
-        &current,
-        &model.connections,
-        &rotations,
-        &elastic,
-    );
+    let free: Vec<bool> = (0..model.len()).map(|i| !model.is_surface(i)).collect();
+    let elastic = Elastic::new(&model.positions, &model.connections, 0.49, &free);
+    let elastic_force_at = |q: &[Vec3]| {
+        let rotations = local_rotations(&model.positions, q, &model.connections);
+        let terms = elastic_terms(
+            &model.positions,
+            q,
+            &model.connections,
+            &rotations,
+            &elastic,
+            RotationMethod::Svd,
+        );
+        elastic_force(&model.positions, q, &model.connections, &terms, &elastic)
+    };
     for force in [
         ForceModel::Paper,
         ForceModel::Symmetric,
         ForceModel::Elastic,
     ] {
-        let targets = if force == ForceModel::Elastic {
-            &targets
+        let f = if force == ForceModel::Elastic {
+            elastic_force_at(&current)
         } else {
-            &rotations
+            deformation_force(
+                &model.positions,
+                &current,
+                &rotations,
+                &model.connections,
+                force,
+            )
         };
-        let f = deformation_force(
-            &model.positions,
-            &current,
-            targets,
-            &model.connections,
-            force,
-        );
         let worst = f.iter().map(|v| v.length()).fold(0.0, f32::max);
         // The volume term's weight (24.5 times the shear's at 0.49) scales
         // the rounding of `J - 1` in f32: held against what a 0.1 % change
         // of volume gives instead.
         let limit = if force == ForceModel::Elastic {
             let swollen: Vec<Vec3> = current.iter().map(|&q| q * 1.000_33).collect();
-            let targets = elastic_targets(
-                &model.positions,
-                &swollen,
-                &model.connections,
-                &rotations,
-                &elastic,
-            );
-            let f = deformation_force(
-                &model.positions,
-                &swollen,
-                &targets,
-                &model.connections,
-                force,
-            );
-            0.1 * f.iter().map(|v| v.length()).fold(0.0, f32::max)
+            0.1 * elastic_force_at(&swollen)
+                .iter()
+                .map(|v| v.length())
+                .fold(0.0, f32::max)
         } else {
             1e-3
         };
@@ -431,46 +429,32 @@ fn perturbed(model: &ParticleModel) -> Vec<Vec3> {
         .collect()
 }
 
-/// The elastic force is -1/2 the gradient of the energy with the volume
-/// term (rotations held): checked by central differences in `f64`.
+/// The elastic force is -1/2 the gradient of the energy (rotations at
+/// their optimum, the polar rotations of the consistent gradients):
+/// checked by central differences on the phantom.
 #[test]
 fn the_elastic_force_is_the_energy_gradient() {
     let model = breast_model();
     let current = perturbed(model);
-    let rotations = local_rotations(&model.positions, &current, &model.connections);
-    let elastic = Elastic::new(&model.positions, &model.connections, 0.45);
     let rest = &model.positions;
-    // Particle `i`'s part of the energy, in `f64`.
-    let part = |q: &[Vec3], i: usize| -> f64 {
-        let mut e = 0.0f64;
-        let mut m = glam::DMat3::ZERO;
-        for &j in model.connections.of(i) {
-            let j = j as usize;
-            let d = (rest[j] - rest[i]).as_dvec3();
-            let c = (q[j] - q[i]).as_dvec3();
-            e += (c - rotations[i].as_dmat3() * d).length_squared();
-            m += glam::DMat3::from_cols(c * d.x, c * d.y, c * d.z);
-        }
-        let f = m * elastic.inverse_moments[i].as_dmat3();
-        e + f64::from(elastic.weights[i]) * (f.determinant() - 1.0).powi(2)
-    };
-    let targets = elastic_targets(rest, &current, &model.connections, &rotations, &elastic);
-    let force = deformation_force(
+    let free: Vec<bool> = (0..model.len()).map(|i| !model.is_surface(i)).collect();
+    let elastic = Elastic::new(rest, &model.connections, 0.45, &free);
+    let rotations = local_rotations(rest, &current, &model.connections);
+    let terms = elastic_terms(
         rest,
         &current,
-        &targets,
         &model.connections,
-        ForceModel::Elastic,
+        &rotations,
+        &elastic,
+        RotationMethod::Svd,
     );
+    let force = elastic_force(rest, &current, &model.connections, &terms, &elastic);
     // Only particle k's and its neighbours' parts depend on q_k.
     assert_half_gradient(&current, &force, |k, q| {
-        part(q, k)
-            + model
-                .connections
-                .of(k)
-                .iter()
-                .map(|&j| part(q, j as usize))
-                .sum::<f64>()
+        std::iter::once(k)
+            .chain(model.connections.of(k).iter().map(|&j| j as usize))
+            .map(|i| elastic.particle_energy(i, rest, q, &model.connections))
+            .sum()
     });
 }
 

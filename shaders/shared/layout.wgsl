@@ -50,3 +50,27 @@ fn flat_workgroup(workgroup: vec3<u32>, groups: vec3<u32>) -> u32 {
 fn particle_index(workgroup: vec3<u32>, groups: vec3<u32>, local: u32) -> u32 {
     return flat_workgroup(workgroup, groups) * WORKGROUP_SIZE + local;
 }
+
+// The elastic model's rest data of a particle (`tissue_solve::elastic`):
+// A_i⁻¹ with W_i in its x_axis.w, B_i with a_i in its x_axis.w, and μ_i.
+// Rust mirror: `tissue_gpu::ElasticParticle`.
+struct ElasticParticle {
+    inverse: Rotation,
+    correction: Rotation,
+    multiplier: vec4<f32>,
+}
+
+// What a particle puts into its neighbours' elastic force: its target T_i
+// (the rest offsets' term; `target` is a reserved word) and its stress U_i
+// (the multipliers'). Rust mirror: `tissue_gpu::ElasticTerms`.
+struct ElasticTerms {
+    rest_term: Rotation,
+    multiplier_term: Rotation,
+}
+
+// The volume term's gradient at a linearisation, scaled by sqrt(W_i):
+// cof(F_i) B_i and a_i cof(F_i). Rust mirror: `tissue_gpu::ElasticGradient`.
+struct ElasticGradient {
+    correction: Rotation,
+    scale: Rotation,
+}

@@ -9,7 +9,7 @@ use tissue_solve::coarse_elastic::ElasticCoarse;
 use crate::buffer::Storage;
 use crate::coarse::{factor_of, members_of};
 use crate::support::scoped;
-use crate::{GpuError, Rotation};
+use crate::{ElasticGradient, GpuError, Rotation};
 
 /// The buffers; empty (16 bytes each) until uploaded.
 #[derive(Debug)]
@@ -27,8 +27,8 @@ pub(crate) struct ElasticCoarseBuffers {
     change: Storage<f32>,
     /// Per particle `(K e')_j` (`vec4`).
     residual: Storage<[f32; 4]>,
-    /// Per particle `sqrt(W_i) cof(F_i) A_i^-1`.
-    gradients: Storage<Rotation>,
+    /// Per particle `sqrt(W_i) cof(F_i) B_i` and `sqrt(W_i) a_i cof(F_i)`.
+    gradients: Storage<ElasticGradient>,
     /// Three entries per aggregate.
     coarse: Storage<f32>,
     row_starts: Storage<u32>,
@@ -130,11 +130,15 @@ impl ElasticCoarseBuffers {
                 got: coarse.factor().len(),
             });
         }
-        let gradients: Vec<Rotation> = coarse
-            .gradients()
-            .iter()
-            .zip(coarse.weights())
-            .map(|(g, &w)| Rotation::from((*g * w.sqrt()).as_mat3()))
+        let k = coarse.linearisation();
+        let gradients: Vec<ElasticGradient> = (0..k.weights.len())
+            .map(|i| {
+                let root = k.weights[i].sqrt();
+                ElasticGradient {
+                    correction: Rotation::from((k.corrections[i] * root).as_mat3()),
+                    scale: Rotation::from((k.scales[i] * root).as_mat3()),
+                }
+            })
             .collect();
         let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
             factor_of(coarse.factor());

@@ -168,6 +168,56 @@ impl From<Rotation> for glam::Mat3 {
     }
 }
 
+/// Mirror of WGSL `ElasticParticle` (`shaders/shared/layout.wgsl`): the
+/// elastic model's rest data of a particle.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ElasticParticle {
+    /// `A_i^-1`, with the volume weight `W_i` in `x_axis[3]`.
+    pub inverse: Rotation,
+    /// `B_i`, with the stress weight `a_i` in `x_axis[3]`.
+    pub correction: Rotation,
+    /// The multiplier `mu_i` (w unused).
+    pub multiplier: [f32; 4],
+}
+
+impl ElasticParticle {
+    /// Particle `i` of `elastic`.
+    pub fn of(elastic: &tissue_solve::elastic::Elastic, i: usize) -> Self {
+        let c = &elastic.consistency;
+        let mut inverse = Rotation::from(elastic.inverse_moments[i]);
+        inverse.x_axis[3] = elastic.weights[i];
+        let mut correction = Rotation::from(c.corrections[i]);
+        correction.x_axis[3] = c.scales[i];
+        Self {
+            inverse,
+            correction,
+            multiplier: c.multipliers[i].extend(0.0).to_array(),
+        }
+    }
+}
+
+/// Mirror of WGSL `ElasticTerms`: a particle's target and stress.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ElasticTerms {
+    /// The target `T_i`, gathered against the rest offsets.
+    pub rest_term: Rotation,
+    /// The stress `U_i`, gathered against the multipliers' offsets.
+    pub multiplier_term: Rotation,
+}
+
+/// Mirror of WGSL `ElasticGradient`: the volume term's gradient at a
+/// linearisation, `sqrt(W_i) cof(F_i) B_i` and `sqrt(W_i) a_i cof(F_i)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ElasticGradient {
+    /// `sqrt(W_i) cof(F_i) B_i`.
+    pub correction: Rotation,
+    /// `sqrt(W_i) a_i cof(F_i)`.
+    pub scale: Rotation,
+}
+
 /// For the CLI, the benchmark and tests (the library itself takes a device):
 /// the adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the default
 /// one, and a device with default limits and no optional features.
@@ -244,6 +294,40 @@ mod tests {
                 ("groups", offset_of!(Params, groups)),
                 ("modes", offset_of!(Params, modes)),
                 ("mode_groups", offset_of!(Params, mode_groups)),
+            ],
+        );
+    }
+
+    #[test]
+    fn the_elastic_structs_match_the_wgsl_layout() {
+        use std::mem::{offset_of, size_of};
+        let check = |name, size, offsets: &[(&str, usize)]| {
+            shaders::assert_layout("elastic_targets", name, size, offsets);
+        };
+        check(
+            "ElasticParticle",
+            size_of::<ElasticParticle>(),
+            &[
+                ("inverse", offset_of!(ElasticParticle, inverse)),
+                ("correction", offset_of!(ElasticParticle, correction)),
+                ("multiplier", offset_of!(ElasticParticle, multiplier)),
+            ],
+        );
+        check(
+            "ElasticTerms",
+            size_of::<ElasticTerms>(),
+            &[
+                ("rest_term", offset_of!(ElasticTerms, rest_term)),
+                ("multiplier_term", offset_of!(ElasticTerms, multiplier_term)),
+            ],
+        );
+        shaders::assert_layout(
+            "coarse_elastic",
+            "ElasticGradient",
+            size_of::<ElasticGradient>(),
+            &[
+                ("correction", offset_of!(ElasticGradient, correction)),
+                ("scale", offset_of!(ElasticGradient, scale)),
             ],
         );
     }

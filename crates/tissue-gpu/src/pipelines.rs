@@ -18,12 +18,17 @@ pub enum Kernel {
     /// premultiplied by the state's turn (a frame boundary's; in no
     /// iteration, see [`DeformState::write_turn`]).
     TurnRotations,
-    /// `elastic_targets.wgsl`: the elastic model's targets `T_i` from
-    /// `R_i` and `M_i` (only on a state given [`DeformState::set_elastic`]).
+    /// `elastic_targets.wgsl`: the elastic model's terms (target `T_i` and
+    /// stress `U_i`), each particle's rotation the polar rotation of its
+    /// gradient by the SVD (only on a state given [`DeformState::set_elastic`]).
     ElasticTargets,
-    /// `deformation_force.wgsl`: the force, paper or symmetric; on an
-    /// elastic state the symmetric sum over the targets instead of the
-    /// rotations (the elastic force).
+    /// `elastic_targets.wgsl::elastic_targets_warm`: the same with the
+    /// rotation warm-started from that of `M_i` (the `WARM_*` iterations).
+    ElasticTargetsWarm,
+    /// `elastic_targets.wgsl::elastic_force`: the elastic force gathered
+    /// over the terms.
+    ElasticForce,
+    /// `deformation_force.wgsl`: the force, paper or symmetric.
     DeformationForce,
     /// `integrate.wgsl::integrate`: `q̂ = q + alpha F` into the plain buffer.
     Integrate,
@@ -80,11 +85,13 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 24] = [
+    pub const ALL: [Kernel; 26] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
         Kernel::ElasticTargets,
+        Kernel::ElasticTargetsWarm,
+        Kernel::ElasticForce,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
@@ -116,13 +123,13 @@ impl Kernel {
         Kernel::Chebyshev,
     ];
 
-    /// One iteration with the elastic force, in order: the targets
-    /// between the rotations and the force. Never deflated: deflation
+    /// One iteration with the elastic force, in order: the terms between
+    /// the rotations and the elastic force. Never deflated: deflation
     /// assumes the Laplacian's modes, which are not the elastic operator's.
     pub const ELASTIC_ITERATION: [Kernel; 6] = [
         Kernel::LocalRotations,
         Kernel::ElasticTargets,
-        Kernel::DeformationForce,
+        Kernel::ElasticForce,
         Kernel::Integrate,
         Kernel::StepNorms,
         Kernel::Chebyshev,
@@ -163,7 +170,7 @@ impl Kernel {
     pub const CORRECTED_ELASTIC_ITERATION: [Kernel; 13] = [
         Kernel::LocalRotations,
         Kernel::ElasticTargets,
-        Kernel::DeformationForce,
+        Kernel::ElasticForce,
         Kernel::Integrate,
         Kernel::ElasticStep,
         Kernel::ElasticChange,
@@ -193,14 +200,18 @@ impl Kernel {
         Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
-    /// [`Kernel::LocalRotations`], so each warm list is its SVD list but
-    /// for the rotations.
+    /// [`Kernel::LocalRotations`] and [`Kernel::ElasticTargetsWarm`] in
+    /// place of [`Kernel::ElasticTargets`], so each warm list is its SVD
+    /// list but for the rotations.
     const fn warm<const N: usize>(iteration: [Kernel; N]) -> [Kernel; N] {
         let mut out = iteration;
         let mut k = 0;
         while k < N {
             if matches!(out[k], Kernel::LocalRotations) {
                 out[k] = Kernel::LocalRotationsWarm;
+            }
+            if matches!(out[k], Kernel::ElasticTargets) {
+                out[k] = Kernel::ElasticTargetsWarm;
             }
             k += 1;
         }
@@ -214,6 +225,8 @@ impl Kernel {
             Kernel::LocalRotationsWarm => ("local_rotations", "local_rotations_warm"),
             Kernel::TurnRotations => ("local_rotations", "turn_rotations"),
             Kernel::ElasticTargets => ("elastic_targets", "elastic_targets"),
+            Kernel::ElasticTargetsWarm => ("elastic_targets", "elastic_targets_warm"),
+            Kernel::ElasticForce => ("elastic_targets", "elastic_force"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
             Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
@@ -382,7 +395,7 @@ impl Pipelines {
     /// warm-started, [`DeformState::set_rotations`]), force, plain
     /// step, its norms, Chebyshev combine; deflated, rotations, force, plain
     /// step, its deflation, Chebyshev combine, the update's norms; with the
-    /// elastic force, the targets between the rotations and the force.
+    /// elastic force, the terms between the rotations and the elastic force.
     pub fn record_iterations(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -434,10 +447,15 @@ mod tests {
             for (&s, &w) in svd.iter().zip(warm) {
                 match s {
                     Kernel::LocalRotations => assert_eq!(w, Kernel::LocalRotationsWarm),
+                    Kernel::ElasticTargets => assert_eq!(w, Kernel::ElasticTargetsWarm),
                     other => assert_eq!(w, other),
                 }
             }
             assert!(warm.contains(&Kernel::LocalRotationsWarm));
+            assert_eq!(
+                svd.contains(&Kernel::ElasticTargets),
+                warm.contains(&Kernel::ElasticTargetsWarm)
+            );
         }
     }
 

@@ -376,6 +376,8 @@ mod tests {
             ("local_rotations", "local_rotations_warm"),
             ("local_rotations", "turn_rotations"),
             ("elastic_targets", "elastic_targets"),
+            ("elastic_targets", "elastic_targets_warm"),
+            ("elastic_targets", "elastic_force"),
             ("deformation_force", "deformation_force"),
             ("integrate", "integrate"),
             ("integrate", "chebyshev"),

@@ -13,7 +13,7 @@ use crate::coarse_elastic::ElasticCoarseBuffers;
 use crate::pipelines::{Kernel, Pipelines};
 use crate::readback::Readback;
 use crate::support::{Scopes, bind_group, scoped};
-use crate::{GpuError, Params, Rotation};
+use crate::{ElasticParticle, ElasticTerms, GpuError, Params, Rotation};
 
 /// Iterations one command buffer records: one uniform slot and one row of
 /// step-norm partials each; the host reads the partials back once per batch.
@@ -39,16 +39,14 @@ pub struct DeformState {
     /// The elastic model's data is uploaded ([`DeformState::set_elastic`]).
     elastic: bool,
     /// The phase the next iterations run ([`DeformState::set_phase`]): the
-    /// elastic force, with [`Kernel::ELASTIC_ITERATION`] and the force
-    /// kernel bound to `targets` (an elastic state's only).
+    /// elastic force, with [`Kernel::ELASTIC_ITERATION`] (an elastic
+    /// state's only).
     elastic_phase: bool,
     /// Whether the next iterations deflate (a deflated state's only).
     correct_phase: bool,
     /// Whether the next iterations warm-start the rotations
     /// ([`DeformState::set_rotations`]): the `WARM_*` iterations.
     warm: bool,
-    /// The force kernel's bind group with `targets` as its `rotations`.
-    elastic_force: Option<wgpu::BindGroup>,
     /// [`SLOTS`] [`Params`], `params_stride` bytes apart: a uniform buffer,
     /// raw, as its slots sit at the dynamic offset alignment.
     pub(crate) params: wgpu::Buffer,
@@ -83,13 +81,10 @@ pub struct DeformState {
     pub(crate) projections: Storage<[f32; 4]>,
     /// Per mode, the gain along it (`vec4`).
     pub(crate) gains: Storage<[f32; 4]>,
-    /// Per particle `A_i^-1` of the elastic model (empty without it).
-    pub(crate) inverse_moments: Storage<Rotation>,
-    /// Per particle the elastic model's volume weight `W_i` (empty without it).
-    pub(crate) weights: Storage<f32>,
-    /// Per particle the elastic target `T_i`, what the force kernel reads
-    /// in place of the rotations with the elastic force.
-    pub(crate) targets: Storage<Rotation>,
+    /// Per particle the elastic model's rest data (empty without it).
+    pub(crate) elastic_particles: Storage<ElasticParticle>,
+    /// Per particle its terms of the elastic force (empty without it).
+    pub(crate) elastic_terms: Storage<ElasticTerms>,
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
     pub(crate) coarse: CoarseBuffers,
@@ -218,7 +213,6 @@ impl DeformState {
                 elastic_phase: false,
                 correct_phase: true,
                 warm: false,
-                elastic_force: None,
                 params: device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("params"),
                     size: params_stride * u64::from(SLOTS),
@@ -250,14 +244,13 @@ impl DeformState {
                 scales: Storage::init(device, "scales", &[], &what("scales"))?,
                 projections: Storage::init(device, "projections", &[], &what("projections"))?,
                 gains: Storage::init(device, "gains", &[], &what("gains"))?,
-                inverse_moments: Storage::init(
+                elastic_particles: Storage::init(
                     device,
-                    "inverse_moments",
+                    "elastic_particles",
                     &[],
-                    &what("inverse_moments"),
+                    &what("elastic_particles"),
                 )?,
-                weights: Storage::init(device, "weights", &[], &what("weights"))?,
-                targets: Storage::init(device, "targets", &[], &what("targets"))?,
+                elastic_terms: Storage::init(device, "elastic_terms", &[], &what("elastic_terms"))?,
                 coarse: CoarseBuffers::empty(device)?,
                 elastic_coarse: ElasticCoarseBuffers::empty(device)?,
                 bind_groups: Vec::new(),
@@ -330,39 +323,42 @@ impl DeformState {
     }
 
     /// Uploads the elastic model's rest data (`tissue_solve::Plan::elastic`)
-    /// for the elastic force: from now on every iteration computes the
-    /// targets after the rotations ([`Kernel::ELASTIC_ITERATION`]), and the
-    /// force kernel reads them where it read the rotations, in every
-    /// dispatch. Refused on a deflated state ([`DeformState::set_modes`]).
+    /// for the elastic force: from now on the elastic phase's iterations
+    /// compute every particle's terms after the rotations and gather the
+    /// elastic force over them ([`Kernel::ELASTIC_ITERATION`]). Refused on
+    /// a deflated state ([`DeformState::set_modes`]).
     pub fn set_elastic(
         &mut self,
         device: &wgpu::Device,
         pipelines: &Pipelines,
         elastic: &Elastic,
     ) -> Result<(), GpuError> {
-        self.check_len(
-            "inverse moments (one per particle)",
-            elastic.inverse_moments.len(),
-        )?;
-        self.check_len("volume weights (one per particle)", elastic.weights.len())?;
+        let c = &elastic.consistency;
+        for (what, len) in [
+            (
+                "inverse moments (one per particle)",
+                elastic.inverse_moments.len(),
+            ),
+            ("volume weights (one per particle)", elastic.weights.len()),
+            ("stress weights (one per particle)", c.scales.len()),
+            ("multipliers (one per particle)", c.multipliers.len()),
+            ("corrected moments (one per particle)", c.corrections.len()),
+        ] {
+            self.check_len(what, len)?;
+        }
         let n = self.len();
         let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
-        let inverse: Vec<Rotation> = elastic
-            .inverse_moments
-            .iter()
-            .map(|&a| Rotation::from(a))
-            .collect();
-        let identity = vec![Rotation::from(Mat3::IDENTITY); n];
-        (self.inverse_moments, self.weights, self.targets) = scoped(device, || {
+        let particles: Vec<ElasticParticle> =
+            (0..n).map(|i| ElasticParticle::of(elastic, i)).collect();
+        (self.elastic_particles, self.elastic_terms) = scoped(device, || {
             Ok((
                 Storage::init(
                     device,
-                    "inverse_moments",
-                    &inverse,
-                    &what("inverse_moments"),
+                    "elastic_particles",
+                    &particles,
+                    &what("elastic_particles"),
                 )?,
-                Storage::init(device, "weights", &elastic.weights, &what("weights"))?,
-                Storage::init(device, "targets", &identity, &what("targets"))?,
+                Storage::zeroed(device, "elastic_terms", n, &what("elastic_terms"))?,
             ))
         })?;
         self.elastic = true;
@@ -482,42 +478,31 @@ impl DeformState {
 
     /// A bind group per kernel, in [`Kernel::ALL`] order. `UpdateNorms`
     /// is `step_norms` with `previous` (the old current, after the combine)
-    /// bound as its `plain`. On an elastic state, also `DeformationForce`
-    /// with `targets` bound as its `rotations` ([`DeformState::bind_group`]
-    /// gives it in the elastic phase, so whatever dispatches the force
-    /// there gathers the elastic force).
+    /// bound as its `plain`.
     fn bind_all(
-        &mut self,
+        &self,
         device: &wgpu::Device,
         pipelines: &Pipelines,
     ) -> Result<Vec<wgpu::BindGroup>, GpuError> {
         let scope = Scopes::push(device);
-        let group = |kernel: Kernel, targets: bool| {
-            let update = kernel == Kernel::UpdateNorms;
-            bind_group(
-                device,
-                pipelines.kernel(kernel),
-                (kernel.entry().0, kernel.name()),
-                |name| match name {
-                    "plain" if update => Some(self.previous.buffer()),
-                    "rotations" if targets => Some(self.targets.buffer()),
-                    _ => self.buffer(name),
-                },
-                Some(std::mem::size_of::<Params>() as u64),
-                "names no stage-2 buffer",
-            )
-        };
         let groups: Result<Vec<wgpu::BindGroup>, GpuError> = Kernel::ALL
             .into_iter()
-            .map(|kernel| group(kernel, false))
+            .map(|kernel| {
+                let update = kernel == Kernel::UpdateNorms;
+                bind_group(
+                    device,
+                    pipelines.kernel(kernel),
+                    (kernel.entry().0, kernel.name()),
+                    |name| match name {
+                        "plain" if update => Some(self.previous.buffer()),
+                        _ => self.buffer(name),
+                    },
+                    Some(std::mem::size_of::<Params>() as u64),
+                    "names no stage-2 buffer",
+                )
+            })
             .collect();
-        let elastic_force = if self.elastic {
-            Some(group(Kernel::DeformationForce, true))
-        } else {
-            None
-        };
         scope.pop()?;
-        self.elastic_force = elastic_force.transpose()?;
         groups
     }
 
@@ -540,9 +525,8 @@ impl DeformState {
             ("scales", self.scales.buffer()),
             ("projections", self.projections.buffer()),
             ("gains", self.gains.buffer()),
-            ("inverse_moments", self.inverse_moments.buffer()),
-            ("weights", self.weights.buffer()),
-            ("targets", self.targets.buffer()),
+            ("elastic_particles", self.elastic_particles.buffer()),
+            ("elastic_terms", self.elastic_terms.buffer()),
         ];
         named.extend(self.coarse.named());
         named.extend(self.elastic_coarse.named());
@@ -558,10 +542,7 @@ impl DeformState {
     }
 
     pub(crate) fn bind_group(&self, kernel: Kernel) -> &wgpu::BindGroup {
-        match (&self.elastic_force, kernel) {
-            (Some(group), Kernel::DeformationForce) if self.elastic_phase => group,
-            _ => &self.bind_groups[kernel.index()],
-        }
+        &self.bind_groups[kernel.index()]
     }
 
     pub(crate) fn workgroups(&self, kernel: Kernel) -> [u32; 2] {
@@ -589,9 +570,8 @@ impl DeformState {
     }
 
     /// The parameters of one iteration in `slot`, for this model. The
-    /// elastic force (`model` 2, the symmetric sum in the force kernel)
-    /// needs [`DeformState::set_elastic`], which binds the targets the sum
-    /// runs over.
+    /// elastic force (`model` 2) needs [`DeformState::set_elastic`], whose
+    /// iterations run its own kernels.
     pub fn params(&self, model: ForceModel, alpha: f32, omega: f32, slot: u32) -> Params {
         Params {
             count: self.count,
@@ -709,14 +689,19 @@ impl DeformState {
         self.read_matrices(device, queue, &self.rotations)
     }
 
-    /// Reads the last elastic targets back (an elastic state's; without
-    /// [`DeformState::set_elastic`] there are none, and this is empty).
-    pub fn read_targets(
+    /// Reads the last elastic terms back, each as its target and stress
+    /// (an elastic state's; without [`DeformState::set_elastic`] there are
+    /// none, and this is empty).
+    pub fn read_terms(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-    ) -> Result<Vec<Mat3>, GpuError> {
-        self.read_matrices(device, queue, &self.targets)
+    ) -> Result<Vec<(Mat3, Mat3)>, GpuError> {
+        let read = self.elastic_terms.read(device, queue, &self.readback)?;
+        Ok(read
+            .into_iter()
+            .map(|t| (Mat3::from(t.rest_term), Mat3::from(t.multiplier_term)))
+            .collect())
     }
 
     /// Reads `buffer`'s matrices back.

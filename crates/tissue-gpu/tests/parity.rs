@@ -9,8 +9,8 @@ mod common;
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::deformation::{
-    DeformParams, Elastic, ForceModel, Plan, deformation_force, elastic_targets, integrate,
-    local_rotations, low_modes,
+    DeformParams, Elastic, ForceModel, Plan, RotationMethod, deformation_force, elastic_force,
+    elastic_terms, integrate, local_rotations, low_modes,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
 
@@ -174,14 +174,21 @@ fn entry_difference(a: Mat3, b: Mat3) -> f32 {
 }
 
 /// The elastic model of `model` at Poisson ratio 0.49 (the default), with
-/// every seventh particle's weight zeroed, so that the kernel's flat
-/// branch (`T_i = R_i`) runs beside the volume term.
+/// every seventh particle made flat (no stress weight, no volume weight),
+/// so that the kernel's flat branch (`T_i = R_i`) runs beside the rest.
 fn elastic_of(model: &ParticleModel) -> Elastic {
-    let mut elastic = Elastic::new(&model.positions, &model.connections, 0.49);
-    for w in elastic.weights.iter_mut().step_by(7) {
-        *w = 0.0;
+    let free = free_of(model);
+    let mut elastic = Elastic::new(&model.positions, &model.connections, 0.49, &free);
+    for i in (0..model.len()).step_by(7) {
+        elastic.weights[i] = 0.0;
+        elastic.consistency.scales[i] = 0.0;
     }
     elastic
+}
+
+/// Largest absolute entry of `m`.
+fn largest_entry(m: Mat3) -> f32 {
+    m.to_cols_array().iter().fold(0.0f32, |a, x| a.max(x.abs()))
 }
 
 #[test]
@@ -194,19 +201,12 @@ fn elastic_targets_matches_the_cpu_twin() {
         let current = deformed(model);
         let rotations = local_rotations(&model.positions, &current, &model.connections);
         let elastic = elastic_of(model);
-        let expected = elastic_targets(
-            &model.positions,
-            &current,
-            &model.connections,
-            &rotations,
-            &elastic,
-        );
         let (pipelines, mut state) = setup(&device, &queue, model);
         assert!(
             state
-                .read_targets(&device, &queue)
+                .read_terms(&device, &queue)
                 .is_ok_and(|t| t.is_empty()),
-            "n = {n}: a state without the elastic model has no targets"
+            "n = {n}: a state without the elastic model has no terms"
         );
         state
             .set_elastic(&device, &pipelines, &elastic)
@@ -215,74 +215,101 @@ fn elastic_targets_matches_the_cpu_twin() {
         state
             .write_current(&queue, &current)
             .unwrap_or_else(|e| panic!("{e}"));
-        state
-            .write_rotations(&queue, &rotations)
-            .unwrap_or_else(|e| panic!("{e}"));
         state.write_params(&queue, 0, state.params(ForceModel::Elastic, 0.0, 1.0, 0));
-        run(&device, &queue, &pipelines, &state, Kernel::ElasticTargets);
-        let got = state
-            .read_targets(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        // T_i - R_i = -W_i (J_i - 1) cof(F_i) A_i^-1: J_i - 1 comes out
-        // of a sum of ~12 offset products to a few ulp of |F|^3 (~1), and
-        // W_i A_i^-1 is about W_i / a_i = 24.5 at Poisson ratio 0.49, which
-        // multiplies that rounding.
-        let tolerance = 2e-4;
-        let mut worst = 0.0f32;
-        let mut largest_volume_term = 0.0f32;
-        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-            if elastic.weights[i] == 0.0 {
-                assert_eq!(
-                    *g, rotations[i],
-                    "n = {n}, particle {i}: weight 0, so the target is the rotation"
+        for (method, kernel) in [
+            (RotationMethod::Svd, Kernel::ElasticTargets),
+            (RotationMethod::WarmPolar, Kernel::ElasticTargetsWarm),
+        ] {
+            let expected = elastic_terms(
+                &model.positions,
+                &current,
+                &model.connections,
+                &rotations,
+                &elastic,
+                method,
+            );
+            state
+                .write_rotations(&queue, &rotations)
+                .unwrap_or_else(|e| panic!("{e}"));
+            run(&device, &queue, &pipelines, &state, kernel);
+            let got = state
+                .read_terms(&device, &queue)
+                .unwrap_or_else(|e| panic!("{e}"));
+            // The volume term's W_i (J_i - 1) cof(F_i): J_i - 1 comes out of
+            // sums of ~12 offset products to a few ulp of |F|^3 (~1), and
+            // W_i is 24.5 a_i at Poisson ratio 0.49, which multiplies that
+            // rounding: entries of T = ... - Q_i B_i (B_i about A_i^-1, of
+            // size 1 / (3 a_i)) agree to 2e-4, as before the consistent
+            // vectors; U = a_i Q_i carries a_i twice (W_i is 24.5 a_i), so
+            // its entries agree to 2e-4 a_i^2.
+            let (mut worst_target, mut worst_stress, mut largest_stress) = (0.0f32, 0.0f32, 0.0f32);
+            for (i, ((target, stress), e)) in got.iter().zip(&expected).enumerate() {
+                if elastic.is_flat(i) {
+                    assert_eq!(
+                        (*target, *stress),
+                        (rotations[i], Mat3::ZERO),
+                        "n = {n}, particle {i}: flat, so the target is the rotation of M_i"
+                    );
+                    continue;
+                }
+                let a = elastic.consistency.scales[i];
+                let (off_target, off_stress) = (
+                    entry_difference(*target, e.target),
+                    entry_difference(*stress, e.stress) / (a * a),
                 );
-                continue;
+                worst_target = worst_target.max(off_target);
+                worst_stress = worst_stress.max(off_stress);
+                largest_stress = largest_stress.max(largest_entry(e.stress) / (a * a));
+                assert!(
+                    off_target <= 2e-4 && off_stress <= 2e-4,
+                    "n = {n}, {method:?}, particle {i}: GPU target {target} vs CPU {}, \
+                     stress {stress} vs {} (a_i = {a}): differences {off_target:e}, \
+                     {off_stress:e} a_i^2 > 2e-4",
+                    e.target,
+                    e.stress
+                );
             }
-            let off = entry_difference(*g, *e);
-            worst = worst.max(off);
-            largest_volume_term = largest_volume_term.max(entry_difference(*e, rotations[i]));
             assert!(
-                off <= tolerance,
-                "n = {n}, particle {i}: GPU target {g} vs CPU {e}, max entry difference {off:e} > tolerance {tolerance:e}"
+                largest_stress > 0.01,
+                "n = {n}: the deformation barely stresses the model ({largest_stress:e} a_i^2)"
+            );
+            eprintln!(
+                "elastic_targets {method:?}, n = {n}: worst differences {worst_target:e} (T), \
+                 {worst_stress:e} a_i^2 (U); largest |U| entry {largest_stress:e} a_i^2"
             );
         }
-        assert!(
-            largest_volume_term > 0.01,
-            "n = {n}: the deformation barely changes volume ({largest_volume_term:e})"
-        );
-        eprintln!(
-            "elastic_targets, n = {n}: worst entry difference {worst:e} (tolerance {tolerance:e}), \
-             largest |T - R| entry {largest_volume_term:e}"
-        );
     }
 }
 
-/// On an elastic state every dispatch of the force reads the targets: the
-/// GPU's rotations, targets and force in turn against the CPU's elastic
-/// force at the same positions. Deflation is refused there.
+/// The elastic phase's kernels in turn (rotations, terms, force) against
+/// the CPU's elastic force at the same positions; the shear phase of the
+/// same state gathers the symmetric force. Deflation is refused in the
+/// elastic phase.
 #[test]
-fn an_elastic_state_gathers_the_force_over_the_targets() {
+fn an_elastic_state_gathers_the_force_over_the_terms() {
     let Some((device, queue)) = common::gpu("elastic force parity") else {
         return;
     };
     for n in SIZES {
         let model = common::phantom(n);
         let current = deformed(model);
-        let elastic = Elastic::new(&model.positions, &model.connections, 0.49);
+        let free = free_of(model);
+        let elastic = Elastic::new(&model.positions, &model.connections, 0.49, &free);
         let rotations = local_rotations(&model.positions, &current, &model.connections);
-        let targets = elastic_targets(
+        let terms = elastic_terms(
             &model.positions,
             &current,
             &model.connections,
             &rotations,
             &elastic,
+            RotationMethod::Svd,
         );
-        let expected = deformation_force(
+        let expected = elastic_force(
             &model.positions,
             &current,
-            &targets,
             &model.connections,
-            ForceModel::Elastic,
+            &terms,
+            &elastic,
         );
         let symmetric = deformation_force(
             &model.positions,
@@ -309,19 +336,15 @@ fn an_elastic_state_gathers_the_force_over_the_targets() {
             .write_current(&queue, &current)
             .unwrap_or_else(|e| panic!("{e}"));
         state.write_params(&queue, 0, state.params(ForceModel::Elastic, 0.0, 1.0, 0));
-        for kernel in [
-            Kernel::LocalRotations,
-            Kernel::ElasticTargets,
-            Kernel::DeformationForce,
-        ] {
-            run(&device, &queue, &pipelines, &state, kernel);
+        for kernel in &Kernel::ELASTIC_ITERATION[..3] {
+            run(&device, &queue, &pipelines, &state, *kernel);
         }
         let got = state
             .read_force(&device, &queue)
             .unwrap_or_else(|e| panic!("{e}"));
-        // About a dozen terms (T_i + T_j) d: the targets' difference (up
-        // to elastic_targets' tolerance, the rotations' SVD adding ~1e-6)
-        // times a spacing each, plus the force test's rounding.
+        // About a dozen terms (T_i + T_j) d and (U_i + U_j)(mu_j - mu_i):
+        // the terms' difference (up to elastic_targets' tolerance, the
+        // rotations' SVD adding ~1e-6) times a spacing each.
         let spacing = model.mean_connection_length();
         let tolerance = 12.0 * 2e-4 * spacing;
         let mut worst = 0.0f32;
@@ -340,7 +363,7 @@ fn an_elastic_state_gathers_the_force_over_the_targets() {
             "n = {n}: the volume term ({volume_force:e}) is lost in the tolerance {tolerance:e}"
         );
         eprintln!(
-            "deformation_force Elastic, n = {n}: worst {worst:e} = {:e} spacings \
+            "elastic_force, n = {n}: worst {worst:e} = {:e} spacings \
              (tolerance {tolerance:e}); the volume term moves it by up to {volume_force:e}",
             worst / spacing
         );

@@ -1,32 +1,44 @@
-//! The elastic model of stage 2: the rotation-aware pair energy (shear) plus
-//! a volume term weighted by a Poisson ratio (docs/METHOD.md, "Elastic
-//! model").
+//! The elastic model of stage 2: a co-rotated shear term plus a volume term
+//! weighted by a Poisson ratio, with gradients that pass the patch test
+//! (docs/METHOD.md, "Elastic model").
 //!
 //! Per particle `i`, with rest offsets `d_ij = p_j - p_i` and current
-//! offsets `e_ij = q_j - q_i` over its connections:
-//! - the moment matrix `A_i = sum_j d_ij d_ij^T` and the corrected gradient
-//!   `F_i = M_i A_i^-1`, `M_i = sum_j e_ij d_ij^T`: any affine map `q = B p + t`
-//!   gives `F_i = B` exactly, whatever the neighbourhood's shape;
-//! - `J_i = det F_i`, the particle's change of volume.
+//! offsets `e_ij = q_j - q_i` over its connections, `A_i = sum_j d_ij d_ij^T`
+//! and `M_i = sum_j e_ij d_ij^T`:
+//! - the least-squares gradient `Fh_i = M_i A_i^-1`;
+//! - the consistent gradient `F_i = sum_j e_ij c_ij^T` with the vectors of
+//!   [`crate::consistent`], `c_ij = B_i d_ij + a_i (mu_j - mu_i)`:
+//!   `F_i = M_i B_i^T + a_i sum_j e_ij (mu_j - mu_i)^T`. Both give any affine
+//!   map's matrix exactly, whatever the neighbourhood's shape;
+//! - `J_i = det F_i`, `R_i` the polar rotation of `F_i`, `a_i = tr(A_i) / 3`.
 //!
-//! The energy is `E = sum_i sum_j |e_ij - R_i d_ij|^2 + sum_i W_i (J_i - 1)^2`.
-//! For small strains particle `i`'s pair term is `tr((F_i - R_i) A_i (F_i - R_i)^T)`,
-//! `a_i |eps|^2` for a round neighbourhood (`a_i = tr(A_i) / 3`): linear
-//! elasticity's `mu |eps|^2` times the particle's volume, with `mu V_i = a_i`.
-//! Its `(lambda / 2) tr(eps)^2 V_i` is then `W_i (J_i - 1)^2` to first
-//! order, with `W_i = nu / (1 - 2 nu) a_i` (`lambda / mu = 2 nu / (1 - 2 nu)`).
+//! The energy is
+//! `E = sum_i [ sum_j |e_ij - Fh_i d_ij|^2 + a_i |F_i - R_i|^2 + W_i (J_i - 1)^2 ]`.
+//! The first two terms are the rotation-aware pair energy
+//! `sum_j |e_ij - R_i d_ij|^2` split at `Fh_i` (its non-affine part, zero for
+//! any affine map, and `tr((Fh_i - R_i) A_i (Fh_i - R_i)^T)`, made isotropic
+//! and moved onto `F_i`); for small strains `a_i |eps|^2` is linear
+//! elasticity's `mu |eps|^2` times the particle's volume, so the volume term
+//! `(lambda / 2) tr(eps)^2 V_i` is `W_i (J_i - 1)^2` with
+//! `W_i = nu / (1 - 2 nu) a_i`. Every stress term is a function of `F_i`
+//! weighted by `a_i`, and the vectors satisfy the integration constraint,
+//! so an affine map of the boundary is an equilibrium: the patch test.
 //!
-//! The force is `-1/2` the energy's gradient, as for the symmetric model:
-//! `f_j = sum_i [(T_i + T_j) d_ij - 2 e_ij]` with the per-particle target
-//! `T_i = R_i - H_i`, `H_i = W_i (J_i - 1) cof(F_i) A_i^-1`. The force keeps
-//! the symmetric force's shape: a device computes `T_i` where it computes
-//! `R_i` and gathers the same sum, with no atomics.
+//! The force is `-1/2` the gradient (rotations held, as for the symmetric
+//! model): with `Q_i = a_i (F_i - R_i) + W_i (J_i - 1) cof(F_i)`,
+//! `f_k = sum_i [(T_i + T_k) d_ik - (U_i + U_k)(mu_k - mu_i) - 2 e_ik]`,
+//! targets `T_i = Fh_i - Q_i B_i` and stresses `U_i = a_i Q_i`: the symmetric
+//! force's gather over the offsets `(d_ik, -(mu_k - mu_i))`, no atomics. A
+//! flat neighbourhood (no gradient) keeps the pair term `sum_j |e_ij - R_i d_ij|^2`
+//! with `R_i` the polar rotation of `M_i`: `T_i = R_i`, `U_i = 0`.
 
 use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
+use crate::consistent::Consistency;
 use crate::spectrum::lanczos_extremes;
+use crate::svd3::rotation_of;
 
 /// A neighbourhood whose moment matrix has `det A / (tr A / 3)^3` below this
 /// is too flat (its particles nearly on a plane or a line) for a volume:
@@ -55,14 +67,27 @@ pub struct Elastic {
     pub weights: Vec<f32>,
     /// The Poisson ratio the weights were made for.
     pub poisson: f32,
+    /// The consistent gradient vectors: per particle `a_i`, `mu_i`, `B_i`.
+    pub consistency: Consistency,
+}
+
+/// What particle `i` puts into its neighbours' elastic force.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ElasticTerms {
+    /// `T_i = Fh_i - Q_i B_i`, gathered against the rest offsets.
+    pub target: Mat3,
+    /// `U_i = a_i Q_i`, gathered against the multipliers' offsets.
+    pub stress: Mat3,
 }
 
 impl Elastic {
-    /// The moment matrices of every particle's neighbourhood in `rest` and
-    /// the volume weights for Poisson ratio `poisson` (in `[0, MAX_POISSON]`).
-    pub fn new(rest: &[Vec3], connections: &Connections, poisson: f32) -> Self {
+    /// The moment matrices of every particle's neighbourhood in `rest`, the
+    /// volume weights for Poisson ratio `poisson` (in `[0, MAX_POISSON]`)
+    /// and the consistent gradient vectors with the constraint held at the
+    /// `free` particles.
+    pub fn new(rest: &[Vec3], connections: &Connections, poisson: f32, free: &[bool]) -> Self {
         let ratio = poisson / (1.0 - 2.0 * poisson);
-        let (inverse_moments, weights) = (0..rest.len())
+        let (inverse_moments, weights): (Vec<Mat3>, Vec<f32>) = (0..rest.len())
             .into_par_iter()
             .map(|i| {
                 let a = moment(rest, connections, i);
@@ -73,39 +98,138 @@ impl Elastic {
                 (a.inverse(), ratio * a.diagonal().element_sum() / 3.0)
             })
             .unzip();
+        let consistency = Consistency::new(rest, connections, &inverse_moments, free);
         Self {
             inverse_moments,
             weights,
             poisson,
+            consistency,
         }
     }
 
-    /// Particle `i`'s corrected gradient `F_i = M_i A_i^-1` from its
+    /// Whether particle `i`'s neighbourhood is flat: no gradient, the pair
+    /// term only.
+    pub fn is_flat(&self, i: usize) -> bool {
+        self.consistency.scales[i] == 0.0
+    }
+
+    /// Particle `i`'s least-squares gradient `Fh_i = M_i A_i^-1` from its
     /// offsets product `M_i = sum_j e_ij d_ij^T`.
-    pub fn gradient(&self, i: usize, offsets_product: Mat3) -> Mat3 {
+    pub fn least_squares_gradient(&self, i: usize, offsets_product: Mat3) -> Mat3 {
         offsets_product * self.inverse_moments[i]
     }
 
-    /// Particle `i`'s target `T_i = R_i - W_i (J_i - 1) cof(F_i) A_i^-1`
-    /// from its offsets product and its rotation.
-    pub fn target(&self, i: usize, offsets_product: Mat3, rotation: Mat3) -> Mat3 {
-        let w = self.weights[i];
-        if w == 0.0 {
-            return rotation;
-        }
-        let f = self.gradient(i, offsets_product);
-        rotation - (w * (f.determinant() - 1.0)) * cofactor(f) * self.inverse_moments[i]
+    /// Particle `i`'s consistent gradient `F_i = M_i B_i^T + a_i N_i` from
+    /// its offsets product `M_i` and its multipliers' product
+    /// `N_i = sum_j e_ij (mu_j - mu_i)^T` ([`Consistency::multipliers_product`]).
+    pub fn gradient(&self, i: usize, offsets_product: Mat3, multipliers_product: Mat3) -> Mat3 {
+        let c = &self.consistency;
+        offsets_product * c.corrections[i].transpose() + c.scales[i] * multipliers_product
     }
 
-    /// The volume term `sum_i W_i (J_i - 1)^2` of the energy at `current`.
-    pub fn volume_energy(&self, rest: &[Vec3], current: &[Vec3], connections: &Connections) -> f64 {
+    /// Particle `i`'s terms of the force from its two products and its
+    /// rotation: the polar rotation of its gradient
+    /// ([`Elastic::gradient`]), or of `M_i` for a flat neighbourhood.
+    pub fn terms(
+        &self,
+        i: usize,
+        offsets_product: Mat3,
+        multipliers_product: Mat3,
+        rotation: Mat3,
+    ) -> ElasticTerms {
+        if self.is_flat(i) {
+            return ElasticTerms {
+                target: rotation,
+                stress: Mat3::ZERO,
+            };
+        }
+        let a = self.consistency.scales[i];
+        let f = self.gradient(i, offsets_product, multipliers_product);
+        let q = a * (f - rotation) + (self.weights[i] * (f.determinant() - 1.0)) * cofactor(f);
+        ElasticTerms {
+            target: self.least_squares_gradient(i, offsets_product)
+                - q * self.consistency.corrections[i],
+            stress: a * q,
+        }
+    }
+
+    /// The force on particle `k`: the gather over its connections of the
+    /// terms every particle gave ([`Elastic::terms`]).
+    pub fn force_on(
+        &self,
+        k: usize,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        terms: &[ElasticTerms],
+    ) -> Vec3 {
+        let mu = &self.consistency.multipliers;
+        let mut f = Vec3::ZERO;
+        for &i in connections.of(k) {
+            let i = i as usize;
+            let (d, e) = (rest[k] - rest[i], current[k] - current[i]);
+            f += (terms[i].target + terms[k].target) * d
+                - (terms[i].stress + terms[k].stress) * (mu[k] - mu[i])
+                - 2.0 * e;
+        }
+        f
+    }
+
+    /// The energy at `current`, its rotations by the SVD (for checks).
+    pub fn energy(&self, rest: &[Vec3], current: &[Vec3], connections: &Connections) -> f64 {
         (0..rest.len())
-            .map(|i| {
-                let m = offsets_product(rest, current, connections, i);
-                let j = self.gradient(i, m).determinant();
-                f64::from(self.weights[i]) * f64::from(j - 1.0).powi(2)
-            })
+            .into_par_iter()
+            .map(|i| self.particle_energy(i, rest, current, connections))
             .sum()
+    }
+
+    /// Particle `i`'s part of the energy at `current`, in `f64` but for its
+    /// rotation (the SVD's, in `f32`: the energy is stationary in it).
+    pub fn particle_energy(
+        &self,
+        i: usize,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+    ) -> f64 {
+        let c = &self.consistency;
+        let (mut m, mut n) = (DMat3::ZERO, DMat3::ZERO);
+        for &j in connections.of(i) {
+            let j = j as usize;
+            let (d, e) = (
+                (rest[j] - rest[i]).as_dvec3(),
+                (current[j] - current[i]).as_dvec3(),
+            );
+            let u = (c.multipliers[j] - c.multipliers[i]).as_dvec3();
+            m += DMat3::from_cols(e * d.x, e * d.y, e * d.z);
+            n += DMat3::from_cols(e * u.x, e * u.y, e * u.z);
+        }
+        let pair = |t: DMat3| -> f64 {
+            connections
+                .of(i)
+                .iter()
+                .map(|&j| {
+                    let j = j as usize;
+                    let (d, e) = (
+                        (rest[j] - rest[i]).as_dvec3(),
+                        (current[j] - current[i]).as_dvec3(),
+                    );
+                    (e - t * d).length_squared()
+                })
+                .sum()
+        };
+        if self.is_flat(i) {
+            return pair(rotation_of(m.as_mat3()).as_dmat3());
+        }
+        let a = f64::from(c.scales[i]);
+        let f = m * c.corrections[i].as_dmat3().transpose() + a * n;
+        let shear = f - rotation_of(f.as_mat3()).as_dmat3();
+        let shear = shear.x_axis.length_squared()
+            + shear.y_axis.length_squared()
+            + shear.z_axis.length_squared();
+        pair(m * self.inverse_moments[i].as_dmat3())
+            + a * shear
+            + f64::from(self.weights[i]) * (f.determinant() - 1.0).powi(2)
     }
 
     /// The largest eigenvalue the solve's step is set for, in the units of
@@ -137,8 +261,9 @@ impl Elastic {
 
     /// `K u`: the model's operator at rest applied to a displacement `u` of
     /// the free particles (entries of fixed ones are read as zero), in the
-    /// units of the connection Laplacian: the force of a small displacement
-    /// `u` from rest is `-2 K u`, and for the pair term alone `K = L`.
+    /// units of the connection Laplacian: the Laplacian plus the volume
+    /// term's `1/2 sum_i W_i g_i g_i^T`, `g_i`'s entry at neighbour `j`
+    /// being `c_ij` at rest ([`volume_operator`] with `cof F = I`).
     pub fn rest_operator(
         &self,
         rest: &[Vec3],
@@ -146,38 +271,92 @@ impl Elastic {
         free: &[bool],
         u: &[DVec3],
     ) -> Vec<DVec3> {
-        let at = |i: usize| if free[i] { u[i] } else { DVec3::ZERO };
-        // Per particle, the linearised `H_i = W_i tr(G_i) A_i^-1`, with
-        // `G_i = sum_j (u_j - u_i) b_ij^T`, `b_ij = A_i^-1 d_ij`.
-        let h: Vec<DMat3> = (0..rest.len())
+        let c = &self.consistency;
+        let linearisation = VolumeLinearisation {
+            weights: self.weights.iter().map(|&w| f64::from(w)).collect(),
+            corrections: c.corrections.iter().map(|b| b.as_dmat3()).collect(),
+            scales: c
+                .scales
+                .iter()
+                .map(|&a| DMat3::from_diagonal(DVec3::splat(f64::from(a))))
+                .collect(),
+            multipliers: c.multipliers.iter().map(|m| m.as_dvec3()).collect(),
+        };
+        linearisation.operator(rest, connections, |i| free[i], u)
+    }
+}
+
+/// The elastic operator for a small displacement, rotations held, at one
+/// state: `K = L + 1/2 sum_i W_i g_i g_i^T` with `g_i` the gradient of `J_i`,
+/// whose entry at neighbour `j` is `cof(F_i) c_ij
+/// = [cof(F_i) B_i] d_ij + [a_i cof(F_i)] (mu_j - mu_i)` and minus their sum
+/// at `i` (the Gauss-Newton part; the `(J_i - 1)` second derivative is left
+/// out, small where every neighbourhood is near its rest volume).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VolumeLinearisation {
+    /// `W_i`.
+    pub weights: Vec<f64>,
+    /// `cof(F_i) B_i` (zero where flat).
+    pub corrections: Vec<DMat3>,
+    /// `a_i cof(F_i)`.
+    pub scales: Vec<DMat3>,
+    /// `mu_i`.
+    pub multipliers: Vec<DVec3>,
+}
+
+impl VolumeLinearisation {
+    /// `g_i`'s entry at neighbour `j`.
+    pub fn entry(&self, rest: &[Vec3], i: usize, j: usize) -> DVec3 {
+        self.corrections[i] * (rest[j] - rest[i]).as_dvec3()
+            + self.scales[i] * (self.multipliers[j] - self.multipliers[i])
+    }
+
+    /// `K u` over the particles `inside` says (others read as zero; their
+    /// rows are zero).
+    pub fn operator(
+        &self,
+        rest: &[Vec3],
+        connections: &Connections,
+        inside: impl Fn(usize) -> bool + Sync,
+        u: &[DVec3],
+    ) -> Vec<DVec3> {
+        let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
+        // Per particle `z_i = W_i (g_i . u)`.
+        let z: Vec<f64> = (0..rest.len())
             .into_par_iter()
             .map(|i| {
                 if self.weights[i] == 0.0 {
-                    return DMat3::ZERO;
+                    return 0.0;
                 }
-                let inverse = self.inverse_moments[i].as_dmat3();
-                let mut trace = 0.0;
-                for &j in connections.of(i) {
-                    let b = inverse * (rest[j as usize] - rest[i]).as_dvec3();
-                    trace += (at(j as usize) - at(i)).dot(b);
-                }
-                inverse * (f64::from(self.weights[i]) * trace)
+                let change: f64 = connections
+                    .of(i)
+                    .iter()
+                    .map(|&j| (at(j as usize) - at(i)).dot(self.entry(rest, i, j as usize)))
+                    .sum();
+                self.weights[i] * change
             })
             .collect();
+        // Per particle `z_i cof(F_i) B_i` and `z_i a_i cof(F_i)`.
+        let parts: Vec<(DMat3, DMat3)> = (0..rest.len())
+            .into_par_iter()
+            .map(|i| (self.corrections[i] * z[i], self.scales[i] * z[i]))
+            .collect();
+        let mu = &self.multipliers;
         (0..rest.len())
             .into_par_iter()
-            .map(|j| {
-                if !free[j] {
+            .map(|k| {
+                if !inside(k) {
                     return DVec3::ZERO;
                 }
-                // -f / 2 with f_j = sum_i [-2 (u_j - u_i) - (H_i + H_j) d_ij].
-                let mut k = DVec3::ZERO;
-                for &i in connections.of(j) {
+                // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`, gathered.
+                let mut r = DVec3::ZERO;
+                for &i in connections.of(k) {
                     let i = i as usize;
-                    let d = (rest[j] - rest[i]).as_dvec3();
-                    k += (at(j) - at(i)) + 0.5 * ((h[i] + h[j]) * d);
+                    let d = (rest[k] - rest[i]).as_dvec3();
+                    let (h, n) = (parts[i].0 + parts[k].0, parts[i].1 + parts[k].1);
+                    r += (at(k) - at(i)) + 0.5 * (h * d + n * (mu[k] - mu[i]));
                 }
-                k
+                r
             })
             .collect()
     }
@@ -230,6 +409,7 @@ pub fn cofactor(f: Mat3) -> Mat3 {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
     use crate::spectrum::laplacian_extremes;
@@ -242,67 +422,171 @@ mod tests {
         (positions, connections, free)
     }
 
-    #[test]
-    fn any_affine_map_gives_its_matrix_as_every_gradient() {
-        let (rest, connections, _) = jittered_block();
-        let elastic = Elastic::new(&rest, &connections, 0.49);
+    /// The force on every particle at `current`, rotations by the SVD.
+    fn forces(
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        elastic: &Elastic,
+    ) -> Vec<Vec3> {
+        let terms: Vec<ElasticTerms> = (0..rest.len())
+            .map(|i| {
+                let m = offsets_product(rest, current, connections, i);
+                let n = elastic
+                    .consistency
+                    .multipliers_product(current, connections, i);
+                let rotation = if elastic.is_flat(i) {
+                    rotation_of(m)
+                } else {
+                    rotation_of(elastic.gradient(i, m, n))
+                };
+                elastic.terms(i, m, n, rotation)
+            })
+            .collect();
+        (0..rest.len())
+            .map(|k| elastic.force_on(k, rest, current, connections, &terms))
+            .collect()
+    }
+
+    fn affine(rest: &[Vec3]) -> (Mat3, Vec<Vec3>) {
         let b = Mat3::from_cols(
             Vec3::new(1.2, 0.1, -0.3),
             Vec3::new(0.05, 0.9, 0.2),
             Vec3::new(0.4, 0.0, 1.1),
         );
-        let current: Vec<Vec3> = rest
+        let current = rest
             .iter()
             .map(|&p| b * p + Vec3::new(3.0, -1.0, 2.0))
             .collect();
+        (b, current)
+    }
+
+    #[test]
+    fn any_affine_map_gives_its_matrix_as_every_gradient() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let (b, current) = affine(&rest);
         for i in 0..rest.len() {
-            let f = elastic.gradient(i, offsets_product(&rest, &current, &connections, i));
-            let off = (f - b)
-                .to_cols_array()
-                .iter()
-                .fold(0.0f32, |m, x| m.max(x.abs()));
-            assert!(off < 1e-4, "particle {i}: F off by {off}");
+            let m = offsets_product(&rest, &current, &connections, i);
+            let n = elastic
+                .consistency
+                .multipliers_product(&current, &connections, i);
+            for f in [
+                elastic.least_squares_gradient(i, m),
+                elastic.gradient(i, m, n),
+            ] {
+                let off = (f - b)
+                    .to_cols_array()
+                    .iter()
+                    .fold(0.0f32, |m, x| m.max(x.abs()));
+                assert!(off < 1e-4, "particle {i}: F off by {off}");
+            }
+        }
+    }
+
+    /// The patch test, on the force itself: an affine map is an equilibrium
+    /// of every free particle (the jittered neighbourhoods left a force of
+    /// the size of the stress times the spacing before the consistent vectors).
+    #[test]
+    fn an_affine_map_puts_no_force_on_free_particles() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let (_, current) = affine(&rest);
+        let f = forces(&rest, &current, &connections, &elastic);
+        // The same map's stress on one particle, for scale.
+        let i = 100;
+        let m = offsets_product(&rest, &current, &connections, i);
+        let n = elastic
+            .consistency
+            .multipliers_product(&current, &connections, i);
+        let stress = elastic
+            .terms(i, m, n, rotation_of(elastic.gradient(i, m, n)))
+            .stress;
+        let scale = stress
+            .to_cols_array()
+            .iter()
+            .fold(0.0f32, |a, x| a.max(x.abs()));
+        let worst = (0..rest.len())
+            .filter(|&k| free[k])
+            .map(|k| f[k].length())
+            .fold(0.0f32, f32::max);
+        assert!(scale > 1.0, "stress {scale}");
+        assert!(
+            worst < 1e-4 * scale,
+            "force {worst} against a stress of {scale}"
+        );
+    }
+
+    #[test]
+    fn the_elastic_force_is_the_energy_gradient() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.3, &free);
+        let x: Vec<Vec3> = rest
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| {
+                let t = i as f32;
+                p * 1.05 + 0.08 * Vec3::new((t * 1.3).sin(), (t * 2.1).cos(), (t * 0.7).sin())
+            })
+            .collect();
+        let f = forces(&rest, &x, &connections, &elastic);
+        let h = 1e-3f32;
+        for k in [43usize, 86, 129] {
+            assert!(free[k]);
+            for axis in 0..3 {
+                let (mut plus, mut minus) = (x.clone(), x.clone());
+                plus[k][axis] += h;
+                minus[k][axis] -= h;
+                let g = (elastic.energy(&rest, &plus, &connections)
+                    - elastic.energy(&rest, &minus, &connections))
+                    / f64::from(2.0 * h);
+                let want = -g / 2.0;
+                assert!(
+                    (f64::from(f[k][axis]) - want).abs() <= 5e-3 * want.abs().max(1.0),
+                    "particle {k} axis {axis}: force {} against -1/2 the gradient {want}",
+                    f[k][axis]
+                );
+            }
         }
     }
 
     #[test]
-    fn a_rigid_motion_has_no_volume_energy_and_its_rotation_as_target() {
-        let (rest, connections, _) = jittered_block();
-        let elastic = Elastic::new(&rest, &connections, 0.49);
+    fn a_rigid_motion_has_no_energy_and_no_force() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
         let r = Mat3::from_axis_angle(Vec3::new(1.0, 2.0, -0.5).normalize(), 0.8);
         let current: Vec<Vec3> = rest.iter().map(|&p| r * p + Vec3::ONE).collect();
-        assert!(elastic.volume_energy(&rest, &current, &connections) < 1e-8);
-        for i in 0..rest.len() {
-            let t = elastic.target(i, offsets_product(&rest, &current, &connections, i), r);
-            let off = (t - r)
-                .to_cols_array()
-                .iter()
-                .fold(0.0f32, |m, x| m.max(x.abs()));
-            assert!(off < 1e-4, "particle {i}: target off by {off}");
-        }
+        assert!(elastic.energy(&rest, &current, &connections) < 1e-6);
+        let worst = forces(&rest, &current, &connections, &elastic)
+            .iter()
+            .map(|f| f.length())
+            .fold(0.0f32, f32::max);
+        // f32 rounding: W_i (J_i - 1) with W_i near 25 a_i.
+        assert!(worst < 1e-3, "force {worst}");
     }
 
     #[test]
     fn the_volume_weight_is_lambda_over_two_mu_per_particle() {
-        let (rest, connections, _) = jittered_block();
+        let (rest, connections, free) = jittered_block();
         for poisson in [0.0, 0.3, 0.49] {
-            let elastic = Elastic::new(&rest, &connections, poisson);
+            let elastic = Elastic::new(&rest, &connections, poisson, &free);
             for i in [0, 100, 215] {
                 let a = moment(&rest, &connections, i);
                 let mu = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
                 let want = poisson / (1.0 - 2.0 * poisson) * mu;
                 assert!((elastic.weights[i] - want).abs() <= 1e-5 * want.max(1.0));
+                assert!((elastic.consistency.scales[i] - mu).abs() <= 1e-5 * mu);
             }
         }
         // 0.49 gives lambda / mu = 49: a weight of 24.5 mu.
-        let elastic = Elastic::new(&rest, &connections, 0.49);
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
         let a = moment(&rest, &connections, 100);
         let mu = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
         assert!((elastic.weights[100] / mu - 24.5).abs() < 1e-3);
     }
 
     #[test]
-    fn a_flat_neighbourhood_keeps_the_shear_term_only() {
+    fn a_flat_neighbourhood_keeps_the_pair_term_only() {
         // Three particles on a line and one off it in the plane z = 0.
         let rest = vec![
             Vec3::ZERO,
@@ -312,23 +596,26 @@ mod tests {
             Vec3::new(0.5, 0.5, 0.0),
         ];
         let connections = Connections::from_pairs(5, [(0, 1), (0, 2), (0, 3), (0, 4)]);
-        let elastic = Elastic::new(&rest, &connections, 0.49);
+        let free = [true, false, false, false, false];
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        assert!(elastic.is_flat(0));
         assert_eq!(elastic.weights[0], 0.0);
         assert_eq!(elastic.inverse_moments[0], Mat3::ZERO);
         let squashed: Vec<Vec3> = rest.iter().map(|&p| 0.5 * p).collect();
-        let t = elastic.target(
-            0,
-            offsets_product(&rest, &squashed, &connections, 0),
-            Mat3::IDENTITY,
-        );
-        assert_eq!(t, Mat3::IDENTITY);
+        let m = offsets_product(&rest, &squashed, &connections, 0);
+        let n = elastic
+            .consistency
+            .multipliers_product(&squashed, &connections, 0);
+        let terms = elastic.terms(0, m, n, Mat3::IDENTITY);
+        assert_eq!(terms.target, Mat3::IDENTITY);
+        assert_eq!(terms.stress, Mat3::ZERO);
     }
 
     #[test]
-    fn without_volume_resistance_the_operator_is_the_laplacian() {
+    fn without_volume_resistance_the_operator_is_near_the_laplacian() {
         let (rest, connections, free) = jittered_block();
         let (_, laplacian) = laplacian_extremes(&connections, &free);
-        let elastic = Elastic::new(&rest, &connections, 0.0);
+        let elastic = Elastic::new(&rest, &connections, 0.0, &free);
         let at_rest = elastic.rest_lambda_max(&rest, &connections, &free);
         assert!(
             (at_rest - laplacian).abs() <= 0.01 * laplacian,
@@ -339,8 +626,11 @@ mod tests {
             STIFFENING * at_rest
         );
         // Resisting volume change stiffens it: several times the shear alone at 0.49.
-        let stiff =
-            Elastic::new(&rest, &connections, 0.49).rest_lambda_max(&rest, &connections, &free);
+        let stiff = Elastic::new(&rest, &connections, 0.49, &free).rest_lambda_max(
+            &rest,
+            &connections,
+            &free,
+        );
         assert!(stiff > 4.0 * laplacian, "{stiff} vs {laplacian}");
     }
 

@@ -2,7 +2,7 @@
 //! neither the CPU nor the GPU path.
 //!
 //! - Stage 2: the parameters ([`params`]), the elastic model's
-//!   mathematics ([`elastic`]), what a solve knows before it
+//!   mathematics ([`elastic`], its consistent gradients [`consistent`]), what a solve knows before it
 //!   starts ([`plan`], with the Laplacian's spectrum from [`spectrum`]),
 //!   Chebyshev acceleration and the stopping rule ([`acceleration`]), the
 //!   tracking prediction and its history ([`predict`]), the deflated modes
@@ -26,6 +26,7 @@ pub mod acceleration;
 pub mod batches;
 pub mod coarse;
 pub mod coarse_elastic;
+pub mod consistent;
 pub mod controls;
 pub mod elastic;
 pub mod grid;

@@ -98,7 +98,12 @@ impl Plan {
     pub fn for_params(model: &ParticleModel, params: &DeformParams) -> Result<Self, Error> {
         let mut plan = Self::new(model)?;
         if params.force == ForceModel::Elastic {
-            let elastic = Elastic::new(&model.positions, &model.connections, params.poisson);
+            let elastic = Elastic::new(
+                &model.positions,
+                &model.connections,
+                params.poisson,
+                &plan.free,
+            );
             let stiff = elastic.lambda_max(&model.positions, &model.connections, &plan.free);
             plan.elastic_lambda_max = Some(stiff.max(plan.lambda_max));
             plan.elastic = Some(Arc::new(elastic));

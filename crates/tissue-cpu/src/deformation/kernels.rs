@@ -5,9 +5,9 @@
 use glam::{DVec3, Mat3, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
-use tissue_solve::elastic::{Elastic, offsets_product};
+use tissue_solve::elastic::{Elastic, ElasticTerms, offsets_product};
 use tissue_solve::modes::{LowModes, add_entries};
-use tissue_solve::params::ForceModel;
+use tissue_solve::params::{ForceModel, RotationMethod};
 use tissue_solve::svd3::rotation_of;
 
 use super::polar::warm_rotation;
@@ -57,29 +57,56 @@ pub fn local_rotations_warm(
         .collect()
 }
 
-/// Per particle, the elastic model's target `T_i = R_i - H_i`
-/// ([`Elastic::target`]) from its rotation and its offsets.
-pub fn elastic_targets(
+/// Per particle, the elastic model's terms ([`Elastic::terms`]) with its
+/// rotation: the polar rotation of its gradient `F_i` by `method` (warm
+/// polar from the rotation of `M_i` in `rotations`), or of `M_i` itself
+/// (`rotations`) for a flat neighbourhood.
+pub fn elastic_terms(
     rest: &[Vec3],
     current: &[Vec3],
     connections: &Connections,
     rotations: &[Mat3],
     elastic: &Elastic,
-) -> Vec<Mat3> {
+    method: RotationMethod,
+) -> Vec<ElasticTerms> {
     (0..rest.len())
         .into_par_iter()
         .map(|i| {
-            elastic.target(
-                i,
-                offsets_product(rest, current, connections, i),
-                rotations[i],
-            )
+            let m = offsets_product(rest, current, connections, i);
+            let n = elastic
+                .consistency
+                .multipliers_product(current, connections, i);
+            let rotation = if elastic.is_flat(i) {
+                rotations[i]
+            } else {
+                let f = elastic.gradient(i, m, n);
+                match method {
+                    RotationMethod::Svd => rotation_of(f),
+                    RotationMethod::WarmPolar => warm_rotation(f, rotations[i]),
+                }
+            };
+            elastic.terms(i, m, n, rotation)
         })
         .collect()
 }
 
-/// The force on every particle, gathered over its connections; `rotations`
-/// are the elastic model's targets ([`elastic_targets`]) for its force.
+/// The elastic force on every particle ([`Elastic::force_on`]), gathered
+/// over its connections from the terms of [`elastic_terms`].
+pub fn elastic_force(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    terms: &[ElasticTerms],
+    elastic: &Elastic,
+) -> Vec<Vec3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|k| elastic.force_on(k, rest, current, connections, terms))
+        .collect()
+}
+
+/// The force on every particle, gathered over its connections (the paper's
+/// and the symmetric force; the elastic force is [`elastic_force`]).
 pub fn deformation_force(
     rest: &[Vec3],
     current: &[Vec3],
@@ -97,6 +124,8 @@ pub fn deformation_force(
                 let c = current[j] - current[i];
                 f += match model {
                     ForceModel::Paper => rotations[i] * d - c,
+                    // The elastic force gathers more ([`elastic_force`]);
+                    // given it, this is its pair term with its targets.
                     ForceModel::Symmetric | ForceModel::Elastic => {
                         (rotations[i] + rotations[j]) * d - 2.0 * c
                     }

@@ -47,8 +47,8 @@ use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
 pub use kernels::{
-    chebyshev_combine, deflate, deformation_force, elastic_targets, integrate, local_rotations,
-    local_rotations_warm, steps,
+    chebyshev_combine, deflate, deformation_force, elastic_force, elastic_terms, integrate,
+    local_rotations, local_rotations_warm, steps,
 };
 pub use polar::{polar_rotation, warm_rotation};
 
@@ -282,23 +282,29 @@ impl CpuSolve {
             .elastic
             .as_deref()
             .filter(|_| it.force == ForceModel::Elastic);
-        let targets = elastic.map(|elastic| {
-            elastic_targets(
+        let terms = elastic.map(|elastic| {
+            elastic_terms(
                 &self.rest,
                 &self.current,
                 &self.connections,
                 &self.rotations,
                 elastic,
+                it.rotations,
             )
         });
         laps.lap(Pass::Rotations);
-        let force = deformation_force(
-            &self.rest,
-            &self.current,
-            targets.as_deref().unwrap_or(&self.rotations),
-            &self.connections,
-            it.force,
-        );
+        let force = match (elastic, &terms) {
+            (Some(elastic), Some(terms)) => {
+                elastic_force(&self.rest, &self.current, &self.connections, terms, elastic)
+            }
+            _ => deformation_force(
+                &self.rest,
+                &self.current,
+                &self.rotations,
+                &self.connections,
+                it.force,
+            ),
+        };
         laps.lap(Pass::Force);
         let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
         laps.lap(Pass::Integrate);
