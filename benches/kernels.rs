@@ -99,7 +99,7 @@ fn kernels(c: &mut Criterion) {
                 &model.connections,
                 ForceModel::Symmetric,
             );
-            integrate(&current, &f, &free, 0.05)
+            integrate(&current, &f, &[], &free, 0.05)
         })
     });
 }

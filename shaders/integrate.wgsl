@@ -1,5 +1,6 @@
-// Stage 2, eq. (1): `integrate`, q̂ = q + alpha F for free particles (control
-// points stay where the surface put them), twin of
+// Stage 2, eq. (1): `integrate`, q̂ = q + alpha (F + b) for free particles,
+// b the particle's body force where the state has loads (control points
+// stay where the surface put them), twin of
 // `tissue_cpu::deformation::integrate`; and `chebyshev`, Wang 2015's
 // q_{k+1} = omega (q̂_{k+1} − q_{k−1}) + q_{k−1}, the combine in
 // `tissue_cpu::deformation::Deformer::solve` (omega exactly 1: the plain q̂).
@@ -12,6 +13,8 @@
 @group(0) @binding(3) var<storage, read> free: array<u32>;
 @group(0) @binding(4) var<storage, read_write> plain: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> previous: array<vec4<f32>>;
+// Per particle its body force; one (zero) entry on a state without loads.
+@group(0) @binding(6) var<storage, read> loads: array<vec4<f32>>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn integrate(
@@ -24,7 +27,11 @@ fn integrate(
         return;
     }
     let q = current[i].xyz;
-    plain[i] = vec4<f32>(select(q, q + params.alpha * force[i].xyz, free[i] != 0u), 0.0);
+    var f = force[i].xyz;
+    if (arrayLength(&loads) == params.count) {
+        f += loads[i].xyz;
+    }
+    plain[i] = vec4<f32>(select(q, q + params.alpha * f, free[i] != 0u), 0.0);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

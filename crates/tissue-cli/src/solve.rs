@@ -54,6 +54,12 @@ pub struct SolveArgs {
     /// both backends. 0 turns it off. Where it is on, neither backend deflates.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     pub coarse: f32,
+    /// Only these vertices of the surface were observed: a text file of
+    /// 0-based vertex indices (docs/FORMATS.md). Surface particles on a
+    /// triangle with an unobserved vertex move with the solve instead of
+    /// following the surface. Default: every vertex.
+    #[arg(long, value_name = "FILE")]
+    pub observed: Option<PathBuf>,
 }
 
 impl SolveArgs {
@@ -131,7 +137,8 @@ pub struct DeformArgs {
 /// Reads a model and prepares stage 2 on it on `device`.
 pub fn load_model(
     path: &Path,
-    params: DeformParams,
+    mut params: DeformParams,
+    observed: Option<&Path>,
     device: Device,
 ) -> Result<(ParticleModel, Solver)> {
     let vtp = path
@@ -145,9 +152,52 @@ pub fn load_model(
     }
     let model = tissue::load_model(path)?;
     tissue::io::model::check_placement(&model).with_context(|| format!("{}", path.display()))?;
+    if let Some(file) = observed {
+        params.observed = Some(read_observed(file, model.surface.vertices.len())?);
+    }
     let solver = Solver::new(device, &model, params)
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
     Ok((model, solver))
+}
+
+/// The observed-vertex mask of a surface of `vertices` vertices from a text
+/// file of 0-based vertex indices, separated by white space or commas, `#`
+/// starting a comment (docs/FORMATS.md).
+pub fn read_observed(path: &Path, vertices: usize) -> Result<Vec<bool>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read the observed vertices", path.display()))?;
+    let mut mask = vec![false; vertices];
+    let mut count = 0usize;
+    for (line, content) in text.lines().enumerate() {
+        let content = content.split('#').next().unwrap_or_default();
+        for word in content
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|w| !w.is_empty())
+        {
+            let index: usize = word.parse().map_err(|_| {
+                anyhow!(
+                    "{} line {}: `{word}` is not a vertex index (0-based whole numbers)",
+                    path.display(),
+                    line + 1
+                )
+            })?;
+            let Some(flag) = mask.get_mut(index) else {
+                bail!(
+                    "{} line {}: vertex {index} is not on the model's surface, which has {vertices} \
+                     vertices (0 to {})",
+                    path.display(),
+                    line + 1,
+                    vertices.saturating_sub(1)
+                );
+            };
+            *flag = true;
+            count += 1;
+        }
+    }
+    if count == 0 {
+        bail!("{}: no observed vertex index in the file", path.display());
+    }
+    Ok(mask)
 }
 
 /// Reads the deformed surface at `path` and checks it against `rest` (the
@@ -279,7 +329,12 @@ fn field_request<'a>(
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let params = args.solve.params(Frames::One)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
-    let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
+    let (model, mut solver) = load_model(
+        &args.model,
+        params.clone(),
+        args.solve.observed.as_deref(),
+        device,
+    )?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
     set_deformed(&args.surface, &mut solver, &deformed)?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
@@ -355,6 +410,7 @@ mod tests {
             tolerance: 1e-4,
             deflation,
             coarse: DeformParams::default().coarse,
+            observed: None,
         };
         let deflation = |given, frames| args(given).params(frames).map(|p| p.deflation).ok();
         assert_eq!(deflation(None, Frames::One), Some(0));
@@ -375,6 +431,7 @@ mod tests {
             tolerance: 1e-4,
             deflation: None,
             coarse,
+            observed: None,
         };
         let coarse = |given, frames| args(given).params(frames).map(|p| p.coarse);
         assert_eq!(coarse(2.0, Frames::One).ok(), Some(2.0));

@@ -307,7 +307,12 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     params.validate()?;
     let frames = expand(&args.frames)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
-    let (model, mut solver) = load_model(&args.model, params.clone(), device)?;
+    let (model, mut solver) = load_model(
+        &args.model,
+        params.clone(),
+        args.solve.observed.as_deref(),
+        device,
+    )?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let model_name = args.model.display().to_string();
     // Every frame's files and the summary, against every input, before any work.

@@ -478,6 +478,11 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
     );
     not_finite.vertices[5].y = f32::NAN;
     tissue::save_surface(&not_finite, Path::new(&d("nan-skin.obj"))).unwrap();
+    std::fs::write(d("observed-none.txt"), "# nothing seen\n").unwrap();
+    std::fs::write(d("observed-word.txt"), "1 2\nthree\n").unwrap();
+    std::fs::write(d("observed-far.txt"), "0, 1, 99999\n").unwrap();
+    // Vertices 0, 1 and 2 only: too few for any particle's triangle.
+    std::fs::write(d("observed-few.txt"), "0 1 2\n").unwrap();
 
     let deform = |extra: &[&str]| -> Vec<String> {
         let mut args: Vec<String> = vec!["deform".into(), "--model".into(), model.clone()];
@@ -525,6 +530,30 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
         (
             deform(&["--surface", &sag, "--tolerance", "NaN"]),
             vec!["tolerance"],
+        ),
+        (
+            deform(&["--surface", &sag, "--observed", &d("observed-none.txt")]),
+            vec!["observed-none.txt", "no observed vertex"],
+        ),
+        (
+            deform(&["--surface", &sag, "--observed", &d("observed-word.txt")]),
+            vec!["observed-word.txt", "line 2", "`three`", "vertex index"],
+        ),
+        (
+            deform(&["--surface", &sag, "--observed", &d("observed-far.txt")]),
+            vec![
+                "observed-far.txt",
+                "vertex 99999",
+                "not on the model's surface",
+            ],
+        ),
+        (
+            deform(&["--surface", &sag, "--observed", &d("observed-few.txt")]),
+            vec!["no surface particle is observed", "3 of the surface's"],
+        ),
+        (
+            deform(&["--surface", &sag, "--observed", "/no/such/observed.txt"]),
+            vec!["/no/such/observed.txt"],
         ),
         (
             deform(&[

@@ -288,6 +288,29 @@ pub enum DeformError {
     /// No particle is on the surface, so nothing follows it.
     #[error("the model has no surface particles to follow the surface")]
     NoControlPoints,
+    /// The observed-vertex mask is not one flag per surface vertex.
+    #[error(
+        "the observed-vertex mask has {got} flags, but the model's surface has {vertices} vertices"
+    )]
+    ObservedLength {
+        /// Flags given.
+        got: usize,
+        /// Vertices of the model's surface.
+        vertices: usize,
+    },
+    /// No surface particle lies on a triangle whose vertices are all
+    /// observed, so nothing pins the model to the surface.
+    #[error(
+        "no surface particle is observed: {observed} of the surface's {vertices} vertices are \
+         observed, and a particle follows the surface only where all three vertices of its \
+         triangle are"
+    )]
+    NothingObserved {
+        /// Observed vertices.
+        observed: usize,
+        /// Vertices of the model's surface.
+        vertices: usize,
+    },
     /// The two-level solve's coarse space cannot be built.
     #[error("{0}")]
     CoarseSpace(String),

@@ -117,6 +117,9 @@ impl GpuDeformer {
             if let Some(elastic) = &plan.elastic {
                 state.set_elastic(device, &pipelines, elastic)?;
             }
+            if !plan.loads.is_empty() {
+                state.set_loads(device, &pipelines, &plan.loads)?;
+            }
             // The coarse space, or else the modes, correct the symmetric
             // force, an elastic solve's shear phase included
             // (`Iteration::correct`), as on the CPU path.

@@ -67,6 +67,9 @@ pub struct DeformState {
     pub(crate) force: Storage<[f32; 4]>,
     /// Per particle 1 when the solve moves it.
     pub(crate) free: Storage<u32>,
+    /// Per particle its body force (one zero entry without loads,
+    /// [`DeformState::set_loads`]).
+    pub(crate) loads: Storage<[f32; 4]>,
     /// The connections' row starts (CSR, `count + 1`).
     pub(crate) offsets: Storage<u32>,
     /// The connections' entries (CSR).
@@ -232,6 +235,7 @@ impl DeformState {
                 )?,
                 force: Storage::zeroed(device, "force", n, &what("force"))?,
                 free: Storage::init(device, "free", &free, &what("free"))?,
+                loads: Storage::zeroed(device, "loads", 1, "the loads buffer (none)")?,
                 offsets: Storage::init(device, "offsets", offsets, &what("offsets"))?,
                 indices: Storage::init(device, "indices", indices, &what("indices"))?,
                 partials: Storage::zeroed(
@@ -363,6 +367,29 @@ impl DeformState {
         })?;
         self.elastic = true;
         self.elastic_phase = true;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Uploads every particle's body force (the plan's loads, one per
+    /// particle): from now on the plain step adds it to the force.
+    pub fn set_loads(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        loads: &[Vec3],
+    ) -> Result<(), GpuError> {
+        self.check_len("loads (one per particle)", loads.len())?;
+        let loads: Vec<[f32; 4]> = loads.iter().map(|&b| vec4(b, 0.0)).collect();
+        let n = self.len();
+        self.loads = scoped(device, || {
+            Storage::init(
+                device,
+                "loads",
+                &loads,
+                &format!("the loads buffer ({n} particles)"),
+            )
+        })?;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
     }
@@ -518,6 +545,7 @@ impl DeformState {
             ("turn", self.turn.buffer()),
             ("force", self.force.buffer()),
             ("free", self.free.buffer()),
+            ("loads", self.loads.buffer()),
             ("offsets", self.offsets.buffer()),
             ("indices", self.indices.buffer()),
             ("partials", self.partials.buffer()),

@@ -402,7 +402,7 @@ fn integrate_and_step_norms_match_the_cpu_twins() {
         let force = symmetric_force(model, &current);
         let free = free_of(model);
         let alpha = 0.07;
-        let expected = integrate(&current, &force, &free, alpha);
+        let expected = integrate(&current, &force, &[], &free, alpha);
         let (pipelines, state) = setup(&device, &queue, model);
         state
             .write_current(&queue, &current)
@@ -463,7 +463,7 @@ fn chebyshev_matches_the_cpu_combine() {
     let force = symmetric_force(model, &current);
     let free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
     let alpha = 0.07;
-    let plain = integrate(&current, &force, &free, alpha);
+    let plain = integrate(&current, &force, &[], &free, alpha);
     let omega = 1.83f32;
     let expected: Vec<Vec3> = plain
         .iter()
@@ -517,7 +517,7 @@ fn deflate_matches_the_cpu_twin() {
         assert_eq!(modes.count(), 16, "n = {n}: the modes came out");
         let alpha = plan.alpha(&params);
         let contraction = plan.contraction(&params);
-        let plain = integrate(&current, &force, &plan.free, alpha);
+        let plain = integrate(&current, &force, &[], &plan.free, alpha);
         let mut expected = plain.clone();
         tissue_cpu::deformation::deflate(&modes, &current, &mut expected, contraction);
         let scales: Vec<f32> = modes

@@ -84,7 +84,8 @@ impl Elastic {
     /// The moment matrices of every particle's neighbourhood in `rest`, the
     /// volume weights for Poisson ratio `poisson` (in `[0, MAX_POISSON]`)
     /// and the consistent gradient vectors with the constraint held at the
-    /// `free` particles.
+    /// `free` particles (the interior ones that move: a surface particle's
+    /// vectors integrate to its share of the boundary).
     pub fn new(rest: &[Vec3], connections: &Connections, poisson: f32, free: &[bool]) -> Self {
         let ratio = poisson / (1.0 - 2.0 * poisson);
         let (inverse_moments, weights): (Vec<Mat3>, Vec<f32>) = (0..rest.len())

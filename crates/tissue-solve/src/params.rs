@@ -1,6 +1,7 @@
 //! The parameters of stage 2 and their bounds; `docs/METHOD.md` explains
 //! the defaults.
 
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use tissue_core::ParamError;
 
@@ -107,6 +108,21 @@ pub struct DeformParams {
     /// made again every solve from rest). 0 turns it off. The default
     /// and what it saves: docs/METHOD.md, "Elastic model".
     pub elastic_coarse_max_aggregates: usize,
+    /// Which vertices of the surface were observed (the deformed surface
+    /// is known there), one flag per rest-surface vertex; `None`: every
+    /// one. A surface particle is a control point only where every vertex
+    /// of its triangle is observed; the others move with the solve, as
+    /// interior particles do (docs/METHOD.md, "Free surface and body
+    /// forces"). Not written out with the parameters (it is as long as the
+    /// surface).
+    #[serde(skip)]
+    pub observed: Option<Vec<bool>>,
+    /// A body force on every particle per unit of its stiffness weight
+    /// `a_i = tr(A_i) / 3` (the same weight the shear term carries), in
+    /// reciprocal model units: gravity `g` on tissue of density `rho` and
+    /// shear modulus `mu` is `rho g / (2 mu)` (docs/METHOD.md, "Free
+    /// surface and body forces"). Zero: none.
+    pub load: Vec3,
 }
 
 impl Default for DeformParams {
@@ -127,6 +143,8 @@ impl Default for DeformParams {
             coarse: 2.0,
             coarse_max_aggregates: 10_000,
             elastic_coarse_max_aggregates: 1_000,
+            observed: None,
+            load: Vec3::ZERO,
         }
     }
 }
@@ -196,6 +214,7 @@ impl DeformParams {
             self.elastic_coarse_max_aggregates,
             format!("0 (off) to {MAX_ELASTIC_COARSE_AGGREGATES}"),
         )?;
+        ParamError::check(self.load.is_finite(), "load", self.load, "a finite vector")?;
         ParamError::check(
             (1..=10_000_000).contains(&self.max_iterations),
             "max_iterations",

@@ -4,12 +4,19 @@
 use std::sync::Arc;
 
 use glam::Vec3;
-use tissue_core::{Connections, DeformError, Error, ParticleModel};
+use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
 use crate::elastic::Elastic;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
 use crate::spectrum::laplacian_extremes;
+
+/// The largest `|load|` times the model's size [`Plan::for_params`]
+/// accepts (a load moves a model by about `2 |load| size^2`): gravity on
+/// tissue of shear modulus 0.1 kPa, softer than any organ, over a 20 cm
+/// model is 9.8 (`rho g / (2 mu)` = 0.049 / mm); past that a load is a
+/// unit mistake.
+pub const MAX_LOAD_SIZE: f32 = 10.0;
 
 /// What a stage-2 solve needs to know about a model before it starts, the
 /// same for the CPU and the GPU path: which particles move, the spectrum
@@ -20,6 +27,13 @@ pub struct Plan {
     /// Per particle: moved by the solve (not a control point, and connected
     /// to one through some path of connections).
     pub free: Vec<bool>,
+    /// Per particle: a control point, placed on the deformed surface (a
+    /// surface particle whose triangle's vertices are all observed,
+    /// [`DeformParams::observed`]).
+    pub controls: Vec<bool>,
+    /// Per particle its body force `a_i` times [`DeformParams::load`]
+    /// (empty without a load).
+    pub loads: Vec<Vec3>,
     /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
     pub lambda_min: f32,
     /// Largest one, with a 2 % margin.
@@ -44,11 +58,53 @@ impl Plan {
     /// [`Error::InvalidModel`] for a model [`ParticleModel::validate`]
     /// refuses; [`Error::Deformation`] for one without surface particles.
     pub fn new(model: &ParticleModel) -> Result<Self, Error> {
+        Self::observed(model, None)
+    }
+
+    /// [`Plan::new`] with only the surface particles whose triangles'
+    /// vertices are all `observed` (one flag per surface vertex) as control
+    /// points; the others are free.
+    ///
+    /// # Errors
+    ///
+    /// As [`Plan::new`]; [`DeformError::ObservedLength`] for a mask that is
+    /// not one flag per surface vertex, [`DeformError::NothingObserved`]
+    /// where no surface particle is observed.
+    pub fn observed(model: &ParticleModel, observed: Option<&[bool]>) -> Result<Self, Error> {
         model.validate()?;
         if model.attachments.iter().all(Option::is_none) {
             return Err(DeformError::NoControlPoints.into());
         }
-        let mut free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
+        let vertices = model.surface.vertices.len();
+        if let Some(mask) = observed
+            && mask.len() != vertices
+        {
+            return Err(DeformError::ObservedLength {
+                got: mask.len(),
+                vertices,
+            }
+            .into());
+        }
+        let seen = |v: u32| observed.is_none_or(|mask| mask[v as usize]);
+        let controls: Vec<bool> = model
+            .attachments
+            .iter()
+            .map(|a| {
+                a.is_some_and(|a| {
+                    model.surface.triangles[a.triangle as usize]
+                        .iter()
+                        .all(|&v| seen(v))
+                })
+            })
+            .collect();
+        if !controls.contains(&true) {
+            return Err(DeformError::NothingObserved {
+                observed: observed.map_or(vertices, |m| m.iter().filter(|&&o| o).count()),
+                vertices,
+            }
+            .into());
+        }
+        let mut free: Vec<bool> = controls.iter().map(|c| !c).collect();
         // A free particle with no path of connections to a control point has
         // nothing to follow: it would stay put anyway, and its zero Laplacian
         // eigenvalue would stall the acceleration for everyone. Hold it.
@@ -82,6 +138,8 @@ impl Plan {
             .fold(0.0, f32::max);
         Ok(Self {
             free,
+            controls,
+            loads: Vec::new(),
             lambda_min,
             lambda_max,
             size: (hi - lo).length(),
@@ -96,13 +154,46 @@ impl Plan {
     /// operator ([`Elastic::lambda_max`], in the Laplacian's units), which
     /// sets its step.
     pub fn for_params(model: &ParticleModel, params: &DeformParams) -> Result<Self, Error> {
-        let mut plan = Self::new(model)?;
+        let mut plan = Self::observed(model, params.observed.as_deref())?;
+        if params.load != Vec3::ZERO {
+            ParamError::check(
+                params.load.length() * plan.size <= MAX_LOAD_SIZE,
+                "load",
+                params.load,
+                format!(
+                    "at most {MAX_LOAD_SIZE} over the model's size ({}) in length",
+                    plan.size
+                ),
+            )?;
+            plan.loads = (0..model.len())
+                .map(|i| {
+                    let trace: f32 = model
+                        .connections
+                        .of(i)
+                        .iter()
+                        .map(|&j| {
+                            (model.positions[j as usize] - model.positions[i]).length_squared()
+                        })
+                        .sum();
+                    params.load * (trace / 3.0)
+                })
+                .collect();
+        }
         if params.force == ForceModel::Elastic {
+            // The integration constraint holds inside; a surface particle's
+            // gradient vectors integrate to its share of the boundary, free
+            // (unobserved) or not.
+            let inside: Vec<bool> = model
+                .attachments
+                .iter()
+                .zip(&plan.free)
+                .map(|(a, &free)| a.is_none() && free)
+                .collect();
             let elastic = Elastic::new(
                 &model.positions,
                 &model.connections,
                 params.poisson,
-                &plan.free,
+                &inside,
             );
             let stiff = elastic.lambda_max(&model.positions, &model.connections, &plan.free);
             plan.elastic_lambda_max = Some(stiff.max(plan.lambda_max));

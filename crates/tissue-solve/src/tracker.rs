@@ -139,7 +139,8 @@ pub struct Tracker<D> {
     plan: Plan,
     params: DeformParams,
     surface: SurfaceMesh,
-    /// Each control particle and its triangle and barycentric coordinates.
+    /// Each control particle (an observed surface particle) and its
+    /// triangle and barycentric coordinates.
     attachments: Vec<(usize, u32, [f32; 3])>,
     rest: Vec<Vec3>,
     /// The positions at the last frame boundary.
@@ -165,10 +166,12 @@ impl<D: SolveDevice> Tracker<D> {
         params.validate().map_err(Error::from)?;
         let plan = Plan::for_params(model, &params)?;
         let device = prepare(&plan, &params)?;
+        // The control points: the observed surface particles.
         let attachments = model
             .attachments
             .iter()
             .enumerate()
+            .filter(|&(i, _)| plan.controls[i])
             .filter_map(|(i, a)| a.map(|a| (i, a.triangle, a.barycentric)))
             .collect();
         Ok(Self {
@@ -209,7 +212,8 @@ impl<D: SolveDevice> Tracker<D> {
     /// Changes the parameters of the next solves (the tolerance between
     /// frames, say); the state is kept. What the device prepared once (the
     /// coarse space, the modes, the step) stays as it was prepared, so the
-    /// force and (for the elastic force) the Poisson ratio cannot change.
+    /// force, (for the elastic force) the Poisson ratio, the observed
+    /// vertices and the load cannot change.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
         params.validate()?;
         // The plan's step and the elastic weights were made for these two.
@@ -230,6 +234,19 @@ impl<D: SolveDevice> Tracker<D> {
                 "{}, the Poisson ratio this solve was prepared for",
                 self.params.poisson
             ),
+        )?;
+        // The control points and the loads are in the plan and the device.
+        ParamError::check(
+            params.observed == self.params.observed,
+            "observed",
+            "a different mask",
+            "the observed vertices this solve was prepared for",
+        )?;
+        ParamError::check(
+            params.load == self.params.load,
+            "load",
+            params.load,
+            format!("{}, the load this solve was prepared for", self.params.load),
         )?;
         self.params = params;
         Ok(())

@@ -2,6 +2,8 @@
 //! `glam` data (no tissue types), so that tissue-core's own unit tests can
 //! use them without a second copy of tissue-core in the build.
 
+use std::f32::consts::PI;
+
 use glam::{Mat3, Vec3};
 
 /// A regular octahedron of "radius" 1 around the origin, wound
@@ -133,4 +135,65 @@ pub fn jittered_grid(n: usize, seed: u64) -> (Vec<Vec3>, Vec<(u32, u32)>, Vec<bo
         }
     }
     (positions, pairs, free)
+}
+
+/// A closed circular cylinder along z, radius 1, height 4, base at z = 0:
+/// 48 segments, 40 rings, caps of concentric rings (no slivers).
+pub fn cylinder() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let (segments, rings) = (48u32, 40u32);
+    let (radius, height) = (1.0f32, 4.0f32);
+    let mut vertices = Vec::new();
+    for r in 0..=rings {
+        let z = height * r as f32 / rings as f32;
+        for s in 0..segments {
+            let a = 2.0 * PI * s as f32 / segments as f32;
+            vertices.push(Vec3::new(radius * a.cos(), radius * a.sin(), z));
+        }
+    }
+    let ring = |r: u32, s: u32| r * segments + s % segments;
+    let mut triangles = Vec::new();
+    for r in 0..rings {
+        for s in 0..segments {
+            triangles.push([ring(r, s), ring(r, s + 1), ring(r + 1, s + 1)]);
+            triangles.push([ring(r, s), ring(r + 1, s + 1), ring(r + 1, s)]);
+        }
+    }
+    // Caps: concentric rings towards a centre vertex, so cap triangles are not slivers.
+    for (z, top) in [(0.0f32, false), (height, true)] {
+        let edge_ring = if top { rings } else { 0 };
+        let mut outer: Vec<u32> = (0..segments).map(|s| ring(edge_ring, s)).collect();
+        for k in 1..8u32 {
+            let rr = radius * (1.0 - k as f32 / 8.0);
+            let inner: Vec<u32> = (0..segments)
+                .map(|s| {
+                    let a = 2.0 * PI * s as f32 / segments as f32;
+                    vertices.push(Vec3::new(rr * a.cos(), rr * a.sin(), z));
+                    (vertices.len() - 1) as u32
+                })
+                .collect();
+            for s in 0..segments as usize {
+                let (o0, o1) = (outer[s], outer[(s + 1) % segments as usize]);
+                let (i0, i1) = (inner[s], inner[(s + 1) % segments as usize]);
+                if top {
+                    triangles.push([o0, o1, i1]);
+                    triangles.push([o0, i1, i0]);
+                } else {
+                    triangles.push([o0, i1, o1]);
+                    triangles.push([o0, i0, i1]);
+                }
+            }
+            outer = inner;
+        }
+        vertices.push(Vec3::new(0.0, 0.0, z));
+        let centre = (vertices.len() - 1) as u32;
+        for s in 0..segments as usize {
+            let (o0, o1) = (outer[s], outer[(s + 1) % segments as usize]);
+            triangles.push(if top {
+                [o0, o1, centre]
+            } else {
+                [o0, centre, o1]
+            });
+        }
+    }
+    (vertices, triangles)
 }

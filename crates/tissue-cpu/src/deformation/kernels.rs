@@ -136,14 +136,31 @@ pub fn deformation_force(
         .collect()
 }
 
-/// `q += alpha F` for free particles (the stiffness `sigma` and mass `m`
-/// fold into `alpha = sigma / m`); control points stay where the surface put them.
-pub fn integrate(current: &[Vec3], force: &[Vec3], free: &[bool], alpha: f32) -> Vec<Vec3> {
+/// `q += alpha (F + b)` for free particles (the stiffness `sigma` and mass
+/// `m` fold into `alpha = sigma / m`), `b` the particle's body force from
+/// `loads` (none where `loads` is empty); control points stay where the
+/// surface put them.
+pub fn integrate(
+    current: &[Vec3],
+    force: &[Vec3],
+    loads: &[Vec3],
+    free: &[bool],
+    alpha: f32,
+) -> Vec<Vec3> {
     current
         .par_iter()
         .zip(force)
         .zip(free)
-        .map(|((&q, &f), &free)| if free { q + alpha * f } else { q })
+        .enumerate()
+        .map(|(i, ((&q, &f), &free))| {
+            if !free {
+                return q;
+            }
+            match loads.get(i) {
+                Some(&b) => q + alpha * (f + b),
+                None => q + alpha * f,
+            }
+        })
         .collect()
 }
 

@@ -168,6 +168,8 @@ pub struct CpuSolve {
     rest: Vec<Vec3>,
     connections: Connections,
     free: Vec<bool>,
+    /// Per particle its body force (empty without a load).
+    loads: Vec<Vec3>,
     current: Vec<Vec3>,
     previous: Vec<Vec3>,
     rotations: Vec<Mat3>,
@@ -213,6 +215,7 @@ impl CpuSolve {
             rest: model.positions.clone(),
             connections: model.connections.clone(),
             free: plan.free.clone(),
+            loads: plan.loads.clone(),
             current: model.positions.clone(),
             previous: model.positions.clone(),
             rotations: vec![Mat3::IDENTITY; model.len()],
@@ -306,7 +309,7 @@ impl CpuSolve {
             ),
         };
         laps.lap(Pass::Force);
-        let mut plain = integrate(&self.current, &force, &self.free, it.alpha);
+        let mut plain = integrate(&self.current, &force, &self.loads, &self.free, it.alpha);
         laps.lap(Pass::Integrate);
         // The Laplacian's corrections never apply to the elastic force.
         let laplacian = it.correct && it.force != ForceModel::Elastic;
