@@ -1,10 +1,12 @@
 //! `tissue deform`: one deformed surface, one solve; and what `track` and
 //! `demo` share with it (parameters, loading, error wording).
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
+use glam::{IVec3, Vec3};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -54,10 +56,11 @@ pub struct SolveArgs {
     /// both backends. 0 turns it off. Where it is on, neither backend deflates.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     pub coarse: f32,
-    /// Only these vertices of the surface were observed: a text file of
-    /// 0-based vertex indices (docs/FORMATS.md). Surface particles on a
-    /// triangle with an unobserved vertex move with the solve instead of
-    /// following the surface. Default: every vertex.
+    /// Only these vertices of the surface were observed: the observed patch
+    /// of the rest surface as a surface file, or its vertices as points
+    /// (.csv, .ply), in the rest posture (docs/FORMATS.md). Surface
+    /// particles on a triangle with an unobserved vertex move with the
+    /// solve instead of following the surface. Default: every vertex.
     #[arg(long, value_name = "FILE")]
     pub observed: Option<PathBuf>,
 }
@@ -153,49 +156,72 @@ pub fn load_model(
     let model = tissue::load_model(path)?;
     tissue::io::model::check_placement(&model).with_context(|| format!("{}", path.display()))?;
     if let Some(file) = observed {
-        params.observed = Some(read_observed(file, model.surface.vertices.len())?);
+        params.observed = Some(read_observed(file, &model.surface)?);
     }
     let solver = Solver::new(device, &model, params)
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
     Ok((model, solver))
 }
 
-/// The observed-vertex mask of a surface of `vertices` vertices from a text
-/// file of 0-based vertex indices, separated by white space or commas, `#`
-/// starting a comment (docs/FORMATS.md).
-pub fn read_observed(path: &Path, vertices: usize) -> Result<Vec<bool>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read the observed vertices", path.display()))?;
-    let mut mask = vec![false; vertices];
-    let mut count = 0usize;
-    for (line, content) in text.lines().enumerate() {
-        let content = content.split('#').next().unwrap_or_default();
-        for word in content
-            .split(|c: char| c.is_whitespace() || c == ',')
-            .filter(|w| !w.is_empty())
-        {
-            let index: usize = word.parse().map_err(|_| {
-                anyhow!(
-                    "{} line {}: `{word}` is not a vertex index (0-based whole numbers)",
-                    path.display(),
-                    line + 1
-                )
-            })?;
-            let Some(flag) = mask.get_mut(index) else {
-                bail!(
-                    "{} line {}: vertex {index} is not on the model's surface, which has {vertices} \
-                     vertices (0 to {})",
-                    path.display(),
-                    line + 1,
-                    vertices.saturating_sub(1)
-                );
-            };
-            *flag = true;
-            count += 1;
-        }
+/// The observed-vertex mask of `rest` (the model's rest surface) from
+/// `path`: the observed patch of the rest surface as a surface file (its
+/// vertices), or its vertices as a point file (`.csv`, `.ply`). Each point
+/// must be a vertex of `rest`, to 1e-5 of its size: vertex numbers do not
+/// survive reading (an OBJ file's are renumbered by first use), positions
+/// do (docs/FORMATS.md).
+pub fn read_observed(path: &Path, rest: &SurfaceMesh) -> Result<Vec<bool>> {
+    let surface = path.extension().is_some_and(|e| {
+        ["obj", "stl", "vtk", "vtp"]
+            .iter()
+            .any(|known| e.eq_ignore_ascii_case(known))
+    });
+    let points = if surface {
+        tissue::load_surface_as_written(path)?.vertices
+    } else {
+        tissue::load_points(path)?
+    };
+    if points.is_empty() {
+        bail!("{}: no observed point in the file", path.display());
     }
-    if count == 0 {
-        bail!("{}: no observed vertex index in the file", path.display());
+    let (lo, hi) = rest.vertices.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &v| (lo.min(v), hi.max(v)),
+    );
+    let tolerance = 1e-5 * (hi - lo).length();
+    let cell = |p: Vec3| (p / tolerance).floor().as_ivec3();
+    let mut grid: HashMap<IVec3, Vec<usize>> = HashMap::new();
+    for (i, &v) in rest.vertices.iter().enumerate() {
+        grid.entry(cell(v)).or_default().push(i);
+    }
+    let mut mask = vec![false; rest.vertices.len()];
+    for (k, &p) in points.iter().enumerate() {
+        let c = cell(p);
+        let near = (-1..=1)
+            .flat_map(|x| (-1..=1).flat_map(move |y| (-1..=1).map(move |z| IVec3::new(x, y, z))))
+            .filter_map(|d| grid.get(&(c + d)))
+            .flatten()
+            .copied()
+            .find(|&i| rest.vertices[i].distance(p) <= tolerance);
+        let Some(i) = near else {
+            let (i, d) = rest
+                .vertices
+                .iter()
+                .map(|v| v.distance(p))
+                .enumerate()
+                .fold(
+                    (0, f32::MAX),
+                    |best, (i, d)| if d < best.1 { (i, d) } else { best },
+                );
+            bail!(
+                "{}: point {} ({p}) is {d} from the nearest vertex of the model's rest surface \
+                 (vertex {i} at {}): observed points must be vertices of the rest surface, in \
+                 the rest posture and the model's units",
+                path.display(),
+                k + 1,
+                rest.vertices[i]
+            );
+        };
+        mask[i] = true;
     }
     Ok(mask)
 }

@@ -454,6 +454,62 @@ fn deform_accepts_the_bundled_deformed_skins() {
     assert!(dir.path().join("out/phantom-tumour.obj").is_file());
 }
 
+/// `--observed` takes the observed patch by position: the whole rest skin
+/// (the OBJ file the model was sampled from, whose vertex numbers reading
+/// renumbers) changes nothing; the lower half as points frees the upper
+/// skin, which then no longer follows the sag exactly.
+#[test]
+fn deform_takes_the_observed_skin_by_position() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sag = assets().join("phantom-sag.obj");
+    let deform = |name: &str, observed: Option<&Path>| -> Vec<Vec3> {
+        let out_dir = dir.path().join(name);
+        let mut args = vec![
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&sag),
+            "--output-dir",
+            s(&out_dir),
+            "--quiet",
+        ];
+        if let Some(file) = observed {
+            args.extend(["--observed", s(file)]);
+        }
+        let out = tissue(&args);
+        assert!(out.status.success(), "{name}: {}", text(&out));
+        let vtp = std::fs::read_to_string(out_dir.join("particles.vtp")).unwrap();
+        triples(&vtp_array(&vtp, "Points"))
+    };
+    let all = deform("all", None);
+    let skin = deform("skin", Some(&assets().join("phantom-breast.obj")));
+    assert_eq!(all, skin);
+    let mut heights: Vec<f32> = model.surface.vertices.iter().map(|v| v.z).collect();
+    heights.sort_by(f32::total_cmp);
+    let median = heights[heights.len() / 2];
+    let lower: Vec<Vec3> = model
+        .surface
+        .vertices
+        .iter()
+        .copied()
+        .filter(|v| v.z <= median)
+        .collect();
+    let lower_path = dir.path().join("lower.csv");
+    tissue::save_points(&lower, &lower_path).unwrap();
+    let half = deform("half", Some(&lower_path));
+    let moved = all
+        .iter()
+        .zip(&half)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0f32, f32::max);
+    assert!(
+        moved > 1e-3 * size(&model),
+        "freeing half the skin moved nothing ({moved})"
+    );
+}
+
 #[test]
 fn bad_stage2_input_fails_with_a_message_and_no_panic() {
     let dir = tempfile::tempdir().unwrap();
@@ -478,11 +534,13 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
     );
     not_finite.vertices[5].y = f32::NAN;
     tissue::save_surface(&not_finite, Path::new(&d("nan-skin.obj"))).unwrap();
-    std::fs::write(d("observed-none.txt"), "# nothing seen\n").unwrap();
-    std::fs::write(d("observed-word.txt"), "1 2\nthree\n").unwrap();
-    std::fs::write(d("observed-far.txt"), "0, 1, 99999\n").unwrap();
-    // Vertices 0, 1 and 2 only: too few for any particle's triangle.
-    std::fs::write(d("observed-few.txt"), "0 1 2\n").unwrap();
+    std::fs::write(d("observed-none.csv"), "x,y,z\n").unwrap();
+    std::fs::write(d("observed-word.csv"), "x,y,z\n1,2,3\n4,5,three\n").unwrap();
+    std::fs::write(d("observed-far.csv"), "x,y,z\n0,0,500\n").unwrap();
+    // Three vertices of the rest surface only: too few for any particle's triangle.
+    let rest = tissue::load_model(Path::new(&model)).unwrap().surface;
+    let few: Vec<Vec3> = rest.vertices[..3].to_vec();
+    tissue::save_points(&few, Path::new(&d("observed-few.csv"))).unwrap();
 
     let deform = |extra: &[&str]| -> Vec<String> {
         let mut args: Vec<String> = vec!["deform".into(), "--model".into(), model.clone()];
@@ -532,39 +590,28 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
             vec!["tolerance"],
         ),
         (
-            deform(&["--surface", &sag, "--observed", &d("observed-none.txt")]),
-            vec!["observed-none.txt", "no observed vertex"],
+            deform(&["--surface", &sag, "--observed", &d("observed-none.csv")]),
+            vec!["observed-none.csv"],
         ),
         (
-            deform(&["--surface", &sag, "--observed", &d("observed-word.txt")]),
-            vec!["observed-word.txt", "line 2", "`three`", "vertex index"],
+            deform(&["--surface", &sag, "--observed", &d("observed-word.csv")]),
+            vec!["observed-word.csv", "line 3"],
         ),
         (
-            deform(&["--surface", &sag, "--observed", &d("observed-far.txt")]),
+            deform(&["--surface", &sag, "--observed", &d("observed-far.csv")]),
             vec![
-                "observed-far.txt",
-                "vertex 99999",
-                "not on the model's surface",
+                "observed-far.csv",
+                "point 1",
+                "nearest vertex of the model's rest surface",
             ],
         ),
         (
-            deform(&["--surface", &sag, "--observed", &d("observed-few.txt")]),
+            deform(&["--surface", &sag, "--observed", &d("observed-few.csv")]),
             vec!["no surface particle is observed", "3 of the surface's"],
         ),
         (
-            deform(&["--surface", &sag, "--observed", "/no/such/observed.txt"]),
-            vec!["/no/such/observed.txt"],
-        ),
-        (
-            deform(&[
-                "--surface",
-                &sag,
-                "--structure",
-                &tumour,
-                "--structure",
-                &tumour,
-            ]),
-            vec!["phantom-tumour.obj", "different file names"],
+            deform(&["--surface", &sag, "--observed", "/no/such/observed.csv"]),
+            vec!["/no/such/observed.csv"],
         ),
         (
             deform(&["--surface", "/no/such/skin.obj"]),
