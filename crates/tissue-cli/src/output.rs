@@ -33,6 +33,15 @@ pub struct PointsReport {
     pub outside: crate::carry::Outside,
 }
 
+/// The observed part of the surface (`--observed`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ObservedReport {
+    /// Observed vertices.
+    pub vertices: usize,
+    /// Vertices of the surface.
+    pub of: usize,
+}
+
 /// The JSON report of one solve (`report.json`).
 #[derive(Debug, Clone, Serialize)]
 pub struct SolveReport {
@@ -46,6 +55,10 @@ pub struct SolveReport {
     pub backend: String,
     /// The stage-2 parameters used.
     pub params: DeformParams,
+    /// With `--observed`: how many of the surface's vertices were observed
+    /// (the mask itself is not written).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub observed: Option<ObservedReport>,
     /// Iterations run.
     pub iterations: usize,
     /// The error estimate at the end, as a fraction of the model's size.
@@ -427,6 +440,10 @@ pub fn write_solution(
         particles: model.len(),
         backend: solver.backend(),
         params: params.clone(),
+        observed: params.observed.as_ref().map(|mask| ObservedReport {
+            vertices: mask.iter().filter(|&&o| o).count(),
+            of: mask.len(),
+        }),
         iterations: solve.iterations,
         residual: solve.residual,
         seconds: solve.seconds,

@@ -138,9 +138,11 @@ pub struct DeformArgs {
 }
 
 /// Reads a model and prepares stage 2 on it on `device`.
+/// With `observed`, `params` gains its mask (the report says how much of
+/// the surface it observes).
 pub fn load_model(
     path: &Path,
-    mut params: DeformParams,
+    params: &mut DeformParams,
     observed: Option<&Path>,
     device: Device,
 ) -> Result<(ParticleModel, Solver)> {
@@ -158,7 +160,7 @@ pub fn load_model(
     if let Some(file) = observed {
         params.observed = Some(read_observed(file, &model.surface)?);
     }
-    let solver = Solver::new(device, &model, params)
+    let solver = Solver::new(device, &model, params.clone())
         .with_context(|| format!("{}: cannot deform this model", path.display()))?;
     Ok((model, solver))
 }
@@ -353,11 +355,11 @@ fn field_request<'a>(
 
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
-    let params = args.solve.params(Frames::One)?;
+    let mut params = args.solve.params(Frames::One)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(
         &args.model,
-        params.clone(),
+        &mut params,
         args.solve.observed.as_deref(),
         device,
     )?;

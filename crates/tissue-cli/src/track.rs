@@ -300,7 +300,7 @@ fn totals(done: &[Value], planned: usize, status: Status, started: Instant) -> T
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
-    let params = DeformParams {
+    let mut params = DeformParams {
         history: args.history,
         ..args.solve.params(Frames::Sequence)?
     };
@@ -309,7 +309,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let (model, mut solver) = load_model(
         &args.model,
-        params.clone(),
+        &mut params,
         args.solve.observed.as_deref(),
         device,
     )?;

@@ -499,6 +499,14 @@ fn deform_takes_the_observed_skin_by_position() {
     let lower_path = dir.path().join("lower.csv");
     tissue::save_points(&lower, &lower_path).unwrap();
     let half = deform("half", Some(&lower_path));
+    let report = json(&dir.path().join("half/report.json"));
+    assert_eq!(report["observed"]["vertices"], lower.len());
+    assert_eq!(report["observed"]["of"], model.surface.vertices.len());
+    assert!(
+        json(&dir.path().join("all/report.json"))
+            .get("observed")
+            .is_none()
+    );
     let moved = all
         .iter()
         .zip(&half)
