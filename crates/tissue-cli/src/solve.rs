@@ -268,6 +268,28 @@ pub fn read_frame(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
             t.swap(1, 2);
         }
     }
+    // Another tool may have written the same mesh in its own vertex order
+    // (an OBJ file's vertices are renumbered by first use on reading, a
+    // PLY or VTK file's are not): the triangles, in the same order, say
+    // which vertex is which.
+    if deformed.triangles != rest.triangles {
+        let flipped = || {
+            let mut f = deformed.clone();
+            f.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+            f
+        };
+        let renumbered = deformed
+            .renumbered_like(rest)
+            .or_else(|| flipped().renumbered_like(rest));
+        if let Some(renumbered) = renumbered {
+            log::info!(
+                "{}: its vertices are numbered differently from the rest surface's; \
+                 matched them by the triangles",
+                path.display()
+            );
+            deformed = renumbered;
+        }
+    }
     tissue::deformation::check_same_topology(rest, &deformed).map_err(|err| {
         let hint = if stl && deformed.vertices.len() < rest.vertices.len() {
             " (an STL file stores no shared vertices, so vertices that touch in this frame \

@@ -518,6 +518,49 @@ fn deform_takes_the_observed_skin_by_position() {
     );
 }
 
+/// A deformed surface written by another tool in its own vertex order (the
+/// same triangles in the same order) is matched to the rest surface by its
+/// triangles: the same solve as the surface in the model's order.
+#[test]
+fn deform_matches_a_surface_written_in_another_vertex_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sagged = deform_surface(&model.surface, &Sag::default());
+    let n = sagged.vertices.len() as u32;
+    // Vertex i goes to place n - 1 - i.
+    let place = |i: u32| n - 1 - i;
+    let mut vertices = vec![Vec3::ZERO; n as usize];
+    for (i, &v) in sagged.vertices.iter().enumerate() {
+        vertices[place(i as u32) as usize] = v;
+    }
+    let triangles = sagged.triangles.iter().map(|t| t.map(place)).collect();
+    let shuffled = SurfaceMesh::new(vertices, triangles);
+    let (ordered_path, shuffled_path) =
+        (dir.path().join("sag.ply"), dir.path().join("shuffled.ply"));
+    tissue::save_surface(&sagged, &ordered_path).unwrap();
+    tissue::save_surface(&shuffled, &shuffled_path).unwrap();
+    let deform = |surface: &Path, name: &str| -> Vec<Vec3> {
+        let out_dir = dir.path().join(name);
+        let out = tissue(&[
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(surface),
+            "--output-dir",
+            s(&out_dir),
+            "--quiet",
+        ]);
+        assert!(out.status.success(), "{name}: {}", text(&out));
+        let vtp = std::fs::read_to_string(out_dir.join("particles.vtp")).unwrap();
+        triples(&vtp_array(&vtp, "Points"))
+    };
+    assert_eq!(
+        deform(&ordered_path, "ordered"),
+        deform(&shuffled_path, "shuffled")
+    );
+}
+
 #[test]
 fn bad_stage2_input_fails_with_a_message_and_no_panic() {
     let dir = tempfile::tempdir().unwrap();

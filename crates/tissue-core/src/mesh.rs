@@ -66,4 +66,88 @@ impl SurfaceMesh {
         let [a, b, c] = self.corners(t);
         a * bary[0] + b * bary[1] + c * bary[2]
     }
+
+    /// `self` with its vertices renumbered as `rest`'s, where the two have
+    /// the same triangles in the same order up to a renumbering of the
+    /// vertices (what another tool writing the same mesh in its own vertex
+    /// order gives): the vertex at corner `k` of triangle `t` here goes
+    /// where `rest` has corner `k` of triangle `t`. `None` where no single
+    /// renumbering does it (other triangles, or a vertex that would go to
+    /// two places), or the counts differ.
+    pub fn renumbered_like(&self, rest: &SurfaceMesh) -> Option<SurfaceMesh> {
+        if self.vertices.len() != rest.vertices.len()
+            || self.triangles.len() != rest.triangles.len()
+        {
+            return None;
+        }
+        const UNSET: u32 = u32::MAX;
+        let mut to_rest = vec![UNSET; self.vertices.len()];
+        let mut taken = vec![false; rest.vertices.len()];
+        for (mine, theirs) in self.triangles.iter().zip(&rest.triangles) {
+            for (&o, &r) in mine.iter().zip(theirs) {
+                let slot = to_rest.get_mut(o as usize)?;
+                if *slot == UNSET {
+                    if std::mem::replace(taken.get_mut(r as usize)?, true) {
+                        return None;
+                    }
+                    *slot = r;
+                } else if *slot != r {
+                    return None;
+                }
+            }
+        }
+        if to_rest.contains(&UNSET) {
+            return None;
+        }
+        let mut vertices = vec![Vec3::ZERO; self.vertices.len()];
+        for (o, &r) in to_rest.iter().enumerate() {
+            vertices[r as usize] = self.vertices[o];
+        }
+        Some(SurfaceMesh::new(vertices, rest.triangles.clone()))
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+
+    fn octahedron() -> SurfaceMesh {
+        let (vertices, triangles) = tissue_testkit::octahedron();
+        SurfaceMesh::new(vertices, triangles)
+    }
+
+    #[test]
+    fn the_same_mesh_in_another_vertex_order_is_renumbered_back() {
+        let rest = octahedron();
+        // Vertex i of the rest mesh is vertex order[i] in the other file.
+        let order = [3u32, 5, 0, 4, 1, 2];
+        let mut vertices = vec![Vec3::ZERO; 6];
+        for (i, &o) in order.iter().enumerate() {
+            vertices[o as usize] = rest.vertices[i] + Vec3::X;
+        }
+        let triangles = rest
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| order[v as usize]))
+            .collect();
+        let other = SurfaceMesh::new(vertices, triangles);
+        let back = other.renumbered_like(&rest).unwrap();
+        assert_eq!(back.triangles, rest.triangles);
+        for (b, r) in back.vertices.iter().zip(&rest.vertices) {
+            assert_eq!(*b, *r + Vec3::X);
+        }
+    }
+
+    #[test]
+    fn other_triangles_are_not_renumbered() {
+        let rest = octahedron();
+        let mut other = rest.clone();
+        // Two triangles swapped: vertex 0 would have to go to two places.
+        other.triangles.swap(0, 5);
+        assert!(other.renumbered_like(&rest).is_none());
+        let mut fewer = rest.clone();
+        fewer.vertices.pop();
+        assert!(fewer.renumbered_like(&rest).is_none());
+    }
 }
