@@ -195,13 +195,7 @@ impl Consistency {
         connections: &Connections,
         i: usize,
     ) -> Mat3 {
-        let mut m = Mat3::ZERO;
-        for &j in connections.of(i) {
-            let e = current[j as usize] - current[i];
-            let u = self.multipliers[j as usize] - self.multipliers[i];
-            m += Mat3::from_cols(e * u.x, e * u.y, e * u.z);
-        }
-        m
+        crate::elastic::offsets_outer(current, &self.multipliers, connections, i)
     }
 
     /// `c_ij`, particle `i`'s gradient vector for its neighbour `j`.

@@ -390,11 +390,17 @@ pub fn offsets_product(
     connections: &Connections,
     i: usize,
 ) -> Mat3 {
+    offsets_outer(current, rest, connections, i)
+}
+
+/// `sum_j (a_j - a_i)(b_j - b_i)^T` over particle `i`'s connections: with
+/// the current and rest positions `M_i`, with the current positions and
+/// the multipliers `N_i` ([`Consistency::multipliers_product`]).
+pub fn offsets_outer(a: &[Vec3], b: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
     let mut m = Mat3::ZERO;
     for &j in connections.of(i) {
-        let d = rest[j as usize] - rest[i];
-        let c = current[j as usize] - current[i];
-        m += Mat3::from_cols(c * d.x, c * d.y, c * d.z);
+        let (u, v) = (a[j as usize] - a[i], b[j as usize] - b[i]);
+        m += Mat3::from_cols(u * v.x, u * v.y, u * v.z);
     }
     m
 }
