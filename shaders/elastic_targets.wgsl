@@ -1,7 +1,8 @@
 // Stage 2, the elastic model (`tissue_solve::elastic`): each particle's
 // terms of the force, then the force gathered over them (no atomics).
 // - `elastic_targets` (rotation by the SVD) and `elastic_targets_warm`
-//   (warm-started from the rotation of M_i): with M_i = Σ_j e_ij d_ijᵀ and
+//   (warm-started from the last iteration's), the elastic phase's
+//   rotations pass (no local_rotations there): with M_i = Σ_j e_ij d_ijᵀ and
 //   N_i = Σ_j e_ij (μ_j − μ_i)ᵀ, the consistent gradient
 //   F_i = M_i B_iᵀ + a_i N_i, R_i its polar rotation,
 //   Q_i = a_i (F_i − R_i) + W_i (J_i − 1) cof(F_i), the target
@@ -20,8 +21,9 @@
 @group(0) @binding(2) var<storage, read> current: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> offsets: array<u32>;
 @group(0) @binding(4) var<storage, read> indices: array<u32>;
-// Per particle the rotation of M_i (this iteration's).
-@group(0) @binding(5) var<storage, read> rotations: array<Rotation>;
+// Per particle its rotation: the last iteration's in (the warm start),
+// this one's out (of F_i, or of M_i where flat).
+@group(0) @binding(5) var<storage, read_write> rotations: array<Rotation>;
 @group(0) @binding(6) var<storage, read> elastic_particles: array<ElasticParticle>;
 @group(0) @binding(7) var<storage, read_write> elastic_terms: array<ElasticTerms>;
 @group(0) @binding(8) var<storage, read_write> force: array<vec4<f32>>;
@@ -48,27 +50,32 @@ fn products(i: u32) -> Products {
     return Products(m, n);
 }
 
-// Particle i's terms with its rotation found by `warm` (the warm polar
-// update from the rotation of M_i) or the SVD.
+// Particle i's rotation and terms, the rotation found by `warm` (the warm
+// polar update from the last iteration's) or the SVD.
 fn terms_of(i: u32, warm: bool) {
     let particle = elastic_particles[i];
     let a = particle.correction.x_axis.w;
     let zero = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
-    if (a == 0.0) {
-        elastic_terms[i] = ElasticTerms(rotations[i], stored(zero));
-        return;
-    }
-    let w = particle.inverse.x_axis.w;
-    let inverse = matrix_of(particle.inverse);
-    let correction = matrix_of(particle.correction);
     let p = products(i);
-    let f = p.offsets * transpose(correction) + a * p.multipliers;
+    let correction = matrix_of(particle.correction);
+    // A flat neighbourhood (a = 0) has no gradient: the rotation of M_i.
+    var f = p.offsets;
+    if (a != 0.0) {
+        f = p.offsets * transpose(correction) + a * p.multipliers;
+    }
     var r: mat3x3<f32>;
     if (warm) {
         r = warm_rotation(f, matrix_of(rotations[i]));
     } else {
         r = rotation_of(f);
     }
+    rotations[i] = stored(r);
+    if (a == 0.0) {
+        elastic_terms[i] = ElasticTerms(stored(r), stored(zero));
+        return;
+    }
+    let w = particle.inverse.x_axis.w;
+    let inverse = matrix_of(particle.inverse);
     // cof(F) = det(F) F⁻ᵀ: its columns are cross products of F's.
     let cofactor = mat3x3<f32>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
     // det F = F_x · (F_y × F_z), glam's order.

@@ -261,7 +261,7 @@ fn the_force_vanishes_under_rigid_motion_for_both_models() {
     let elastic = Elastic::new(&model.positions, &model.connections, 0.49, &free);
     let elastic_force_at = |q: &[Vec3]| {
         let rotations = local_rotations(&model.positions, q, &model.connections);
-        let terms = elastic_terms(
+        let (terms, _) = elastic_terms(
             &model.positions,
             q,
             &model.connections,
@@ -385,7 +385,7 @@ fn the_elastic_force_is_the_energy_gradient() {
     let free: Vec<bool> = (0..model.len()).map(|i| !model.is_surface(i)).collect();
     let elastic = Elastic::new(rest, &model.connections, 0.45, &free);
     let rotations = local_rotations(rest, &current, &model.connections);
-    let terms = elastic_terms(
+    let (terms, _) = elastic_terms(
         rest,
         &current,
         &model.connections,

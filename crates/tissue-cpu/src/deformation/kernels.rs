@@ -57,10 +57,11 @@ pub fn local_rotations_warm(
         .collect()
 }
 
-/// Per particle, the elastic model's terms ([`Elastic::terms`]) with its
-/// rotation: the polar rotation of its gradient `F_i` by `method` (warm
-/// polar from the rotation of `M_i` in `rotations`), or of `M_i` itself
-/// (`rotations`) for a flat neighbourhood.
+/// Per particle, the elastic model's terms ([`Elastic::terms`]) and its
+/// rotation: the polar rotation of its gradient `F_i`, or of `M_i` for a
+/// flat neighbourhood, by `method` (warm polar from `rotations`, the last
+/// iteration's). The elastic phase's rotations pass: the rotations of the
+/// `M_i` alone are not needed in it.
 pub fn elastic_terms(
     rest: &[Vec3],
     current: &[Vec3],
@@ -68,7 +69,7 @@ pub fn elastic_terms(
     rotations: &[Mat3],
     elastic: &Elastic,
     method: RotationMethod,
-) -> Vec<ElasticTerms> {
+) -> (Vec<ElasticTerms>, Vec<Mat3>) {
     (0..rest.len())
         .into_par_iter()
         .map(|i| {
@@ -76,18 +77,18 @@ pub fn elastic_terms(
             let n = elastic
                 .consistency
                 .multipliers_product(current, connections, i);
-            let rotation = if elastic.is_flat(i) {
-                rotations[i]
+            let of = if elastic.is_flat(i) {
+                m
             } else {
-                let f = elastic.gradient(i, m, n);
-                match method {
-                    RotationMethod::Svd => rotation_of(f),
-                    RotationMethod::WarmPolar => warm_rotation(f, rotations[i]),
-                }
+                elastic.gradient(i, m, n)
             };
-            elastic.terms(i, m, n, rotation)
+            let rotation = match method {
+                RotationMethod::Svd => rotation_of(of),
+                RotationMethod::WarmPolar => warm_rotation(of, rotations[i]),
+            };
+            (elastic.terms(i, m, n, rotation), rotation)
         })
-        .collect()
+        .unzip()
 }
 
 /// The elastic force on every particle ([`Elastic::force_on`]), gathered

@@ -272,29 +272,40 @@ impl CpuSolve {
     }
 
     fn iterate_with(&mut self, it: Iteration, omega: f32, laps: &mut Laps<'_>) -> (f32, f32) {
-        self.rotations = match it.rotations {
-            RotationMethod::Svd => local_rotations(&self.rest, &self.current, &self.connections),
-            RotationMethod::WarmPolar => local_rotations_warm(
-                &self.rest,
-                &self.current,
-                &self.connections,
-                &self.rotations,
-            ),
-        };
         let elastic = self
             .elastic
             .as_deref()
             .filter(|_| it.force == ForceModel::Elastic);
-        let terms = elastic.map(|elastic| {
-            elastic_terms(
-                &self.rest,
-                &self.current,
-                &self.connections,
-                &self.rotations,
-                elastic,
-                it.rotations,
-            )
-        });
+        // The elastic phase finds each particle's rotation with its terms
+        // (of its gradient); the other forces, of `M_i`.
+        let terms = match elastic {
+            Some(elastic) => {
+                let (terms, rotations) = elastic_terms(
+                    &self.rest,
+                    &self.current,
+                    &self.connections,
+                    &self.rotations,
+                    elastic,
+                    it.rotations,
+                );
+                self.rotations = rotations;
+                Some(terms)
+            }
+            None => {
+                self.rotations = match it.rotations {
+                    RotationMethod::Svd => {
+                        local_rotations(&self.rest, &self.current, &self.connections)
+                    }
+                    RotationMethod::WarmPolar => local_rotations_warm(
+                        &self.rest,
+                        &self.current,
+                        &self.connections,
+                        &self.rotations,
+                    ),
+                };
+                None
+            }
+        };
         laps.lap(Pass::Rotations);
         let force = match (elastic, &terms) {
             (Some(elastic), Some(terms)) => {
