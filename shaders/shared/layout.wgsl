@@ -8,8 +8,8 @@ const WORKGROUP_SIZE: u32 = 64u;
 struct Params {
     // Number of particles.
     count: u32,
-    // Force model: 0 the paper's, 1 symmetric, 2 elastic (the symmetric
-    // sum over the targets, which the host binds as the force's rotations).
+    // Force model: 0 the paper's, 1 symmetric, 2 elastic (whose iterations
+    // run elastic_targets.wgsl's kernels; the model sets c in c alpha).
     model: u32,
     // Step alpha = sigma / m.
     alpha: f32,

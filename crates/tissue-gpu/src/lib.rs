@@ -121,8 +121,8 @@ impl From<wgpu::Error> for GpuError {
 pub struct Params {
     /// Number of particles.
     pub count: u32,
-    /// Force model: 0 the paper's, 1 symmetric, 2 elastic (the symmetric
-    /// sum over the targets, bound as the force kernel's rotations).
+    /// Force model: 0 the paper's, 1 symmetric, 2 elastic (whose
+    /// iterations run `elastic_targets.wgsl`'s kernels).
     pub model: u32,
     /// Step `alpha = sigma / m`.
     pub alpha: f32,

@@ -661,8 +661,8 @@ impl DeformState {
         self.current.write_points(queue, 0, positions)
     }
 
-    /// Overwrites every rotation (tests of the force kernel, whose elastic
-    /// force reads the targets instead, and of the targets kernel).
+    /// Overwrites every rotation (tests of the force kernel, and of the
+    /// elastic terms' kernels, which start from them).
     pub fn write_rotations(&self, queue: &wgpu::Queue, rotations: &[Mat3]) -> Result<(), GpuError> {
         self.check_len("rotations", rotations.len())?;
         let data: Vec<Rotation> = rotations.iter().map(|&r| Rotation::from(r)).collect();

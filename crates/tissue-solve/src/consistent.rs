@@ -219,8 +219,9 @@ fn conjugate_gradients(
     b: Vec<DVec3>,
     target: f64,
 ) -> (Vec<DVec3>, f64, usize) {
-    let dot =
-        |a: &[DVec3], b: &[DVec3]| -> f64 { a.par_iter().zip(b).map(|(x, y)| x.dot(*y)).sum() };
+    let dot = |a: &[DVec3], b: &[DVec3]| -> f64 { a.iter().zip(b).map(|(x, y)| x.dot(*y)).sum() };
+    // (The dot products in order: rayon's sums split by work stealing, and
+    // the CPU path's results are the same for any thread count.)
     let precondition = |r: &[DVec3]| -> Vec<DVec3> {
         r.par_iter()
             .zip(diagonal)

@@ -125,8 +125,7 @@ pub fn deformation_force(
                 let c = current[j] - current[i];
                 f += match model {
                     ForceModel::Paper => rotations[i] * d - c,
-                    // The elastic force gathers more ([`elastic_force`]);
-                    // given it, this is its pair term with its targets.
+                    // (The elastic force is gathered by [`elastic_force`].)
                     ForceModel::Symmetric | ForceModel::Elastic => {
                         (rotations[i] + rotations[j]) * d - 2.0 * c
                     }
