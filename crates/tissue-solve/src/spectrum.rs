@@ -98,7 +98,7 @@ pub fn lanczos_extremes(
 
 /// The `k`-th smallest eigenvalue of the symmetric tridiagonal matrix with
 /// diagonal `a` and off-diagonal `b`, by bisection on Sturm counts.
-fn tridiagonal_eigenvalue(a: &[f64], b: &[f64], k: usize) -> f64 {
+pub(crate) fn tridiagonal_eigenvalue(a: &[f64], b: &[f64], k: usize) -> f64 {
     // Gershgorin bounds.
     let mut lo = f64::MAX;
     let mut hi = f64::MIN;

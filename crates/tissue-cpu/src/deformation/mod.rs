@@ -338,13 +338,7 @@ impl CpuSolve {
             .zip(self.elastic_aggregates.as_deref())
             .filter(|_| it.correct && it.force == ForceModel::Elastic);
         if let Some((c, aggregates)) = elastic_coarse {
-            c.correct(
-                aggregates,
-                &self.rest,
-                &self.current,
-                &mut plain,
-                &self.connections,
-            );
+            c.correct(aggregates, &self.current, &mut plain, &self.connections);
         }
         laps.lap(Pass::Correction);
         // Deflated or two-level, the plain step no longer bounds the error of the
