@@ -100,7 +100,7 @@ impl Outside {
     /// `points` measured against `rest`'s field; `tolerance` in model units.
     fn of(field: &SurfaceField, points: &[Vec3], tolerance: f32) -> Self {
         points.iter().fold(Self::default(), |o, &p| {
-            let d = field.signed_distance(p).max(0.0);
+            let d = field.distance_outside(p);
             Self {
                 count: o.count + usize::from(d > tolerance),
                 max_mm: o.max_mm.max(d),

@@ -326,6 +326,17 @@ impl SurfaceField {
         self.nearest(p).distance
     }
 
+    /// How far `p` lies outside the surface, 0 inside: exact outside, and
+    /// no search for points deep inside (where [`Self::signed_distance`]
+    /// searches every triangle).
+    pub fn distance_outside(&self, p: Vec3) -> f32 {
+        match self.query(p) {
+            Side::DeepInside => 0.0,
+            Side::Near(n) => n.distance.max(0.0),
+            Side::DeepOutside => self.nearest_of_all(p).distance.max(0.0),
+        }
+    }
+
     /// True when `p` is strictly inside.
     pub fn is_inside(&self, p: Vec3) -> bool {
         match self.query(p) {
@@ -641,6 +652,21 @@ mod tests {
             let on = mesh.point_on(n.triangle as usize, n.barycentric);
             assert!((on - n.point).length() < 1e-5);
         }
+    }
+
+    /// The distance outside is the signed distance where it is positive and
+    /// 0 everywhere inside, deep or near.
+    #[test]
+    fn the_distance_outside_is_the_positive_part_of_the_signed_distance() {
+        let mesh = octahedron();
+        let field = SurfaceField::new(&mesh, 0.13, 0.02).unwrap();
+        let mut outside = 0;
+        for p in points(5000, 1.6) {
+            let (fast, exact) = (field.distance_outside(p), field.signed_distance(p).max(0.0));
+            assert!((fast - exact).abs() <= 1e-6, "{p}: {fast} vs {exact}");
+            outside += usize::from(fast > 0.0);
+        }
+        assert!(outside > 1000, "{outside} points outside");
     }
 
     #[test]

@@ -11,6 +11,9 @@ use std::io::{self, Write};
 use std::path::Path;
 
 use glam::Vec3;
+use parry3d::query::PointQuery;
+use parry3d::shape::{TriMesh, TriMeshFlags};
+use rayon::prelude::*;
 
 use super::vtp::{
     count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
@@ -151,23 +154,30 @@ fn placement(model: &ParticleModel) -> Result<(), String> {
     if free.is_empty() {
         return Ok(());
     }
-    let diagonal = model
-        .surface
-        .bounds()
-        .map_or(1.0, |(lo, hi)| (hi - lo).length())
-        .max(f32::MIN_POSITIVE);
-    let cell = (diagonal / 64.0).max(tolerance);
-    let field = crate::field::SurfaceField::new(&model.surface, cell, 2.0 * cell)
-        .map_err(|e| format!("the model's rest surface: {e}"))?;
-    for i in free {
+    // A point query against the surface's bounding-volume tree per particle:
+    // a distance field over the whole surface would cost more to build than
+    // the check takes (0.4 s at 10,000 particles on the phantom).
+    let mesh = TriMesh::with_flags(
+        model.surface.vertices.clone(),
+        model.surface.triangles.clone(),
+        TriMeshFlags::ORIENTED,
+    )
+    .map_err(|e| format!("the model's rest surface: {e}"))?;
+    let outside = free.par_iter().find_map_first(|&i| {
         let p = model.positions[i];
-        let outside = field.signed_distance(p);
-        if outside > tolerance {
-            return Err(format!(
-                "particle {i} at {p} is {outside} outside the model's rest surface \
-                 (more than half a particle spacing, {tolerance}): the model was edited or damaged"
-            ));
-        }
+        let projection = mesh.project_local_point(p, false);
+        let off = if projection.is_inside {
+            0.0
+        } else {
+            p.distance(projection.point)
+        };
+        (off > tolerance).then_some((i, p, off))
+    });
+    if let Some((i, p, outside)) = outside {
+        return Err(format!(
+            "particle {i} at {p} is {outside} outside the model's rest surface \
+             (more than half a particle spacing, {tolerance}): the model was edited or damaged"
+        ));
     }
     Ok(())
 }
