@@ -73,8 +73,10 @@ impl fmt::Display for Backend {
     }
 }
 
-/// The chosen device: the CPU, or an opened GPU.
-#[derive(Debug)]
+/// The chosen device: the CPU, or an opened GPU. A clone shares the GPU
+/// (its device and queue are handles), for solvers made one after another
+/// on it.
+#[derive(Debug, Clone)]
 pub enum Device {
     /// The CPU path.
     Cpu,
