@@ -18,6 +18,7 @@ use std::collections::HashMap;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::solve::gravity::{Unloading, gravity_load, held_vertices, unloaded_shape};
+use tissue::advanced::solve::stiffness::{Postures, fit_stiffness};
 use tissue::deformation::{DeformParams, Deformer, ForceModel};
 use tissue::structures::Embedding;
 
@@ -57,9 +58,10 @@ fn rotations(rest: &[Vec3], current: &[Vec3], model: &tissue::ParticleModel) -> 
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let (model_path, dir, e_kpa) = match &args[..] {
-        [_, model, dir, e] => (model.clone(), dir.clone(), e.parse::<f32>().unwrap()),
-        _ => panic!("usage: gravity_cases MODEL.vtp CASE_DIR E_KPA"),
+    // The stiffness: given (kPa), or `fit` (from the skin, starting at 3 kPa).
+    let (model_path, dir, given) = match &args[..] {
+        [_, model, dir, e] => (model.clone(), dir.clone(), e.parse::<f32>().ok()),
+        _ => panic!("usage: gravity_cases MODEL.vtp CASE_DIR E_KPA|fit"),
     };
     let case = std::path::Path::new(&dir)
         .file_name()
@@ -82,7 +84,7 @@ fn main() {
     // The chest wall: the vertices that do not move between the postures.
     let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap();
     println!(
-        "{case}: {} of {} surface vertices held, E {e_kpa} kPa given by hand",
+        "{case}: {} of {} surface vertices held, E {given:?} kPa given by hand",
         held.iter().filter(|&&h| h).count(),
         held.len()
     );
@@ -99,7 +101,7 @@ fn main() {
     };
     let (g_rest, g_def) = (g("gravity_rest"), g("gravity_deformed"));
     let density = truth["program_may_use"]["density_kg_m3"].as_f64().unwrap() as f32;
-    let load = |g: Vec3| gravity_load(g, density, e_kpa, poisson, 1e-3).unwrap();
+    let per_kpa = |g: Vec3| gravity_load(g, density, 1.0, poisson, 1e-3).unwrap();
     let base = DeformParams {
         force: ForceModel::Elastic,
         poisson,
@@ -108,22 +110,69 @@ fn main() {
     let rest = model.positions.clone();
     let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
     let started = std::time::Instant::now();
-    let shape = unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |guess| {
+    // Loads `guess` with `body`: the chest wall held, the rest of the skin free.
+    let solve = |guess: &[Vec3], body: Vec3| {
         let m0 = tissue::ParticleModel {
             positions: guess.to_vec(),
             ..model.clone()
         };
         let params = DeformParams {
             observed: Some(held.clone()),
-            load: load(g_rest),
+            load: body,
             ..base.clone()
         };
         let mut d = Deformer::new(&m0, params)?;
         d.set_surface(&model.surface)?;
         let report = d.solve();
         Ok((d.positions().to_vec(), report))
-    })
-    .unwrap();
+    };
+    let (e_kpa, shape) = match given {
+        Some(e) => (
+            e,
+            unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |x| {
+                solve(x, per_kpa(g_rest) / e)
+            })
+            .unwrap(),
+        ),
+        None => {
+            // Where the observed deformed skin puts each free skin particle.
+            let targets: Vec<Option<Vec3>> = model
+                .attachments
+                .iter()
+                .map(|a| {
+                    a.filter(|a| {
+                        !model.surface.triangles[a.triangle as usize]
+                            .iter()
+                            .all(|&v| held[v as usize])
+                    })
+                    .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
+                })
+                .collect();
+            let postures = Postures {
+                rest: &rest,
+                surface: &surface,
+                targets: &targets,
+                rest_load_per_kpa: per_kpa(g_rest),
+                deformed_load_per_kpa: per_kpa(g_def),
+            };
+            let fit =
+                fit_stiffness(&postures, 3.0, (0.1, 100.0), Unloading::MILLIMETRES, solve).unwrap();
+            let truth_e = truth["source"]["material"]["E_kPa"].as_f64().unwrap();
+            println!(
+                "{case}: fitted E {:.3} kPa (true {truth_e} kPa, for checking: {:+.1} %), free skin {:.3} mm from the observed, trials {:?}, {:.1} s",
+                fit.stiffness_kpa,
+                100.0 * (f64::from(fit.stiffness_kpa) / truth_e - 1.0),
+                fit.residual,
+                fit.trials
+                    .iter()
+                    .map(|t| (t.stiffness_kpa, t.residual))
+                    .collect::<Vec<_>>(),
+                started.elapsed().as_secs_f64()
+            );
+            (fit.stiffness_kpa, fit.unloaded)
+        }
+    };
+    let load = |g: Vec3| per_kpa(g) / e_kpa;
     println!(
         "{case}: unloaded shape in {} rounds ({:?} iterations), loaded again {:.4} mm RMS from the rest surface particles ({:.4} mm over all), converged {}, {:.1} s",
         shape.rounds,

@@ -146,8 +146,36 @@ pub fn unloaded_shape(
     rest: &[Vec3],
     surface: &[bool],
     unloading: Unloading,
+    forward: impl FnMut(&[Vec3]) -> Result<(Vec<Vec3>, DeformReport), Error>,
+) -> Result<UnloadedShape, Error> {
+    unloaded_shape_from(rest, rest, surface, unloading, forward)
+}
+
+/// [`unloaded_shape`] from the guess `start` instead of the rest shape
+/// (the unloaded shape for a nearby stiffness, say).
+///
+/// # Errors
+///
+/// As [`unloaded_shape`]; and a `start` of other than one position per
+/// particle.
+pub fn unloaded_shape_from(
+    rest: &[Vec3],
+    start: &[Vec3],
+    surface: &[bool],
+    unloading: Unloading,
     mut forward: impl FnMut(&[Vec3]) -> Result<(Vec<Vec3>, DeformReport), Error>,
 ) -> Result<UnloadedShape, Error> {
+    if start.len() != rest.len() || surface.len() != rest.len() {
+        return Err(Error::Param(ParamError {
+            name: "unloaded shape",
+            value: format!(
+                "a start of {} positions and {} surface flags",
+                start.len(),
+                surface.len()
+            ),
+            expected: format!("{} of each", rest.len()),
+        }));
+    }
     let rms = |miss: &[Vec3], on: &dyn Fn(usize) -> bool| -> f32 {
         let (sum, count) = miss
             .iter()
@@ -162,7 +190,7 @@ pub fn unloaded_shape(
             (sum / count as f64).sqrt() as f32
         }
     };
-    let mut guess = rest.to_vec();
+    let mut guess = start.to_vec();
     let mut best: Option<UnloadedShape> = None;
     let mut reports = Vec::new();
     for round in 1..=unloading.max_rounds.max(1) {

@@ -41,6 +41,7 @@ pub mod report;
 pub mod resampling;
 pub mod sampling;
 pub mod spectrum;
+pub mod stiffness;
 pub mod structures;
 pub mod svd3;
 pub mod tracker;

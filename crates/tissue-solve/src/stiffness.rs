@@ -1,0 +1,318 @@
+//! The tissue's stiffness fitted from the skin (issue 16, item 3).
+//!
+//! Gravity's load is `rho g / (2 mu)`: for a given density the one unknown
+//! is the stiffness, and the skin the scanner sees in the second posture
+//! tells it. For a trial Young's modulus `E`: the unloaded shape from the
+//! rest posture ([`crate::gravity::unloaded_shape_from`]), then that shape
+//! loaded with the deformed posture's gravity, the held region fixed and
+//! the rest of the skin free; the fit's residual is the RMS distance of
+//! the free skin's particles from where the observed deformed skin puts
+//! them. `E` is searched in three moves:
+//!
+//! 1. a first trial `start` (raised until its solves converge: a load too
+//!    large for the model makes them diverge);
+//! 2. the small-strain estimate: the skin's move from the rest shape
+//!    scales as `1 / E`, so the least-squares scale `s` of the first
+//!    trial's move onto the observed one gives `E / s`;
+//! 3. two trials a factor [`BRACKET`] either side of it, and the vertex of
+//!    the parabola through the three squared residuals in `ln E`.
+//!
+//! The trial with the least residual wins. Each trial's unloaded shape
+//! starts from the best one so far, its displacement scaled by the ratio of
+//! the stiffnesses (again the small-strain law), which saves rounds. Every
+//! solve is the caller's closure, so the fit runs on any device.
+
+use glam::Vec3;
+use tissue_core::{Error, ParamError};
+
+use crate::gravity::{UnloadedShape, Unloading, unloaded_shape_from};
+use crate::report::DeformReport;
+
+/// The refinement's trials sit this factor either side of the estimate.
+pub const BRACKET: f32 = 0.8;
+
+/// Trials of the first move before the fit gives up on finding a
+/// stiffness whose solves converge (each doubles it).
+const RAISES: usize = 6;
+
+/// What the fit is given.
+#[derive(Debug, Clone, Copy)]
+pub struct Postures<'a> {
+    /// The particles in the rest posture (the model's positions).
+    pub rest: &'a [Vec3],
+    /// Whether each particle is on the surface.
+    pub surface: &'a [bool],
+    /// Per particle, where the observed deformed skin puts it, for the
+    /// free skin's particles (the residual's); `None` for the others.
+    pub targets: &'a [Option<Vec3>],
+    /// The rest posture's load for a stiffness of 1 kPa
+    /// ([`crate::gravity::gravity_load`]); a stiffness `E` gets this over `E`.
+    pub rest_load_per_kpa: Vec3,
+    /// The deformed posture's, likewise.
+    pub deformed_load_per_kpa: Vec3,
+}
+
+/// One trial stiffness.
+#[derive(Debug, Clone)]
+pub struct Trial {
+    /// Young's modulus, kPa.
+    pub stiffness_kpa: f32,
+    /// The free skin's RMS distance from the observed one (model units);
+    /// infinite where a solve did not converge.
+    pub residual: f32,
+}
+
+/// The fitted stiffness and what it rests on.
+#[derive(Debug, Clone)]
+pub struct StiffnessFit {
+    /// Young's modulus, kPa.
+    pub stiffness_kpa: f32,
+    /// Its residual (model units).
+    pub residual: f32,
+    /// The unloaded shape at that stiffness.
+    pub unloaded: UnloadedShape,
+    /// Every trial, in order.
+    pub trials: Vec<Trial>,
+}
+
+/// Fits the stiffness (module docs) within `bounds` (kPa), starting at
+/// `start`. `solve` loads positions with a load vector: the model with
+/// those positions, the held region observed where the rest surface puts
+/// it, the rest of the skin free.
+///
+/// # Errors
+///
+/// Bounds or a start that are not positive and ordered; no trial whose
+/// solves converge; what `solve` returns.
+pub fn fit_stiffness(
+    postures: &Postures,
+    start: f32,
+    bounds: (f32, f32),
+    unloading: Unloading,
+    mut solve: impl FnMut(&[Vec3], Vec3) -> Result<(Vec<Vec3>, DeformReport), Error>,
+) -> Result<StiffnessFit, Error> {
+    let (lo, hi) = bounds;
+    ParamError::check(
+        lo.is_finite() && lo > 0.0 && hi.is_finite() && hi > lo,
+        "stiffness bounds",
+        format!("{lo} to {hi}"),
+        "0 < low < high, in kPa",
+    )?;
+    ParamError::check(
+        (lo..=hi).contains(&start),
+        "stiffness start",
+        start,
+        format!("within {lo} to {hi} kPa"),
+    )?;
+    let mut trials: Vec<Trial> = Vec::new();
+    let mut best: Option<(Trial, UnloadedShape, Vec<Vec3>)> = None;
+    let mut run = |e: f32,
+                   trials: &mut Vec<Trial>,
+                   best: &mut Option<(Trial, UnloadedShape, Vec<Vec3>)>|
+     -> Result<f32, Error> {
+        let e = e.clamp(lo, hi);
+        if let Some(t) = trials.iter().find(|t| t.stiffness_kpa == e) {
+            return Ok(t.residual);
+        }
+        // Warm start: the best shape's displacement scaled by its stiffness
+        // over this one.
+        let start: Vec<Vec3> = match best {
+            Some((t, shape, _)) => {
+                let scale = t.stiffness_kpa / e;
+                postures
+                    .rest
+                    .iter()
+                    .zip(&shape.positions)
+                    .map(|(r, u)| *r + (*u - *r) * scale)
+                    .collect()
+            }
+            None => postures.rest.to_vec(),
+        };
+        let unloaded =
+            unloaded_shape_from(postures.rest, &start, postures.surface, unloading, |x| {
+                solve(x, postures.rest_load_per_kpa / e)
+            })?;
+        let (moved, report) = solve(&unloaded.positions, postures.deformed_load_per_kpa / e)?;
+        let residual = if unloaded.converged && report.converged {
+            skin_residual(postures, &moved)
+        } else {
+            f32::INFINITY
+        };
+        log::info!(
+            "stiffness {e:.3} kPa: unloaded in {} rounds, free skin {residual:.4} from the observed",
+            unloaded.rounds
+        );
+        let trial = Trial {
+            stiffness_kpa: e,
+            residual,
+        };
+        trials.push(trial.clone());
+        if residual.is_finite() && best.as_ref().is_none_or(|(b, ..)| residual < b.residual) {
+            *best = Some((trial, unloaded, moved));
+        }
+        Ok(residual)
+    };
+    // 1. A first trial whose solves converge.
+    let mut e0 = start;
+    for _ in 0..RAISES {
+        if run(e0, &mut trials, &mut best)?.is_finite() || e0 >= hi {
+            break;
+        }
+        e0 = (2.0 * e0).min(hi);
+    }
+    let Some((first, first_shape, moved)) = best.clone() else {
+        return Err(Error::Param(ParamError {
+            name: "stiffness",
+            value: format!("{start} to {e0} kPa"),
+            expected: "a stiffness whose solves converge (the posture's load is too large for \
+                       the model at every one tried)"
+                .into(),
+        }));
+    };
+    // 2. The small-strain estimate.
+    let (mut along, mut squared) = (0.0f64, 0.0f64);
+    for ((r, m), t) in postures.rest.iter().zip(&moved).zip(postures.targets) {
+        if let Some(t) = t {
+            let (d, y) = (*m - *r, *t - *r);
+            along += f64::from(d.dot(y));
+            squared += f64::from(d.length_squared());
+        }
+    }
+    let scale = (along / squared) as f32;
+    let estimate = if scale.is_finite() && scale > 0.0 {
+        first.stiffness_kpa / scale
+    } else {
+        first.stiffness_kpa
+    };
+    let centre = estimate.clamp(lo, hi);
+    let j1 = run(centre, &mut trials, &mut best)?;
+    // 3. The parabola through three trials in ln E.
+    let (below, above) = ((centre * BRACKET).max(lo), (centre / BRACKET).min(hi));
+    let j0 = run(below, &mut trials, &mut best)?;
+    let j2 = run(above, &mut trials, &mut best)?;
+    if let Some(vertex) = parabola_vertex(
+        [below.ln(), centre.ln(), above.ln()],
+        [j0 * j0, j1 * j1, j2 * j2],
+    ) {
+        let e = vertex.exp().clamp(below * BRACKET, above / BRACKET);
+        run(e, &mut trials, &mut best)?;
+    }
+    // The first trial converged, so `best` is at least that one.
+    let (trial, unloaded, _) = best.unwrap_or((first.clone(), first_shape, Vec::new()));
+    Ok(StiffnessFit {
+        stiffness_kpa: trial.stiffness_kpa,
+        residual: trial.residual,
+        unloaded,
+        trials,
+    })
+}
+
+/// The RMS distance of the particles with a target from it.
+fn skin_residual(postures: &Postures, moved: &[Vec3]) -> f32 {
+    let (sum, count) = moved
+        .iter()
+        .zip(postures.targets)
+        .filter_map(|(m, t)| t.map(|t| f64::from(m.distance_squared(t))))
+        .fold((0.0f64, 0usize), |(s, n), d| (s + d, n + 1));
+    if count == 0 {
+        0.0
+    } else {
+        (sum / count as f64).sqrt() as f32
+    }
+}
+
+/// The abscissa of the vertex of the parabola through three points, if it
+/// opens upwards and all three are finite.
+fn parabola_vertex(x: [f32; 3], y: [f32; 3]) -> Option<f32> {
+    if !y.iter().chain(&x).all(|v| v.is_finite()) {
+        return None;
+    }
+    let (d0, d1) = ((y[1] - y[0]) / (x[1] - x[0]), (y[2] - y[1]) / (x[2] - x[1]));
+    let curvature = (d1 - d0) / (x[2] - x[0]);
+    if curvature.is_nan() || curvature <= 0.0 {
+        return None;
+    }
+    // y' = d0 + curvature (2 x - x0 - x1) = 0.
+    Some(0.5 * (x[0] + x[1] - d0 / curvature))
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_parabola_vertex_is_found_where_it_opens_upwards() {
+        let f = |x: f32| 2.0 * (x - 0.3) * (x - 0.3) + 1.0;
+        let v = parabola_vertex([-1.0, 0.5, 2.0], [f(-1.0), f(0.5), f(2.0)]).unwrap();
+        assert!((v - 0.3).abs() < 1e-5, "{v}");
+        assert!(parabola_vertex([0.0, 1.0, 2.0], [0.0, 1.0, 0.0]).is_none());
+        assert!(parabola_vertex([0.0, 1.0, 2.0], [0.0, f32::INFINITY, 0.0]).is_none());
+    }
+
+    /// A linear stand-in for the solves: a body of springs whose move is
+    /// `load` over a compliance, so the skin's move scales as `1 / E`
+    /// exactly; the fit recovers the stiffness the targets were made with.
+    #[test]
+    fn the_fit_recovers_the_stiffness_of_a_linear_body() {
+        let n = 40;
+        let unloaded: Vec<Vec3> = (0..n)
+            .map(|i| Vec3::new((i % 5) as f32, (i / 5 % 4) as f32, (i / 20) as f32))
+            .collect();
+        let compliance = |p: Vec3| 1.0 + 0.3 * p.z;
+        // Load a shape: each point moves by its compliance times the load.
+        let load = |x: &[Vec3], k: Vec3| -> Vec<Vec3> {
+            x.iter().map(|&p| p + compliance(p) * k).collect()
+        };
+        let (g_rest, g_def) = (Vec3::new(0.0, 0.0, -0.5), Vec3::new(0.4, 0.0, 0.0));
+        let truth = 2.5f32;
+        let rest = load(&unloaded, g_rest / truth);
+        let observed = load(&unloaded, g_def / truth);
+        let surface: Vec<bool> = (0..n).map(|i| i % 3 == 0).collect();
+        let targets: Vec<Option<Vec3>> =
+            (0..n).map(|i| surface[i].then_some(observed[i])).collect();
+        let postures = Postures {
+            rest: &rest,
+            surface: &surface,
+            targets: &targets,
+            rest_load_per_kpa: g_rest,
+            deformed_load_per_kpa: g_def,
+        };
+        let unloading = Unloading {
+            tolerance: 1e-5,
+            max_rounds: 30,
+        };
+        let ok = |converged: bool| DeformReport {
+            iterations: 1,
+            residual: 0.0,
+            residual_history: Vec::new(),
+            converged,
+            stopped_by: crate::report::StopReason::Tolerance,
+            seconds: 0.0,
+            elastic_retries: 0,
+        };
+        let fit = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k| {
+            Ok((load(x, k), ok(true)))
+        })
+        .unwrap();
+        assert!(
+            (fit.stiffness_kpa - truth).abs() <= 0.05 * truth,
+            "{} kPa against {truth}: {:?}",
+            fit.stiffness_kpa,
+            fit.trials
+        );
+        assert!(fit.trials.len() <= 5, "{:?}", fit.trials);
+        // Solves that never converge: refused, naming the stiffness.
+        let failed = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k| {
+            Ok((load(x, k), ok(false)))
+        });
+        assert!(failed.is_err());
+        assert!(
+            fit_stiffness(&postures, 0.05, (0.1, 100.0), unloading, |x, k| Ok((
+                load(x, k),
+                ok(true)
+            )))
+            .is_err()
+        );
+    }
+}
