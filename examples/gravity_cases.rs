@@ -18,7 +18,7 @@ use std::collections::HashMap;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::solve::gravity::{Unloading, gravity_load, held_vertices, unloaded_shape};
-use tissue::advanced::solve::stiffness::{Postures, fit_stiffness};
+use tissue::advanced::solve::stiffness::{Postures, fit_stiffness, free_skin_targets};
 use tissue::deformation::{DeformParams, Deformer, ForceModel};
 use tissue::structures::Embedding;
 
@@ -136,18 +136,7 @@ fn main() {
         ),
         None => {
             // Where the observed deformed skin puts each free skin particle.
-            let targets: Vec<Option<Vec3>> = model
-                .attachments
-                .iter()
-                .map(|a| {
-                    a.filter(|a| {
-                        !model.surface.triangles[a.triangle as usize]
-                            .iter()
-                            .all(|&v| held[v as usize])
-                    })
-                    .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
-                })
-                .collect();
+            let targets = free_skin_targets(&model, &deformed, &held);
             let postures = Postures {
                 rest: &rest,
                 surface: &surface,

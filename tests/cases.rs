@@ -114,7 +114,7 @@ fn the_elastic_force_beats_linear_fem_on_both_breast_phantoms() {
 #[test]
 fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
     use tissue::advanced::solve::gravity::{Unloading, gravity_load, held_vertices};
-    use tissue::advanced::solve::stiffness::{Postures, fit_stiffness};
+    use tissue::advanced::solve::stiffness::{Postures, fit_stiffness, free_skin_targets};
     use tissue::advanced::solve::{elastic::offsets_product, svd3::rotation_of};
     for name in ["breast_c", "breast_d"] {
         let Some(case) = common::shared_case(name) else {
@@ -142,18 +142,7 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
         let per_kpa = |g: Vec3| gravity_load(g, density, 1.0, base.poisson, 1e-3).unwrap();
         let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap();
         let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
-        let targets: Vec<Option<Vec3>> = model
-            .attachments
-            .iter()
-            .map(|a| {
-                a.filter(|a| {
-                    !model.surface.triangles[a.triangle as usize]
-                        .iter()
-                        .all(|&v| held[v as usize])
-                })
-                .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
-            })
-            .collect();
+        let targets = free_skin_targets(&model, &deformed, &held);
         let solve = |x: &[Vec3], body: Vec3| {
             let guess = tissue::ParticleModel {
                 positions: x.to_vec(),

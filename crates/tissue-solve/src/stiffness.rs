@@ -23,7 +23,7 @@
 //! solve is the caller's closure, so the fit runs on any device.
 
 use glam::Vec3;
-use tissue_core::{Error, ParamError};
+use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::gravity::{UnloadedShape, Unloading, unloaded_shape_from};
 use crate::report::DeformReport;
@@ -207,6 +207,29 @@ pub fn fit_stiffness(
     })
 }
 
+/// [`Postures::targets`] for `model`: each surface particle on a triangle
+/// not wholly `held` (a flag per surface vertex) gets where `deformed` (the
+/// rest surface with moved vertices) puts its attachment; the others
+/// `None`.
+pub fn free_skin_targets(
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+    held: &[bool],
+) -> Vec<Option<Vec3>> {
+    model
+        .attachments
+        .iter()
+        .map(|a| {
+            a.filter(|a| {
+                !model.surface.triangles[a.triangle as usize]
+                    .iter()
+                    .all(|&v| held.get(v as usize).copied().unwrap_or(false))
+            })
+            .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
+        })
+        .collect()
+}
+
 /// The RMS distance of the particles with a target from it.
 fn skin_residual(postures: &Postures, moved: &[Vec3]) -> f32 {
     let (sum, count) = moved
@@ -240,6 +263,37 @@ fn parabola_vertex(x: [f32; 3], y: [f32; 3]) -> Option<f32> {
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
+
+    /// Particles on a held triangle, and interior ones, get no target; one on
+    /// a free triangle gets its place on the deformed surface.
+    #[test]
+    fn only_the_free_skin_gets_targets() {
+        use tissue_core::{Attachment, Connections};
+        let surface = SurfaceMesh::new(
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        );
+        let on = |triangle| {
+            Some(Attachment {
+                triangle,
+                barycentric: [0.2, 0.3, 0.5],
+            })
+        };
+        let model = ParticleModel {
+            positions: vec![Vec3::splat(0.1), Vec3::splat(0.2), Vec3::splat(0.3)],
+            radii: vec![0.1; 3],
+            attachments: vec![on(0), on(1), None],
+            connections: Connections::from_pairs(3, [(0, 1), (1, 2)]),
+            surface: surface.clone(),
+        };
+        let mut deformed = surface;
+        deformed.vertices[3] = Vec3::new(0.0, 0.0, 2.0);
+        let targets = free_skin_targets(&model, &deformed, &[true, true, true, false]);
+        assert_eq!(targets[0], None, "its triangle is held");
+        assert_eq!(targets[2], None, "inside");
+        let want = 0.3 * Vec3::X + 0.5 * Vec3::new(0.0, 0.0, 2.0);
+        assert!(targets[1].unwrap().distance(want) < 1e-6, "{:?}", targets[1]);
+    }
 
     #[test]
     fn the_parabola_vertex_is_found_where_it_opens_upwards() {
