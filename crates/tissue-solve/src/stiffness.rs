@@ -292,7 +292,11 @@ mod tests {
         assert_eq!(targets[0], None, "its triangle is held");
         assert_eq!(targets[2], None, "inside");
         let want = 0.3 * Vec3::X + 0.5 * Vec3::new(0.0, 0.0, 2.0);
-        assert!(targets[1].unwrap().distance(want) < 1e-6, "{:?}", targets[1]);
+        assert!(
+            targets[1].unwrap().distance(want) < 1e-6,
+            "{:?}",
+            targets[1]
+        );
     }
 
     #[test]
