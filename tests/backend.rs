@@ -4,27 +4,13 @@
 //! `CI=true`.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
-use tissue::backend::{Backend, Device, Solver, sample_on};
-use tissue::deformation::DeformParams;
-use tissue::{Error, SamplingParams, Vec3, deform, phantom};
+mod common;
 
-/// The GPU device, or `None` after printing "SKIPPED" (a panic under `CI=true`).
-fn gpu() -> Option<Device> {
-    match Device::pick(Backend::Gpu) {
-        Ok(picked) => {
-            eprintln!("backend: {picked}");
-            Some(picked.device)
-        }
-        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
-            if std::env::var("CI").as_deref() == Ok("true") {
-                panic!("no GPU adapter under CI=true ({message}); install Mesa lavapipe");
-            }
-            eprintln!("SKIPPED: no GPU adapter ({message})");
-            None
-        }
-        Err(e) => panic!("the GPU backend failed: {e}"),
-    }
-}
+use common::gpu;
+
+use tissue::backend::{Device, Solver, sample_on};
+use tissue::deformation::DeformParams;
+use tissue::{SamplingParams, Vec3, deform, phantom};
 
 #[test]
 fn both_stages_on_the_gpu_match_the_cpu_through_the_library() {

@@ -3,6 +3,8 @@
 //! the exact answer of linear elasticity.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
+mod common;
+
 use std::sync::OnceLock;
 
 use glam::Vec3;
@@ -21,18 +23,6 @@ fn column() -> &'static ParticleModel {
     })
 }
 
-/// Only the base is observed (its vertices and the lowest ring of the
-/// side's, so that the particles on the rim's triangles are held too):
-/// the rest of the skin is free.
-fn base_only(model: &ParticleModel) -> Vec<bool> {
-    model
-        .surface
-        .vertices
-        .iter()
-        .map(|v| v.z < 0.1 + 1e-4)
-        .collect()
-}
-
 /// The column under `load` (the body force per unit stiffness weight,
 /// `rho g / (2 mu)`), the surface unmoved, only its base observed.
 fn hang(force: ForceModel, load: Vec3) -> Deformer {
@@ -40,7 +30,7 @@ fn hang(force: ForceModel, load: Vec3) -> Deformer {
     let params = DeformParams {
         force,
         poisson: 0.0,
-        observed: Some(base_only(model)),
+        observed: Some(common::column_base(model)),
         load,
         tolerance: 1e-6,
         ..DeformParams::default()
@@ -194,7 +184,7 @@ fn a_full_mask_and_a_zero_load_change_nothing() {
 fn the_mask_and_the_load_cannot_change_between_frames() {
     let model = column();
     let params = DeformParams {
-        observed: Some(base_only(model)),
+        observed: Some(common::column_base(model)),
         load: Vec3::new(0.0, 0.0, -0.001),
         ..DeformParams::default()
     };

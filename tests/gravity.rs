@@ -4,8 +4,10 @@
 //! CPU and on the GPU (lavapipe in CI) alike.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
+mod common;
+
 use tissue::advanced::solve::gravity::{Unloading, gravity_load, unloaded_shape};
-use tissue::backend::{Backend, Device, Solver};
+use tissue::backend::{Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{Error, ParticleModel, SamplingParams, SurfaceMesh, Vec3};
 
@@ -19,16 +21,6 @@ fn column(particles: usize) -> ParticleModel {
         .model
 }
 
-/// The base and the lowest ring of the side are held; the rest is free.
-fn held(model: &ParticleModel) -> Vec<bool> {
-    model
-        .surface
-        .vertices
-        .iter()
-        .map(|v| v.z < 0.1 + 1e-4)
-        .collect()
-}
-
 /// Tissue of 20 kPa, 1000 kg/m^3, Poisson ratio 0.45, the model in
 /// centimetres, standing with gravity along -z: the top sinks about 0.5 mm
 /// of the column's 40.
@@ -37,7 +29,7 @@ fn params(model: &ParticleModel) -> DeformParams {
     DeformParams {
         force: ForceModel::Elastic,
         poisson,
-        observed: Some(held(model)),
+        observed: Some(common::column_base(model)),
         load: gravity_load(Vec3::new(0.0, 0.0, -1.0), 1000.0, 20.0, poisson, 1e-2).unwrap(),
         ..DeformParams::default()
     }
@@ -134,17 +126,8 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
 /// The GPU finds the same unloaded shape in the same rounds.
 #[test]
 fn the_gpu_finds_the_same_unloaded_shape() {
-    let gpu = match Device::pick(Backend::Gpu) {
-        Ok(picked) => picked.device,
-        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "no GPU adapter under CI=true ({message}); install Mesa lavapipe"
-            );
-            eprintln!("SKIPPED: no GPU adapter ({message})");
-            return;
-        }
-        Err(e) => panic!("the GPU backend failed: {e}"),
+    let Some(gpu) = common::gpu() else {
+        return;
     };
     let model = column(1_000);
     let unloading = Unloading {
@@ -201,7 +184,7 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
         let params = DeformParams {
             force: ForceModel::Elastic,
             poisson,
-            observed: Some(held(&model)),
+            observed: Some(common::column_base(&model)),
             load: body,
             ..DeformParams::default()
         };
@@ -218,7 +201,7 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
         .fold(0.0f32, f32::max);
     assert!(tip > 0.05, "the lying column bends by {tip}");
     let surface = surface_flags(&model);
-    let held = held(&model);
+    let held = common::column_base(&model);
     let targets: Vec<Option<Vec3>> = (0..model.len())
         .map(|i| {
             model.attachments[i]
@@ -242,18 +225,8 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
         max_rounds: 8,
     };
     let mut fits = Vec::new();
-    let gpu = match Device::pick(Backend::Gpu) {
-        Ok(picked) => Some(picked.device),
-        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "no GPU adapter under CI=true ({message}); install Mesa lavapipe"
-            );
-            eprintln!("SKIPPED (the GPU half): no GPU adapter ({message})");
-            None
-        }
-        Err(e) => panic!("the GPU backend failed: {e}"),
-    };
+    // The GPU half needs an adapter (under `CI=true` it must have one).
+    let gpu = common::gpu();
     for device in std::iter::once(Device::Cpu).chain(gpu) {
         let fit = fit_stiffness(&postures, 20.0, (1.0, 1000.0), unloading, |x, body| {
             solve_on(&device, x, body)

@@ -3,7 +3,8 @@
 
 use std::path::PathBuf;
 
-use tissue::{ParticleModel, SamplingReport};
+use tissue::backend::{Backend, Device};
+use tissue::{Error, ParticleModel, SamplingReport};
 
 /// A mesh from `../shared/meshes/`, or `None` (printing why) when that folder
 /// is absent. Under `CI=true` its absence is a failure, not a skip.
@@ -104,4 +105,36 @@ pub fn assert_consistent(what: &str, model: &ParticleModel, spacing: f32) {
             assert!((sum - 1.0).abs() < 1e-4, "{what}: barycentric sum {sum}");
         }
     }
+}
+
+/// The GPU device, or `None` after printing "SKIPPED: no GPU adapter";
+/// under `CI=true` a missing adapter is a failure (CI installs lavapipe).
+pub fn gpu() -> Option<Device> {
+    match Device::pick(Backend::Gpu) {
+        Ok(picked) => {
+            eprintln!("backend: {picked}");
+            Some(picked.device)
+        }
+        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
+            assert!(
+                std::env::var("CI").as_deref() != Ok("true"),
+                "no GPU adapter under CI=true ({message}); install Mesa lavapipe"
+            );
+            eprintln!("SKIPPED: no GPU adapter ({message})");
+            None
+        }
+        Err(e) => panic!("the GPU backend failed: {e}"),
+    }
+}
+
+/// The held base of `tissue_testkit::cylinder()`'s column: its base's
+/// vertices and the lowest ring of the side's (so that the particles on
+/// the rim's triangles are held too), one flag per surface vertex.
+pub fn column_base(model: &ParticleModel) -> Vec<bool> {
+    model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z < 0.1 + 1e-4)
+        .collect()
 }

@@ -132,11 +132,17 @@ pub fn fit_stiffness(
             unloaded_shape_from(postures.rest, &start, postures.surface, unloading, |x| {
                 solve(x, postures.rest_load_per_kpa / e)
             })?;
-        let (moved, report) = solve(&unloaded.positions, postures.deformed_load_per_kpa / e)?;
-        let residual = if unloaded.converged && report.converged {
-            skin_residual(postures, &moved)
+        // No unloaded shape, no trial: the deformed posture is not solved.
+        let (moved, residual) = if unloaded.converged {
+            let (moved, report) = solve(&unloaded.positions, postures.deformed_load_per_kpa / e)?;
+            let residual = if report.converged {
+                skin_residual(postures, &moved)
+            } else {
+                f32::INFINITY
+            };
+            (moved, residual)
         } else {
-            f32::INFINITY
+            (Vec::new(), f32::INFINITY)
         };
         log::info!(
             "stiffness {e:.3} kPa: unloaded in {} rounds, free skin {residual:.4} from the observed",
