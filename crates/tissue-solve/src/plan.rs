@@ -18,6 +18,25 @@ use crate::spectrum::laplacian_extremes;
 /// unit mistake.
 pub const MAX_LOAD_SIZE: f32 = 10.0;
 
+/// Per particle, whether it is a control point under the observed-vertex
+/// mask `observed` (one flag per surface vertex; `None`: all observed): a
+/// surface particle whose triangle's three vertices are all observed. A
+/// mask shorter than the surface reads as unobserved past its end.
+pub fn control_points(model: &ParticleModel, observed: Option<&[bool]>) -> Vec<bool> {
+    let seen = |v: u32| observed.is_none_or(|mask| mask.get(v as usize).copied().unwrap_or(false));
+    model
+        .attachments
+        .iter()
+        .map(|a| {
+            a.is_some_and(|a| {
+                model.surface.triangles[a.triangle as usize]
+                    .iter()
+                    .all(|&v| seen(v))
+            })
+        })
+        .collect()
+}
+
 /// What a stage-2 solve needs to know about a model before it starts, the
 /// same for the CPU and the GPU path: which particles move, the spectrum
 /// that sets the step and the Chebyshev rate, the model's size and the
@@ -85,18 +104,7 @@ impl Plan {
             }
             .into());
         }
-        let seen = |v: u32| observed.is_none_or(|mask| mask[v as usize]);
-        let controls: Vec<bool> = model
-            .attachments
-            .iter()
-            .map(|a| {
-                a.is_some_and(|a| {
-                    model.surface.triangles[a.triangle as usize]
-                        .iter()
-                        .all(|&v| seen(v))
-                })
-            })
-            .collect();
+        let controls = control_points(model, observed);
         if !controls.contains(&true) {
             return Err(DeformError::NothingObserved {
                 observed: observed.map_or(vertices, |m| m.iter().filter(|&&o| o).count()),

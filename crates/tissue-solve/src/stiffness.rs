@@ -26,6 +26,7 @@ use glam::Vec3;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::gravity::{UnloadedShape, Unloading, unloaded_shape_from};
+use crate::plan::control_points;
 use crate::report::DeformReport;
 
 /// The refinement's trials sit this factor either side of the estimate.
@@ -222,16 +223,14 @@ pub fn free_skin_targets(
     deformed: &SurfaceMesh,
     held: &[bool],
 ) -> Vec<Option<Vec3>> {
+    let held_particles = control_points(model, Some(held));
     model
         .attachments
         .iter()
-        .map(|a| {
-            a.filter(|a| {
-                !model.surface.triangles[a.triangle as usize]
-                    .iter()
-                    .all(|&v| held.get(v as usize).copied().unwrap_or(false))
-            })
-            .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
+        .zip(held_particles)
+        .map(|(a, is_held)| {
+            a.filter(|_| !is_held)
+                .map(|a| deformed.point_on(a.triangle as usize, a.barycentric))
         })
         .collect()
 }
