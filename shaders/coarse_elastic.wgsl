@@ -10,7 +10,9 @@
 // - `elastic_step`, per particle: s_i, 0 outside the aggregates (w = 1 inside);
 // - `elastic_change`, per particle: sqrt(W_i) g_i . s, the uploaded
 //   `elastic_gradients` being sqrt(W_i) C_i and sqrt(W_i) S_i;
-// - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha);
+// - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha), or
+//   (K s)_j − r_j after the volume smoother (volume_smoother.wgsl), which
+//   leaves r_j in `elastic_residual` and s in `elastic_step`;
 // - `elastic_restrict`, per aggregate: the sum over its particles, three
 //   entries of `elastic_coarse`;
 // - `elastic_forward` and `elastic_backward`, one workgroup each: the
@@ -123,7 +125,10 @@ fn elastic_residual_of(
         k += (own.xyz - elastic_step[i].xyz)
             + 0.5 * ((h_i + h_j) * d + (n_i + n_j) * (mu - elastic_particles[i].multiplier.xyz));
     }
-    elastic_residual[j] = vec4<f32>(k - own.xyz / contraction, 0.0);
+    // After the volume smoother (volume_smoother.wgsl) K e' = K s − r, its
+    // `smoothed_step` having left r here; after the plain step r = s / (c alpha).
+    let r = select(own.xyz / contraction, elastic_residual[j].xyz, params.volume_delta > 0.0);
+    elastic_residual[j] = vec4<f32>(k - r, 0.0);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

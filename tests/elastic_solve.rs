@@ -1,7 +1,8 @@
 //! The elastic phase's two-level solve (issue 14): the elastic operator,
-//! linearised where the phase starts, corrected over aggregates. It must
-//! reach the uncorrected elastic solve's answer in far fewer iterations,
-//! from rest and in tracking frames.
+//! linearised where the phase starts, corrected over aggregates, smoothed
+//! with the volume term taken implicitly. It must reach the uncorrected
+//! elastic solve's answer in far fewer iterations, from rest and in
+//! tracking frames.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
 use tissue::deform::interpolate;
@@ -65,9 +66,9 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
         "{counts:?} vs {plain_counts:?}"
     );
     // Tracking frames of 1.6 % of the size: fewer than uncorrected, at most
-    // two thirds of them in all, and at most 14 a frame (11-13 measured,
-    // 20-27 uncorrected; issue 14 asks 10, which the symmetric force's
-    // frames meet and these do not yet).
+    // two thirds of them in all, and at most the 10 a frame issue 14 asks
+    // (2-4 measured with the volume smoother, 11-13 with the plain step's
+    // correction, 20-27 uncorrected).
     let (tracked, plain_tracked): (usize, usize) =
         (counts[1..].iter().sum(), plain_counts[1..].iter().sum());
     assert!(
@@ -75,6 +76,54 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
         "{counts:?} vs {plain_counts:?}"
     );
     for (&n, &m) in counts[1..].iter().zip(&plain_counts[1..]) {
-        assert!(n <= 14 && n < m, "{counts:?} vs {plain_counts:?}");
+        assert!(n <= 10 && n < m, "{counts:?} vs {plain_counts:?}");
     }
+}
+
+/// The volume smoother runs only where the elastic aggregates are small
+/// enough for it (cells of at most `SMOOTHER_MAX_CELL` spacings): a cap that
+/// grows the cells leaves the plain step in its place, and the solve still
+/// converges (with the smoother on coarse cells it would diverge).
+#[test]
+fn the_volume_smoother_needs_small_aggregates() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(3_000),
+    )
+    .unwrap()
+    .model;
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        ..DeformParams::default()
+    };
+    let sagged = tissue::deform::sagged_breast();
+    let smoothed = Deformer::new(&model, params.clone()).unwrap();
+    let (_, rho) = smoothed
+        .device()
+        .volume_smoother()
+        .unwrap_or_else(|| panic!("the default elastic solve smooths with the volume term"));
+    assert!(
+        rho > 0.5 && rho < tissue_cpu::coarse_elastic::SMOOTHER_MAX_RATE,
+        "{rho}"
+    );
+    // Few aggregates: cells grown past 2 spacings.
+    let coarse = DeformParams {
+        elastic_coarse_max_aggregates: 40,
+        ..params.clone()
+    };
+    let mut plain = Deformer::new(&model, coarse).unwrap();
+    assert!(plain.device().volume_smoother().is_none());
+    plain.set_surface(&sagged).unwrap();
+    let report = plain.solve();
+    assert!(report.converged, "{report:?}");
+    // Asked off, it is off.
+    let off = Deformer::new(
+        &model,
+        DeformParams {
+            volume_smoother: false,
+            ..params
+        },
+    )
+    .unwrap();
+    assert!(off.device().volume_smoother().is_none());
 }

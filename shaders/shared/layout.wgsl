@@ -23,6 +23,12 @@ struct Params {
     modes: u32,
     // Workgroups of a deflate_project dispatch (x times y): rows of `projections`.
     mode_groups: u32,
+    // The volume smoother's delta in a smoothed elastic iteration
+    // (volume_smoother.wgsl); 0 in every other, whose elastic correction
+    // takes the plain step's residual.
+    volume_delta: f32,
+    // The relaxation of its Jacobi sweeps on the pressures.
+    volume_relaxation: f32,
 }
 
 // A particle's rotation as three columns (no bare vec3 in storage).

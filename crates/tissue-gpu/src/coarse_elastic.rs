@@ -18,6 +18,9 @@ pub(crate) struct ElasticCoarseBuffers {
     pub(crate) aggregates: u32,
     /// Whether a linearisation (gradients and factor) is uploaded.
     pub(crate) linearised: bool,
+    /// The volume smoother's `delta`, where the uploaded linearisation has
+    /// one (its iterations are then `SMOOTHED_ELASTIC_ITERATION`s).
+    pub(crate) smoother: Option<f32>,
     aggregate: Storage<u32>,
     member_starts: Storage<u32>,
     members: Storage<u32>,
@@ -36,6 +39,11 @@ pub(crate) struct ElasticCoarseBuffers {
     column_starts: Storage<u32>,
     column_rows: Storage<u32>,
     column_values: Storage<f32>,
+    /// Per particle `(t_i, z_i, D_i, 0)`: the volume smoother's changes,
+    /// pressures and diagonal (`vec4`).
+    pressures: Storage<[f32; 4]>,
+    /// Per particle the pressures' force `(H z)_k` (`vec4`).
+    pressure_force: Storage<[f32; 4]>,
 }
 
 impl ElasticCoarseBuffers {
@@ -45,6 +53,7 @@ impl ElasticCoarseBuffers {
         Ok(Self {
             aggregates: 0,
             linearised: false,
+            smoother: None,
             aggregate: Storage::init(device, "elastic_aggregate", &[], &what("aggregate"))?,
             member_starts: Storage::init(device, "elastic_member_starts", &[], &what("starts"))?,
             members: Storage::init(device, "elastic_members", &[], &what("members"))?,
@@ -58,6 +67,8 @@ impl ElasticCoarseBuffers {
             column_starts: Storage::init(device, "elastic_column_starts", &[], &what("columns"))?,
             column_rows: Storage::init(device, "elastic_column_rows", &[], &what("columns"))?,
             column_values: Storage::init(device, "elastic_column_values", &[], &what("columns"))?,
+            pressures: Storage::init(device, "pressures", &[], &what("pressures"))?,
+            pressure_force: Storage::init(device, "pressure_force", &[], &what("pressure force"))?,
         })
     }
 
@@ -86,6 +97,8 @@ impl ElasticCoarseBuffers {
             buffers.step,
             buffers.change,
             buffers.residual,
+            buffers.pressures,
+            buffers.pressure_force,
         ) = scoped(device, || {
             Ok((
                 Storage::init(
@@ -104,6 +117,8 @@ impl ElasticCoarseBuffers {
                 Storage::zeroed(device, "elastic_step", particles, &what("step"))?,
                 Storage::zeroed(device, "elastic_change", particles, &what("change"))?,
                 Storage::zeroed(device, "elastic_residual", particles, &what("residual"))?,
+                Storage::zeroed(device, "pressures", particles, &what("pressures"))?,
+                Storage::zeroed(device, "pressure_force", particles, &what("pressure force"))?,
             ))
         })?;
         buffers.aggregates = u32::try_from(count).map_err(|_| GpuError::LimitExceeded {
@@ -177,12 +192,34 @@ impl ElasticCoarseBuffers {
                 )?,
             ))
         })?;
+        // The volume smoother's diagonal, where it smooths: the rest of
+        // each particle's entry is written by its kernels.
+        self.smoother = match coarse.smoother() {
+            Some(smoother) => {
+                let pressures: Vec<[f32; 4]> = smoother
+                    .diagonal()
+                    .iter()
+                    .map(|&d| [0.0, 0.0, d as f32, 0.0])
+                    .collect();
+                let particles = pressures.len();
+                self.pressures = scoped(device, || {
+                    Storage::init(
+                        device,
+                        "pressures",
+                        &pressures,
+                        &format!("the pressures buffer ({particles} particles)"),
+                    )
+                })?;
+                Some(smoother.delta() as f32)
+            }
+            None => None,
+        };
         self.linearised = true;
         Ok(())
     }
 
     /// The buffers by the names the shader gives them.
-    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 13] {
+    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 15] {
         [
             ("elastic_aggregate", self.aggregate.buffer()),
             ("elastic_member_starts", self.member_starts.buffer()),
@@ -197,6 +234,8 @@ impl ElasticCoarseBuffers {
             ("elastic_column_starts", self.column_starts.buffer()),
             ("elastic_column_rows", self.column_rows.buffer()),
             ("elastic_column_values", self.column_values.buffer()),
+            ("pressures", self.pressures.buffer()),
+            ("pressure_force", self.pressure_force.buffer()),
         ]
     }
 }

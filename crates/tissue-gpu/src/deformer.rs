@@ -6,7 +6,9 @@ use std::sync::Arc;
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
-use tissue_solve::coarse_elastic::{ElasticCoarse, elastic_aggregates};
+use tissue_solve::coarse_elastic::{
+    CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
+};
 use tissue_solve::deflation_modes;
 use tissue_solve::elastic::Elastic;
 use tissue_solve::{
@@ -88,6 +90,9 @@ struct ElasticHost {
     connections: Connections,
     elastic: Arc<Elastic>,
     aggregates: Aggregates,
+    /// The volume smoother's `delta` and its iteration's contraction at
+    /// rest, where the elastic phase smooths with it (the CPU path's).
+    volume_smoother: Option<(f64, f32)>,
 }
 
 impl GpuDeformer {
@@ -159,6 +164,7 @@ impl GpuDeformer {
                         rest: model.positions.clone(),
                         connections: model.connections.clone(),
                         elastic: Arc::clone(elastic),
+                        volume_smoother: volume_smoother(model, plan, params, Some(&aggregates)),
                         aggregates,
                     })
                 }
@@ -326,7 +332,11 @@ impl GpuSolve {
             &current,
             &host.connections,
             &host.elastic,
-            iteration.contraction,
+            CorrectionFor {
+                contraction: iteration.contraction,
+                volume_delta: host.volume_smoother.map(|(delta, _)| delta),
+                rho: host.volume_smoother.map(|(_, rho)| rho),
+            },
         );
         match &self.elastic_coarse {
             Some(coarse) => self
@@ -360,6 +370,14 @@ impl SolveDevice for GpuSolve {
             .filter(|it| it.correct && it.force == ForceModel::Elastic)
             .and(self.elastic_coarse.as_ref())
             .map(ElasticCoarse::rho)
+    }
+
+    fn elastic_smoothed(&self) -> bool {
+        self.elastic_rho().is_some()
+            && self
+                .elastic_coarse
+                .as_ref()
+                .is_some_and(|c| c.smoother().is_some())
     }
 
     fn write_positions(

@@ -136,6 +136,11 @@ pub struct Params {
     pub modes: u32,
     /// Workgroups of a `deflate_project` dispatch: rows of its projections.
     pub mode_groups: u32,
+    /// The volume smoother's `delta` in a smoothed elastic iteration
+    /// (`volume_smoother.wgsl`); 0 in every other.
+    pub volume_delta: f32,
+    /// The relaxation of its Jacobi sweeps.
+    pub volume_relaxation: f32,
 }
 
 /// Mirror of WGSL `Rotation` (`shaders/shared/layout.wgsl`): three columns,
@@ -294,6 +299,8 @@ mod tests {
                 ("groups", offset_of!(Params, groups)),
                 ("modes", offset_of!(Params, modes)),
                 ("mode_groups", offset_of!(Params, mode_groups)),
+                ("volume_delta", offset_of!(Params, volume_delta)),
+                ("volume_relaxation", offset_of!(Params, volume_relaxation)),
             ],
         );
     }

@@ -81,11 +81,25 @@ pub enum Kernel {
     /// `coarse_elastic.wgsl::elastic_apply`: the solution subtracted from
     /// the plain step of every particle of its aggregate.
     ElasticApply,
+    /// `volume_smoother.wgsl::smoother_residual`: per particle half the
+    /// force, loads included, inside the elastic aggregates.
+    SmootherResidual,
+    /// `volume_smoother.wgsl::pressure_start`: per particle `h_i . r` and
+    /// the pressures' first Jacobi sweep.
+    PressureStart,
+    /// `volume_smoother.wgsl::pressure_forces`: per particle the
+    /// pressures' force `(H z)_k`.
+    PressureForces,
+    /// `volume_smoother.wgsl::pressure_sweep`: a further Jacobi sweep.
+    PressureSweep,
+    /// `volume_smoother.wgsl::smoothed_step`: the smoothed step into the
+    /// plain buffer, and what the elastic correction takes.
+    SmoothedStep,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 26] = [
+    pub const ALL: [Kernel; 31] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -112,6 +126,11 @@ impl Kernel {
         Kernel::ElasticForward,
         Kernel::ElasticBackward,
         Kernel::ElasticApply,
+        Kernel::SmootherResidual,
+        Kernel::PressureStart,
+        Kernel::PressureForces,
+        Kernel::PressureSweep,
+        Kernel::SmoothedStep,
     ];
 
     /// One iteration without deflation, in order.
@@ -181,6 +200,29 @@ impl Kernel {
         Kernel::UpdateNorms,
     ];
 
+    /// One iteration of the elastic phase with its two-level solve and the
+    /// volume smoother, in order: the smoothed step (its two sweeps,
+    /// `tissue_solve::volume_smoother::SWEEPS`) in place of the plain one,
+    /// then the elastic correction and the combine.
+    pub const SMOOTHED_ELASTIC_ITERATION: [Kernel; 16] = [
+        Kernel::ElasticTargets,
+        Kernel::ElasticForce,
+        Kernel::SmootherResidual,
+        Kernel::PressureStart,
+        Kernel::PressureForces,
+        Kernel::PressureSweep,
+        Kernel::PressureForces,
+        Kernel::SmoothedStep,
+        Kernel::ElasticChange,
+        Kernel::ElasticResidual,
+        Kernel::ElasticRestrict,
+        Kernel::ElasticForward,
+        Kernel::ElasticBackward,
+        Kernel::ElasticApply,
+        Kernel::Chebyshev,
+        Kernel::UpdateNorms,
+    ];
+
     /// [`Kernel::ITERATION`] with the warm-started rotations.
     pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
 
@@ -196,6 +238,10 @@ impl Kernel {
     /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
     pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
         Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
+
+    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`] with the warm-started rotations.
+    pub const WARM_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16] =
+        Kernel::warm(Kernel::SMOOTHED_ELASTIC_ITERATION);
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
     /// [`Kernel::LocalRotations`] and [`Kernel::ElasticTargetsWarm`] in
@@ -244,6 +290,11 @@ impl Kernel {
             Kernel::ElasticForward => ("coarse_elastic", "elastic_forward"),
             Kernel::ElasticBackward => ("coarse_elastic", "elastic_backward"),
             Kernel::ElasticApply => ("coarse_elastic", "elastic_apply"),
+            Kernel::SmootherResidual => ("volume_smoother", "smoother_residual"),
+            Kernel::PressureStart => ("volume_smoother", "pressure_start"),
+            Kernel::PressureForces => ("volume_smoother", "pressure_forces"),
+            Kernel::PressureSweep => ("volume_smoother", "pressure_sweep"),
+            Kernel::SmoothedStep => ("volume_smoother", "smoothed_step"),
         }
     }
 
@@ -419,6 +470,24 @@ mod tests {
     use crate::sampler::SamplingKernel;
     use crate::structures::EmbeddingMoved;
 
+    /// The GPU's smoothed iteration runs as many Jacobi sweeps on the
+    /// pressures as the CPU's smoother: the first in `pressure_start`, each
+    /// further one a `pressure_sweep` after a `pressure_forces`, and a last
+    /// `pressure_forces` for the step.
+    #[test]
+    fn the_smoothed_iteration_sweeps_as_often_as_the_cpu_smoother() {
+        let count = |kernel| {
+            Kernel::SMOOTHED_ELASTIC_ITERATION
+                .iter()
+                .filter(|&&k| k == kernel)
+                .count()
+        };
+        let sweeps = tissue_solve::volume_smoother::SWEEPS;
+        assert_eq!(count(Kernel::PressureStart), 1);
+        assert_eq!(count(Kernel::PressureSweep), sweeps - 1);
+        assert_eq!(count(Kernel::PressureForces), sweeps);
+    }
+
     /// `index` is the declaration order; the per-kernel tables (the
     /// compiled set, bind groups, workgroups) are in `KERNELS` order, so the
     /// two must agree in every family.
@@ -439,6 +508,10 @@ mod tests {
             (
                 &Kernel::DEFLATED_ITERATION[..],
                 &Kernel::WARM_DEFLATED_ITERATION[..],
+            ),
+            (
+                &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
+                &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION[..],
             ),
         ] {
             assert_eq!(svd.len(), warm.len());

@@ -68,6 +68,10 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../../../shaders/coarse_elastic.wgsl"),
     ),
     (
+        "volume_smoother",
+        include_str!("../../../shaders/volume_smoother.wgsl"),
+    ),
+    (
         "tests/svd3",
         include_str!("../../../shaders/tests/svd3.wgsl"),
     ),

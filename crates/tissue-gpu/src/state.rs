@@ -5,6 +5,7 @@ use tissue_core::ParticleModel;
 use tissue_solve::coarse::{Aggregates, CoarseSpace};
 use tissue_solve::coarse_elastic::ElasticCoarse;
 use tissue_solve::elastic::Elastic;
+use tissue_solve::volume_smoother::RELAXATION;
 use tissue_solve::{ForceModel, RotationMethod};
 
 use crate::buffer::{Storage, vec4};
@@ -460,6 +461,7 @@ impl DeformState {
     /// [`DeformState::linearise_elastic`] (the host could not make one).
     pub fn forget_elastic_linearisation(&mut self) {
         self.elastic_coarse.linearised = false;
+        self.elastic_coarse.smoother = None;
     }
 
     /// Number of aggregates of the uploaded coarse space (0: none).
@@ -489,6 +491,13 @@ impl DeformState {
         let two_level = self.coarse.aggregates > 0 && self.correct_phase;
         let deflated = self.modes > 0 && self.correct_phase;
         let elastic_corrected = self.elastic_coarse.linearised && self.correct_phase;
+        if self.elastic_phase && elastic_corrected && self.elastic_coarse.smoother.is_some() {
+            return if self.warm {
+                &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION
+            } else {
+                &Kernel::SMOOTHED_ELASTIC_ITERATION
+            };
+        }
         match (self.elastic_phase, two_level, deflated, self.warm) {
             (true, _, _, false) if elastic_corrected => &Kernel::CORRECTED_ELASTIC_ITERATION,
             (true, _, _, true) if elastic_corrected => &Kernel::WARM_CORRECTED_ELASTIC_ITERATION,
@@ -614,6 +623,18 @@ impl DeformState {
             groups: self.step_groups,
             modes: self.modes,
             mode_groups: self.mode_groups,
+            volume_delta: self.smoothed_delta(),
+            volume_relaxation: RELAXATION as f32,
+        }
+    }
+
+    /// The volume smoother's `delta` where the next iterations are
+    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`]s, else 0.
+    fn smoothed_delta(&self) -> f32 {
+        let smoothed = self.elastic_phase && self.correct_phase && self.elastic_coarse.linearised;
+        match self.elastic_coarse.smoother {
+            Some(delta) if smoothed => delta,
+            _ => 0.0,
         }
     }
 

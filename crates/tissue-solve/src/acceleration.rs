@@ -53,20 +53,32 @@ impl Chebyshev {
 
 /// The stopping rule of a solve, never on a small step alone: for fixed
 /// rotations the plain step is `(B - I) e` for the error `e`, so
-/// `|e| <= |step| / (1 - rho)`, Chebyshev or not. Re-fitting the rotations
-/// adds slower modes (a twist of the interior against its surface); the
-/// contraction observed over the last five iterations catches them. Stop when
-/// `max step / (1 - rate)` is below `tolerance` times the size, or when the
-/// RMS step is below what `f32` resolves.
+/// `|e| <= |step| / (1 - rho)`. Where `rho` is the measured contraction of
+/// the volume smoother's two-level iteration ([`StoppingRule::accelerated`]),
+/// Chebyshev's steps and error fall together at the accelerated rate
+/// `sigma` ([`accelerated_rate`]) inside an envelope twice its geometric
+/// tail, and `|e| <= 2 |step| / (1 - sigma)`; not where `rho` is near 1
+/// and the iteration takes long to reach that rate (the plain step on the
+/// Laplacian stopped with errors above the tolerance). Re-fitting the
+/// rotations adds slower modes (a twist of the interior against its
+/// surface); the contraction observed over the last five iterations
+/// catches them, `|step| / (1 - observed)`. Stop when the larger bound is
+/// below `tolerance` times the size, or when the RMS step is below what
+/// `f32` resolves.
 #[derive(Debug, Clone)]
 pub struct StoppingRule {
     tolerance: f32,
     size: f32,
     floor: f32,
-    rho: f32,
+    /// How many times its step the error is at most, from the contraction.
+    bound: f32,
     rms_steps: Vec<f32>,
     history: Vec<f32>,
 }
+
+/// Chebyshev's error stays within this many times the geometric tail of
+/// its rate (`2 sigma^k / (1 + sigma^(2k))` of the start).
+pub const CHEBYSHEV_ENVELOPE: f32 = 2.0;
 
 impl StoppingRule {
     /// The rule for one solve.
@@ -75,7 +87,7 @@ impl StoppingRule {
             tolerance: params.tolerance,
             size: plan.size,
             floor: plan.floor,
-            rho: plan.rho(params),
+            bound: 1.0 / (1.0 - plan.rho(params)),
             rms_steps: Vec::new(),
             history: Vec::new(),
         }
@@ -84,7 +96,18 @@ impl StoppingRule {
     /// The rule for one solve with contraction `rho` (a deflated one, say).
     pub fn with_rho(plan: &Plan, params: &DeformParams, rho: f32) -> Self {
         Self {
-            rho,
+            bound: 1.0 / (1.0 - rho),
+            ..Self::new(plan, params)
+        }
+    }
+
+    /// The rule for an iteration whose contraction `rho` was measured
+    /// closely (the volume smoother's two-level iteration): with
+    /// Chebyshev's weights the error is bounded by its accelerated rate
+    /// ([`error_bound`]).
+    pub fn accelerated(plan: &Plan, params: &DeformParams, rho: f32) -> Self {
+        Self {
+            bound: error_bound(rho, params.chebyshev),
             ..Self::new(plan, params)
         }
     }
@@ -99,8 +122,8 @@ impl StoppingRule {
         } else {
             0.0
         };
-        let rate = self.rho.max(observed.min(0.999));
-        let error = max_step / (1.0 - rate) / self.size;
+        let bound = self.bound.max(1.0 / (1.0 - observed.min(0.999)));
+        let error = max_step * bound / self.size;
         self.history.push(error);
         if !(error.is_finite() && rms_step.is_finite()) {
             Some(StopReason::Diverged)
@@ -137,4 +160,21 @@ fn geometric_rate(first: f32, last: f32, count: usize) -> f32 {
         return 0.0;
     }
     (last / first).powf(1.0 / count as f32)
+}
+
+/// The rate at which a Chebyshev-accelerated iteration of contraction `rho`
+/// converges: `rho / (1 + sqrt(1 - rho^2))`.
+pub fn accelerated_rate(rho: f32) -> f32 {
+    rho / (1.0 + (1.0 - rho * rho).max(0.0).sqrt())
+}
+
+/// How many times its step the error of an iteration of contraction `rho`
+/// is at most: `2 / (1 - sigma)` with Chebyshev's weights, `1 / (1 - rho)`
+/// without.
+pub fn error_bound(rho: f32, chebyshev: bool) -> f32 {
+    if chebyshev {
+        CHEBYSHEV_ENVELOPE / (1.0 - accelerated_rate(rho))
+    } else {
+        1.0 / (1.0 - rho)
+    }
 }

@@ -45,6 +45,7 @@ pub mod stiffness;
 pub mod structures;
 pub mod svd3;
 pub mod tracker;
+pub mod volume_smoother;
 
 pub use acceleration::{Chebyshev, StoppingRule};
 pub use controls::check_same_topology;

@@ -108,6 +108,13 @@ pub struct DeformParams {
     /// made again every solve from rest). 0 turns it off. The default
     /// and what it saves: docs/METHOD.md, "Elastic model".
     pub elastic_coarse_max_aggregates: usize,
+    /// The elastic phase's two-level solve smooths with the volume term
+    /// taken implicitly ([`crate::volume_smoother`]: the shear part stepped
+    /// as the shear phase steps it, the volume part by a few sweeps on one
+    /// pressure per particle) instead of the plain step, whose size the
+    /// volume term's stiffness limits. Off: the plain step. What it saves:
+    /// docs/METHOD.md, "The volume smoother".
+    pub volume_smoother: bool,
     /// Which vertices of the surface were observed (the deformed surface
     /// is known there), one flag per rest-surface vertex; `None`: every
     /// one. A surface particle is a control point only where every vertex
@@ -143,6 +150,7 @@ impl Default for DeformParams {
             coarse: 2.0,
             coarse_max_aggregates: 10_000,
             elastic_coarse_max_aggregates: 1_000,
+            volume_smoother: true,
             observed: None,
             load: Vec3::ZERO,
         }

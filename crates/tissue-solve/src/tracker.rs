@@ -91,6 +91,14 @@ pub trait SolveDevice {
         None
     }
 
+    /// Whether the elastic phase (asked after [`SolveDevice::begin`] of
+    /// one) runs the volume smoother, whose contraction
+    /// ([`SolveDevice::elastic_rho`]) is measured closely enough for the
+    /// accelerated stopping rule ([`StoppingRule::accelerated`]).
+    fn elastic_smoothed(&self) -> bool {
+        false
+    }
+
     /// Sets every particle's position at a frame boundary (the prediction
     /// and the control points). `turn`, when the positions were carried by
     /// the surface's linear move, is that move's rotation: warm-started
@@ -440,9 +448,14 @@ impl<D: SolveDevice> Tracker<D> {
                 .plan
                 .solve_rho(p, self.device.modes(), self.device.coarse_rho()),
         };
+        let smoothed = p.force == ForceModel::Elastic && self.device.elastic_smoothed();
         let (chebyshev, mut rule) = (
             Chebyshev::with_rho(p, rho),
-            StoppingRule::with_rho(&self.plan, p, rho),
+            if smoothed {
+                StoppingRule::accelerated(&self.plan, p, rho)
+            } else {
+                StoppingRule::with_rho(&self.plan, p, rho)
+            },
         );
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();

@@ -5,6 +5,7 @@
 use glam::{DVec3, Mat3, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
+use tissue_solve::coarse::OUTSIDE;
 use tissue_solve::elastic::{Elastic, ElasticTerms, offsets_product};
 use tissue_solve::modes::{LowModes, add_entries};
 use tissue_solve::params::{ForceModel, RotationMethod};
@@ -160,6 +161,24 @@ pub fn integrate(
                 Some(&b) => q + alpha * (f + b),
                 None => q + alpha * f,
             }
+        })
+        .collect()
+}
+
+/// The elastic phase's residual for the volume smoother: half the force,
+/// loads included, at the particles inside an aggregate (`K e = -r` for the
+/// error `e` while the rotations are held), in `f64`; zero elsewhere.
+pub fn elastic_residual(force: &[Vec3], loads: &[Vec3], aggregate: &[u32]) -> Vec<DVec3> {
+    force
+        .par_iter()
+        .zip(aggregate)
+        .enumerate()
+        .map(|(i, (&f, &a))| {
+            if a == OUTSIDE {
+                return DVec3::ZERO;
+            }
+            let b = loads.get(i).copied().unwrap_or(Vec3::ZERO);
+            0.5 * (f + b).as_dvec3()
         })
         .collect()
 }

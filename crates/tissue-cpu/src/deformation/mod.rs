@@ -47,13 +47,15 @@ use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
 pub use kernels::{
-    chebyshev_combine, deflate, deformation_force, elastic_force, elastic_terms, integrate,
-    local_rotations, local_rotations_warm, steps,
+    chebyshev_combine, deflate, deformation_force, elastic_force, elastic_residual, elastic_terms,
+    integrate, local_rotations, local_rotations_warm, steps,
 };
 pub use polar::{polar_rotation, warm_rotation};
 
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
-use tissue_solve::coarse_elastic::{ElasticCoarse, elastic_aggregates};
+use tissue_solve::coarse_elastic::{
+    CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
+};
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between
@@ -185,6 +187,10 @@ pub struct CpuSolve {
     /// The elastic phase's coarse correction, linearised where the last
     /// elastic phase after a shear phase started.
     elastic_coarse: Option<Arc<ElasticCoarse>>,
+    /// The volume smoother's `delta` and its two-level iteration's
+    /// contraction, estimated once at rest, where the elastic phase's
+    /// correction smooths with it.
+    volume_smoother: Option<(f64, f32)>,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Where the last batch of more than one iteration started, for a replay.
@@ -211,6 +217,7 @@ impl CpuSolve {
             deflation_modes(model, plan, params).map(Arc::new)
         };
         let elastic_aggregates = elastic_aggregates(model, plan, params).map(Arc::new);
+        let volume_smoother = volume_smoother(model, plan, params, elastic_aggregates.as_deref());
         Self {
             rest: model.positions.clone(),
             connections: model.connections.clone(),
@@ -224,9 +231,17 @@ impl CpuSolve {
             elastic: plan.elastic.clone(),
             elastic_aggregates,
             elastic_coarse: None,
+            volume_smoother,
             iteration: None,
             batch_start: None,
         }
+    }
+
+    /// The volume smoother's `delta` and its iteration's contraction at
+    /// rest, where the elastic phase smooths with it
+    /// (`tissue_solve::coarse_elastic::volume_smoother`).
+    pub fn volume_smoother(&self) -> Option<(f64, f32)> {
+        self.volume_smoother
     }
 
     /// Makes the elastic phase's coarse correction at the current state
@@ -242,13 +257,18 @@ impl CpuSolve {
         if !ElasticCoarse::is_needed_anew(self.elastic_coarse.as_deref(), &iteration) {
             return;
         }
+        let made_for = CorrectionFor {
+            contraction: iteration.contraction,
+            volume_delta: self.volume_smoother.map(|(delta, _)| delta),
+            rho: self.volume_smoother.map(|(_, rho)| rho),
+        };
         self.elastic_coarse = ElasticCoarse::at_phase_start(
             aggregates,
             &self.rest,
             &self.current,
             &self.connections,
             elastic,
-            iteration.contraction,
+            made_for,
         )
         .map(Arc::new);
     }
@@ -320,8 +340,34 @@ impl CpuSolve {
             ),
         };
         laps.lap(Pass::Force);
-        let mut plain = integrate(&self.current, &force, &self.loads, &self.free, it.alpha);
+        let elastic_coarse = self
+            .elastic_coarse
+            .as_deref()
+            .zip(self.elastic_aggregates.as_deref())
+            .filter(|_| it.correct && it.force == ForceModel::Elastic);
+        // With the volume smoother the corrected elastic step is made whole
+        // from the residual (the correction's pass); otherwise the plain
+        // step, then its correction.
+        let smoothes = elastic_coarse.is_some_and(|(c, _)| c.smoother().is_some());
+        let mut plain = if smoothes {
+            Vec::new()
+        } else {
+            integrate(&self.current, &force, &self.loads, &self.free, it.alpha)
+        };
         laps.lap(Pass::Integrate);
+        if let Some((c, aggregates)) = elastic_coarse.filter(|_| smoothes) {
+            let residual = elastic_residual(&force, &self.loads, &aggregates.aggregate);
+            plain = match c.smoothed_step(aggregates, &self.connections, &residual) {
+                Some(step) => self
+                    .current
+                    .par_iter()
+                    .zip(&step)
+                    .map(|(&q, s)| q + s.as_vec3())
+                    .collect(),
+                // `smoothes` said the correction has its smoother.
+                None => integrate(&self.current, &force, &self.loads, &self.free, it.alpha),
+            };
+        }
         // The Laplacian's corrections never apply to the elastic force.
         let laplacian = it.correct && it.force != ForceModel::Elastic;
         let modes = self.modes.as_deref().filter(|_| laplacian);
@@ -332,12 +378,7 @@ impl CpuSolve {
         if let Some(c) = coarse {
             c.correct(&self.current, &mut plain, &self.connections, it.contraction);
         }
-        let elastic_coarse = self
-            .elastic_coarse
-            .as_deref()
-            .zip(self.elastic_aggregates.as_deref())
-            .filter(|_| it.correct && it.force == ForceModel::Elastic);
-        if let Some((c, aggregates)) = elastic_coarse {
+        if let Some((c, aggregates)) = elastic_coarse.filter(|_| !smoothes) {
             c.correct(aggregates, &self.current, &mut plain, &self.connections);
         }
         laps.lap(Pass::Correction);
@@ -433,6 +474,14 @@ impl SolveDevice for CpuSolve {
             .filter(|it| it.correct && it.force == ForceModel::Elastic)
             .and(self.elastic_coarse.as_deref())
             .map(ElasticCoarse::rho)
+    }
+
+    fn elastic_smoothed(&self) -> bool {
+        self.elastic_rho().is_some()
+            && self
+                .elastic_coarse
+                .as_deref()
+                .is_some_and(|c| c.smoother().is_some())
     }
 
     fn write_positions(
