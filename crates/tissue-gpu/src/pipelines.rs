@@ -243,6 +243,27 @@ impl Kernel {
     pub const WARM_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16] =
         Kernel::warm(Kernel::SMOOTHED_ELASTIC_ITERATION);
 
+    /// The most kernels any iteration runs (what a timestamp query set for
+    /// one iteration must hold): the longest of every list above.
+    pub const LONGEST_ITERATION: usize = {
+        let lengths = [
+            Kernel::ITERATION.len(),
+            Kernel::ELASTIC_ITERATION.len(),
+            Kernel::DEFLATED_ITERATION.len(),
+            Kernel::COARSE_ITERATION.len(),
+            Kernel::CORRECTED_ELASTIC_ITERATION.len(),
+            Kernel::SMOOTHED_ELASTIC_ITERATION.len(),
+        ];
+        let (mut longest, mut k) = (0, 0);
+        while k < lengths.len() {
+            if lengths[k] > longest {
+                longest = lengths[k];
+            }
+            k += 1;
+        }
+        longest
+    };
+
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
     /// [`Kernel::LocalRotations`] and [`Kernel::ElasticTargetsWarm`] in
     /// place of [`Kernel::ElasticTargets`], so each warm list is its SVD

@@ -10,12 +10,9 @@ use crate::readback::read_buffer;
 use crate::state::DeformState;
 use crate::support::Scopes;
 
-/// Timestamps of the longest iteration, the corrected elastic one: a start
-/// and an end per kernel.
-const QUERIES: u32 = 2 * Kernel::CORRECTED_ELASTIC_ITERATION.len() as u32;
-const _: () = assert!(Kernel::COARSE_ITERATION.len() <= Kernel::CORRECTED_ELASTIC_ITERATION.len());
-const _: () =
-    assert!(Kernel::DEFLATED_ITERATION.len() <= Kernel::CORRECTED_ELASTIC_ITERATION.len());
+/// Timestamps of the longest iteration ([`Kernel::LONGEST_ITERATION`]): a
+/// start and an end per kernel.
+const QUERIES: u32 = 2 * Kernel::LONGEST_ITERATION as u32;
 
 /// GPU time of one iteration, from the device's own clock.
 #[derive(Clone, Debug, PartialEq)]
