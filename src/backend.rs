@@ -27,11 +27,13 @@ use std::fmt;
 use std::str::FromStr;
 
 use glam::{Mat3, Vec3};
-use tissue_core::{DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
+use tissue_core::{Connections, DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
+use tissue_solve::elastic::offsets_product;
+use tissue_solve::svd3::rotation_of;
 
 /// Which device to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -258,12 +260,34 @@ pub fn sample_on(
 /// hand on the host (read back once per solve, a frame boundary). Structures
 /// and landmarks are carried where the particles are: on the GPU, by
 /// `embedding_moved.wgsl`, reading back only the moved points.
+///
+/// Its reference, the posture displacements, structures and landmarks are
+/// measured from, is the model's rest shape; a solver made by
+/// [`Solver::unloaded`] is stress-free in another shape (the organ's
+/// unloaded one) and still measures from the model's rest posture,
+/// carrying on the host.
 #[derive(Debug)]
-pub enum Solver {
+pub struct Solver {
+    device: SolverDevice,
+    /// The model's rest posture and connections, where the solver's rest
+    /// shape is another ([`Solver::unloaded`]).
+    reference: Option<Reference>,
+}
+
+/// The device half of a [`Solver`].
+#[derive(Debug)]
+pub enum SolverDevice {
     /// The CPU path.
     Cpu(Box<Deformer>),
     /// The GPU path.
     Gpu(Box<GpuSolver>),
+}
+
+/// A reference posture other than the solver's rest shape.
+#[derive(Debug)]
+struct Reference {
+    positions: Vec<Vec3>,
+    connections: Connections,
 }
 
 /// The GPU half of [`Solver`].
@@ -301,8 +325,8 @@ impl BoundPoints {
 impl Solver {
     /// Prepares stage 2 for `model` on `device`.
     pub fn new(device: Device, model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
-        Ok(match device {
-            Device::Cpu => Self::Cpu(Box::new(Deformer::new(model, params)?)),
+        let device = match device {
+            Device::Cpu => SolverDevice::Cpu(Box::new(Deformer::new(model, params)?)),
             Device::Gpu {
                 name,
                 device,
@@ -313,7 +337,7 @@ impl Solver {
                     .map_err(|e| gpu_error(&context, e))?;
                 let embedding =
                     EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
-                Self::Gpu(Box::new(GpuSolver {
+                SolverDevice::Gpu(Box::new(GpuSolver {
                     name,
                     device,
                     queue,
@@ -321,22 +345,68 @@ impl Solver {
                     embedding,
                 }))
             }
+        };
+        Ok(Self {
+            device,
+            reference: None,
         })
+    }
+
+    /// Prepares stage 2 for `model` stress-free in the shape `unloaded`
+    /// (one position per particle: the organ's unloaded shape,
+    /// `tissue_solve::gravity`), whose surface attachments and connections
+    /// are the model's; displacements, structures and landmarks are still
+    /// measured from the model's own positions, its rest posture
+    /// ([`Solver::reference`]).
+    ///
+    /// # Errors
+    ///
+    /// A shape of other than one finite position per particle; what
+    /// [`Solver::new`] refuses.
+    pub fn unloaded(
+        device: Device,
+        model: &ParticleModel,
+        unloaded: &[Vec3],
+        params: DeformParams,
+    ) -> Result<Self, Error> {
+        if unloaded.len() != model.len() || unloaded.iter().any(|p| !p.is_finite()) {
+            return Err(tissue_core::ParamError {
+                name: "unloaded shape",
+                value: format!("{} positions", unloaded.len()),
+                expected: format!("{} finite positions, one per particle", model.len()),
+            }
+            .into());
+        }
+        let stress_free = ParticleModel {
+            positions: unloaded.to_vec(),
+            ..model.clone()
+        };
+        let mut solver = Self::new(device, &stress_free, params)?;
+        solver.reference = Some(Reference {
+            positions: model.positions.clone(),
+            connections: model.connections.clone(),
+        });
+        Ok(solver)
+    }
+
+    /// The device's solver, for what the facade does not wrap.
+    pub fn device(&self) -> &SolverDevice {
+        &self.device
     }
 
     /// `cpu`, or the GPU adapter's name and graphics backend (for the reports).
     pub fn backend(&self) -> String {
-        match self {
-            Self::Cpu(_) => "cpu".to_owned(),
-            Self::Gpu(gpu) => gpu.name.clone(),
+        match &self.device {
+            SolverDevice::Cpu(_) => "cpu".to_owned(),
+            SolverDevice::Gpu(gpu) => gpu.name.clone(),
         }
     }
 
     /// Places the control points on `deformed`, the rest surface with moved vertices.
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => cpu.set_surface(deformed),
-            Self::Gpu(gpu) => gpu
+        match &mut self.device {
+            SolverDevice::Cpu(cpu) => cpu.set_surface(deformed),
+            SolverDevice::Gpu(gpu) => gpu
                 .deformer
                 .set_surface(&gpu.device, &gpu.queue, deformed)
                 .map_err(|e| gpu_error(format!("uploading a surface to {}", gpu.name), e)),
@@ -345,9 +415,9 @@ impl Solver {
 
     /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport, Error> {
-        match self {
-            Self::Cpu(cpu) => Ok(cpu.solve()),
-            Self::Gpu(gpu) => {
+        match &mut self.device {
+            SolverDevice::Cpu(cpu) => Ok(cpu.solve()),
+            SolverDevice::Gpu(gpu) => {
                 let report = gpu
                     .deformer
                     .solve(&gpu.device, &gpu.queue)
@@ -359,9 +429,9 @@ impl Solver {
 
     /// Back to the rest shape.
     pub fn reset(&mut self) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => cpu.reset(),
-            Self::Gpu(gpu) => {
+        match &mut self.device {
+            SolverDevice::Cpu(cpu) => cpu.reset(),
+            SolverDevice::Gpu(gpu) => {
                 gpu.deformer
                     .reset(&gpu.device, &gpu.queue)
                     .map_err(|e| gpu_error(format!("resetting stage 2 on {}", gpu.name), e))?;
@@ -370,41 +440,63 @@ impl Solver {
         Ok(())
     }
 
-    /// Rest particle positions.
+    /// Rest particle positions: the shape the solve is stress-free in.
     pub fn rest(&self) -> &[Vec3] {
-        match self {
-            Self::Cpu(cpu) => cpu.rest(),
-            Self::Gpu(gpu) => gpu.deformer.rest(),
+        match &self.device {
+            SolverDevice::Cpu(cpu) => cpu.rest(),
+            SolverDevice::Gpu(gpu) => gpu.deformer.rest(),
+        }
+    }
+
+    /// The posture displacements, structures and landmarks are measured
+    /// from: the model's positions ([`Solver::rest`] but for a solver made
+    /// by [`Solver::unloaded`]).
+    pub fn reference(&self) -> &[Vec3] {
+        match &self.reference {
+            Some(reference) => &reference.positions,
+            None => self.rest(),
         }
     }
 
     /// Particle positions after the last solve.
     pub fn positions(&self) -> &[Vec3] {
-        match self {
-            Self::Cpu(cpu) => cpu.positions(),
-            Self::Gpu(gpu) => gpu.deformer.host_positions(),
+        match &self.device {
+            SolverDevice::Cpu(cpu) => cpu.positions(),
+            SolverDevice::Gpu(gpu) => gpu.deformer.host_positions(),
         }
     }
 
-    /// Each particle's rotation (rest offsets onto current offsets) after
-    /// the last solve; on the GPU, read back (a frame boundary).
+    /// Each particle's rotation (reference offsets onto current offsets)
+    /// after the last solve; on the GPU, read back (a frame boundary). From
+    /// a reference other than the rest shape, the polar rotation of each
+    /// particle's offsets product, on the host.
     pub fn rotations(&self) -> Result<Vec<Mat3>, Error> {
-        match self {
-            Self::Cpu(cpu) => Ok(cpu.rotations().to_vec()),
-            Self::Gpu(gpu) => gpu
+        if let Some(reference) = &self.reference {
+            let current = self.positions();
+            return Ok((0..current.len())
+                .map(|i| {
+                    let m =
+                        offsets_product(&reference.positions, current, &reference.connections, i);
+                    rotation_of(m)
+                })
+                .collect());
+        }
+        match &self.device {
+            SolverDevice::Cpu(cpu) => Ok(cpu.rotations().to_vec()),
+            SolverDevice::Gpu(gpu) => gpu
                 .deformer
                 .read_rotations(&gpu.device, &gpu.queue)
                 .map_err(|e| gpu_error(format!("reading rotations from {}", gpu.name), e)),
         }
     }
 
-    /// Binds `points` (rest coordinates) to the rest particles, and on the
-    /// GPU uploads the binding.
+    /// Binds `points` (reference coordinates) to the reference particles,
+    /// and on the GPU, where the reference is the rest shape, uploads the
+    /// binding.
     pub fn bind(&self, points: &[Vec3]) -> Result<BoundPoints, Error> {
-        let embedding = Embedding::new(self.rest(), points);
-        let gpu = match self {
-            Self::Cpu(_) => None,
-            Self::Gpu(gpu) => Some(
+        let embedding = Embedding::new(self.reference(), points);
+        let gpu = match &self.device {
+            SolverDevice::Gpu(gpu) if self.reference.is_none() => Some(
                 GpuEmbedding::new(
                     &gpu.device,
                     &gpu.embedding,
@@ -413,14 +505,15 @@ impl Solver {
                 )
                 .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
             ),
+            _ => None,
         };
         Ok(BoundPoints { embedding, gpu })
     }
 
     /// Where `bound`'s points are after the last solve.
     pub fn carry(&self, bound: &BoundPoints) -> Result<Vec<Vec3>, Error> {
-        match (self, &bound.gpu) {
-            (Self::Gpu(gpu), Some(on_gpu)) => on_gpu
+        match (&self.device, &bound.gpu) {
+            (SolverDevice::Gpu(gpu), Some(on_gpu)) => on_gpu
                 .moved(
                     &gpu.device,
                     &gpu.queue,
@@ -428,10 +521,13 @@ impl Solver {
                     gpu.deformer.state(),
                 )
                 .map_err(|e| gpu_error(format!("carrying points on {}", gpu.name), e)),
-            (Self::Cpu(cpu), None) => {
+            (SolverDevice::Cpu(cpu), None) if self.reference.is_none() => Ok(bound
+                .embedding
+                .moved(cpu.rest(), cpu.positions(), cpu.rotations())),
+            (_, None) if self.reference.is_some() => {
                 Ok(bound
                     .embedding
-                    .moved(cpu.rest(), cpu.positions(), cpu.rotations()))
+                    .moved(self.reference(), self.positions(), &self.rotations()?))
             }
             _ => Err(DeformError::OtherBackend.into()),
         }

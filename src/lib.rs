@@ -30,6 +30,7 @@ pub use tissue_solve::sampling::{Progress, Sampled};
 pub use tissue_solve::{resampling, structures};
 
 pub mod backend;
+pub mod gravity;
 
 /// Stage 2: the deformer (the CPU path; [`backend::Solver`] runs it on the
 /// chosen device), its parameters and its report.

@@ -113,9 +113,8 @@ fn the_elastic_force_beats_linear_fem_on_both_breast_phantoms() {
 /// shape loaded again within 0.1 mm of the rest one (docs/ACCURACY.md).
 #[test]
 fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
-    use tissue::advanced::solve::gravity::{Unloading, gravity_load, held_vertices};
-    use tissue::advanced::solve::stiffness::{Postures, fit_stiffness, free_skin_targets};
-    use tissue::advanced::solve::{elastic::offsets_product, svd3::rotation_of};
+    use tissue::backend::{Device, Solver};
+    use tissue::gravity::{Gravity, held_vertices, unload};
     for name in ["breast_c", "breast_d"] {
         let Some(case) = common::shared_case(name) else {
             continue;
@@ -134,69 +133,32 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
         };
         let may = &truth["program_may_use"];
         let gravity = |key: &str| points(&Value::Array(vec![may[key].clone()]))[0];
-        let density = may["density_kg_m3"].as_f64().unwrap() as f32;
+        let postures = Gravity {
+            density_kg_m3: may["density_kg_m3"].as_f64().unwrap() as f32,
+            ..Gravity::millimetres(gravity("gravity_rest"), gravity("gravity_deformed"), None)
+        };
         let base = DeformParams {
             force: ForceModel::Elastic,
             ..DeformParams::default()
         };
-        let per_kpa = |g: Vec3| gravity_load(g, density, 1.0, base.poisson, 1e-3).unwrap();
         let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap();
-        let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
-        let targets = free_skin_targets(&model, &deformed, &held);
-        let solve = |x: &[Vec3], body: Vec3| {
-            let guess = tissue::ParticleModel {
-                positions: x.to_vec(),
-                ..model.clone()
-            };
-            let params = DeformParams {
-                observed: Some(held.clone()),
-                load: body,
-                ..base.clone()
-            };
-            let mut deformer = Deformer::new(&guess, params)?;
-            deformer.set_surface(&model.surface)?;
-            let report = deformer.solve();
-            Ok((deformer.positions().to_vec(), report))
-        };
-        let postures = Postures {
-            rest: &model.positions,
-            surface: &surface,
-            targets: &targets,
-            rest_load_per_kpa: per_kpa(gravity("gravity_rest")),
-            deformed_load_per_kpa: per_kpa(gravity("gravity_deformed")),
-        };
-        let fit =
-            fit_stiffness(&postures, 3.0, (0.1, 100.0), Unloading::MILLIMETRES, solve).unwrap();
-        // The deformed posture from the unloaded shape, the skin imposed.
-        let unloaded = tissue::ParticleModel {
-            positions: fit.unloaded.positions.clone(),
-            ..model.clone()
-        };
+        // The facade's path, as `tissue deform --gravity-rest ... --gravity-deformed ...`
+        // takes it: the fit and the unloaded shape, then the deformed
+        // posture stress-free in that shape, measured from the rest scan.
+        let found = unload(&Device::Cpu, &model, &deformed, &held, &postures, &base).unwrap();
+        let fit = found.fit.as_ref().unwrap();
         let params = DeformParams {
-            load: per_kpa(gravity("gravity_deformed")) / fit.stiffness_kpa,
+            load: found.deformed_load,
             ..base.clone()
         };
-        let mut deformer = Deformer::new(&unloaded, params).unwrap();
-        deformer.set_surface(&deformed).unwrap();
-        assert!(deformer.solve().converged, "{name}");
-        let moved_particles = deformer.positions();
-        let rotations: Vec<_> = (0..model.len())
-            .map(|i| {
-                rotation_of(offsets_product(
-                    &model.positions,
-                    moved_particles,
-                    &model.connections,
-                    i,
-                ))
-            })
-            .collect();
+        let mut solver =
+            Solver::unloaded(Device::Cpu, &model, &found.shape.positions, params).unwrap();
+        solver.set_surface(&deformed).unwrap();
+        assert!(solver.solve().unwrap().converged, "{name}");
+        assert_eq!(solver.reference(), &model.positions[..]);
         let mut probes = points(&truth["probes_rest"]);
         probes.push(points(&Value::Array(vec![truth["tumour_centroid_rest"].clone()]))[0]);
-        let moved = Embedding::new(&model.positions, &probes).moved(
-            &model.positions,
-            moved_particles,
-            &rotations,
-        );
+        let moved = solver.carry(&solver.bind(&probes).unwrap()).unwrap();
         let want = points(&truth["probes_deformed"]);
         let rmse = (moved
             .iter()
@@ -214,8 +176,8 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
             .unwrap() as f32;
         let true_e = truth["source"]["material"]["E_kPa"].as_f64().unwrap() as f32;
         eprintln!(
-            "{name}: fitted {:.3} kPa (true {true_e}), unloaded shape {:.3} mm, probe RMSE {rmse:.3} mm, tumour centre {tumour:.3} mm",
-            fit.stiffness_kpa, fit.unloaded.residual
+            "{name}: fitted {:.3} kPa (true {true_e}; free skin {:.3} mm off), unloaded shape {:.3} mm, probe RMSE {rmse:.3} mm, tumour centre {tumour:.3} mm",
+            found.stiffness_kpa, fit.residual, found.shape.residual
         );
         assert!(
             rmse <= 0.75 * fem,
@@ -223,14 +185,14 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
         );
         assert!(tumour <= 1.0, "{name}: tumour centre {tumour} mm");
         assert!(
-            (fit.stiffness_kpa - true_e).abs() <= 0.25 * true_e,
+            (found.stiffness_kpa - true_e).abs() <= 0.25 * true_e,
             "{name}: fitted {} kPa against {true_e}",
-            fit.stiffness_kpa
+            found.stiffness_kpa
         );
         assert!(
-            fit.unloaded.converged && fit.unloaded.residual <= 0.1,
+            found.shape.converged && found.shape.residual <= 0.1,
             "{name}: the unloaded shape misses by {} mm",
-            fit.unloaded.residual
+            found.shape.residual
         );
     }
 }

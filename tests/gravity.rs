@@ -254,3 +254,68 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
         assert!((cpu - gpu).abs() <= 0.02 * cpu, "CPU {cpu} GPU {gpu}");
     }
 }
+
+/// A solver stress-free in another shape (`Solver::unloaded`) still
+/// measures from the model's positions, the rest posture: with that shape
+/// the model's own it is `Solver::new` (the same positions, and points
+/// carried to within 1e-4 of the size), and with another its reference is
+/// the model's positions and its rest the shape given, on both devices.
+/// The symmetric force: its rotations are those of each particle's
+/// offsets product, which carrying from another reference turns points
+/// by (the elastic force's, of its consistent gradient, carry 0.03 mm
+/// apart on this phantom).
+#[test]
+fn an_unloaded_solver_measures_from_the_rest_posture() {
+    let model = tissue::sample(
+        &tissue::phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let sag = tissue::deform::sagged_breast();
+    let params = DeformParams::default();
+    let size = common_size(&model);
+    let probes: Vec<Vec3> = model.positions.iter().step_by(97).copied().collect();
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    for device in devices {
+        let name = device.name().to_owned();
+        let mut plain = Solver::new(device.clone(), &model, params.clone()).unwrap();
+        let mut same =
+            Solver::unloaded(device.clone(), &model, &model.positions, params.clone()).unwrap();
+        for solver in [&mut plain, &mut same] {
+            solver.set_surface(&sag).unwrap();
+            assert!(solver.solve().unwrap().converged, "{name}");
+        }
+        assert_eq!(plain.positions(), same.positions(), "{name}");
+        let (a, b) = (
+            plain.carry(&plain.bind(&probes).unwrap()).unwrap(),
+            same.carry(&same.bind(&probes).unwrap()).unwrap(),
+        );
+        let apart = a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| p.distance(*q))
+            .fold(0.0f32, f32::max);
+        assert!(apart <= 1e-4 * size, "{name}: carried {apart} apart");
+        let moved: Vec<Vec3> = model
+            .positions
+            .iter()
+            .map(|p| *p + Vec3::new(0.0, 0.0, 0.5))
+            .collect();
+        let shifted = Solver::unloaded(device, &model, &moved, params.clone()).unwrap();
+        assert_eq!(shifted.reference(), &model.positions[..], "{name}");
+        assert_eq!(shifted.rest(), &moved[..], "{name}");
+        let short = &model.positions[1..];
+        assert!(Solver::unloaded(Device::Cpu, &model, short, params.clone()).is_err());
+    }
+}
+
+/// Bounding-box diagonal of the rest particles.
+fn common_size(model: &ParticleModel) -> f32 {
+    let (lo, hi) = model.positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    (hi - lo).length()
+}

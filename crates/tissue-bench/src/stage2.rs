@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
-use tissue::backend::{Device, Solver};
+use tissue::backend::{Device, Solver, SolverDevice};
 use tissue_core::deform::interpolate;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, RotationMethod};
@@ -159,17 +159,17 @@ pub fn measure(
                 iterations_run.push(report.iterations);
             }
         }
-        let stages = match (&solver, gpu) {
-            (Solver::Cpu(deformer), _) => breakdown::cpu(
+        let stages = match (solver.device(), gpu) {
+            (SolverDevice::Cpu(deformer), _) => breakdown::cpu(
                 deformer,
                 &fixed,
                 repeats.iterations_per_solve,
                 repeats.stage_samples,
             ),
-            (Solver::Gpu(on_gpu), Some(gpu)) => {
+            (SolverDevice::Gpu(on_gpu), Some(gpu)) => {
                 breakdown::gpu(gpu, on_gpu.deformer(), repeats.stage_samples)
             }
-            (Solver::Gpu(_), None) => anyhow::bail!("a GPU solver without a GPU"),
+            (SolverDevice::Gpu(_), None) => anyhow::bail!("a GPU solver without a GPU"),
         }
         .context("per-stage breakdown")?;
         let timing = IterationTiming {
@@ -184,12 +184,12 @@ pub fn measure(
     let mut solver = solver_on(gpu, model, defaults.clone()).context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
     // What the solve runs: on both devices the coarse space replaces deflation.
-    let (deflation, coarse_aggregates) = match &solver {
-        Solver::Cpu(deformer) => (
+    let (deflation, coarse_aggregates) = match solver.device() {
+        SolverDevice::Cpu(deformer) => (
             deformer.modes().map_or(0, |m| m.count()),
             deformer.coarse().map_or(0, |c| c.count()),
         ),
-        Solver::Gpu(on_gpu) => {
+        SolverDevice::Gpu(on_gpu) => {
             let deformer = on_gpu.deformer();
             (
                 deformer.modes().map_or(0, |m| m.count()),
@@ -197,9 +197,9 @@ pub fn measure(
             )
         }
     };
-    let gpu_state_bytes = match &solver {
-        Solver::Cpu(_) => None,
-        Solver::Gpu(on_gpu) => Some(GpuStateBytes::of(on_gpu.deformer(), model.len())),
+    let gpu_state_bytes = match solver.device() {
+        SolverDevice::Cpu(_) => None,
+        SolverDevice::Gpu(on_gpu) => Some(GpuStateBytes::of(on_gpu.deformer(), model.len())),
     };
     // From rest, the solver alone: the tracking prediction would carry a
     // rigid rotation there exactly, and hide the solver's convergence.

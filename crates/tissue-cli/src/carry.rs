@@ -350,7 +350,7 @@ impl Structure {
         let binding = match kind {
             Kind::Deformable => Binding::Deformable(solver.bind(&mesh.vertices)?),
             Kind::Rigid => {
-                let rigid = RigidBinding::new(solver.rest(), &mesh.vertices);
+                let rigid = RigidBinding::new(solver.reference(), &mesh.vertices);
                 let centre = solver.bind(&rigid.centre().points)?;
                 Binding::Rigid(rigid, centre)
             }
@@ -400,7 +400,8 @@ impl Structure {
             }
             Binding::Rigid(binding, centre) => {
                 let moved_centre = solver.carry(centre)?.first().copied().unwrap_or_default();
-                let motion = binding.motion_from(moved_centre, solver.rest(), solver.positions());
+                let motion =
+                    binding.motion_from(moved_centre, solver.reference(), solver.positions());
                 let vertices = self
                     .rest
                     .vertices

@@ -12,7 +12,7 @@ use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 
 use crate::backend::{self, BackendArgs, Solver};
 use crate::carry::{Carried, Kind, Structure, StructureReport};
-use crate::output::{Destination, write_json, write_solution};
+use crate::output::{Destination, Solved, write_json, write_solution};
 use crate::sample::{print_report, sample_on};
 
 /// The demo's summary.
@@ -167,8 +167,11 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
             &solver,
             &case.skin,
             &carried,
-            &deform_params,
-            solve,
+            Solved {
+                params: &deform_params,
+                solve,
+                posture: None,
+            },
         )?;
         say(format!("{}: {}", case.name, case.description));
         for line in report.summary("  ") {

@@ -5,6 +5,7 @@ mod carry;
 mod demo;
 mod frames;
 mod output;
+mod posture;
 mod sample;
 mod solve;
 mod track;

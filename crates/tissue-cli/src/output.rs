@@ -10,6 +10,7 @@ use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::Solver;
 use crate::carry::{Carried, StructureReport};
+use crate::posture::PostureReport;
 
 /// The moved particles and the deformed surface.
 pub const PARTICLES_FILE: &str = "particles.vtp";
@@ -89,8 +90,21 @@ pub struct SolveReport {
     pub inverted: Inversions,
     /// The files written, report included.
     pub files: Vec<String>,
+    /// With the posture options: the postures, the stiffness and the
+    /// unloaded shape (top-level fields `gravity`, `stiffness_kpa`,
+    /// `stiffness_fitted`, `fit_residual_mm`, `unloaded_residual_mm`, ...).
+    #[serde(flatten)]
+    pub posture: Option<PostureReport>,
     /// The error estimate after every iteration.
     pub residual_history: Vec<f32>,
+}
+
+impl SolveReport {
+    /// Whether the unloaded shape (with the posture options) was found:
+    /// true without them.
+    pub fn unloaded_converged(&self) -> bool {
+        self.posture.as_ref().is_none_or(|p| p.unloaded_converged)
+    }
 }
 
 /// How a solve ended, as `report.json` and `track.json` say and the exit
@@ -335,6 +349,17 @@ pub fn resolved(path: &Path) -> PathBuf {
     }
 }
 
+/// What a solve was run with and how it went.
+#[derive(Debug)]
+pub struct Solved<'a> {
+    /// The stage-2 parameters.
+    pub params: &'a DeformParams,
+    /// The solve's report.
+    pub solve: DeformReport,
+    /// With the posture options, what they gave.
+    pub posture: Option<&'a PostureReport>,
+}
+
 /// Carries everything along with the solved particles and writes the results.
 pub fn write_solution(
     to: Destination<'_>,
@@ -342,9 +367,13 @@ pub fn write_solution(
     solver: &Solver,
     deformed: &SurfaceMesh,
     carried: &Carried,
-    params: &DeformParams,
-    solve: DeformReport,
+    solved: Solved<'_>,
 ) -> Result<SolveReport> {
+    let Solved {
+        params,
+        solve,
+        posture,
+    } = solved;
     let current = solver.positions();
     if let Some(i) = current.iter().position(|p| !p.is_finite()) {
         return Err(Unfinished {
@@ -404,7 +433,7 @@ pub fn write_solution(
     let displacement_field = match to.field {
         Some(request) => {
             let field = tissue::resampling::resampling_field(
-                solver.rest(),
+                solver.reference(),
                 current,
                 &solver.rotations()?,
                 &model.connections,
@@ -430,10 +459,10 @@ pub fn write_solution(
 
     let max_displacement_mm = current
         .iter()
-        .zip(solver.rest())
+        .zip(solver.reference())
         .map(|(q, p)| q.distance(*p))
         .fold(0.0, f32::max);
-    let inverted = inversions(solver.rest(), current, &model.connections);
+    let inverted = inversions(solver.reference(), current, &model.connections);
     let report = SolveReport {
         model: to.model.to_owned(),
         surface: to.surface.to_owned(),
@@ -449,6 +478,10 @@ pub fn write_solution(
         seconds: solve.seconds,
         converged: solve.converged,
         status: match Status::of(solve.converged, solve.stopped_by) {
+            // An unloaded shape that was not found leaves the result not final.
+            Status::Converged if posture.is_some_and(|p| !p.unloaded_converged) => {
+                Status::NotConverged
+            }
             Status::Converged if carried.flagged() || inverted.count > 0 => Status::Flagged,
             status => status,
         },
@@ -460,6 +493,7 @@ pub fn write_solution(
         displacement_field,
         inverted,
         files: files.iter().map(|p| p.display().to_string()).collect(),
+        posture: posture.cloned(),
         residual_history: solve.residual_history,
     };
     write_json(&report_path, &report)?;

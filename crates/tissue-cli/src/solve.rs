@@ -13,9 +13,10 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{
-    Destination, FieldRequest, Status, Unfinished, planned_outputs, prepare_outputs,
+    Destination, FieldRequest, Solved, Status, Unfinished, planned_outputs, prepare_outputs,
     refuse_overwriting, remove_earlier_outputs, write_solution,
 };
+use crate::posture::{self, GravityArgs, Posture};
 
 /// The force of stage 2.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -31,9 +32,9 @@ pub enum Force {
 /// Stage-2 options shared by `deform` and `track`.
 #[derive(Debug, clap::Args)]
 pub struct SolveArgs {
-    /// Force model.
-    #[arg(long, value_enum, default_value_t = Force::Symmetric)]
-    pub force: Force,
+    /// Force model (default: symmetric; elastic with the gravity options).
+    #[arg(long, value_enum)]
+    pub force: Option<Force>,
     /// Poisson ratio of the elastic force (0 to 0.499; soft tissue is 0.45 to 0.49).
     #[arg(long, default_value_t = DeformParams::default().poisson)]
     pub poisson: f32,
@@ -63,6 +64,8 @@ pub struct SolveArgs {
     /// solve instead of following the surface. Default: every vertex.
     #[arg(long, value_name = "FILE")]
     pub observed: Option<PathBuf>,
+    #[command(flatten)]
+    pub gravity: GravityArgs,
 }
 
 impl SolveArgs {
@@ -73,12 +76,18 @@ impl SolveArgs {
             Frames::One => 0,
             Frames::Sequence => DeformParams::default().deflation,
         });
+        let force = match (self.force, self.gravity.given()) {
+            (None, false) | (Some(Force::Symmetric), false) => ForceModel::Symmetric,
+            (None, true) | (Some(Force::Elastic), _) => ForceModel::Elastic,
+            (Some(Force::Paper), false) => ForceModel::Paper,
+            (Some(other), true) => bail!(
+                "--gravity-rest and --gravity-deformed need the elastic force (the default with \
+                 them), not --force {}: the unloaded shape is that of an elastic body",
+                format!("{other:?}").to_lowercase()
+            ),
+        };
         let params = DeformParams {
-            force: match self.force {
-                Force::Paper => ForceModel::Paper,
-                Force::Symmetric => ForceModel::Symmetric,
-                Force::Elastic => ForceModel::Elastic,
-            },
+            force,
             poisson: self.poisson,
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
@@ -137,15 +146,13 @@ pub struct DeformArgs {
     pub quiet: bool,
 }
 
-/// Reads a model and prepares stage 2 on it on `device`.
-/// With `observed`, `params` gains its mask (the report says how much of
-/// the surface it observes).
-pub fn load_model(
+/// Reads a model for stage 2 and checks it; with `observed`, `params`
+/// gains its mask.
+pub fn read_model(
     path: &Path,
     params: &mut DeformParams,
     observed: Option<&Path>,
-    device: Device,
-) -> Result<(ParticleModel, Solver)> {
+) -> Result<ParticleModel> {
     let vtp = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("vtp"));
@@ -160,9 +167,37 @@ pub fn load_model(
     if let Some(file) = observed {
         params.observed = Some(read_observed(file, &model.surface)?);
     }
-    let solver = Solver::new(device, &model, params.clone())
-        .with_context(|| format!("{}: cannot deform this model", path.display()))?;
-    Ok((model, solver))
+    Ok(model)
+}
+
+/// Stage 2 for `model` on `device` under `params`: with the posture
+/// options, the organ's unloaded shape (and stiffness) first, from the
+/// rest scan and the deformed surface `deformed`, and the solver then
+/// stress-free in it with the deformed posture's gravity inside (`params`
+/// gains that load; unless `quiet`, what was found is printed).
+pub fn solver_for(
+    path: &Path,
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+    gravity: &GravityArgs,
+    params: &mut DeformParams,
+    device: Device,
+    quiet: bool,
+) -> Result<(Solver, Option<Posture>)> {
+    let context = || format!("{}: cannot deform this model", path.display());
+    let Some(posture) = posture::prepare(gravity, &device, model, deformed, params)? else {
+        let solver = Solver::new(device, model, params.clone()).with_context(context)?;
+        return Ok((solver, None));
+    };
+    if !quiet {
+        for line in posture.summary("") {
+            println!("{line}");
+        }
+    }
+    let solver = posture
+        .solver(device, model, params)
+        .with_context(context)?;
+    Ok((solver, Some(posture)))
 }
 
 /// The observed-vertex mask of `rest` (the model's rest surface) from
@@ -379,13 +414,17 @@ fn field_request<'a>(
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let mut params = args.solve.params(Frames::One)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
-    let (model, mut solver) = load_model(
-        &args.model,
-        &mut params,
-        args.solve.observed.as_deref(),
-        device,
-    )?;
+    let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
+    let (mut solver, posture) = solver_for(
+        &args.model,
+        &model,
+        &deformed,
+        &args.solve.gravity,
+        &mut params,
+        device,
+        args.quiet,
+    )?;
     set_deformed(&args.surface, &mut solver, &deformed)?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let field = match &args.displacement_field {
@@ -410,8 +449,11 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         &solver,
         &deformed,
         &carried,
-        &params,
-        solve,
+        Solved {
+            params: &params,
+            solve,
+            posture: posture.as_ref().map(|p| &p.report),
+        },
     )?;
     if !args.quiet {
         println!(
@@ -429,6 +471,17 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             "the solve converged, but its result is flagged ({}): {}",
             args.output_dir.display(),
             report.flags().join("; ")
+        ),
+        _ if !report.unloaded_converged() => format!(
+            "the organ's unloaded shape was NOT found: loaded again with the rest posture's \
+             gravity it misses the rest surface by {:.3} (RMS; 0.1 mm asked); the results in {} \
+             are not final",
+            report
+                .posture
+                .as_ref()
+                .and_then(|p| p.unloaded_residual_mm)
+                .unwrap_or(f32::NAN),
+            args.output_dir.display()
         ),
         _ => format!(
             "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \
@@ -454,13 +507,14 @@ mod tests {
     #[test]
     fn deflation_defaults_to_none_for_one_frame_and_32_for_a_sequence() {
         let args = |deflation| SolveArgs {
-            force: Force::Symmetric,
+            force: Some(Force::Symmetric),
             poisson: DeformParams::default().poisson,
             max_iterations: 100,
             tolerance: 1e-4,
             deflation,
             coarse: DeformParams::default().coarse,
             observed: None,
+            gravity: GravityArgs::default(),
         };
         let deflation = |given, frames| args(given).params(frames).map(|p| p.deflation).ok();
         assert_eq!(deflation(None, Frames::One), Some(0));
@@ -475,13 +529,14 @@ mod tests {
     #[test]
     fn coarse_defaults_to_the_library_cell_and_refuses_tiny_cells() {
         let args = |coarse| SolveArgs {
-            force: Force::Symmetric,
+            force: Some(Force::Symmetric),
             poisson: DeformParams::default().poisson,
             max_iterations: 100,
             tolerance: 1e-4,
             deflation: None,
             coarse,
             observed: None,
+            gravity: GravityArgs::default(),
         };
         let coarse = |given, frames| args(given).params(frames).map(|p| p.coarse);
         assert_eq!(coarse(2.0, Frames::One).ok(), Some(2.0));

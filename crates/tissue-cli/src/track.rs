@@ -18,10 +18,14 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, PARTICLES_FILE, REPORT_FILE, Status, Unfinished, convergence, planned_outputs,
-    prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_json, write_solution,
+    Destination, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence,
+    planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_json,
+    write_solution,
 };
-use crate::solve::{Frames, SolveArgs, load_model, read_deformed, read_frame, set_deformed};
+use crate::posture::{GravityArgs, PostureReport};
+use crate::solve::{
+    Frames, SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for,
+};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -122,6 +126,9 @@ struct Plan<'a> {
     #[serde(skip_serializing_if = "is_lps")]
     space: Space,
     params: &'a DeformParams,
+    /// The posture options, where given (a resume must give the same).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    gravity: Option<&'a GravityArgs>,
 }
 
 fn is_lps(space: &Space) -> bool {
@@ -140,6 +147,10 @@ struct TrackReport<'a> {
     totals: Totals,
     /// What the run was asked to do ([`Plan`]).
     plan: &'a Value,
+    /// With the posture options: the postures, the stiffness and the
+    /// unloaded shape, made once from the first frame (as in `report.json`).
+    #[serde(flatten)]
+    posture: Option<&'a PostureReport>,
 }
 
 /// Removes what an earlier `track` into `dir` left that this run of
@@ -307,12 +318,27 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     params.validate()?;
     let frames = expand(&args.frames)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
-    let (model, mut solver) = load_model(
+    let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
+    // Every frame read and checked before the first solve: a bad frame
+    // stops the run before anything is written.
+    for frame in &frames {
+        read_deformed(frame, &model.surface)?;
+    }
+    // The postures' unloaded shape and stiffness, once, from the first frame.
+    let first_frame = match (args.solve.gravity.given(), frames.first()) {
+        (true, Some(first)) => Some(read_frame(first, &model.surface)?),
+        _ => None,
+    };
+    let (mut solver, posture) = solver_for(
         &args.model,
+        &model,
+        first_frame.as_ref().unwrap_or(&model.surface),
+        &args.solve.gravity,
         &mut params,
-        args.solve.observed.as_deref(),
         device,
+        args.quiet,
     )?;
+    let posture_report = posture.as_ref().map(|p| &p.report);
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let model_name = args.model.display().to_string();
     // Every frame's files and the summary, against every input, before any work.
@@ -333,11 +359,6 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         outputs.extend(planned_outputs(&destination, &carried));
     }
     refuse_overwriting(&outputs, &inputs)?;
-    // Every frame read and checked before the first solve: a bad frame
-    // stops the run before anything is written.
-    for frame in &frames {
-        read_deformed(frame, &model.surface)?;
-    }
     let plan = serde_json::from_str::<Value>(&serde_json::to_string(&Plan {
         model: &args.model,
         frames: &frames,
@@ -346,6 +367,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         rigid_structures: &args.carry.rigid_structures,
         space: args.carry.space,
         params: &params,
+        gravity: args.solve.gravity.given().then_some(&args.solve.gravity),
     })?)?;
     let mut done = if args.resume {
         resumed(&path, &plan)?
@@ -366,6 +388,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         path: &path,
         model: &model_name,
         plan: &plan,
+        posture: posture_report,
         planned: frames.len(),
         started,
         resumed_at,
@@ -403,8 +426,11 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             &solver,
             &deformed,
             &carried,
-            &params,
-            solve,
+            Solved {
+                params: &params,
+                solve,
+                posture: posture_report,
+            },
         ) {
             Ok(report) => report,
             Err(err) => {
@@ -516,6 +542,7 @@ struct Summary<'a> {
     path: &'a Path,
     model: &'a str,
     plan: &'a Value,
+    posture: Option<&'a PostureReport>,
     planned: usize,
     started: Instant,
     resumed_at: Option<usize>,
@@ -535,6 +562,7 @@ impl Summary<'_> {
             frames: done,
             totals: totals(done, self.planned, status, self.started),
             plan: self.plan,
+            posture: self.posture,
         };
         report.totals.resumed_at = self.resumed_at;
         write_json(self.path, &report)?;

@@ -1,0 +1,400 @@
+//! `--gravity-rest`, `--gravity-deformed` and their options (issue 16): the
+//! organ's unloaded shape and its stiffness from the two postures, made
+//! once per run ([`tissue::gravity`]), and what the report says of them.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow};
+use clap::ValueEnum;
+use glam::Vec3;
+use serde::Serialize;
+use tissue::backend::{Device, Solver};
+use tissue::deformation::DeformParams;
+use tissue::gravity::{Gravity, Unloaded, held_vertices, unload};
+use tissue::{ParticleModel, SurfaceMesh};
+
+use crate::solve::read_observed;
+
+/// The held region found by `--fixed-region auto`: the surface vertices
+/// that move less than this many mean connection lengths between the rest
+/// and the deformed surface.
+pub const HELD_SPACINGS: f32 = 1e-3;
+
+/// The length unit of the model and its surfaces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Unit {
+    /// Millimetres (3D Slicer's, and the bundled phantom's).
+    Mm,
+    /// Centimetres.
+    Cm,
+    /// Metres.
+    M,
+}
+
+impl Unit {
+    /// The unit in metres.
+    pub fn metres(self) -> f32 {
+        match self {
+            Unit::Mm => 1e-3,
+            Unit::Cm => 1e-2,
+            Unit::M => 1.0,
+        }
+    }
+}
+
+/// The posture options shared by `deform` and `track`.
+#[derive(Debug, Clone, Default, clap::Args, Serialize)]
+pub struct GravityArgs {
+    /// Gravity in the rest scan (the model's posture), in units of g and in
+    /// the surface file's axes: `0,0,-1` pulls along -z. With
+    /// --gravity-deformed, the organ's unloaded shape is found from the
+    /// rest scan and its gravity (the held region fixed, the rest of the
+    /// skin free), and the deformed posture is solved from it with its own
+    /// gravity inside (docs/METHOD.md, "Gravity and the unloaded shape").
+    /// Implies `--force elastic`.
+    #[arg(
+        long,
+        value_name = "X,Y,Z",
+        value_parser = parse_vector,
+        allow_hyphen_values = true,
+        requires = "gravity_deformed"
+    )]
+    pub gravity_rest: Option<Vec3>,
+    /// Gravity in the deformed scan, in units of g, in the same axes.
+    #[arg(
+        long,
+        value_name = "X,Y,Z",
+        value_parser = parse_vector,
+        allow_hyphen_values = true,
+        requires = "gravity_rest"
+    )]
+    pub gravity_deformed: Option<Vec3>,
+    /// The tissue's density in kg/m^3 (default 1000, soft tissue).
+    #[arg(
+        long,
+        value_name = "KG_M3",
+        allow_negative_numbers = true,
+        requires = "gravity_rest"
+    )]
+    pub density: Option<f32>,
+    /// The tissue's Young's modulus in kPa. Without it, it is fitted so
+    /// that the deformed posture's gravity, the skin free, best gives the
+    /// observed deformed skin (the report gives the fit and its residual).
+    #[arg(
+        long,
+        value_name = "KPA",
+        allow_negative_numbers = true,
+        requires = "gravity_rest"
+    )]
+    pub stiffness: Option<f32>,
+    /// The surface's held region, which does not move between the scans
+    /// (the chest wall): `auto` (default) takes the vertices that move less
+    /// than a thousandth of a particle spacing between the rest and the
+    /// deformed surface; or a file, as --observed takes one (a surface
+    /// file of the patch, or its vertices as points).
+    #[arg(long, value_name = "auto|FILE", requires = "gravity_rest")]
+    pub fixed_region: Option<String>,
+    /// The length unit of the model and the surfaces, for gravity's load
+    /// (default mm).
+    #[arg(long, value_enum, requires = "gravity_rest")]
+    pub unit: Option<Unit>,
+}
+
+impl GravityArgs {
+    /// Whether the gravity options were given.
+    pub fn given(&self) -> bool {
+        self.gravity_rest.is_some()
+    }
+}
+
+/// `X,Y,Z`: three numbers.
+fn parse_vector(text: &str) -> Result<Vec3, String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let numbers: Vec<f32> = parts
+        .iter()
+        .map(|p| p.parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("`{text}`: expected three numbers X,Y,Z (e.g. 0,0,-1)"))?;
+    match numbers[..] {
+        [x, y, z] if numbers.iter().all(|v| v.is_finite()) => Ok(Vec3::new(x, y, z)),
+        [_, _, _] => Err(format!("`{text}`: the numbers must be finite")),
+        _ => Err(format!(
+            "`{text}`: expected three numbers X,Y,Z, got {}",
+            numbers.len()
+        )),
+    }
+}
+
+/// The held region in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldReport {
+    /// Held vertices.
+    pub vertices: usize,
+    /// Vertices of the surface.
+    pub of: usize,
+    /// `auto`, or the file it was read from.
+    pub from: String,
+}
+
+/// The two postures in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct GravityReport {
+    /// The rest scan's gravity, units of g.
+    pub rest: [f32; 3],
+    /// The deformed scan's.
+    pub deformed: [f32; 3],
+    /// The change between them, units of g.
+    pub change: f32,
+    /// The tissue's density, kg/m^3.
+    pub density_kg_m3: f32,
+    /// The model's length unit.
+    pub unit: Unit,
+    /// The held region.
+    pub held: HeldReport,
+}
+
+/// One stiffness the fit tried.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrialReport {
+    /// Young's modulus, kPa.
+    pub stiffness_kpa: f32,
+    /// The free skin's RMS distance from the observed one (model units;
+    /// `null` where a solve did not converge).
+    pub residual_mm: Option<f32>,
+}
+
+/// What the report says of the postures (top-level fields of
+/// `report.json` and of `track.json`'s plan).
+#[derive(Debug, Clone, Serialize)]
+pub struct PostureReport {
+    /// The postures and the held region.
+    pub gravity: GravityReport,
+    /// Young's modulus the deformed posture was solved with, kPa (`null`:
+    /// gravity does not change, and nothing was loaded).
+    pub stiffness_kpa: Option<f32>,
+    /// Whether it was fitted from the skin (else given by `--stiffness`).
+    pub stiffness_fitted: bool,
+    /// The fit's residual: the free skin's RMS distance from the observed
+    /// one at the fitted stiffness (model units).
+    pub fit_residual_mm: Option<f32>,
+    /// Every stiffness the fit tried, in order.
+    pub fit_trials: Vec<TrialReport>,
+    /// The unloaded shape, loaded again with the rest posture's gravity:
+    /// its RMS distance from the rest surface particles (model units).
+    pub unloaded_residual_mm: Option<f32>,
+    /// Whether that is within 0.1 mm with every solve converged.
+    pub unloaded_converged: bool,
+    /// Stage-2 solves the unloaded shape and the fit made.
+    pub solves: usize,
+    /// Seconds they took.
+    pub seconds: f64,
+}
+
+/// What the postures give the solve: the unloaded shape, where gravity
+/// changes or the stiffness is given, and the report.
+#[derive(Debug, Clone)]
+pub struct Posture {
+    /// The unloaded shape and the deformed posture's load; `None` where
+    /// gravity does not change and no stiffness was given (solved as
+    /// without gravity).
+    pub unloaded: Option<Unloaded>,
+    /// What the report says.
+    pub report: PostureReport,
+}
+
+impl Posture {
+    /// The solver of the deformed posture: stress-free in the unloaded
+    /// shape with the deformed posture's gravity inside, or, without one,
+    /// the model's own (`params` gains the load).
+    pub fn solver(
+        &self,
+        device: Device,
+        model: &ParticleModel,
+        params: &mut DeformParams,
+    ) -> Result<Solver> {
+        Ok(match &self.unloaded {
+            Some(unloaded) => {
+                params.load = unloaded.deformed_load;
+                Solver::unloaded(device, model, &unloaded.shape.positions, params.clone())?
+            }
+            None => Solver::new(device, model, params.clone())?,
+        })
+    }
+
+    /// Lines for the terminal.
+    pub fn summary(&self, indent: &str) -> Vec<String> {
+        let r = &self.report;
+        let mut lines = vec![format!(
+            "{indent}gravity {:?} g at rest, {:?} g deformed ({:.2} g change); held region {} of {} \
+             surface vertices ({})",
+            r.gravity.rest,
+            r.gravity.deformed,
+            r.gravity.change,
+            r.gravity.held.vertices,
+            r.gravity.held.of,
+            r.gravity.held.from
+        )];
+        match (r.stiffness_kpa, r.unloaded_residual_mm) {
+            (Some(e), Some(residual)) => {
+                lines.push(format!(
+                    "{indent}stiffness {e:.3} kPa ({}); unloaded shape {} (loaded again, {residual:.3} \
+                     mm RMS from the rest surface), {} solves in {:.1} s",
+                    match r.fit_residual_mm {
+                        Some(fit) => format!(
+                            "fitted in {} trials, free skin {fit:.3} mm from the observed",
+                            r.fit_trials.len()
+                        ),
+                        None => "given".to_owned(),
+                    },
+                    if r.unloaded_converged {
+                        "found"
+                    } else {
+                        "NOT found within 0.1 mm"
+                    },
+                    r.solves,
+                    r.seconds
+                ));
+            }
+            _ => lines.push(format!(
+                "{indent}gravity does not change between the postures: no load to fit; solved as \
+                 without gravity"
+            )),
+        }
+        lines
+    }
+}
+
+/// The postures `args` gives, for `model` (its positions the rest scan)
+/// and the deformed surface `deformed` (the fit's observed skin), on
+/// `device`; `None` without the gravity options. `params` is the elastic
+/// force's (with `--observed`'s mask where given).
+pub fn prepare(
+    args: &GravityArgs,
+    device: &Device,
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+    params: &DeformParams,
+) -> Result<Option<Posture>> {
+    let (Some(rest), Some(deformed_gravity)) = (args.gravity_rest, args.gravity_deformed) else {
+        return Ok(None);
+    };
+    let unit = args.unit.unwrap_or(Unit::Mm);
+    let gravity = Gravity {
+        rest,
+        deformed: deformed_gravity,
+        density_kg_m3: args.density.unwrap_or(1000.0),
+        stiffness_kpa: args.stiffness,
+        metres_per_unit: unit.metres(),
+    };
+    gravity
+        .validate()
+        .map_err(|e| anyhow!("the posture options: {e}"))?;
+    let (held, from) = match args.fixed_region.as_deref() {
+        None | Some("auto") => {
+            let tolerance = HELD_SPACINGS * model.mean_connection_length();
+            let held = held_vertices(&model.surface, deformed, tolerance).ok_or_else(|| {
+                anyhow!("the deformed surface has other vertices than the model's rest surface")
+            })?;
+            (held, "auto".to_owned())
+        }
+        Some(file) => {
+            let path = Path::new(file);
+            let held = read_observed(path, &model.surface)
+                .with_context(|| format!("--fixed-region {file}"))?;
+            (held, file.to_owned())
+        }
+    };
+    let held_count = held.iter().filter(|&&h| h).count();
+    if held_count == 0 {
+        anyhow::bail!(
+            "no surface vertex is held between the two scans (--fixed-region auto found none \
+             that moved less than {:.2e}): the unloaded shape needs the surface that does not \
+             move, e.g. the chest wall; give it with --fixed-region FILE",
+            HELD_SPACINGS * model.mean_connection_length()
+        );
+    }
+    let gravity_report = GravityReport {
+        rest: rest.to_array(),
+        deformed: deformed_gravity.to_array(),
+        change: (deformed_gravity - rest).length(),
+        density_kg_m3: gravity.density_kg_m3,
+        unit,
+        held: HeldReport {
+            vertices: held_count,
+            of: held.len(),
+            from,
+        },
+    };
+    if !gravity.changes() && gravity.stiffness_kpa.is_none() {
+        log::warn!(
+            "gravity does not change between the postures ({rest} and {deformed_gravity} g): the \
+             skin says nothing about the stiffness, and no load is fitted; solving as without \
+             gravity (give --stiffness to solve from the unloaded shape anyway)"
+        );
+        return Ok(Some(Posture {
+            unloaded: None,
+            report: PostureReport {
+                gravity: gravity_report,
+                stiffness_kpa: None,
+                stiffness_fitted: false,
+                fit_residual_mm: None,
+                fit_trials: Vec::new(),
+                unloaded_residual_mm: None,
+                unloaded_converged: true,
+                solves: 0,
+                seconds: 0.0,
+            },
+        }));
+    }
+    let started = Instant::now();
+    let unloaded = unload(device, model, deformed, &held, &gravity, params)
+        .map_err(|e| anyhow!("the organ's unloaded shape: {e}"))?;
+    let report = PostureReport {
+        gravity: gravity_report,
+        stiffness_kpa: Some(unloaded.stiffness_kpa),
+        stiffness_fitted: unloaded.fit.is_some(),
+        fit_residual_mm: unloaded.fit.as_ref().map(|f| f.residual),
+        fit_trials: unloaded
+            .fit
+            .iter()
+            .flat_map(|f| &f.trials)
+            .map(|t| TrialReport {
+                stiffness_kpa: t.stiffness_kpa,
+                residual_mm: t.residual.is_finite().then_some(t.residual),
+            })
+            .collect(),
+        unloaded_residual_mm: Some(unloaded.shape.residual),
+        unloaded_converged: unloaded.shape.converged,
+        solves: unloaded.solves,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    Ok(Some(Posture {
+        unloaded: Some(unloaded),
+        report,
+    }))
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests")]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vectors_parse_as_three_finite_numbers() {
+        assert_eq!(parse_vector("0,0,-1"), Ok(Vec3::NEG_Z));
+        assert_eq!(parse_vector(" 1, 0.5 ,0"), Ok(Vec3::new(1.0, 0.5, 0.0)));
+        for bad in ["0,0", "0,0,0,1", "x,0,0", "0,0,inf", ""] {
+            let err = parse_vector(bad).unwrap_err();
+            assert!(err.contains(bad) || bad.is_empty(), "{bad}: {err}");
+        }
+    }
+
+    #[test]
+    fn units_are_in_metres() {
+        assert_eq!(Unit::Mm.metres(), 1e-3);
+        assert_eq!(Unit::Cm.metres(), 1e-2);
+        assert_eq!(Unit::M.metres(), 1.0);
+    }
+}

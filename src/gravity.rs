@@ -1,0 +1,306 @@
+//! Posture-aware stage 2 on any device (issue 16): the organ's unloaded
+//! shape from the rest scan and its posture's gravity, the stiffness
+//! fitted from the deformed skin where it is not given, and what a
+//! [`Solver`] needs to solve the deformed posture stress-free in that
+//! shape with its own gravity inside (docs/METHOD.md, "Gravity and the
+//! unloaded shape").
+//!
+//! ```
+//! use glam::Vec3;
+//! use tissue::backend::{Device, Solver};
+//! use tissue::deformation::{DeformParams, ForceModel};
+//! use tissue::gravity::{Gravity, held_vertices, unload};
+//! use tissue::{SamplingParams, phantom};
+//!
+//! let model = tissue::sample(&phantom::default_breast(), &SamplingParams::with_particles(1_000))?
+//!     .model;
+//! let deformed = tissue::deform::sagged_breast();
+//! let params = DeformParams { force: ForceModel::Elastic, ..DeformParams::default() };
+//! // Lying on the back (+z forward), then sitting up (gravity towards the
+//! // feet, -y), tissue of 3 kPa; without a stiffness it is fitted.
+//! let gravity = Gravity::millimetres(Vec3::NEG_Z, Vec3::NEG_Y, Some(3.0));
+//! // The chest wall: what does not move between the scans.
+//! let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap_or_default();
+//! let unloaded = unload(&Device::Cpu, &model, &deformed, &held, &gravity, &params)?;
+//! assert!(unloaded.shape.converged);
+//! let params = DeformParams { load: unloaded.deformed_load, ..params };
+//! let mut solver = Solver::unloaded(Device::Cpu, &model, &unloaded.shape.positions, params)?;
+//! solver.set_surface(&deformed)?;
+//! assert!(solver.solve()?.converged);
+//! # Ok::<(), tissue::Error>(())
+//! ```
+
+use glam::Vec3;
+use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
+use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel};
+use tissue_solve::gravity::{UnloadedShape, Unloading, gravity_load, unloaded_shape};
+use tissue_solve::plan::control_points;
+use tissue_solve::stiffness::{Postures, Trial, fit_stiffness, free_skin_targets};
+
+use crate::backend::{Device, Solver};
+
+pub use tissue_solve::gravity::{STANDARD_GRAVITY, held_vertices};
+
+/// A change of gravity between the postures smaller than this, in units of
+/// `g`, is none: the skin then says nothing about the stiffness, and the
+/// deformed posture is solved as without gravity.
+pub const NO_CHANGE: f32 = 1e-3;
+
+/// The stiffness the fit starts from, kPa (soft tissue is 0.5 to 50), and
+/// the bounds it searches within.
+pub const FIT_START_KPA: f32 = 3.0;
+
+/// The fit's bounds, kPa.
+pub const FIT_BOUNDS_KPA: (f32, f32) = (0.1, 100.0);
+
+/// The unloaded shape, loaded again, must give the rest surface within
+/// this (RMS over the surface particles), in metres: 0.1 mm, what issue 16
+/// asks.
+pub const UNLOADED_TOLERANCE_M: f32 = 1e-4;
+
+/// What a navigation system knows of the two scans besides the surfaces.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gravity {
+    /// The rest scan's gravity (the model's posture), in units of `g`, in
+    /// the model's axes.
+    pub rest: Vec3,
+    /// The deformed scan's.
+    pub deformed: Vec3,
+    /// The tissue's density, kg/m^3.
+    pub density_kg_m3: f32,
+    /// Young's modulus in kPa where it is known; `None`: fitted from the
+    /// deformed skin.
+    pub stiffness_kpa: Option<f32>,
+    /// The model's length unit in metres (`1e-3` for millimetres).
+    pub metres_per_unit: f32,
+}
+
+impl Gravity {
+    /// Gravity in two postures of a model in millimetres, tissue of 1000
+    /// kg/m^3.
+    pub fn millimetres(rest: Vec3, deformed: Vec3, stiffness_kpa: Option<f32>) -> Self {
+        Self {
+            rest,
+            deformed,
+            density_kg_m3: 1000.0,
+            stiffness_kpa,
+            metres_per_unit: 1e-3,
+        }
+    }
+
+    /// Whether gravity changes between the postures (by [`NO_CHANGE`] or more).
+    pub fn changes(&self) -> bool {
+        (self.deformed - self.rest).length() >= NO_CHANGE
+    }
+
+    /// Checks every field, naming the first that is out of range.
+    ///
+    /// # Errors
+    ///
+    /// [`ParamError`] for a gravity that is not finite or longer than 10
+    /// g, a density, stiffness or unit that is not positive and finite.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        for (name, g) in [
+            ("gravity_rest", self.rest),
+            ("gravity_deformed", self.deformed),
+        ] {
+            ParamError::check(
+                g.is_finite() && g.length() <= 10.0,
+                name,
+                g,
+                "a finite vector in units of g, at most 10 g long (0,0,-1: along -z)",
+            )?;
+        }
+        if let Some(e) = self.stiffness_kpa {
+            ParamError::check(
+                e.is_finite() && e > 0.0,
+                "stiffness_kpa",
+                e,
+                "a positive Young's modulus in kPa (soft tissue: 0.5 to 50)",
+            )?;
+        }
+        // The density and the unit: as the load checks them.
+        gravity_load(
+            Vec3::ZERO,
+            self.density_kg_m3,
+            1.0,
+            0.3,
+            self.metres_per_unit,
+        )?;
+        Ok(())
+    }
+}
+
+/// The stiffness's fit.
+#[derive(Debug, Clone)]
+pub struct Fit {
+    /// The free skin's RMS distance from the observed one at the fitted
+    /// stiffness, in model units.
+    pub residual: f32,
+    /// Every trial, in order.
+    pub trials: Vec<Trial>,
+}
+
+/// The organ's unloaded shape and what the deformed posture is solved with.
+#[derive(Debug, Clone)]
+pub struct Unloaded {
+    /// The unloaded shape, and how well it gives the rest shape back.
+    pub shape: UnloadedShape,
+    /// Young's modulus, kPa: given, or fitted.
+    pub stiffness_kpa: f32,
+    /// The fit, where the stiffness was fitted.
+    pub fit: Option<Fit>,
+    /// The deformed posture's gravity as [`DeformParams::load`].
+    pub deformed_load: Vec3,
+    /// Every stage-2 solve the search made.
+    pub solves: usize,
+}
+
+/// The unloaded shape of `model` (its positions the rest scan) under
+/// `gravity`, on `device`: `held` (one flag per surface vertex) is the
+/// surface that does not move between the scans (the chest wall), observed
+/// in every solve, the rest of the skin free; with no stiffness given it
+/// is fitted so that the deformed posture's gravity, the skin free, best
+/// gives the skin of `deformed` (the observed part where
+/// `params.observed` says). `params` must be the elastic force's.
+///
+/// # Errors
+///
+/// [`ParamError`] for gravity values out of range, another force, a
+/// gravity that does not change while the stiffness is to be fitted, a
+/// held mask of the wrong length, or none or every vertex held; what the
+/// solves refuse; no stiffness whose solves converge.
+pub fn unload(
+    device: &Device,
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+    held: &[bool],
+    gravity: &Gravity,
+    params: &DeformParams,
+) -> Result<Unloaded, Error> {
+    gravity.validate()?;
+    ParamError::check(
+        params.force == ForceModel::Elastic,
+        "force",
+        format!("{:?}", params.force),
+        "the elastic force (gravity's unloaded shape is that of an elastic body)",
+    )?;
+    let vertices = model.surface.vertices.len();
+    ParamError::check(
+        held.len() == vertices,
+        "held region",
+        format!("{} flags", held.len()),
+        format!("one per surface vertex ({vertices})"),
+    )?;
+    let held_count = held.iter().filter(|&&h| h).count();
+    ParamError::check(
+        held_count > 0,
+        "held region",
+        "no vertex",
+        "the surface that does not move between the scans (the chest wall): at least one vertex",
+    )?;
+    ParamError::check(
+        gravity.stiffness_kpa.is_some() || held_count < vertices,
+        "held region",
+        "every vertex",
+        "some free skin to fit the stiffness from (or the stiffness given)",
+    )?;
+    ParamError::check(
+        gravity.stiffness_kpa.is_some() || gravity.changes(),
+        "gravity",
+        format!(
+            "the same in both postures ({} and {})",
+            gravity.rest, gravity.deformed
+        ),
+        "a change of posture to fit the stiffness from (or the stiffness given)",
+    )?;
+    let per_kpa = |g: Vec3| {
+        gravity_load(
+            g,
+            gravity.density_kg_m3,
+            1.0,
+            params.poisson,
+            gravity.metres_per_unit,
+        )
+    };
+    let (rest_per_kpa, deformed_per_kpa) = (per_kpa(gravity.rest)?, per_kpa(gravity.deformed)?);
+    let unloading = Unloading {
+        tolerance: UNLOADED_TOLERANCE_M / gravity.metres_per_unit,
+        ..Unloading::MILLIMETRES
+    };
+    let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
+    let mut solves = 0;
+    // Loads `guess` with `load`: the held region observed where the rest
+    // surface puts it, the rest of the skin free.
+    let mut solve = |guess: &[Vec3], load: Vec3| -> Result<(Vec<Vec3>, DeformReport), Error> {
+        solves += 1;
+        let stress_free = ParticleModel {
+            positions: guess.to_vec(),
+            ..model.clone()
+        };
+        let held_params = DeformParams {
+            observed: Some(held.to_vec()),
+            load,
+            ..params.clone()
+        };
+        let mut solver = Solver::new(device.clone(), &stress_free, held_params)?;
+        solver.set_surface(&model.surface)?;
+        let report = solver.solve()?;
+        Ok((solver.positions().to_vec(), report))
+    };
+    let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
+        Some(e) => {
+            let shape = unloaded_shape(&model.positions, &surface, unloading, |x| {
+                solve(x, rest_per_kpa / e)
+            })?;
+            (e, shape, None)
+        }
+        None => {
+            // Where the observed deformed skin puts each free skin particle.
+            let observed = params
+                .observed
+                .as_deref()
+                .map(|mask| control_points(model, Some(mask)));
+            let targets: Vec<Option<Vec3>> = free_skin_targets(model, deformed, held)
+                .into_iter()
+                .enumerate()
+                .map(|(i, t)| t.filter(|_| observed.as_ref().is_none_or(|o| o[i])))
+                .collect();
+            ParamError::check(
+                targets.iter().any(Option::is_some),
+                "observed",
+                "no free skin particle observed",
+                "some observed skin outside the held region to fit the stiffness from",
+            )?;
+            let postures = Postures {
+                rest: &model.positions,
+                surface: &surface,
+                targets: &targets,
+                rest_load_per_kpa: rest_per_kpa,
+                deformed_load_per_kpa: deformed_per_kpa,
+            };
+            let fit = fit_stiffness(
+                &postures,
+                FIT_START_KPA,
+                FIT_BOUNDS_KPA,
+                unloading,
+                &mut solve,
+            )?;
+            (
+                fit.stiffness_kpa,
+                fit.unloaded,
+                Some(Fit {
+                    residual: fit.residual,
+                    trials: fit.trials,
+                }),
+            )
+        }
+    };
+    Ok(Unloaded {
+        shape,
+        stiffness_kpa,
+        fit,
+        deformed_load: deformed_per_kpa / stiffness_kpa,
+        solves,
+    })
+}
