@@ -21,7 +21,7 @@
 //! let gravity = Gravity::millimetres(Vec3::NEG_Z, Vec3::NEG_Y, Some(3.0));
 //! // The chest wall: what does not move between the scans.
 //! let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap_or_default();
-//! let unloaded = unload(&Device::Cpu, &model, &deformed, &held, &gravity, &params)?;
+//! let unloaded = unload(&Device::Cpu, &model, &deformed, &held, &gravity, &params, &mut |_| {})?;
 //! assert!(unloaded.shape.converged);
 //! let params = DeformParams { load: unloaded.deformed_load, ..params };
 //! let mut solver = Solver::unloaded(Device::Cpu, &model, &unloaded.shape.positions, params)?;
@@ -141,6 +141,17 @@ pub struct Fit {
     pub trials: Vec<Trial>,
 }
 
+/// One stage-2 solve of [`unload`]'s search, told to its progress callback.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveProgress {
+    /// Solves made so far, this one included.
+    pub solve: usize,
+    /// Its iterations.
+    pub iterations: usize,
+    /// Whether it converged.
+    pub converged: bool,
+}
+
 /// The organ's unloaded shape and what the deformed posture is solved with.
 #[derive(Debug, Clone)]
 pub struct Unloaded {
@@ -163,6 +174,8 @@ pub struct Unloaded {
 /// is fitted so that the deformed posture's gravity, the skin free, best
 /// gives the skin of `deformed` (the observed part where
 /// `params.observed` says). `params` must be the elastic force's.
+/// `progress` is told of every solve as it ends (a fit makes 10-15 of
+/// them, each of a few hundred iterations over the free skin).
 ///
 /// # Errors
 ///
@@ -177,6 +190,7 @@ pub fn unload(
     held: &[bool],
     gravity: &Gravity,
     params: &DeformParams,
+    progress: &mut dyn FnMut(&SolveProgress),
 ) -> Result<Unloaded, Error> {
     gravity.validate()?;
     ParamError::check(
@@ -246,6 +260,11 @@ pub fn unload(
         let mut solver = Solver::new(device.clone(), &stress_free, held_params)?;
         solver.set_surface(&model.surface)?;
         let report = solver.solve()?;
+        progress(&SolveProgress {
+            solve: solves,
+            iterations: report.iterations,
+            converged: report.converged,
+        });
         Ok((solver.positions().to_vec(), report))
     };
     let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {

@@ -145,7 +145,18 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
         // The facade's path, as `tissue deform --gravity-rest ... --gravity-deformed ...`
         // takes it: the fit and the unloaded shape, then the deformed
         // posture stress-free in that shape, measured from the rest scan.
-        let found = unload(&Device::Cpu, &model, &deformed, &held, &postures, &base).unwrap();
+        let mut solves = 0;
+        let found = unload(
+            &Device::Cpu,
+            &model,
+            &deformed,
+            &held,
+            &postures,
+            &base,
+            &mut |p| solves = p.solve,
+        )
+        .unwrap();
+        assert_eq!(solves, found.solves, "{name}: every solve was told");
         let fit = found.fit.as_ref().unwrap();
         let params = DeformParams {
             load: found.deformed_load,

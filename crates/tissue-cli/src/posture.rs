@@ -8,10 +8,11 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow};
 use clap::ValueEnum;
 use glam::Vec3;
+use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use tissue::backend::{Device, Solver};
 use tissue::deformation::DeformParams;
-use tissue::gravity::{Gravity, Unloaded, held_vertices, unload};
+use tissue::gravity::{Gravity, SolveProgress, Unloaded, held_vertices, unload};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::solve::read_observed;
@@ -269,13 +270,15 @@ impl Posture {
 /// The postures `args` gives, for `model` (its positions the rest scan)
 /// and the deformed surface `deformed` (the fit's observed skin), on
 /// `device`; `None` without the gravity options. `params` is the elastic
-/// force's (with `--observed`'s mask where given).
+/// force's (with `--observed`'s mask where given). A spinner counts the
+/// solves on a terminal, unless `quiet`.
 pub fn prepare(
     args: &GravityArgs,
     device: &Device,
     model: &ParticleModel,
     deformed: &SurfaceMesh,
     params: &DeformParams,
+    quiet: bool,
 ) -> Result<Option<Posture>> {
     let (Some(rest), Some(deformed_gravity)) = (args.gravity_rest, args.gravity_deformed) else {
         return Ok(None);
@@ -349,8 +352,42 @@ pub fn prepare(
         }));
     }
     let started = Instant::now();
-    let unloaded = unload(device, model, deformed, &held, &gravity, params)
-        .map_err(|e| anyhow!("the organ's unloaded shape: {e}"))?;
+    let mut bar: Option<ProgressBar> = None;
+    let mut progress = |p: &SolveProgress| {
+        if quiet {
+            return;
+        }
+        let bar = bar.get_or_insert_with(|| {
+            let bar = ProgressBar::new_spinner();
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{spinner} the unloaded shape and the stiffness: solve {pos} ({elapsed}), {msg}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+            );
+            bar
+        });
+        bar.set_position(p.solve as u64);
+        bar.set_message(format!(
+            "the last {} iterations{}",
+            p.iterations,
+            if p.converged { "" } else { ", not converged" }
+        ));
+    };
+    let unloaded = unload(
+        device,
+        model,
+        deformed,
+        &held,
+        &gravity,
+        params,
+        &mut progress,
+    )
+    .map_err(|e| anyhow!("the organ's unloaded shape: {e}"));
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let unloaded = unloaded?;
     let report = PostureReport {
         gravity: gravity_report,
         stiffness_kpa: Some(unloaded.stiffness_kpa),

@@ -185,7 +185,7 @@ pub fn solver_for(
     quiet: bool,
 ) -> Result<(Solver, Option<Posture>)> {
     let context = || format!("{}: cannot deform this model", path.display());
-    let Some(posture) = posture::prepare(gravity, &device, model, deformed, params)? else {
+    let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)? else {
         let solver = Solver::new(device, model, params.clone()).with_context(context)?;
         return Ok((solver, None));
     };
