@@ -57,23 +57,24 @@ fn entry(i: u32, j: u32) -> vec3<f32> {
     return SQRT_HALF * (c * d + scale * dmu);
 }
 
-// h_i . x for the field x in `elastic_step` (r) or `pressure_force` (H z).
-fn change_of_step(i: u32) -> f32 {
-    let own = elastic_step[i].xyz;
-    var change = 0.0;
-    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
-        let j = indices[k];
-        change += dot(elastic_step[j].xyz - own, entry(i, j));
+// Which field `change_of` reads: r in `elastic_step`, or H z in `pressure_force`.
+const RESIDUAL: u32 = 0u;
+const FORCE: u32 = 1u;
+
+fn field_at(field: u32, j: u32) -> vec3<f32> {
+    if (field == RESIDUAL) {
+        return elastic_step[j].xyz;
     }
-    return change;
+    return pressure_force[j].xyz;
 }
 
-fn change_of_force(i: u32) -> f32 {
-    let own = pressure_force[i].xyz;
+// h_i . x for the field x (`RESIDUAL` or `FORCE`).
+fn change_of(i: u32, field: u32) -> f32 {
+    let own = field_at(field, i);
     var change = 0.0;
     for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
         let j = indices[k];
-        change += dot(pressure_force[j].xyz - own, entry(i, j));
+        change += dot(field_at(field, j) - own, entry(i, j));
     }
     return change;
 }
@@ -109,7 +110,7 @@ fn pressure_start(
     if (i >= params.count) {
         return;
     }
-    let t = change_of_step(i);
+    let t = change_of(i, RESIDUAL);
     let d = pressures[i].z;
     pressures[i] = vec4<f32>(t, params.volume_relaxation * t / d, d, 0.0);
 }
@@ -148,7 +149,7 @@ fn pressure_sweep(
         return;
     }
     let p = pressures[i];
-    let s_z = params.volume_delta * p.y + change_of_force(i);
+    let s_z = params.volume_delta * p.y + change_of(i, FORCE);
     let z = p.y + params.volume_relaxation * (p.x - s_z) / p.z;
     pressures[i] = vec4<f32>(p.x, z, p.z, 0.0);
 }

@@ -6,6 +6,7 @@ mod demo;
 mod frames;
 mod output;
 mod posture;
+mod progress;
 mod sample;
 mod solve;
 mod track;

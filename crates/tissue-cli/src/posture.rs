@@ -8,13 +8,14 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow};
 use clap::ValueEnum;
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use serde::Serialize;
 use tissue::backend::{Device, Solver};
 use tissue::deformation::DeformParams;
 use tissue::gravity::{Gravity, SolveProgress, Unloaded, held_vertices, unload};
 use tissue::{ParticleModel, SurfaceMesh};
 
+use crate::progress;
 use crate::solve::read_observed;
 
 /// The held region found by `--fixed-region auto`: the surface vertices
@@ -358,14 +359,10 @@ pub fn prepare(
             return;
         }
         let bar = bar.get_or_insert_with(|| {
-            let bar = ProgressBar::new_spinner();
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{spinner} the unloaded shape and the stiffness: solve {pos} ({elapsed}), {msg}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-            );
-            bar
+            progress::bar(
+                "{spinner} the unloaded shape and the stiffness: solve {pos} ({elapsed}), {msg}",
+                None,
+            )
         });
         bar.set_position(p.solve as u64);
         bar.set_message(format!(

@@ -5,10 +5,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use tissue::{Sampled, SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 
 use crate::backend::{self, Backend, Device};
+use crate::progress;
 
 /// Parameter presets.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -147,14 +148,10 @@ pub fn sample_on(
             return;
         }
         let bar = bar.get_or_insert_with(|| {
-            let bar = ProgressBar::new(p.max_iterations as u64);
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{spinner} sampling {pos} iterations ({elapsed}) {msg}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-            );
-            bar
+            progress::bar(
+                "{spinner} sampling {pos} iterations ({elapsed}) {msg}",
+                Some(p.max_iterations as u64),
+            )
         });
         bar.set_position(p.iteration as u64);
         bar.set_message(format!("step {:.1e} r0", p.step_rms));
