@@ -859,3 +859,43 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
         report.iterations
     );
 }
+
+/// Above `coarse_direct_max_aggregates` the coarse Laplacian is solved by
+/// two-grid cycles over groups of aggregates instead of its factor
+/// (`tissue_solve::multilevel`, what a million particles need): the sag
+/// from rest lands on the factored solve's answer within the tolerance,
+/// in at most a few more iterations.
+#[test]
+fn the_cycled_coarse_solve_lands_where_the_factored_one_does() {
+    let model = breast_model();
+    let sagged = tissue::deform::sagged_breast();
+    let factored = DeformParams {
+        extrapolate: false,
+        ..DeformParams::default()
+    };
+    let cycled = DeformParams {
+        coarse_direct_max_aggregates: 100,
+        ..factored.clone()
+    };
+    let mut exact = Deformer::new(model, factored).unwrap();
+    let mut approximate = Deformer::new(model, cycled).unwrap();
+    let space = exact.coarse().unwrap();
+    assert!(space.factor().is_some() && space.count() > 100);
+    let space = approximate.coarse().unwrap();
+    let multilevel = space.multilevel().expect("cycles above 100 aggregates");
+    assert!(space.factor().is_none());
+    assert!(multilevel.groups() <= 100 && multilevel.groups() > 1);
+    let mut iterations = Vec::new();
+    for deformer in [&mut exact, &mut approximate] {
+        deformer.set_surface(&sagged).unwrap();
+        let report = deformer.solve();
+        assert!(report.converged, "{report:?}");
+        iterations.push(report.iterations);
+    }
+    eprintln!("iterations factored / cycled: {iterations:?}");
+    assert!(iterations[1] <= iterations[0] + 5, "{iterations:?}");
+    let worst = (0..model.len())
+        .map(|i| exact.positions()[i].distance(approximate.positions()[i]))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 2.0 * 3e-5 * exact.size(), "{worst}");
+}

@@ -77,9 +77,15 @@ impl CoarseBuffers {
             asked: count as u64,
             allowed: u64::from(u32::MAX),
         })?;
+        let factor = space.factor().ok_or_else(|| {
+            GpuError::Internal(format!(
+                "the coarse space of {count} aggregates is solved by two-grid cycles, which \
+                 the GPU does not run yet: it takes a factored one"
+            ))
+        })?;
         let (member_starts, members) = members_of(aggregate, count);
         let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
-            factor_of(space.factor());
+            factor_of(factor);
         let what = |name: &str| format!("the {name} buffer ({count} aggregates)");
         scoped(device, || {
             Ok(Self {
@@ -235,7 +241,7 @@ mod tests {
             .unwrap();
         for axis in 0..3 {
             let mut want: Vec<f64> = b.iter().map(|v| f64::from(v[axis])).collect();
-            space.factor().solve_scalar(&mut want);
+            space.factor().unwrap().solve_scalar(&mut want);
             let scale = want.iter().fold(0.0f64, |s, w| s.max(w.abs()));
             for (i, w) in want.iter().enumerate() {
                 let off = (f64::from(x[i][axis]) - w).abs();

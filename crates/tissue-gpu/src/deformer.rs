@@ -130,14 +130,22 @@ impl GpuDeformer {
             // (`Iteration::correct`), as on the CPU path.
             let coarse = coarse_space(model, plan, params).filter(|space| {
                 let fits = space.count() <= GPU_COARSE_UNKNOWNS;
+                let factored = space.factor().is_some();
                 if !fits {
                     log::warn!(
                         "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} aggregates, \
                          this model has {}: it deflates instead (raise `coarse` for larger cells)",
                         space.count()
                     );
+                } else if !factored {
+                    log::warn!(
+                        "the coarse space's {} aggregates are over `coarse_direct_max_aggregates` \
+                         and solved by two-grid cycles, which the GPU does not run yet: it \
+                         deflates instead",
+                        space.count()
+                    );
                 }
-                fits
+                fits && factored
             });
             if let Some(space) = &coarse {
                 state.set_coarse(device, &pipelines, space)?;

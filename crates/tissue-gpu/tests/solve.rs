@@ -431,6 +431,36 @@ fn a_coarse_space_too_large_for_the_gpu_falls_back_to_deflation() {
     assert!(report.converged, "{report:?}");
 }
 
+/// A coarse space solved by two-grid cycles (over
+/// `coarse_direct_max_aggregates`, what the CPU does at a million
+/// particles) has no factor to upload and no WGSL twin yet: the GPU
+/// deflates instead, says so, and still converges.
+#[test]
+fn a_cycled_coarse_space_falls_back_to_deflation_on_the_gpu() {
+    let Some((device, queue)) = common::gpu("cycled coarse space") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = DeformParams {
+        coarse_direct_max_aggregates: 50,
+        ..DeformParams::default()
+    };
+    let cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let Some(space) = cpu.coarse() else {
+        panic!("no coarse space")
+    };
+    assert!(space.multilevel().is_some() && space.count() <= tissue_gpu::GPU_COARSE_UNKNOWNS);
+    let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(gpu.state().aggregates(), 0);
+    assert_eq!(gpu.modes().map(|m| m.count()), Some(32));
+    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.converged, "{report:?}");
+}
+
 /// Half the skin unobserved and a body force (issue 16): the GPU's free
 /// surface particles and loads against the CPU's, with both forces.
 #[test]

@@ -33,6 +33,7 @@ pub mod gravity;
 pub mod grid;
 pub mod inversion;
 pub mod modes;
+pub mod multilevel;
 pub mod params;
 pub mod plan;
 pub mod predict;

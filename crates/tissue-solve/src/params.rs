@@ -96,10 +96,16 @@ pub struct DeformParams {
     /// "Two-level solve". Where it is on, neither path deflates.
     pub coarse: f32,
     /// The coarse space's cells grow (by factors of 1.25) until there are at
-    /// most this many aggregates: its factor takes about `n^(5/3)` numbers
-    /// and a solve as many multiply-adds per iteration, so it must stay
-    /// small beside the model.
+    /// most this many aggregates (at the default, cells of 2 spacings up to
+    /// about two million particles).
     pub coarse_max_aggregates: usize,
+    /// The coarse space's matrix is factored where it has at most this many
+    /// aggregates (its factor takes about `n^(5/3)` numbers and a solve
+    /// `n^(4/3)` multiply-adds an iteration); above, it is solved by
+    /// two-grid cycles over groups of aggregates ([`crate::multilevel`]),
+    /// whose cost grows as the model. The default and what it saves:
+    /// docs/METHOD.md, "Two-level solve".
+    pub coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve: where the CPU runs the
     /// two-level solve ([`DeformParams::coarse`] on), the elastic operator,
     /// linearised where each elastic phase starts, is corrected over
@@ -148,7 +154,8 @@ impl Default for DeformParams {
             deflation: 32,
             deflation_max_particles: 200_000,
             coarse: 2.0,
-            coarse_max_aggregates: 10_000,
+            coarse_max_aggregates: 200_000,
+            coarse_direct_max_aggregates: 10_000,
             elastic_coarse_max_aggregates: 1_000,
             volume_smoother: true,
             observed: None,
@@ -217,6 +224,12 @@ impl DeformParams {
             format!("1 to {MAX_COARSE_AGGREGATES}"),
         )?;
         ParamError::check(
+            (1..=MAX_COARSE_DIRECT_AGGREGATES).contains(&self.coarse_direct_max_aggregates),
+            "coarse_direct_max_aggregates",
+            self.coarse_direct_max_aggregates,
+            format!("1 to {MAX_COARSE_DIRECT_AGGREGATES}"),
+        )?;
+        ParamError::check(
             self.elastic_coarse_max_aggregates <= MAX_ELASTIC_COARSE_AGGREGATES,
             "elastic_coarse_max_aggregates",
             self.elastic_coarse_max_aggregates,
@@ -238,8 +251,12 @@ impl DeformParams {
 pub const MAX_HISTORY: usize = 16;
 
 /// The most aggregates [`DeformParams::coarse_max_aggregates`] may allow:
-/// the factor of 50,000 holds about 70 million numbers (0.5 GB).
-pub const MAX_COARSE_AGGREGATES: usize = 50_000;
+/// their matrix and the cycles' vectors take about 500 bytes each.
+pub const MAX_COARSE_AGGREGATES: usize = 1_000_000;
+
+/// The most aggregates [`DeformParams::coarse_direct_max_aggregates`] may
+/// allow: the factor of 50,000 holds about 70 million numbers (0.5 GB).
+pub const MAX_COARSE_DIRECT_AGGREGATES: usize = 50_000;
 
 /// The most aggregates [`DeformParams::elastic_coarse_max_aggregates`] may
 /// allow: three unknowns each, the factor of 15,000 unknowns holds about
@@ -297,7 +314,8 @@ mod tests {
     fn the_two_level_solve_defaults_to_cells_of_two_spacings_and_is_bounded() {
         let defaults = DeformParams::default();
         assert_eq!(defaults.coarse, 2.0);
-        assert_eq!(defaults.coarse_max_aggregates, 10_000);
+        assert_eq!(defaults.coarse_max_aggregates, 200_000);
+        assert_eq!(defaults.coarse_direct_max_aggregates, 10_000);
         assert_eq!(defaults.elastic_coarse_max_aggregates, 1_000);
         for (coarse, says) in [
             (0.5, "coarse is 0.5"),
@@ -315,7 +333,15 @@ mod tests {
             coarse_max_aggregates: MAX_COARSE_AGGREGATES + 1,
             ..DeformParams::default()
         });
-        assert!(err.contains("coarse_max_aggregates is 50001"), "{err}");
+        assert!(err.contains("coarse_max_aggregates is 1000001"), "{err}");
+        let err = refusal(&DeformParams {
+            coarse_direct_max_aggregates: MAX_COARSE_DIRECT_AGGREGATES + 1,
+            ..DeformParams::default()
+        });
+        assert!(
+            err.contains("coarse_direct_max_aggregates is 50001"),
+            "{err}"
+        );
         let err = refusal(&DeformParams {
             elastic_coarse_max_aggregates: MAX_ELASTIC_COARSE_AGGREGATES + 1,
             ..DeformParams::default()
