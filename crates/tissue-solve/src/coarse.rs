@@ -42,6 +42,11 @@ pub struct CoarseSpace {
     /// Per particle: its aggregate (numbered in the factor's order), or
     /// [`OUTSIDE`].
     aggregate: Vec<u32>,
+    /// Per aggregate, where its particles start in `members` (one more
+    /// than there are aggregates).
+    member_starts: Vec<usize>,
+    /// The particles of each aggregate in turn, in increasing order.
+    members: Vec<u32>,
     /// How `P^T L P` is solved.
     solve: CoarseSolve,
     cell: f32,
@@ -83,8 +88,11 @@ impl CoarseSpace {
                 Multilevel::new(&rows, &centres, cell, direct_max).ok_or_else(not_definite)?,
             )
         };
+        let (member_starts, members) = members_of(&aggregate, rows.len());
         let mut space = Self {
             aggregate,
+            member_starts,
+            members,
             solve,
             cell,
             rho: 0.0,
@@ -175,12 +183,15 @@ impl CoarseSpace {
                 r
             })
             .collect();
-        let mut coarse = vec![DVec3::ZERO; self.count()];
-        for (&a, r) in aggregate.iter().zip(&residual) {
-            if a != OUTSIDE {
-                coarse[a as usize] += *r;
-            }
-        }
+        // Summed per aggregate, in the order of its particles.
+        let mut coarse: Vec<DVec3> = (0..self.count())
+            .into_par_iter()
+            .map(|a| {
+                self.members[self.member_starts[a]..self.member_starts[a + 1]]
+                    .iter()
+                    .fold(DVec3::ZERO, |sum, &i| sum + residual[i as usize])
+            })
+            .collect();
         match &self.solve {
             CoarseSolve::Direct(factor) => factor.solve(&mut coarse),
             CoarseSolve::Multilevel(multilevel) => multilevel.solve(&mut coarse),
@@ -379,6 +390,27 @@ enum CoarseSolve {
     Direct(Envelope),
     /// Too large to factor: two-grid cycles over groups of aggregates.
     Multilevel(Multilevel),
+}
+
+/// Per aggregate where its particles start in the list that follows, and
+/// the list: each aggregate's particles in increasing order.
+fn members_of(aggregate: &[u32], count: usize) -> (Vec<usize>, Vec<u32>) {
+    let mut starts = vec![0usize; count + 1];
+    for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
+        starts[a as usize + 1] += 1;
+    }
+    for a in 0..count {
+        starts[a + 1] += starts[a];
+    }
+    let mut next = starts.clone();
+    let mut members = vec![0u32; starts[count]];
+    for (i, &a) in aggregate.iter().enumerate() {
+        if a != OUTSIDE {
+            members[next[a as usize]] = i as u32;
+            next[a as usize] += 1;
+        }
+    }
+    (starts, members)
 }
 
 /// The centre of each aggregate's particles at rest.

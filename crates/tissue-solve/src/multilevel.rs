@@ -155,9 +155,14 @@ impl Multilevel {
     /// [`CYCLES`] symmetric two-grid cycles from zero give.
     pub fn solve(&self, b: &mut [DVec3]) {
         let rhs = b.to_vec();
-        let mut x = vec![DVec3::ZERO; rhs.len()];
-        for _ in 0..CYCLES {
-            for _ in 0..SWEEPS {
+        // The first sweep from zero, whose residual is `b` itself.
+        let mut x: Vec<DVec3> = rhs
+            .par_iter()
+            .zip(&self.weighted_inverse_diagonal)
+            .map(|(b, &w)| *b * w)
+            .collect();
+        for cycle in 0..CYCLES {
+            for _ in usize::from(cycle == 0)..SWEEPS {
                 self.sweep(&rhs, &mut x);
             }
             let residual = self.residual(&rhs, &x);
