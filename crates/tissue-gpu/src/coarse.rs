@@ -2,7 +2,8 @@
 //! ([`CoarseSpace`], made once on the host, the same aggregates, factor and
 //! contraction) in the buffers `shaders/coarse.wgsl` reads.
 
-use tissue_solve::coarse::{CoarseSpace, Envelope, OUTSIDE};
+pub(crate) use tissue_solve::coarse::members_of;
+use tissue_solve::coarse::{CoarseSpace, Envelope};
 
 use crate::GpuError;
 use crate::buffer::Storage;
@@ -139,27 +140,6 @@ impl CoarseBuffers {
             ("column_values", self.column_values.buffer()),
         ]
     }
-}
-
-/// Per aggregate the start of its particles in the member list (`count + 1`
-/// entries), and the list, aggregate by aggregate, each in particle order.
-pub(crate) fn members_of(aggregate: &[u32], count: usize) -> (Vec<u32>, Vec<u32>) {
-    let mut starts = vec![0u32; count + 1];
-    for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
-        starts[a as usize + 1] += 1;
-    }
-    for a in 0..count {
-        starts[a + 1] += starts[a];
-    }
-    let mut next = starts.clone();
-    let mut members = vec![0u32; starts[count] as usize];
-    for (i, &a) in aggregate.iter().enumerate() {
-        if a != OUTSIDE {
-            members[next[a as usize] as usize] = i as u32;
-            next[a as usize] += 1;
-        }
-    }
-    (starts, members)
 }
 
 /// A factor's rows (where each starts, its entries from its first column

@@ -44,7 +44,7 @@ pub struct CoarseSpace {
     aggregate: Vec<u32>,
     /// Per aggregate, where its particles start in `members` (one more
     /// than there are aggregates).
-    member_starts: Vec<usize>,
+    member_starts: Vec<u32>,
     /// The particles of each aggregate in turn, in increasing order.
     members: Vec<u32>,
     /// How `P^T L P` is solved.
@@ -187,7 +187,7 @@ impl CoarseSpace {
         let mut coarse: Vec<DVec3> = (0..self.count())
             .into_par_iter()
             .map(|a| {
-                self.members[self.member_starts[a]..self.member_starts[a + 1]]
+                self.members[self.member_starts[a] as usize..self.member_starts[a + 1] as usize]
                     .iter()
                     .fold(DVec3::ZERO, |sum, &i| sum + residual[i as usize])
             })
@@ -392,10 +392,11 @@ enum CoarseSolve {
     Multilevel(Multilevel),
 }
 
-/// Per aggregate where its particles start in the list that follows, and
-/// the list: each aggregate's particles in increasing order.
-fn members_of(aggregate: &[u32], count: usize) -> (Vec<usize>, Vec<u32>) {
-    let mut starts = vec![0usize; count + 1];
+/// Per aggregate the start of its particles in the member list (`count + 1`
+/// entries), and the list, aggregate by aggregate, each in particle order
+/// (what the devices restrict by).
+pub fn members_of(aggregate: &[u32], count: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut starts = vec![0u32; count + 1];
     for &a in aggregate.iter().filter(|&&a| a != OUTSIDE) {
         starts[a as usize + 1] += 1;
     }
@@ -403,10 +404,10 @@ fn members_of(aggregate: &[u32], count: usize) -> (Vec<usize>, Vec<u32>) {
         starts[a + 1] += starts[a];
     }
     let mut next = starts.clone();
-    let mut members = vec![0u32; starts[count]];
+    let mut members = vec![0u32; starts[count] as usize];
     for (i, &a) in aggregate.iter().enumerate() {
         if a != OUTSIDE {
-            members[next[a as usize]] = i as u32;
+            members[next[a as usize] as usize] = i as u32;
             next[a as usize] += 1;
         }
     }
