@@ -773,6 +773,36 @@ mod tests {
             .collect()
     }
 
+    /// `steps` two-level steps shrink an error at least as fast as the
+    /// space's estimated contraction, give or take 5 %.
+    fn assert_rate_holds(
+        space: &CoarseSpace,
+        connections: &Connections,
+        free: &[bool],
+        contraction: f32,
+        steps: usize,
+    ) {
+        let mut e = error(free);
+        let start = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
+        for _ in 0..steps {
+            let l = laplacian(&e, connections, free);
+            let mut next: Vec<Vec3> = e
+                .iter()
+                .zip(&l)
+                .map(|(e, le)| *e - contraction * *le)
+                .collect();
+            space.correct(&e, &mut next, connections, contraction);
+            e = next;
+        }
+        let end = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
+        let observed = (end / start).powf(1.0 / steps as f32);
+        assert!(
+            observed <= space.rho() * 1.05,
+            "observed {observed}, rho {}",
+            space.rho()
+        );
+    }
+
     #[test]
     fn a_two_level_step_leaves_no_error_in_the_coarse_space() {
         let (rest, connections, free) = grid(12);
@@ -838,25 +868,7 @@ mod tests {
         assert!(space.rho() < 0.85, "two-level {}", space.rho());
         // And the estimate holds: 30 two-level steps shrink an error by at
         // least `rho^30` times a small factor, not much less.
-        let mut e = error(&free);
-        let start = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
-        for _ in 0..30 {
-            let l = laplacian(&e, &connections, &free);
-            let mut next: Vec<Vec3> = e
-                .iter()
-                .zip(&l)
-                .map(|(e, le)| *e - contraction * *le)
-                .collect();
-            space.correct(&e, &mut next, &connections, contraction);
-            e = next;
-        }
-        let end = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
-        let observed = (end / start).powf(1.0 / 30.0);
-        assert!(
-            observed <= space.rho() * 1.05,
-            "observed {observed}, rho {}",
-            space.rho()
-        );
+        assert_rate_holds(&space, &connections, &free, contraction, 30);
     }
 
     /// Above `direct_max` aggregates the coarse matrix is solved by
@@ -898,25 +910,7 @@ mod tests {
             cycled.rho(),
             exact.rho()
         );
-        let mut e = error(&free);
-        let start = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
-        for _ in 0..20 {
-            let l = laplacian(&e, &connections, &free);
-            let mut next: Vec<Vec3> = e
-                .iter()
-                .zip(&l)
-                .map(|(e, le)| *e - contraction * *le)
-                .collect();
-            cycled.correct(&e, &mut next, &connections, contraction);
-            e = next;
-        }
-        let end = e.iter().map(|v| v.length_squared()).sum::<f32>().sqrt();
-        let observed = (end / start).powf(1.0 / 20.0);
-        assert!(
-            observed <= cycled.rho() * 1.05,
-            "observed {observed}, rho {}",
-            cycled.rho()
-        );
+        assert_rate_holds(&cycled, &connections, &free, contraction, 20);
     }
 
     #[test]
