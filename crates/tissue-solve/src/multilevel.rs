@@ -16,6 +16,7 @@
 //! and Chebyshev and the stopping rule can run on its measured contraction
 //! (docs/METHOD.md, "Two-level solve", "Multilevel").
 
+use std::collections::HashMap;
 use std::ops::Range;
 
 use glam::{DVec3, Vec3};
@@ -92,8 +93,7 @@ impl Multilevel {
             edge *= 1.25;
             (group, count) = groups(centres, edge);
         }
-        let mut grouped: Vec<std::collections::HashMap<u32, f64>> =
-            vec![std::collections::HashMap::new(); count];
+        let mut grouped: Vec<HashMap<u32, f64>> = vec![HashMap::new(); count];
         for (i, row) in rows.iter().enumerate() {
             let g = &mut grouped[group[i] as usize];
             for &(j, w) in row {
@@ -212,7 +212,7 @@ impl Multilevel {
 /// Per centre, its group (the centres in one cell of edge `cell`, numbered
 /// in order of first appearance), and how many groups there are.
 fn groups(centres: &[Vec3], cell: f32) -> (Vec<u32>, usize) {
-    let mut cells = std::collections::HashMap::new();
+    let mut cells = HashMap::new();
     let group = centres
         .iter()
         .map(|c| {
