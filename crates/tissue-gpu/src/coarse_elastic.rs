@@ -138,11 +138,16 @@ impl ElasticCoarseBuffers {
         coarse: &ElasticCoarse,
     ) -> Result<(), GpuError> {
         let unknowns = 3 * self.aggregates as usize;
-        if coarse.factor().len() != unknowns {
+        let factor = coarse.factor().ok_or(GpuError::Length {
+            what: "elastic coarse factor (the GPU has no cycles: the correction must be factored)",
+            expected: unknowns,
+            got: 0,
+        })?;
+        if factor.len() != unknowns {
             return Err(GpuError::Length {
                 what: "elastic coarse unknowns (three per aggregate)",
                 expected: unknowns,
-                got: coarse.factor().len(),
+                got: factor.len(),
             });
         }
         let k = coarse.linearisation();
@@ -156,7 +161,7 @@ impl ElasticCoarseBuffers {
             })
             .collect();
         let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
-            factor_of(coarse.factor());
+            factor_of(factor);
         let what = |name: &str| format!("the elastic {name} buffer ({unknowns} unknowns)");
         (
             self.gradients,

@@ -154,17 +154,26 @@ impl GpuDeformer {
                 Some(_) => None,
                 None => deflation_modes(model, plan, params),
             };
-            let elastic_aggregates = elastic_aggregates(model, plan, params).filter(|a| {
-                let fits = 3 * a.count() <= GPU_COARSE_UNKNOWNS;
-                if !fits {
-                    log::warn!(
-                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns, the \
-                         elastic phase's would have {}: it runs uncorrected",
-                        3 * a.count()
-                    );
-                }
-                fits
-            });
+            // The GPU's coarse solve is one factor in one workgroup: the
+            // elastic aggregates grow to fit it (the CPU solves larger ones
+            // by cycles, which have no kernels here yet).
+            let gpu_cap = GPU_COARSE_UNKNOWNS / 3;
+            if params.elastic_coarse_max_aggregates > gpu_cap {
+                log::info!(
+                    "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns: the \
+                     elastic phase's aggregates grow until there are at most {gpu_cap}"
+                );
+            }
+            let elastic_aggregates = elastic_aggregates(
+                model,
+                plan,
+                &DeformParams {
+                    elastic_coarse_max_aggregates: params
+                        .elastic_coarse_max_aggregates
+                        .min(gpu_cap),
+                    ..params.clone()
+                },
+            );
             let elastic_host = match (&plan.elastic, elastic_aggregates) {
                 (Some(elastic), Some(aggregates)) => {
                     state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
@@ -172,7 +181,13 @@ impl GpuDeformer {
                         rest: model.positions.clone(),
                         connections: model.connections.clone(),
                         elastic: Arc::clone(elastic),
-                        volume_smoother: volume_smoother(model, plan, params, Some(&aggregates)),
+                        volume_smoother: volume_smoother(
+                            model,
+                            plan,
+                            params,
+                            Some(&aggregates),
+                            usize::MAX,
+                        ),
                         aggregates,
                     })
                 }
@@ -344,6 +359,7 @@ impl GpuSolve {
                 contraction: iteration.contraction,
                 volume_delta: host.volume_smoother.map(|(delta, _)| delta),
                 rho: host.volume_smoother.map(|(_, rho)| rho),
+                direct_max_aggregates: usize::MAX,
             },
         );
         match &self.elastic_coarse {

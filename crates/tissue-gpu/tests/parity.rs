@@ -439,6 +439,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             contraction: 0.01,
             volume_delta: Some(delta),
             rho: Some(0.9),
+            direct_max_aggregates: usize::MAX,
         };
         let coarse =
             ElasticCoarse::new(&aggregates, rest, &current, connections, &elastic, made_for)

@@ -415,7 +415,7 @@ pub fn members_of(aggregate: &[u32], count: usize) -> (Vec<u32>, Vec<u32>) {
 }
 
 /// The centre of each aggregate's particles at rest.
-fn centres(rest: &[Vec3], aggregate: &[u32], count: usize) -> Vec<Vec3> {
+pub(crate) fn centres(rest: &[Vec3], aggregate: &[u32], count: usize) -> Vec<Vec3> {
     let mut sums = vec![(DVec3::ZERO, 0u32); count];
     for (p, &a) in rest.iter().zip(aggregate) {
         if a != OUTSIDE {

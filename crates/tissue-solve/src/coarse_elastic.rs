@@ -24,8 +24,9 @@ use tissue_core::{Connections, DeformError, Error};
 
 use tissue_core::ParticleModel;
 
-use crate::coarse::{Aggregates, Envelope, OUTSIDE, power_start};
+use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
 use crate::elastic::{Elastic, VolumeLinearisation, cofactor, offsets_product};
+use crate::multilevel::BlockMultilevel;
 use crate::params::{DeformParams, ForceModel};
 use crate::plan::Plan;
 use crate::tracker::Iteration;
@@ -63,6 +64,19 @@ pub struct CorrectionFor {
     /// `None`: estimated where the correction is made, in [`RATE_STEPS`]
     /// Lanczos steps.
     pub rho: Option<f32>,
+    /// Up to how many aggregates `P^T K P` is factored; above, it is
+    /// solved by the cycles of [`BlockMultilevel`], their groups' matrix
+    /// factored at most this large.
+    pub direct_max_aggregates: usize,
+}
+
+/// How `P^T K P` is solved.
+#[derive(Debug, Clone)]
+enum CoarseSolve {
+    /// Its Cholesky factor, three rows per aggregate.
+    Direct(Envelope),
+    /// Two-grid cycles over groups of aggregates.
+    Multilevel(BlockMultilevel),
 }
 
 /// The elastic operator's coarse correction, linearised at one state.
@@ -72,8 +86,8 @@ pub struct ElasticCoarse {
     linearisation: VolumeLinearisation,
     /// `K`'s volume part per connection, for the CPU's products.
     entries: Entries,
-    /// The Cholesky factor of `P^T K P`, three rows per aggregate.
-    factor: Envelope,
+    /// The solve of `P^T K P`.
+    solve: CoarseSolve,
     /// The volume smoother, where the iteration smooths with it.
     smoother: Option<VolumeSmoother>,
     /// The plain step's `c alpha` this correction was made for.
@@ -116,8 +130,20 @@ impl ElasticCoarse {
     ) -> Result<Self, Error> {
         let started = Instant::now();
         let linearisation = linearise(rest, current, connections, elastic);
-        let rows = assemble(aggregates, rest, connections, &linearisation);
-        let factor = Envelope::cholesky(&rows).ok_or_else(|| {
+        let blocks = assemble(aggregates, rest, connections, &linearisation);
+        let solve = if aggregates.count() <= made_for.direct_max_aggregates {
+            Envelope::cholesky(&scalar_rows(&blocks)).map(CoarseSolve::Direct)
+        } else {
+            let centres = centres(rest, &aggregates.aggregate, aggregates.count());
+            BlockMultilevel::new(
+                &blocks,
+                &centres,
+                aggregates.cell,
+                made_for.direct_max_aggregates,
+            )
+            .map(CoarseSolve::Multilevel)
+        }
+        .ok_or_else(|| {
             Error::from(DeformError::CoarseSpace(
                 "the elastic coarse matrix is not positive definite (a rounding failure)".into(),
             ))
@@ -136,7 +162,7 @@ impl ElasticCoarse {
         let mut space = Self {
             linearisation,
             entries,
-            factor,
+            solve,
             smoother,
             contraction: made_for.contraction,
             rho: 0.0,
@@ -211,9 +237,20 @@ impl ElasticCoarse {
     }
 
     /// The Cholesky factor of `P^T K P`, unknown `3 a + axis` for
-    /// aggregate `a`.
-    pub fn factor(&self) -> &Envelope {
-        &self.factor
+    /// aggregate `a`; `None` where it is solved by cycles instead.
+    pub fn factor(&self) -> Option<&Envelope> {
+        match &self.solve {
+            CoarseSolve::Direct(factor) => Some(factor),
+            CoarseSolve::Multilevel(_) => None,
+        }
+    }
+
+    /// The cycles that solve `P^T K P`, where it is not factored.
+    pub fn multilevel(&self) -> Option<&BlockMultilevel> {
+        match &self.solve {
+            CoarseSolve::Direct(_) => None,
+            CoarseSolve::Multilevel(cycles) => Some(cycles),
+        }
     }
 
     /// Whether an elastic phase run with `iteration` needs the correction
@@ -350,17 +387,23 @@ impl ElasticCoarse {
 
     /// The coarse solution `(P^T K P)^-1 P^T k` for a field `k`.
     fn coarse_of(&self, aggregates: &Aggregates, k: Vec<DVec3>) -> Vec<f64> {
-        let mut coarse = vec![0.0f64; 3 * aggregates.count()];
+        let mut sums = vec![DVec3::ZERO; aggregates.count()];
         for (&a, k) in aggregates.aggregate.iter().zip(&k) {
             if a != OUTSIDE {
-                let a = 3 * a as usize;
-                coarse[a] += k.x;
-                coarse[a + 1] += k.y;
-                coarse[a + 2] += k.z;
+                sums[a as usize] += *k;
             }
         }
-        self.factor.solve_scalar(&mut coarse);
-        coarse
+        match &self.solve {
+            CoarseSolve::Direct(factor) => {
+                let mut coarse: Vec<f64> = sums.iter().flat_map(|v| v.to_array()).collect();
+                factor.solve_scalar(&mut coarse);
+                coarse
+            }
+            CoarseSolve::Multilevel(cycles) => {
+                cycles.solve(&mut sums);
+                sums.iter().flat_map(|v| v.to_array()).collect()
+            }
+        }
     }
 
     /// The coarse space's part of the error left after the plain step
@@ -570,7 +613,7 @@ fn assemble(
     rest: &[Vec3],
     connections: &Connections,
     linearisation: &VolumeLinearisation,
-) -> Vec<Vec<(u32, f64)>> {
+) -> Vec<Vec<(u32, DMat3)>> {
     let weights = &linearisation.weights;
     let aggregate = &aggregates.aggregate;
     // Per particle, `P^T g_i` (its few aggregates and their 3-vectors).
@@ -611,7 +654,7 @@ fn assemble(
         .par_iter()
         .zip(&aggregates.rows)
         .enumerate()
-        .flat_map_iter(|(a, (particles, laplacian))| {
+        .map(|(a, (particles, laplacian))| {
             let mut blocks: Vec<(u32, DMat3)> = laplacian
                 .iter()
                 .map(|&(b, w)| (b, DMat3::from_diagonal(DVec3::splat(w))))
@@ -632,9 +675,18 @@ fn assemble(
                 }
             }
             blocks.sort_unstable_by_key(|&(b, _)| b);
+            blocks
+        })
+        .collect()
+}
+
+/// Block rows as scalar ones, three per block row: unknown `3 a + axis`.
+fn scalar_rows(blocks: &[Vec<(u32, DMat3)>]) -> Vec<Vec<(u32, f64)>> {
+    blocks
+        .iter()
+        .flat_map(|row| {
             (0..3).map(move |r| {
-                blocks
-                    .iter()
+                row.iter()
                     .flat_map(|&(b, block)| {
                         (0..3).map(move |c| (3 * b + c as u32, block.col(c)[r]))
                     })
@@ -658,11 +710,13 @@ pub fn rest_rate(
     connections: &Connections,
     elastic: &Elastic,
     delta: f64,
+    direct_max_aggregates: usize,
 ) -> Option<f32> {
     let made_for = CorrectionFor {
         contraction: 0.0,
         volume_delta: Some(delta),
         rho: None,
+        direct_max_aggregates,
     };
     ElasticCoarse::with_rate_steps(
         aggregates,
@@ -710,6 +764,7 @@ pub fn volume_smoother(
     plan: &Plan,
     params: &DeformParams,
     aggregates: Option<&Aggregates>,
+    direct_max_aggregates: usize,
 ) -> Option<(f64, f32)> {
     let (aggregates, elastic) = (aggregates?, plan.elastic.as_deref()?);
     if !params.volume_smoother {
@@ -745,6 +800,7 @@ pub fn volume_smoother(
         &model.connections,
         elastic,
         delta,
+        direct_max_aggregates,
     )?;
     if rho >= SMOOTHER_MAX_RATE {
         log::warn!(
@@ -839,6 +895,7 @@ mod tests {
             contraction: 0.002,
             volume_delta: None,
             rho: None,
+            direct_max_aggregates: usize::MAX,
         };
         let coarse =
             ElasticCoarse::new(&aggregates, &rest, &current, &connections, &elastic, plain)
@@ -1016,6 +1073,7 @@ mod tests {
             contraction: 0.002,
             volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
             rho: None,
+            direct_max_aggregates: usize::MAX,
         };
         let coarse = ElasticCoarse::with_rate_steps(
             &aggregates,
@@ -1131,7 +1189,7 @@ mod tests {
     #[test]
     fn the_volume_smoother_defaults_are_the_measured_ones() {
         use crate::volume_smoother::{RELAXATION, SHEAR_STEP, SWEEPS};
-        assert_eq!((SHEAR_STEP, RELAXATION, SWEEPS), (1.5, 0.5, 2));
+        assert_eq!((SHEAR_STEP, RELAXATION, SWEEPS), (2.0, 0.5, 2));
         assert_eq!(REST_RATE_STEPS, 40);
         assert!(DeformParams::default().volume_smoother);
     }

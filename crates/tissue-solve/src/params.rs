@@ -110,10 +110,18 @@ pub struct DeformParams {
     /// two-level solve ([`DeformParams::coarse`] on), the elastic operator,
     /// linearised where each elastic phase starts, is corrected over
     /// aggregates of the same cells, grown until there are at most this
-    /// many (three unknowns each, its factor about `(3 n)^(5/3)` numbers,
-    /// made again every solve from rest). 0 turns it off. The default
-    /// and what it saves: docs/METHOD.md, "Elastic model".
+    /// many (three unknowns each, made again every solve from rest). 0
+    /// turns it off. The default and what it saves: docs/METHOD.md,
+    /// "Elastic model".
     pub elastic_coarse_max_aggregates: usize,
+    /// The elastic coarse matrix (three unknowns an aggregate) is factored
+    /// where it has at most this many aggregates (its factor about
+    /// `(3 n)^(5/3)` numbers, made every solve from rest); above, it is
+    /// solved by two-grid cycles over groups of aggregates
+    /// ([`crate::multilevel::BlockMultilevel`]), the groups at most this
+    /// many. The default and what it saves: docs/METHOD.md, "Elastic
+    /// model".
+    pub elastic_coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve smooths with the volume term
     /// taken implicitly ([`crate::volume_smoother`]: the shear part stepped
     /// as the shear phase steps it, the volume part by a few sweeps on one
@@ -156,7 +164,8 @@ impl Default for DeformParams {
             coarse: 2.0,
             coarse_max_aggregates: 200_000,
             coarse_direct_max_aggregates: 10_000,
-            elastic_coarse_max_aggregates: 1_000,
+            elastic_coarse_max_aggregates: 200_000,
+            elastic_coarse_direct_max_aggregates: 2_000,
             volume_smoother: true,
             observed: None,
             load: Vec3::ZERO,
@@ -235,6 +244,13 @@ impl DeformParams {
             self.elastic_coarse_max_aggregates,
             format!("0 (off) to {MAX_ELASTIC_COARSE_AGGREGATES}"),
         )?;
+        ParamError::check(
+            (1..=MAX_ELASTIC_COARSE_DIRECT_AGGREGATES)
+                .contains(&self.elastic_coarse_direct_max_aggregates),
+            "elastic_coarse_direct_max_aggregates",
+            self.elastic_coarse_direct_max_aggregates,
+            format!("1 to {MAX_ELASTIC_COARSE_DIRECT_AGGREGATES}"),
+        )?;
         ParamError::check(self.load.is_finite(), "load", self.load, "a finite vector")?;
         ParamError::check(
             (1..=10_000_000).contains(&self.max_iterations),
@@ -259,9 +275,13 @@ pub const MAX_COARSE_AGGREGATES: usize = 1_000_000;
 pub const MAX_COARSE_DIRECT_AGGREGATES: usize = 50_000;
 
 /// The most aggregates [`DeformParams::elastic_coarse_max_aggregates`] may
-/// allow: three unknowns each, the factor of 15,000 unknowns holds about
-/// 40 million numbers, and it is made again every solve from rest.
-pub const MAX_ELASTIC_COARSE_AGGREGATES: usize = 5_000;
+/// allow: their block matrix and the cycles' vectors take about 2 kB each.
+pub const MAX_ELASTIC_COARSE_AGGREGATES: usize = 1_000_000;
+
+/// The most aggregates [`DeformParams::elastic_coarse_direct_max_aggregates`]
+/// may allow: the factor of 15,000 unknowns holds about 40 million
+/// numbers, and it is made again every solve from rest.
+pub const MAX_ELASTIC_COARSE_DIRECT_AGGREGATES: usize = 5_000;
 
 /// The most modes [`DeformParams::deflation`] may ask for: each costs a
 /// pass over the particles per iteration and `4 n` bytes.
@@ -316,7 +336,8 @@ mod tests {
         assert_eq!(defaults.coarse, 2.0);
         assert_eq!(defaults.coarse_max_aggregates, 200_000);
         assert_eq!(defaults.coarse_direct_max_aggregates, 10_000);
-        assert_eq!(defaults.elastic_coarse_max_aggregates, 1_000);
+        assert_eq!(defaults.elastic_coarse_max_aggregates, 200_000);
+        assert_eq!(defaults.elastic_coarse_direct_max_aggregates, 2_000);
         for (coarse, says) in [
             (0.5, "coarse is 0.5"),
             (-1.0, "coarse is -1"),
@@ -347,7 +368,15 @@ mod tests {
             ..DeformParams::default()
         });
         assert!(
-            err.contains("elastic_coarse_max_aggregates is 5001"),
+            err.contains("elastic_coarse_max_aggregates is 1000001"),
+            "{err}"
+        );
+        let err = refusal(&DeformParams {
+            elastic_coarse_direct_max_aggregates: 0,
+            ..DeformParams::default()
+        });
+        assert!(
+            err.contains("elastic_coarse_direct_max_aggregates is 0"),
             "{err}"
         );
         assert!(

@@ -36,11 +36,16 @@ use tissue_core::Connections;
 use crate::coarse_elastic::Entries;
 
 /// `delta` in units of the connection Laplacian's largest eigenvalue (the
-/// plan's, margin included). Measured on both breast phantoms (the linear
-/// problem at the elastic phase's start, two sweeps of 0.5): 1.25 leaves
-/// the iteration's most negative eigenvalue at -0.96 (a Chebyshev rate of
-/// 0.964), 1.5 at -0.51 with the largest 0.878, 2.0 at -0.20 with 0.902.
-pub const SHEAR_STEP: f64 = 1.5;
+/// plan's, margin included). Measured on both breast phantoms at 10,000
+/// particles (the linear problem at the elastic phase's start, two sweeps
+/// of 0.5): 1.25 leaves the iteration's most negative eigenvalue at -0.96
+/// (a Chebyshev rate of 0.964), 1.5 at -0.51 with the largest 0.878, 2.0
+/// at -0.20 with 0.902. 1.5 diverged six or seven iterations into the
+/// elastic phase on breast_c at 100,000 particles (factored or cycled
+/// coarse solve), where 2.0 converges (40 iterations with the cycles);
+/// at 10,000, 2.0 costs 1-3 iterations (docs/METHOD.md, "The volume
+/// smoother").
+pub const SHEAR_STEP: f64 = 2.0;
 
 /// The Jacobi sweeps' relaxation on the pressures. With `SHEAR_STEP` 1.5
 /// and two sweeps, 0.6 diverges (an eigenvalue at -1.59), 0.4 and 0.5 give

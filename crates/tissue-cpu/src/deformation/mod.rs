@@ -187,6 +187,9 @@ pub struct CpuSolve {
     /// The elastic phase's coarse correction, linearised where the last
     /// elastic phase after a shear phase started.
     elastic_coarse: Option<Arc<ElasticCoarse>>,
+    /// Up to how many aggregates the elastic coarse matrix is factored
+    /// (`DeformParams::elastic_coarse_direct_max_aggregates`).
+    elastic_direct_max: usize,
     /// The volume smoother's `delta` and its two-level iteration's
     /// contraction, estimated once at rest, where the elastic phase's
     /// correction smooths with it.
@@ -217,7 +220,14 @@ impl CpuSolve {
             deflation_modes(model, plan, params).map(Arc::new)
         };
         let elastic_aggregates = elastic_aggregates(model, plan, params).map(Arc::new);
-        let volume_smoother = volume_smoother(model, plan, params, elastic_aggregates.as_deref());
+        let direct_max = params.elastic_coarse_direct_max_aggregates;
+        let volume_smoother = volume_smoother(
+            model,
+            plan,
+            params,
+            elastic_aggregates.as_deref(),
+            direct_max,
+        );
         Self {
             rest: model.positions.clone(),
             connections: model.connections.clone(),
@@ -231,10 +241,17 @@ impl CpuSolve {
             elastic: plan.elastic.clone(),
             elastic_aggregates,
             elastic_coarse: None,
+            elastic_direct_max: direct_max,
             volume_smoother,
             iteration: None,
             batch_start: None,
         }
+    }
+
+    /// The elastic phase's coarse correction made where the last corrected
+    /// elastic phase started, if any.
+    pub fn elastic_coarse(&self) -> Option<&ElasticCoarse> {
+        self.elastic_coarse.as_deref()
     }
 
     /// The volume smoother's `delta` and its iteration's contraction at
@@ -261,6 +278,7 @@ impl CpuSolve {
             contraction: iteration.contraction,
             volume_delta: self.volume_smoother.map(|(delta, _)| delta),
             rho: self.volume_smoother.map(|(_, rho)| rho),
+            direct_max_aggregates: self.elastic_direct_max,
         };
         self.elastic_coarse = ElasticCoarse::at_phase_start(
             aggregates,
