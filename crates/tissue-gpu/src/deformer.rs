@@ -30,8 +30,10 @@ use crate::{DeformState, GpuError, Pipelines};
 /// path's coarse space (the same aggregates and factor, made on the host)
 /// corrects the plain step every iteration (`shaders/coarse.wgsl`); without
 /// it, with `params.deflation`, the same modes as the CPU path's deflate
-/// it. The elastic phase runs uncorrected: the CPU path's elastic
-/// two-level solve has no kernels here yet. With the elastic force the GPU
+/// it. The elastic phase's two-level solve is the CPU path's, made on the
+/// host where the phase starts, its aggregates grown until their factor
+/// fits the GPU's coarse solve (the CPU's cycles above that have no
+/// kernels here yet). With the elastic force the GPU
 /// computes the targets after the rotations and gathers the force over them. The
 /// positions are read back at the end of every solve and uploaded with a
 /// new frame's control points (both frame boundaries); the
