@@ -580,6 +580,9 @@ pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
             "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
         ),
         StopReason::Diverged => "DIVERGED: the state became non-finite".into(),
+        StopReason::Stalled => format!(
+            "NOT converged (error estimate {residual:.1e} of the size): the iteration stalled"
+        ),
     }
 }
 
@@ -594,6 +597,7 @@ mod status_tests {
             (true, StopReason::FloatPrecision, Status::Converged, 0),
             (false, StopReason::IterationCap, Status::NotConverged, 2),
             (false, StopReason::Diverged, Status::Diverged, 3),
+            (false, StopReason::Stalled, Status::NotConverged, 2),
         ];
         for (converged, stopped_by, status, code) in cases {
             assert_eq!(Status::of(converged, stopped_by), status);

@@ -15,6 +15,20 @@ pub enum StopReason {
     IterationCap,
     /// The state became non-finite.
     Diverged,
+    /// The error estimate stopped falling in an iteration whose
+    /// contraction was measured (the volume smoother's): the iteration no
+    /// longer contracts where it runs (`acceleration::STALL_WINDOW`). The
+    /// elastic solve then runs the phase again another way, as after a
+    /// divergence.
+    Stalled,
+}
+
+impl StopReason {
+    /// Whether the phase it ended is run again another way: the state
+    /// became non-finite, or the iteration stopped contracting.
+    pub fn failed(self) -> bool {
+        matches!(self, StopReason::Diverged | StopReason::Stalled)
+    }
 }
 
 /// How a solve went.

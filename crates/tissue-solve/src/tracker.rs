@@ -337,10 +337,15 @@ impl<D: SolveDevice> Tracker<D> {
         } else if self.elastic_warm {
             let correct = self.elastic_correct;
             let warm = self.phase(cx, &params, params.max_iterations, correct, false)?;
-            if warm.stopped_by == StopReason::Diverged {
+            if warm.stopped_by.failed() {
                 log::warn!(
-                    "the elastic solve diverged from the predicted start after {} iterations; \
+                    "the elastic solve {} from the predicted start after {} iterations; \
                      solving the frame again after a shear phase",
+                    if warm.stopped_by == StopReason::Stalled {
+                        "stalled"
+                    } else {
+                        "diverged"
+                    },
                     warm.iterations
                 );
                 self.device.reset(cx)?;
@@ -376,7 +381,7 @@ impl<D: SolveDevice> Tracker<D> {
             ..params.shear()
         };
         let first = self.phase(cx, &shear, params.max_iterations, true, false)?;
-        if first.stopped_by == StopReason::Diverged {
+        if first.stopped_by.failed() {
             return Ok(first);
         }
         let after_shear = self.device.read_positions(cx)?;
@@ -389,7 +394,7 @@ impl<D: SolveDevice> Tracker<D> {
             let corrected = correct && self.device.elastic_rho().is_some();
             used += second.iterations;
             history.append(&mut second.residual_history);
-            let again = second.stopped_by == StopReason::Diverged
+            let again = second.stopped_by.failed()
                 && retries < ELASTIC_RETRIES
                 && used < params.max_iterations;
             if !again {
@@ -400,17 +405,21 @@ impl<D: SolveDevice> Tracker<D> {
                 return Ok(second);
             }
             retries += 1;
+            let how = match second.stopped_by {
+                StopReason::Stalled => "stalled",
+                _ => "diverged",
+            };
             if corrected {
                 correct = false;
                 log::warn!(
-                    "the elastic phase diverged after {} iterations with its two-level solve; \
+                    "the elastic phase {how} after {} iterations with its two-level solve; \
                      solving it again from the end of the shear phase without it",
                     second.iterations
                 );
             } else {
                 elastic.step_fraction *= 0.5;
                 log::warn!(
-                    "the elastic phase diverged after {} iterations; solving it again from the \
+                    "the elastic phase {how} after {} iterations; solving it again from the \
                      end of the shear phase with a step {} times the first",
                     second.iterations,
                     elastic.step_fraction / params.step_fraction
@@ -565,6 +574,14 @@ mod tests {
         diverge_phases: usize,
         /// Whether the device corrects the elastic phase (its contraction).
         elastic_correction: Option<f32>,
+        /// Whether its corrected elastic phase runs the volume smoother
+        /// (the accelerated stopping rule).
+        smoothed: bool,
+        /// How many corrected elastic phases in a row keep their step
+        /// (they stall).
+        stall_phases: usize,
+        /// The phase in hand keeps its step.
+        stalling: bool,
         resets: usize,
     }
 
@@ -581,6 +598,9 @@ mod tests {
                 diverge_once: false,
                 diverge_phases: 0,
                 elastic_correction: None,
+                smoothed: false,
+                stall_phases: 0,
+                stalling: false,
                 resets: 0,
             }
         }
@@ -612,7 +632,17 @@ mod tests {
                 self.diverge_phases -= 1;
                 self.diverge_once = true;
             }
+            self.stalling = iteration.force == ForceModel::Elastic
+                && iteration.correct
+                && self.stall_phases > 0;
+            if self.stalling {
+                self.stall_phases -= 1;
+            }
             Ok(())
+        }
+
+        fn elastic_smoothed(&self) -> bool {
+            self.smoothed && self.elastic_rho().is_some()
         }
 
         fn elastic_rho(&self) -> Option<f32> {
@@ -630,7 +660,9 @@ mod tests {
             Ok(omegas
                 .iter()
                 .map(|_| {
-                    self.step *= 0.5;
+                    if !self.stalling {
+                        self.step *= 0.5;
+                    }
                     (self.step, self.step)
                 })
                 .collect())
@@ -774,6 +806,79 @@ mod tests {
                 "{max} {rms}"
             );
         }
+    }
+
+    /// The accelerated rule stops an iteration whose steps stop falling,
+    /// after two windows, and never one that contracts at the smoother's
+    /// rate; the other rules never call a stall.
+    #[test]
+    fn a_stall_is_called_only_where_the_accelerated_steps_stop_falling() {
+        let plan = Plan::new(&star()).unwrap();
+        let params = DeformParams {
+            tolerance: 1e-30,
+            ..DeformParams::default()
+        };
+        let run = |mut rule: StoppingRule, step: &dyn Fn(usize) -> f32| {
+            (1..=200).find_map(|k| rule.after(step(k), step(k)).map(|r| (k, r)))
+        };
+        let flat = |_: usize| 0.01 * plan.size;
+        let stalled = run(
+            crate::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
+            &flat,
+        );
+        assert_eq!(
+            stalled,
+            Some((2 * crate::acceleration::STALL_WINDOW, StopReason::Stalled))
+        );
+        assert_eq!(
+            run(
+                crate::acceleration::StoppingRule::with_rho(&plan, &params, 0.9),
+                &flat
+            ),
+            None
+        );
+        // Contracting at 0.9 a step (slower than the smoother's 0.6-0.7):
+        // never a stall, down to the float floor.
+        let falling = |k: usize| 0.01 * plan.size * 0.9f32.powi(k as i32);
+        let reason = run(
+            crate::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
+            &falling,
+        );
+        assert!(
+            !matches!(reason, Some((_, StopReason::Stalled))),
+            "{reason:?}"
+        );
+    }
+
+    /// A smoothed elastic phase whose steps stop falling is stopped after
+    /// two stall windows and run again without its correction, as a
+    /// diverged one is; the report says so only through the retry.
+    #[test]
+    fn a_stalled_smoothed_elastic_phase_runs_again_without_its_correction() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
+            let mut device = Halving::new(1, &model);
+            device.elastic_correction = Some(0.5);
+            device.smoothed = true;
+            device.stall_phases = 1;
+            Ok::<_, Error>(device)
+        })
+        .unwrap();
+        let Ok(report) = tracker.solve(());
+        assert!(report.converged, "{report:?}");
+        assert_eq!(report.elastic_retries, 1);
+        let elastic: Vec<bool> = tracker.device.begun[1..]
+            .iter()
+            .map(|it| it.correct)
+            .collect();
+        assert_eq!(elastic, [true, false]);
+        // The shear phase, the stalled phase cut at two windows, the retry.
+        let shear = report.iterations - 2 * crate::acceleration::STALL_WINDOW;
+        assert!(shear > 0 && shear < 40, "{report:?}");
     }
 
     /// A diverged elastic phase runs again from the end of the shear
