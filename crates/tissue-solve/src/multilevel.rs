@@ -87,45 +87,8 @@ impl Multilevel {
             weighted_inverse_diagonal.push(JACOBI_WEIGHT / diagonal);
             starts.push(columns.len());
         }
-        let (mut group, mut count) = groups(centres, cell * GROUP);
-        let mut edge = cell * GROUP;
-        while count > max_groups.max(1) {
-            edge *= 1.25;
-            (group, count) = groups(centres, edge);
-        }
-        let mut grouped: Vec<HashMap<u32, f64>> = vec![HashMap::new(); count];
-        for (i, row) in rows.iter().enumerate() {
-            let g = &mut grouped[group[i] as usize];
-            for &(j, w) in row {
-                *g.entry(group[j as usize]).or_default() += w;
-            }
-        }
-        let grouped: Vec<Vec<(u32, f64)>> = grouped
-            .into_iter()
-            .map(|row| {
-                let mut row: Vec<(u32, f64)> = row.into_iter().filter(|&(_, w)| w != 0.0).collect();
-                row.sort_unstable_by_key(|&(b, _)| b);
-                row
-            })
-            .collect();
-        let order = reverse_cuthill_mckee(&grouped);
-        let mut rank = vec![0u32; count];
-        for (k, &g) in order.iter().enumerate() {
-            rank[g as usize] = k as u32;
-        }
-        let ordered: Vec<Vec<(u32, f64)>> = order
-            .iter()
-            .map(|&g| {
-                let mut row: Vec<(u32, f64)> = grouped[g as usize]
-                    .iter()
-                    .map(|&(h, w)| (rank[h as usize], w))
-                    .collect();
-                row.sort_unstable_by_key(|&(h, _)| h);
-                row
-            })
-            .collect();
+        let (group, ordered) = grouped(rows, centres, cell, max_groups, 0.0, |&w| w != 0.0);
         let factor = Envelope::cholesky(&ordered)?;
-        let group = group.iter().map(|&g| rank[g as usize]).collect();
         Some(Self {
             starts,
             columns,
@@ -285,45 +248,11 @@ impl BlockMultilevel {
         for d in &mut space.weighted_inverse_diagonal {
             *d *= space.weight;
         }
-        let (mut group, mut count) = groups(centres, cell * GROUP);
-        let mut edge = cell * GROUP;
-        while count > max_groups.max(1) {
-            edge *= 1.25;
-            (group, count) = groups(centres, edge);
-        }
-        let mut grouped: Vec<HashMap<u32, DMat3>> = vec![HashMap::new(); count];
-        for (i, row) in rows.iter().enumerate() {
-            let g = &mut grouped[group[i] as usize];
-            for &(j, block) in row {
-                *g.entry(group[j as usize]).or_insert(DMat3::ZERO) += block;
-            }
-        }
-        let grouped: Vec<Vec<(u32, DMat3)>> = grouped
-            .into_iter()
-            .map(|row| {
-                let mut row: Vec<(u32, DMat3)> = row.into_iter().collect();
-                row.sort_unstable_by_key(|&(b, _)| b);
-                row
-            })
-            .collect();
-        // Ordered by the groups' graph, then three rows a group.
-        let graph: Vec<Vec<(u32, f64)>> = grouped
+        let (group, ordered) = grouped(rows, centres, cell, max_groups, DMat3::ZERO, |_| true);
+        // Three rows a group.
+        let scalar: Vec<Vec<(u32, f64)>> = ordered
             .iter()
-            .map(|row| row.iter().map(|&(h, _)| (h, 1.0)).collect())
-            .collect();
-        let order = reverse_cuthill_mckee(&graph);
-        let mut rank = vec![0u32; count];
-        for (k, &g) in order.iter().enumerate() {
-            rank[g as usize] = k as u32;
-        }
-        let scalar: Vec<Vec<(u32, f64)>> = order
-            .iter()
-            .flat_map(|&g| {
-                let mut row: Vec<(u32, DMat3)> = grouped[g as usize]
-                    .iter()
-                    .map(|&(h, block)| (rank[h as usize], block))
-                    .collect();
-                row.sort_unstable_by_key(|&(h, _)| h);
+            .flat_map(|row| {
                 (0..3).map(move |r| {
                     row.iter()
                         .flat_map(|&(h, block)| {
@@ -334,7 +263,7 @@ impl BlockMultilevel {
             })
             .collect();
         space.factor = Envelope::cholesky(&scalar)?;
-        space.group = group.iter().map(|&g| rank[g as usize]).collect();
+        space.group = group;
         Some(space)
     }
 
@@ -467,6 +396,63 @@ fn positive_inverse(block: DMat3) -> Option<DMat3> {
     let (a, b) = (block.x_axis.x, block.y_axis.y);
     let minor = a * b - block.y_axis.x * block.x_axis.y;
     (a > 0.0 && minor > 0.0 && block.determinant() > 0.0).then(|| block.inverse())
+}
+
+/// The groups of the aggregates at `centres` (cells [`GROUP`] times
+/// `cell`, grown by 1.25 until there are at most `max_groups`) and the
+/// groups' Galerkin matrix `Q^T A Q` of `rows` (entries `keep` says are
+/// not zero), both numbered in the reverse Cuthill-McKee order of the
+/// groups' graph: per aggregate its group, and per group its sorted row.
+fn grouped<T: Copy + std::ops::AddAssign>(
+    rows: &[Vec<(u32, T)>],
+    centres: &[Vec3],
+    cell: f32,
+    max_groups: usize,
+    zero: T,
+    keep: impl Fn(&T) -> bool,
+) -> (Vec<u32>, Vec<Vec<(u32, T)>>) {
+    let (mut group, mut count) = groups(centres, cell * GROUP);
+    let mut edge = cell * GROUP;
+    while count > max_groups.max(1) {
+        edge *= 1.25;
+        (group, count) = groups(centres, edge);
+    }
+    let mut sums: Vec<HashMap<u32, T>> = vec![HashMap::new(); count];
+    for (i, row) in rows.iter().enumerate() {
+        let g = &mut sums[group[i] as usize];
+        for &(j, w) in row {
+            *g.entry(group[j as usize]).or_insert(zero) += w;
+        }
+    }
+    let sums: Vec<Vec<(u32, T)>> = sums
+        .into_iter()
+        .map(|row| {
+            let mut row: Vec<(u32, T)> = row.into_iter().filter(|(_, w)| keep(w)).collect();
+            row.sort_unstable_by_key(|&(h, _)| h);
+            row
+        })
+        .collect();
+    let graph: Vec<Vec<(u32, f64)>> = sums
+        .iter()
+        .map(|row| row.iter().map(|&(h, _)| (h, 1.0)).collect())
+        .collect();
+    let order = reverse_cuthill_mckee(&graph);
+    let mut rank = vec![0u32; count];
+    for (k, &g) in order.iter().enumerate() {
+        rank[g as usize] = k as u32;
+    }
+    let ordered = order
+        .iter()
+        .map(|&g| {
+            let mut row: Vec<(u32, T)> = sums[g as usize]
+                .iter()
+                .map(|&(h, w)| (rank[h as usize], w))
+                .collect();
+            row.sort_unstable_by_key(|&(h, _)| h);
+            row
+        })
+        .collect();
+    (group.iter().map(|&g| rank[g as usize]).collect(), ordered)
 }
 
 /// Per centre, its group (the centres in one cell of edge `cell`, numbered

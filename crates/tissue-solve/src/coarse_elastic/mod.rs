@@ -22,15 +22,17 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 
-use tissue_core::ParticleModel;
-
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
 use crate::elastic::{Elastic, VolumeLinearisation, cofactor, offsets_product};
 use crate::multilevel::BlockMultilevel;
-use crate::params::{DeformParams, ForceModel};
-use crate::plan::Plan;
+use crate::params::ForceModel;
 use crate::tracker::Iteration;
 use crate::volume_smoother::VolumeSmoother;
+
+mod setup;
+pub use setup::{
+    SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
+};
 
 /// Lanczos steps for the two-level iteration's contraction. On both breast
 /// phantoms at 10,000 particles, 10 steps estimate what 40 steps of power
@@ -696,147 +698,6 @@ fn scalar_rows(blocks: &[Vec<(u32, DMat3)>]) -> Vec<Vec<(u32, f64)>> {
         .collect()
 }
 
-/// The contraction of the elastic phase's two-level iteration with the
-/// volume smoother (`delta`), estimated once per model: the operator
-/// linearised at rest, [`REST_RATE_STEPS`] Lanczos steps. Where the elastic
-/// phase starts, every neighbourhood is near its rest volume and turned by
-/// its rotation, and the estimate there agrees with this one to 0.004 on
-/// both breast phantoms; the estimate costs as much as 40 iterations, too
-/// much for every solve. `None` (with a warning) where the coarse matrix
-/// cannot be made.
-pub fn rest_rate(
-    aggregates: &Aggregates,
-    rest: &[Vec3],
-    connections: &Connections,
-    elastic: &Elastic,
-    delta: f64,
-    direct_max_aggregates: usize,
-) -> Option<f32> {
-    let made_for = CorrectionFor {
-        contraction: 0.0,
-        volume_delta: Some(delta),
-        rho: None,
-        direct_max_aggregates,
-    };
-    ElasticCoarse::with_rate_steps(
-        aggregates,
-        rest,
-        rest,
-        connections,
-        elastic,
-        made_for,
-        REST_RATE_STEPS,
-    )
-    .inspect_err(|e| log::warn!("the volume smoother's contraction could not be estimated: {e}"))
-    .ok()
-    .map(|coarse| coarse.rho)
-}
-
-/// The largest cells (in mean connection lengths) the elastic aggregates
-/// may have for the volume smoother. Two Jacobi sweeps never over-correct
-/// the volume term, but they under-correct its medium-frequency modes,
-/// which aggregates of at most 2 spacings carry and coarser ones do not:
-/// on breast_c at 10,000 particles, cells of 2.5, 3 and 4 spacings put the
-/// iteration's most negative eigenvalue at -1.14, -1.27 and -1.44 (it
-/// diverges), and at 100,000 particles, whose 1,000 aggregates (the cap
-/// before the cycles) needed cells of 4.9 spacings, at -3.3
-/// (docs/METHOD.md, "The volume smoother").
-pub const SMOOTHER_MAX_CELL: f32 = 2.0;
-
-/// A measured contraction at or above this leaves the plain step in place
-/// of the volume smoother: the smoother's iteration would not converge, or
-/// hardly faster than the plain step's.
-pub const SMOOTHER_MAX_RATE: f32 = 0.97;
-
-/// The volume smoother's `delta` ([`crate::volume_smoother::SHEAR_STEP`]
-/// times the plan's largest Laplacian eigenvalue) and its two-level
-/// iteration's contraction at rest ([`rest_rate`]), where the elastic phase
-/// has its two-level solve (`aggregates`), `params` asks for the smoother,
-/// the whole skin is observed (every surface particle a control point), the
-/// aggregates' cells are at most [`SMOOTHER_MAX_CELL`] spacings and the
-/// contraction is below [`SMOOTHER_MAX_RATE`]; `None` otherwise, the plain
-/// step smoothing (said in the log where the smoother was asked for). With
-/// a free skin the smoother's iteration diverges (a contraction of 1.000
-/// measured on breast_c with half its skin observed, and in every solve of
-/// its unloaded shape, the chest wall alone held): its two sweeps do not
-/// reach the pressures of the free surface's one-sided neighbourhoods.
-pub fn volume_smoother(
-    model: &ParticleModel,
-    plan: &Plan,
-    params: &DeformParams,
-    aggregates: Option<&Aggregates>,
-    direct_max_aggregates: usize,
-) -> Option<(f64, f32)> {
-    let (aggregates, elastic) = (aggregates?, plan.elastic.as_deref()?);
-    if !params.volume_smoother {
-        return None;
-    }
-    let free_skin = model
-        .attachments
-        .iter()
-        .zip(&plan.controls)
-        .any(|(a, &control)| a.is_some() && !control);
-    if free_skin {
-        log::info!(
-            "the elastic phase smooths with the plain step: part of the skin is free (the \
-             volume smoother needs it observed)"
-        );
-        return None;
-    }
-    let spacing = model.mean_connection_length();
-    if aggregates.cell > SMOOTHER_MAX_CELL * spacing * 1.001 {
-        log::info!(
-            "the elastic phase smooths with the plain step: its aggregates' cells are {:.1} \
-             spacings (at most {} for the volume smoother; a multilevel coarse space would keep \
-             them small at this size)",
-            aggregates.cell / spacing,
-            SMOOTHER_MAX_CELL
-        );
-        return None;
-    }
-    let delta = crate::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max);
-    let rho = rest_rate(
-        aggregates,
-        &model.positions,
-        &model.connections,
-        elastic,
-        delta,
-        direct_max_aggregates,
-    )?;
-    if rho >= SMOOTHER_MAX_RATE {
-        log::warn!(
-            "the elastic phase smooths with the plain step: the volume smoother's iteration \
-             contracts at {rho:.3} on this model (at most {SMOOTHER_MAX_RATE} to use it)"
-        );
-        return None;
-    }
-    log::info!("the volume smoother: contraction {rho:.3} at rest");
-    Some((delta, rho))
-}
-
-/// The aggregates of the elastic phase's two-level solve under `params`:
-/// with the elastic force and the two-level solve on, the cells of
-/// `coarse` grown until there are at most `elastic_coarse_max_aggregates`;
-/// none otherwise, or (with a warning) where they cannot be made.
-pub fn elastic_aggregates(
-    model: &ParticleModel,
-    plan: &Plan,
-    params: &DeformParams,
-) -> Option<Aggregates> {
-    if plan.elastic.is_none() || params.coarse == 0.0 || params.elastic_coarse_max_aggregates == 0 {
-        return None;
-    }
-    Aggregates::new(
-        &model.positions,
-        &model.connections,
-        &plan.free,
-        params.coarse * model.mean_connection_length(),
-        params.elastic_coarse_max_aggregates,
-    )
-    .inspect_err(|e| log::warn!("the elastic phase runs without its two-level solve: {e}"))
-    .ok()
-}
-
 #[cfg(test)]
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
@@ -1192,7 +1053,7 @@ mod tests {
         use crate::volume_smoother::{RELAXATION, SHEAR_STEP, SWEEPS};
         assert_eq!((SHEAR_STEP, RELAXATION, SWEEPS), (2.0, 0.5, 2));
         assert_eq!(REST_RATE_STEPS, 40);
-        assert!(DeformParams::default().volume_smoother);
+        assert!(crate::params::DeformParams::default().volume_smoother);
     }
 
     /// Lanczos' estimate of the two-level iteration's radius against the
