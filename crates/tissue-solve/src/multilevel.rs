@@ -249,20 +249,7 @@ impl BlockMultilevel {
             *d *= space.weight;
         }
         let (group, ordered) = grouped(rows, centres, cell, max_groups, DMat3::ZERO, |_| true);
-        // Three rows a group.
-        let scalar: Vec<Vec<(u32, f64)>> = ordered
-            .iter()
-            .flat_map(|row| {
-                (0..3).map(move |r| {
-                    row.iter()
-                        .flat_map(|&(h, block)| {
-                            (0..3).map(move |c| (3 * h + c as u32, block.col(c)[r]))
-                        })
-                        .collect()
-                })
-            })
-            .collect();
-        space.factor = Envelope::cholesky(&scalar)?;
+        space.factor = Envelope::cholesky(&scalar_rows(&ordered))?;
         space.group = group;
         Some(space)
     }
@@ -396,6 +383,22 @@ fn positive_inverse(block: DMat3) -> Option<DMat3> {
     let (a, b) = (block.x_axis.x, block.y_axis.y);
     let minor = a * b - block.y_axis.x * block.x_axis.y;
     (a > 0.0 && minor > 0.0 && block.determinant() > 0.0).then(|| block.inverse())
+}
+
+/// Block rows as scalar ones, three per block row: unknown `3 a + axis`.
+pub(crate) fn scalar_rows(blocks: &[Vec<(u32, DMat3)>]) -> Vec<Vec<(u32, f64)>> {
+    blocks
+        .iter()
+        .flat_map(|row| {
+            (0..3).map(move |r| {
+                row.iter()
+                    .flat_map(|&(b, block)| {
+                        (0..3).map(move |c| (3 * b + c as u32, block.col(c)[r]))
+                    })
+                    .collect()
+            })
+        })
+        .collect()
 }
 
 /// The groups of the aggregates at `centres` (cells [`GROUP`] times

@@ -24,7 +24,7 @@ use tissue_core::{Connections, DeformError, Error};
 
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
 use crate::elastic::{Elastic, VolumeLinearisation, cofactor, offsets_product};
-use crate::multilevel::BlockMultilevel;
+use crate::multilevel::{BlockMultilevel, scalar_rows};
 use crate::params::ForceModel;
 use crate::tracker::Iteration;
 use crate::volume_smoother::VolumeSmoother;
@@ -678,22 +678,6 @@ fn assemble(
             }
             blocks.sort_unstable_by_key(|&(b, _)| b);
             blocks
-        })
-        .collect()
-}
-
-/// Block rows as scalar ones, three per block row: unknown `3 a + axis`.
-fn scalar_rows(blocks: &[Vec<(u32, DMat3)>]) -> Vec<Vec<(u32, f64)>> {
-    blocks
-        .iter()
-        .flat_map(|row| {
-            (0..3).map(move |r| {
-                row.iter()
-                    .flat_map(|&(b, block)| {
-                        (0..3).map(move |c| (3 * b + c as u32, block.col(c)[r]))
-                    })
-                    .collect()
-            })
         })
         .collect()
 }
