@@ -36,6 +36,7 @@ use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
+use crate::coarse_elastic::Entries;
 use crate::consistent::Consistency;
 use crate::spectrum::lanczos_extremes;
 use crate::svd3::rotation_of;
@@ -245,12 +246,17 @@ impl Elastic {
     /// force of a small displacement `u` from rest is `-2 K u`; for the
     /// pair term alone `K = L`), by 40 Lanczos steps with a 2 % margin.
     pub fn rest_lambda_max(&self, rest: &[Vec3], connections: &Connections, free: &[bool]) -> f32 {
+        // The volume term's entries once for the 40 products (each would
+        // form three per connection).
+        let linearisation = self.rest_linearisation();
+        let entries = Entries::new(rest, connections, &linearisation);
         let apply = |u: &[f64]| -> Vec<f64> {
             let u: Vec<DVec3> = u
                 .chunks_exact(3)
                 .map(|c| DVec3::new(c[0], c[1], c[2]))
                 .collect();
-            self.rest_operator(rest, connections, free, &u)
+            entries
+                .operator(&linearisation.weights, connections, |i| free[i], &u)
                 .iter()
                 .flat_map(|r| r.to_array())
                 .collect()
@@ -272,8 +278,15 @@ impl Elastic {
         free: &[bool],
         u: &[DVec3],
     ) -> Vec<DVec3> {
+        self.rest_linearisation()
+            .operator(rest, connections, |i| free[i], u)
+    }
+
+    /// The volume term linearised at rest (`cof F = I`), in `f64`: what
+    /// [`Elastic::rest_operator`] applies (made once for many products).
+    pub fn rest_linearisation(&self) -> VolumeLinearisation {
         let c = &self.consistency;
-        let linearisation = VolumeLinearisation {
+        VolumeLinearisation {
             weights: self.weights.iter().map(|&w| f64::from(w)).collect(),
             corrections: c.corrections.iter().map(|b| b.as_dmat3()).collect(),
             scales: c
@@ -282,8 +295,7 @@ impl Elastic {
                 .map(|&a| DMat3::from_diagonal(DVec3::splat(f64::from(a))))
                 .collect(),
             multipliers: c.multipliers.iter().map(|m| m.as_dvec3()).collect(),
-        };
-        linearisation.operator(rest, connections, |i| free[i], u)
+        }
     }
 }
 
@@ -307,6 +319,7 @@ pub struct VolumeLinearisation {
 
 impl VolumeLinearisation {
     /// `g_i`'s entry at neighbour `j`.
+    #[inline]
     pub fn entry(&self, rest: &[Vec3], i: usize, j: usize) -> DVec3 {
         self.corrections[i] * (rest[j] - rest[i]).as_dvec3()
             + self.scales[i] * (self.multipliers[j] - self.multipliers[i])
@@ -337,25 +350,20 @@ impl VolumeLinearisation {
                 self.weights[i] * change
             })
             .collect();
-        // Per particle `z_i cof(F_i) B_i` and `z_i a_i cof(F_i)`.
-        let parts: Vec<(DMat3, DMat3)> = (0..rest.len())
-            .into_par_iter()
-            .map(|i| (self.corrections[i] * z[i], self.scales[i] * z[i]))
-            .collect();
-        let mu = &self.multipliers;
         (0..rest.len())
             .into_par_iter()
             .map(|k| {
                 if !inside(k) {
                     return DVec3::ZERO;
                 }
-                // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`, gathered.
+                // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`,
+                // gathered: `g_i`'s entry at `k`, and `g_k`'s at `k` minus
+                // the sum of its own.
                 let mut r = DVec3::ZERO;
                 for &i in connections.of(k) {
                     let i = i as usize;
-                    let d = (rest[k] - rest[i]).as_dvec3();
-                    let (h, n) = (parts[i].0 + parts[k].0, parts[i].1 + parts[k].1);
-                    r += (at(k) - at(i)) + 0.5 * (h * d + n * (mu[k] - mu[i]));
+                    let (into_k, out_of_k) = (self.entry(rest, i, k), self.entry(rest, k, i));
+                    r += (at(k) - at(i)) + 0.5 * (z[i] * into_k - z[k] * out_of_k);
                 }
                 r
             })

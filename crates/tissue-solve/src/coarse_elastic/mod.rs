@@ -275,54 +275,12 @@ impl ElasticCoarse {
         u: &[DVec3],
     ) -> Vec<DVec3> {
         let aggregate = &aggregates.aggregate;
-        let at = |i: usize| {
-            if aggregate[i] == OUTSIDE {
-                DVec3::ZERO
-            } else {
-                u[i]
-            }
-        };
-        let slots = |i: usize| connections.offsets[i] as usize..connections.offsets[i + 1] as usize;
-        let Entries { own, mirrored } = &self.entries;
-        let weights = &self.linearisation.weights;
-        // Per particle `z_i = W_i (g_i . u)`.
-        let z: Vec<f64> = (0..u.len())
-            .into_par_iter()
-            .map(|i| {
-                if weights[i] == 0.0 {
-                    return 0.0;
-                }
-                let (ui, range) = (at(i), slots(i));
-                let change: f64 = connections.indices[range.clone()]
-                    .iter()
-                    .zip(&own[range])
-                    .map(|(&j, g)| (at(j as usize) - ui).dot(*g))
-                    .sum();
-                weights[i] * change
-            })
-            .collect();
-        // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`, gathered:
-        // `g_i`'s entry at `k` is the mirrored slot, `g_k`'s at `k` minus
-        // the sum of its own.
-        (0..u.len())
-            .into_par_iter()
-            .map(|k| {
-                if aggregate[k] == OUTSIDE {
-                    return DVec3::ZERO;
-                }
-                let (uk, range) = (at(k), slots(k));
-                let mut r = DVec3::ZERO;
-                for ((&i, g), h) in connections.indices[range.clone()]
-                    .iter()
-                    .zip(&own[range.clone()])
-                    .zip(&mirrored[range])
-                {
-                    let i = i as usize;
-                    r += (uk - at(i)) + 0.5 * (z[i] * *h - z[k] * *g);
-                }
-                r
-            })
-            .collect()
+        self.entries.operator(
+            &self.linearisation.weights,
+            connections,
+            |i| aggregate[i] != OUTSIDE,
+            u,
+        )
     }
 
     /// Turns the plain step `plain - current` (`-contraction K e` for the
@@ -536,7 +494,11 @@ pub(crate) struct Entries {
 }
 
 impl Entries {
-    fn new(rest: &[Vec3], connections: &Connections, linearisation: &VolumeLinearisation) -> Self {
+    pub(crate) fn new(
+        rest: &[Vec3],
+        connections: &Connections,
+        linearisation: &VolumeLinearisation,
+    ) -> Self {
         let n = rest.len();
         let slot = |i: usize, j: u32| -> Option<usize> {
             let row = connections.of(i);
@@ -568,6 +530,59 @@ impl Entries {
             })
             .collect();
         Self { own, mirrored }
+    }
+
+    /// `K u` for the linearisation these are the entries of, whose volume
+    /// weights are `weights`, over the particles `inside` says (others
+    /// read as zero; their rows are zero).
+    pub(crate) fn operator(
+        &self,
+        weights: &[f64],
+        connections: &Connections,
+        inside: impl Fn(usize) -> bool + Sync,
+        u: &[DVec3],
+    ) -> Vec<DVec3> {
+        let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
+        let slots = |i: usize| connections.offsets[i] as usize..connections.offsets[i + 1] as usize;
+        let Self { own, mirrored } = self;
+        // Per particle `z_i = W_i (g_i . u)`.
+        let z: Vec<f64> = (0..u.len())
+            .into_par_iter()
+            .map(|i| {
+                if weights[i] == 0.0 {
+                    return 0.0;
+                }
+                let (ui, range) = (at(i), slots(i));
+                let change: f64 = connections.indices[range.clone()]
+                    .iter()
+                    .zip(&own[range])
+                    .map(|(&j, g)| (at(j as usize) - ui).dot(*g))
+                    .sum();
+                weights[i] * change
+            })
+            .collect();
+        // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`, gathered:
+        // `g_i`'s entry at `k` is the mirrored slot, `g_k`'s at `k` minus
+        // the sum of its own.
+        (0..u.len())
+            .into_par_iter()
+            .map(|k| {
+                if !inside(k) {
+                    return DVec3::ZERO;
+                }
+                let (uk, range) = (at(k), slots(k));
+                let mut r = DVec3::ZERO;
+                for ((&i, g), h) in connections.indices[range.clone()]
+                    .iter()
+                    .zip(&own[range.clone()])
+                    .zip(&mirrored[range])
+                {
+                    let i = i as usize;
+                    r += (uk - at(i)) + 0.5 * (z[i] * *h - z[k] * *g);
+                }
+                r
+            })
+            .collect()
     }
 }
 
