@@ -162,13 +162,20 @@ impl Multilevel {
             .collect()
     }
 
-    /// One weighted Jacobi sweep: `x += w D^-1 (b - A x)`.
-    fn sweep(&self, b: &[DVec3], x: &mut [DVec3]) {
-        let residual = self.residual(b, x);
-        x.par_iter_mut()
-            .zip(&residual)
-            .zip(&self.weighted_inverse_diagonal)
-            .for_each(|((x, r), &w)| *x += *r * w);
+    /// One weighted Jacobi sweep: `x += w D^-1 (b - A x)`, each row's
+    /// residual formed where it is used.
+    fn sweep(&self, b: &[DVec3], x: &mut Vec<DVec3>) {
+        let swept = (0..b.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut r = b[i];
+                for k in self.row(i) {
+                    r -= x[self.columns[k] as usize] * self.values[k];
+                }
+                x[i] + r * self.weighted_inverse_diagonal[i]
+            })
+            .collect();
+        *x = swept;
     }
 }
 
@@ -311,12 +318,15 @@ impl BlockMultilevel {
     fn product(&self, x: &[DVec3]) -> Vec<DVec3> {
         (0..x.len())
             .into_par_iter()
-            .map(|i| {
-                (self.starts[i]..self.starts[i + 1])
-                    .map(|k| self.values[k] * x[self.columns[k] as usize])
-                    .fold(DVec3::ZERO, |a, b| a + b)
-            })
+            .map(|i| self.row_product(i, x))
             .collect()
+    }
+
+    /// Row `i` of `A x`.
+    fn row_product(&self, i: usize, x: &[DVec3]) -> DVec3 {
+        (self.starts[i]..self.starts[i + 1])
+            .map(|k| self.values[k] * x[self.columns[k] as usize])
+            .fold(DVec3::ZERO, |a, b| a + b)
     }
 
     /// `b - A x`.
@@ -328,12 +338,14 @@ impl BlockMultilevel {
             .collect()
     }
 
-    fn sweep(&self, b: &[DVec3], x: &mut [DVec3]) {
-        let residual = self.residual(b, x);
-        x.par_iter_mut()
-            .zip(&residual)
-            .zip(&self.weighted_inverse_diagonal)
-            .for_each(|((x, r), d)| *x += *d * *r);
+    /// One weighted block Jacobi sweep, each row's residual formed where
+    /// it is used.
+    fn sweep(&self, b: &[DVec3], x: &mut Vec<DVec3>) {
+        let swept = (0..b.len())
+            .into_par_iter()
+            .map(|i| x[i] + self.weighted_inverse_diagonal[i] * (b[i] - self.row_product(i, x)))
+            .collect();
+        *x = swept;
     }
 
     /// The largest eigenvalue of `D^-1 A` (the diagonal blocks' inverses
