@@ -650,6 +650,33 @@ mod tests {
     }
 
     #[test]
+    fn the_largest_eigenvalue_is_that_of_the_rest_operator() {
+        // `rest_lambda_max` runs its Lanczos products through the slots'
+        // entries, made once; the same steps on `rest_operator`, which forms
+        // the entries per product, must give the same estimate.
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let apply = |u: &[f64]| -> Vec<f64> {
+            let u: Vec<DVec3> = u
+                .chunks_exact(3)
+                .map(|c| DVec3::new(c[0], c[1], c[2]))
+                .collect();
+            elastic
+                .rest_operator(&rest, &connections, &free, &u)
+                .iter()
+                .flat_map(|r| r.to_array())
+                .collect()
+        };
+        let start: Vec<bool> = free.iter().flat_map(|&f| [f; 3]).collect();
+        let (_, direct) = lanczos_extremes(&start, apply, 40);
+        let through_entries = elastic.rest_lambda_max(&rest, &connections, &free);
+        assert!(
+            (through_entries - direct).abs() <= 1e-5 * direct,
+            "{through_entries} vs {direct}"
+        );
+    }
+
+    #[test]
     fn the_cofactor_is_the_derivative_of_the_determinant() {
         for f in tissue_testkit::matrices(20) {
             let cof = cofactor(f);
