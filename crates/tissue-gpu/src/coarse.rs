@@ -78,7 +78,7 @@ impl CoarseBuffers {
             asked: count as u64,
             allowed: u64::from(u32::MAX),
         })?;
-        let factor = space.factor().ok_or_else(|| {
+        let factor = space.envelope().ok_or_else(|| {
             GpuError::Internal(format!(
                 "the coarse space of {count} aggregates is solved by two-grid cycles, which \
                  the GPU does not run yet: it takes a factored one"
@@ -86,7 +86,7 @@ impl CoarseBuffers {
         })?;
         let (member_starts, members) = members_of(aggregate, count);
         let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
-            factor_of(factor);
+            factor_of(&factor);
         let what = |name: &str| format!("the {name} buffer ({count} aggregates)");
         scoped(device, || {
             Ok(Self {

@@ -138,7 +138,7 @@ impl ElasticCoarseBuffers {
         coarse: &ElasticCoarse,
     ) -> Result<(), GpuError> {
         let unknowns = 3 * self.aggregates as usize;
-        let factor = coarse.factor().ok_or(GpuError::Length {
+        let factor = coarse.envelope().ok_or(GpuError::Length {
             what: "elastic coarse factor (the GPU has no cycles: the correction must be factored)",
             expected: unknowns,
             got: 0,

@@ -362,6 +362,7 @@ impl GpuSolve {
                 volume_delta: host.volume_smoother.map(|(delta, _)| delta),
                 rho: host.volume_smoother.map(|(_, rho)| rho),
                 direct_max_aggregates: usize::MAX,
+                envelope: true,
             },
         );
         match &self.elastic_coarse {

@@ -440,6 +440,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             volume_delta: Some(delta),
             rho: Some(0.9),
             direct_max_aggregates: usize::MAX,
+            envelope: true,
         };
         let coarse =
             ElasticCoarse::new(&aggregates, rest, &current, connections, &elastic, made_for)

@@ -25,6 +25,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error, ParticleModel};
 
+use crate::cholesky::Cholesky;
 use crate::multilevel::Multilevel;
 use crate::params::DeformParams;
 use crate::plan::Plan;
@@ -80,15 +81,16 @@ impl CoarseSpace {
                 "the coarse Laplacian is not positive definite (a rounding failure)".into(),
             ))
         };
-        let solve = if rows.len() <= direct_max {
-            CoarseSolve::Direct(Envelope::cholesky(&rows).ok_or_else(not_definite)?)
+        let count = rows.len();
+        let solve = if count <= direct_max {
+            CoarseSolve::Direct(Cholesky::new(&rows).ok_or_else(not_definite)?, rows)
         } else {
             let centres = centres(rest, &aggregate, rows.len());
             CoarseSolve::Multilevel(
                 Multilevel::new(&rows, &centres, cell, direct_max).ok_or_else(not_definite)?,
             )
         };
-        let (member_starts, members) = members_of(&aggregate, rows.len());
+        let (member_starts, members) = members_of(&aggregate, count);
         let mut space = Self {
             aggregate,
             member_starts,
@@ -106,7 +108,7 @@ impl CoarseSpace {
     /// Number of aggregates.
     pub fn count(&self) -> usize {
         match &self.solve {
-            CoarseSolve::Direct(factor) => factor.len(),
+            CoarseSolve::Direct(factor, _) => factor.len(),
             CoarseSolve::Multilevel(multilevel) => multilevel.len(),
         }
     }
@@ -123,9 +125,18 @@ impl CoarseSpace {
 
     /// The Cholesky factor of `P^T L P`, where it is factored (at most
     /// `direct_max` aggregates).
-    pub fn factor(&self) -> Option<&Envelope> {
+    pub fn factor(&self) -> Option<&Cholesky> {
         match &self.solve {
-            CoarseSolve::Direct(factor) => Some(factor),
+            CoarseSolve::Direct(factor, _) => Some(factor),
+            CoarseSolve::Multilevel(_) => None,
+        }
+    }
+
+    /// `P^T L P` factored within its envelope, the rows and columns a
+    /// device's substitution reads, where it is factored on the host.
+    pub fn envelope(&self) -> Option<Envelope> {
+        match &self.solve {
+            CoarseSolve::Direct(_, rows) => Envelope::cholesky(rows),
             CoarseSolve::Multilevel(_) => None,
         }
     }
@@ -133,7 +144,7 @@ impl CoarseSpace {
     /// The two-grid solve of `P^T L P`, where it is too large to factor.
     pub fn multilevel(&self) -> Option<&Multilevel> {
         match &self.solve {
-            CoarseSolve::Direct(_) => None,
+            CoarseSolve::Direct(..) => None,
             CoarseSolve::Multilevel(multilevel) => Some(multilevel),
         }
     }
@@ -193,7 +204,7 @@ impl CoarseSpace {
             })
             .collect();
         match &self.solve {
-            CoarseSolve::Direct(factor) => factor.solve(&mut coarse),
+            CoarseSolve::Direct(factor, _) => factor.solve(&mut coarse),
             CoarseSolve::Multilevel(multilevel) => multilevel.solve(&mut coarse),
         }
         let coarse: Vec<Vec3> = coarse.iter().map(|v| v.as_vec3()).collect();
@@ -386,8 +397,9 @@ pub fn norm(v: &[Vec3]) -> f64 {
 /// How a coarse space's matrix is solved.
 #[derive(Debug, Clone)]
 enum CoarseSolve {
-    /// Factored: solved exactly.
-    Direct(Envelope),
+    /// Factored: solved exactly; the rows kept for a device's envelope
+    /// factor ([`CoarseSpace::envelope`]).
+    Direct(Cholesky, Vec<Vec<(u32, f64)>>),
     /// Too large to factor: two-grid cycles over groups of aggregates.
     Multilevel(Multilevel),
 }
@@ -670,6 +682,7 @@ impl Envelope {
     }
 
     /// Solves `L L^T x = b` in place for three right-hand sides at once.
+    #[cfg(test)]
     pub(crate) fn solve(&self, b: &mut [DVec3]) {
         self.solve_in_place(b);
     }

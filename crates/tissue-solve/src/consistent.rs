@@ -37,7 +37,8 @@ use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres};
+use crate::cholesky::Cholesky;
+use crate::coarse::{Aggregates, OUTSIDE, centres};
 
 /// The multipliers are solved until the constraint's largest residual is
 /// this fraction of the uncorrected one: on the phantom at 5,000 particles
@@ -242,7 +243,7 @@ struct CoarseMultipliers {
     aggregate: Vec<u32>,
     /// Per particle its basis values `(1, (x - c_a) / h)`.
     basis: Vec<[f64; 4]>,
-    factor: Envelope,
+    factor: Cholesky,
 }
 
 /// The multipliers' coarse cells, in mean connection lengths.
@@ -422,7 +423,7 @@ impl CoarseMultipliers {
                 rows[row] = vec![(row as u32, 1.0)];
             }
         }
-        let factor = Envelope::cholesky(&rows);
+        let factor = Cholesky::new(&rows);
         if factor.is_none() {
             log::warn!("the multipliers' coarse matrix is not positive definite: Jacobi alone");
         }

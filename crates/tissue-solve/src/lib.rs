@@ -24,6 +24,7 @@
 
 pub mod acceleration;
 pub mod batches;
+pub mod cholesky;
 pub mod coarse;
 pub mod coarse_elastic;
 pub mod consistent;

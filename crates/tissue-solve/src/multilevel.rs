@@ -22,7 +22,8 @@ use std::ops::Range;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::coarse::{Envelope, reverse_cuthill_mckee};
+use crate::cholesky::Cholesky;
+use crate::coarse::reverse_cuthill_mckee;
 
 /// Symmetric two-grid cycles per coarse solve.
 pub const CYCLES: usize = 3;
@@ -52,7 +53,7 @@ pub struct Multilevel {
     /// Per aggregate, its group (in the factor's order).
     group: Vec<u32>,
     /// The Cholesky factor of `Q^T A Q`.
-    factor: Envelope,
+    factor: Cholesky,
 }
 
 impl Multilevel {
@@ -88,7 +89,7 @@ impl Multilevel {
             starts.push(columns.len());
         }
         let (group, ordered) = grouped(rows, centres, cell, max_groups, 0.0, |&w| w != 0.0);
-        let factor = Envelope::cholesky(&ordered)?;
+        let factor = Cholesky::new(&ordered)?;
         Some(Self {
             starts,
             columns,
@@ -207,7 +208,7 @@ pub struct BlockMultilevel {
     /// Per aggregate, its group (in the factor's order).
     group: Vec<u32>,
     /// The Cholesky factor of `Q^T A Q`, unknown `3 g + axis` for group `g`.
-    factor: Envelope,
+    factor: Cholesky,
     weight: f64,
 }
 
@@ -247,7 +248,7 @@ impl BlockMultilevel {
             values,
             weighted_inverse_diagonal: inverse_diagonal,
             group: Vec::new(),
-            factor: Envelope::cholesky(&[])?,
+            factor: Cholesky::new(&[])?,
             weight: 1.0,
         };
         space.weight =
@@ -256,7 +257,7 @@ impl BlockMultilevel {
             *d *= space.weight;
         }
         let (group, ordered) = grouped(rows, centres, cell, max_groups, DMat3::ZERO, |_| true);
-        space.factor = Envelope::cholesky(&scalar_rows(&ordered))?;
+        space.factor = Cholesky::new(&scalar_rows(&ordered))?;
         space.group = group;
         Some(space)
     }

@@ -279,6 +279,7 @@ impl CpuSolve {
             volume_delta: self.volume_smoother.map(|(delta, _)| delta),
             rho: self.volume_smoother.map(|(_, rho)| rho),
             direct_max_aggregates: self.elastic_direct_max,
+            envelope: false,
         };
         self.elastic_coarse = ElasticCoarse::at_phase_start(
             aggregates,

@@ -22,6 +22,7 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 
+use crate::cholesky::Cholesky;
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
 use crate::elastic::{Elastic, VolumeLinearisation, cofactor, offsets_product};
 use crate::multilevel::{BlockMultilevel, scalar_rows};
@@ -70,13 +71,19 @@ pub struct CorrectionFor {
     /// solved by the cycles of [`BlockMultilevel`], their groups' matrix
     /// factored at most this large.
     pub direct_max_aggregates: usize,
+    /// Where `P^T K P` is factored: in the envelope form a device's
+    /// substitution reads (`true`: the GPU uploads it) rather than the
+    /// host's sparse factor ([`Cholesky`]), the same solution.
+    pub envelope: bool,
 }
 
 /// How `P^T K P` is solved.
 #[derive(Debug, Clone)]
 enum CoarseSolve {
-    /// Its Cholesky factor, three rows per aggregate.
-    Direct(Envelope),
+    /// Its sparse Cholesky factor, three rows per aggregate.
+    Direct(Cholesky),
+    /// Its Cholesky factor within its envelope, for a device.
+    Envelope(Envelope),
     /// Two-grid cycles over groups of aggregates.
     Multilevel(BlockMultilevel),
 }
@@ -134,7 +141,12 @@ impl ElasticCoarse {
         let linearisation = linearise(rest, current, connections, elastic);
         let blocks = assemble(aggregates, rest, connections, &linearisation);
         let solve = if aggregates.count() <= made_for.direct_max_aggregates {
-            Envelope::cholesky(&scalar_rows(&blocks)).map(CoarseSolve::Direct)
+            let rows = scalar_rows(&blocks);
+            if made_for.envelope {
+                Envelope::cholesky(&rows).map(CoarseSolve::Envelope)
+            } else {
+                Cholesky::new(&rows).map(CoarseSolve::Direct)
+            }
         } else {
             let centres = centres(rest, &aggregates.aggregate, aggregates.count());
             BlockMultilevel::new(
@@ -238,19 +250,29 @@ impl ElasticCoarse {
         &self.linearisation
     }
 
-    /// The Cholesky factor of `P^T K P`, unknown `3 a + axis` for
-    /// aggregate `a`; `None` where it is solved by cycles instead.
-    pub fn factor(&self) -> Option<&Envelope> {
+    /// The sparse Cholesky factor of `P^T K P`, unknown `3 a + axis` for
+    /// aggregate `a`; `None` where it is solved by cycles or factored for
+    /// a device instead.
+    pub fn factor(&self) -> Option<&Cholesky> {
         match &self.solve {
             CoarseSolve::Direct(factor) => Some(factor),
-            CoarseSolve::Multilevel(_) => None,
+            CoarseSolve::Envelope(_) | CoarseSolve::Multilevel(_) => None,
+        }
+    }
+
+    /// The factor of `P^T K P` in envelope form, where it was made for a
+    /// device ([`CorrectionFor::envelope`]).
+    pub fn envelope(&self) -> Option<&Envelope> {
+        match &self.solve {
+            CoarseSolve::Envelope(factor) => Some(factor),
+            CoarseSolve::Direct(_) | CoarseSolve::Multilevel(_) => None,
         }
     }
 
     /// The cycles that solve `P^T K P`, where it is not factored.
     pub fn multilevel(&self) -> Option<&BlockMultilevel> {
         match &self.solve {
-            CoarseSolve::Direct(_) => None,
+            CoarseSolve::Direct(_) | CoarseSolve::Envelope(_) => None,
             CoarseSolve::Multilevel(cycles) => Some(cycles),
         }
     }
@@ -355,6 +377,11 @@ impl ElasticCoarse {
         }
         match &self.solve {
             CoarseSolve::Direct(factor) => {
+                let mut coarse: Vec<f64> = sums.iter().flat_map(|v| v.to_array()).collect();
+                factor.solve_scalar(&mut coarse);
+                coarse
+            }
+            CoarseSolve::Envelope(factor) => {
                 let mut coarse: Vec<f64> = sums.iter().flat_map(|v| v.to_array()).collect();
                 factor.solve_scalar(&mut coarse);
                 coarse
@@ -757,6 +784,7 @@ mod tests {
             volume_delta: None,
             rho: None,
             direct_max_aggregates: usize::MAX,
+            envelope: false,
         };
         let coarse =
             ElasticCoarse::new(&aggregates, &rest, &current, &connections, &elastic, plain)
@@ -935,6 +963,7 @@ mod tests {
             volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
             rho: None,
             direct_max_aggregates: usize::MAX,
+            envelope: false,
         };
         let coarse = ElasticCoarse::with_rate_steps(
             &aggregates,

@@ -32,6 +32,7 @@ pub fn rest_rate(
         volume_delta: Some(delta),
         rho: None,
         direct_max_aggregates,
+        envelope: false,
     };
     ElasticCoarse::with_rate_steps(
         aggregates,

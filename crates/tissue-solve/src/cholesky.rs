@@ -1,0 +1,264 @@
+//! The host's factor of a coarse matrix: a sparse Cholesky factor in a
+//! fill-reducing order (approximate minimum degree, supernodal), from the
+//! `faer` crate.
+//!
+//! The coarse matrices of this crate (the aggregates' Laplacian, the
+//! elastic operator's `P^T K P`, the multipliers' coarse space, the groups
+//! of the multilevel cycles) were factored within their envelope in reverse
+//! Cuthill-McKee order ([`crate::coarse::Envelope`]), which fills the whole
+//! band: at 10,000 particles the elastic matrix's 2,502 unknowns took 220
+//! million multiply-adds, 100-160 ms on the development machine, made again
+//! at every elastic phase's start. This factor takes 12-20 ms on the same
+//! matrix and its substitutions read a tenth of the entries (docs/METHOD.md,
+//! "The coarse factor"). The envelope stays for the devices: the GPU's
+//! substitution reads its rows and columns (`shaders/coarse.wgsl`).
+//!
+//! Sequential (`Par::Seq`): the result does not depend on the thread count.
+
+use std::sync::Arc;
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{
+    LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
+use faer::{Conj, MatMut, Par, Side};
+use glam::DVec3;
+
+/// `L L^T = P A P^T` of a sparse symmetric positive definite matrix.
+#[derive(Debug, Clone)]
+pub struct Cholesky {
+    symbolic: Arc<SymbolicCholesky<u32>>,
+    values: Vec<f64>,
+}
+
+impl Cholesky {
+    /// Factors the symmetric positive definite matrix given by `rows`
+    /// (each sorted by column, both triangles present, as
+    /// [`crate::coarse::Envelope::cholesky`] takes it); `None` when it is
+    /// not positive definite (or holds a value that is not finite).
+    pub fn new(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
+        let n = rows.len();
+        if rows
+            .iter()
+            .flatten()
+            .any(|&(j, w)| j as usize >= n || !w.is_finite())
+        {
+            return None;
+        }
+        if rows
+            .iter()
+            .any(|row| row.windows(2).any(|pair| pair[0].0 >= pair[1].0))
+        {
+            return None;
+        }
+        // The lower triangle by columns is the upper triangle by rows.
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let (mut row_idx, mut values) = (Vec::new(), Vec::new());
+        col_ptr.push(0u32);
+        for (i, row) in rows.iter().enumerate() {
+            for &(j, w) in row.iter().filter(|&&(j, _)| j as usize >= i) {
+                row_idx.push(j);
+                values.push(w);
+            }
+            col_ptr.push(u32::try_from(row_idx.len()).ok()?);
+        }
+        let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let lower = SparseColMatRef::new(pattern.as_ref(), &values);
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.as_ref(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        )
+        .ok()?;
+        let mut factor = vec![0.0; symbolic.len_val()];
+        let mut scratch = MemBuffer::try_new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+        )
+        .ok()?;
+        symbolic
+            .factorize_numeric_llt(
+                &mut factor,
+                lower,
+                Side::Lower,
+                Default::default(),
+                Par::Seq,
+                MemStack::new(&mut scratch),
+                Default::default(),
+            )
+            .ok()?;
+        Some(Self {
+            symbolic: Arc::new(symbolic),
+            values: factor,
+        })
+    }
+
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        self.symbolic.nrows()
+    }
+
+    /// Whether the factor has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Entries of the factor (its supernodes' dense blocks included).
+    pub fn entries(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Solves `A x = b` in place for one right-hand side.
+    pub fn solve_scalar(&self, b: &mut [f64]) {
+        self.solve_columns(b, 1);
+    }
+
+    /// Solves `A x = b` in place for three right-hand sides at once.
+    pub fn solve(&self, b: &mut [DVec3]) {
+        let n = b.len();
+        let mut columns = vec![0.0; 3 * n];
+        for (i, v) in b.iter().enumerate() {
+            (columns[i], columns[n + i], columns[2 * n + i]) = (v.x, v.y, v.z);
+        }
+        self.solve_columns(&mut columns, 3);
+        for (i, v) in b.iter_mut().enumerate() {
+            *v = DVec3::new(columns[i], columns[n + i], columns[2 * n + i]);
+        }
+    }
+
+    /// `columns` holds `count` right-hand sides one after the other.
+    fn solve_columns(&self, columns: &mut [f64], count: usize) {
+        let n = self.len();
+        assert_eq!(
+            columns.len(),
+            n * count,
+            "right-hand sides of the factor's size"
+        );
+        if n == 0 {
+            return;
+        }
+        let mut scratch =
+            MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(count, Par::Seq));
+        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(columns, n, count),
+            Par::Seq,
+            MemStack::new(&mut scratch),
+        );
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+    use crate::coarse::Envelope;
+
+    /// The Laplacian of a `side^3` grid, 6-connected, plus `shift` on the
+    /// diagonal, as rows sorted by column.
+    fn grid_rows(side: usize, shift: f64) -> Vec<Vec<(u32, f64)>> {
+        let index = |x: usize, y: usize, z: usize| ((z * side + y) * side + x) as u32;
+        let mut rows = Vec::new();
+        for z in 0..side {
+            for y in 0..side {
+                for x in 0..side {
+                    let mut row = vec![(index(x, y, z), shift)];
+                    let mut add = |j: u32| {
+                        row.push((j, -1.0));
+                        row[0].1 += 1.0;
+                    };
+                    if x > 0 {
+                        add(index(x - 1, y, z));
+                    }
+                    if x + 1 < side {
+                        add(index(x + 1, y, z));
+                    }
+                    if y > 0 {
+                        add(index(x, y - 1, z));
+                    }
+                    if y + 1 < side {
+                        add(index(x, y + 1, z));
+                    }
+                    if z > 0 {
+                        add(index(x, y, z - 1));
+                    }
+                    if z + 1 < side {
+                        add(index(x, y, z + 1));
+                    }
+                    row.sort_unstable_by_key(|&(j, _)| j);
+                    rows.push(row);
+                }
+            }
+        }
+        rows
+    }
+
+    fn product(rows: &[Vec<(u32, f64)>], x: &[f64]) -> Vec<f64> {
+        rows.iter()
+            .map(|row| row.iter().map(|&(j, w)| w * x[j as usize]).sum())
+            .collect()
+    }
+
+    #[test]
+    fn it_solves_what_the_envelope_solves_with_fewer_entries() {
+        let rows = grid_rows(12, 0.01);
+        let sparse = Cholesky::new(&rows).expect("positive definite");
+        let envelope = Envelope::cholesky(&rows).expect("positive definite");
+        let n = rows.len();
+        let b: Vec<f64> = (0..n).map(|i| ((i * 37) % 11) as f64 - 5.0).collect();
+        let (mut x, mut y) = (b.clone(), b.clone());
+        sparse.solve_scalar(&mut x);
+        envelope.solve_scalar(&mut y);
+        let residual = product(&rows, &x)
+            .iter()
+            .zip(&b)
+            .map(|(ax, b)| (ax - b).abs())
+            .fold(0.0, f64::max);
+        assert!(residual < 1e-9, "residual {residual}");
+        let apart = x
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(apart < 1e-8, "the two factors' solutions {apart} apart");
+        let envelope_entries = (0..n).map(|i| envelope.row(i).1.len()).sum::<usize>();
+        assert!(
+            2 * sparse.entries() < envelope_entries,
+            "{} entries against the envelope's {envelope_entries}",
+            sparse.entries()
+        );
+    }
+
+    #[test]
+    fn three_right_hand_sides_are_three_scalar_solves() {
+        let rows = grid_rows(5, 0.5);
+        let factor = Cholesky::new(&rows).expect("positive definite");
+        let n = rows.len();
+        let mut b: Vec<DVec3> = (0..n)
+            .map(|i| DVec3::new(i as f64, (i % 7) as f64, 1.0))
+            .collect();
+        let mut columns: Vec<Vec<f64>> = (0..3)
+            .map(|axis| b.iter().map(|v| v[axis]).collect())
+            .collect();
+        factor.solve(&mut b);
+        for (axis, column) in columns.iter_mut().enumerate() {
+            factor.solve_scalar(column);
+            for (v, c) in b.iter().zip(column.iter()) {
+                assert_eq!(v[axis], *c);
+            }
+        }
+    }
+
+    #[test]
+    fn it_refuses_what_is_not_positive_definite() {
+        assert!(Cholesky::new(&grid_rows(4, -0.5)).is_none());
+        let mut rows = grid_rows(3, 0.1);
+        rows[4][0].1 = f64::NAN;
+        assert!(Cholesky::new(&rows).is_none());
+        rows = grid_rows(3, 0.1);
+        rows[2].push((99, 1.0));
+        assert!(Cholesky::new(&rows).is_none());
+        assert!(Cholesky::new(&[]).is_some_and(|f| f.is_empty()));
+    }
+}
