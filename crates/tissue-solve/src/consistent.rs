@@ -255,8 +255,14 @@ pub const COARSE_CELL: f32 = 4.0;
 pub const FLATNESS: f64 = 1e-2;
 
 /// At most this many aggregates (four unknowns each) in the multipliers'
-/// coarse space; the cells grow past [`COARSE_CELL`] to keep to it.
-pub const COARSE_MAX_AGGREGATES: usize = 2_000;
+/// coarse space; the cells grow past [`COARSE_CELL`] to keep to it. At
+/// 1,000,000 particles (the phantom, with the sparse factor of
+/// [`Cholesky`]): 2,000 take 136 conjugate-gradient iterations and 50 s,
+/// 6,000 89 and 36 s, 10,000 64 and 37 s, 20,000 42 and 43 s (the factor
+/// grows as the square of its unknowns); at 100,000 and below the cells
+/// of [`COARSE_CELL`] give fewer than 2,000 (docs/METHOD.md, "Preparation
+/// and 1M").
+pub const COARSE_MAX_AGGREGATES: usize = 6_000;
 
 impl CoarseMultipliers {
     fn new(
