@@ -978,6 +978,55 @@ mod tests {
         (rest, connections, aggregates, coarse)
     }
 
+    /// The host's sparse factor and the envelope a device uploads solve
+    /// the same coarse system: the smoothed corrected steps agree to
+    /// rounding, and each correction holds the factor it was asked for.
+    #[test]
+    fn the_sparse_and_the_envelope_factor_give_the_same_step() {
+        let (rest, connections, free) = jittered_block();
+        let stretch = Mat3::from_diagonal(Vec3::new(1.1, 0.95, 0.97));
+        let current: Vec<Vec3> = rest.iter().map(|&p| turn() * stretch * p).collect();
+        let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let (_, lambda_max) = crate::spectrum::laplacian_extremes(&connections, &free);
+        let made = |envelope: bool| {
+            let made_for = CorrectionFor {
+                contraction: 0.002,
+                volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
+                rho: Some(0.9),
+                direct_max_aggregates: usize::MAX,
+                envelope,
+            };
+            ElasticCoarse::new(
+                &aggregates,
+                &rest,
+                &current,
+                &connections,
+                &elastic,
+                made_for,
+            )
+            .unwrap()
+        };
+        let (sparse, envelope) = (made(false), made(true));
+        assert!(sparse.factor().is_some() && sparse.envelope().is_none());
+        assert!(envelope.envelope().is_some() && envelope.factor().is_none());
+        let residual = displacement(&aggregates, &rest);
+        let a = sparse
+            .smoothed_step(&aggregates, &connections, &residual)
+            .unwrap();
+        let b = envelope
+            .smoothed_step(&aggregates, &connections, &residual)
+            .unwrap();
+        let scale = a.iter().map(|v| v.length()).fold(0.0f64, f64::max);
+        let off = a
+            .iter()
+            .zip(&b)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f64, f64::max);
+        assert!(scale > 0.0);
+        assert!(off <= 1e-9 * scale, "{off} of {scale}");
+    }
+
     /// The volume changes (`G^T x`) and the pressures' forces (`G y`) are
     /// each other's transpose: `y . G^T x = x . G y` over the free particles.
     #[test]
