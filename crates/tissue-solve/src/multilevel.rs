@@ -3,9 +3,10 @@
 //!
 //! The two-level solve needs `x = (P^T L P)^-1 b` every iteration for the
 //! aggregates' graph Laplacian `A = P^T L P` ([`crate::coarse`]). Its
-//! envelope factor grows as `n^(5/3)` and its substitutions as `n^(4/3)`,
-//! so at a million particles (about 86,000 aggregates of 2 spacings) it is
-//! out of reach, and the cells had to grow instead, which costs the fine
+//! factor grows as `n^(5/3)` within its envelope, and as `n^2` even
+//! sparsely ([`crate::cholesky`]: the fill of a 3-D graph's factor), so at
+//! a million particles (about 86,000 aggregates of 2 spacings) it is out
+//! of reach, and the cells had to grow instead, which costs the fine
 //! iteration its speed. Here the aggregates themselves are grouped, those
 //! whose centres share a cell [`GROUP`] times as large, into a second
 //! coarse space `Q` whose matrix `Q^T A Q` is small enough to factor, and

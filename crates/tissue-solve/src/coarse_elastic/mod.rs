@@ -938,12 +938,7 @@ mod tests {
         let direct = coarse
             .linearisation()
             .operator(&rest, &connections, inside, &u);
-        let scale = direct.iter().map(|v| v.length()).fold(0.0f64, f64::max);
-        let off = fast
-            .iter()
-            .zip(&direct)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f64, f64::max);
+        let (scale, off) = largest_and_apart(&direct, &fast);
         assert!(scale > 0.0);
         assert!(off <= 1e-12 * scale, "{off} of {scale}");
     }
@@ -1017,14 +1012,20 @@ mod tests {
         let b = envelope
             .smoothed_step(&aggregates, &connections, &residual)
             .unwrap();
-        let scale = a.iter().map(|v| v.length()).fold(0.0f64, f64::max);
-        let off = a
-            .iter()
-            .zip(&b)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f64, f64::max);
+        let (scale, off) = largest_and_apart(&a, &b);
         assert!(scale > 0.0);
         assert!(off <= 1e-9 * scale, "{off} of {scale}");
+    }
+
+    /// The largest vector of `a` and how far apart `a` and `b` are at most.
+    fn largest_and_apart(a: &[DVec3], b: &[DVec3]) -> (f64, f64) {
+        let largest = a.iter().map(|v| v.length()).fold(0.0f64, f64::max);
+        let apart = a
+            .iter()
+            .zip(b)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f64, f64::max);
+        (largest, apart)
     }
 
     /// The volume changes (`G^T x`) and the pressures' forces (`G y`) are
