@@ -948,6 +948,17 @@ mod tests {
     fn smoothed_at(
         current: impl Fn(Vec3) -> Vec3,
     ) -> (Vec<Vec3>, Connections, Aggregates, ElasticCoarse) {
+        smoothed_made(current, None, false)
+    }
+
+    /// The block's correction at `current` with the volume smoother, its
+    /// contraction `rho` (or 40 Lanczos steps), factored for a device
+    /// (`envelope`) or the host.
+    fn smoothed_made(
+        current: impl Fn(Vec3) -> Vec3,
+        rho: Option<f32>,
+        envelope: bool,
+    ) -> (Vec<Vec3>, Connections, Aggregates, ElasticCoarse) {
         let (rest, connections, free) = jittered_block();
         let current: Vec<Vec3> = rest.iter().map(|&p| current(p)).collect();
         let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
@@ -956,9 +967,9 @@ mod tests {
         let made_for = CorrectionFor {
             contraction: 0.002,
             volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
-            rho: None,
+            rho,
             direct_max_aggregates: usize::MAX,
-            envelope: false,
+            envelope,
         };
         let coarse = ElasticCoarse::with_rate_steps(
             &aggregates,
@@ -978,31 +989,10 @@ mod tests {
     /// rounding, and each correction holds the factor it was asked for.
     #[test]
     fn the_sparse_and_the_envelope_factor_give_the_same_step() {
-        let (rest, connections, free) = jittered_block();
         let stretch = Mat3::from_diagonal(Vec3::new(1.1, 0.95, 0.97));
-        let current: Vec<Vec3> = rest.iter().map(|&p| turn() * stretch * p).collect();
-        let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
-        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
-        let (_, lambda_max) = crate::spectrum::laplacian_extremes(&connections, &free);
-        let made = |envelope: bool| {
-            let made_for = CorrectionFor {
-                contraction: 0.002,
-                volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
-                rho: Some(0.9),
-                direct_max_aggregates: usize::MAX,
-                envelope,
-            };
-            ElasticCoarse::new(
-                &aggregates,
-                &rest,
-                &current,
-                &connections,
-                &elastic,
-                made_for,
-            )
-            .unwrap()
-        };
-        let (sparse, envelope) = (made(false), made(true));
+        let warp = |p: Vec3| turn() * stretch * p;
+        let (rest, connections, aggregates, sparse) = smoothed_made(warp, Some(0.9), false);
+        let (.., envelope) = smoothed_made(warp, Some(0.9), true);
         assert!(sparse.factor().is_some() && sparse.envelope().is_none());
         assert!(envelope.envelope().is_some() && envelope.factor().is_none());
         let residual = displacement(&aggregates, &rest);
