@@ -1,15 +1,20 @@
 // The warm-started polar rotation (Müller et al. 2016): the twin of
 // `tissue_cpu::deformation::polar` (`warm_rotation`, `polar_rotation`),
-// with glam's quaternion formulas (`Quat::from_mat3`, `from_axis_angle`,
-// the Hamilton product, `Mat3::from_quat`) written out in the same order.
+// with glam's quaternion formulas (`Quat::from_mat3`, the Hamilton product,
+// `Mat3::from_quat`) written out in the same order.
 // Quaternions are stored as (x, y, z, w).
 
 #import shared/svd3
 
 // Polar updates per solver iteration (`POLAR_ITERATIONS`).
 const POLAR_ITERATIONS: u32 = 3u;
+// The most updates an unsettled rotation gets before the SVD answers
+// (`POLAR_MOST_ITERATIONS`).
+const POLAR_MOST_ITERATIONS: u32 = 6u;
 // A settled update's last turn is below this, in radians (`POLAR_SETTLED`).
 const POLAR_SETTLED: f32 = 1e-3;
+// The same past the first POLAR_ITERATIONS updates (`POLAR_SETTLED_LATE`).
+const POLAR_SETTLED_LATE: f32 = 2e-4;
 // The largest finite f32: a larger (or NaN) scale means a non-finite matrix.
 const MAX_FINITE: f32 = 3.4028235e38;
 
@@ -63,12 +68,6 @@ fn quat_product(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
     );
 }
 
-// glam's `Quat::from_axis_angle` for a unit axis.
-fn quat_of_axis_angle(axis: vec3<f32>, angle: f32) -> vec4<f32> {
-    let half = angle * 0.5;
-    return vec4<f32>(axis * sin(half), cos(half));
-}
-
 // glam's `Mat3::from_quat` (q of unit length; not normalised again).
 fn rotation_of_quat(q: vec4<f32>) -> mat3x3<f32> {
     let x2 = q.x + q.x;
@@ -96,9 +95,12 @@ struct Polar {
     settled: bool,
 }
 
-// `polar_rotation`: turns `start` towards the rotation R maximising
-// trace(Rᵀ m), each step about Σ_c r_c × m_c / |Σ_c r_c · m_c|; settled when
-// the last turn was below POLAR_SETTLED while trace(Rᵀ m) > 0.
+// `polar_update`: turns `start` towards the rotation R maximising
+// trace(Rᵀ m), each step ω = Σ_c r_c × m_c / |Σ_c r_c · m_c| by the
+// quaternion (ω / 2, 1) normalised, POLAR_ITERATIONS steps and more while
+// the last has not settled, to POLAR_MOST_ITERATIONS; settled when the
+// last turn was below POLAR_SETTLED (POLAR_SETTLED_LATE past
+// POLAR_ITERATIONS) while trace(Rᵀ m) > 0.
 fn polar_rotation(m_raw: mat3x3<f32>, start: mat3x3<f32>) -> Polar {
     let a = max(max(abs(m_raw[0]), abs(m_raw[1])), abs(m_raw[2]));
     let scale = max(max(a.x, a.y), a.z);
@@ -108,17 +110,24 @@ fn polar_rotation(m_raw: mat3x3<f32>, start: mat3x3<f32>) -> Polar {
     let m = m_raw * (1.0 / scale);
     var q = quat_normalized(quat_of_rotation(start));
     var settled = false;
-    for (var k = 0u; k < POLAR_ITERATIONS; k++) {
+    for (var k = 0u; k < POLAR_MOST_ITERATIONS; k++) {
         let r = rotation_of_quat(q);
         let turn = cross(r[0], m[0]) + cross(r[1], m[1]) + cross(r[2], m[2]);
         let alignment = dot(r[0], m[0]) + dot(r[1], m[1]) + dot(r[2], m[2]);
         let omega = turn * (1.0 / (abs(alignment) + 1e-9));
         let angle = sqrt(dot(omega, omega));
-        settled = alignment > 0.0 && angle < POLAR_SETTLED;
+        var settling = POLAR_SETTLED;
+        if (k >= POLAR_ITERATIONS) {
+            settling = POLAR_SETTLED_LATE;
+        }
+        settled = alignment > 0.0 && angle < settling;
         if (angle < 1e-9) {
             break;
         }
-        q = quat_normalized(quat_product(quat_of_axis_angle(omega / angle, angle), q));
+        q = quat_normalized(quat_product(vec4<f32>(0.5 * omega, 1.0), q));
+        if (settled && k + 1u >= POLAR_ITERATIONS) {
+            break;
+        }
     }
     return Polar(rotation_of_quat(q), settled);
 }

@@ -9,7 +9,8 @@ mod common;
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::deformation::{
-    DeformParams, ForceModel, RotationMethod, local_rotations_warm, polar_rotation,
+    DeformParams, ForceModel, POLAR_ITERATIONS, POLAR_MOST_ITERATIONS, RotationMethod,
+    local_rotations_warm, polar_update,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
 use tissue_solve::elastic::offsets_product;
@@ -47,7 +48,8 @@ fn deformed(model: &ParticleModel) -> Vec<Vec3> {
 
 /// Start rotations of four kinds, particle by particle: the SVD's rotation
 /// of `M_i` itself, it turned by 0.01 rad, the identity, and it turned by
-/// 2.8 rad (which three updates cannot bring back, so the SVD is taken).
+/// 2.8 rad (which the updates, at most `POLAR_MOST_ITERATIONS`, seldom bring
+/// back, so the SVD is taken).
 fn starts(model: &ParticleModel, current: &[Vec3]) -> Vec<Mat3> {
     (0..model.len())
         .map(|i| {
@@ -101,7 +103,7 @@ fn local_rotations_warm_matches_the_cpu_twin_settled_or_not() {
         let settled: Vec<bool> = (0..model.len())
             .map(|i| {
                 let m = offsets_product(&model.positions, &current, &model.connections, i);
-                polar_rotation(m, start[i], 3).1
+                polar_update(m, start[i], POLAR_ITERATIONS, POLAR_MOST_ITERATIONS).1
             })
             .collect();
         let mut fallbacks = [0usize; 4];
@@ -151,11 +153,12 @@ fn local_rotations_warm_matches_the_cpu_twin_settled_or_not() {
         );
         // Every kind is exercised: the exact starts settle where they
         // are, most of the nearby ones settle after turning, the identity
-        // (far from this twist) and the 2.8 rad turns fall back to the SVD.
+        // (far from this twist) and nearly all the 2.8 rad turns fall
+        // back to the SVD.
         let quarter = n / 4;
         assert_eq!(fallbacks[0], 0, "{fallbacks:?}");
         assert!(fallbacks[1] < quarter / 4, "{fallbacks:?}");
-        assert_eq!(fallbacks[3], quarter, "{fallbacks:?}");
+        assert!(fallbacks[3] > quarter * 9 / 10, "{fallbacks:?}");
         assert!(moved > quarter / 2, "{moved} settled away from their start");
     }
 }

@@ -50,7 +50,9 @@ pub use kernels::{
     chebyshev_combine, deflate, deformation_force, elastic_force, elastic_residual, elastic_terms,
     integrate, local_rotations, local_rotations_warm, steps,
 };
-pub use polar::{polar_rotation, warm_rotation};
+pub use polar::{
+    POLAR_ITERATIONS, POLAR_MOST_ITERATIONS, polar_rotation, polar_update, warm_rotation,
+};
 
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
 use tissue_solve::coarse_elastic::{
@@ -288,6 +290,7 @@ impl CpuSolve {
             &self.connections,
             elastic,
             made_for,
+            self.elastic_coarse.as_deref(),
         )
         .map(Arc::new);
     }
