@@ -451,6 +451,7 @@ impl<D: SolveDevice> Tracker<D> {
             relinearise,
         };
         self.device.begin(cx, iteration)?;
+        let begun = started.elapsed().as_secs_f64();
         let rho = match (p.force, self.device.elastic_rho()) {
             (ForceModel::Elastic, Some(rho)) => rho,
             _ => self
@@ -480,7 +481,13 @@ impl<D: SolveDevice> Tracker<D> {
             }
             Ok(reason.is_some())
         })?;
-        Ok(rule.report(iterations, stopped_by, started.elapsed().as_secs_f64()))
+        let seconds = started.elapsed().as_secs_f64();
+        log::debug!(
+            "{:?} phase: begun in {begun:.4} s, {iterations} iterations in {:.4} s, {stopped_by:?}",
+            p.force,
+            seconds - begun
+        );
+        Ok(rule.report(iterations, stopped_by, seconds))
     }
 
     /// Back to the rest shape (no warm start, no history but the rest).
