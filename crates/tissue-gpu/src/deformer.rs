@@ -364,6 +364,7 @@ impl GpuSolve {
                 direct_max_aggregates: usize::MAX,
                 envelope: true,
             },
+            None,
         );
         match &self.elastic_coarse {
             Some(coarse) => self

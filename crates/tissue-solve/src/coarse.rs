@@ -101,6 +101,12 @@ impl CoarseSpace {
             seconds: 0.0,
         };
         space.rho = space.spectral_radius(connections, contraction);
+        // Estimated with the factor in `f64`; the iterations solve in `f32`
+        // (`Cholesky::single`).
+        space.solve = match space.solve {
+            CoarseSolve::Direct(factor, rows) => CoarseSolve::Direct(factor.single(), rows),
+            CoarseSolve::Multilevel(multilevel) => CoarseSolve::Multilevel(multilevel.single()),
+        };
         space.seconds = started.elapsed().as_secs_f64();
         Ok(space)
     }

@@ -70,7 +70,14 @@ pub struct Elastic {
     pub poisson: f32,
     /// The consistent gradient vectors: per particle `a_i`, `mu_i`, `B_i`.
     pub consistency: Consistency,
+    /// Per connection slot (`connections.indices`' order), the slot of the
+    /// same connection in the neighbour's row: `i`'s slot of `j` gives
+    /// `j`'s slot of `i` ([`NO_MIRROR`] where `j` does not list `i`).
+    pub mirrors: Vec<u32>,
 }
+
+/// [`Elastic::mirrors`]' entry for a connection its neighbour does not list.
+pub const NO_MIRROR: u32 = u32::MAX;
 
 /// What particle `i` puts into its neighbours' elastic force.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -106,6 +113,7 @@ impl Elastic {
             weights,
             poisson,
             consistency,
+            mirrors: mirrors(connections),
         }
     }
 
@@ -249,7 +257,7 @@ impl Elastic {
         // The volume term's entries once for the 40 products (each would
         // form three per connection).
         let linearisation = self.rest_linearisation();
-        let entries = Entries::new(rest, connections, &linearisation);
+        let entries = Entries::new(rest, connections, &self.mirrors, &linearisation);
         largest_eigenvalue(free, |u| {
             entries.operator(&linearisation.weights, connections, |i| free[i], u)
         })
@@ -404,6 +412,23 @@ pub fn offsets_product(
     i: usize,
 ) -> Mat3 {
     offsets_outer(current, rest, connections, i)
+}
+
+/// Per connection slot, the slot of the same connection in the
+/// neighbour's row ([`Elastic::mirrors`]).
+fn mirrors(connections: &Connections) -> Vec<u32> {
+    (0..connections.particles())
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            connections.of(i).iter().map(move |&j| {
+                let row = connections.of(j as usize);
+                row.binary_search(&(i as u32))
+                    .ok()
+                    .or_else(|| row.iter().position(|&k| k as usize == i))
+                    .map_or(NO_MIRROR, |at| connections.offsets[j as usize] + at as u32)
+            })
+        })
+        .collect()
 }
 
 /// `sum_j (a_j - a_i)(b_j - b_i)^T` over particle `i`'s connections: with
@@ -583,6 +608,33 @@ mod tests {
             .fold(0.0f32, f32::max);
         // f32 rounding: W_i (J_i - 1) with W_i near 25 a_i.
         assert!(worst < 1e-3, "force {worst}");
+    }
+
+    #[test]
+    fn every_connection_slot_knows_its_mirror() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        assert_eq!(elastic.mirrors.len(), connections.indices.len());
+        for i in 0..rest.len() {
+            let slots = connections.offsets[i] as usize..connections.offsets[i + 1] as usize;
+            for s in slots {
+                let m = elastic.mirrors[s] as usize;
+                let j = connections.indices[s] as usize;
+                // `j`'s slot `m` names `i`, and its mirror is `s` again.
+                assert_eq!(connections.indices[m] as usize, i);
+                assert!(
+                    (connections.offsets[j] as usize..connections.offsets[j + 1] as usize)
+                        .contains(&m)
+                );
+                assert_eq!(elastic.mirrors[m] as usize, s);
+            }
+        }
+        // A connection its neighbour does not list has no mirror.
+        let one_sided = Connections {
+            offsets: vec![0, 1, 1],
+            indices: vec![1],
+        };
+        assert_eq!(mirrors(&one_sided), vec![NO_MIRROR]);
     }
 
     #[test]

@@ -58,6 +58,17 @@ pub struct Multilevel {
 }
 
 impl Multilevel {
+    /// The same cycles with the groups' factor kept in `f32`
+    /// ([`Cholesky::single`]), for the solves made every iteration; the
+    /// symmetry the tests hold is that of the `f64` cycles.
+    #[must_use]
+    pub fn single(self) -> Self {
+        Self {
+            factor: self.factor.single(),
+            ..self
+        }
+    }
+
     /// The aggregates' matrix `rows` (each sorted by column, both
     /// triangles), their centres and the edge of their cells; the groups'
     /// cells grow (by factors of 1.25) until there are at most
@@ -214,6 +225,17 @@ pub struct BlockMultilevel {
 }
 
 impl BlockMultilevel {
+    /// The same cycles with the groups' factor kept in `f32`
+    /// ([`Cholesky::single`]), for the solves made every iteration; the
+    /// symmetry the tests hold is that of the `f64` cycles.
+    #[must_use]
+    pub fn single(self) -> Self {
+        Self {
+            factor: self.factor.single(),
+            ..self
+        }
+    }
+
     /// The block rows of `A` (each sorted by column, both triangles), the
     /// aggregates' centres and the edge of their cells; the groups' cells
     /// grow (by 1.25) until there are at most `max_groups`. `None` where a

@@ -24,7 +24,7 @@ use tissue_core::{Connections, DeformError, Error};
 
 use crate::cholesky::Cholesky;
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
-use crate::elastic::{Elastic, VolumeLinearisation, cofactor, offsets_product};
+use crate::elastic::{Elastic, NO_MIRROR, VolumeLinearisation, cofactor, offsets_product};
 use crate::multilevel::{BlockMultilevel, scalar_rows};
 use crate::params::ForceModel;
 use crate::tracker::Iteration;
@@ -105,6 +105,29 @@ pub struct ElasticCoarse {
     seconds: f64,
 }
 
+/// How a correction is made, beyond what it is made for: the Lanczos
+/// steps that estimate its contraction where [`CorrectionFor::rho`] does
+/// not give it, an earlier correction over the same aggregates whose
+/// factor lends its order and symbolic analysis ([`Cholesky::refactor`]),
+/// and whether its coarse solves then run in `f32` (a device's iterations)
+/// or stay in `f64` (what the tests hold exactly).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Making<'a> {
+    pub(crate) rate_steps: usize,
+    pub(crate) previous: Option<&'a ElasticCoarse>,
+    pub(crate) single: bool,
+}
+
+impl Default for Making<'_> {
+    fn default() -> Self {
+        Self {
+            rate_steps: RATE_STEPS,
+            previous: None,
+            single: false,
+        }
+    }
+}
+
 impl ElasticCoarse {
     /// `P^T K P` over `aggregates` with `K` linearised at `current`,
     /// factored, the volume smoother where `made_for` asks for it, and the
@@ -117,25 +140,26 @@ impl ElasticCoarse {
         elastic: &Elastic,
         made_for: CorrectionFor,
     ) -> Result<Self, Error> {
-        Self::with_rate_steps(
+        Self::made(
             aggregates,
             rest,
             current,
             connections,
             elastic,
             made_for,
-            RATE_STEPS,
+            Making::default(),
         )
     }
 
-    fn with_rate_steps(
+    /// [`ElasticCoarse::new`] made as `making` says.
+    pub(crate) fn made(
         aggregates: &Aggregates,
         rest: &[Vec3],
         current: &[Vec3],
         connections: &Connections,
         elastic: &Elastic,
         made_for: CorrectionFor,
-        rate_steps: usize,
+        making: Making<'_>,
     ) -> Result<Self, Error> {
         let started = Instant::now();
         let linearisation = linearise(rest, current, connections, elastic);
@@ -145,7 +169,11 @@ impl ElasticCoarse {
             if made_for.envelope {
                 Envelope::cholesky(&rows).map(CoarseSolve::Envelope)
             } else {
-                Cholesky::new(&rows).map(CoarseSolve::Direct)
+                let factor = match making.previous.map(|p| &p.solve) {
+                    Some(CoarseSolve::Direct(factor)) => factor.refactor(&rows),
+                    _ => Cholesky::new(&rows),
+                };
+                factor.map(CoarseSolve::Direct)
             }
         } else {
             let centres = centres(rest, &aggregates.aggregate, aggregates.count());
@@ -162,7 +190,7 @@ impl ElasticCoarse {
                 "the elastic coarse matrix is not positive definite (a rounding failure)".into(),
             ))
         })?;
-        let entries = Entries::new(rest, connections, &linearisation);
+        let entries = Entries::new(rest, connections, &elastic.mirrors, &linearisation);
         let smoother = made_for.volume_delta.map(|delta| {
             let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
             VolumeSmoother::new(
@@ -184,15 +212,28 @@ impl ElasticCoarse {
         };
         space.rho = match made_for.rho {
             Some(rho) => rho,
-            None => space.spectral_radius(aggregates, connections, rate_steps),
+            None => space.spectral_radius(aggregates, connections, making.rate_steps),
         };
+        // Estimated with the factor in `f64`; a device's iterations solve
+        // in `f32` (`Cholesky::single`).
+        if making.single {
+            space.solve = match space.solve {
+                CoarseSolve::Direct(factor) => CoarseSolve::Direct(factor.single()),
+                CoarseSolve::Multilevel(cycles) => CoarseSolve::Multilevel(cycles.single()),
+                envelope @ CoarseSolve::Envelope(_) => envelope,
+            };
+        }
         space.seconds = started.elapsed().as_secs_f64();
         Ok(space)
     }
 
     /// [`ElasticCoarse::new`] as a device makes it at a phase's start: told
     /// to the log, and `None` (a warning: the phase then runs uncorrected)
-    /// where it cannot be made.
+    /// where it cannot be made. `previous`, the correction made over the
+    /// same aggregates at an earlier phase's start, lends its factor's
+    /// order and symbolic analysis ([`Cholesky::refactor`]). Its coarse
+    /// solves run in `f32` ([`Cholesky::single`]), after its contraction,
+    /// where not given, is estimated in `f64`.
     pub fn at_phase_start(
         aggregates: &Aggregates,
         rest: &[Vec3],
@@ -200,8 +241,22 @@ impl ElasticCoarse {
         connections: &Connections,
         elastic: &Elastic,
         made_for: CorrectionFor,
+        previous: Option<&Self>,
     ) -> Option<Self> {
-        match Self::new(aggregates, rest, current, connections, elastic, made_for) {
+        let made = Self::made(
+            aggregates,
+            rest,
+            current,
+            connections,
+            elastic,
+            made_for,
+            Making {
+                previous,
+                single: true,
+                ..Making::default()
+            },
+        );
+        match made {
             Ok(coarse) => {
                 log::info!(
                     "elastic two-level solve: {} aggregates, {}, contraction {:.3}, prepared in {:.3} s",
@@ -524,17 +579,10 @@ impl Entries {
     pub(crate) fn new(
         rest: &[Vec3],
         connections: &Connections,
+        mirrors: &[u32],
         linearisation: &VolumeLinearisation,
     ) -> Self {
         let n = rest.len();
-        let slot = |i: usize, j: u32| -> Option<usize> {
-            let row = connections.of(i);
-            let at = row
-                .binary_search(&j)
-                .ok()
-                .or_else(|| row.iter().position(|&k| k == j))?;
-            Some(connections.offsets[i] as usize + at)
-        };
         let own: Vec<DVec3> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
@@ -546,14 +594,14 @@ impl Entries {
             .collect();
         // Connections are symmetric (checked where a model is validated); a
         // missing mirror reads as no coupling.
-        let mirrored: Vec<DVec3> = (0..n)
-            .into_par_iter()
-            .flat_map_iter(|k| {
-                let own = &own;
-                connections
-                    .of(k)
-                    .iter()
-                    .map(move |&i| slot(i as usize, k as u32).map_or(DVec3::ZERO, |s| own[s]))
+        let mirrored: Vec<DVec3> = mirrors
+            .par_iter()
+            .map(|&m| {
+                if m == NO_MIRROR {
+                    DVec3::ZERO
+                } else {
+                    own[m as usize]
+                }
             })
             .collect();
         Self { own, mirrored }
@@ -971,14 +1019,17 @@ mod tests {
             direct_max_aggregates: usize::MAX,
             envelope,
         };
-        let coarse = ElasticCoarse::with_rate_steps(
+        let coarse = ElasticCoarse::made(
             &aggregates,
             &rest,
             &current,
             &connections,
             &elastic,
             made_for,
-            REST_RATE_STEPS,
+            Making {
+                rate_steps: REST_RATE_STEPS,
+                ..Making::default()
+            },
         )
         .unwrap();
         (rest, connections, aggregates, coarse)

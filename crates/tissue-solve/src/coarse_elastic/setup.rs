@@ -5,7 +5,7 @@
 use glam::Vec3;
 use tissue_core::{Connections, ParticleModel};
 
-use super::{CorrectionFor, ElasticCoarse, REST_RATE_STEPS};
+use super::{CorrectionFor, ElasticCoarse, Making, REST_RATE_STEPS};
 use crate::coarse::Aggregates;
 use crate::elastic::Elastic;
 use crate::params::DeformParams;
@@ -34,14 +34,17 @@ pub fn rest_rate(
         direct_max_aggregates,
         envelope: false,
     };
-    ElasticCoarse::with_rate_steps(
+    ElasticCoarse::made(
         aggregates,
         rest,
         rest,
         connections,
         elastic,
         made_for,
-        REST_RATE_STEPS,
+        Making {
+            rate_steps: REST_RATE_STEPS,
+            ..Making::default()
+        },
     )
     .inspect_err(|e| log::warn!("the volume smoother's contraction could not be estimated: {e}"))
     .ok()
