@@ -9,7 +9,9 @@
 //   T_i = M_i A_i⁻¹ − Q_i B_i and the stress U_i = a_i Q_i. A flat
 //   neighbourhood (a_i = 0) keeps the pair term: T_i = R_i (of M_i), U_i = 0.
 //   Twin: `tissue_cpu::deformation::elastic_terms` (`Elastic::terms`).
-// - `elastic_force`: f_k = Σ_i [(T_i + T_k) d_ik − (U_i + U_k)(μ_k − μ_i) − 2 e_ik].
+// - `elastic_force`: f_k = Σ_i [(T_i + T_k) d_ik − (U_i + U_k)(μ_k − μ_i) − 2 e_ik],
+//   gathered as Σ_i [T_i d_ik − U_i (μ_k − μ_i) − 2 e_ik] + T_k Σ_i d_ik
+//   − U_k Σ_i (μ_k − μ_i) (k's own terms once, not per connection).
 //   Twin: `tissue_cpu::deformation::elastic_force` (`Elastic::force_on`).
 
 #import shared/layout
@@ -124,14 +126,17 @@ fn elastic_force(
     let u_k = matrix_of(elastic_terms[k].multiplier_term);
     let mu_k = elastic_particles[k].multiplier.xyz;
     var f = vec3<f32>(0.0);
+    var d_sum = vec3<f32>(0.0);
+    var u_sum = vec3<f32>(0.0);
     for (var n = offsets[k]; n < offsets[k + 1u]; n++) {
         let i = indices[n];
         let d = rest[k].xyz - rest[i].xyz;
         let e = current[k].xyz - current[i].xyz;
+        let u = mu_k - elastic_particles[i].multiplier.xyz;
         let terms = elastic_terms[i];
-        f += (matrix_of(terms.rest_term) + t_k) * d
-            - (matrix_of(terms.multiplier_term) + u_k) * (mu_k - elastic_particles[i].multiplier.xyz)
-            - 2.0 * e;
+        f += matrix_of(terms.rest_term) * d - matrix_of(terms.multiplier_term) * u - 2.0 * e;
+        d_sum += d;
+        u_sum += u;
     }
-    force[k] = vec4<f32>(f, 0.0);
+    force[k] = vec4<f32>(f + t_k * d_sum - u_k * u_sum, 0.0);
 }

@@ -163,8 +163,33 @@ impl Elastic {
         }
     }
 
+    /// Particle `i`'s offsets product `M_i = sum_j e_ij d_ij^T` and its
+    /// multipliers' product `N_i = sum_j e_ij (mu_j - mu_i)^T` in one pass
+    /// over its connections (each current offset formed once; the WGSL
+    /// twin's `products`).
+    pub fn products(
+        &self,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        i: usize,
+    ) -> (Mat3, Mat3) {
+        let mu = &self.consistency.multipliers;
+        let (mut m, mut n) = (Mat3::ZERO, Mat3::ZERO);
+        for &j in connections.of(i) {
+            let j = j as usize;
+            let (d, e, u) = (rest[j] - rest[i], current[j] - current[i], mu[j] - mu[i]);
+            m += Mat3::from_cols(e * d.x, e * d.y, e * d.z);
+            n += Mat3::from_cols(e * u.x, e * u.y, e * u.z);
+        }
+        (m, n)
+    }
+
     /// The force on particle `k`: the gather over its connections of the
-    /// terms every particle gave ([`Elastic::terms`]).
+    /// terms every particle gave ([`Elastic::terms`]),
+    /// `sum_i [T_i d_ki - U_i (mu_k - mu_i) - 2 e_ki] + T_k sum_i d_ki - U_k sum_i (mu_k - mu_i)`:
+    /// `k`'s own terms applied once to the sums of its offsets, not once
+    /// per connection.
     pub fn force_on(
         &self,
         k: usize,
@@ -174,15 +199,15 @@ impl Elastic {
         terms: &[ElasticTerms],
     ) -> Vec3 {
         let mu = &self.consistency.multipliers;
-        let mut f = Vec3::ZERO;
+        let (mut f, mut d_sum, mut u_sum) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
         for &i in connections.of(k) {
             let i = i as usize;
-            let (d, e) = (rest[k] - rest[i], current[k] - current[i]);
-            f += (terms[i].target + terms[k].target) * d
-                - (terms[i].stress + terms[k].stress) * (mu[k] - mu[i])
-                - 2.0 * e;
+            let (d, e, u) = (rest[k] - rest[i], current[k] - current[i], mu[k] - mu[i]);
+            f += terms[i].target * d - terms[i].stress * u - 2.0 * e;
+            d_sum += d;
+            u_sum += u;
         }
-        f
+        f + terms[k].target * d_sum - terms[k].stress * u_sum
     }
 
     /// The energy at `current`, its rotations by the SVD (for checks).
@@ -608,6 +633,30 @@ mod tests {
             .fold(0.0f32, f32::max);
         // f32 rounding: W_i (J_i - 1) with W_i near 25 a_i.
         assert!(worst < 1e-3, "force {worst}");
+    }
+
+    #[test]
+    fn both_products_in_one_pass_are_the_two_products() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let current: Vec<Vec3> = rest
+            .iter()
+            .map(|&p| {
+                Mat3::from_rotation_y(0.4) * (p * Vec3::new(1.1, 0.9, 1.0))
+                    + 0.05 * Vec3::new(p.y, p.z, p.x)
+            })
+            .collect();
+        for i in 0..rest.len() {
+            let (m, n) = elastic.products(&rest, &current, &connections, i);
+            let m_alone = offsets_product(&rest, &current, &connections, i);
+            let n_alone = elastic
+                .consistency
+                .multipliers_product(&current, &connections, i);
+            assert!(
+                m.abs_diff_eq(m_alone, 1e-5) && n.abs_diff_eq(n_alone, 1e-5),
+                "{i}"
+            );
+        }
     }
 
     #[test]

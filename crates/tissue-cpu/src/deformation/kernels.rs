@@ -74,10 +74,7 @@ pub fn elastic_terms(
     (0..rest.len())
         .into_par_iter()
         .map(|i| {
-            let m = offsets_product(rest, current, connections, i);
-            let n = elastic
-                .consistency
-                .multipliers_product(current, connections, i);
+            let (m, n) = elastic.products(rest, current, connections, i);
             let of = if elastic.is_flat(i) {
                 m
             } else {

@@ -24,7 +24,7 @@ use tissue_core::{Connections, DeformError, Error};
 
 use crate::cholesky::Cholesky;
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
-use crate::elastic::{Elastic, NO_MIRROR, VolumeLinearisation, cofactor, offsets_product};
+use crate::elastic::{Elastic, NO_MIRROR, VolumeLinearisation, cofactor};
 use crate::multilevel::{BlockMultilevel, scalar_rows};
 use crate::params::ForceModel;
 use crate::tracker::Iteration;
@@ -676,8 +676,7 @@ fn linearise(
             if elastic.weights[i] == 0.0 {
                 return DMat3::ZERO;
             }
-            let m = offsets_product(rest, current, connections, i);
-            let n = c.multipliers_product(current, connections, i);
+            let (m, n) = elastic.products(rest, current, connections, i);
             cofactor(elastic.gradient(i, m, n)).as_dmat3()
         })
         .collect();
@@ -791,10 +790,7 @@ mod tests {
     ) -> Vec<Vec3> {
         let terms: Vec<_> = (0..rest.len())
             .map(|i| {
-                let m = offsets_product(rest, current, connections, i);
-                let n = elastic
-                    .consistency
-                    .multipliers_product(current, connections, i);
+                let (m, n) = elastic.products(rest, current, connections, i);
                 elastic.terms(i, m, n, rotations[i])
             })
             .collect();
