@@ -91,7 +91,8 @@ impl VolumeSmoother {
                     .iter()
                     .zip(&entries.own[range])
                 {
-                    own -= *g;
+                    let g = g.as_dvec3();
+                    own -= g;
                     if inside(j as usize) {
                         sum += g.length_squared();
                     }
@@ -196,7 +197,7 @@ pub(crate) fn volume_changes(
             connections.indices[range.clone()]
                 .iter()
                 .zip(&entries.own[range])
-                .map(|(&j, g)| (at(j as usize) - xi).dot(*g))
+                .map(|(&j, g)| (at(j as usize) - xi).dot(g.as_dvec3()))
                 .sum()
         })
         .collect()
@@ -225,7 +226,7 @@ pub(crate) fn pressure_forces(
                 .zip(&entries.own[range.clone()])
                 .zip(&entries.mirrored[range])
             {
-                f += y[i as usize] * *h - y[k] * *g;
+                f += y[i as usize] * h.as_dvec3() - y[k] * g.as_dvec3();
             }
             f
         })
