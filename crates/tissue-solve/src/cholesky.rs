@@ -54,7 +54,7 @@ impl Cholesky {
     /// [`crate::coarse::Envelope::cholesky`] takes it); `None` when it is
     /// not positive definite (or holds a value that is not finite).
     pub fn new(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
-        Self::factored(rows, None)
+        Self::factored(rows, None, false)
     }
 
     /// Factors `rows` as [`Cholesky::new`] does, reusing this factor's
@@ -63,10 +63,24 @@ impl Cholesky {
     /// pattern, as a new linearisation over the same aggregates does; from
     /// the start otherwise.
     pub fn refactor(&self, rows: &[Vec<(u32, f64)>]) -> Option<Self> {
-        Self::factored(rows, Some(self))
+        Self::factored(rows, Some(self), false)
     }
 
-    fn factored(rows: &[Vec<(u32, f64)>], previous: Option<&Self>) -> Option<Self> {
+    /// [`Cholesky::new`] or [`Cholesky::refactor`] (where `previous` is
+    /// given) for a factor only ever solved in `f32` ([`Cholesky::single`]):
+    /// the numeric factorization itself runs in `f32`, where it finds the
+    /// matrix positive definite, and in `f64` (then rounded) where not.
+    pub fn single_of(rows: &[Vec<(u32, f64)>], previous: Option<&Self>) -> Option<Self> {
+        Self::factored(rows, previous, true).or_else(|| {
+            let factor = match previous {
+                Some(previous) => previous.refactor(rows),
+                None => Self::new(rows),
+            };
+            factor.map(Self::single)
+        })
+    }
+
+    fn factored(rows: &[Vec<(u32, f64)>], previous: Option<&Self>, single: bool) -> Option<Self> {
         let n = rows.len();
         if rows
             .iter()
@@ -109,27 +123,16 @@ impl Cholesky {
                 (Arc::new(pattern), Arc::new(symbolic))
             }
         };
-        let lower = SparseColMatRef::new((*pattern).as_ref(), &values);
-        let mut factor = vec![0.0; symbolic.len_val()];
-        let mut scratch = MemBuffer::try_new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-        )
-        .ok()?;
-        symbolic
-            .factorize_numeric_llt(
-                &mut factor,
-                lower,
-                Side::Lower,
-                Default::default(),
-                Par::Seq,
-                MemStack::new(&mut scratch),
-                Default::default(),
-            )
-            .ok()?;
+        let values = if single {
+            let narrow: Vec<f32> = values.iter().map(|&v| v as f32).collect();
+            Values::Single(numeric(&pattern, &symbolic, &narrow)?)
+        } else {
+            Values::Double(numeric(&pattern, &symbolic, &values)?)
+        };
         Some(Self {
             pattern,
             symbolic,
-            values: Values::Double(factor),
+            values,
         })
     }
 
@@ -209,6 +212,33 @@ impl Cholesky {
             }
         }
     }
+}
+
+/// The numeric factor of the lower triangle `lower` (of `pattern`) in
+/// `symbolic`'s order; `None` where it is not positive definite.
+fn numeric<T: faer::traits::RealField>(
+    pattern: &SymbolicSparseColMat<u32>,
+    symbolic: &SymbolicCholesky<u32>,
+    lower: &[T],
+) -> Option<Vec<T>> {
+    let lower = SparseColMatRef::new(pattern.as_ref(), lower);
+    let mut factor = vec![T::zero_impl(); symbolic.len_val()];
+    let mut scratch = MemBuffer::try_new(
+        symbolic.factorize_numeric_llt_scratch::<T>(Par::Seq, Default::default()),
+    )
+    .ok()?;
+    symbolic
+        .factorize_numeric_llt(
+            &mut factor,
+            lower,
+            Side::Lower,
+            Default::default(),
+            Par::Seq,
+            MemStack::new(&mut scratch),
+            Default::default(),
+        )
+        .ok()?;
+    Some(factor)
 }
 
 /// The forward and back substitutions of the factor `values` (of
@@ -394,5 +424,35 @@ mod tests {
             .expect("positive definite");
         assert!(!Arc::ptr_eq(&first.symbolic, &other.symbolic));
         assert_eq!(other.len(), 125);
+    }
+
+    #[test]
+    fn a_factor_made_in_single_precision_solves_as_the_rounded_one() {
+        let rows = grid_rows(10, 0.05);
+        let rounded = Cholesky::new(&rows).expect("positive definite").single();
+        let made = Cholesky::single_of(&rows, None).expect("positive definite");
+        let again = Cholesky::single_of(&rows, Some(&made)).expect("positive definite");
+        assert!(made.is_single() && again.is_single());
+        assert!(Arc::ptr_eq(&made.symbolic, &again.symbolic));
+        let b: Vec<f64> = (0..rows.len())
+            .map(|i| ((i * 29) % 13) as f64 - 6.0)
+            .collect();
+        let (mut x, mut y) = (b.clone(), b);
+        rounded.solve_scalar(&mut x);
+        made.solve_scalar(&mut y);
+        let largest = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let apart = x
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(apart < 1e-4 * largest, "{apart} apart of {largest}");
+        // Positive definite in `f64` only: its off-diagonal rounds to 1 in
+        // `f32`, so it is factored in `f64` and rounded.
+        let near = 1.0 - 1e-9;
+        let singular_in_f32 = vec![vec![(0, 1.0), (1, near)], vec![(0, near), (1, 1.0)]];
+        assert!(Cholesky::factored(&singular_in_f32, None, true).is_none());
+        let factor = Cholesky::single_of(&singular_in_f32, None).expect("positive definite");
+        assert!(factor.is_single());
     }
 }

@@ -169,9 +169,18 @@ impl ElasticCoarse {
             if made_for.envelope {
                 Envelope::cholesky(&rows).map(CoarseSolve::Envelope)
             } else {
-                let factor = match making.previous.map(|p| &p.solve) {
-                    Some(CoarseSolve::Direct(factor)) => factor.refactor(&rows),
-                    _ => Cholesky::new(&rows),
+                let previous = match making.previous.map(|p| &p.solve) {
+                    Some(CoarseSolve::Direct(factor)) => Some(factor),
+                    _ => None,
+                };
+                // Factored in `f32` at once where it will only be solved
+                // so (no contraction to estimate with it first).
+                let factor = match previous {
+                    _ if making.single && made_for.rho.is_some() => {
+                        Cholesky::single_of(&rows, previous)
+                    }
+                    Some(previous) => previous.refactor(&rows),
+                    None => Cholesky::new(&rows),
                 };
                 factor.map(CoarseSolve::Direct)
             }
