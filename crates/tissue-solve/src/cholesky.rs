@@ -372,6 +372,22 @@ mod tests {
         assert!(Cholesky::new(&[]).is_some_and(|f| f.is_empty()));
     }
 
+    /// For a fixed right-hand side, the largest entry of `a`'s solution
+    /// and the largest difference of `b`'s from it.
+    fn solved_apart(a: &Cholesky, b: &Cholesky) -> (f64, f64) {
+        let rhs: Vec<f64> = (0..a.len()).map(|i| ((i * 29) % 13) as f64 - 6.0).collect();
+        let (mut x, mut y) = (rhs.clone(), rhs);
+        a.solve_scalar(&mut x);
+        b.solve_scalar(&mut y);
+        let largest = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let apart = x
+            .iter()
+            .zip(&y)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f64::max);
+        (largest, apart)
+    }
+
     #[test]
     fn a_single_precision_factor_solves_to_single_precision() {
         let rows = grid_rows(10, 0.05);
@@ -379,17 +395,7 @@ mod tests {
         let single = double.clone().single();
         assert!(single.is_single() && !double.is_single());
         assert_eq!(single.entries(), double.entries());
-        let n = rows.len();
-        let b: Vec<f64> = (0..n).map(|i| ((i * 29) % 13) as f64 - 6.0).collect();
-        let (mut x, mut y) = (b.clone(), b.clone());
-        double.solve_scalar(&mut x);
-        single.solve_scalar(&mut y);
-        let largest = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        let apart = x
-            .iter()
-            .zip(&y)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let (largest, apart) = solved_apart(&double, &single);
         // The grid's condition number is about 200: single precision
         // leaves some 1e-5 of the answer; a wrong factor would leave O(1).
         assert!(apart < 1e-4 * largest, "{apart} apart of {largest}");
@@ -434,18 +440,7 @@ mod tests {
         let again = Cholesky::single_of(&rows, Some(&made)).expect("positive definite");
         assert!(made.is_single() && again.is_single());
         assert!(Arc::ptr_eq(&made.symbolic, &again.symbolic));
-        let b: Vec<f64> = (0..rows.len())
-            .map(|i| ((i * 29) % 13) as f64 - 6.0)
-            .collect();
-        let (mut x, mut y) = (b.clone(), b);
-        rounded.solve_scalar(&mut x);
-        made.solve_scalar(&mut y);
-        let largest = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        let apart = x
-            .iter()
-            .zip(&y)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let (largest, apart) = solved_apart(&rounded, &made);
         assert!(apart < 1e-4 * largest, "{apart} apart of {largest}");
         // Positive definite in `f64` only: its off-diagonal rounds to 1 in
         // `f32`, so it is factored in `f64` and rounded.
