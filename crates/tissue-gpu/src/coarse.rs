@@ -7,6 +7,7 @@ use tissue_solve::coarse::{CoarseSpace, Envelope};
 
 use crate::GpuError;
 use crate::buffer::Storage;
+use crate::multilevel::CycleBuffers;
 use crate::support::scoped;
 
 /// The coarse space's buffers; empty (16 bytes each) until
@@ -23,18 +24,13 @@ pub(crate) struct CoarseBuffers {
     member_starts: Storage<u32>,
     /// The particles of each aggregate, aggregate by aggregate.
     members: Storage<u32>,
-    /// Per aggregate the restricted residual, then the coarse solution (`vec4`).
-    coarse: Storage<[f32; 4]>,
-    /// The factor's rows: where each starts in `row_values` (aggregates + 1).
-    row_starts: Storage<u32>,
-    /// Each row's entries from its first column to the diagonal.
-    row_values: Storage<f32>,
-    /// The factor's strictly lower entries by column: where each starts.
-    column_starts: Storage<u32>,
-    /// Their rows.
-    column_rows: Storage<u32>,
-    /// Their values.
-    column_values: Storage<f32>,
+    /// Per aggregate the restricted residual, then (factored) the coarse
+    /// solution (`vec4`).
+    pub(crate) coarse: Storage<[f32; 4]>,
+    /// The coarse Laplacian's factor, where it is factored (else empty).
+    factor: FactorBuffers,
+    /// Its two-grid cycles, where it is too large to factor (else empty).
+    pub(crate) cycles: CycleBuffers,
 }
 
 impl CoarseBuffers {
@@ -48,16 +44,13 @@ impl CoarseBuffers {
             member_starts: Storage::init(device, "member_starts", &[], &what("member_starts"))?,
             members: Storage::init(device, "members", &[], &what("members"))?,
             coarse: Storage::init(device, "coarse", &[], &what("coarse"))?,
-            row_starts: Storage::init(device, "row_starts", &[], &what("row_starts"))?,
-            row_values: Storage::init(device, "row_values", &[], &what("row_values"))?,
-            column_starts: Storage::init(device, "column_starts", &[], &what("column_starts"))?,
-            column_rows: Storage::init(device, "column_rows", &[], &what("column_rows"))?,
-            column_values: Storage::init(device, "column_values", &[], &what("column_values"))?,
+            factor: FactorBuffers::empty(device, "no coarse space")?,
+            cycles: CycleBuffers::empty(device)?,
         })
     }
 
-    /// `space`'s aggregates and factor for a model of `particles`
-    /// particles; the factor in `f32`.
+    /// `space`'s aggregates, and its factor or its cycles, for a model of
+    /// `particles` particles; in `f32`.
     pub(crate) fn upload(
         device: &wgpu::Device,
         space: &CoarseSpace,
@@ -78,16 +71,23 @@ impl CoarseBuffers {
             asked: count as u64,
             allowed: u64::from(u32::MAX),
         })?;
-        let factor = space.envelope().ok_or_else(|| {
-            GpuError::Internal(format!(
-                "the coarse space of {count} aggregates is solved by two-grid cycles, which \
-                 the GPU does not run yet: it takes a factored one"
-            ))
-        })?;
         let (member_starts, members) = members_of(aggregate, count);
-        let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
-            factor_of(&factor);
         let what = |name: &str| format!("the {name} buffer ({count} aggregates)");
+        let (factor, cycles) = match (space.envelope(), space.multilevel()) {
+            (Some(envelope), _) => (
+                FactorBuffers::upload(device, &envelope, "the coarse Laplacian")?,
+                CycleBuffers::empty(device)?,
+            ),
+            (None, Some(cycles)) => (
+                FactorBuffers::empty(device, "the coarse space is cycled")?,
+                CycleBuffers::upload(device, cycles)?,
+            ),
+            (None, None) => {
+                return Err(GpuError::Internal(format!(
+                    "the coarse space of {count} aggregates has neither a factor nor cycles"
+                )));
+            }
+        };
         scoped(device, || {
             Ok(Self {
                 aggregates,
@@ -101,44 +101,100 @@ impl CoarseBuffers {
                 )?,
                 members: Storage::init(device, "members", &members, &what("members"))?,
                 coarse: Storage::zeroed(device, "coarse", count, &what("coarse"))?,
-                row_starts: Storage::init(device, "row_starts", &row_starts, &what("row_starts"))?,
-                row_values: Storage::init(device, "row_values", &row_values, &what("row_values"))?,
-                column_starts: Storage::init(
-                    device,
-                    "column_starts",
-                    &column_starts,
-                    &what("column_starts"),
-                )?,
-                column_rows: Storage::init(
-                    device,
-                    "column_rows",
-                    &column_rows,
-                    &what("column_rows"),
-                )?,
-                column_values: Storage::init(
-                    device,
-                    "column_values",
-                    &column_values,
-                    &what("column_values"),
-                )?,
+                factor,
+                cycles,
             })
         })
     }
 
-    /// The buffers by the names the shader gives them.
-    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 10] {
-        [
+    /// The buffers by the names the shaders give them.
+    pub(crate) fn named(&self) -> Vec<(&'static str, &wgpu::Buffer)> {
+        let mut named = vec![
             ("aggregate", self.aggregate.buffer()),
             ("residual", self.residual.buffer()),
             ("member_starts", self.member_starts.buffer()),
             ("members", self.members.buffer()),
             ("coarse", self.coarse.buffer()),
+        ];
+        named.extend(self.factor.named());
+        named.extend(self.cycles.named());
+        named
+    }
+}
+
+/// A factor's buffers as `coarse.wgsl`'s substitutions read them.
+#[derive(Debug)]
+pub(crate) struct FactorBuffers {
+    /// The factor's rows: where each starts in `row_values` (rows + 1).
+    row_starts: Storage<u32>,
+    /// Each row's entries from its first column to the diagonal.
+    row_values: Storage<f32>,
+    /// The factor's strictly lower entries by column: where each starts.
+    column_starts: Storage<u32>,
+    /// Their rows.
+    column_rows: Storage<u32>,
+    /// Their values.
+    column_values: Storage<f32>,
+}
+
+impl FactorBuffers {
+    /// No factor (`why` names the case in the buffers' errors).
+    pub(crate) fn empty(device: &wgpu::Device, why: &str) -> Result<Self, GpuError> {
+        let what = |name: &str| format!("the {name} buffer ({why})");
+        Ok(Self {
+            row_starts: Storage::init(device, "row_starts", &[], &what("row_starts"))?,
+            row_values: Storage::init(device, "row_values", &[], &what("row_values"))?,
+            column_starts: Storage::init(device, "column_starts", &[], &what("column_starts"))?,
+            column_rows: Storage::init(device, "column_rows", &[], &what("column_rows"))?,
+            column_values: Storage::init(device, "column_values", &[], &what("column_values"))?,
+        })
+    }
+
+    /// `factor` in `f32` (`of` names the matrix in the buffers' errors).
+    pub(crate) fn upload(
+        device: &wgpu::Device,
+        factor: &Envelope,
+        of: &str,
+    ) -> Result<Self, GpuError> {
+        let ((row_starts, row_values), (column_starts, column_rows, column_values)) =
+            factor_of(factor);
+        let what = |name: &str| format!("the {name} buffer ({of}, {} rows)", factor.len());
+        Ok(Self {
+            row_starts: Storage::init(device, "row_starts", &row_starts, &what("row_starts"))?,
+            row_values: Storage::init(device, "row_values", &row_values, &what("row_values"))?,
+            column_starts: Storage::init(
+                device,
+                "column_starts",
+                &column_starts,
+                &what("column_starts"),
+            )?,
+            column_rows: Storage::init(device, "column_rows", &column_rows, &what("column_rows"))?,
+            column_values: Storage::init(
+                device,
+                "column_values",
+                &column_values,
+                &what("column_values"),
+            )?,
+        })
+    }
+
+    /// The buffers by the names `coarse.wgsl` gives them.
+    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 5] {
+        [
             ("row_starts", self.row_starts.buffer()),
             ("row_values", self.row_values.buffer()),
             ("column_starts", self.column_starts.buffer()),
             ("column_rows", self.column_rows.buffer()),
             ("column_values", self.column_values.buffer()),
         ]
+    }
+
+    /// The buffer `coarse.wgsl` names `name`, if it is one of these.
+    pub(crate) fn buffer(&self, name: &str) -> Option<&wgpu::Buffer> {
+        self.named()
+            .into_iter()
+            .find(|&(n, _)| n == name)
+            .map(|(_, b)| b)
     }
 }
 

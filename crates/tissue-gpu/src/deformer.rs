@@ -76,13 +76,15 @@ pub struct GpuSolve {
     slots: u32,
 }
 
-/// The most unknowns a coarse solve on the GPU takes (aggregates of the
-/// two-level solve, three per aggregate of the elastic phase's): each
-/// substitution runs in one workgroup, a barrier a row, and on llvmpipe a
-/// dispatch of 8,617 rows stopped short (the solve came back half done, and
-/// the iteration diverged: the phantom at 100,000 particles), while 6,033
-/// ran whole. Larger models deflate, or run the elastic phase uncorrected,
-/// until the multilevel solve (issue 17).
+/// The most unknowns one factor of a coarse solve on the GPU takes
+/// (aggregates of the two-level solve, or groups of its cycles; three per
+/// aggregate of the elastic phase's): each substitution runs in one
+/// workgroup, a barrier a row, and on llvmpipe a dispatch of 8,617 rows
+/// stopped short (the solve came back half done, and the iteration
+/// diverged: the phantom at 100,000 particles), while 6,033 ran whole. A
+/// coarse Laplacian of more aggregates is solved by two-grid cycles over
+/// at most this many groups (`shaders/multilevel.wgsl`, on both devices:
+/// [`GpuDeformer::cpu_twin`]); an elastic phase's aggregates grow to fit.
 pub const GPU_COARSE_UNKNOWNS: usize = 4_096;
 
 /// The rest data the host needs to make the elastic phase's correction.
@@ -99,11 +101,17 @@ struct ElasticHost {
 
 impl GpuDeformer {
     /// The parameters under which the CPU path runs the solve the GPU runs
-    /// under `params`, its twin: the same, now that every correction the
-    /// CPU path runs (the two-level solve, the elastic phase's, deflation)
-    /// has its kernels here.
+    /// under `params`, its twin: the same, but that the coarse Laplacian
+    /// is factored only up to [`GPU_COARSE_UNKNOWNS`] aggregates (the
+    /// GPU's one-workgroup substitution) and solved by two-grid cycles
+    /// above, as the GPU solves it.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
-        params.clone()
+        DeformParams {
+            coarse_direct_max_aggregates: params
+                .coarse_direct_max_aggregates
+                .min(GPU_COARSE_UNKNOWNS),
+            ..params.clone()
+        }
     }
 
     /// Checks `model` and `params`, estimates the Laplacian's extreme
@@ -130,24 +138,18 @@ impl GpuDeformer {
             // The coarse space, or else the modes, correct the symmetric
             // force, an elastic solve's shear phase included
             // (`Iteration::correct`), as on the CPU path.
-            let coarse = coarse_space(model, plan, params).filter(|space| {
-                let fits = space.count() <= GPU_COARSE_UNKNOWNS;
-                let factored = space.factor().is_some();
+            // Factored up to what one workgroup substitutes, cycled above
+            // (the groups are capped there too), as the CPU twin does.
+            let coarse = coarse_space(model, plan, &Self::cpu_twin(params)).filter(|space| {
+                let unknowns = space.multilevel().map_or(space.count(), |m| m.groups());
+                let fits = unknowns <= GPU_COARSE_UNKNOWNS;
                 if !fits {
                     log::warn!(
-                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} aggregates, \
-                         this model has {}: it deflates instead (raise `coarse` for larger cells)",
-                        space.count()
-                    );
-                } else if !factored {
-                    log::warn!(
-                        "the coarse space's {} aggregates are over `coarse_direct_max_aggregates` \
-                         and solved by two-grid cycles, which the GPU does not run yet: it \
-                         deflates instead",
-                        space.count()
+                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns in \
+                         one factor, this coarse space has {unknowns}: it deflates instead"
                     );
                 }
-                fits && factored
+                fits
             });
             if let Some(space) = &coarse {
                 state.set_coarse(device, &pipelines, space)?;
@@ -156,9 +158,10 @@ impl GpuDeformer {
                 Some(_) => None,
                 None => deflation_modes(model, plan, params),
             };
-            // The GPU's coarse solve is one factor in one workgroup: the
-            // elastic aggregates grow to fit it (the CPU solves larger ones
-            // by cycles, which have no kernels here yet).
+            // The GPU's elastic coarse solve is one factor in one
+            // workgroup: the elastic aggregates grow to fit it (the CPU
+            // solves larger ones by block cycles, which have no kernels
+            // here yet).
             let gpu_cap = GPU_COARSE_UNKNOWNS / 3;
             if params.elastic_coarse_max_aggregates > gpu_cap {
                 log::info!(
@@ -548,6 +551,25 @@ mod tests {
     #![allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
     use super::*;
     use tissue_core::SamplingParams;
+
+    /// The library's default factors the coarse Laplacian exactly as far
+    /// as the GPU's one-workgroup substitution goes, so both devices solve
+    /// every model's coarse space the same way by default, and the CPU
+    /// twin of a default solve is that solve.
+    #[test]
+    fn by_default_both_devices_factor_or_cycle_the_same_coarse_spaces() {
+        let defaults = DeformParams::default();
+        assert_eq!(defaults.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
+        assert_eq!(GpuDeformer::cpu_twin(&defaults), defaults);
+        let larger = DeformParams {
+            coarse_direct_max_aggregates: 10_000,
+            ..defaults
+        };
+        assert_eq!(
+            GpuDeformer::cpu_twin(&larger).coarse_direct_max_aggregates,
+            GPU_COARSE_UNKNOWNS
+        );
+    }
 
     /// A device of wgpu's no-op backend: its buffers are host memory,
     /// allocated fallibly; its buffer size unlimited (so neither wgpu nor

@@ -26,6 +26,7 @@ mod coarse;
 mod coarse_elastic;
 mod deformer;
 pub mod grid;
+mod multilevel;
 mod pipelines;
 pub mod quiet;
 mod readback;

@@ -1,6 +1,11 @@
 //! The compiled kernels and the step that records them.
 
+use crate::multilevel::CYCLE_KERNELS;
 use crate::state::DeformState;
+
+/// The lengths the multilevel iteration is made of.
+const COARSE_LEN: usize = Kernel::COARSE_ITERATION.len();
+const CYCLE_LEN: usize = CYCLE_KERNELS.len();
 use crate::support::Scopes;
 use crate::{GpuError, shaders};
 
@@ -95,11 +100,29 @@ pub enum Kernel {
     /// `volume_smoother.wgsl::smoothed_step`: the smoothed step into the
     /// plain buffer, and what the elastic correction takes.
     SmoothedStep,
+    /// `multilevel.wgsl::cycle_start`: per aggregate the coarse cycles'
+    /// first Jacobi sweep from zero.
+    CycleStart,
+    /// `multilevel.wgsl::cycle_sweep`: a further sweep, from the first of
+    /// `x`'s buffers into the second.
+    CycleSweep,
+    /// The same sweep from the second buffer into the first.
+    CycleSweepBack,
+    /// `multilevel.wgsl::cycle_restrict`: per group the sum of its
+    /// aggregates' residuals.
+    CycleRestrict,
+    /// `coarse.wgsl::coarse_forward` on the groups' vector and factor.
+    GroupForward,
+    /// `coarse.wgsl::coarse_backward` on the groups' vector and factor.
+    GroupBackward,
+    /// `multilevel.wgsl::cycle_prolong`: the groups' solution added to
+    /// every aggregate of its group.
+    CycleProlong,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 31] = [
+    pub const ALL: [Kernel; 38] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -131,6 +154,13 @@ impl Kernel {
         Kernel::PressureForces,
         Kernel::PressureSweep,
         Kernel::SmoothedStep,
+        Kernel::CycleStart,
+        Kernel::CycleSweep,
+        Kernel::CycleSweepBack,
+        Kernel::CycleRestrict,
+        Kernel::GroupForward,
+        Kernel::GroupBackward,
+        Kernel::CycleProlong,
     ];
 
     /// One iteration without deflation, in order.
@@ -181,6 +211,32 @@ impl Kernel {
         Kernel::Chebyshev,
         Kernel::UpdateNorms,
     ];
+
+    /// [`Kernel::COARSE_ITERATION`] with the coarse Laplacian solved by
+    /// two-grid cycles (`crate::multilevel::CYCLE_KERNELS`) in place of
+    /// its factor's two substitutions.
+    pub const MULTILEVEL_ITERATION: [Kernel; COARSE_LEN - 2 + CYCLE_LEN] = {
+        let mut out = [Kernel::CycleStart; COARSE_LEN - 2 + CYCLE_LEN];
+        let (mut from, mut to) = (0, 0);
+        while from < COARSE_LEN {
+            match Kernel::COARSE_ITERATION[from] {
+                Kernel::CoarseForward => {
+                    let mut k = 0;
+                    while k < CYCLE_LEN {
+                        out[to] = CYCLE_KERNELS[k];
+                        (to, k) = (to + 1, k + 1);
+                    }
+                }
+                Kernel::CoarseBackward => {}
+                kernel => {
+                    out[to] = kernel;
+                    to += 1;
+                }
+            }
+            from += 1;
+        }
+        out
+    };
 
     /// One iteration of the elastic phase with its two-level solve, in
     /// order: the elastic correction between the plain step and the
@@ -235,6 +291,10 @@ impl Kernel {
     /// [`Kernel::COARSE_ITERATION`] with the warm-started rotations.
     pub const WARM_COARSE_ITERATION: [Kernel; 10] = Kernel::warm(Kernel::COARSE_ITERATION);
 
+    /// [`Kernel::MULTILEVEL_ITERATION`] with the warm-started rotations.
+    pub const WARM_MULTILEVEL_ITERATION: [Kernel; COARSE_LEN - 2 + CYCLE_LEN] =
+        Kernel::warm(Kernel::MULTILEVEL_ITERATION);
+
     /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
     pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
         Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
@@ -251,6 +311,7 @@ impl Kernel {
             Kernel::ELASTIC_ITERATION.len(),
             Kernel::DEFLATED_ITERATION.len(),
             Kernel::COARSE_ITERATION.len(),
+            Kernel::MULTILEVEL_ITERATION.len(),
             Kernel::CORRECTED_ELASTIC_ITERATION.len(),
             Kernel::SMOOTHED_ELASTIC_ITERATION.len(),
         ];
@@ -316,6 +377,12 @@ impl Kernel {
             Kernel::PressureForces => ("volume_smoother", "pressure_forces"),
             Kernel::PressureSweep => ("volume_smoother", "pressure_sweep"),
             Kernel::SmoothedStep => ("volume_smoother", "smoothed_step"),
+            Kernel::CycleStart => ("multilevel", "cycle_start"),
+            Kernel::CycleSweep | Kernel::CycleSweepBack => ("multilevel", "cycle_sweep"),
+            Kernel::CycleRestrict => ("multilevel", "cycle_restrict"),
+            Kernel::GroupForward => ("coarse", "coarse_forward"),
+            Kernel::GroupBackward => ("coarse", "coarse_backward"),
+            Kernel::CycleProlong => ("multilevel", "cycle_prolong"),
         }
     }
 
@@ -323,6 +390,9 @@ impl Kernel {
     pub fn name(self) -> &'static str {
         match self {
             Kernel::UpdateNorms => "step_norms (update)",
+            Kernel::CycleSweepBack => "cycle_sweep (back)",
+            Kernel::GroupForward => "coarse_forward (groups)",
+            Kernel::GroupBackward => "coarse_backward (groups)",
             other => other.entry().1,
         }
     }
@@ -531,6 +601,10 @@ mod tests {
                 &Kernel::WARM_DEFLATED_ITERATION[..],
             ),
             (
+                &Kernel::MULTILEVEL_ITERATION[..],
+                &Kernel::WARM_MULTILEVEL_ITERATION[..],
+            ),
+            (
                 &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
                 &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION[..],
             ),
@@ -552,6 +626,22 @@ mod tests {
                 warm.contains(&Kernel::ElasticTargetsWarm)
             );
         }
+    }
+
+    /// The multilevel iteration is the two-level one with the cycles in
+    /// place of the factor's two substitutions, and nothing else changed.
+    #[test]
+    fn the_multilevel_iteration_cycles_where_the_coarse_one_substitutes() {
+        let mut expected = Vec::new();
+        for kernel in Kernel::COARSE_ITERATION {
+            match kernel {
+                Kernel::CoarseForward => expected.extend(crate::multilevel::CYCLE_KERNELS),
+                Kernel::CoarseBackward => {}
+                other => expected.push(other),
+            }
+        }
+        assert_eq!(&Kernel::MULTILEVEL_ITERATION[..], &expected[..]);
+        assert!(Kernel::LONGEST_ITERATION >= Kernel::MULTILEVEL_ITERATION.len());
     }
 
     #[test]

@@ -64,6 +64,10 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("deflate", include_str!("../../../shaders/deflate.wgsl")),
     ("coarse", include_str!("../../../shaders/coarse.wgsl")),
     (
+        "multilevel",
+        include_str!("../../../shaders/multilevel.wgsl"),
+    ),
+    (
         "coarse_elastic",
         include_str!("../../../shaders/coarse_elastic.wgsl"),
     ),
@@ -394,6 +398,10 @@ mod tests {
             ("coarse", "coarse_forward"),
             ("coarse", "coarse_backward"),
             ("coarse", "coarse_apply"),
+            ("multilevel", "cycle_start"),
+            ("multilevel", "cycle_sweep"),
+            ("multilevel", "cycle_restrict"),
+            ("multilevel", "cycle_prolong"),
             ("coarse_elastic", "elastic_step_of"),
             ("coarse_elastic", "elastic_change_of"),
             ("coarse_elastic", "elastic_residual_of"),

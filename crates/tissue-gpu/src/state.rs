@@ -173,6 +173,13 @@ impl DeformState {
                     | Kernel::ElasticForward
                     | Kernel::ElasticBackward
                     | Kernel::ElasticRestrict
+                    | Kernel::CycleStart
+                    | Kernel::CycleSweep
+                    | Kernel::CycleSweepBack
+                    | Kernel::CycleRestrict
+                    | Kernel::GroupForward
+                    | Kernel::GroupBackward
+                    | Kernel::CycleProlong
             ) {
                 workgroups_of[kernel.index()] = workgroups(
                     count,
@@ -415,10 +422,24 @@ impl DeformState {
         space: &CoarseSpace,
     ) -> Result<(), GpuError> {
         let coarse = CoarseBuffers::upload(device, space, self.len())?;
-        self.workgroups[Kernel::CoarseRestrict.index()] = workgroups(
-            coarse.aggregates,
-            pipelines.workgroup_size(Kernel::CoarseRestrict),
-            device.limits().max_compute_workgroups_per_dimension,
+        let most = device.limits().max_compute_workgroups_per_dimension;
+        // The restriction and the cycles' sweeps run per aggregate, the
+        // cycles' restriction per group; the substitutions in one
+        // workgroup each.
+        for kernel in [
+            Kernel::CoarseRestrict,
+            Kernel::CycleStart,
+            Kernel::CycleSweep,
+            Kernel::CycleSweepBack,
+            Kernel::CycleProlong,
+        ] {
+            self.workgroups[kernel.index()] =
+                workgroups(coarse.aggregates, pipelines.workgroup_size(kernel), most)?;
+        }
+        self.workgroups[Kernel::CycleRestrict.index()] = workgroups(
+            coarse.cycles.groups.max(1),
+            pipelines.workgroup_size(Kernel::CycleRestrict),
+            most,
         )?;
         self.coarse = coarse;
         self.bind_groups = self.bind_all(device, pipelines)?;
@@ -489,6 +510,7 @@ impl DeformState {
     /// are warm-started ([`DeformState::set_rotations`]).
     pub fn iteration(&self) -> &'static [Kernel] {
         let two_level = self.coarse.aggregates > 0 && self.correct_phase;
+        let cycled = self.coarse.cycles.groups > 0;
         let deflated = self.modes > 0 && self.correct_phase;
         let elastic_corrected = self.elastic_coarse.linearised && self.correct_phase;
         if self.elastic_phase && elastic_corrected && self.elastic_coarse.smoother.is_some() {
@@ -503,6 +525,8 @@ impl DeformState {
             (true, _, _, true) if elastic_corrected => &Kernel::WARM_CORRECTED_ELASTIC_ITERATION,
             (true, _, _, false) => &Kernel::ELASTIC_ITERATION,
             (true, _, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
+            (false, true, _, false) if cycled => &Kernel::MULTILEVEL_ITERATION,
+            (false, true, _, true) if cycled => &Kernel::WARM_MULTILEVEL_ITERATION,
             (false, true, _, false) => &Kernel::COARSE_ITERATION,
             (false, true, _, true) => &Kernel::WARM_COARSE_ITERATION,
             (false, false, true, false) => &Kernel::DEFLATED_ITERATION,
@@ -531,7 +555,11 @@ impl DeformState {
                     (kernel.entry().0, kernel.name()),
                     |name| match name {
                         "plain" if update => Some(self.previous.buffer()),
-                        _ => self.buffer(name),
+                        _ => self
+                            .coarse
+                            .cycles
+                            .buffer_for(kernel, name)
+                            .or_else(|| self.buffer(name)),
                     },
                     Some(std::mem::size_of::<Params>() as u64),
                     "names no stage-2 buffer",

@@ -400,11 +400,13 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
     common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "corrected elastic");
 }
 
-/// A coarse space larger than the GPU's one-workgroup solve takes
-/// (`GPU_COARSE_UNKNOWNS`) is not uploaded: the GPU deflates instead, as
-/// it did before it had the two-level solve, and still converges.
+/// A coarse space of more aggregates than the GPU's one-workgroup
+/// substitution takes (`GPU_COARSE_UNKNOWNS`) is solved by two-grid cycles
+/// over groups of them on both devices (`GpuDeformer::cpu_twin` caps the
+/// CPU's factor there too): the same iterations from rest, the same
+/// positions.
 #[test]
-fn a_coarse_space_too_large_for_the_gpu_falls_back_to_deflation() {
+fn a_coarse_space_too_large_for_one_factor_is_cycled_on_both_devices() {
     let Some((device, queue)) = common::gpu("coarse space limit") else {
         return;
     };
@@ -414,29 +416,44 @@ fn a_coarse_space_too_large_for_the_gpu_falls_back_to_deflation() {
         coarse: 1.0,
         ..DeformParams::default()
     };
-    let cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
-        .unwrap_or_else(|e| panic!("{e}"));
-    let aggregates = cpu.coarse().map_or(0, |c| c.count());
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params);
+    let Some(space) = cpu.coarse() else {
+        panic!("no coarse space")
+    };
     assert!(
-        aggregates > tissue_gpu::GPU_COARSE_UNKNOWNS,
-        "{aggregates} aggregates"
+        space.count() > tissue_gpu::GPU_COARSE_UNKNOWNS,
+        "{} aggregates",
+        space.count()
     );
-    let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
-        .unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(gpu.state().aggregates(), 0);
-    assert_eq!(gpu.modes().map(|m| m.count()), Some(32));
-    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
-        .unwrap_or_else(|e| panic!("{e}"));
-    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
-    assert!(report.converged, "{report:?}");
+    let groups = space.multilevel().map(|m| m.groups());
+    assert!(
+        groups.is_some_and(|g| g <= tissue_gpu::GPU_COARSE_UNKNOWNS),
+        "{groups:?} groups"
+    );
+    assert_eq!(gpu.state().aggregates(), space.count());
+    assert!(gpu.modes().is_none());
+    assert!(
+        cpu_report.converged && gpu_report.converged,
+        "{cpu_report:?} {gpu_report:?}"
+    );
+    assert_eq!(gpu_report.iterations, cpu_report.iterations);
+    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled, 10k");
+    eprintln!(
+        "10k, cells of 1 spacing: {} aggregates in {groups:?} groups, {} iterations on both, \
+         positions within {worst:e} of the size",
+        space.count(),
+        gpu_report.iterations
+    );
 }
 
 /// A coarse space solved by two-grid cycles (over
 /// `coarse_direct_max_aggregates`, what the CPU does at a million
-/// particles) has no factor to upload and no WGSL twin yet: the GPU
-/// deflates instead, says so, and still converges.
+/// particles) runs its cycles on the GPU too (`shaders/multilevel.wgsl`):
+/// the sag from rest stops at the CPU's iteration, at the CPU's
+/// positions, and converges faster than without the coarse space.
 #[test]
-fn a_cycled_coarse_space_falls_back_to_deflation_on_the_gpu() {
+fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
     let Some((device, queue)) = common::gpu("cycled coarse space") else {
         return;
     };
@@ -445,20 +462,55 @@ fn a_cycled_coarse_space_falls_back_to_deflation_on_the_gpu() {
         coarse_direct_max_aggregates: 50,
         ..DeformParams::default()
     };
-    let cpu = tissue_cpu::deformation::Deformer::new(model, params.clone())
-        .unwrap_or_else(|e| panic!("{e}"));
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params.clone());
     let Some(space) = cpu.coarse() else {
         panic!("no coarse space")
     };
-    assert!(space.multilevel().is_some() && space.count() <= tissue_gpu::GPU_COARSE_UNKNOWNS);
-    let mut gpu = tissue_gpu::GpuDeformer::new(&device, &queue, model, params)
+    let Some(cycles) = space.multilevel() else {
+        panic!("{} aggregates factored", space.count())
+    };
+    assert!(
+        cycles.groups() > 1 && cycles.groups() <= 50,
+        "{} groups",
+        cycles.groups()
+    );
+    assert_eq!(gpu.state().aggregates(), space.count());
+    assert!(gpu.modes().is_none());
+    assert!(
+        cpu_report.converged && gpu_report.converged,
+        "{cpu_report:?} {gpu_report:?}"
+    );
+    assert_eq!(gpu_report.iterations, cpu_report.iterations);
+    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled");
+    eprintln!(
+        "2k, cycled: {} aggregates in {} groups, {} iterations on both, positions within \
+         {worst:e} of the size",
+        space.count(),
+        cycles.groups(),
+        gpu_report.iterations
+    );
+    // The cycles do correct: without any correction the plain iteration
+    // needs several times as many.
+    let mut plain = tissue_cpu::deformation::Deformer::new(
+        model,
+        DeformParams {
+            coarse: 0.0,
+            deflation: 0,
+            ..params
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    plain
+        .set_surface(&tissue_core::deform::sagged_breast())
         .unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(gpu.state().aggregates(), 0);
-    assert_eq!(gpu.modes().map(|m| m.count()), Some(32));
-    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
-        .unwrap_or_else(|e| panic!("{e}"));
-    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
-    assert!(report.converged, "{report:?}");
+    let plain_report = plain.solve();
+    assert!(
+        2 * gpu_report.iterations < plain_report.iterations,
+        "{} cycled, {} plain",
+        gpu_report.iterations,
+        plain_report.iterations
+    );
 }
 
 /// Half the skin unobserved and a body force (issue 16): the GPU's free

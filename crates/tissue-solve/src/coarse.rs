@@ -917,12 +917,12 @@ mod tests {
         )
         .expect("a coarse space");
         // 24^3 free particles at 1.5..24.5 in cells of 2: 13^3 aggregates,
-        // grouped in cells of 6 (5^3 groups, up to 27 aggregates each).
+        // grouped in cells of 4 (7^3 groups, up to 8 aggregates each).
         assert_eq!(exact.count(), 2_197);
         assert!(exact.factor().is_some() && exact.multilevel().is_none());
         let multilevel = cycled.multilevel().expect("cycles above direct_max");
         assert!(cycled.factor().is_none());
-        assert_eq!(multilevel.groups(), 125);
+        assert_eq!(multilevel.groups(), 343);
         assert!(
             cycled.rho() < exact.rho() + 0.05,
             "cycled {} against exact {}",

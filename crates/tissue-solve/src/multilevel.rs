@@ -24,7 +24,7 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::cholesky::Cholesky;
-use crate::coarse::reverse_cuthill_mckee;
+use crate::coarse::{Envelope, reverse_cuthill_mckee};
 
 /// Symmetric two-grid cycles per coarse solve.
 pub const CYCLES: usize = 3;
@@ -38,8 +38,18 @@ pub const SWEEPS: usize = 3;
 pub const JACOBI_WEIGHT: f64 = 2.0 / 3.0;
 
 /// The groups' cells, in the aggregates' cells: about `GROUP^3`
-/// aggregates a group.
-pub const GROUP: f32 = 3.0;
+/// aggregates a group. 3 until 2026-11-28; 2 since the groups are capped
+/// at 4,096 (`DeformParams::coarse_direct_max_aggregates`, what the GPU
+/// substitutes in one workgroup): the phantom's sag at 100,000 particles
+/// 15 -> 13 iterations (12 factored), at 1,000,000 16 either way, where
+/// the cap grows the groups to about 3 anyway (docs/METHOD.md,
+/// "Multilevel").
+pub const GROUP: f32 = 2.0;
+
+/// [`BlockMultilevel`]'s groups' cells, in the aggregates' cells: its
+/// groups' factor is made again at every elastic phase's start, three
+/// unknowns a group, so its groups stay larger.
+pub const BLOCK_GROUP: f32 = 3.0;
 
 /// The aggregates' matrix, its groups and the groups' factored matrix.
 #[derive(Debug, Clone)]
@@ -53,6 +63,9 @@ pub struct Multilevel {
     weighted_inverse_diagonal: Vec<f64>,
     /// Per aggregate, its group (in the factor's order).
     group: Vec<u32>,
+    /// The rows of `Q^T A Q` in that order, kept for a device's envelope
+    /// factor ([`Multilevel::groups_envelope`]).
+    group_rows: Vec<Vec<(u32, f64)>>,
     /// The Cholesky factor of `Q^T A Q`.
     factor: Cholesky,
 }
@@ -100,7 +113,7 @@ impl Multilevel {
             weighted_inverse_diagonal.push(JACOBI_WEIGHT / diagonal);
             starts.push(columns.len());
         }
-        let (group, ordered) = grouped(rows, centres, cell, max_groups, 0.0, |&w| w != 0.0);
+        let (group, ordered) = grouped(rows, centres, cell * GROUP, max_groups, 0.0, |&w| w != 0.0);
         let factor = Cholesky::new(&ordered)?;
         Some(Self {
             starts,
@@ -108,8 +121,33 @@ impl Multilevel {
             values,
             weighted_inverse_diagonal,
             group,
+            group_rows: ordered,
             factor,
         })
+    }
+
+    /// The aggregates' matrix `A` by rows: where each row starts in the
+    /// other two (aggregates + 1), its columns and its values.
+    pub fn matrix(&self) -> (&[usize], &[u32], &[f64]) {
+        (&self.starts, &self.columns, &self.values)
+    }
+
+    /// [`JACOBI_WEIGHT`] over each diagonal entry of `A`.
+    pub fn weighted_inverse_diagonal(&self) -> &[f64] {
+        &self.weighted_inverse_diagonal
+    }
+
+    /// Per aggregate its group, numbered as the groups' factor numbers them.
+    pub fn group(&self) -> &[u32] {
+        &self.group
+    }
+
+    /// `Q^T A Q` factored within its envelope, the rows and columns a
+    /// device's substitution reads (the host's own factor is sparse).
+    /// `None` where a pivot is not positive, which the sparse factor
+    /// [`Multilevel::new`] made rules out but for rounding.
+    pub fn groups_envelope(&self) -> Option<Envelope> {
+        Envelope::cholesky(&self.group_rows)
     }
 
     /// Number of aggregates (unknowns of `A`).
@@ -208,7 +246,7 @@ pub const WEIGHT_MARGIN: f64 = 1.1;
 /// [`JACOBI_WEIGHT`] scaled to its largest eigenvalue, estimated by
 /// [`WEIGHT_STEPS`] power steps with [`WEIGHT_MARGIN`] (2/3 where that
 /// eigenvalue is 2, as for a Laplacian). The same [`CYCLES`], [`SWEEPS`]
-/// and [`GROUP`] as the Laplacian's: a fixed, symmetric approximation of
+/// as the Laplacian's, groups of [`BLOCK_GROUP`]: a fixed, symmetric approximation of
 /// `A^-1` (docs/METHOD.md, "Multilevel").
 #[derive(Debug, Clone)]
 pub struct BlockMultilevel {
@@ -279,7 +317,14 @@ impl BlockMultilevel {
         for d in &mut space.weighted_inverse_diagonal {
             *d *= space.weight;
         }
-        let (group, ordered) = grouped(rows, centres, cell, max_groups, DMat3::ZERO, |_| true);
+        let (group, ordered) = grouped(
+            rows,
+            centres,
+            cell * BLOCK_GROUP,
+            max_groups,
+            DMat3::ZERO,
+            |_| true,
+        );
         space.factor = Cholesky::new(&scalar_rows(&ordered))?;
         space.group = group;
         Some(space)
@@ -437,21 +482,20 @@ pub(crate) fn scalar_rows(blocks: &[Vec<(u32, DMat3)>]) -> Vec<Vec<(u32, f64)>> 
         .collect()
 }
 
-/// The groups of the aggregates at `centres` (cells [`GROUP`] times
-/// `cell`, grown by 1.25 until there are at most `max_groups`) and the
+/// The groups of the aggregates at `centres` (cells of edge `edge`,
+/// grown by 1.25 until there are at most `max_groups`) and the
 /// groups' Galerkin matrix `Q^T A Q` of `rows` (entries `keep` says are
 /// not zero), both numbered in the reverse Cuthill-McKee order of the
 /// groups' graph: per aggregate its group, and per group its sorted row.
 fn grouped<T: Copy + std::ops::AddAssign>(
     rows: &[Vec<(u32, T)>],
     centres: &[Vec3],
-    cell: f32,
+    mut edge: f32,
     max_groups: usize,
     zero: T,
     keep: impl Fn(&T) -> bool,
 ) -> (Vec<u32>, Vec<Vec<(u32, T)>>) {
-    let (mut group, mut count) = groups(centres, cell * GROUP);
-    let mut edge = cell * GROUP;
+    let (mut group, mut count) = groups(centres, edge);
     while count > max_groups.max(1) {
         edge *= 1.25;
         (group, count) = groups(centres, edge);
@@ -569,9 +613,9 @@ mod tests {
     fn the_cycles_are_a_symmetric_approximate_inverse() {
         let (rows, centres) = grid(16);
         let multilevel = Multilevel::new(&rows, &centres, 1.0, 10_000).expect("definite");
-        // Cells of 3 hold 27 nodes: 6^3 groups over 16^3 nodes.
+        // Cells of 2 hold 8 nodes: 8^3 groups over 16^3 nodes.
         assert_eq!(multilevel.len(), 4_096);
-        assert_eq!(multilevel.groups(), 216);
+        assert_eq!(multilevel.groups(), 512);
         let (x, y) = (field(4_096, 0.0), field(4_096, 17.0));
         let (mut bx, mut by) = (x.clone(), y.clone());
         multilevel.solve(&mut bx);
