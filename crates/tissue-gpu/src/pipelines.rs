@@ -397,6 +397,31 @@ impl Kernel {
         }
     }
 
+    /// Whether it runs one thread a particle. Not so: one workgroup sums
+    /// the projections over all the others, one runs each substitution of
+    /// a coarse solve, and the restrictions and the cycles run per
+    /// aggregate or per group (their dispatches set with their coarse
+    /// space).
+    pub(crate) fn per_particle(self) -> bool {
+        !matches!(
+            self,
+            Kernel::DeflateGains
+                | Kernel::CoarseForward
+                | Kernel::CoarseBackward
+                | Kernel::CoarseRestrict
+                | Kernel::ElasticForward
+                | Kernel::ElasticBackward
+                | Kernel::ElasticRestrict
+                | Kernel::CycleStart
+                | Kernel::CycleSweep
+                | Kernel::CycleSweepBack
+                | Kernel::CycleRestrict
+                | Kernel::GroupForward
+                | Kernel::GroupBackward
+                | Kernel::CycleProlong
+        )
+    }
+
     /// Position in [`Kernel::ALL`].
     pub(crate) fn index(self) -> usize {
         self as usize

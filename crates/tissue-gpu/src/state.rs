@@ -161,26 +161,7 @@ impl DeformState {
         })?;
         let mut workgroups_of = [[1u32; 2]; Kernel::ALL.len()];
         for kernel in Kernel::ALL {
-            // One workgroup sums the projections over all the others, one
-            // runs each substitution of a coarse solve; the restrictions run
-            // per aggregate (set with their coarse space).
-            if !matches!(
-                kernel,
-                Kernel::DeflateGains
-                    | Kernel::CoarseForward
-                    | Kernel::CoarseBackward
-                    | Kernel::CoarseRestrict
-                    | Kernel::ElasticForward
-                    | Kernel::ElasticBackward
-                    | Kernel::ElasticRestrict
-                    | Kernel::CycleStart
-                    | Kernel::CycleSweep
-                    | Kernel::CycleSweepBack
-                    | Kernel::CycleRestrict
-                    | Kernel::GroupForward
-                    | Kernel::GroupBackward
-                    | Kernel::CycleProlong
-            ) {
+            if kernel.per_particle() {
                 workgroups_of[kernel.index()] = workgroups(
                     count,
                     pipelines.workgroup_size(kernel),
