@@ -8,6 +8,7 @@ use tissue_solve::coarse_elastic::ElasticCoarse;
 
 use crate::buffer::Storage;
 use crate::coarse::{factor_of, members_of};
+use crate::multilevel::BlockCycleBuffers;
 use crate::support::scoped;
 use crate::{ElasticGradient, GpuError, Rotation};
 
@@ -33,7 +34,7 @@ pub(crate) struct ElasticCoarseBuffers {
     /// Per particle `sqrt(W_i) cof(F_i) B_i` and `sqrt(W_i) a_i cof(F_i)`.
     gradients: Storage<ElasticGradient>,
     /// Three entries per aggregate.
-    coarse: Storage<f32>,
+    pub(crate) coarse: Storage<f32>,
     row_starts: Storage<u32>,
     row_values: Storage<f32>,
     column_starts: Storage<u32>,
@@ -44,6 +45,9 @@ pub(crate) struct ElasticCoarseBuffers {
     pressures: Storage<[f32; 4]>,
     /// Per particle the pressures' force `(H z)_k` (`vec4`).
     pressure_force: Storage<[f32; 4]>,
+    /// The coarse matrix's two-grid cycles, where it is too large for one
+    /// factor (the groups' factor then in `row_*` and `column_*`).
+    pub(crate) cycles: BlockCycleBuffers,
 }
 
 impl ElasticCoarseBuffers {
@@ -69,6 +73,7 @@ impl ElasticCoarseBuffers {
             column_values: Storage::init(device, "elastic_column_values", &[], &what("columns"))?,
             pressures: Storage::init(device, "pressures", &[], &what("pressures"))?,
             pressure_force: Storage::init(device, "pressure_force", &[], &what("pressure force"))?,
+            cycles: BlockCycleBuffers::empty(device)?,
         })
     }
 
@@ -131,25 +136,61 @@ impl ElasticCoarseBuffers {
     }
 
     /// Uploads `coarse`, the elastic operator linearised at a state: the
-    /// gradients scaled by `sqrt(W_i)` and the factor, in `f32`.
+    /// gradients scaled by `sqrt(W_i)` and the factor, or the cycles and
+    /// their groups' factor, in `f32`.
     pub(crate) fn linearise(
         &mut self,
         device: &wgpu::Device,
         coarse: &ElasticCoarse,
     ) -> Result<(), GpuError> {
         let unknowns = 3 * self.aggregates as usize;
-        let factor = coarse.envelope().ok_or(GpuError::Length {
-            what: "elastic coarse factor (the GPU has no cycles: the correction must be factored)",
-            expected: unknowns,
-            got: 0,
-        })?;
-        if factor.len() != unknowns {
+        let groups_factor;
+        let (factor, factored, what) = match (coarse.envelope(), coarse.multilevel()) {
+            (Some(factor), _) => (
+                factor,
+                unknowns,
+                "elastic coarse unknowns (three an aggregate)",
+            ),
+            (None, Some(cycles)) => {
+                if cycles.len() != self.aggregates as usize {
+                    return Err(GpuError::Length {
+                        what: "elastic cycles' aggregates",
+                        expected: self.aggregates as usize,
+                        got: cycles.len(),
+                    });
+                }
+                groups_factor = cycles.groups_envelope().ok_or_else(|| {
+                    GpuError::Internal(format!(
+                        "the elastic cycles' matrix of {} groups is not positive definite in \
+                         its envelope (a rounding failure)",
+                        cycles.groups()
+                    ))
+                })?;
+                (
+                    &groups_factor,
+                    3 * cycles.groups(),
+                    "elastic cycles' group unknowns (three a group)",
+                )
+            }
+            (None, None) => {
+                return Err(GpuError::Internal(
+                    "the elastic correction was made with the host's sparse factor, not in the \
+                     envelope form or the cycles the GPU reads"
+                        .into(),
+                ));
+            }
+        };
+        if factor.len() != factored {
             return Err(GpuError::Length {
-                what: "elastic coarse unknowns (three per aggregate)",
-                expected: unknowns,
+                what,
+                expected: factored,
                 got: factor.len(),
             });
         }
+        self.cycles = match coarse.multilevel() {
+            Some(cycles) => BlockCycleBuffers::upload(device, cycles)?,
+            None => BlockCycleBuffers::empty(device)?,
+        };
         let k = coarse.linearisation();
         let gradients: Vec<ElasticGradient> = (0..k.weights.len())
             .map(|i| {
@@ -223,9 +264,9 @@ impl ElasticCoarseBuffers {
         Ok(())
     }
 
-    /// The buffers by the names the shader gives them.
-    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 15] {
-        [
+    /// The buffers by the names the shaders give them.
+    pub(crate) fn named(&self) -> Vec<(&'static str, &wgpu::Buffer)> {
+        let mut named = vec![
             ("elastic_aggregate", self.aggregate.buffer()),
             ("elastic_member_starts", self.member_starts.buffer()),
             ("elastic_members", self.members.buffer()),
@@ -241,6 +282,8 @@ impl ElasticCoarseBuffers {
             ("elastic_column_values", self.column_values.buffer()),
             ("pressures", self.pressures.buffer()),
             ("pressure_force", self.pressure_force.buffer()),
-        ]
+        ];
+        named.extend(self.cycles.named());
+        named
     }
 }

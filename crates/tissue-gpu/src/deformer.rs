@@ -84,7 +84,8 @@ pub struct GpuSolve {
 /// diverged: the phantom at 100,000 particles), while 6,033 ran whole. A
 /// coarse Laplacian of more aggregates is solved by two-grid cycles over
 /// at most this many groups (`shaders/multilevel.wgsl`, on both devices:
-/// [`GpuDeformer::cpu_twin`]); an elastic phase's aggregates grow to fit.
+/// [`GpuDeformer::cpu_twin`]); an elastic coarse matrix of more than a
+/// third as many aggregates by block cycles (`shaders/block_multilevel.wgsl`).
 pub const GPU_COARSE_UNKNOWNS: usize = 4_096;
 
 /// The rest data the host needs to make the elastic phase's correction.
@@ -97,19 +98,26 @@ struct ElasticHost {
     /// The volume smoother's `delta` and its iteration's contraction at
     /// rest, where the elastic phase smooths with it (the CPU path's).
     volume_smoother: Option<(f64, f32)>,
+    /// Up to how many aggregates the correction is factored, cycled above.
+    direct_max: usize,
 }
 
 impl GpuDeformer {
     /// The parameters under which the CPU path runs the solve the GPU runs
     /// under `params`, its twin: the same, but that the coarse Laplacian
-    /// is factored only up to [`GPU_COARSE_UNKNOWNS`] aggregates (the
-    /// GPU's one-workgroup substitution) and solved by two-grid cycles
-    /// above, as the GPU solves it.
+    /// is factored only up to [`GPU_COARSE_UNKNOWNS`] aggregates and the
+    /// elastic coarse matrix up to a third as many (three unknowns an
+    /// aggregate): the GPU's one-workgroup substitution. Above, both are
+    /// solved by two-grid cycles, their groups capped there too, as the
+    /// GPU solves them.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
         DeformParams {
             coarse_direct_max_aggregates: params
                 .coarse_direct_max_aggregates
                 .min(GPU_COARSE_UNKNOWNS),
+            elastic_coarse_direct_max_aggregates: params
+                .elastic_coarse_direct_max_aggregates
+                .min(GPU_COARSE_UNKNOWNS / 3),
             ..params.clone()
         }
     }
@@ -158,27 +166,11 @@ impl GpuDeformer {
                 Some(_) => None,
                 None => deflation_modes(model, plan, params),
             };
-            // The GPU's elastic coarse solve is one factor in one
-            // workgroup: the elastic aggregates grow to fit it (the CPU
-            // solves larger ones by block cycles, which have no kernels
-            // here yet).
-            let gpu_cap = GPU_COARSE_UNKNOWNS / 3;
-            if params.elastic_coarse_max_aggregates > gpu_cap {
-                log::info!(
-                    "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns: the \
-                     elastic phase's aggregates grow until there are at most {gpu_cap}"
-                );
-            }
-            let elastic_aggregates = elastic_aggregates(
-                model,
-                plan,
-                &DeformParams {
-                    elastic_coarse_max_aggregates: params
-                        .elastic_coarse_max_aggregates
-                        .min(gpu_cap),
-                    ..params.clone()
-                },
-            );
+            // The elastic correction is factored or cycled as the CPU
+            // twin makes it, its groups' factor at most what one
+            // workgroup substitutes.
+            let twin = Self::cpu_twin(params);
+            let elastic_aggregates = elastic_aggregates(model, plan, &twin);
             let elastic_host = match (&plan.elastic, elastic_aggregates) {
                 (Some(elastic), Some(aggregates)) => {
                     state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
@@ -189,10 +181,11 @@ impl GpuDeformer {
                         volume_smoother: volume_smoother(
                             model,
                             plan,
-                            params,
+                            &twin,
                             Some(&aggregates),
-                            usize::MAX,
+                            twin.elastic_coarse_direct_max_aggregates,
                         ),
+                        direct_max: twin.elastic_coarse_direct_max_aggregates,
                         aggregates,
                     })
                 }
@@ -364,7 +357,7 @@ impl GpuSolve {
                 contraction: iteration.contraction,
                 volume_delta: host.volume_smoother.map(|(delta, _)| delta),
                 rho: host.volume_smoother.map(|(_, rho)| rho),
-                direct_max_aggregates: usize::MAX,
+                direct_max_aggregates: host.direct_max,
                 envelope: true,
             },
             None,
@@ -560,15 +553,19 @@ mod tests {
     fn by_default_both_devices_factor_or_cycle_the_same_coarse_spaces() {
         let defaults = DeformParams::default();
         assert_eq!(defaults.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
+        assert_eq!(
+            defaults.elastic_coarse_direct_max_aggregates,
+            GPU_COARSE_UNKNOWNS / 3
+        );
         assert_eq!(GpuDeformer::cpu_twin(&defaults), defaults);
         let larger = DeformParams {
             coarse_direct_max_aggregates: 10_000,
+            elastic_coarse_direct_max_aggregates: 2_000,
             ..defaults
         };
-        assert_eq!(
-            GpuDeformer::cpu_twin(&larger).coarse_direct_max_aggregates,
-            GPU_COARSE_UNKNOWNS
-        );
+        let twin = GpuDeformer::cpu_twin(&larger);
+        assert_eq!(twin.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
+        assert_eq!(twin.elastic_coarse_direct_max_aggregates, 1_365);
     }
 
     /// A device of wgpu's no-op backend: its buffers are host memory,

@@ -1,11 +1,7 @@
 //! The compiled kernels and the step that records them.
 
-use crate::multilevel::CYCLE_KERNELS;
+use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS, CYCLE_LEN};
 use crate::state::DeformState;
-
-/// The lengths the multilevel iteration is made of.
-const COARSE_LEN: usize = Kernel::COARSE_ITERATION.len();
-const CYCLE_LEN: usize = CYCLE_KERNELS.len();
 use crate::support::Scopes;
 use crate::{GpuError, shaders};
 
@@ -118,11 +114,29 @@ pub enum Kernel {
     /// `multilevel.wgsl::cycle_prolong`: the groups' solution added to
     /// every aggregate of its group.
     CycleProlong,
+    /// `block_multilevel.wgsl::block_cycle_start`: per elastic aggregate
+    /// the elastic cycles' first block Jacobi sweep from zero.
+    BlockCycleStart,
+    /// `block_multilevel.wgsl::block_cycle_sweep`: a further sweep, from
+    /// the first of `x`'s buffers into the second.
+    BlockCycleSweep,
+    /// The same sweep from the second buffer into the first.
+    BlockCycleSweepBack,
+    /// `block_multilevel.wgsl::block_cycle_restrict`: per group the sum of
+    /// its aggregates' residuals.
+    BlockCycleRestrict,
+    /// `coarse_elastic.wgsl::elastic_forward` on the groups' vector and factor.
+    BlockGroupForward,
+    /// `coarse_elastic.wgsl::elastic_backward` on the groups' vector and factor.
+    BlockGroupBackward,
+    /// `block_multilevel.wgsl::block_cycle_prolong`: the groups' solution
+    /// added to every aggregate of its group.
+    BlockCycleProlong,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 38] = [
+    pub const ALL: [Kernel; 45] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -161,6 +175,13 @@ impl Kernel {
         Kernel::GroupForward,
         Kernel::GroupBackward,
         Kernel::CycleProlong,
+        Kernel::BlockCycleStart,
+        Kernel::BlockCycleSweep,
+        Kernel::BlockCycleSweepBack,
+        Kernel::BlockCycleRestrict,
+        Kernel::BlockGroupForward,
+        Kernel::BlockGroupBackward,
+        Kernel::BlockCycleProlong,
     ];
 
     /// One iteration without deflation, in order.
@@ -215,28 +236,12 @@ impl Kernel {
     /// [`Kernel::COARSE_ITERATION`] with the coarse Laplacian solved by
     /// two-grid cycles (`crate::multilevel::CYCLE_KERNELS`) in place of
     /// its factor's two substitutions.
-    pub const MULTILEVEL_ITERATION: [Kernel; COARSE_LEN - 2 + CYCLE_LEN] = {
-        let mut out = [Kernel::CycleStart; COARSE_LEN - 2 + CYCLE_LEN];
-        let (mut from, mut to) = (0, 0);
-        while from < COARSE_LEN {
-            match Kernel::COARSE_ITERATION[from] {
-                Kernel::CoarseForward => {
-                    let mut k = 0;
-                    while k < CYCLE_LEN {
-                        out[to] = CYCLE_KERNELS[k];
-                        (to, k) = (to + 1, k + 1);
-                    }
-                }
-                Kernel::CoarseBackward => {}
-                kernel => {
-                    out[to] = kernel;
-                    to += 1;
-                }
-            }
-            from += 1;
-        }
-        out
-    };
+    pub const MULTILEVEL_ITERATION: [Kernel; 10 - 2 + CYCLE_LEN] = Kernel::cycled(
+        Kernel::COARSE_ITERATION,
+        Kernel::CoarseForward,
+        Kernel::CoarseBackward,
+        CYCLE_KERNELS,
+    );
 
     /// One iteration of the elastic phase with its two-level solve, in
     /// order: the elastic correction between the plain step and the
@@ -279,6 +284,26 @@ impl Kernel {
         Kernel::UpdateNorms,
     ];
 
+    /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the elastic coarse
+    /// matrix solved by two-grid cycles
+    /// (`crate::multilevel::BLOCK_CYCLE_KERNELS`) in place of its factor's
+    /// two substitutions.
+    pub const CYCLED_ELASTIC_ITERATION: [Kernel; 12 - 2 + CYCLE_LEN] = Kernel::cycled(
+        Kernel::CORRECTED_ELASTIC_ITERATION,
+        Kernel::ElasticForward,
+        Kernel::ElasticBackward,
+        BLOCK_CYCLE_KERNELS,
+    );
+
+    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`] with the elastic coarse
+    /// matrix solved by two-grid cycles.
+    pub const CYCLED_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16 - 2 + CYCLE_LEN] = Kernel::cycled(
+        Kernel::SMOOTHED_ELASTIC_ITERATION,
+        Kernel::ElasticForward,
+        Kernel::ElasticBackward,
+        BLOCK_CYCLE_KERNELS,
+    );
+
     /// [`Kernel::ITERATION`] with the warm-started rotations.
     pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
 
@@ -292,8 +317,16 @@ impl Kernel {
     pub const WARM_COARSE_ITERATION: [Kernel; 10] = Kernel::warm(Kernel::COARSE_ITERATION);
 
     /// [`Kernel::MULTILEVEL_ITERATION`] with the warm-started rotations.
-    pub const WARM_MULTILEVEL_ITERATION: [Kernel; COARSE_LEN - 2 + CYCLE_LEN] =
+    pub const WARM_MULTILEVEL_ITERATION: [Kernel; 10 - 2 + CYCLE_LEN] =
         Kernel::warm(Kernel::MULTILEVEL_ITERATION);
+
+    /// [`Kernel::CYCLED_ELASTIC_ITERATION`] with the warm-started rotations.
+    pub const WARM_CYCLED_ELASTIC_ITERATION: [Kernel; 12 - 2 + CYCLE_LEN] =
+        Kernel::warm(Kernel::CYCLED_ELASTIC_ITERATION);
+
+    /// [`Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION`] with the warm-started rotations.
+    pub const WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16 - 2 + CYCLE_LEN] =
+        Kernel::warm(Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION);
 
     /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
     pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
@@ -314,6 +347,8 @@ impl Kernel {
             Kernel::MULTILEVEL_ITERATION.len(),
             Kernel::CORRECTED_ELASTIC_ITERATION.len(),
             Kernel::SMOOTHED_ELASTIC_ITERATION.len(),
+            Kernel::CYCLED_ELASTIC_ITERATION.len(),
+            Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION.len(),
         ];
         let (mut longest, mut k) = (0, 0);
         while k < lengths.len() {
@@ -324,6 +359,35 @@ impl Kernel {
         }
         longest
     };
+
+    /// `iteration` with `cycle` in place of its `forward` substitution and
+    /// without its `backward` one (`M` is `N - 2 + CYCLE_LEN`).
+    const fn cycled<const N: usize, const M: usize>(
+        iteration: [Kernel; N],
+        forward: Kernel,
+        backward: Kernel,
+        cycle: [Kernel; CYCLE_LEN],
+    ) -> [Kernel; M] {
+        assert!(M == N - 2 + CYCLE_LEN);
+        let mut out = [cycle[0]; M];
+        let (mut from, mut to) = (0, 0);
+        while from < N {
+            let kernel = iteration[from];
+            if kernel as usize == forward as usize {
+                let mut k = 0;
+                while k < CYCLE_LEN {
+                    out[to] = cycle[k];
+                    (to, k) = (to + 1, k + 1);
+                }
+            } else if kernel as usize != backward as usize {
+                out[to] = kernel;
+                to += 1;
+            }
+            from += 1;
+        }
+        assert!(to == M);
+        out
+    }
 
     /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
     /// [`Kernel::LocalRotations`] and [`Kernel::ElasticTargetsWarm`] in
@@ -383,6 +447,14 @@ impl Kernel {
             Kernel::GroupForward => ("coarse", "coarse_forward"),
             Kernel::GroupBackward => ("coarse", "coarse_backward"),
             Kernel::CycleProlong => ("multilevel", "cycle_prolong"),
+            Kernel::BlockCycleStart => ("block_multilevel", "block_cycle_start"),
+            Kernel::BlockCycleSweep | Kernel::BlockCycleSweepBack => {
+                ("block_multilevel", "block_cycle_sweep")
+            }
+            Kernel::BlockCycleRestrict => ("block_multilevel", "block_cycle_restrict"),
+            Kernel::BlockGroupForward => ("coarse_elastic", "elastic_forward"),
+            Kernel::BlockGroupBackward => ("coarse_elastic", "elastic_backward"),
+            Kernel::BlockCycleProlong => ("block_multilevel", "block_cycle_prolong"),
         }
     }
 
@@ -393,6 +465,9 @@ impl Kernel {
             Kernel::CycleSweepBack => "cycle_sweep (back)",
             Kernel::GroupForward => "coarse_forward (groups)",
             Kernel::GroupBackward => "coarse_backward (groups)",
+            Kernel::BlockCycleSweepBack => "block_cycle_sweep (back)",
+            Kernel::BlockGroupForward => "elastic_forward (groups)",
+            Kernel::BlockGroupBackward => "elastic_backward (groups)",
             other => other.entry().1,
         }
     }
@@ -419,6 +494,13 @@ impl Kernel {
                 | Kernel::GroupForward
                 | Kernel::GroupBackward
                 | Kernel::CycleProlong
+                | Kernel::BlockCycleStart
+                | Kernel::BlockCycleSweep
+                | Kernel::BlockCycleSweepBack
+                | Kernel::BlockCycleRestrict
+                | Kernel::BlockGroupForward
+                | Kernel::BlockGroupBackward
+                | Kernel::BlockCycleProlong
         )
     }
 
@@ -633,6 +715,14 @@ mod tests {
                 &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
                 &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION[..],
             ),
+            (
+                &Kernel::CYCLED_ELASTIC_ITERATION[..],
+                &Kernel::WARM_CYCLED_ELASTIC_ITERATION[..],
+            ),
+            (
+                &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
+                &Kernel::WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
+            ),
         ] {
             assert_eq!(svd.len(), warm.len());
             for (&s, &w) in svd.iter().zip(warm) {
@@ -653,20 +743,45 @@ mod tests {
         }
     }
 
-    /// The multilevel iteration is the two-level one with the cycles in
-    /// place of the factor's two substitutions, and nothing else changed.
+    /// Each cycled iteration is its factored one with the cycles in place
+    /// of the factor's two substitutions, and nothing else changed.
     #[test]
     fn the_multilevel_iteration_cycles_where_the_coarse_one_substitutes() {
-        let mut expected = Vec::new();
-        for kernel in Kernel::COARSE_ITERATION {
-            match kernel {
-                Kernel::CoarseForward => expected.extend(crate::multilevel::CYCLE_KERNELS),
-                Kernel::CoarseBackward => {}
-                other => expected.push(other),
+        use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
+        for (factored, cycled, forward, backward, cycle) in [
+            (
+                &Kernel::COARSE_ITERATION[..],
+                &Kernel::MULTILEVEL_ITERATION[..],
+                Kernel::CoarseForward,
+                Kernel::CoarseBackward,
+                CYCLE_KERNELS,
+            ),
+            (
+                &Kernel::CORRECTED_ELASTIC_ITERATION[..],
+                &Kernel::CYCLED_ELASTIC_ITERATION[..],
+                Kernel::ElasticForward,
+                Kernel::ElasticBackward,
+                BLOCK_CYCLE_KERNELS,
+            ),
+            (
+                &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
+                &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
+                Kernel::ElasticForward,
+                Kernel::ElasticBackward,
+                BLOCK_CYCLE_KERNELS,
+            ),
+        ] {
+            let mut expected = Vec::new();
+            for &kernel in factored {
+                if kernel == forward {
+                    expected.extend(cycle);
+                } else if kernel != backward {
+                    expected.push(kernel);
+                }
             }
+            assert_eq!(cycled, &expected[..]);
+            assert!(Kernel::LONGEST_ITERATION >= cycled.len());
         }
-        assert_eq!(&Kernel::MULTILEVEL_ITERATION[..], &expected[..]);
-        assert!(Kernel::LONGEST_ITERATION >= Kernel::MULTILEVEL_ITERATION.len());
     }
 
     #[test]

@@ -72,6 +72,10 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../../../shaders/coarse_elastic.wgsl"),
     ),
     (
+        "block_multilevel",
+        include_str!("../../../shaders/block_multilevel.wgsl"),
+    ),
+    (
         "volume_smoother",
         include_str!("../../../shaders/volume_smoother.wgsl"),
     ),
@@ -402,6 +406,10 @@ mod tests {
             ("multilevel", "cycle_sweep"),
             ("multilevel", "cycle_restrict"),
             ("multilevel", "cycle_prolong"),
+            ("block_multilevel", "block_cycle_start"),
+            ("block_multilevel", "block_cycle_sweep"),
+            ("block_multilevel", "block_cycle_restrict"),
+            ("block_multilevel", "block_cycle_prolong"),
             ("coarse_elastic", "elastic_step_of"),
             ("coarse_elastic", "elastic_change_of"),
             ("coarse_elastic", "elastic_residual_of"),

@@ -93,7 +93,7 @@ pub struct DeformState {
     /// [`DeformState::set_coarse`]).
     pub(crate) coarse: CoarseBuffers,
     /// The elastic phase's (empty until [`DeformState::set_elastic_aggregates`]).
-    elastic_coarse: ElasticCoarseBuffers,
+    pub(crate) elastic_coarse: ElasticCoarseBuffers,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -436,11 +436,20 @@ impl DeformState {
         aggregates: &Aggregates,
     ) -> Result<(), GpuError> {
         let buffers = ElasticCoarseBuffers::with_aggregates(device, aggregates, self.len())?;
-        self.workgroups[Kernel::ElasticRestrict.index()] = workgroups(
-            buffers.aggregates,
-            pipelines.workgroup_size(Kernel::ElasticRestrict),
-            device.limits().max_compute_workgroups_per_dimension,
-        )?;
+        // The restriction and the cycles' sweeps run per aggregate.
+        for kernel in [
+            Kernel::ElasticRestrict,
+            Kernel::BlockCycleStart,
+            Kernel::BlockCycleSweep,
+            Kernel::BlockCycleSweepBack,
+            Kernel::BlockCycleProlong,
+        ] {
+            self.workgroups[kernel.index()] = workgroups(
+                buffers.aggregates,
+                pipelines.workgroup_size(kernel),
+                device.limits().max_compute_workgroups_per_dimension,
+            )?;
+        }
         self.elastic_coarse = buffers;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
@@ -455,6 +464,12 @@ impl DeformState {
         coarse: &ElasticCoarse,
     ) -> Result<(), GpuError> {
         self.elastic_coarse.linearise(device, coarse)?;
+        // The cycles' restriction runs per group.
+        self.workgroups[Kernel::BlockCycleRestrict.index()] = workgroups(
+            self.elastic_coarse.cycles.groups.max(1),
+            pipelines.workgroup_size(Kernel::BlockCycleRestrict),
+            device.limits().max_compute_workgroups_per_dimension,
+        )?;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
     }
@@ -469,6 +484,12 @@ impl DeformState {
     /// Number of aggregates of the uploaded coarse space (0: none).
     pub fn aggregates(&self) -> usize {
         self.coarse.aggregates as usize
+    }
+
+    /// Number of groups of the elastic coarse matrix's two-grid cycles in
+    /// the uploaded linearisation (0: none, or factored).
+    pub fn elastic_groups(&self) -> usize {
+        self.elastic_coarse.cycles.groups as usize
     }
 
     /// Sets how the next iterations find the rotations: by the SVD, or by
@@ -494,12 +515,18 @@ impl DeformState {
         let cycled = self.coarse.cycles.groups > 0;
         let deflated = self.modes > 0 && self.correct_phase;
         let elastic_corrected = self.elastic_coarse.linearised && self.correct_phase;
-        if self.elastic_phase && elastic_corrected && self.elastic_coarse.smoother.is_some() {
-            return if self.warm {
-                &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION
-            } else {
-                &Kernel::SMOOTHED_ELASTIC_ITERATION
-            };
+        if self.elastic_phase && elastic_corrected {
+            let smoothed = self.elastic_coarse.smoother.is_some();
+            let cycled = self.elastic_coarse.cycles.groups > 0;
+            match (smoothed, cycled, self.warm) {
+                (true, false, false) => return &Kernel::SMOOTHED_ELASTIC_ITERATION,
+                (true, false, true) => return &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION,
+                (true, true, false) => return &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION,
+                (true, true, true) => return &Kernel::WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION,
+                (false, true, false) => return &Kernel::CYCLED_ELASTIC_ITERATION,
+                (false, true, true) => return &Kernel::WARM_CYCLED_ELASTIC_ITERATION,
+                (false, false, _) => {}
+            }
         }
         match (self.elastic_phase, two_level, deflated, self.warm) {
             (true, _, _, false) if elastic_corrected => &Kernel::CORRECTED_ELASTIC_ITERATION,
@@ -540,6 +567,7 @@ impl DeformState {
                             .coarse
                             .cycles
                             .buffer_for(kernel, name)
+                            .or_else(|| self.elastic_coarse.cycles.buffer_for(kernel, name))
                             .or_else(|| self.buffer(name)),
                     },
                     Some(std::mem::size_of::<Params>() as u64),

@@ -513,6 +513,67 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
     );
 }
 
+/// An elastic coarse matrix solved by two-grid cycles (over
+/// `elastic_coarse_direct_max_aggregates`, what the CPU does at 100,000
+/// particles) runs its cycles on the GPU too
+/// (`shaders/block_multilevel.wgsl`): the same groups, the sag from rest
+/// within one iteration of the CPU's (the elastic correction's `f32`
+/// against `f64`), at the CPU's positions.
+#[test]
+fn a_cycled_elastic_coarse_matrix_runs_on_the_gpu_as_on_the_cpu() {
+    let Some((device, queue)) = common::gpu("cycled elastic coarse matrix") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        elastic_coarse_direct_max_aggregates: 40,
+        ..DeformParams::default()
+    };
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params);
+    let Some(correction) = cpu.device().elastic_coarse() else {
+        panic!("no elastic correction")
+    };
+    let Some(cycles) = correction.multilevel() else {
+        panic!("the elastic correction is factored")
+    };
+    assert!(
+        cycles.groups() > 1 && cycles.groups() <= 40,
+        "{}",
+        cycles.groups()
+    );
+    assert!(cycles.len() > 100, "{} aggregates", cycles.len());
+    assert_eq!(gpu.state().elastic_groups(), cycles.groups());
+    assert!(
+        cpu.device().volume_smoother().is_some(),
+        "the smoothed iteration is the default one"
+    );
+    assert!(
+        cpu_report.converged && gpu_report.converged,
+        "{cpu_report:?} {gpu_report:?}"
+    );
+    assert_eq!(
+        (cpu_report.elastic_retries, gpu_report.elastic_retries),
+        (0, 0)
+    );
+    assert!(
+        cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+        "CPU {} iterations, GPU {}",
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled elastic");
+    eprintln!(
+        "2k elastic, cycled: {} aggregates in {} groups, CPU {} iterations, GPU {}, positions \
+         within {worst:e} of the size",
+        cycles.len(),
+        cycles.groups(),
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+}
+
 /// Half the skin unobserved and a body force (issue 16): the GPU's free
 /// surface particles and loads against the CPU's, with both forces.
 #[test]

@@ -257,6 +257,9 @@ pub struct BlockMultilevel {
     weighted_inverse_diagonal: Vec<DMat3>,
     /// Per aggregate, its group (in the factor's order).
     group: Vec<u32>,
+    /// The scalar rows of `Q^T A Q` in that order, kept for a device's
+    /// envelope factor ([`BlockMultilevel::groups_envelope`]).
+    group_rows: Vec<Vec<(u32, f64)>>,
     /// The Cholesky factor of `Q^T A Q`, unknown `3 g + axis` for group `g`.
     factor: Cholesky,
     weight: f64,
@@ -309,6 +312,7 @@ impl BlockMultilevel {
             values,
             weighted_inverse_diagonal: inverse_diagonal,
             group: Vec::new(),
+            group_rows: Vec::new(),
             factor: Cholesky::new(&[])?,
             weight: 1.0,
         };
@@ -325,9 +329,35 @@ impl BlockMultilevel {
             DMat3::ZERO,
             |_| true,
         );
-        space.factor = Cholesky::new(&scalar_rows(&ordered))?;
+        space.group_rows = scalar_rows(&ordered);
+        space.factor = Cholesky::new(&space.group_rows)?;
         space.group = group;
         Some(space)
+    }
+
+    /// The aggregates' matrix `A` by block rows: where each row starts in
+    /// the other two (aggregates + 1), its columns and its 3x3 blocks.
+    pub fn matrix(&self) -> (&[usize], &[u32], &[DMat3]) {
+        (&self.starts, &self.columns, &self.values)
+    }
+
+    /// The sweeps' weight times the inverse of each diagonal block of `A`.
+    pub fn weighted_inverse_diagonal(&self) -> &[DMat3] {
+        &self.weighted_inverse_diagonal
+    }
+
+    /// Per aggregate its group, numbered as the groups' factor numbers
+    /// them (unknowns `3 g + axis`).
+    pub fn group(&self) -> &[u32] {
+        &self.group
+    }
+
+    /// `Q^T A Q` factored within its envelope, the rows and columns a
+    /// device's substitution reads (the host's own factor is sparse).
+    /// `None` where a pivot is not positive, which the sparse factor
+    /// [`BlockMultilevel::new`] made rules out but for rounding.
+    pub fn groups_envelope(&self) -> Option<Envelope> {
+        Envelope::cholesky(&self.group_rows)
     }
 
     /// Number of aggregates.

@@ -122,8 +122,11 @@ pub struct DeformParams {
     /// `(3 n)^(5/3)` numbers, made every solve from rest); above, it is
     /// solved by two-grid cycles over groups of aggregates
     /// ([`crate::multilevel::BlockMultilevel`]), the groups at most this
-    /// many. The default and what it saves: docs/METHOD.md, "Elastic
-    /// model".
+    /// many. The default, 1,365, is the most whose 4,095 unknowns the GPU
+    /// substitutes in one workgroup, so both devices solve every elastic
+    /// correction the same way (2,000 until 2026-11-28: the phantom's sag
+    /// at 100,000 particles takes 32 iterations either way). What it
+    /// saves: docs/METHOD.md, "Elastic model".
     pub elastic_coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve smooths with the volume term
     /// taken implicitly ([`crate::volume_smoother`]: the shear part stepped
@@ -168,7 +171,7 @@ impl Default for DeformParams {
             coarse_max_aggregates: 200_000,
             coarse_direct_max_aggregates: 4_096,
             elastic_coarse_max_aggregates: 200_000,
-            elastic_coarse_direct_max_aggregates: 2_000,
+            elastic_coarse_direct_max_aggregates: 1_365,
             volume_smoother: true,
             observed: None,
             load: Vec3::ZERO,
