@@ -37,9 +37,7 @@
 // Per group the restricted residual, then the groups' solution.
 @group(0) @binding(11) var<storage, read_write> group_coarse: array<vec4<f32>>;
 
-fn aggregate_index(workgroup: vec3<u32>, groups: vec3<u32>, local: u32) -> u32 {
-    return particle_index(workgroup, groups, local);
-}
+// (`particle_index` numbers the aggregates or the groups here: one thread each.)
 
 // Row a of b - A x, x read from `cycle_from`.
 fn row_residual(a: u32) -> vec3<f32> {
@@ -56,7 +54,7 @@ fn cycle_start(
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let a = aggregate_index(workgroup, groups, local);
+    let a = particle_index(workgroup, groups, local);
     // (`params` read by every pass: the batch binds it at a dynamic offset.)
     if (a >= arrayLength(&cycle_to) || params.count == 0u) {
         return;
@@ -70,7 +68,7 @@ fn cycle_sweep(
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let a = aggregate_index(workgroup, groups, local);
+    let a = particle_index(workgroup, groups, local);
     if (a >= arrayLength(&cycle_to) || params.count == 0u) {
         return;
     }
@@ -83,7 +81,7 @@ fn cycle_restrict(
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let g = aggregate_index(workgroup, groups, local);
+    let g = particle_index(workgroup, groups, local);
     if (g >= arrayLength(&group_coarse) || params.count == 0u) {
         return;
     }
@@ -100,7 +98,7 @@ fn cycle_prolong(
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let a = aggregate_index(workgroup, groups, local);
+    let a = particle_index(workgroup, groups, local);
     if (a >= arrayLength(&cycle_to) || params.count == 0u) {
         return;
     }

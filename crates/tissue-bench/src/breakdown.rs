@@ -163,7 +163,7 @@ fn wait(gpu: &Gpu) -> Result<()> {
 pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdown> {
     let (pipelines, state) = (deformer.pipelines(), deformer.state());
     let iteration = state.iteration();
-    let names = || iteration.iter().map(|k| k.name().to_owned());
+    let names: Vec<&str> = iteration.iter().map(|k| k.name()).collect();
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); iteration.len()];
     let mut whole = Vec::new();
     if gpu.timestamp_query {
@@ -182,7 +182,7 @@ pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdow
             "GPU time of each kernel in a compute pass of its own (timestamps at its start \
              and end); the iteration from the first start to the last end"
                 .to_owned(),
-            names().zip(times).collect(),
+            by_kernel(&names, &times),
             &whole,
         );
     }
@@ -220,7 +220,58 @@ pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdow
          around recording, submitting and waiting for each kernel alone, and for one \
          iteration in one pass"
             .to_owned(),
-        names().zip(times).collect(),
+        by_kernel(&names, &times),
         &whole,
     )
+}
+
+/// The passes of one iteration by kernel: a kernel dispatched more than
+/// once an iteration (the coarse cycles' sweeps, restrictions and
+/// substitutions) is one row, `name ×count`, its dispatches' times summed
+/// sample by sample; rows in the order of each kernel's first dispatch.
+fn by_kernel(names: &[&str], times: &[Vec<f64>]) -> Vec<(String, Vec<f64>)> {
+    let mut rows: Vec<(&str, usize, Vec<f64>)> = Vec::new();
+    for (&name, samples) in names.iter().zip(times) {
+        match rows.iter_mut().find(|(n, _, _)| *n == name) {
+            Some((_, count, sums)) => {
+                *count += 1;
+                for (sum, t) in sums.iter_mut().zip(samples) {
+                    *sum += t;
+                }
+            }
+            None => rows.push((name, 1, samples.clone())),
+        }
+    }
+    rows.into_iter()
+        .map(|(name, count, sums)| match count {
+            1 => (name.to_owned(), sums),
+            _ => (format!("{name} ×{count}"), sums),
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::by_kernel;
+
+    #[test]
+    fn a_kernel_dispatched_several_times_an_iteration_is_one_row() {
+        let names = ["force", "sweep", "restrict", "sweep", "apply", "sweep"];
+        let times: Vec<Vec<f64>> = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+            .iter()
+            .map(|&t| vec![t, 10.0 * t])
+            .collect();
+        let rows = by_kernel(&names, &times);
+        let expected = [
+            ("force", [1.0, 10.0]),
+            ("sweep ×3", [12.0, 120.0]),
+            ("restrict", [3.0, 30.0]),
+            ("apply", [5.0, 50.0]),
+        ];
+        assert_eq!(rows.len(), expected.len());
+        for ((name, sums), (want, want_sums)) in rows.iter().zip(expected) {
+            assert_eq!(name, want);
+            assert_eq!(&sums[..], &want_sums[..]);
+        }
+    }
 }
