@@ -574,6 +574,59 @@ fn a_cycled_elastic_coarse_matrix_runs_on_the_gpu_as_on_the_cpu() {
     );
 }
 
+/// The elastic coarse matrix at 10,000 particles in cells of one spacing:
+/// thousands of aggregates, more than the GPU's one-workgroup factor takes
+/// (1,365), in hundreds of groups, so every cycle kernel runs over several
+/// workgroups; both devices cycle them and stop together.
+#[test]
+fn an_elastic_coarse_matrix_too_large_for_one_factor_is_cycled_on_both_devices() {
+    let Some((device, queue)) = common::gpu("elastic coarse matrix limit") else {
+        return;
+    };
+    let model = common::phantom(10_000);
+    let params = DeformParams {
+        force: ForceModel::Elastic,
+        coarse: 1.0,
+        ..DeformParams::default()
+    };
+    assert_eq!(
+        params.elastic_coarse_direct_max_aggregates,
+        tissue_gpu::GPU_COARSE_UNKNOWNS / 3
+    );
+    let (cpu, cpu_report, gpu, gpu_report) =
+        common::solve_sag_on_both(&device, &queue, model, params);
+    let Some(cycles) = cpu.device().elastic_coarse().and_then(|c| c.multilevel()) else {
+        panic!("the elastic correction is not cycled")
+    };
+    assert!(cycles.len() > 1_365, "{} aggregates", cycles.len());
+    assert!(
+        cycles.groups() > 64 && cycles.groups() <= 1_365,
+        "{} groups",
+        cycles.groups()
+    );
+    assert_eq!(gpu.state().elastic_groups(), cycles.groups());
+    assert!(
+        cpu_report.converged && gpu_report.converged,
+        "{cpu_report:?} {gpu_report:?}"
+    );
+    assert!(
+        cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+        "CPU {} iterations, GPU {}",
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+    let worst =
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled elastic, 10k");
+    eprintln!(
+        "10k elastic, cells of 1 spacing: {} aggregates in {} groups, CPU {} iterations, GPU \
+         {}, positions within {worst:e} of the size",
+        cycles.len(),
+        cycles.groups(),
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+}
+
 /// Half the skin unobserved and a body force (issue 16): the GPU's free
 /// surface particles and loads against the CPU's, with both forces.
 #[test]
