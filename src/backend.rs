@@ -205,7 +205,7 @@ impl Device {
         let name = describe(&info);
         let opened = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("tissue"),
-            required_limits: wgpu::Limits::default(),
+            required_limits: tissue_gpu::limits_for(&adapter),
             ..Default::default()
         }));
         match opened {

@@ -238,8 +238,8 @@ fn surfaces(mesh: Option<&PathBuf>) -> Result<(String, Cases)> {
     ))
 }
 
-/// The adapter `tissue_gpu::adapter_from_env` chooses, opened with default
-/// limits and `TIMESTAMP_QUERY` where the adapter has it and `timestamps`
+/// The adapter `tissue_gpu::adapter_from_env` chooses, opened with
+/// `tissue_gpu::limits_for` it and `TIMESTAMP_QUERY` where the adapter has it and `timestamps`
 /// allows (the only optional feature, and only for the per-kernel breakdown).
 fn open_gpu(timestamps: bool) -> (GpuFound, Option<Gpu>) {
     let opened = tissue_gpu::adapter_from_env().and_then(|adapter| {
@@ -251,7 +251,7 @@ fn open_gpu(timestamps: bool) -> (GpuFound, Option<Gpu>) {
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("tissue-bench"),
             required_features: features,
-            required_limits: wgpu::Limits::default(),
+            required_limits: tissue_gpu::limits_for(&adapter),
             ..Default::default()
         }))
         .map_err(|e| tissue_gpu::GpuError::RequestDevice(e.to_string()))?;

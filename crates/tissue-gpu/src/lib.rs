@@ -224,14 +224,28 @@ pub struct ElasticGradient {
     pub scale: Rotation,
 }
 
+/// The limits the CLI, the benchmark and the tests open a device with:
+/// wgpu's defaults, but storage buffers as large as `adapter` allows.
+/// Stage 1's neighbour rows at a million particles take 217 MB in one
+/// binding, above the default 128 MiB (measured on the phantom, lavapipe:
+/// refused with the default limits).
+pub fn limits_for(adapter: &wgpu::Adapter) -> wgpu::Limits {
+    let has = adapter.limits();
+    wgpu::Limits {
+        max_storage_buffer_binding_size: has.max_storage_buffer_binding_size,
+        max_buffer_size: has.max_buffer_size,
+        ..wgpu::Limits::default()
+    }
+}
+
 /// For the CLI, the benchmark and tests (the library itself takes a device):
 /// the adapter `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` name, or the default
-/// one, and a device with default limits and no optional features.
+/// one, and a device with [`limits_for`] it and no optional features.
 pub fn device_from_env() -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), GpuError> {
     let adapter = adapter_from_env()?;
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("tissue"),
-        required_limits: wgpu::Limits::default(),
+        required_limits: limits_for(&adapter),
         ..Default::default()
     }))
     .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
