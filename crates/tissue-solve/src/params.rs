@@ -343,7 +343,7 @@ mod tests {
         assert_eq!(defaults.coarse_max_aggregates, 200_000);
         assert_eq!(defaults.coarse_direct_max_aggregates, 4_096);
         assert_eq!(defaults.elastic_coarse_max_aggregates, 200_000);
-        assert_eq!(defaults.elastic_coarse_direct_max_aggregates, 2_000);
+        assert_eq!(defaults.elastic_coarse_direct_max_aggregates, 1_365);
         for (coarse, says) in [
             (0.5, "coarse is 0.5"),
             (-1.0, "coarse is -1"),
