@@ -231,24 +231,7 @@ impl Storage<[f32; 4]> {
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
     use super::*;
-
-    /// A device from the environment (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`),
-    /// or `None` after saying the test is skipped, as the integration
-    /// tests do (under `CI=true` a missing adapter fails).
-    fn gpu(test: &str) -> Option<(wgpu::Device, wgpu::Queue)> {
-        match crate::device_from_env() {
-            Ok((_, device, queue)) => Some((device, queue)),
-            Err(GpuError::NoAdapter(why)) => {
-                assert!(
-                    std::env::var("CI").as_deref() != Ok("true"),
-                    "{test}: no GPU adapter under CI=true ({why})"
-                );
-                eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
-                None
-            }
-            Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
-        }
-    }
+    use crate::testing::gpu;
 
     #[test]
     fn elements_are_written_and_read_where_they_belong() {

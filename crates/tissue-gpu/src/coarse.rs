@@ -236,21 +236,10 @@ mod tests {
     /// unsolved.
     #[test]
     fn the_gpu_coarse_solve_matches_the_host_solve_at_the_largest_size_it_takes() {
-        let Ok((_, device, queue)) = crate::device_from_env() else {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "no GPU adapter under CI=true"
-            );
-            eprintln!("SKIPPED: no GPU adapter");
+        let Some((device, queue)) = crate::testing::gpu("largest coarse solve") else {
             return;
         };
-        let model = tissue_cpu::sample(
-            &tissue_core::phantom::default_breast(),
-            &tissue_core::SamplingParams::with_particles(45_000),
-            &mut |_| {},
-        )
-        .unwrap()
-        .model;
+        let model = crate::testing::phantom(45_000);
         let params = DeformParams::default();
         let plan = Plan::for_params(&model, &params).unwrap();
         let space = coarse_space(&model, &plan, &params).unwrap();

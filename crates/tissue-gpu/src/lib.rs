@@ -35,6 +35,8 @@ pub mod shaders;
 mod state;
 pub mod structures;
 mod support;
+#[cfg(test)]
+mod testing;
 pub mod timing;
 
 pub use deformer::{GPU_COARSE_UNKNOWNS, GpuDeformer, GpuSolve};

@@ -517,21 +517,10 @@ mod tests {
         use tissue_solve::coarse_elastic::{CorrectionFor, ElasticCoarse, elastic_aggregates};
         use tissue_solve::{DeformParams, ForceModel, Plan};
 
-        let Ok((_, device, queue)) = crate::device_from_env() else {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "no GPU adapter under CI=true"
-            );
-            eprintln!("SKIPPED: no GPU adapter");
+        let Some((device, queue)) = crate::testing::gpu("block cycles' solve") else {
             return;
         };
-        let model = tissue_cpu::sample(
-            &tissue_core::phantom::default_breast(),
-            &tissue_core::SamplingParams::with_particles(3_000),
-            &mut |_| {},
-        )
-        .unwrap()
-        .model;
+        let model = crate::testing::phantom(3_000);
         let params = DeformParams {
             force: ForceModel::Elastic,
             ..DeformParams::default()
@@ -627,21 +616,10 @@ mod tests {
         use tissue_solve::coarse::coarse_space;
         use tissue_solve::{DeformParams, Plan};
 
-        let Ok((_, device, queue)) = crate::device_from_env() else {
-            assert!(
-                std::env::var("CI").as_deref() != Ok("true"),
-                "no GPU adapter under CI=true"
-            );
-            eprintln!("SKIPPED: no GPU adapter");
+        let Some((device, queue)) = crate::testing::gpu("cycles' solve") else {
             return;
         };
-        let model = tissue_cpu::sample(
-            &tissue_core::phantom::default_breast(),
-            &tissue_core::SamplingParams::with_particles(3_000),
-            &mut |_| {},
-        )
-        .unwrap()
-        .model;
+        let model = crate::testing::phantom(3_000);
         let params = DeformParams {
             coarse_direct_max_aggregates: 40,
             ..DeformParams::default()
