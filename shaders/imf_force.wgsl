@@ -16,6 +16,15 @@
 // Non-zero once this batch stopped for a neighbour-row rebuild.
 @group(0) @binding(6) var<storage, read> halt: array<u32>;
 
+// Entry k of the neighbour rows: in `neighbours` below `row_split`, in
+// `offsets` after the row starts from there (rows too long for one binding).
+fn row_entry(k: u32) -> u32 {
+    if (k < sampling.row_split) {
+        return neighbours[k];
+    }
+    return offsets[sampling.count + 1u + k - sampling.row_split];
+}
+
 // Eqs. (4)-(5), `imf_pair`: signed magnitude along j -> i, positive repels.
 fn imf_pair(distance: f32, radius_sum: f32, alpha: f32) -> f32 {
     let h = 1.0 / (alpha * distance / radius_sum + (1.0 - alpha));
@@ -39,7 +48,7 @@ fn imf_force(
     var force = vec3<f32>(0.0);
     var magnitudes = 0.0;
     for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
-        let other = current[neighbours[k]];
+        let other = current[row_entry(k)];
         let offset = p - other.xyz;
         let radius_sum = r + other.w;
         let d2 = dot(offset, offset);

@@ -15,10 +15,28 @@
 @group(0) @binding(9) var<storage, read> particles: array<u32>;
 // `positions` in cell order: the search reads memory in runs.
 @group(0) @binding(12) var<storage, read_write> in_cell_order: array<vec4<f32>>;
-// Row lengths from `count_rows`; after the prefix sum, row i is
-// `indices[offsets[i]..offsets[i + 1]]`.
+// Row lengths from `count_rows`; after the prefix sum, row i is entries
+// `offsets[i]..offsets[i + 1]`: entry k is `indices[k]` below `params.split`
+// and `offsets[count + 1 + k - split]` from there (`row_entry`).
 @group(0) @binding(13) var<storage, read_write> offsets: array<u32>;
 @group(0) @binding(14) var<storage, read_write> indices: array<u32>;
+
+// Where entry k of the rows lives: below `split` in `indices`, past it in
+// `offsets` after the row starts.
+fn row_entry(k: u32) -> u32 {
+    if (k < params.split) {
+        return indices[k];
+    }
+    return offsets[params.count + 1u + k - params.split];
+}
+
+fn set_row_entry(k: u32, value: u32) {
+    if (k < params.split) {
+        indices[k] = value;
+    } else {
+        offsets[params.count + 1u + k - params.split] = value;
+    }
+}
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn reorder(at: Invocation) {
@@ -58,7 +76,7 @@ fn search(i: u32, fill: bool) -> u32 {
                     if (j != i) {
                         found += 1u;
                         if (fill && at < stop) {
-                            indices[at] = j;
+                            set_row_entry(at, j);
                             at += 1u;
                         }
                     }
@@ -87,7 +105,7 @@ fn fill_rows(at: Invocation) {
     search(i, true);
 }
 
-// Heapsort of `indices[first..first + n]` (in place, O(n log n) for any row).
+// Heapsort of entries `first..first + n` (in place, O(n log n) for any row).
 fn sift_down(first: u32, start: u32, n: u32) {
     var root = start;
     loop {
@@ -95,16 +113,16 @@ fn sift_down(first: u32, start: u32, n: u32) {
         if (child >= n) {
             break;
         }
-        if (child + 1u < n && indices[first + child + 1u] > indices[first + child]) {
+        if (child + 1u < n && row_entry(first + child + 1u) > row_entry(first + child)) {
             child += 1u;
         }
-        let top = indices[first + root];
-        let larger = indices[first + child];
+        let top = row_entry(first + root);
+        let larger = row_entry(first + child);
         if (top >= larger) {
             break;
         }
-        indices[first + root] = larger;
-        indices[first + child] = top;
+        set_row_entry(first + root, larger);
+        set_row_entry(first + child, top);
         root = child;
     }
 }
@@ -121,9 +139,9 @@ fn sort_rows(at: Invocation) {
         sift_down(first, k - 1u, n);
     }
     for (var end = n; end > 1u; end--) {
-        let top = indices[first];
-        indices[first] = indices[first + end - 1u];
-        indices[first + end - 1u] = top;
+        let top = row_entry(first);
+        set_row_entry(first, row_entry(first + end - 1u));
+        set_row_entry(first + end - 1u, top);
         sift_down(first, 0u, end - 1u);
     }
 }

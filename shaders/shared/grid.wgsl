@@ -21,6 +21,13 @@ struct GridParams {
     sorted: u32,
     // Elements of a prefix-sum level (`scan_blocks`, `scan_add`).
     len: u32,
+    // Neighbour rows: entries the `indices` binding holds; entry k >= split
+    // is `offsets[count + 1 + k - split]`, after the row starts (rows too
+    // long for one binding of the device).
+    split: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 // The grid the layout kernel chose, read by every later kernel.

@@ -48,7 +48,9 @@ struct Sampling {
     r0: f32,
     // Half the Verlet skin: rows are rebuilt beyond this drift.
     half_skin: f32,
-    pad0: u32,
+    // Entries of the neighbour rows the `neighbours` binding holds; entry
+    // k >= row_split is `offsets[count + 1 + k - row_split]`.
+    row_split: u32,
     pad1: u32,
     pad2: u32,
 }

@@ -70,6 +70,24 @@ pub struct GridParams {
     pub sorted: u32,
     /// Elements of one prefix-sum level.
     pub len: u32,
+    /// Neighbour rows: entries the `indices` binding holds ([`row_split`]);
+    /// the rest follow the row starts in `offsets`.
+    pub split: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+/// Entries of neighbour rows one storage binding of a device with `limits`
+/// holds. Rows with more entries keep the rest in the offsets buffer, after
+/// the `count + 1` row starts ([`GpuRows`]), so rows up to about twice one
+/// binding fit: stage 1's rows at 1,000,000 particles are 217 MB, over the
+/// 128 MiB of lavapipe's binding and of wgpu's default limits.
+pub fn row_split(limits: &wgpu::Limits) -> u32 {
+    u32::try_from(limits.max_storage_buffer_binding_size / 4).unwrap_or(u32::MAX)
 }
 
 /// Mirror of WGSL `GridLayout` (`shaders/shared/grid.wgsl`): the grid the
@@ -190,18 +208,23 @@ pub struct GpuGrid {
     pub capacity: u32,
 }
 
-/// Neighbour rows on the GPU: row `i` is `indices[offsets[i]..offsets[i + 1]]`.
-/// The buffers are raw, for a caller to bind in its own kernels.
+/// Neighbour rows on the GPU: row `i` is entries `offsets[i]..offsets[i + 1]`,
+/// entry `k` being `indices[k]` below `split` and
+/// `offsets[count + 1 + k - split]` from there (rows longer than one
+/// binding holds, [`row_split`]). The buffers are raw, for a caller to bind
+/// in its own kernels.
 #[derive(Debug)]
 pub struct GpuRows {
-    /// `count + 1` u32.
+    /// `count + 1` u32, then the entries from `split` on, if any.
     pub offsets: wgpu::Buffer,
-    /// `entries` u32 (at least one slot, so that it can be bound).
+    /// `min(entries, split)` u32 (at least one slot, so that it can be bound).
     pub indices: wgpu::Buffer,
     /// Number of particles.
     pub count: u32,
     /// Entries over all rows.
     pub entries: u32,
+    /// Entries `indices` holds at most: [`row_split`] of the device.
+    pub split: u32,
 }
 
 /// Buffers of one dispatch, by the WGSL variable's name.
@@ -341,19 +364,43 @@ impl GridPipelines {
             encoder.copy_buffer_to_buffer(offsets.buffer(), last, summary.buffer(), 0, word);
             encoder.copy_buffer_to_buffer(&grid.layout, status, summary.buffer(), word, word);
             queue.submit([encoder.finish()]);
-            Ok::<_, GpuError>((grid, uniform, in_cell_order, offsets, summary))
+            Ok::<_, GpuError>((grid, params, in_cell_order, offsets, summary))
         })();
         scopes.pop()?;
-        let (grid, uniform, in_cell_order, offsets, summary) = counted?;
+        let (grid, params, in_cell_order, offsets, summary) = counted?;
         let (entries, status) = match summary.read(device, queue, &Readback::default())?[..] {
             [entries, status] => (entries, status),
             _ => return Err(GpuError::Map("the rows' summary came back short".into())),
         };
         check_status(status)?;
 
+        let split = row_split(&limits);
+        let low = entries.min(split);
         let scopes = Scopes::push(device);
         let filled = (|| {
-            let indices = storage::<u32>(device, "indices", entries)?;
+            let indices = storage::<u32>(device, "indices", low)?;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("neighbour_rows fill"),
+            });
+            // Entries past one binding follow the row starts.
+            let offsets = if entries > split {
+                let words = u64::from(count) + 1 + u64::from(entries - split);
+                let overflow = Storage::<u32>::zeroed(
+                    device,
+                    "offsets and overflow",
+                    words as usize,
+                    &format!(
+                        "the neighbour rows' starts and their entries past one binding \
+                         ({entries} entries, {split} in one binding)"
+                    ),
+                )?;
+                let starts = (u64::from(count) + 1) * size_of::<u32>() as u64;
+                encoder.copy_buffer_to_buffer(offsets.buffer(), 0, overflow.buffer(), 0, starts);
+                overflow
+            } else {
+                offsets
+            };
+            let uniform = uniform(device, &GridParams { split, ..params });
             let named: &Named = &[
                 ("params", &uniform),
                 ("positions", positions),
@@ -368,19 +415,18 @@ impl GridPipelines {
             if sorted {
                 steps.push(self.step(device, GridKernel::SortRows, named, count, &limits)?);
             }
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("neighbour_rows fill"),
-            });
             record(&mut encoder, "neighbour_rows fill", steps);
             queue.submit([encoder.finish()]);
-            Ok::<_, GpuError>(indices)
+            Ok::<_, GpuError>((offsets, indices))
         })();
         scopes.pop()?;
+        let (offsets, indices) = filled?;
         Ok(GpuRows {
             offsets: offsets.into_buffer(),
-            indices: filled?.into_buffer(),
+            indices: indices.into_buffer(),
             count,
             entries,
+            split,
         })
     }
 
@@ -603,10 +649,17 @@ impl GpuRows {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
-        Ok((
-            read_buffer(device, queue, &self.offsets, self.count as usize + 1)?,
-            read_buffer(device, queue, &self.indices, self.entries as usize)?,
-        ))
+        let starts = self.count as usize + 1;
+        let high = self.entries.saturating_sub(self.split) as usize;
+        let mut offsets = read_buffer(device, queue, &self.offsets, starts + high)?;
+        let mut indices = read_buffer(
+            device,
+            queue,
+            &self.indices,
+            self.entries.min(self.split) as usize,
+        )?;
+        indices.extend(offsets.drain(starts..));
+        Ok((offsets, indices))
     }
 }
 
@@ -694,6 +747,10 @@ mod tests {
                 skin,
                 sorted,
                 len,
+                split,
+                pad0,
+                pad1,
+                pad2,
             }
         );
     }

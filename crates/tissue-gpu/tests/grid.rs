@@ -381,3 +381,60 @@ fn buffers_above_the_binding_limit_are_refused() {
         Err(GpuError::LimitExceeded { .. })
     ));
 }
+
+/// Rows longer than one storage binding (lavapipe's 128 MiB holds stage 1's
+/// rows up to about 600,000 particles) continue after the row starts in the
+/// offsets buffer. A device whose bindings hold 1.5 MiB splits the 10k
+/// phantom's Verlet rows (about 2.2 MB), sorted and not, and they are still
+/// the CPU's rows.
+#[test]
+fn neighbour_rows_longer_than_one_binding_are_the_cpus_rows() {
+    let Some((device, queue)) = common::gpu_with_binding("rows over one binding", 3 << 19) else {
+        return;
+    };
+    let model = common::phantom(10_000);
+    let r0 = model.radii.iter().sum::<f32>() / model.radii.len() as f32;
+    let grids = pipelines(&device);
+    for rule in [(1.0, 1.2 * r0, false), (1.0, 1.2 * r0, true)] {
+        let buffer = upload(&device, &model.positions, &model.radii);
+        let rows = ok(grids.neighbour_rows(
+            &device,
+            &queue,
+            &buffer,
+            model.len() as u32,
+            rule.0,
+            rule.1,
+            rule.2,
+        ));
+        assert!(
+            rows.entries > rows.split,
+            "{} entries fit one binding of {}: the split is not tested",
+            rows.entries,
+            rows.split
+        );
+        let gpu = ok(rows.read(&device, &queue));
+        let cpu = neighbour_rows(&model.positions, &model.radii, rule.0, rule.1, rule.2);
+        let what = format!("phantom 10k split at {}, {rule:?}", rows.split);
+        let borderline = assert_rows_equal(&what, &model.positions, &model.radii, rule, &cpu, &gpu);
+        eprintln!("{what}: {} entries, {borderline} at the limit", cpu.1.len());
+    }
+}
+
+/// Rows longer than two bindings (the row starts and the rest of the
+/// entries share the second) are refused by name, not a GPU fault.
+#[test]
+fn neighbour_rows_longer_than_two_bindings_are_refused() {
+    let Some((device, queue)) = common::gpu_with_binding("rows over two bindings", 1 << 16) else {
+        return;
+    };
+    let grids = pipelines(&device);
+    // 1,000 particles close together: about 1,000 entries a row.
+    let (positions, radii) = cloud(1_000, 7, Vec3::splat(0.01));
+    let buffer = upload(&device, &positions, &radii);
+    match grids.neighbour_rows(&device, &queue, &buffer, 1_000, 1.0, 0.0, false) {
+        Err(GpuError::LimitExceeded { what, .. }) => {
+            assert!(what.contains("entries past one binding"), "{what}");
+        }
+        other => panic!("expected LimitExceeded, got {other:?}"),
+    }
+}

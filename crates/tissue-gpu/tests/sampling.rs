@@ -626,3 +626,56 @@ fn a_handful_of_particles_samples_as_on_the_cpu() {
         cpu.report.iterations, gpu.report.iterations
     );
 }
+
+/// A device whose storage bindings hold 384 KiB samples 3,001 particles in
+/// a coarse ellipsoid of 80 triangles (so that its surface field fits)
+/// as a device that binds the rows whole: the Verlet rows, about 650 KB, go
+/// over one binding and their entries past it follow the row starts. The
+/// same iterations, rebuilds, particles and connections.
+#[test]
+fn rows_split_over_two_bindings_sample_as_rows_in_one() {
+    let Some((device, queue)) = common::gpu("rows in one binding") else {
+        return;
+    };
+    let Some((small, small_queue)) = common::gpu_with_binding("rows split", 3 << 17) else {
+        return;
+    };
+    let mesh = tissue_core::phantom::tumour(&tissue_core::phantom::TumourPhantom {
+        subdivisions: 1,
+        ..Default::default()
+    });
+    let params = SamplingParams::with_particles(3_001);
+    let whole = tissue_gpu::sampler::sample(&device, &queue, &mesh, &params, &mut |_| {})
+        .unwrap_or_else(|e| panic!("{e}"));
+    let split = tissue_gpu::sampler::sample(&small, &small_queue, &mesh, &params, &mut |_| {})
+        .unwrap_or_else(|e| panic!("{e}"));
+    // The first rows the runs build: those of the prepared state.
+    let prepared = prepare(&mesh, &params).unwrap_or_else(|e| panic!("{e}"));
+    let (positions, radii) = (&prepared.state.positions, &prepared.state.radii);
+    let skin = SKIN_IN_R0 * prepared.r0;
+    let entries = neighbour_rows(positions, radii, params.force_cutoff, skin, false)
+        .1
+        .len();
+    eprintln!("3,001 particles: {entries} Verlet entries at the start, 98,304 in one binding");
+    assert!(
+        entries > 3 << 15,
+        "the rows fit one binding: the split is not tested"
+    );
+    assert_eq!(split.report.iterations, whole.report.iterations);
+    assert_eq!(
+        split.report.neighbour_rebuilds,
+        whole.report.neighbour_rebuilds
+    );
+    assert_eq!(split.model.connections, whole.model.connections);
+    let moved = split
+        .model
+        .positions
+        .iter()
+        .zip(&whole.model.positions)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0f32, f32::max);
+    assert!(
+        moved <= 1e-6 * whole.model.radii[0],
+        "particles differ by {moved:e}"
+    );
+}

@@ -12,6 +12,7 @@ use super::field::FieldBuffers;
 use super::kernels::{SamplingKernel, SamplingPipelines};
 use crate::GpuError;
 use crate::buffer::{Storage, vec4, xyz};
+use crate::grid::GpuRows;
 use crate::readback::Readback;
 use crate::state::workgroups;
 use crate::support::{bind_group, scoped};
@@ -65,8 +66,9 @@ pub struct SamplingUniforms {
     pub r0: f32,
     /// Half the Verlet skin.
     pub half_skin: f32,
-    /// Padding to 16 bytes.
-    pub pad0: u32,
+    /// Entries of the neighbour rows the `neighbours` binding holds
+    /// ([`crate::grid::row_split`]); the rest follow the row starts in `offsets`.
+    pub row_split: u32,
     /// Padding.
     pub pad1: u32,
     /// Padding.
@@ -75,8 +77,15 @@ pub struct SamplingUniforms {
 
 impl SamplingUniforms {
     /// The parameters for `count` particles of initial radius `r0` on
-    /// `field`, derived values computed as the CPU twins compute them.
-    pub fn new(field: &FieldBuffers, params: &SamplingParams, r0: f32, count: u32) -> Self {
+    /// `field`, derived values computed as the CPU twins compute them, with
+    /// rows split at `row_split` entries.
+    pub fn new(
+        field: &FieldBuffers,
+        params: &SamplingParams,
+        r0: f32,
+        count: u32,
+        row_split: u32,
+    ) -> Self {
         let bound = params.max_log_radius_step.exp();
         let (surface_mode, mu) = match params.surface_mode {
             SurfaceMode::Projection => (0, 0.0),
@@ -103,7 +112,7 @@ impl SamplingUniforms {
             mass: params.mass,
             r0,
             half_skin: 0.5 * (SKIN_IN_R0 * r0),
-            pad0: 0,
+            row_split,
             pad1: 0,
             pad2: 0,
         }
@@ -160,11 +169,14 @@ pub struct SamplingBuffers {
     pub(super) contacts: [Storage<[f32; 4]>; 2],
     /// Per particle: xyz force, w compression.
     forces: Storage<[f32; 4]>,
-    /// The neighbour rows' starts (`count + 1` u32; raw, as
-    /// [`SamplingBuffers::set_row_buffers`] takes rows built elsewhere).
+    /// The neighbour rows' starts (`count + 1` u32), then their entries from
+    /// `row_split` on, if any (raw, as [`SamplingBuffers::set_row_buffers`]
+    /// takes rows built elsewhere).
     offsets: wgpu::Buffer,
-    /// The neighbour rows' entries (u32; raw, likewise).
+    /// The neighbour rows' entries below `row_split` (u32; raw, likewise).
     neighbours: wgpu::Buffer,
+    /// Entries `neighbours` holds at most ([`crate::grid::row_split`]).
+    row_split: u32,
     /// 0, or the slot + 1 of the first iteration that needed a rebuild.
     halt: Storage<u32>,
     /// Per slot, per `change` workgroup: its share of the change sums (`vec4`).
@@ -232,6 +244,7 @@ impl SamplingBuffers {
                 limits.max_compute_workgroups_per_dimension,
             )?;
         }
+        let row_split = crate::grid::row_split(&limits);
         let [cx, cy] = workgroups_of[SamplingKernel::Change.index()];
         let change_groups = cx * cy;
         let uniforms_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
@@ -275,6 +288,7 @@ impl SamplingBuffers {
             forces,
             offsets,
             neighbours,
+            row_split,
             halt,
             partials,
             built,
@@ -284,7 +298,7 @@ impl SamplingBuffers {
             bind_groups: Vec::new(),
             readback: Readback::default(),
         };
-        let mut uniforms = SamplingUniforms::new(&buffers.field, params, r0, count);
+        let mut uniforms = SamplingUniforms::new(&buffers.field, params, r0, count, row_split);
         uniforms.groups = change_groups;
         for slot in 0..BATCH {
             uniforms.slot = slot;
@@ -379,26 +393,46 @@ impl SamplingBuffers {
             });
         }
         let what = || format!("{} particles", self.len());
+        // Entries past one binding follow the row starts, as the GPU's rows keep them.
+        let (low, high) = neighbours.split_at(neighbours.len().min(self.row_split as usize));
+        let starts: Vec<u32> = offsets.iter().chain(high).copied().collect();
         let (o, i) = scoped(device, || {
             Ok((
-                storage(device, "offsets", offsets, &what)?,
-                storage(device, "neighbours", neighbours, &what)?,
+                storage(device, "offsets", &starts, &what)?,
+                storage(device, "neighbours", low, &what)?,
             ))
         })?;
-        self.set_row_buffers(device, pipelines, o.into_buffer(), i.into_buffer())
+        self.offsets = o.into_buffer();
+        self.neighbours = i.into_buffer();
+        self.bind(device, pipelines)
     }
 
-    /// Takes neighbour rows already on the GPU: `offsets` (`count + 1` u32)
-    /// and `neighbours` (u32), as a GPU grid builds them.
+    /// Takes neighbour rows already on the GPU, as a GPU grid builds them
+    /// ([`crate::GridPipelines::neighbour_rows`]).
     pub fn set_row_buffers(
         &mut self,
         device: &wgpu::Device,
         pipelines: &SamplingPipelines,
-        offsets: wgpu::Buffer,
-        neighbours: wgpu::Buffer,
+        rows: GpuRows,
     ) -> Result<(), GpuError> {
-        self.offsets = offsets;
-        self.neighbours = neighbours;
+        for (what, expected, got) in [
+            ("neighbour rows (one per particle)", self.count, rows.count),
+            (
+                "neighbour-row entries in one binding (rows built on another device?)",
+                self.row_split,
+                rows.split,
+            ),
+        ] {
+            if got != expected {
+                return Err(GpuError::Length {
+                    what,
+                    expected: expected as usize,
+                    got: got as usize,
+                });
+            }
+        }
+        self.offsets = rows.offsets;
+        self.neighbours = rows.indices;
         self.bind(device, pipelines)
     }
 
@@ -612,7 +646,7 @@ mod tests {
                 mass,
                 r0,
                 half_skin,
-                pad0,
+                row_split,
                 pad1,
                 pad2,
             }

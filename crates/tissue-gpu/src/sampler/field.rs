@@ -105,7 +105,8 @@ pub fn query_field(
     scope.pop()?;
     let kernel = kernel?;
     let buffers = FieldBuffers::new(device, field)?;
-    let mut uniforms = SamplingUniforms::new(&buffers, &SamplingParams::default(), 1.0, count);
+    let mut uniforms =
+        SamplingUniforms::new(&buffers, &SamplingParams::default(), 1.0, count, u32::MAX);
     uniforms.groups = 1;
     let what = || format!("{n} query points");
     let points4: Vec<[f32; 4]> = points.iter().map(|&p| vec4(p, 0.0)).collect();

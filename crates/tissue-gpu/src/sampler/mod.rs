@@ -210,7 +210,7 @@ impl SamplingBatches<'_> {
             false,
         )?;
         self.buffers
-            .set_row_buffers(self.device, self.pipelines, rows.offsets, rows.indices)?;
+            .set_row_buffers(self.device, self.pipelines, rows)?;
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {

@@ -11,10 +11,26 @@ use tissue_core::SamplingParams;
 
 /// A device and queue, or `None` after printing "SKIPPED: no GPU adapter".
 pub fn gpu(test: &str) -> Option<(wgpu::Device, wgpu::Queue)> {
-    match tissue_gpu::device_from_env() {
-        Ok((adapter, device, queue)) => {
+    let adapter = adapter(test)?;
+    Some(open(test, &adapter, tissue_gpu::limits_for(&adapter)))
+}
+
+/// [`gpu`]'s device with storage bindings of at most `bytes`: what a larger
+/// device binds whole, this one has to split.
+pub fn gpu_with_binding(test: &str, bytes: u64) -> Option<(wgpu::Device, wgpu::Queue)> {
+    let adapter = adapter(test)?;
+    let limits = wgpu::Limits {
+        max_storage_buffer_binding_size: bytes,
+        ..tissue_gpu::limits_for(&adapter)
+    };
+    Some(open(test, &adapter, limits))
+}
+
+fn adapter(test: &str) -> Option<wgpu::Adapter> {
+    match tissue_gpu::adapter_from_env() {
+        Ok(adapter) => {
             eprintln!("{test}: adapter {:?}", adapter.get_info());
-            Some((device, queue))
+            Some(adapter)
         }
         Err(tissue_gpu::GpuError::NoAdapter(why)) => {
             if std::env::var("CI").as_deref() == Ok("true") {
@@ -23,8 +39,17 @@ pub fn gpu(test: &str) -> Option<(wgpu::Device, wgpu::Queue)> {
             eprintln!("SKIPPED: no GPU adapter ({test}: {why})");
             None
         }
-        Err(e) => panic!("{test}: the adapter would not open a device: {e}"),
+        Err(e) => panic!("{test}: no adapter: {e}"),
     }
+}
+
+fn open(test: &str, adapter: &wgpu::Adapter, limits: wgpu::Limits) -> (wgpu::Device, wgpu::Queue) {
+    pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("tissue test"),
+        required_limits: limits,
+        ..Default::default()
+    }))
+    .unwrap_or_else(|e| panic!("{test}: the adapter would not open a device: {e}"))
 }
 
 /// The bundled phantom sampled to `n` particles (cached per size).
