@@ -51,8 +51,10 @@ struct Sampling {
     // Entries of the neighbour rows the `neighbours` binding holds; entry
     // k >= row_split is `offsets[count + 1 + k - row_split]`.
     row_split: u32,
-    pad1: u32,
-    pad2: u32,
+    // Particles within surface_band r of the surface are placed on it (`sampling_place`).
+    surface_band: f32,
+    // The field's margin: deep-inside cells are at least this far from the surface.
+    field_margin: f32,
 }
 
 @group(0) @binding(0) var<uniform> sampling: Sampling;

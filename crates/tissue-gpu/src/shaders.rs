@@ -85,6 +85,10 @@ pub const SHADERS: &[(&str, &str)] = &[
     ),
     ("imf_force", include_str!("../../../shaders/imf_force.wgsl")),
     (
+        "sampling_place",
+        include_str!("../../../shaders/sampling_place.wgsl"),
+    ),
+    (
         "radius_update",
         include_str!("../../../shaders/radius_update.wgsl"),
     ),

@@ -14,7 +14,7 @@ use tissue_core::{SamplingParams, SamplingReport, SurfaceMesh, SurfaceMode};
 use tissue_cpu::grid::neighbour_rows;
 use tissue_cpu::sampling::{
     ForceOut, Prepared, SKIN_IN_R0, SamplingState, change, imf_force, integrate, needs_rebuild,
-    prepare, radius_update,
+    place_surface_particles, prepare, radius_update,
 };
 use tissue_gpu::SamplingPipelines;
 use tissue_gpu::sampler::{SamplingBuffers, SamplingKernel, query_field};
@@ -678,4 +678,67 @@ fn rows_split_over_two_bindings_sample_as_rows_in_one() {
         moved <= 1e-6 * whole.model.radii[0],
         "particles differ by {moved:e}"
     );
+}
+
+/// The surface placement on the GPU (`SamplingBuffers::placement`) against
+/// `place_surface_particles` on the same state: particles pushed outside,
+/// near the surface and deep inside; with the default band and with a band
+/// wider than the field's margin (deep-inside particles then asked exactly).
+#[test]
+fn the_surface_placement_matches_the_cpu_twin() {
+    let Some((device, queue)) = common::gpu("surface placement parity") else {
+        return;
+    };
+    let pipelines = SamplingPipelines::new(&device).unwrap_or_else(|e| panic!("{e}"));
+    for (name, mesh) in [
+        ("breast", tissue_core::phantom::default_breast()),
+        ("tumour", tissue_core::phantom::default_tumour()),
+    ] {
+        for n in SIZES {
+            let mut c = case(&mesh, n, SurfaceMode::Projection);
+            let field = &c.prepared.field;
+            let r_max = c.prepared.state.radii.iter().copied().fold(0.0, f32::max);
+            for band in [c.params.surface_band, 2.0 * field.margin / r_max] {
+                c.params.surface_band = band;
+                let b = buffers(&device, &queue, &pipelines, &c);
+                let gpu = b
+                    .placement(&device, &queue, 0)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                let (positions, attachments) =
+                    place_surface_particles(&c.prepared.field, &c.prepared.state, &c.params);
+                let size = positions
+                    .iter()
+                    .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+                let tol = 8.0 * f32::EPSILON * size;
+                let what = format!("{name}, n = {n}, band {band}");
+                let mut attached = 0;
+                for (i, (g, e)) in gpu.attachments.iter().zip(&attachments).enumerate() {
+                    let off = (gpu.positions[i] - positions[i]).length();
+                    assert!(
+                        off <= tol,
+                        "{what}, particle {i}: GPU {} vs CPU {}, {off:e} > {tol:e}",
+                        gpu.positions[i],
+                        positions[i]
+                    );
+                    match (g, e) {
+                        (None, None) => {}
+                        (Some(g), Some(e)) => {
+                            attached += 1;
+                            // A tie between triangles may pick another one
+                            // at the same point.
+                            if g.triangle == e.triangle {
+                                for k in 0..3 {
+                                    let d = (g.barycentric[k] - e.barycentric[k]).abs();
+                                    assert!(d <= 1e-5, "{what}, particle {i}: {g:?} vs {e:?}");
+                                }
+                            }
+                        }
+                        (g, e) => panic!("{what}, particle {i}: GPU {g:?} vs CPU {e:?}"),
+                    }
+                }
+                assert!(attached > n / 20, "{what}: only {attached} attached");
+                eprintln!("{what}: {attached} attached on both");
+            }
+        }
+    }
 }

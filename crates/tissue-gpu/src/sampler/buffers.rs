@@ -4,6 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
+use tissue_core::Attachment;
 use tissue_core::field::SurfaceField;
 use tissue_core::{SamplingParams, SurfaceMode};
 use tissue_solve::sampling::{ForceOut, SKIN_IN_R0, SamplingState};
@@ -69,10 +70,10 @@ pub struct SamplingUniforms {
     /// Entries of the neighbour rows the `neighbours` binding holds
     /// ([`crate::grid::row_split`]); the rest follow the row starts in `offsets`.
     pub row_split: u32,
-    /// Padding.
-    pub pad1: u32,
-    /// Padding.
-    pub pad2: u32,
+    /// Particles within `surface_band r` of the surface are placed on it.
+    pub surface_band: f32,
+    /// The field's margin (`SurfaceField::margin`).
+    pub field_margin: f32,
 }
 
 impl SamplingUniforms {
@@ -113,8 +114,8 @@ impl SamplingUniforms {
             r0,
             half_skin: 0.5 * (SKIN_IN_R0 * r0),
             row_split,
-            pad1: 0,
-            pad2: 0,
+            surface_band: params.surface_band,
+            field_margin: field.margin,
         }
     }
 }
@@ -193,6 +194,25 @@ pub struct SamplingBuffers {
     bind_groups: Vec<[wgpu::BindGroup; 2]>,
     /// The staging buffer of the change read back every batch.
     readback: Readback,
+}
+
+/// The triangle of an interior particle in `sampling_place.wgsl`'s output.
+const NOT_ATTACHED: u32 = u32::MAX;
+
+/// A particle's attachment as `sampling_place.wgsl` writes it: the
+/// triangle ([`NOT_ATTACHED`] inside), the barycentric coordinates' bits.
+type Attached = [u32; 4];
+
+/// Stage 1's surface placement done on the GPU ([`SamplingBuffers::placement`]).
+#[derive(Debug)]
+pub struct Placement {
+    /// Every particle's position, surface particles on the surface.
+    pub positions: Vec<Vec3>,
+    /// Where each surface particle is attached (`None` inside).
+    pub attachments: Vec<Option<Attachment>>,
+    /// The placed particles on the GPU (`vec4`: position, radius), the
+    /// connections' input.
+    pub(super) placed: Storage<[f32; 4]>,
 }
 
 /// Particles as the kernels hold them: xyz the position, w from `w`.
@@ -572,6 +592,89 @@ impl SamplingBuffers {
         }
     }
 
+    /// Stage 1's surface placement of the state of `parity` on the GPU
+    /// (`shaders/sampling_place.wgsl`, the twin of
+    /// `tissue_solve::sampling::place_surface_particles`), read back; the
+    /// placed particles stay on the GPU for the connections as well.
+    pub fn placement(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        parity: usize,
+    ) -> Result<Placement, GpuError> {
+        let (placed, attached) = self.place_surface(device, queue, parity)?;
+        let once = Readback::default();
+        let positions = placed
+            .read(device, queue, &once)?
+            .into_iter()
+            .map(xyz)
+            .collect();
+        let attachments = attached
+            .read(device, queue, &once)?
+            .into_iter()
+            .map(|[triangle, b0, b1, b2]| {
+                (triangle != NOT_ATTACHED).then(|| Attachment {
+                    triangle,
+                    barycentric: [f32::from_bits(b0), f32::from_bits(b1), f32::from_bits(b2)],
+                })
+            })
+            .collect();
+        Ok(Placement {
+            positions,
+            attachments,
+            placed,
+        })
+    }
+
+    /// [`SamplingBuffers::placement`]'s dispatch: the placed particles
+    /// (`vec4`: position, radius) and per particle `[triangle, barycentric
+    /// bits]`. Submits the work and returns without waiting.
+    fn place_surface(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        parity: usize,
+    ) -> Result<(Storage<[f32; 4]>, Storage<Attached>), GpuError> {
+        let n = self.len();
+        let what = || format!("{n} particles");
+        scoped(device, || {
+            let kernel = super::kernels::compile(device, "sampling_place", "place_surface")?;
+            let placed: Storage<[f32; 4]> = zeroed(device, "placed", n, &what)?;
+            let attached: Storage<Attached> = zeroed(device, "attached", n, &what)?;
+            let group = bind_group(
+                device,
+                &kernel,
+                ("sampling_place", "surface placement"),
+                |name| match name {
+                    "placed" => Some(placed.buffer()),
+                    "attached" => Some(attached.buffer()),
+                    _ => self.buffer(name, parity & 1),
+                },
+                Some(std::mem::size_of::<SamplingUniforms>() as u64),
+                "names no stage-1 buffer",
+            )?;
+            let [x, y] = workgroups(
+                self.count,
+                kernel.workgroup_size,
+                device.limits().max_compute_workgroups_per_dimension,
+            )?;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("sampling placement"),
+            });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("sampling placement"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&kernel.pipeline);
+                pass.set_bind_group(0, &group, &[0]);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            queue.submit([encoder.finish()]);
+            Ok((placed, attached))
+        })
+    }
+
     /// Reads the change partials of the first `slots` slots and the halt flag
     /// (0, or the slot + 1 of the first iteration that needed a rebuild). Per
     /// slot: (sum of squared free steps, free particles, sum of ln² r change), f64.
@@ -647,8 +750,8 @@ mod tests {
                 r0,
                 half_skin,
                 row_split,
-                pad1,
-                pad2,
+                surface_band,
+                field_margin,
             }
         );
     }

@@ -29,6 +29,8 @@ pub struct FieldBuffers {
     pub(super) dims: [u32; 4],
     /// Where `cells` holds the CSR starts, candidates and candidate distances.
     pub(super) layout: [u32; 4],
+    /// `SurfaceField::margin`.
+    pub(super) margin: f32,
 }
 
 impl FieldBuffers {
@@ -78,6 +80,7 @@ impl FieldBuffers {
             origin: field.origin.extend(field.cell).to_array(),
             dims: [field.dims[0], field.dims[1], field.dims[2], triangles],
             layout: [starts, candidates, distances, 0],
+            margin: field.margin,
         })
     }
 }

@@ -6,10 +6,12 @@
 //!   (`vec4`: xyz position, w radius) and two contact arrays used in turn,
 //!   forces, the neighbour rows (CSR), the surface field, the convergence
 //!   partials and the rebuild flag.
-//! - [`sample`]: the whole stage. The field, the initial positions, `finish`
-//!   and the quality report stay on the CPU (one upload, one readback); the
+//! - [`sample`]: the whole stage. The field, the initial positions and the
+//!   quality report stay on the CPU (one upload, one readback); the
 //!   iterations run on the GPU, [`BATCH`] to a command buffer, their change
-//!   partials read back once per batch and finished in `f64`.
+//!   partials read back once per batch and finished in `f64`; so does
+//!   `finish`: the surface placement ([`SamplingBuffers::placement`]) and
+//!   the connections of the placed particles.
 //!
 //! The neighbour rows, and at the end the connections, are built on the GPU
 //! by [`GridPipelines::neighbour_rows`]; the kernels only see CSR buffers
@@ -19,25 +21,22 @@ mod buffers;
 mod field;
 mod kernels;
 
-pub use buffers::{BATCH, SamplingBuffers, SamplingUniforms};
+pub use buffers::{BATCH, Placement, SamplingBuffers, SamplingUniforms};
 pub use field::{FieldBuffers, query_field};
 pub use kernels::{SamplingKernel, SamplingPipelines};
 
 use std::time::Instant;
 
-use glam::Vec3;
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_solve::batches::{Batches, run_batched};
 use tissue_solve::quality::quality_report;
 use tissue_solve::sampling::{
-    Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after,
-    place_surface_particles, prepare,
+    Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after, prepare,
 };
 
-use crate::support::{Scopes, scoped};
+use crate::support::Scopes;
 use crate::{GpuError, GridPipelines};
-use buffers::{storage, vec4s};
 
 /// The change of one iteration as `tissue_solve::sampling::change` finishes it:
 /// RMS step of particles not held by the wall (in `r0`), RMS change of `ln r`.
@@ -76,27 +75,32 @@ pub fn sample(
         device, queue, &pipelines, &grid, &field, state, params, r0, progress,
     );
     scope.pop()?;
-    let (state, iterations, converged, rebuilds, neighbour_seconds) = run?;
+    let (buffers, parity, iterations, converged, rebuilds, neighbour_seconds) = run?;
+    let state = buffers.read_state(device, queue, parity)?;
     // As on the CPU: the iterations' time includes the rebuilds.
     stages.iterations += clock.elapsed().as_secs_f64();
     stages.neighbours += neighbour_seconds;
 
-    // `tissue_solve::sampling::finish`, its connections (eq. (9)) on the GPU.
+    // `tissue_solve::sampling::finish` on the GPU: the placement, then the
+    // connections (eq. (9)) of the placed particles where they are.
     let clock = Instant::now();
-    let (positions, attachments) = place_surface_particles(&field, &state, params);
-    let connections = connections(
+    let placement = buffers.placement(device, queue, parity)?;
+    let rows = grid.neighbour_rows(
         device,
         queue,
-        &grid,
-        &positions,
-        &state.radii,
+        placement.placed.buffer(),
+        buffers.count,
         params.connection_ratio,
+        0.0,
+        true,
     )?;
+    let (offsets, indices) = rows.read(device, queue)?;
+    drop(buffers);
     let model = ParticleModel {
-        positions,
+        positions: placement.positions,
         radii: state.radii,
-        attachments,
-        connections,
+        attachments: placement.attachments,
+        connections: Connections { offsets, indices },
         surface: mesh.clone(),
     };
     stages.connections += clock.elapsed().as_secs_f64();
@@ -121,7 +125,7 @@ fn iterate(
     params: &SamplingParams,
     r0: f32,
     progress: &mut dyn FnMut(&Progress),
-) -> Result<(SamplingState, usize, bool, usize, f64), GpuError> {
+) -> Result<(SamplingBuffers, usize, usize, bool, usize, f64), GpuError> {
     let n = state.positions.len();
     let buffers = SamplingBuffers::new(device, queue, pipelines, field, &state, params, r0)?;
     drop(state);
@@ -161,9 +165,9 @@ fn iterate(
             )?)
         },
     )?;
-    let state = run.buffers.read_state(device, queue, run.parity)?;
     Ok((
-        state,
+        run.buffers,
+        run.parity,
         iterations,
         converged,
         run.rebuilds,
@@ -287,28 +291,4 @@ impl Batches for SamplingBatches<'_> {
         self.parity = (self.start_parity + count) & 1;
         Ok(())
     }
-}
-
-/// Connections of eq. (9), `neighbour_rows(.., ratio, 0, sorted)`, on the GPU.
-fn connections(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    grid: &GridPipelines,
-    positions: &[Vec3],
-    radii: &[f32],
-    ratio: f32,
-) -> Result<Connections, GpuError> {
-    let n = positions.len();
-    let count = u32::try_from(n).map_err(|_| GpuError::Length {
-        what: "particles (below u32::MAX)",
-        expected: u32::MAX as usize,
-        got: n,
-    })?;
-    let what = || format!("{n} particles");
-    let placed = scoped(device, || {
-        storage(device, "placed", &vec4s(positions, radii), &what)
-    })?;
-    let rows = grid.neighbour_rows(device, queue, placed.buffer(), count, ratio, 0.0, true)?;
-    let (offsets, indices) = rows.read(device, queue)?;
-    Ok(Connections { offsets, indices })
 }
