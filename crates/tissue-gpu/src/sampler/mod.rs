@@ -77,6 +77,7 @@ pub fn sample(
     scope.pop()?;
     let (buffers, parity, iterations, converged, rebuilds, neighbour_seconds) = run?;
     let state = buffers.read_state(device, queue, parity)?;
+    let count = buffers.count;
     // As on the CPU: the iterations' time includes the rebuilds.
     stages.iterations += clock.elapsed().as_secs_f64();
     stages.neighbours += neighbour_seconds;
@@ -85,17 +86,19 @@ pub fn sample(
     // connections (eq. (9)) of the placed particles where they are.
     let clock = Instant::now();
     let placement = buffers.placement(device, queue, parity)?;
+    // The run's buffers (the Verlet rows: 217 MB at 1M) go before the
+    // connections' rows are built.
+    drop(buffers);
     let rows = grid.neighbour_rows(
         device,
         queue,
         placement.placed.buffer(),
-        buffers.count,
+        count,
         params.connection_ratio,
         0.0,
         true,
     )?;
     let (offsets, indices) = rows.read(device, queue)?;
-    drop(buffers);
     let model = ParticleModel {
         positions: placement.positions,
         radii: state.radii,
