@@ -700,3 +700,66 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
         );
     }
 }
+
+/// Issue 17's check at the sizes it names, with the default parameters
+/// (symmetric force, warm polar rotations, the two-level solve): at 10,000
+/// and 100,000 particles the GPU takes the CPU's iterations from rest
+/// (within 10 %) to the CPU's positions, and a run of tracking frames, each
+/// moving the skin by 2 % of the model's size, takes at most 10 iterations
+/// a frame on both.
+#[test]
+fn the_default_solve_takes_the_cpus_iterations_at_10k_and_100k() {
+    let Some((device, queue)) = common::gpu("default solve at 10k and 100k") else {
+        return;
+    };
+    let sagged = tissue_core::deform::sagged_breast();
+    for n in [10_000, 100_000] {
+        let model = common::phantom(n);
+        let params = DeformParams::default();
+        let (mut cpu, cpu_report, mut gpu, gpu_report) =
+            common::solve_on_both(&device, &queue, model, params, &sagged);
+        assert!(
+            cpu_report.converged && gpu_report.converged,
+            "{n}: {cpu_report:?} {gpu_report:?}"
+        );
+        let (c, g) = (cpu_report.iterations, gpu_report.iterations);
+        assert!(10 * c.abs_diff(g) <= c, "{n}: from rest CPU {c}, GPU {g}");
+        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "from rest");
+        // Frames from the sag back towards rest, each moving the skin by 2 %
+        // of the size.
+        let largest = model
+            .surface
+            .vertices
+            .iter()
+            .zip(&sagged.vertices)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        let step = 0.02 * cpu.size() / largest;
+        let mut frames = Vec::new();
+        let count = (1.0 / step) as usize;
+        assert!(count >= 3, "{n}: the sag is under 6 % of the size");
+        for k in 1..=count.min(4) {
+            let t = 1.0 - k as f32 * step;
+            let frame = tissue_core::deform::interpolate(&model.surface, &sagged, t)
+                .unwrap_or_else(|e| panic!("{e}"));
+            cpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
+            gpu.set_surface(&device, &queue, &frame)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let on_cpu = cpu.solve();
+            let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+            assert!(on_cpu.converged && on_gpu.converged, "{n}, frame {k}");
+            assert!(
+                on_cpu.iterations <= 10 && on_gpu.iterations <= 10,
+                "{n}, frame {k}: CPU {} iterations, GPU {}",
+                on_cpu.iterations,
+                on_gpu.iterations
+            );
+            frames.push((on_cpu.iterations, on_gpu.iterations));
+        }
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "tracked");
+        eprintln!(
+            "{n}: from rest CPU {c}, GPU {g} iterations, positions within {worst:e} of the size; \
+             frames of 2 % of the size (CPU, GPU): {frames:?}"
+        );
+    }
+}
