@@ -33,7 +33,7 @@ echo "== cargo clippy (warnings are errors)"
 cargo clippy --workspace --all-targets --release -- -D warnings
 
 echo "== cargo test (release)"
-cargo test --workspace --release --exclude tissue-gpu
+cargo test --workspace --release --exclude tissue-gpu --exclude tissue-py
 
 echo "== GPU tests (release; the output names the adapter)"
 cargo test -p tissue-gpu --release -- --show-output
@@ -44,3 +44,8 @@ cargo bench --bench gpu_kernels -- --test
 
 echo "== the README's first command: the whole pipeline on the bundled phantom"
 cargo run --release --quiet -p tissue-cli -- demo --output-dir target/ci-demo
+
+echo "== Python package (a fresh virtual environment, the wheel by maturin, pytest)"
+scripts/python-package.sh target/python-venv
+# From target/, so that `import tissue` is the installed wheel.
+(cd target && python-venv/bin/python -m pytest -q ../crates/tissue-py/tests)

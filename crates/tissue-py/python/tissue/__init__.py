@@ -1,0 +1,40 @@
+"""tissue: where the inside of a soft organ goes when its surface moves.
+
+The organ's interior is filled with particles (``sample``, stage 1); the
+surface particles then follow an observed, deformed surface and the
+interior follows them (``Model.deformer`` and ``Deformer.solve``, stage 2).
+Points inside the organ (a tumour's vertices, landmarks) ride along
+(``Deformer.carry``). Arrays are numpy arrays in the surface's units.
+
+    import tissue
+    model = tissue.sample(tissue.phantom_breast(), particles=2000)
+    deformer = model.deformer(backend="cpu")
+    vertices, _ = tissue.phantom_breast_sagged()
+    report = deformer.solve(vertices)
+    moved = deformer.carry([[0.0, 0.0, 20.0]])
+
+Every computation releases the GIL. Errors are ``tissue.TissueError``,
+with the messages of the command-line tool.
+"""
+
+from ._tissue import (
+    Deformer,
+    Model,
+    TissueError,
+    __version__,
+    load_model,
+    phantom_breast,
+    phantom_breast_sagged,
+    sample,
+)
+
+__all__ = [
+    "Deformer",
+    "Model",
+    "TissueError",
+    "__version__",
+    "load_model",
+    "phantom_breast",
+    "phantom_breast_sagged",
+    "sample",
+]

@@ -1,0 +1,378 @@
+//! The Python extension module `tissue._tissue`: stage 1 and stage 2 of
+//! [`tissue`] on numpy arrays. The package `tissue` (`python/tissue`)
+//! re-exports it; its docstrings are the Python API's documentation.
+//!
+//! Every call that computes releases the GIL; every error of the library
+//! is raised as `tissue.TissueError` with the library's own message.
+
+use std::path::PathBuf;
+
+use numpy::{
+    AllowTypeChange, PyArray1, PyArray2, PyArrayLike2, PyArrayMethods, PyUntypedArrayMethods,
+};
+use pyo3::create_exception;
+use pyo3::exceptions::{PyException, PyRuntimeWarning};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+use tissue::backend::{Backend, Device, Solver};
+use tissue::deformation::{DeformParams, ForceModel};
+use tissue::{ParticleModel, SamplingParams, SamplingReport, SurfaceMesh, Vec3};
+
+create_exception!(
+    _tissue,
+    TissueError,
+    PyException,
+    "A tissue error: bad input (a mesh, a file, a parameter) or a failed computation; the message names the problem."
+);
+
+/// A library error as a Python exception.
+fn raise(error: impl std::fmt::Display) -> PyErr {
+    TissueError::new_err(error.to_string())
+}
+
+/// A serialisable report as a Python dict (through JSON, the CLI's form).
+fn as_dict(py: Python<'_>, report: &impl serde::Serialize) -> PyResult<Py<PyAny>> {
+    let text = serde_json::to_string(report).map_err(raise)?;
+    Ok(py.import("json")?.call_method1("loads", (text,))?.unbind())
+}
+
+/// An `(n, 3)` array of points: any array-like numpy converts to float64.
+fn points_of(array: &PyArrayLike2<'_, f64, AllowTypeChange>, what: &str) -> PyResult<Vec<Vec3>> {
+    let shape = array.shape();
+    if shape[1] != 3 {
+        return Err(raise(format!(
+            "{what} must be an (n, 3) array, got shape ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    let view = array.as_array();
+    let points: Vec<Vec3> = view
+        .rows()
+        .into_iter()
+        .map(|r| Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32))
+        .collect();
+    if let Some(i) = points.iter().position(|p| !p.is_finite()) {
+        return Err(raise(format!(
+            "{what}: row {i} is not finite ({})",
+            points[i]
+        )));
+    }
+    Ok(points)
+}
+
+/// `points` as an `(n, 3)` float64 array.
+fn array_of<'py>(py: Python<'py>, points: &[Vec3]) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let flat: Vec<f64> = points
+        .iter()
+        .flat_map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)])
+        .collect();
+    PyArray1::from_vec(py, flat).reshape([points.len(), 3])
+}
+
+/// A surface from a file path or a `(vertices, triangles)` pair.
+fn surface_of(surface: &Bound<'_, PyAny>) -> PyResult<SurfaceMesh> {
+    if let Ok(pair) = surface.cast::<PyTuple>() {
+        if pair.len() != 2 {
+            return Err(raise(
+                "a surface is a file path or a (vertices, triangles) pair",
+            ));
+        }
+        let vertices: PyArrayLike2<'_, f64, AllowTypeChange> = pair.get_item(0)?.extract()?;
+        let vertices = points_of(&vertices, "surface vertices")?;
+        let triangles: PyArrayLike2<'_, i64, AllowTypeChange> = pair.get_item(1)?.extract()?;
+        if triangles.shape()[1] != 3 {
+            return Err(raise(
+                "surface triangles must be an (m, 3) array of vertex indices",
+            ));
+        }
+        let mut corners = Vec::with_capacity(triangles.shape()[0]);
+        for (t, row) in triangles.as_array().rows().into_iter().enumerate() {
+            let mut triangle = [0u32; 3];
+            for (k, &v) in row.iter().enumerate() {
+                triangle[k] = u32::try_from(v)
+                    .ok()
+                    .filter(|&v| (v as usize) < vertices.len())
+                    .ok_or_else(|| {
+                        raise(format!(
+                            "surface triangle {t} names vertex {v}, not one of the {} vertices",
+                            vertices.len()
+                        ))
+                    })?;
+            }
+            corners.push(triangle);
+        }
+        return Ok(SurfaceMesh::new(vertices, corners));
+    }
+    let path: PathBuf = surface
+        .extract()
+        .map_err(|_| raise("a surface is a file path or a (vertices, triangles) pair"))?;
+    tissue::load_closed_surface(&path).map_err(raise)
+}
+
+fn device_of(backend: &str) -> PyResult<Device> {
+    let backend: Backend = backend.parse().map_err(raise)?;
+    Ok(Device::pick(backend).map_err(raise)?.device)
+}
+
+/// Stage 1: fills a closed surface (a file path, or a `(vertices,
+/// triangles)` pair of arrays) with `particles` particles.
+#[pyfunction]
+#[pyo3(signature = (surface, particles, seed = 0, backend = "cpu"))]
+fn sample(
+    py: Python<'_>,
+    surface: &Bound<'_, PyAny>,
+    particles: usize,
+    seed: u64,
+    backend: &str,
+) -> PyResult<Model> {
+    let surface = surface_of(surface)?;
+    let params = SamplingParams {
+        seed,
+        ..SamplingParams::with_particles(particles)
+    };
+    let device = device_of(backend)?;
+    let sampled = py
+        .detach(|| tissue::backend::sample_on(&device, &surface, &params, &mut |_| {}))
+        .map_err(raise)?;
+    Ok(Model {
+        model: sampled.model,
+        report: Some(sampled.report),
+    })
+}
+
+/// Reads a model written by `Model.save` or `tissue sample -o`.
+#[pyfunction]
+fn load_model(path: PathBuf) -> PyResult<Model> {
+    let model = tissue::load_model(&path).map_err(raise)?;
+    Ok(Model {
+        model,
+        report: None,
+    })
+}
+
+/// The bundled breast phantom's skin (millimetres), as `(vertices, triangles)`.
+#[pyfunction]
+fn phantom_breast<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+    mesh_tuple(py, &tissue::phantom::default_breast())
+}
+
+/// The phantom's skin sagged by 12 mm (`tissue demo`'s sag), the same
+/// triangles as `phantom_breast`.
+#[pyfunction]
+fn phantom_breast_sagged<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+    mesh_tuple(py, &tissue::deform::sagged_breast())
+}
+
+fn mesh_tuple<'py>(py: Python<'py>, mesh: &SurfaceMesh) -> PyResult<Bound<'py, PyTuple>> {
+    let vertices = array_of(py, &mesh.vertices)?;
+    let flat: Vec<i64> = mesh
+        .triangles
+        .iter()
+        .flat_map(|t| t.map(i64::from))
+        .collect();
+    let triangles = PyArray1::from_vec(py, flat).reshape([mesh.triangles.len(), 3])?;
+    PyTuple::new(py, [vertices.into_any(), triangles.into_any()])
+}
+
+/// A particle model: the particles at rest, their connections and the
+/// surface they were sampled in.
+#[pyclass(module = "tissue._tissue", frozen)]
+struct Model {
+    model: ParticleModel,
+    report: Option<SamplingReport>,
+}
+
+#[pymethods]
+impl Model {
+    fn __len__(&self) -> usize {
+        self.model.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<tissue.Model: {} particles, {} surface vertices>",
+            self.model.len(),
+            self.model.surface.vertices.len()
+        )
+    }
+
+    /// The particles at rest, `(n, 3)`.
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        array_of(py, &self.model.positions)
+    }
+
+    /// Each particle's radius, `(n,)`.
+    #[getter]
+    fn radii<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let radii: Vec<f64> = self.model.radii.iter().map(|&r| f64::from(r)).collect();
+        PyArray1::from_vec(py, radii)
+    }
+
+    /// Whether each particle lies on the surface (attached to a triangle), `(n,)`.
+    #[getter]
+    fn on_surface<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        let on: Vec<bool> = self.model.attachments.iter().map(Option::is_some).collect();
+        PyArray1::from_vec(py, on)
+    }
+
+    /// The surface the model was sampled in, `(vertices, triangles)`.
+    #[getter]
+    fn surface<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        mesh_tuple(py, &self.model.surface)
+    }
+
+    /// Stage 1's quality report (a dict), or None for a model read from a file.
+    #[getter]
+    fn report(&self, py: Python<'_>) -> PyResult<Option<Py<PyAny>>> {
+        self.report.as_ref().map(|r| as_dict(py, r)).transpose()
+    }
+
+    /// Writes the model (`.vtp`, or `.csv` / `.ply` for positions alone);
+    /// an existing file is replaced only once the new one is complete.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| tissue::save_model(&self.model, &path))
+            .map_err(raise)
+    }
+
+    /// Prepares stage 2 on `backend` (`"auto"`, `"gpu"` or `"cpu"`) with the
+    /// force `"symmetric"` (the default), `"elastic"` (with `poisson`, the
+    /// accurate one) or `"paper"`; `max_iterations` caps every solve.
+    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None))]
+    fn deformer(
+        &self,
+        py: Python<'_>,
+        backend: &str,
+        force: &str,
+        poisson: Option<f32>,
+        max_iterations: Option<usize>,
+    ) -> PyResult<Deformer> {
+        let force = match force {
+            "symmetric" => ForceModel::Symmetric,
+            "elastic" => ForceModel::Elastic,
+            "paper" => ForceModel::Paper,
+            other => {
+                return Err(raise(format!(
+                    "unknown force `{other}`, expected symmetric, elastic or paper"
+                )));
+            }
+        };
+        let defaults = DeformParams::default();
+        let params = DeformParams {
+            force,
+            poisson: poisson.unwrap_or(defaults.poisson),
+            max_iterations: max_iterations.unwrap_or(defaults.max_iterations),
+            ..defaults
+        };
+        let device = device_of(backend)?;
+        let solver = py
+            .detach(|| Solver::new(device, &self.model, params))
+            .map_err(raise)?;
+        Ok(Deformer {
+            solver,
+            triangles: self.model.surface.triangles.clone(),
+        })
+    }
+}
+
+/// Stage 2 of one model: the surface particles follow a deformed surface
+/// and the interior follows them.
+#[pyclass(module = "tissue._tissue")]
+struct Deformer {
+    solver: Solver,
+    triangles: Vec<[u32; 3]>,
+}
+
+#[pymethods]
+impl Deformer {
+    fn __repr__(&self) -> String {
+        format!(
+            "<tissue.Deformer: {} particles on {}>",
+            self.solver.positions().len(),
+            self.solver.backend()
+        )
+    }
+
+    /// Which device solves (`cpu`, or `gpu (adapter, API)`).
+    #[getter]
+    fn backend(&self) -> String {
+        self.solver.backend()
+    }
+
+    /// Moves the surface to `vertices` (`(v, 3)`, the model's surface
+    /// vertices in the same order) and solves; returns the report as a
+    /// dict. A solve that did not converge warns (RuntimeWarning) and
+    /// says so in the report.
+    fn solve(
+        &mut self,
+        py: Python<'_>,
+        vertices: PyArrayLike2<'_, f64, AllowTypeChange>,
+    ) -> PyResult<Py<PyAny>> {
+        let vertices = points_of(&vertices, "deformed vertices")?;
+        let deformed = SurfaceMesh::new(vertices, self.triangles.clone());
+        let solver = &mut self.solver;
+        let report = py
+            .detach(|| {
+                solver.set_surface(&deformed)?;
+                solver.solve()
+            })
+            .map_err(raise)?;
+        if !report.converged {
+            let message = format!(
+                "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
+                report.iterations, report.stopped_by, report.residual
+            );
+            let warning = py.get_type::<PyRuntimeWarning>();
+            PyErr::warn(
+                py,
+                &warning,
+                &std::ffi::CString::new(message).map_err(raise)?,
+                1,
+            )?;
+        }
+        as_dict(py, &report)
+    }
+
+    /// The particles after the last solve, `(n, 3)`.
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        array_of(py, self.solver.positions())
+    }
+
+    /// Where points given at rest (`(k, 3)`, inside the model: a tumour's
+    /// vertices, landmarks) are after the last solve, `(k, 3)`.
+    fn carry<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyArrayLike2<'_, f64, AllowTypeChange>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let points = points_of(&points, "points")?;
+        let solver = &self.solver;
+        let moved = py
+            .detach(|| {
+                let bound = solver.bind(&points)?;
+                solver.carry(&bound)
+            })
+            .map_err(raise)?;
+        array_of(py, &moved)
+    }
+
+    /// Back to rest: the next solve starts from the rest shape.
+    fn reset(&mut self, py: Python<'_>) -> PyResult<()> {
+        let solver = &mut self.solver;
+        py.detach(|| solver.reset()).map_err(raise)
+    }
+}
+
+#[pymodule]
+fn _tissue(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("TissueError", m.py().get_type::<TissueError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(sample, m)?)?;
+    m.add_function(wrap_pyfunction!(load_model, m)?)?;
+    m.add_function(wrap_pyfunction!(phantom_breast, m)?)?;
+    m.add_function(wrap_pyfunction!(phantom_breast_sagged, m)?)?;
+    m.add_class::<Model>()?;
+    m.add_class::<Deformer>()?;
+    Ok(())
+}

@@ -1,0 +1,167 @@
+"""The Python package against the library: what the README's example
+does, the numbers it must give, and the errors it must raise."""
+
+import re
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue
+
+
+@pytest.fixture(scope="module")
+def model():
+    return tissue.sample(tissue.phantom_breast(), particles=1500, seed=3)
+
+
+def test_sampling_fills_the_phantom_with_the_asked_particles(model):
+    assert len(model) == 1500
+    positions = model.positions
+    assert positions.shape == (1500, 3) and positions.dtype == np.float64
+    assert model.radii.shape == (1500,) and (model.radii > 0).all()
+    assert 0 < model.on_surface.sum() < 1500
+    report = model.report
+    assert report["particles"] == 1500 and report["converged"]
+    vertices, triangles = model.surface
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    assert (positions >= lo - 1e-3).all() and (positions <= hi + 1e-3).all()
+
+
+def test_the_same_seed_gives_the_same_model(model):
+    again = tissue.sample(tissue.phantom_breast(), particles=1500, seed=3)
+    np.testing.assert_array_equal(again.positions, model.positions)
+
+
+def test_a_sag_moves_the_surface_particles_onto_the_sagged_skin(model):
+    deformer = model.deformer(backend="cpu")
+    assert deformer.backend == "cpu"
+    sagged, _ = tissue.phantom_breast_sagged()
+    report = deformer.solve(sagged)
+    assert report["converged"] and report["iterations"] > 0
+    moved = deformer.positions - model.positions
+    # The sag is 12 mm at most; the surface particles move, the chest wall stays.
+    assert 5.0 < np.linalg.norm(moved, axis=1).max() <= 12.5
+    # A point carried along moves with the particles around it.
+    inside = model.positions[~model.on_surface][:20]
+    carried = deformer.carry(inside)
+    assert carried.shape == (20, 3)
+    assert np.linalg.norm(carried - inside, axis=1).max() > 0.1
+    # Back at rest, within ten times the solve's tolerance (3e-5 of the size).
+    deformer.reset()
+    rest, _ = model.surface
+    assert deformer.solve(rest)["converged"]
+    size = np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))
+    assert np.abs(deformer.positions - model.positions).max() <= 3e-4 * size
+
+
+def test_a_rigid_motion_of_the_skin_carries_points_rigidly(model):
+    vertices, _ = model.surface
+    angle = np.radians(30.0)
+    turn = np.array(
+        [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0, 0, 1]]
+    )
+    shift = np.array([5.0, -3.0, 2.0])
+    deformer = model.deformer(backend="cpu")
+    assert deformer.solve(vertices @ turn.T + shift)["converged"]
+    size = np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0))
+    np.testing.assert_allclose(
+        deformer.positions, model.positions @ turn.T + shift, atol=1e-4 * size
+    )
+    tumour = model.positions[~model.on_surface][:30] * 0.9
+    np.testing.assert_allclose(
+        deformer.carry(tumour), tumour @ turn.T + shift, atol=1e-4 * size
+    )
+
+
+def test_lists_and_float32_arrays_are_taken_as_points(model):
+    deformer = model.deformer(backend="cpu")
+    sagged, _ = tissue.phantom_breast_sagged()
+    deformer.solve(sagged.astype(np.float32))
+    point = model.positions[7]
+    from_list = deformer.carry([list(point)])
+    assert from_list.shape == (1, 3)
+
+
+def test_a_surface_from_arrays_and_from_a_file_give_the_same_model(tmp_path):
+    vertices, triangles = tissue.phantom_breast()
+    path = tmp_path / "breast.obj"
+    with open(path, "w") as f:
+        for v in vertices:
+            f.write("v {} {} {}\n".format(*v))
+        for t in triangles:
+            f.write("f {} {} {}\n".format(*(t + 1)))
+    from_file = tissue.sample(str(path), particles=300)
+    from_arrays = tissue.sample((vertices, triangles), particles=300)
+    np.testing.assert_allclose(from_file.positions, from_arrays.positions, atol=1e-4)
+    saved = tmp_path / "model.vtp"
+    from_file.save(str(saved))
+    loaded = tissue.load_model(saved)
+    np.testing.assert_allclose(loaded.positions, from_file.positions, atol=1e-5)
+    assert loaded.report is None
+
+
+def test_bad_input_raises_tissue_errors_naming_the_problem(model):
+    vertices, triangles = tissue.phantom_breast()
+    with pytest.raises(tissue.TissueError, match="open"):
+        tissue.sample((vertices, triangles[:-1]), particles=100)
+    with pytest.raises(tissue.TissueError, match="triangle 0 names vertex"):
+        tissue.sample((vertices, triangles + len(vertices)), particles=100)
+    with pytest.raises(tissue.TissueError, match=r"\(n, 3\)"):
+        model.deformer(backend="cpu").solve(vertices[:, :2])
+    with pytest.raises(tissue.TissueError, match="not finite"):
+        bad = vertices.copy()
+        bad[3, 1] = np.nan
+        model.deformer(backend="cpu").solve(bad)
+    with pytest.raises(tissue.TissueError):
+        model.deformer(backend="cpu").solve(vertices[:-1])
+    with pytest.raises(tissue.TissueError, match="unknown force"):
+        model.deformer(force="stiff")
+    with pytest.raises(tissue.TissueError, match="unknown backend"):
+        model.deformer(backend="tpu")
+    with pytest.raises(tissue.TissueError):
+        tissue.sample("/nonexistent/breast.stl", particles=100)
+    with pytest.raises(tissue.TissueError):
+        tissue.sample(tissue.phantom_breast(), particles=0)
+
+
+def test_a_solve_that_does_not_converge_warns(model):
+    deformer = model.deformer(backend="cpu", max_iterations=2)
+    sagged, _ = tissue.phantom_breast_sagged()
+    with pytest.warns(RuntimeWarning, match="did not converge"):
+        report = deformer.solve(sagged)
+    assert not report["converged"] and report["iterations"] == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert model.deformer(backend="cpu").solve(sagged)["converged"]
+
+
+def test_the_gil_is_released_while_sampling():
+    ticks = []
+    stop = threading.Event()
+
+    def tick():
+        while not stop.is_set():
+            ticks.append(1)
+            stop.wait(0.001)
+
+    thread = threading.Thread(target=tick)
+    thread.start()
+    before = len(ticks)
+    tissue.sample(tissue.phantom_breast(), particles=3000)
+    during = len(ticks) - before
+    stop.set()
+    thread.join()
+    # Held, the GIL would let the other thread run only between calls.
+    assert during > 20, during
+
+
+def test_the_readme_example_runs_as_written(capsys):
+    readme = Path(__file__).resolve().parents[3] / "README.md"
+    blocks = re.findall(r"```python\n(.*?)```", readme.read_text(), re.S)
+    assert len(blocks) == 1, "the README has one Python example"
+    exec(compile(blocks[0], str(readme), "exec"), {})
+    out = capsys.readouterr().out
+    assert "converged: True" in out and "the tumour moved to" in out

