@@ -191,3 +191,28 @@ macro_rules! assert_mirror {
 }
 #[cfg(test)]
 pub(crate) use assert_mirror;
+
+/// Submits one dispatch of `kernel` over `[x, y]` workgroups, its uniform
+/// at dynamic offset 0, in a command buffer of its own (the one-off
+/// kernels: stage 1's placement, the field query).
+pub(crate) fn submit_one(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    kernel: &CompiledKernel,
+    group: &wgpu::BindGroup,
+    [x, y]: [u32; 2],
+    label: &str,
+) {
+    let mut encoder =
+        device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+    {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&kernel.pipeline);
+        pass.set_bind_group(0, group, &[0]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+    queue.submit([encoder.finish()]);
+}

@@ -16,7 +16,7 @@ use crate::buffer::{Storage, vec4, xyz};
 use crate::grid::GpuRows;
 use crate::readback::Readback;
 use crate::state::workgroups;
-use crate::support::{bind_group, scoped};
+use crate::support::{bind_group, scoped, submit_one};
 
 /// Iterations one command buffer records: one uniform slot and one row of
 /// change partials each.
@@ -658,19 +658,7 @@ impl SamplingBuffers {
                 kernel.workgroup_size,
                 device.limits().max_compute_workgroups_per_dimension,
             )?;
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("sampling placement"),
-            });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("sampling placement"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&kernel.pipeline);
-                pass.set_bind_group(0, &group, &[0]);
-                pass.dispatch_workgroups(x, y, 1);
-            }
-            queue.submit([encoder.finish()]);
+            submit_one(device, queue, &kernel, &group, [x, y], "sampling placement");
             Ok((placed, attached))
         })
     }

@@ -12,7 +12,7 @@ use crate::GpuError;
 use crate::buffer::{Storage, vec4, xyz};
 use crate::readback::Readback;
 use crate::state::workgroups;
-use crate::support::{Scopes, bind_group, scoped};
+use crate::support::{Scopes, bind_group, scoped, submit_one};
 
 /// The surface field on the GPU: the same data as [`SurfaceField`], packed
 /// into the two buffers `shaders/shared/surface_field.wgsl` reads.
@@ -143,19 +143,7 @@ pub fn query_field(
             None,
             "names no buffer",
         )?;
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("field query"),
-        });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("field query"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&kernel.pipeline);
-            pass.set_bind_group(0, &group, &[0]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        queue.submit([encoder.finish()]);
+        submit_one(device, queue, &kernel, &group, [x, y], "field query");
         Ok(answers)
     })?;
     let raw = answers.read(device, queue, &Readback::default())?;
