@@ -339,6 +339,11 @@ impl Points {
 }
 
 impl Structure {
+    /// The structure at rest.
+    pub fn rest_mesh(&self) -> &SurfaceMesh {
+        &self.rest
+    }
+
     /// Binds `mesh` (rest coordinates) to the solver's rest particles.
     pub fn bind(
         name: String,

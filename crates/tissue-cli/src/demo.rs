@@ -17,6 +17,8 @@ use crate::sample::{print_report, sample_on};
 
 /// The demo's summary.
 pub const DEMO_FILE: &str = "demo.json";
+/// The demo's picture: the sagging breast (`crate::picture`).
+pub const DEMO_PICTURE: &str = "demo.png";
 
 /// Options of `tissue demo`.
 #[derive(Debug, clap::Args)]
@@ -43,6 +45,8 @@ struct CaseReport {
     /// The deformed skin (OBJ).
     skin: String,
     folder: String,
+    /// Its picture.
+    picture: String,
     iterations: usize,
     seconds: f64,
     converged: bool,
@@ -70,6 +74,8 @@ struct Case {
     description: &'static str,
     skin_file: &'static str,
     skin: SurfaceMesh,
+    /// Its picture.
+    picture: &'static str,
 }
 
 /// `tissue demo`.
@@ -136,12 +142,14 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
             description: "the breast hangs 12 mm towards the feet at the apex (a patient who lay down sits up)",
             skin_file: "breast-sag.obj",
             skin: deform::sagged_breast(),
+            picture: DEMO_PICTURE,
         },
         Case {
             name: "indentation",
             description: "a probe pushes the skin 8 mm in, straight above the tumour",
             skin_file: "breast-indentation.obj",
             skin: deform::indented_breast(),
+            picture: "demo-indentation.png",
         },
     ];
     let model_name = model_path.display().to_string();
@@ -154,12 +162,14 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         let solve = solver.solve()?;
         let dir = out.join(case.name);
         let skin = skin_path.display().to_string();
+        let picture = out.join(case.picture);
         let destination = Destination {
             dir: &dir,
             report: None,
             model: &model_name,
             surface: &skin,
             field: None,
+            picture: Some(&picture),
         };
         let report = write_solution(
             destination,
@@ -182,6 +192,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
             description: case.description,
             skin,
             folder: dir.display().to_string(),
+            picture: picture.display().to_string(),
             iterations: report.iterations,
             seconds: report.seconds,
             converged: report.converged,
@@ -201,12 +212,14 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     write_json(&out.join(DEMO_FILE), &summary)?;
     say(format!(
         "wrote {}: model.vtp, breast.obj, tumour.obj, breast-sag.obj, breast-indentation.obj,\n  \
-         sag/ and indentation/ (particles.vtp, tumour.obj, tumour-rigid.obj, tumour-rigid.tfm, report.json), {DEMO_FILE}",
+         sag/ and indentation/ (particles.vtp, tumour.obj, tumour-rigid.obj, tumour-rigid.tfm, report.json),\n  \
+         {DEMO_FILE}, {DEMO_PICTURE} and demo-indentation.png (a cut coloured by displacement, the tumour at rest and moved)",
         folder(out)
     ));
     say(format!(
-        "  to look: open {sag}particles.vtp in ParaView and colour by displacement; \
-         {rest} (rest) beside {sag}tumour.obj (moved) shows where the tumour went",
+        "  to look: {picture}; or open {sag}particles.vtp in ParaView and colour by \
+         displacement, with {rest} (rest) beside {sag}tumour.obj (moved)",
+        picture = out.join(DEMO_PICTURE).display(),
         sag = folder(&out.join("sag")),
         rest = out.join("tumour.obj").display(),
     ));

@@ -5,6 +5,7 @@ mod carry;
 mod demo;
 mod frames;
 mod output;
+mod picture;
 mod posture;
 mod progress;
 mod sample;

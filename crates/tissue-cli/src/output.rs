@@ -4,12 +4,14 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use glam::Vec3;
 use serde::Serialize;
 use tissue::deformation::{DeformParams, DeformReport, Inversions, StopReason, inversions};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::Solver;
 use crate::carry::{Carried, StructureReport};
+use crate::picture;
 use crate::posture::PostureReport;
 
 /// The moved particles and the deformed surface.
@@ -206,6 +208,8 @@ pub struct Destination<'a> {
     pub surface: &'a str,
     /// The displacement field to write, if any.
     pub field: Option<FieldRequest<'a>>,
+    /// The picture to draw (`--picture`), if any.
+    pub picture: Option<&'a Path>,
 }
 
 /// The files a solve into `to` writes for `carried`, report included.
@@ -223,6 +227,7 @@ pub fn planned_outputs(to: &Destination<'_>, carried: &Carried) -> Vec<PathBuf> 
             .map(|name| to.dir.join(name)),
     );
     files.extend(to.field.map(|f| f.path.to_path_buf()));
+    files.extend(to.picture.map(Path::to_path_buf));
     files.push(
         to.report
             .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf),
@@ -452,6 +457,36 @@ pub fn write_solution(
         }
         None => None,
     };
+    if let Some(path) = to.picture {
+        let title = format!(
+            "{}: {} particles, {} iterations, {}",
+            file_name(to.surface),
+            model.len(),
+            solve.iterations,
+            if solve.converged {
+                "converged"
+            } else {
+                "NOT converged"
+            }
+        );
+        let moved: Vec<&SurfaceMesh> = structures.iter().map(|s| &s.mesh).collect();
+        draw(
+            path,
+            title,
+            Drawn {
+                model,
+                rest: solver.reference(),
+                current,
+                deformed,
+                carried,
+                moved: &moved,
+                residuals: &solve.residual_history,
+                frame_starts: Vec::new(),
+                tolerance: params.tolerance,
+            },
+        )?;
+        files.push(path.to_path_buf());
+    }
     let report_path = to
         .report
         .map_or_else(|| to.dir.join(REPORT_FILE), Path::to_path_buf);
@@ -498,6 +533,60 @@ pub fn write_solution(
     };
     write_json(&report_path, &report)?;
     Ok(report)
+}
+
+/// What a picture shows of a solve (`picture::Scene`).
+pub struct Drawn<'a> {
+    /// The model solved.
+    pub model: &'a ParticleModel,
+    /// The particles where the solve measures displacement from (the
+    /// solver's reference: the model's rest positions, or the unloaded
+    /// shape with the posture options).
+    pub rest: &'a [Vec3],
+    /// The particles now.
+    pub current: &'a [Vec3],
+    /// The skin now.
+    pub deformed: &'a SurfaceMesh,
+    /// The structures at rest...
+    pub carried: &'a Carried,
+    /// ... and moved, in the same order.
+    pub moved: &'a [&'a SurfaceMesh],
+    /// The error estimate of every iteration drawn.
+    pub residuals: &'a [f32],
+    /// Where each frame after the first begins in `residuals`.
+    pub frame_starts: Vec<usize>,
+    /// The stopping tolerance.
+    pub tolerance: f32,
+}
+
+/// Draws `what` into the PNG file `path` (`--picture`).
+pub fn draw(path: &Path, title: String, what: Drawn<'_>) -> Result<()> {
+    let scene = picture::Scene {
+        title,
+        rest: what.rest,
+        current: what.current,
+        radii: &what.model.radii,
+        rest_surface: &what.model.surface,
+        surface: what.deformed,
+        structures: what
+            .carried
+            .structures
+            .iter()
+            .map(|s| s.rest_mesh())
+            .zip(what.moved.iter().copied())
+            .collect(),
+        residuals: what.residuals,
+        frame_starts: what.frame_starts,
+        tolerance: what.tolerance,
+    };
+    picture::save(&scene, path)
+}
+
+/// The last part of a path as written, for titles.
+pub fn file_name(path: &str) -> String {
+    Path::new(path)
+        .file_name()
+        .map_or_else(|| path.to_owned(), |n| n.to_string_lossy().into_owned())
 }
 
 /// Pretty JSON with a final newline.

@@ -16,6 +16,7 @@ use crate::output::{
     Destination, FieldRequest, Solved, Status, Unfinished, planned_outputs, prepare_outputs,
     refuse_overwriting, remove_earlier_outputs, write_solution,
 };
+use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
 
 /// The force of stage 2.
@@ -137,6 +138,11 @@ pub struct DeformArgs {
     /// (default: half the model's mean connection length).
     #[arg(long, value_name = "MM", requires = "displacement_field")]
     pub field_spacing: Option<f32>,
+    /// Also draw the result as a PNG picture: a cut through the organ
+    /// coloured by displacement, the skin and the structures at rest and
+    /// moved, beside the solve's convergence (docs/FORMATS.md, "Pictures").
+    #[arg(long, value_name = "FILE.png")]
+    pub picture: Option<PathBuf>,
     #[command(flatten)]
     pub solve: SolveArgs,
     #[command(flatten)]
@@ -413,6 +419,9 @@ fn field_request<'a>(
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let mut params = args.solve.params(Frames::One)?;
+    if let Some(path) = &args.picture {
+        picture::check_name(path)?;
+    }
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
@@ -437,6 +446,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         model: &args.model.display().to_string(),
         surface: &args.surface.display().to_string(),
         field,
+        picture: args.picture.as_deref(),
     };
     let planned = planned_outputs(&destination, &carried);
     refuse_overwriting(&planned, &args.inputs())?;

@@ -11,6 +11,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::Value;
+use tissue::SurfaceMesh;
 use tissue::deformation::DeformParams;
 use tissue::io::space::Space;
 
@@ -18,10 +19,11 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence,
-    planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_json,
-    write_solution,
+    Destination, Drawn, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence, draw,
+    file_name, planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs,
+    write_json, write_solution,
 };
+use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
 use crate::solve::{
     Frames, SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for,
@@ -56,6 +58,10 @@ pub struct TrackArgs {
     pub history: usize,
     #[command(flatten)]
     pub backend: BackendArgs,
+    /// Also draw the last frame as a PNG picture (as `deform --picture`
+    /// does), beside the convergence of every frame this run solved.
+    #[arg(long, value_name = "FILE.png")]
+    pub picture: Option<PathBuf>,
     /// Continue a run into the same folder that was stopped before its last
     /// frame (Ctrl-C, or killed): the frames its `track.json` lists as done
     /// are kept, the first missing one starts from the rest shape. Refused
@@ -316,6 +322,9 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         ..args.solve.params(Frames::Sequence)?
     };
     params.validate()?;
+    if let Some(path) = &args.picture {
+        picture::check_name(path)?;
+    }
     let frames = expand(&args.frames)?;
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
@@ -347,6 +356,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     inputs.extend(args.carry.inputs());
     let path = args.output_dir.join(TRACK_FILE);
     let mut outputs = vec![path.clone(), args.output_dir.join(COLLECTION_FILE)];
+    outputs.extend(args.picture.clone());
     for k in 0..frames.len() {
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let destination = Destination {
@@ -355,6 +365,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             model: &model_name,
             surface: "",
             field: None,
+            picture: None,
         };
         outputs.extend(planned_outputs(&destination, &carried));
     }
@@ -401,11 +412,20 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     };
     let first = done.len();
     let mut status = Status::Incomplete;
+    // For the picture: this run's iterations, where each frame's begin,
+    // and the last frame solved.
+    let mut residuals: Vec<f32> = Vec::new();
+    let mut frame_starts: Vec<usize> = Vec::new();
+    let mut last_frame: Option<(SurfaceMesh, String)> = None;
     for (k, frame) in frames.iter().enumerate().skip(first) {
         // Checked whole before the first solve: read again, not re-checked.
         let deformed = read_frame(frame, &model.surface)?;
         set_deformed(frame, &mut solver, &deformed)?;
         let solve = solver.solve()?;
+        if k > first {
+            frame_starts.push(residuals.len());
+        }
+        residuals.extend(&solve.residual_history);
         let dir = args.output_dir.join(format!("frame-{:04}", k + 1));
         let surface = frame.display().to_string();
         let destination = Destination {
@@ -414,6 +434,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             model: &model_name,
             surface: &surface,
             field: None,
+            picture: None,
         };
         remove_earlier_outputs(
             &destination,
@@ -461,6 +482,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             }
             println!("{line}");
         }
+        last_frame = Some((deformed, file_name(&surface)));
         done.push(serde_json::to_value(FrameReport {
             frame: surface,
             folder: dir.display().to_string(),
@@ -488,6 +510,36 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         } else {
             Status::Converged
         };
+    }
+    if let (Some(path), Some((deformed, name))) = (&args.picture, &last_frame) {
+        let (_, structures) = carried.moved(&solver)?;
+        let moved: Vec<&SurfaceMesh> = structures.iter().map(|s| &s.mesh).collect();
+        let solved = done.len() - first;
+        let title = format!(
+            "frame {} of {} ({name}): {} iterations over {solved} frame{}",
+            done.len(),
+            frames.len(),
+            residuals.len(),
+            if solved == 1 { "" } else { "s" }
+        );
+        draw(
+            path,
+            title,
+            Drawn {
+                model: &model,
+                rest: solver.reference(),
+                current: solver.positions(),
+                deformed,
+                carried: &carried,
+                moved: &moved,
+                residuals: &residuals,
+                frame_starts,
+                tolerance: params.tolerance,
+            },
+        )?;
+        if !args.quiet {
+            println!("drew {}", path.display());
+        }
     }
     let totals = summary.write(&solver, &done, status)?;
     let count = totals.frames;

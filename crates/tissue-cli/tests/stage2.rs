@@ -58,9 +58,34 @@ fn demo_writes_everything_and_the_tumour_sags_towards_the_feet() {
         "indentation/tumour.obj",
         "indentation/tumour-rigid.obj",
         "indentation/report.json",
+        "demo.png",
+        "demo-indentation.png",
     ] {
         assert!(out_dir.join(file).is_file(), "demo did not write {file}");
     }
+    // The picture: the tumour moved (red) and the largest displacement
+    // (the colour map's yellow end) are in it; where they are is checked
+    // by the picture's own tests.
+    let picture = tiny_skia::Pixmap::load_png(out_dir.join("demo.png")).unwrap();
+    assert_eq!((picture.width(), picture.height()), (1400, 700));
+    let colours: Vec<[u8; 3]> = picture
+        .pixels()
+        .iter()
+        .map(|p| {
+            let c = p.demultiply();
+            [c.red(), c.green(), c.blue()]
+        })
+        .collect();
+    let red = colours
+        .iter()
+        .filter(|c| c[0] > 150 && c[1] < 110 && c[2] < 110)
+        .count();
+    let yellow = colours
+        .iter()
+        .filter(|c| c[0] > 200 && c[1] > 200 && c[2] < 90)
+        .count();
+    assert!(red > 500, "{red} red pixels: no moved tumour");
+    assert!(yellow > 100, "{yellow} yellow pixels: no colour bar or sag");
 
     let summary = json(&out_dir.join("demo.json"));
     assert_eq!(summary["particles"], 2000);
@@ -351,12 +376,17 @@ fn track_solves_every_frame_in_order_and_writes_each() {
         s(&points_path),
         "--output-dir",
         s(&out_dir),
+        "--picture",
+        s(&dir.path().join("last.png")),
     ]);
     assert!(out.status.success(), "{}", text(&out));
     let printed = text(&out);
     for k in 1..=3 {
         assert!(printed.contains(&format!("frame {k}/3")), "{printed}");
     }
+    assert!(printed.contains("last.png"), "{printed}");
+    let picture = tiny_skia::Pixmap::load_png(dir.path().join("last.png")).unwrap();
+    assert_eq!((picture.width(), picture.height()), (1400, 700));
     assert!(printed.contains(" ms"), "{printed}");
 
     // The frames' particles as one ParaView animation: frame k at time k,
@@ -449,9 +479,21 @@ fn deform_accepts_the_bundled_deformed_skins() {
         s(&assets().join("phantom-tumour.obj")),
         "--output-dir",
         s(&dir.path().join("out")),
+        "--picture",
+        s(&dir.path().join("pictures/cut.png")),
     ]);
     assert!(out.status.success(), "{}", text(&out));
     assert!(dir.path().join("out/phantom-tumour.obj").is_file());
+    let report = json(&dir.path().join("out/report.json"));
+    let files = report["files"].as_array().unwrap();
+    assert!(
+        files
+            .iter()
+            .any(|f| f.as_str().unwrap().ends_with("pictures/cut.png")),
+        "{files:?}"
+    );
+    let picture = tiny_skia::Pixmap::load_png(dir.path().join("pictures/cut.png")).unwrap();
+    assert_eq!((picture.width(), picture.height()), (1400, 700));
 }
 
 /// `--observed` takes the observed patch by position: the whole rest skin
@@ -745,6 +787,10 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
                 d("out"),
             ],
             vec!["poisson is 0.5", "[0, 0.499]", "incompressible"],
+        ),
+        (
+            deform(&["--surface", &sag, "--picture", &d("cut.jpg")]),
+            vec!["cut.jpg", "PNG", ".png"],
         ),
     ];
     for (args, expected) in cases {
