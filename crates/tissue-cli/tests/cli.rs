@@ -25,6 +25,50 @@ fn the_bundled_phantom_is_what_the_code_makes() {
     }
 }
 
+/// The README's picture is the demo's: the same scene, at most a few
+/// pixels apart (a rounding change may move a disc's edge, a stale picture
+/// moves whole regions).
+#[test]
+fn the_readme_picture_is_what_the_demo_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = tissue(&[
+        "demo",
+        "--backend",
+        "cpu",
+        "-q",
+        "--output-dir",
+        s(dir.path()),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let drawn = tiny_skia::Pixmap::load_png(dir.path().join("demo.png")).unwrap();
+    let shown = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/demo.png");
+    let shown = tiny_skia::Pixmap::load_png(shown).unwrap();
+    assert_eq!(
+        (drawn.width(), drawn.height()),
+        (shown.width(), shown.height())
+    );
+    let apart = drawn
+        .pixels()
+        .iter()
+        .zip(shown.pixels())
+        .filter(|(a, b)| {
+            let (a, b) = (a.demultiply(), b.demultiply());
+            [
+                (a.red(), b.red()),
+                (a.green(), b.green()),
+                (a.blue(), b.blue()),
+            ]
+            .iter()
+            .any(|&(x, y)| x.abs_diff(y) > 24)
+        })
+        .count();
+    assert!(
+        apart < 2_000,
+        "docs/demo.png is stale ({apart} pixels differ): rerun `tissue demo --backend cpu` and copy \
+         tissue-demo/demo.png there"
+    );
+}
+
 #[test]
 fn sample_writes_a_model_that_reads_back_and_a_json_report() {
     let dir = tempfile::tempdir().unwrap();
