@@ -32,6 +32,9 @@ cargo fmt --all -- --check
 echo "== cargo clippy (warnings are errors)"
 cargo clippy --workspace --all-targets --release -- -D warnings
 
+echo "== packaging: every crate's manifest and files as crates.io takes them"
+cargo package --workspace --no-verify --allow-dirty --quiet
+
 echo "== cargo test (release)"
 cargo test --workspace --release --exclude tissue-gpu --exclude tissue-py
 

@@ -13,31 +13,31 @@ use crate::GpuError;
 pub const SHARED: &[(&str, &str)] = &[
     (
         "shared/layout",
-        include_str!("../../../shaders/shared/layout.wgsl"),
+        include_str!("../shaders/shared/layout.wgsl"),
     ),
     (
         "shared/offsets",
-        include_str!("../../../shaders/shared/offsets.wgsl"),
+        include_str!("../shaders/shared/offsets.wgsl"),
     ),
     (
         "shared/svd3",
-        include_str!("../../../shaders/shared/svd3.wgsl"),
+        include_str!("../shaders/shared/svd3.wgsl"),
     ),
     (
         "shared/polar",
-        include_str!("../../../shaders/shared/polar.wgsl"),
+        include_str!("../shaders/shared/polar.wgsl"),
     ),
     (
         "shared/sampling",
-        include_str!("../../../shaders/shared/sampling.wgsl"),
+        include_str!("../shaders/shared/sampling.wgsl"),
     ),
     (
         "shared/surface_field",
-        include_str!("../../../shaders/shared/surface_field.wgsl"),
+        include_str!("../shaders/shared/surface_field.wgsl"),
     ),
     (
         "shared/grid",
-        include_str!("../../../shaders/shared/grid.wgsl"),
+        include_str!("../shaders/shared/grid.wgsl"),
     ),
 ];
 
@@ -46,79 +46,79 @@ pub const SHARED: &[(&str, &str)] = &[
 pub const SHADERS: &[(&str, &str)] = &[
     (
         "local_rotations",
-        include_str!("../../../shaders/local_rotations.wgsl"),
+        include_str!("../shaders/local_rotations.wgsl"),
     ),
     (
         "elastic_targets",
-        include_str!("../../../shaders/elastic_targets.wgsl"),
+        include_str!("../shaders/elastic_targets.wgsl"),
     ),
     (
         "deformation_force",
-        include_str!("../../../shaders/deformation_force.wgsl"),
+        include_str!("../shaders/deformation_force.wgsl"),
     ),
-    ("integrate", include_str!("../../../shaders/integrate.wgsl")),
+    ("integrate", include_str!("../shaders/integrate.wgsl")),
     (
         "step_norms",
-        include_str!("../../../shaders/step_norms.wgsl"),
+        include_str!("../shaders/step_norms.wgsl"),
     ),
-    ("deflate", include_str!("../../../shaders/deflate.wgsl")),
-    ("coarse", include_str!("../../../shaders/coarse.wgsl")),
+    ("deflate", include_str!("../shaders/deflate.wgsl")),
+    ("coarse", include_str!("../shaders/coarse.wgsl")),
     (
         "multilevel",
-        include_str!("../../../shaders/multilevel.wgsl"),
+        include_str!("../shaders/multilevel.wgsl"),
     ),
     (
         "coarse_elastic",
-        include_str!("../../../shaders/coarse_elastic.wgsl"),
+        include_str!("../shaders/coarse_elastic.wgsl"),
     ),
     (
         "block_multilevel",
-        include_str!("../../../shaders/block_multilevel.wgsl"),
+        include_str!("../shaders/block_multilevel.wgsl"),
     ),
     (
         "volume_smoother",
-        include_str!("../../../shaders/volume_smoother.wgsl"),
+        include_str!("../shaders/volume_smoother.wgsl"),
     ),
     (
         "tests/svd3",
-        include_str!("../../../shaders/tests/svd3.wgsl"),
+        include_str!("../shaders/tests/svd3.wgsl"),
     ),
-    ("imf_force", include_str!("../../../shaders/imf_force.wgsl")),
+    ("imf_force", include_str!("../shaders/imf_force.wgsl")),
     (
         "sampling_place",
-        include_str!("../../../shaders/sampling_place.wgsl"),
+        include_str!("../shaders/sampling_place.wgsl"),
     ),
     (
         "radius_update",
-        include_str!("../../../shaders/radius_update.wgsl"),
+        include_str!("../shaders/radius_update.wgsl"),
     ),
     (
         "sampling_integrate",
-        include_str!("../../../shaders/sampling_integrate.wgsl"),
+        include_str!("../shaders/sampling_integrate.wgsl"),
     ),
     (
         "sampling_change",
-        include_str!("../../../shaders/sampling_change.wgsl"),
+        include_str!("../shaders/sampling_change.wgsl"),
     ),
     (
         "needs_rebuild",
-        include_str!("../../../shaders/needs_rebuild.wgsl"),
+        include_str!("../shaders/needs_rebuild.wgsl"),
     ),
     (
         "tests/surface_field",
-        include_str!("../../../shaders/tests/surface_field.wgsl"),
+        include_str!("../shaders/tests/surface_field.wgsl"),
     ),
     (
         "grid_build",
-        include_str!("../../../shaders/grid_build.wgsl"),
+        include_str!("../shaders/grid_build.wgsl"),
     ),
     (
         "neighbour_rows",
-        include_str!("../../../shaders/neighbour_rows.wgsl"),
+        include_str!("../shaders/neighbour_rows.wgsl"),
     ),
     (
         "embedding_moved",
-        include_str!("../../../shaders/embedding_moved.wgsl"),
+        include_str!("../shaders/embedding_moved.wgsl"),
     ),
 ];
 
@@ -335,11 +335,29 @@ mod tests {
         }
     }
 
+    /// The shaders are read through `crates/tissue-gpu/shaders`, a link to
+    /// the workspace's `shaders/`, so that the packaged crate carries them
+    /// (`cargo package` copies what the link points at; a path out of the
+    /// crate would leave them behind and the published crate would not
+    /// build).
+    #[test]
+    fn shaders_are_read_from_inside_the_crate() {
+        let source = include_str!("shaders.rs");
+        let escaping = ["include_str!(\"../..", "/..", "/shaders/"].concat();
+        let inside = ["include_str!(\"../", "shaders/"].concat();
+        assert!(!source.contains(&escaping), "a shader path leaves the crate");
+        assert_eq!(
+            source.matches(&inside).count(),
+            SHADERS.len() + SHARED.len(),
+            "every shader through the crate's shaders/ link"
+        );
+    }
+
     /// A WGSL file left out of [`SHADERS`] or [`SHARED`] would escape the
     /// validation above.
     #[test]
     fn every_wgsl_file_is_registered() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
         let mut found = Vec::new();
         for folder in ["", "shared", "tests"] {
             let entries = std::fs::read_dir(root.join(folder))
