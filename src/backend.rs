@@ -32,6 +32,7 @@ use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
+use tissue_solve::SolveStep;
 use tissue_solve::elastic::offsets_product;
 use tissue_solve::svd3::rotation_of;
 
@@ -415,12 +416,22 @@ impl Solver {
 
     /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport, Error> {
+        self.solve_with_progress(&mut |_| {})
+    }
+
+    /// [`Solver::solve`], telling `progress` where the solve is after every
+    /// iteration ([`SolveStep`]: the iterations so far and the error
+    /// estimate), on either device at the same iterations.
+    pub fn solve_with_progress(
+        &mut self,
+        progress: &mut dyn FnMut(&SolveStep),
+    ) -> Result<DeformReport, Error> {
         match &mut self.device {
-            SolverDevice::Cpu(cpu) => Ok(cpu.solve()),
+            SolverDevice::Cpu(cpu) => Ok(cpu.solve_observed(progress)),
             SolverDevice::Gpu(gpu) => {
                 let report = gpu
                     .deformer
-                    .solve(&gpu.device, &gpu.queue)
+                    .solve_observed(&gpu.device, &gpu.queue, progress)
                     .map_err(|e| gpu_error(format!("stage 2 on {}", gpu.name), e))?;
                 Ok(report)
             }

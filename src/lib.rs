@@ -37,7 +37,7 @@ pub mod gravity;
 pub mod deformation {
     pub use tissue_cpu::deformation::Deformer;
     pub use tissue_solve::{
-        DeformParams, DeformReport, ForceModel, Inversions, RotationMethod, StopReason,
+        DeformParams, DeformReport, ForceModel, Inversions, RotationMethod, SolveStep, StopReason,
         check_same_topology, inversions,
     };
 }

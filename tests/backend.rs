@@ -9,7 +9,7 @@ mod common;
 use common::gpu;
 
 use tissue::backend::{Device, Solver, sample_on};
-use tissue::deformation::DeformParams;
+use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{SamplingParams, Vec3, deform, phantom};
 
 #[test]
@@ -229,4 +229,50 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
         "default, GPU against CPU: {:e} of the size",
         worst / size
     );
+}
+
+/// The solve's progress callback comes once per iteration on both devices,
+/// numbered from 1 across the elastic force's phases, each with the error
+/// estimate the report's history records; the GPU, which runs iterations
+/// in batches, tells none it replays past the stop.
+#[test]
+fn solve_progress_comes_once_per_iteration_on_both_devices() {
+    let Some(gpu) = gpu() else { return };
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let sag = deform::sagged_breast();
+    for force in [ForceModel::Symmetric, ForceModel::Elastic] {
+        let mut iterations = Vec::new();
+        for device in [Device::Cpu, gpu.clone()] {
+            let name = device.name().to_owned();
+            let params = DeformParams {
+                force,
+                ..DeformParams::default()
+            };
+            let mut solver = Solver::new(device, &model, params).unwrap();
+            solver.set_surface(&sag).unwrap();
+            let mut steps = Vec::new();
+            let report = solver
+                .solve_with_progress(&mut |step| steps.push(*step))
+                .unwrap();
+            assert!(report.converged, "{name} {force:?}: {report:?}");
+            assert_eq!(steps.len(), report.iterations, "{name} {force:?}");
+            for (k, step) in steps.iter().enumerate() {
+                assert_eq!(step.iteration, k + 1, "{name} {force:?}");
+                assert_eq!(step.max_iterations, DeformParams::default().max_iterations);
+                assert_eq!(
+                    step.residual.to_bits(),
+                    report.residual_history[k].to_bits(),
+                    "{name} {force:?}: iteration {}",
+                    k + 1
+                );
+            }
+            iterations.push(report.iterations);
+        }
+        assert_eq!(iterations[0], iterations[1], "{force:?}: CPU, GPU");
+    }
 }

@@ -13,7 +13,9 @@ use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 use crate::backend::{self, BackendArgs, Solver};
 use crate::carry::{Carried, Kind, Structure, StructureReport};
 use crate::output::{Destination, Solved, write_json, write_solution};
+use crate::progress::{self, SolveBar};
 use crate::sample::{print_report, sample_on};
+use crate::solve::PREPARING;
 
 /// The demo's summary.
 pub const DEMO_FILE: &str = "demo.json";
@@ -119,7 +121,9 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     tissue::save_surface(&tumour, &out.join("tumour.obj"))?;
 
     let deform_params = DeformParams::default();
-    let mut solver = Solver::new(device, &model, deform_params.clone())?;
+    let mut solver = progress::busy(quiet, PREPARING, || {
+        Solver::new(device, &model, deform_params.clone())
+    })?;
     let carried = Carried {
         points: None,
         structures: [Kind::Deformable, Kind::Rigid]
@@ -159,7 +163,10 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
         tissue::save_surface(&case.skin, &skin_path)?;
         solver.reset()?;
         solver.set_surface(&case.skin)?;
-        let solve = solver.solve()?;
+        let mut bar = SolveBar::new(case.name, quiet);
+        let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+        bar.finish();
+        let solve = solve?;
         let dir = out.join(case.name);
         let skin = skin_path.display().to_string();
         let picture = out.join(case.picture);

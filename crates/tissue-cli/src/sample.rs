@@ -1,7 +1,7 @@
 //! `tissue sample` (stage 1) and `tissue phantom`.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
@@ -134,7 +134,7 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
 }
 
 /// Stage 1 on a validated surface on `device`, with a progress bar once it
-/// has taken a second (none when `quiet`).
+/// has taken [`progress::SHOW_AFTER`] (none when `quiet`).
 pub fn sample_on(
     device: &Device,
     surface: &SurfaceMesh,
@@ -144,7 +144,7 @@ pub fn sample_on(
     let started = Instant::now();
     let mut bar: Option<ProgressBar> = None;
     let mut progress = |p: &tissue::Progress| {
-        if quiet || started.elapsed() < Duration::from_secs(1) {
+        if quiet || started.elapsed() < progress::SHOW_AFTER {
             return;
         }
         let bar = bar.get_or_insert_with(|| {

@@ -18,6 +18,11 @@ use crate::output::{
 };
 use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
+use crate::progress::{self, SolveBar};
+
+/// What the spinner says while a solver is prepared (the plan, the coarse
+/// levels' factors, the device's buffers).
+pub const PREPARING: &str = "preparing the solver (its coarse levels and buffers)";
 
 /// The force of stage 2.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -192,7 +197,10 @@ pub fn solver_for(
 ) -> Result<(Solver, Option<Posture>)> {
     let context = || format!("{}: cannot deform this model", path.display());
     let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)? else {
-        let solver = Solver::new(device, model, params.clone()).with_context(context)?;
+        let solver = progress::busy(quiet, PREPARING, || {
+            Solver::new(device, model, params.clone())
+        })
+        .with_context(context)?;
         return Ok((solver, None));
     };
     if !quiet {
@@ -200,8 +208,7 @@ pub fn solver_for(
             println!("{line}");
         }
     }
-    let solver = posture
-        .solver(device, model, params)
+    let solver = progress::busy(quiet, PREPARING, || posture.solver(device, model, params))
         .with_context(context)?;
     Ok((solver, Some(posture)))
 }
@@ -452,7 +459,10 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     refuse_overwriting(&planned, &args.inputs())?;
     prepare_outputs(&planned)?;
     remove_earlier_outputs(&destination, &planned, &args.inputs())?;
-    let solve = solver.solve()?;
+    let mut bar = SolveBar::new("solving", args.quiet);
+    let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+    bar.finish();
+    let solve = solve?;
     let report = write_solution(
         destination,
         &model,

@@ -25,6 +25,7 @@ use crate::output::{
 };
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
+use crate::progress::SolveBar;
 use crate::solve::{
     Frames, SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for,
 };
@@ -421,7 +422,10 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         // Checked whole before the first solve: read again, not re-checked.
         let deformed = read_frame(frame, &model.surface)?;
         set_deformed(frame, &mut solver, &deformed)?;
-        let solve = solver.solve()?;
+        let mut bar = SolveBar::new(format!("frame {}/{}", k + 1, frames.len()), args.quiet);
+        let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+        bar.finish();
+        let solve = solve?;
         if k > first {
             frame_starts.push(residuals.len());
         }

@@ -324,8 +324,19 @@ impl GpuDeformer {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<DeformReport, GpuError> {
+        self.solve_observed(device, queue, &mut |_| {})
+    }
+
+    /// [`Deformer::solve`], telling `observe` where it is after every
+    /// iteration (as the CPU's twin does, at the same iterations).
+    pub fn solve_observed(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        observe: &mut dyn FnMut(&tissue_solve::SolveStep),
+    ) -> Result<DeformReport, GpuError> {
         let scope = Scopes::push(device);
-        let report = self.tracker.solve((device, queue));
+        let report = self.tracker.solve_observed((device, queue), observe);
         scope.pop()?;
         report
     }

@@ -19,14 +19,8 @@ pub const SHARED: &[(&str, &str)] = &[
         "shared/offsets",
         include_str!("../shaders/shared/offsets.wgsl"),
     ),
-    (
-        "shared/svd3",
-        include_str!("../shaders/shared/svd3.wgsl"),
-    ),
-    (
-        "shared/polar",
-        include_str!("../shaders/shared/polar.wgsl"),
-    ),
+    ("shared/svd3", include_str!("../shaders/shared/svd3.wgsl")),
+    ("shared/polar", include_str!("../shaders/shared/polar.wgsl")),
     (
         "shared/sampling",
         include_str!("../shaders/shared/sampling.wgsl"),
@@ -35,10 +29,7 @@ pub const SHARED: &[(&str, &str)] = &[
         "shared/surface_field",
         include_str!("../shaders/shared/surface_field.wgsl"),
     ),
-    (
-        "shared/grid",
-        include_str!("../shaders/shared/grid.wgsl"),
-    ),
+    ("shared/grid", include_str!("../shaders/shared/grid.wgsl")),
 ];
 
 /// Shader files with entry points: `(name, source before #import expansion)`.
@@ -57,16 +48,10 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../shaders/deformation_force.wgsl"),
     ),
     ("integrate", include_str!("../shaders/integrate.wgsl")),
-    (
-        "step_norms",
-        include_str!("../shaders/step_norms.wgsl"),
-    ),
+    ("step_norms", include_str!("../shaders/step_norms.wgsl")),
     ("deflate", include_str!("../shaders/deflate.wgsl")),
     ("coarse", include_str!("../shaders/coarse.wgsl")),
-    (
-        "multilevel",
-        include_str!("../shaders/multilevel.wgsl"),
-    ),
+    ("multilevel", include_str!("../shaders/multilevel.wgsl")),
     (
         "coarse_elastic",
         include_str!("../shaders/coarse_elastic.wgsl"),
@@ -79,10 +64,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         "volume_smoother",
         include_str!("../shaders/volume_smoother.wgsl"),
     ),
-    (
-        "tests/svd3",
-        include_str!("../shaders/tests/svd3.wgsl"),
-    ),
+    ("tests/svd3", include_str!("../shaders/tests/svd3.wgsl")),
     ("imf_force", include_str!("../shaders/imf_force.wgsl")),
     (
         "sampling_place",
@@ -108,10 +90,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         "tests/surface_field",
         include_str!("../shaders/tests/surface_field.wgsl"),
     ),
-    (
-        "grid_build",
-        include_str!("../shaders/grid_build.wgsl"),
-    ),
+    ("grid_build", include_str!("../shaders/grid_build.wgsl")),
     (
         "neighbour_rows",
         include_str!("../shaders/neighbour_rows.wgsl"),
@@ -345,7 +324,10 @@ mod tests {
         let source = include_str!("shaders.rs");
         let escaping = ["include_str!(\"../..", "/..", "/shaders/"].concat();
         let inside = ["include_str!(\"../", "shaders/"].concat();
-        assert!(!source.contains(&escaping), "a shader path leaves the crate");
+        assert!(
+            !source.contains(&escaping),
+            "a shader path leaves the crate"
+        );
         assert_eq!(
             source.matches(&inside).count(),
             SHADERS.len() + SHARED.len(),

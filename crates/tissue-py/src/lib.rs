@@ -13,7 +13,7 @@ use numpy::{
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyRuntimeWarning};
 use pyo3::prelude::*;
-use pyo3::types::PyTuple;
+use pyo3::types::{PyDict, PyTuple};
 use tissue::backend::{Backend, Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{ParticleModel, SamplingParams, SamplingReport, SurfaceMesh, Vec3};
@@ -109,21 +109,59 @@ fn surface_of(surface: &Bound<'_, PyAny>) -> PyResult<SurfaceMesh> {
     tissue::load_closed_surface(&path).map_err(raise)
 }
 
+/// A Python progress callback, called from computing (GIL-free) code with a
+/// dict of where the work is; the first exception it raises is kept, the
+/// rest of the work left to finish, and raised after it.
+struct Callback<'a> {
+    call: Option<&'a Py<PyAny>>,
+    failed: Option<PyErr>,
+}
+
+impl<'a> Callback<'a> {
+    fn new(call: Option<&'a Py<PyAny>>) -> Self {
+        Self { call, failed: None }
+    }
+
+    /// Calls it with the dict `fill` fills, unless it raised before.
+    fn tell(&mut self, fill: impl FnOnce(&Bound<'_, PyDict>) -> PyResult<()>) {
+        let Some(call) = self.call else { return };
+        if self.failed.is_some() {
+            return;
+        }
+        let outcome = Python::attach(|py| -> PyResult<()> {
+            let info = PyDict::new(py);
+            fill(&info)?;
+            call.call1(py, (info,))?;
+            Ok(())
+        });
+        self.failed = outcome.err();
+    }
+
+    /// The exception it raised, if any.
+    fn result(self) -> PyResult<()> {
+        self.failed.map_or(Ok(()), Err)
+    }
+}
+
 fn device_of(backend: &str) -> PyResult<Device> {
     let backend: Backend = backend.parse().map_err(raise)?;
     Ok(Device::pick(backend).map_err(raise)?.device)
 }
 
 /// Stage 1: fills a closed surface (a file path, or a `(vertices,
-/// triangles)` pair of arrays) with `particles` particles.
+/// triangles)` pair of arrays) with `particles` particles. `progress`, if
+/// given, is called after every iteration (on the GPU, every batch of
+/// them) with a dict: `iteration`, `max_iterations`, `step_rms`,
+/// `radius_rms`.
 #[pyfunction]
-#[pyo3(signature = (surface, particles, seed = 0, backend = "cpu"))]
+#[pyo3(signature = (surface, particles, seed = 0, backend = "cpu", progress = None))]
 fn sample(
     py: Python<'_>,
     surface: &Bound<'_, PyAny>,
     particles: usize,
     seed: u64,
     backend: &str,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
     let surface = surface_of(surface)?;
     let params = SamplingParams {
@@ -131,9 +169,20 @@ fn sample(
         ..SamplingParams::with_particles(particles)
     };
     let device = device_of(backend)?;
+    let mut callback = Callback::new(progress.as_ref());
     let sampled = py
-        .detach(|| tissue::backend::sample_on(&device, &surface, &params, &mut |_| {}))
+        .detach(|| {
+            tissue::backend::sample_on(&device, &surface, &params, &mut |p| {
+                callback.tell(|info| {
+                    info.set_item("iteration", p.iteration)?;
+                    info.set_item("max_iterations", p.max_iterations)?;
+                    info.set_item("step_rms", p.step_rms)?;
+                    info.set_item("radius_rms", p.radius_rms)
+                });
+            })
+        })
         .map_err(raise)?;
+    callback.result()?;
     Ok(Model {
         model: sampled.model,
         report: Some(sampled.report),
@@ -302,21 +351,33 @@ impl Deformer {
     /// Moves the surface to `vertices` (`(v, 3)`, the model's surface
     /// vertices in the same order) and solves; returns the report as a
     /// dict. A solve that did not converge warns (RuntimeWarning) and
-    /// says so in the report.
+    /// says so in the report. `progress`, if given, is called after every
+    /// iteration with a dict: `iteration`, `max_iterations`, `residual`
+    /// (the error estimate, a fraction of the model's size).
+    #[pyo3(signature = (vertices, progress = None))]
     fn solve(
         &mut self,
         py: Python<'_>,
         vertices: PyArrayLike2<'_, f64, AllowTypeChange>,
+        progress: Option<Py<PyAny>>,
     ) -> PyResult<Py<PyAny>> {
         let vertices = points_of(&vertices, "deformed vertices")?;
         let deformed = SurfaceMesh::new(vertices, self.triangles.clone());
         let solver = &mut self.solver;
+        let mut callback = Callback::new(progress.as_ref());
         let report = py
             .detach(|| {
                 solver.set_surface(&deformed)?;
-                solver.solve()
+                solver.solve_with_progress(&mut |step| {
+                    callback.tell(|info| {
+                        info.set_item("iteration", step.iteration)?;
+                        info.set_item("max_iterations", step.max_iterations)?;
+                        info.set_item("residual", step.residual)
+                    });
+                })
             })
             .map_err(raise)?;
+        callback.result()?;
         if !report.converged {
             let message = format!(
                 "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",

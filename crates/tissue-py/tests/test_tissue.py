@@ -138,6 +138,28 @@ def test_a_solve_that_does_not_converge_warns(model):
         assert model.deformer(backend="cpu").solve(sagged)["converged"]
 
 
+def test_progress_is_told_every_iteration(model):
+    steps = []
+    sampled = tissue.sample(tissue.phantom_breast(), particles=500, progress=steps.append)
+    assert [s["iteration"] for s in steps] == list(range(1, sampled.report["iterations"] + 1))
+    assert all(isinstance(s["iteration"], int) and s["step_rms"] >= 0 for s in steps)
+
+    solves = []
+    sagged, _ = tissue.phantom_breast_sagged()
+    report = model.deformer(backend="cpu").solve(sagged, progress=solves.append)
+    assert [s["iteration"] for s in solves] == list(range(1, report["iterations"] + 1))
+    assert [s["residual"] for s in solves] == pytest.approx(report["residual_history"])
+
+
+def test_an_exception_in_progress_is_raised_after_the_work(model):
+    def fail(step):
+        raise ValueError(f"stop at {step['iteration']}")
+
+    sagged, _ = tissue.phantom_breast_sagged()
+    with pytest.raises(ValueError, match="stop at 1"):
+        model.deformer(backend="cpu").solve(sagged, progress=fail)
+
+
 def test_the_gil_is_released_while_sampling():
     ticks = []
     stop = threading.Event()

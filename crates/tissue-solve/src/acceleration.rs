@@ -173,6 +173,12 @@ impl StoppingRule {
         }
     }
 
+    /// The error estimate after the last iteration recorded, as a fraction
+    /// of the size.
+    pub fn last_error(&self) -> Option<f32> {
+        self.history.last().copied()
+    }
+
     /// The report of the solve, ended by `stopped_by` after `iterations`.
     pub fn report(self, iterations: usize, stopped_by: StopReason, seconds: f64) -> DeformReport {
         DeformReport {

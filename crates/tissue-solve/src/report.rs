@@ -31,6 +31,20 @@ impl StopReason {
     }
 }
 
+/// Where a stage-2 solve is: told to its progress callback after every
+/// iteration (`Tracker::solve_observed`), in order, on every device.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveStep {
+    /// Iterations done in this solve, every phase counted (from 1); the
+    /// report's `iterations` after the last.
+    pub iteration: usize,
+    /// The solve's iteration cap.
+    pub max_iterations: usize,
+    /// The error estimate after it, as a fraction of the model's size: the
+    /// report's `residual_history` entry.
+    pub residual: f32,
+}
+
 /// How a solve went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DeformReport {

@@ -15,7 +15,7 @@ use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel, RotationMethod};
 use crate::plan::Plan;
 use crate::predict::{FrameHistory, predict};
-use crate::report::{DeformReport, StopReason};
+use crate::report::{DeformReport, SolveStep, StopReason};
 use crate::svd3::rotation_of;
 
 /// What every iteration of one solve runs with, from the plan and the
@@ -330,13 +330,36 @@ impl<D: SolveDevice> Tracker<D> {
     /// and solves again with both phases from the frame's start if that
     /// diverges. The report counts every iteration run.
     pub fn solve(&mut self, cx: D::Context<'_>) -> Result<DeformReport, D::Error> {
+        self.solve_observed(cx, &mut |_| {})
+    }
+
+    /// [`Tracker::solve`], telling `observe` where it is after every
+    /// iteration ([`SolveStep`]: the iterations so far, every phase
+    /// counted, and the error estimate the report's history records).
+    pub fn solve_observed(
+        &mut self,
+        cx: D::Context<'_>,
+        observe: &mut dyn FnMut(&SolveStep),
+    ) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
         let params = self.params.clone();
+        let mut steps = Steps {
+            done: 0,
+            max_iterations: params.max_iterations,
+            observe,
+        };
         let mut report = if params.force != ForceModel::Elastic {
-            self.phase(cx, &params, params.max_iterations, true, false)?
+            self.phase(cx, &params, params.max_iterations, true, false, &mut steps)?
         } else if self.elastic_warm {
             let correct = self.elastic_correct;
-            let warm = self.phase(cx, &params, params.max_iterations, correct, false)?;
+            let warm = self.phase(
+                cx,
+                &params,
+                params.max_iterations,
+                correct,
+                false,
+                &mut steps,
+            )?;
             if warm.stopped_by.failed() {
                 log::warn!(
                     "the elastic solve {} from the predicted start after {} iterations; \
@@ -350,7 +373,7 @@ impl<D: SolveDevice> Tracker<D> {
                 );
                 self.device.reset(cx)?;
                 self.device.write_positions(cx, &self.current, None)?;
-                let mut again = self.shear_then_elastic(cx, &params)?;
+                let mut again = self.shear_then_elastic(cx, &params, &mut steps)?;
                 again.iterations += warm.iterations;
                 again.residual_history.splice(0..0, warm.residual_history);
                 again
@@ -358,7 +381,7 @@ impl<D: SolveDevice> Tracker<D> {
                 warm
             }
         } else {
-            self.shear_then_elastic(cx, &params)?
+            self.shear_then_elastic(cx, &params, &mut steps)?
         };
         report.seconds = started.elapsed().as_secs_f64();
         self.current = self.device.read_positions(cx)?;
@@ -375,12 +398,13 @@ impl<D: SolveDevice> Tracker<D> {
         &mut self,
         cx: D::Context<'_>,
         params: &DeformParams,
+        steps: &mut Steps<'_>,
     ) -> Result<DeformReport, D::Error> {
         let shear = DeformParams {
             tolerance: params.tolerance * SHEAR_TOLERANCE,
             ..params.shear()
         };
-        let first = self.phase(cx, &shear, params.max_iterations, true, false)?;
+        let first = self.phase(cx, &shear, params.max_iterations, true, false, steps)?;
         if first.stopped_by.failed() {
             return Ok(first);
         }
@@ -390,7 +414,7 @@ impl<D: SolveDevice> Tracker<D> {
         let (mut correct, mut retries) = (true, 0);
         loop {
             let left = params.max_iterations.saturating_sub(used).max(1);
-            let mut second = self.phase(cx, &elastic, left, correct, true)?;
+            let mut second = self.phase(cx, &elastic, left, correct, true, steps)?;
             let corrected = correct && self.device.elastic_rho().is_some();
             used += second.iterations;
             history.append(&mut second.residual_history);
@@ -432,7 +456,7 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// One phase of a solve: `p`'s force from the current state until its
     /// stopping rule holds or `cap` iterations; `correct` and `relinearise`
-    /// as in [`Iteration`].
+    /// as in [`Iteration`]; every iteration told to `steps`.
     fn phase(
         &mut self,
         cx: D::Context<'_>,
@@ -440,6 +464,7 @@ impl<D: SolveDevice> Tracker<D> {
         cap: usize,
         correct: bool,
         relinearise: bool,
+        steps: &mut Steps<'_>,
     ) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
         let iteration = Iteration {
@@ -479,6 +504,7 @@ impl<D: SolveDevice> Tracker<D> {
             if let Some(reason) = reason {
                 stopped_by = reason;
             }
+            steps.told(rule.last_error().unwrap_or(f32::NAN));
             Ok(reason.is_some())
         })?;
         let seconds = started.elapsed().as_secs_f64();
@@ -497,6 +523,25 @@ impl<D: SolveDevice> Tracker<D> {
         self.current.clone_from(&self.rest);
         self.history = FrameHistory::at_rest(&self.rest, self.params.history);
         Ok(())
+    }
+}
+
+/// A solve's progress callback and the iterations it was told of.
+struct Steps<'a> {
+    done: usize,
+    max_iterations: usize,
+    observe: &'a mut dyn FnMut(&SolveStep),
+}
+
+impl Steps<'_> {
+    /// One more iteration, ending with error estimate `residual`.
+    fn told(&mut self, residual: f32) {
+        self.done += 1;
+        (self.observe)(&SolveStep {
+            iteration: self.done,
+            max_iterations: self.max_iterations,
+            residual,
+        });
     }
 }
 

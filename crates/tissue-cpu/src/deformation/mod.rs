@@ -160,7 +160,16 @@ impl Deformer {
     /// below `tolerance` times the model's size; or the step is below what
     /// `f32` can resolve at the model's coordinates.
     pub fn solve(&mut self) -> DeformReport {
-        let Ok(report) = self.tracker.solve(());
+        self.solve_observed(&mut |_| {})
+    }
+
+    /// [`Deformer::solve`], telling `observe` where it is after every
+    /// iteration.
+    pub fn solve_observed(
+        &mut self,
+        observe: &mut dyn FnMut(&tissue_solve::SolveStep),
+    ) -> DeformReport {
+        let Ok(report) = self.tracker.solve_observed((), observe);
         report
     }
 }
