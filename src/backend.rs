@@ -34,6 +34,7 @@ use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
 use tissue_solve::SolveStep;
 use tissue_solve::elastic::offsets_product;
+use tissue_solve::structures::{RigidBinding, RigidMotion};
 use tissue_solve::svd3::rotation_of;
 
 /// Which device to use.
@@ -542,6 +543,43 @@ impl Solver {
             }
             _ => Err(DeformError::OtherBackend.into()),
         }
+    }
+
+    /// Binds a rigid structure with rest `vertices` (reference
+    /// coordinates): its centroid is carried like a landmark, its rotation
+    /// fitted to the particles nearest that centroid
+    /// ([`RigidBinding`](tissue_solve::structures::RigidBinding)).
+    pub fn bind_rigid(&self, vertices: &[Vec3]) -> Result<BoundRigid, Error> {
+        let binding = RigidBinding::new(self.reference(), vertices);
+        let centre = self.bind(&binding.centre().points)?;
+        Ok(BoundRigid { binding, centre })
+    }
+
+    /// How `bound` moved in the last solve: a rotation about its rest
+    /// centroid and where that centroid went.
+    pub fn carry_rigid(&self, bound: &BoundRigid) -> Result<RigidMotion, Error> {
+        let moved_centre = self
+            .carry(&bound.centre)?
+            .first()
+            .copied()
+            .unwrap_or_default();
+        Ok(bound
+            .binding
+            .motion_from(moved_centre, self.reference(), self.positions()))
+    }
+}
+
+/// A rigid structure bound to a [`Solver`]'s particles ([`Solver::bind_rigid`]).
+#[derive(Debug)]
+pub struct BoundRigid {
+    binding: RigidBinding,
+    centre: BoundPoints,
+}
+
+impl BoundRigid {
+    /// The structure's rest centroid.
+    pub fn rest_centre(&self) -> Vec3 {
+        self.binding.centre().points[0]
     }
 }
 

@@ -7,10 +7,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
+use tissue::backend::BoundRigid;
 use tissue::field::SurfaceField;
 use tissue::io::markups::{Markups, is_markups, load_markups};
 use tissue::io::space::Space;
-use tissue::structures::{RigidBinding, RigidMotion};
+use tissue::structures::RigidMotion;
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{BoundPoints, Solver};
@@ -152,7 +153,7 @@ enum Binding {
     /// Every vertex carried.
     Deformable(BoundPoints),
     /// The centre carried, the rotation fitted to the particles around it.
-    Rigid(RigidBinding, BoundPoints),
+    Rigid(BoundRigid),
 }
 
 /// One internal structure, bound at rest.
@@ -354,11 +355,7 @@ impl Structure {
     ) -> Result<Self> {
         let binding = match kind {
             Kind::Deformable => Binding::Deformable(solver.bind(&mesh.vertices)?),
-            Kind::Rigid => {
-                let rigid = RigidBinding::new(solver.reference(), &mesh.vertices);
-                let centre = solver.bind(&rigid.centre().points)?;
-                Binding::Rigid(rigid, centre)
-            }
+            Kind::Rigid => Binding::Rigid(solver.bind_rigid(&mesh.vertices)?),
         };
         Ok(Self {
             name,
@@ -403,10 +400,8 @@ impl Structure {
                 let c = centroid(&vertices);
                 (vertices, c, None)
             }
-            Binding::Rigid(binding, centre) => {
-                let moved_centre = solver.carry(centre)?.first().copied().unwrap_or_default();
-                let motion =
-                    binding.motion_from(moved_centre, solver.reference(), solver.positions());
+            Binding::Rigid(bound) => {
+                let motion = solver.carry_rigid(bound)?;
                 let vertices = self
                     .rest
                     .vertices

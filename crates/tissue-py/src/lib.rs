@@ -61,6 +61,9 @@ fn points_of(array: &PyArrayLike2<'_, f64, AllowTypeChange>, what: &str) -> PyRe
 }
 
 /// `points` as an `(n, 3)` float64 array.
+/// An `(n, k)` array of coordinates handed to Python.
+type Points<'py> = Bound<'py, PyArray2<f64>>;
+
 fn array_of<'py>(py: Python<'py>, points: &[Vec3]) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let flat: Vec<f64> = points
         .iter()
@@ -416,6 +419,41 @@ impl Deformer {
             })
             .map_err(raise)?;
         array_of(py, &moved)
+    }
+
+    /// How a rigid structure with rest vertices `vertices` (`(k, 3)`,
+    /// inside the model: a tumour taken as rigid) moved in the last solve:
+    /// its vertices moved, `(k, 3)`, and the motion as a 4x4 homogeneous
+    /// matrix (rest coordinates to moved ones), a rotation about its rest
+    /// centroid fitted to the particles around it and the centroid
+    /// carried like a landmark (as `tissue deform --rigid-structure`).
+    fn carry_rigid<'py>(
+        &self,
+        py: Python<'py>,
+        vertices: PyArrayLike2<'_, f64, AllowTypeChange>,
+    ) -> PyResult<(Points<'py>, Points<'py>)> {
+        let vertices = points_of(&vertices, "vertices")?;
+        if vertices.is_empty() {
+            return Err(raise("a rigid structure needs at least one vertex"));
+        }
+        let solver = &self.solver;
+        let motion = py
+            .detach(|| {
+                let bound = solver.bind_rigid(&vertices)?;
+                solver.carry_rigid(&bound)
+            })
+            .map_err(raise)?;
+        let moved: Vec<Vec3> = vertices.iter().map(|&x| motion.apply(x)).collect();
+        let matrix: Vec<f64> = motion
+            .homogeneous()
+            .iter()
+            .flatten()
+            .map(|&v| f64::from(v))
+            .collect();
+        Ok((
+            array_of(py, &moved)?,
+            PyArray1::from_vec(py, matrix).reshape([4, 4])?,
+        ))
     }
 
     /// Back to rest: the next solve starts from the rest shape.

@@ -74,6 +74,13 @@ def test_a_rigid_motion_of_the_skin_carries_points_rigidly(model):
     np.testing.assert_allclose(
         deformer.carry(tumour), tumour @ turn.T + shift, atol=1e-4 * size
     )
+    moved, transform = deformer.carry_rigid(tumour)
+    np.testing.assert_allclose(moved, tumour @ turn.T + shift, atol=1e-4 * size)
+    np.testing.assert_allclose(transform[:3, :3], turn, atol=1e-4)
+    np.testing.assert_allclose(transform[:3, 3], shift, atol=1e-4 * size)
+    np.testing.assert_array_equal(transform[3], [0, 0, 0, 1])
+    with pytest.raises(tissue.TissueError, match="at least one vertex"):
+        deformer.carry_rigid(np.zeros((0, 3)))
 
 
 def test_lists_and_float32_arrays_are_taken_as_points(model):

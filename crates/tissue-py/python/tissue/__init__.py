@@ -4,7 +4,8 @@ The organ's interior is filled with particles (``sample``, stage 1); the
 surface particles then follow an observed, deformed surface and the
 interior follows them (``Model.deformer`` and ``Deformer.solve``, stage 2).
 Points inside the organ (a tumour's vertices, landmarks) ride along
-(``Deformer.carry``). Arrays are numpy arrays in the surface's units.
+(``Deformer.carry``; a rigid structure by ``Deformer.carry_rigid``, which
+also gives its motion as a 4x4 matrix). Arrays are numpy arrays in the surface's units.
 
     import tissue
     model = tissue.sample(tissue.phantom_breast(), particles=2000)
