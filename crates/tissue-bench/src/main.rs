@@ -342,6 +342,10 @@ fn run(args: &Args) -> Result<()> {
         eprintln!("tissue-bench: {n} particles");
         let sampled = sample(&cases.rest, n)?;
         let model = &sampled.model;
+        eprintln!(
+            "tissue-bench:   sampled in {:.1} s ({} iterations)",
+            sampled.report.seconds, sampled.report.iterations
+        );
         let sampling = Sampling {
             seconds: sampled.report.seconds,
             iterations: sampled.report.iterations,

@@ -134,6 +134,16 @@ pub fn measure(
     repeats: Repeats,
     defaults: &DeformParams,
 ) -> Result<Stage2> {
+    // Where a long run is, on stderr (the report goes to stdout).
+    let begun = Instant::now();
+    let device = if gpu.is_some() { "gpu" } else { "cpu" };
+    let phase = |what: &str| {
+        eprintln!(
+            "tissue-bench:   {device}: {what} ({:.1} s into stage 2)",
+            begun.elapsed().as_secs_f64()
+        );
+    };
+    phase("timing fixed iterations and the per-stage breakdown");
     let (iteration, stages) = {
         // The stopping rule off: the smallest positive tolerance never holds
         // while the sag is still being followed.
@@ -180,6 +190,7 @@ pub fn measure(
         (timing, stages)
     };
 
+    phase("preparing the solver");
     let started = Instant::now();
     let mut solver = solver_on(gpu, model, defaults.clone()).context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
@@ -214,6 +225,7 @@ pub fn measure(
     .context("stage 2, from rest")?;
     let mut converge = Vec::new();
     for (case, target) in &cases.targets {
+        phase(&format!("solving {case} from rest"));
         from_rest.reset()?;
         from_rest.set_surface(target)?;
         let started = Instant::now();
@@ -228,6 +240,7 @@ pub fn measure(
     }
 
     // Tracking: reach half the sag, then frames of 2 % of it each.
+    phase("tracking frames");
     solver.reset()?;
     let half = interpolate(&cases.rest, &cases.track, 0.5).map_err(anyhow::Error::msg)?;
     solver.set_surface(&half)?;
