@@ -42,11 +42,10 @@ fn gpu_kernels(c: &mut Criterion) {
     let sampled = tissue::sample(&breast, &SamplingParams::with_particles(PARTICLES))
         .expect("the phantom samples");
     // A state part way through the solve of the 12 mm sag.
-    let params = DeformParams {
-        tolerance: f32::MIN_POSITIVE,
-        max_iterations: 24,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.tolerance = f32::MIN_POSITIVE;
+        p.max_iterations = 24;
+    });
     let sagged = deform_surface(&breast, &Sag::default());
     let part_way = |params: DeformParams| {
         let mut deformer =
@@ -58,10 +57,9 @@ fn gpu_kernels(c: &mut Criterion) {
         deformer
     };
     let symmetric = part_way(params.clone());
-    let elastic = part_way(DeformParams {
-        force: ForceModel::Elastic,
-        ..params
-    });
+    let elastic = part_way(params.clone().with(|p| {
+        p.force = ForceModel::Elastic;
+    }));
     let wait = || {
         device
             .poll(wgpu::PollType::wait_indefinitely())

@@ -16,74 +16,64 @@ fn main() -> Result<(), tissue::Error> {
         ("defaults", base.clone()),
         (
             "random start",
-            SamplingParams {
-                initial: InitialPlacement::Random,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.initial = InitialPlacement::Random;
+            }),
         ),
         (
             "force cutoff 1.2",
-            SamplingParams {
-                force_cutoff: 1.2,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.force_cutoff = 1.2;
+            }),
         ),
         (
             "force cutoff 1.4",
-            SamplingParams {
-                force_cutoff: 1.4,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.force_cutoff = 1.4;
+            }),
         ),
         (
             "wall not in compression",
-            SamplingParams {
-                wall_in_compression: false,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.wall_in_compression = false;
+            }),
         ),
         (
             "paper surface force, mu = 30",
-            SamplingParams {
-                surface_mode: SurfaceMode::PaperForce { mu: 30.0 },
-                wall_in_compression: false,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.surface_mode = SurfaceMode::PaperForce { mu: 30.0 };
+                p.wall_in_compression = false;
+            }),
         ),
         (
             "eta = 0.003",
-            SamplingParams {
-                eta: 0.003,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.eta = 0.003;
+            }),
         ),
         (
             "eta = 0.03",
-            SamplingParams {
-                eta: 0.03,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.eta = 0.03;
+            }),
         ),
         (
             "connection ratio 0.6 (paper)",
-            SamplingParams {
-                connection_ratio: 0.6,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.connection_ratio = 0.6;
+            }),
         ),
         (
             "connection ratio 0.75",
-            SamplingParams {
-                connection_ratio: 0.75,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.connection_ratio = 0.75;
+            }),
         ),
         (
             "connection ratio 1.0",
-            SamplingParams {
-                connection_ratio: 1.0,
-                ..base.clone()
-            },
+            base.clone().with(|p| {
+                p.connection_ratio = 1.0;
+            }),
         ),
         ("paper preset", SamplingParams::paper(particles)),
     ];

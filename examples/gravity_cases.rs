@@ -102,11 +102,10 @@ fn main() {
     let (g_rest, g_def) = (g("gravity_rest"), g("gravity_deformed"));
     let density = truth["program_may_use"]["density_kg_m3"].as_f64().unwrap() as f32;
     let per_kpa = |g: Vec3| gravity_load(g, density, 1.0, poisson, 1e-3).unwrap();
-    let base = DeformParams {
-        force: ForceModel::Elastic,
-        poisson,
-        ..DeformParams::default()
-    };
+    let base = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.poisson = poisson;
+    });
     let rest = model.positions.clone();
     let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
     let started = std::time::Instant::now();
@@ -116,11 +115,10 @@ fn main() {
             positions: guess.to_vec(),
             ..model.clone()
         };
-        let params = DeformParams {
-            observed: Some(held.clone()),
-            load: body,
-            ..base.clone()
-        };
+        let params = base.clone().with(|p| {
+            p.observed = Some(held.clone());
+            p.load = body;
+        });
         let mut d = Deformer::new(&m0, params)?;
         d.set_surface(&model.surface)?;
         let report = d.solve();
@@ -180,10 +178,9 @@ fn main() {
     let mut m0 = model.clone();
     m0.positions = unloaded.clone();
     for (label, body) in [("gravity", load(g_def)), ("no gravity", Vec3::ZERO)] {
-        let params = DeformParams {
-            load: body,
-            ..base.clone()
-        };
+        let params = base.clone().with(|p| {
+            p.load = body;
+        });
         let mut d = Deformer::new(&m0, params).unwrap();
         d.set_surface(&deformed).unwrap();
         let r = d.solve();

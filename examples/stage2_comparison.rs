@@ -50,12 +50,11 @@ fn main() -> Result<(), tissue::Error> {
     for (name, surface, exact) in &cases {
         for force in [ForceModel::Paper, ForceModel::Symmetric] {
             for chebyshev in [false, true] {
-                let params = DeformParams {
-                    force,
-                    chebyshev,
-                    max_iterations: 5_000,
-                    ..DeformParams::default()
-                };
+                let params = DeformParams::default().with(|p| {
+                    p.force = force;
+                    p.chebyshev = chebyshev;
+                    p.max_iterations = 5_000;
+                });
                 let mut deformer = Deformer::new(&model, params)?;
                 deformer.set_surface(surface)?;
                 let report = deformer.solve();

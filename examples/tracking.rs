@@ -27,13 +27,11 @@ fn main() -> Result<(), tissue::Error> {
         .and_then(|t| t.parse().ok())
         .unwrap_or(defaults.coarse);
     let mut number = |default: usize| args.next().and_then(|t| t.parse().ok()).unwrap_or(default);
-    let params = DeformParams {
-        coarse,
-        deflation: number(defaults.deflation),
-        history: number(defaults.history),
-
-        ..defaults
-    };
+    let params = defaults.clone().with(|p| {
+        p.coarse = coarse;
+        p.deflation = number(defaults.deflation);
+        p.history = number(defaults.history);
+    });
     let only = args.next().unwrap_or_default();
     let breast = phantom::default_breast();
     let model = tissue::sample(&breast, &SamplingParams::with_particles(particles))?.model;
@@ -161,20 +159,18 @@ fn track(
     for surface in frames {
         deformer.set_surface(surface)?;
         let mut reference = deformer.clone();
-        reference.set_params(DeformParams {
-            tolerance: 1e-7,
-            ..params.clone()
-        })?;
+        reference.set_params(params.clone().with(|p| {
+            p.tolerance = 1e-7;
+        }))?;
         reference.solve();
         let error = |d: &Deformer| max_distance(d.positions(), reference.positions()) / size;
         let start = error(&deformer);
         let mut oracle = 0;
         for cap in 1..300 {
             let mut capped = deformer.clone();
-            capped.set_params(DeformParams {
-                max_iterations: cap,
-                ..params.clone()
-            })?;
+            capped.set_params(params.clone().with(|p| {
+                p.max_iterations = cap;
+            }))?;
             let report = capped.solve();
             if error(&capped) < params.tolerance {
                 oracle = cap;

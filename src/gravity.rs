@@ -15,7 +15,7 @@
 //! let model = tissue::sample(&phantom::default_breast(), &SamplingParams::with_particles(1_000))?
 //!     .model;
 //! let deformed = tissue::deform::sagged_breast();
-//! let params = DeformParams { force: ForceModel::Elastic, ..DeformParams::default() };
+//! let params = DeformParams::default().with(|p| p.force = ForceModel::Elastic);
 //! // Lying on the back (+z forward), then sitting up (gravity towards the
 //! // feet, -y), tissue of 3 kPa; without a stiffness it is fitted.
 //! let gravity = Gravity::millimetres(Vec3::NEG_Z, Vec3::NEG_Y, Some(3.0));
@@ -23,7 +23,7 @@
 //! let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap_or_default();
 //! let unloaded = unload(&Device::Cpu, &model, &deformed, &held, &gravity, &params, &mut |_| {})?;
 //! assert!(unloaded.shape.converged);
-//! let params = DeformParams { load: unloaded.deformed_load, ..params };
+//! let params = params.with(|p| p.load = unloaded.deformed_load);
 //! let mut solver = Solver::unloaded(Device::Cpu, &model, &unloaded.shape.positions, params)?;
 //! solver.set_surface(&deformed)?;
 //! assert!(solver.solve()?.converged);
@@ -252,11 +252,10 @@ pub fn unload(
             positions: guess.to_vec(),
             ..model.clone()
         };
-        let held_params = DeformParams {
-            observed: Some(held.to_vec()),
-            load,
-            ..params.clone()
-        };
+        let held_params = params.clone().with(|p| {
+            p.observed = Some(held.to_vec());
+            p.load = load;
+        });
         let mut solver = Solver::new(device.clone(), &stress_free, held_params)?;
         solver.set_surface(&model.surface)?;
         let report = solver.solve()?;

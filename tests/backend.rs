@@ -130,16 +130,14 @@ fn deflation_runs_on_both_backends_and_agrees() {
     .unwrap()
     .model;
     // The CPU's two-level solve would replace deflation: off here.
-    let deflated = DeformParams {
-        deflation: 16,
-        coarse: 0.0,
-        ..DeformParams::default()
-    };
-    let undeflated = DeformParams {
-        deflation: 0,
-        coarse: 0.0,
-        ..DeformParams::default()
-    };
+    let deflated = DeformParams::default().with(|p| {
+        p.deflation = 16;
+        p.coarse = 0.0;
+    });
+    let undeflated = DeformParams::default().with(|p| {
+        p.deflation = 0;
+        p.coarse = 0.0;
+    });
     let solve = |device: Device, params: &DeformParams| solve_sag(&model, device, params);
     let size = phantom_size();
     // Each solve stops within about its tolerance (3e-5 of the size) of the
@@ -197,10 +195,9 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     let two_level = solve(Device::Cpu, &defaults);
     let deflated = solve(
         Device::Cpu,
-        &DeformParams {
-            coarse: 0.0,
-            ..defaults.clone()
-        },
+        &defaults.clone().with(|p| {
+            p.coarse = 0.0;
+        }),
     );
     eprintln!(
         "CPU, sag from rest: {} iterations two-level, {} deflated",
@@ -249,10 +246,9 @@ fn solve_progress_comes_once_per_iteration_on_both_devices() {
         let mut iterations = Vec::new();
         for device in [Device::Cpu, gpu.clone()] {
             let name = device.name().to_owned();
-            let params = DeformParams {
-                force,
-                ..DeformParams::default()
-            };
+            let params = DeformParams::default().with(|p| {
+                p.force = force;
+            });
             let mut solver = Solver::new(device, &model, params).unwrap();
             solver.set_surface(&sag).unwrap();
             let mut steps = Vec::new();

@@ -27,14 +27,13 @@ fn column() -> &'static ParticleModel {
 /// `rho g / (2 mu)`), the surface unmoved, only its base observed.
 fn hang(force: ForceModel, load: Vec3) -> Deformer {
     let model = column();
-    let params = DeformParams {
-        force,
-        poisson: 0.0,
-        observed: Some(common::column_base(model)),
-        load,
-        tolerance: 1e-6,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = force;
+        p.poisson = 0.0;
+        p.observed = Some(common::column_base(model));
+        p.load = load;
+        p.tolerance = 1e-6;
+    });
     let mut deformer = Deformer::new(model, params).unwrap();
     deformer.set_surface(&model.surface).unwrap();
     let report = deformer.solve();
@@ -122,31 +121,27 @@ fn half_the_load_sags_half_as_far_and_none_not_at_all() {
 fn bad_masks_and_loads_are_refused() {
     let model = column();
     let refused = |params: DeformParams| Deformer::new(model, params).unwrap_err().to_string();
-    let short = refused(DeformParams {
-        observed: Some(vec![true; 3]),
-        ..DeformParams::default()
-    });
+    let short = refused(DeformParams::default().with(|p| {
+        p.observed = Some(vec![true; 3]);
+    }));
     assert!(
         short.contains("3 flags") && short.contains("vertices"),
         "{short}"
     );
-    let nothing = refused(DeformParams {
-        observed: Some(vec![false; model.surface.vertices.len()]),
-        ..DeformParams::default()
-    });
+    let nothing = refused(DeformParams::default().with(|p| {
+        p.observed = Some(vec![false; model.surface.vertices.len()]);
+    }));
     assert!(
         nothing.contains("no surface particle is observed"),
         "{nothing}"
     );
-    let heavy = refused(DeformParams {
-        load: Vec3::new(0.0, 0.0, -100.0),
-        ..DeformParams::default()
-    });
+    let heavy = refused(DeformParams::default().with(|p| {
+        p.load = Vec3::new(0.0, 0.0, -100.0);
+    }));
     assert!(heavy.contains("load"), "{heavy}");
-    let nan = refused(DeformParams {
-        load: Vec3::new(f32::NAN, 0.0, 0.0),
-        ..DeformParams::default()
-    });
+    let nan = refused(DeformParams::default().with(|p| {
+        p.load = Vec3::new(f32::NAN, 0.0, 0.0);
+    }));
     assert!(nan.contains("load") && nan.contains("finite"), "{nan}");
 }
 
@@ -170,11 +165,10 @@ fn a_full_mask_and_a_zero_load_change_nothing() {
         deformer.positions().to_vec()
     };
     let plain = solve(DeformParams::default());
-    let masked = solve(DeformParams {
-        observed: Some(vec![true; model.surface.vertices.len()]),
-        load: Vec3::ZERO,
-        ..DeformParams::default()
-    });
+    let masked = solve(DeformParams::default().with(|p| {
+        p.observed = Some(vec![true; model.surface.vertices.len()]);
+        p.load = Vec3::ZERO;
+    }));
     assert_eq!(plain, masked);
 }
 
@@ -183,27 +177,23 @@ fn a_full_mask_and_a_zero_load_change_nothing() {
 #[test]
 fn the_mask_and_the_load_cannot_change_between_frames() {
     let model = column();
-    let params = DeformParams {
-        observed: Some(common::column_base(model)),
-        load: Vec3::new(0.0, 0.0, -0.001),
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.observed = Some(common::column_base(model));
+        p.load = Vec3::new(0.0, 0.0, -0.001);
+    });
     let mut deformer = Deformer::new(model, params.clone()).unwrap();
-    let other_mask = DeformParams {
-        observed: None,
-        ..params.clone()
-    };
+    let other_mask = params.clone().with(|p| {
+        p.observed = None;
+    });
     let err = deformer.set_params(other_mask).unwrap_err().to_string();
     assert!(err.contains("observed"), "{err}");
-    let other_load = DeformParams {
-        load: Vec3::new(0.0, 0.0, -0.002),
-        ..params.clone()
-    };
+    let other_load = params.clone().with(|p| {
+        p.load = Vec3::new(0.0, 0.0, -0.002);
+    });
     let err = deformer.set_params(other_load).unwrap_err().to_string();
     assert!(err.contains("load"), "{err}");
-    let tighter = DeformParams {
-        tolerance: 1e-5,
-        ..params
-    };
+    let tighter = params.clone().with(|p| {
+        p.tolerance = 1e-5;
+    });
     deformer.set_params(tighter).unwrap();
 }

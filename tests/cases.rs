@@ -85,10 +85,9 @@ fn the_elastic_force_beats_linear_fem_on_both_breast_phantoms() {
         let Some(case) = common::shared_case(name) else {
             continue;
         };
-        let elastic = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
+        let elastic = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        });
         let ((rmse, tumour), (fem_rmse, fem_tumour)) = score(&case, elastic);
         eprintln!(
             "{name}: elastic probe RMSE {rmse:.2} mm, tumour centre {tumour:.2} mm; linear FEM {fem_rmse:.2} / {fem_tumour:.2} mm"
@@ -137,10 +136,9 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
             density_kg_m3: may["density_kg_m3"].as_f64().unwrap() as f32,
             ..Gravity::millimetres(gravity("gravity_rest"), gravity("gravity_deformed"), None)
         };
-        let base = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
+        let base = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        });
         let held = held_vertices(&model.surface, &deformed, 1e-3).unwrap();
         // The facade's path, as `tissue deform --gravity-rest ... --gravity-deformed ...`
         // takes it: the fit and the unloaded shape, then the deformed
@@ -158,10 +156,9 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
         .unwrap();
         assert_eq!(solves, found.solves, "{name}: every solve was told");
         let fit = found.fit.as_ref().unwrap();
-        let params = DeformParams {
-            load: found.deformed_load,
-            ..base.clone()
-        };
+        let params = base.clone().with(|p| {
+            p.load = found.deformed_load;
+        });
         let mut solver =
             Solver::unloaded(Device::Cpu, &model, &found.shape.positions, params).unwrap();
         solver.set_surface(&deformed).unwrap();

@@ -31,10 +31,9 @@ fn a_deep_narrow_indentation_converges_with_the_elastic_force_after_a_retry() {
     let solve = |force| {
         let mut deformer = Deformer::new(
             &model,
-            DeformParams {
-                force,
-                ..DeformParams::default()
-            },
+            DeformParams::default().with(|p| {
+                p.force = force;
+            }),
         )
         .unwrap();
         deformer.set_surface(&poked).unwrap();

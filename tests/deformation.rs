@@ -76,10 +76,9 @@ fn rigid_motion_moves_every_particle_and_point_rigidly() {
         Vec3::new(7.0, -3.0, 4.0),
     );
     let deformed = deform_surface(&model.surface, &rigid);
-    let solver_alone = DeformParams {
-        extrapolate: false,
-        ..DeformParams::default()
-    };
+    let solver_alone = DeformParams::default().with(|p| {
+        p.extrapolate = false;
+    });
     let unpredicted = solve(model, &deformed, solver_alone);
     let deformer = solve(model, &deformed, DeformParams::default());
     let size = deformer.size();
@@ -161,10 +160,9 @@ fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
         centre: Vec3::new(0.0, 0.0, 20.0),
     };
     let deformed = deform_surface(&model.surface, &affine);
-    let elastic = DeformParams {
-        force: ForceModel::Elastic,
-        ..DeformParams::default()
-    };
+    let elastic = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+    });
     let deformer = solve(model, &deformed, elastic);
     let (rms, max) = errors(model, &deformer, &affine);
     let scale = max_displacement(model, &affine);
@@ -183,11 +181,10 @@ fn svd_and_warm_polar_rotations_reach_the_same_solution() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     let solve_with = |rotations| {
-        let params = DeformParams {
-            rotations,
-            tolerance: 1e-6,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.rotations = rotations;
+            p.tolerance = 1e-6;
+        });
         solve(model, &sagged, params).positions().to_vec()
     };
     let svd = solve_with(RotationMethod::Svd);
@@ -216,10 +213,9 @@ fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
     };
     let deformed = deform_surface(&model.surface, &twist);
     for force in [ForceModel::Symmetric, ForceModel::Elastic] {
-        let params = DeformParams {
-            force,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+        });
         let deformer = solve(&model, &deformed, params);
         let (rms, max) = errors(&model, &deformer, &twist);
         let scale = max_displacement(&model, &twist);
@@ -441,10 +437,9 @@ fn prediction_cuts_tracking_iterations() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     let run = |extrapolate| {
-        let params = DeformParams {
-            extrapolate,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.extrapolate = extrapolate;
+        });
         let mut deformer = Deformer::new(model, params).unwrap();
         (0..8)
             .map(|k| {
@@ -469,11 +464,10 @@ fn prediction_cuts_tracking_iterations() {
 /// Tracks `frames` with `history` and tolerance 1e-6; per frame, the
 /// prediction's worst distance from the answer over the change's largest.
 fn prediction_errors(history: usize, frames: &[SurfaceMesh]) -> Vec<f32> {
-    let params = DeformParams {
-        history,
-        tolerance: 1e-6,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.history = history;
+        p.tolerance = 1e-6;
+    });
     let mut deformer = Deformer::new(breast_model(), params).unwrap();
     let mut solution = deformer.positions().to_vec();
     let worst = |a: &[Vec3], b: &[Vec3]| {
@@ -562,14 +556,12 @@ fn deflation_is_left_out_above_its_particle_limit() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     // Without the two-level solve, which would replace deflation.
-    let deflated = DeformParams {
-        coarse: 0.0,
-        ..DeformParams::default()
-    };
-    let capped = DeformParams {
-        deflation_max_particles: 1_000,
-        ..deflated.clone()
-    };
+    let deflated = DeformParams::default().with(|p| {
+        p.coarse = 0.0;
+    });
+    let capped = deflated.clone().with(|p| {
+        p.deflation_max_particles = 1_000;
+    });
     let mut without = Deformer::new(model, capped).unwrap();
     assert!(without.modes().is_none());
     let mut with = Deformer::new(model, deflated).unwrap();
@@ -653,10 +645,9 @@ fn mixed(
 fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
     let model = breast_model();
     let defaults = DeformParams::default();
-    let tight = DeformParams {
-        tolerance: 1e-6,
-        ..DeformParams::default()
-    };
+    let tight = DeformParams::default().with(|p| {
+        p.tolerance = 1e-6;
+    });
     let mut reference = Deformer::new(model, tight).unwrap();
     let rest = &model.surface;
     let (sagged, indented) = (
@@ -683,10 +674,9 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
     for (name, frames) in sequences {
         let mut deflated = Deformer::new(
             model,
-            DeformParams {
-                coarse: 0.0,
-                ..DeformParams::default()
-            },
+            DeformParams::default().with(|p| {
+                p.coarse = 0.0;
+            }),
         )
         .unwrap();
         let mut deformer = Deformer::new(model, defaults.clone()).unwrap();
@@ -869,14 +859,12 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
 fn the_cycled_coarse_solve_lands_where_the_factored_one_does() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
-    let factored = DeformParams {
-        extrapolate: false,
-        ..DeformParams::default()
-    };
-    let cycled = DeformParams {
-        coarse_direct_max_aggregates: 100,
-        ..factored.clone()
-    };
+    let factored = DeformParams::default().with(|p| {
+        p.extrapolate = false;
+    });
+    let cycled = factored.clone().with(|p| {
+        p.coarse_direct_max_aggregates = 100;
+    });
     let mut exact = Deformer::new(model, factored).unwrap();
     let mut approximate = Deformer::new(model, cycled).unwrap();
     let space = exact.coarse().unwrap();

@@ -17,19 +17,16 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
     )
     .unwrap()
     .model;
-    let corrected = DeformParams {
-        force: ForceModel::Elastic,
-        ..DeformParams::default()
-    };
+    let corrected = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+    });
     assert_eq!(corrected.elastic_coarse_max_aggregates, 200_000);
-    let plain = DeformParams {
-        elastic_coarse_max_aggregates: 0,
-        ..corrected.clone()
-    };
-    let tight = DeformParams {
-        tolerance: 1e-6,
-        ..plain.clone()
-    };
+    let plain = corrected.clone().with(|p| {
+        p.elastic_coarse_max_aggregates = 0;
+    });
+    let tight = plain.clone().with(|p| {
+        p.tolerance = 1e-6;
+    });
     let sagged = tissue::deform::sagged_breast();
     // The sag in five steps: 1.6 % of the size a frame.
     let frames: Vec<SurfaceMesh> = (1..=5)
@@ -92,10 +89,9 @@ fn the_volume_smoother_needs_small_aggregates() {
     )
     .unwrap()
     .model;
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+    });
     let sagged = tissue::deform::sagged_breast();
     let smoothed = Deformer::new(&model, params.clone()).unwrap();
     let (_, rho) = smoothed
@@ -107,10 +103,9 @@ fn the_volume_smoother_needs_small_aggregates() {
         "{rho}"
     );
     // Few aggregates: cells grown past 2 spacings.
-    let coarse = DeformParams {
-        elastic_coarse_max_aggregates: 40,
-        ..params.clone()
-    };
+    let coarse = params.clone().with(|p| {
+        p.elastic_coarse_max_aggregates = 40;
+    });
     let mut plain = Deformer::new(&model, coarse).unwrap();
     assert!(plain.device().volume_smoother().is_none());
     plain.set_surface(&sagged).unwrap();
@@ -119,10 +114,9 @@ fn the_volume_smoother_needs_small_aggregates() {
     // Asked off, it is off.
     let off = Deformer::new(
         &model,
-        DeformParams {
-            volume_smoother: false,
-            ..params
-        },
+        params.clone().with(|p| {
+            p.volume_smoother = false;
+        }),
     )
     .unwrap();
     assert!(off.device().volume_smoother().is_none());
@@ -140,14 +134,12 @@ fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
     )
     .unwrap()
     .model;
-    let factored = DeformParams {
-        force: ForceModel::Elastic,
-        ..DeformParams::default()
-    };
-    let cycled = DeformParams {
-        elastic_coarse_direct_max_aggregates: 40,
-        ..factored.clone()
-    };
+    let factored = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+    });
+    let cycled = factored.clone().with(|p| {
+        p.elastic_coarse_direct_max_aggregates = 40;
+    });
     let sagged = tissue::deform::sagged_breast();
     let mut a = Deformer::new(&model, factored.clone()).unwrap();
     let mut b = Deformer::new(&model, cycled).unwrap();

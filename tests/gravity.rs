@@ -26,13 +26,12 @@ fn column(particles: usize) -> ParticleModel {
 /// of the column's 40.
 fn params(model: &ParticleModel) -> DeformParams {
     let poisson = 0.45;
-    DeformParams {
-        force: ForceModel::Elastic,
-        poisson,
-        observed: Some(common::column_base(model)),
-        load: gravity_load(Vec3::new(0.0, 0.0, -1.0), 1000.0, 20.0, poisson, 1e-2).unwrap(),
-        ..DeformParams::default()
-    }
+    DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.poisson = poisson;
+        p.observed = Some(common::column_base(model));
+        p.load = gravity_load(Vec3::new(0.0, 0.0, -1.0), 1000.0, 20.0, poisson, 1e-2).unwrap();
+    })
 }
 
 /// On `device`, the rest shape loaded from `unloaded` positions: the
@@ -181,13 +180,12 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
             positions: x.to_vec(),
             ..model.clone()
         };
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            poisson,
-            observed: Some(common::column_base(&model)),
-            load: body,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+            p.poisson = poisson;
+            p.observed = Some(common::column_base(&model));
+            p.load = body;
+        });
         let mut solver = Solver::new(device.clone(), &guess, params)?;
         solver.set_surface(&model.surface)?;
         let report = solver.solve()?;

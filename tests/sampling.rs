@@ -72,10 +72,9 @@ fn same_seed_gives_a_bit_identical_model_with_1_2_and_3_threads() {
     }
     let reseeded = sample(
         &mesh,
-        &SamplingParams {
-            seed: 1,
-            ..params.clone()
-        },
+        &params.clone().with(|p| {
+            p.seed = 1;
+        }),
     )
     .model;
     assert_ne!(bits(&one).0, bits(&reseeded).0, "the seed must matter");
@@ -110,9 +109,7 @@ fn the_vtk_liver_samples_when_its_specks_are_dropped() {
     };
     let err = tissue::sample_file(&path, &SamplingParams::with_particles(1_000)).unwrap_err();
     assert!(err.to_string().contains("--largest-shell"), "{err}");
-    let options = LoadOptions {
-        largest_shell: true,
-    };
+    let options = LoadOptions::keeping_largest_shell(true);
     let (mesh, validation, dropped) = load_closed_surface_with(&path, &options).unwrap();
     assert!(validation.flipped, "liver.vtk faces inward");
     assert_eq!(dropped.count, 3);
@@ -143,10 +140,9 @@ fn the_papers_connection_threshold_connects_nothing_and_ours_gives_twelve() {
     let ours = sample(&mesh, &SamplingParams::with_particles(3_000));
     assert_eq!(SamplingParams::default().connection_ratio, 0.9);
     assert_eq!(ours.report.connections.median, 12.0);
-    let papers_params = SamplingParams {
-        connection_ratio: 0.6,
-        ..SamplingParams::with_particles(3_000)
-    };
+    let papers_params = SamplingParams::with_particles(3_000).with(|p| {
+        p.connection_ratio = 0.6;
+    });
     let papers = sample_unchecked(&mesh, &papers_params);
     assert_eq!(papers.report.connections.median, 0.0);
     assert!(papers.model.connections.pairs() * 100 < ours.model.connections.pairs());
@@ -158,10 +154,9 @@ fn the_papers_connection_threshold_connects_nothing_and_ours_gives_twelve() {
 #[test]
 fn the_literal_paper_preset_runs_and_shows_why_it_is_not_the_default() {
     let mesh = phantom::default_breast();
-    let params = SamplingParams {
-        max_iterations: 300,
-        ..SamplingParams::paper(2_000)
-    };
+    let params = SamplingParams::paper(2_000).with(|p| {
+        p.max_iterations = 300;
+    });
     let paper = sample_unchecked(&mesh, &params);
     eprintln!("paper preset: {:?}", paper.report);
     assert_eq!(paper.model.len(), 2_000);
@@ -180,10 +175,9 @@ fn the_literal_paper_preset_runs_and_shows_why_it_is_not_the_default() {
 
 #[test]
 fn a_random_start_relaxes_to_the_same_quality() {
-    let params = SamplingParams {
-        initial: tissue::params::InitialPlacement::Random,
-        ..SamplingParams::with_particles(3_000)
-    };
+    let params = SamplingParams::with_particles(3_000).with(|p| {
+        p.initial = tissue::params::InitialPlacement::Random;
+    });
     let sampled = sample(&phantom::default_breast(), &params);
     eprintln!("random start: {:?}", sampled.report);
     assert_quality("random start", &sampled.report);
@@ -204,18 +198,16 @@ fn bad_input_gives_errors_that_name_the_problem() {
     assert!(text.contains("particles"), "{text}");
     let text = err(
         &breast,
-        SamplingParams {
-            eta: f32::NAN,
-            ..Default::default()
-        },
+        SamplingParams::default().with(|p| {
+            p.eta = f32::NAN;
+        }),
     );
     assert!(text.contains("eta"), "{text}");
     let text = err(
         &breast,
-        SamplingParams {
-            mass: -1.0,
-            ..Default::default()
-        },
+        SamplingParams::default().with(|p| {
+            p.mass = -1.0;
+        }),
     );
     assert!(text.contains("mass"), "{text}");
     // More particles than any grid of this surface should hold: refused, not allocated.

@@ -316,17 +316,16 @@ fn run(args: &Args) -> Result<()> {
             stage_samples: 15,
         }
     };
-    let params = DeformParams {
-        force: match args.force {
+    let params = DeformParams::default().with(|p| {
+        p.force = match args.force {
             ForceName::Paper => ForceModel::Paper,
             ForceName::Symmetric => ForceModel::Symmetric,
             ForceName::Elastic => ForceModel::Elastic,
-        },
-        poisson: args.poisson,
-        deflation: args.deflation,
-        coarse: args.coarse,
-        ..DeformParams::default()
-    };
+        };
+        p.poisson = args.poisson;
+        p.deflation = args.deflation;
+        p.coarse = args.coarse;
+    });
     params.validate()?;
     let (mesh, cases) = surfaces(args.mesh.as_ref())?;
     let machine = Machine::detect();

@@ -147,12 +147,11 @@ pub fn measure(
     let (iteration, stages) = {
         // The stopping rule off: the smallest positive tolerance never holds
         // while the sag is still being followed.
-        let fixed = DeformParams {
-            tolerance: f32::MIN_POSITIVE,
-            max_iterations: repeats.iterations_per_solve,
-            extrapolate: false,
-            ..defaults.clone()
-        };
+        let fixed = defaults.clone().with(|p| {
+            p.tolerance = f32::MIN_POSITIVE;
+            p.max_iterations = repeats.iterations_per_solve;
+            p.extrapolate = false;
+        });
         let mut solver =
             solver_on(gpu, model, fixed.clone()).context("stage 2, fixed iterations")?;
         let mut per_iteration = Vec::new();
@@ -217,10 +216,9 @@ pub fn measure(
     let mut from_rest = solver_on(
         gpu,
         model,
-        DeformParams {
-            extrapolate: false,
-            ..defaults.clone()
-        },
+        defaults.clone().with(|p| {
+            p.extrapolate = false;
+        }),
     )
     .context("stage 2, from rest")?;
     let mut converge = Vec::new();

@@ -113,9 +113,7 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
     outputs.extend(args.report.clone());
     crate::output::refuse_overwriting(&outputs, &[("surface", args.surface.as_path())])?;
     crate::output::prepare_outputs(&outputs)?;
-    let options = tissue::io::surface::LoadOptions {
-        largest_shell: args.largest_shell,
-    };
+    let options = tissue::io::surface::LoadOptions::keeping_largest_shell(args.largest_shell);
     let (surface, validation, dropped) =
         tissue::io::surface::load_closed_surface_with(&args.surface, &options)?;
     // The library logs a flipped surface and dropped shells as warnings.

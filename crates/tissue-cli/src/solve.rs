@@ -92,15 +92,14 @@ impl SolveArgs {
                 format!("{other:?}").to_lowercase()
             ),
         };
-        let params = DeformParams {
-            force,
-            poisson: self.poisson,
-            max_iterations: self.max_iterations,
-            tolerance: self.tolerance,
-            deflation,
-            coarse: self.coarse,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.poisson = self.poisson;
+            p.max_iterations = self.max_iterations;
+            p.tolerance = self.tolerance;
+            p.deflation = deflation;
+            p.coarse = self.coarse;
+        });
         params.validate()?;
         Ok(params)
     }

@@ -318,10 +318,9 @@ fn totals(done: &[Value], planned: usize, status: Status, started: Instant) -> T
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
-    let mut params = DeformParams {
-        history: args.history,
-        ..args.solve.params(Frames::Sequence)?
-    };
+    let mut params = (args.solve.params(Frames::Sequence)?).with(|p| {
+        p.history = args.history;
+    });
     params.validate()?;
     if let Some(path) = &args.picture {
         picture::check_name(path)?;

@@ -33,8 +33,14 @@ pub enum InitialPlacement {
 
 /// Parameters of the uniform sampling stage. Lengths are in units of the
 /// initial radius `r0 = (sqrt(2) V / N)^(1/3) / 1.5` unless said otherwise.
+///
+/// The struct is `#[non_exhaustive]`, so that a parameter can be added
+/// without breaking callers: outside this crate, start from
+/// [`SamplingParams::with_particles`] or `default()` and change fields with
+/// [`SamplingParams::with`] or by assignment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
+#[non_exhaustive]
 pub struct SamplingParams {
     /// Number of particles `N`.
     pub particles: usize,
@@ -104,6 +110,14 @@ impl Default for SamplingParams {
 }
 
 impl SamplingParams {
+    /// These parameters as `change` leaves them:
+    /// `SamplingParams::with_particles(10_000).with(|p| p.seed = 7)`.
+    #[must_use]
+    pub fn with(mut self, change: impl FnOnce(&mut Self)) -> Self {
+        change(&mut self);
+        self
+    }
+
     /// The defaults with `particles` particles.
     pub fn with_particles(particles: usize) -> Self {
         Self {

@@ -813,9 +813,7 @@ fn joined(pieces: &[SurfaceMesh]) -> SurfaceMesh {
     mesh
 }
 
-const LARGEST_SHELL: LoadOptions = LoadOptions {
-    largest_shell: true,
-};
+const LARGEST_SHELL: LoadOptions = LoadOptions::keeping_largest_shell(true);
 
 #[test]
 fn keep_largest_shell_keeps_the_bigger_tetrahedron_and_renumbers() {
@@ -959,9 +957,7 @@ fn several_shells_error_names_the_largest_shell_option() {
 fn load_options_default_to_one_shell_only() {
     assert_eq!(
         LoadOptions::default(),
-        LoadOptions {
-            largest_shell: false
-        }
+        LoadOptions::keeping_largest_shell(false)
     );
 }
 

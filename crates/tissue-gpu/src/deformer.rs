@@ -111,15 +111,13 @@ impl GpuDeformer {
     /// solved by two-grid cycles, their groups capped there too, as the
     /// GPU solves them.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
-        DeformParams {
-            coarse_direct_max_aggregates: params
-                .coarse_direct_max_aggregates
-                .min(GPU_COARSE_UNKNOWNS),
-            elastic_coarse_direct_max_aggregates: params
+        params.clone().with(|p| {
+            p.coarse_direct_max_aggregates =
+                params.coarse_direct_max_aggregates.min(GPU_COARSE_UNKNOWNS);
+            p.elastic_coarse_direct_max_aggregates = params
                 .elastic_coarse_direct_max_aggregates
-                .min(GPU_COARSE_UNKNOWNS / 3),
-            ..params.clone()
-        }
+                .min(GPU_COARSE_UNKNOWNS / 3);
+        })
     }
 
     /// Checks `model` and `params`, estimates the Laplacian's extreme
@@ -569,11 +567,10 @@ mod tests {
             GPU_COARSE_UNKNOWNS / 3
         );
         assert_eq!(GpuDeformer::cpu_twin(&defaults), defaults);
-        let larger = DeformParams {
-            coarse_direct_max_aggregates: 10_000,
-            elastic_coarse_direct_max_aggregates: 2_000,
-            ..defaults
-        };
+        let larger = defaults.clone().with(|p| {
+            p.coarse_direct_max_aggregates = 10_000;
+            p.elastic_coarse_direct_max_aggregates = 2_000;
+        });
         let twin = GpuDeformer::cpu_twin(&larger);
         assert_eq!(twin.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
         assert_eq!(twin.elastic_coarse_direct_max_aggregates, 1_365);

@@ -521,10 +521,9 @@ mod tests {
             return;
         };
         let model = crate::testing::phantom(3_000);
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        });
         let plan = Plan::for_params(&model, &params).unwrap();
         let elastic = plan.elastic.as_deref().unwrap();
         let aggregates = elastic_aggregates(&model, &plan, &params).unwrap();
@@ -620,10 +619,9 @@ mod tests {
             return;
         };
         let model = crate::testing::phantom(3_000);
-        let params = DeformParams {
-            coarse_direct_max_aggregates: 40,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.coarse_direct_max_aggregates = 40;
+        });
         let plan = Plan::for_params(&model, &params).unwrap();
         let space = coarse_space(&model, &plan, &params).unwrap();
         let cycles = space.multilevel().unwrap();

@@ -629,10 +629,9 @@ fn deflate_matches_the_cpu_twin() {
         let current = deformed(model);
         let force = symmetric_force(model, &current);
         let plan = Plan::new(model).unwrap_or_else(|e| panic!("{e}"));
-        let params = DeformParams {
-            deflation: 16,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.deflation = 16;
+        });
         let modes = low_modes(
             &model.connections,
             &plan.free,

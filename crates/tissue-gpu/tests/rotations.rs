@@ -31,11 +31,10 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        rotations: RotationMethod::Svd,
-        max_iterations: 1,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.rotations = RotationMethod::Svd;
+        p.max_iterations = 1;
+    });
     let mut gpu =
         GpuDeformer::new(&device, &queue, model, params).unwrap_or_else(|e| panic!("{e}"));
     gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
@@ -67,10 +66,9 @@ fn read_rotations_after_a_solve_matches_the_cpu_deformer() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        rotations: RotationMethod::Svd,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.rotations = RotationMethod::Svd;
+    });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);
     assert_eq!(

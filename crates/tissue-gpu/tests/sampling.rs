@@ -37,10 +37,9 @@ fn case(mesh: &SurfaceMesh, n: usize, mode: SurfaceMode) -> Case {
 }
 
 fn case_pushed(mesh: &SurfaceMesh, n: usize, mode: SurfaceMode, push: bool) -> Case {
-    let params = SamplingParams {
-        surface_mode: mode,
-        ..SamplingParams::with_particles(n)
-    };
+    let params = SamplingParams::with_particles(n).with(|p| {
+        p.surface_mode = mode;
+    });
     let mut prepared = prepare(mesh, &params).unwrap_or_else(|e| panic!("{e}"));
     let r0 = prepared.r0;
     let skin = SKIN_IN_R0 * r0;
@@ -569,10 +568,9 @@ fn the_iteration_cap_inside_a_batch_is_honoured() {
         return;
     };
     let mesh = tissue_core::phantom::default_breast();
-    let params = SamplingParams {
-        max_iterations: 20,
-        ..SamplingParams::with_particles(1_000)
-    };
+    let params = SamplingParams::with_particles(1_000).with(|p| {
+        p.max_iterations = 20;
+    });
     let cpu = tissue_cpu::sample(&mesh, &params, &mut |_| {}).unwrap_or_else(|e| panic!("{e}"));
     let gpu = tissue_gpu::sampler::sample(&device, &queue, &mesh, &params, &mut |_| {})
         .unwrap_or_else(|e| panic!("{e}"));

@@ -13,11 +13,10 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
     };
     let model = common::phantom(2_000);
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
-        let params = DeformParams {
-            force,
-            rotations: RotationMethod::Svd,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.rotations = RotationMethod::Svd;
+        });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
@@ -53,11 +52,10 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
     // Not a multiple of the workgroup size: the last workgroup is partial.
     let model = common::phantom(3_001);
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
-        let params = DeformParams {
-            force,
-            rotations: RotationMethod::Svd,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.rotations = RotationMethod::Svd;
+        });
         assert_eq!(params.coarse, 2.0);
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params.clone());
@@ -72,10 +70,9 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             &device,
             &queue,
             model,
-            DeformParams {
-                coarse: 0.0,
-                ..params
-            },
+            params.clone().with(|p| {
+                p.coarse = 0.0;
+            }),
         );
         eprintln!(
             "{force:?} two-level: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU deflated {}",
@@ -112,10 +109,9 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        rotations: RotationMethod::Svd,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.rotations = RotationMethod::Svd;
+    });
     let sagged = tissue_core::deform::sagged_breast();
     let mut cpu =
         tissue_cpu::deformation::Deformer::new(model, tissue_gpu::GpuDeformer::cpu_twin(&params))
@@ -165,17 +161,15 @@ fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
     let model = common::phantom(3_001);
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
         // Without the two-level solve, which the GPU would run instead.
-        let plain = DeformParams {
-            force,
-            rotations: RotationMethod::Svd,
-            deflation: 0,
-            coarse: 0.0,
-            ..DeformParams::default()
-        };
-        let deflated = DeformParams {
-            deflation: 32,
-            ..plain.clone()
-        };
+        let plain = DeformParams::default().with(|p| {
+            p.force = force;
+            p.rotations = RotationMethod::Svd;
+            p.deflation = 0;
+            p.coarse = 0.0;
+        });
+        let deflated = plain.clone().with(|p| {
+            p.deflation = 32;
+        });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, deflated);
         let modes = gpu.modes().unwrap_or_else(|| panic!("{force:?}: no modes"));
@@ -238,12 +232,11 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        rotations: RotationMethod::Svd,
-        coarse: 0.0,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.rotations = RotationMethod::Svd;
+        p.coarse = 0.0;
+    });
     assert!(params.deflation > 0, "{params:?}");
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
@@ -270,10 +263,9 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
     // The volume term matters: the symmetric solve lands elsewhere.
     let mut symmetric = tissue_cpu::deformation::Deformer::new(
         model,
-        DeformParams {
-            force: ForceModel::Symmetric,
-            ..params
-        },
+        params.clone().with(|p| {
+            p.force = ForceModel::Symmetric;
+        }),
     )
     .unwrap_or_else(|e| panic!("{e}"));
     symmetric
@@ -313,12 +305,11 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     // Deflated (no elastic correction: one retry, half the step) and
     // two-level (the elastic correction diverges too: two retries).
     for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            rotations: RotationMethod::Svd,
-            coarse,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+            p.rotations = RotationMethod::Svd;
+            p.coarse = coarse;
+        });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_on_both(&device, &queue, model, params, &poked);
         eprintln!(
@@ -355,10 +346,9 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+    });
     assert!(params.coarse > 0.0 && params.elastic_coarse_max_aggregates > 0);
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
@@ -366,10 +356,9 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
         &device,
         &queue,
         model,
-        DeformParams {
-            elastic_coarse_max_aggregates: 0,
-            ..params
-        },
+        params.clone().with(|p| {
+            p.elastic_coarse_max_aggregates = 0;
+        }),
     );
     eprintln!(
         "corrected elastic: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU uncorrected {}",
@@ -412,10 +401,9 @@ fn a_coarse_space_too_large_for_one_factor_is_cycled_on_both_devices() {
     };
     let model = common::phantom(10_000);
     // Cells of one spacing: nearly every free particle its own aggregate.
-    let params = DeformParams {
-        coarse: 1.0,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.coarse = 1.0;
+    });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);
     let Some(space) = cpu.coarse() else {
@@ -458,10 +446,9 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        coarse_direct_max_aggregates: 50,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.coarse_direct_max_aggregates = 50;
+    });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
     let Some(space) = cpu.coarse() else {
@@ -494,11 +481,10 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
     // needs several times as many.
     let mut plain = tissue_cpu::deformation::Deformer::new(
         model,
-        DeformParams {
-            coarse: 0.0,
-            deflation: 0,
-            ..params
-        },
+        params.clone().with(|p| {
+            p.coarse = 0.0;
+            p.deflation = 0;
+        }),
     )
     .unwrap_or_else(|e| panic!("{e}"));
     plain
@@ -525,11 +511,10 @@ fn a_cycled_elastic_coarse_matrix_runs_on_the_gpu_as_on_the_cpu() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        elastic_coarse_direct_max_aggregates: 40,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.elastic_coarse_direct_max_aggregates = 40;
+    });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);
     let Some(correction) = cpu.device().elastic_coarse() else {
@@ -584,11 +569,10 @@ fn an_elastic_coarse_matrix_too_large_for_one_factor_is_cycled_on_both_devices()
         return;
     };
     let model = common::phantom(10_000);
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        coarse: 1.0,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.coarse = 1.0;
+    });
     assert_eq!(
         params.elastic_coarse_direct_max_aggregates,
         tissue_gpu::GPU_COARSE_UNKNOWNS / 3
@@ -645,12 +629,11 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
         .map(|v| v.z <= median)
         .collect();
     for force in [ForceModel::Symmetric, ForceModel::Elastic] {
-        let params = DeformParams {
-            force,
-            observed: Some(observed.clone()),
-            load: glam::Vec3::new(0.0, -0.002, 0.0),
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.observed = Some(observed.clone());
+            p.load = glam::Vec3::new(0.0, -0.002, 0.0);
+        });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
@@ -682,11 +665,10 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
             &device,
             &queue,
             model,
-            DeformParams {
-                force,
-                observed: Some(observed.clone()),
-                ..DeformParams::default()
-            },
+            DeformParams::default().with(|p| {
+                p.force = force;
+                p.observed = Some(observed.clone());
+            }),
         );
         let moved = unloaded
             .positions()

@@ -216,12 +216,11 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         (ForceModel::Paper, deflated),
         (ForceModel::Symmetric, 0),
     ] {
-        let params = DeformParams {
-            force,
-            deflation,
-            rotations: RotationMethod::WarmPolar,
-            ..DeformParams::default()
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.deflation = deflation;
+            p.rotations = RotationMethod::WarmPolar;
+        });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
@@ -264,10 +263,9 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        rotations: RotationMethod::WarmPolar,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.rotations = RotationMethod::WarmPolar;
+    });
     assert!(params.extrapolate, "the frames are predicted, and turned");
     let sagged = tissue_core::deform::sagged_breast();
     let mut cpu =
@@ -350,12 +348,11 @@ fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams {
-        force: ForceModel::Elastic,
-        rotations: RotationMethod::WarmPolar,
-        coarse: 0.0,
-        ..DeformParams::default()
-    };
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.rotations = RotationMethod::WarmPolar;
+        p.coarse = 0.0;
+    });
     let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
         .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);

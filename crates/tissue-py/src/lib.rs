@@ -167,10 +167,9 @@ fn sample(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
     let surface = surface_of(surface)?;
-    let params = SamplingParams {
-        seed,
-        ..SamplingParams::with_particles(particles)
-    };
+    let params = SamplingParams::with_particles(particles).with(|p| {
+        p.seed = seed;
+    });
     let device = device_of(backend)?;
     let mut callback = Callback::new(progress.as_ref());
     let sampled = py
@@ -309,13 +308,11 @@ impl Model {
                 )));
             }
         };
-        let defaults = DeformParams::default();
-        let params = DeformParams {
-            force,
-            poisson: poisson.unwrap_or(defaults.poisson),
-            max_iterations: max_iterations.unwrap_or(defaults.max_iterations),
-            ..defaults
-        };
+        let params = DeformParams::default().with(|p| {
+            p.force = force;
+            p.poisson = poisson.unwrap_or(p.poisson);
+            p.max_iterations = max_iterations.unwrap_or(p.max_iterations);
+        });
         let device = device_of(backend)?;
         let solver = py
             .detach(|| Solver::new(device, &self.model, params))

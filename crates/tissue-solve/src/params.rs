@@ -35,8 +35,13 @@ pub enum RotationMethod {
 }
 
 /// Parameters of stage 2; `docs/METHOD.md` explains the defaults.
+///
+/// The struct is `#[non_exhaustive]`, so that a parameter can be added
+/// without breaking callers: outside this crate, start from `default()`
+/// and change fields with [`DeformParams::with`] or by assignment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
+#[non_exhaustive]
 pub struct DeformParams {
     /// Force model.
     pub force: ForceModel,
@@ -180,6 +185,14 @@ impl Default for DeformParams {
 }
 
 impl DeformParams {
+    /// These parameters as `change` leaves them:
+    /// `DeformParams::default().with(|p| p.force = ForceModel::Elastic)`.
+    #[must_use]
+    pub fn with(mut self, change: impl FnOnce(&mut Self)) -> Self {
+        change(&mut self);
+        self
+    }
+
     /// The parameters of the shear phase that starts every elastic solve
     /// (the symmetric force, whose coarse space or deflated modes a device
     /// prepares); `self` for the other forces.

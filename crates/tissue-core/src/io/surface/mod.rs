@@ -42,8 +42,10 @@ pub const SURFACE_EXTENSIONS: &str = "stl, obj, ply, vtk, vtp";
 pub const RELATIVE_WELD_TOLERANCE: f32 = 1e-7;
 
 /// Choices for [`load_closed_surface_with`]; the default accepts only a
-/// surface that is one closed shell as it stands.
+/// surface that is one closed shell as it stands. `#[non_exhaustive]`:
+/// build it with [`LoadOptions::keeping_largest_shell`] or `default()`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
 pub struct LoadOptions {
     /// Keep only the shell enclosing the most volume and drop the others
     /// ([`validate::keep_largest_shell`]) instead of refusing a surface of
@@ -52,6 +54,15 @@ pub struct LoadOptions {
     /// Default `false`: a second shell may be a second organ, and sampling
     /// one of two without being asked would hide that.
     pub largest_shell: bool,
+}
+
+impl LoadOptions {
+    /// The options with [`LoadOptions::largest_shell`] set to `keep`.
+    pub const fn keeping_largest_shell(keep: bool) -> Self {
+        Self {
+            largest_shell: keep,
+        }
+    }
 }
 
 /// The surface formats, by extension.
@@ -284,7 +295,7 @@ pub fn load_closed_surface_with_report(path: &Path) -> Result<(SurfaceMesh, Vali
 /// let refused = load_closed_surface_with(&path, &LoadOptions::default());
 /// assert!(matches!(refused, Err(Error::Mesh { source: MeshError::SeveralShells { .. }, .. })));
 ///
-/// let options = LoadOptions { largest_shell: true };
+/// let options = LoadOptions::keeping_largest_shell(true);
 /// let (surface, validation, dropped) = load_closed_surface_with(&path, &options)?;
 /// assert_eq!(surface.vertices, tetrahedron);
 /// assert!((validation.volume - 1.0 / 6.0).abs() < 1e-6);
