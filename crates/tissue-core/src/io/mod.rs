@@ -16,6 +16,7 @@ pub mod nrrd;
 pub mod points;
 pub mod space;
 pub mod surface;
+mod vtk_binary;
 mod vtp;
 mod xml;
 

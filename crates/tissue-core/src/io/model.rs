@@ -16,11 +16,11 @@ use parry3d::shape::{TriMesh, TriMeshFlags};
 use rayon::prelude::*;
 
 use super::vtp::{
-    count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
+    Encoding, count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
     write_array, write_cells,
 };
 use super::xml::{Element, parse_xml};
-use super::{extension, format_error, read_text, write_file};
+use super::{extension, format_error, io_error, write_file};
 use crate::error::Error;
 use crate::mesh::SurfaceMesh;
 use crate::model::{Attachment, Connections, ParticleModel};
@@ -110,7 +110,21 @@ pub fn save_model(model: &ParticleModel, path: &Path) -> Result<(), Error> {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn load_model(path: &Path) -> Result<ParticleModel, Error> {
-    let text = read_text(path)?;
+    let bytes = std::fs::read(path).map_err(|source| io_error(path, source))?;
+    // ParaView's "binary" save: raw bytes after <AppendedData>, re-encoded
+    // as base64 so that the file is text.
+    let bytes = crate::io::surface::raw_appended_as_base64(&bytes)
+        .map_err(|message| format_error(path, message))?
+        .unwrap_or(bytes);
+    let text = String::from_utf8(bytes).map_err(|e| {
+        format_error(
+            path,
+            format!(
+                "not a text file (invalid UTF-8 at byte {})",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })?;
     parse_model(&text).map_err(|message| format_error(path, message))
 }
 
@@ -301,6 +315,11 @@ fn validation_message(error: Error) -> String {
 // ---------------------------------------------------------------------------
 // Writing the .vtp
 
+/// Models with more particles than this are written with binary arrays
+/// (zlib-compressed, base64: `format="binary"`), a fraction of the ASCII
+/// file's size (docs/FORMATS.md). Smaller ones stay ASCII, readable as text.
+pub const BINARY_FROM_PARTICLES: usize = 100_000;
+
 /// Value of the `surface` array at rest-surface vertices, so that colouring
 /// by `surface` tells the rest surface apart from both kinds of particle.
 const REST_SURFACE_FLAG: u8 = 2;
@@ -326,6 +345,11 @@ fn write_poly_data(
     let surface = &model.surface;
     let v = surface.vertices.len();
     let first_vertex = n as u64;
+    let encoding = if n > BINARY_FROM_PARTICLES {
+        Encoding::Binary
+    } else {
+        Encoding::Ascii
+    };
 
     writeln!(w, r#"<?xml version="1.0"?>"#)?;
     let what = if displacement.is_some() {
@@ -334,9 +358,24 @@ fn write_poly_data(
         "tissue particle model: particles, then rest-surface vertices"
     };
     writeln!(w, "<!-- {what}; see docs/FORMATS.md -->")?;
+    let compressor = match encoding {
+        Encoding::Ascii => "",
+        Encoding::Binary => {
+            // Int32 cells (`vtp::write_cells`).
+            let largest = (n + v)
+                .max(2 * pairs.len())
+                .max(3 * surface.triangles.len());
+            if i32::try_from(largest).is_err() {
+                return Err(io::Error::other(format!(
+                    "{largest} points or cell corners are more than a binary model file holds"
+                )));
+            }
+            r#" compressor="vtkZLibDataCompressor""#
+        }
+    };
     writeln!(
         w,
-        r#"<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">"#
+        r#"<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64"{compressor}>"#
     )?;
     writeln!(w, "  <PolyData>")?;
     writeln!(w, "    <FieldData>")?;
@@ -362,11 +401,12 @@ fn write_poly_data(
     writeln!(w, r#"      <PointData Scalars="surface">"#)?;
     if let Some(displacement) = displacement {
         let values = displacement.iter().flat_map(|d| d.to_array());
-        write_array(w, "Float32", "displacement", 3, values)?;
+        write_array(w, encoding, "Float32", "displacement", 3, values)?;
     }
     let radius = model.radii.iter().copied();
     write_array(
         w,
+        encoding,
         "Float32",
         "radius",
         1,
@@ -375,6 +415,7 @@ fn write_poly_data(
     let flags = model.attachments.iter().map(|a| u8::from(a.is_some()));
     write_array(
         w,
+        encoding,
         "UInt8",
         "surface",
         1,
@@ -386,6 +427,7 @@ fn write_poly_data(
         .map(|a| a.map_or(-1, |a| i64::from(a.triangle)));
     write_array(
         w,
+        encoding,
         "Int32",
         "triangle",
         1,
@@ -397,6 +439,7 @@ fn write_poly_data(
         .flat_map(|a| a.map_or([0.0; 3], |a| a.barycentric));
     write_array(
         w,
+        encoding,
         "Float32",
         "barycentric",
         3,
@@ -406,17 +449,30 @@ fn write_poly_data(
 
     writeln!(w, "      <Points>")?;
     let points = model.positions.iter().chain(&surface.vertices);
-    write_array(w, "Float32", "Points", 3, points.flat_map(|p| p.to_array()))?;
+    write_array(
+        w,
+        encoding,
+        "Float32",
+        "Points",
+        3,
+        points.flat_map(|p| p.to_array()),
+    )?;
     writeln!(w, "      </Points>")?;
 
-    write_cells(w, "Verts", 1, 0..first_vertex)?;
+    write_cells(w, encoding, "Verts", 1, 0..first_vertex)?;
     if !pairs.is_empty() {
         let ends = pairs.iter().flat_map(|&(i, j)| [i, j]);
-        write_cells(w, "Lines", 2, ends)?;
+        write_cells(w, encoding, "Lines", 2, ends)?;
     }
     if !surface.triangles.is_empty() {
         let corners = surface.triangles.iter().flatten();
-        write_cells(w, "Polys", 3, corners.map(|&c| first_vertex + u64::from(c)))?;
+        write_cells(
+            w,
+            encoding,
+            "Polys",
+            3,
+            corners.map(|&c| first_vertex + u64::from(c)),
+        )?;
     }
     writeln!(w, "    </Piece>")?;
     writeln!(w, "  </PolyData>")?;
@@ -430,7 +486,7 @@ fn parse_model(text: &str) -> Result<ParticleModel, String> {
     if text.trim().is_empty() {
         return Err("the file is empty; expected a tissue model (.vtp)".into());
     }
-    let root = parse_xml(text)?;
+    let mut root = parse_xml(text)?;
     if root.name != "VTKFile" || root.attribute("type") != Some("PolyData") {
         return Err(format!(
             "not a VTK PolyData file (root element <{}> of type {:?}); expected a tissue model (.vtp)",
@@ -438,6 +494,9 @@ fn parse_model(text: &str) -> Result<ParticleModel, String> {
             root.attribute("type").unwrap_or("")
         ));
     }
+    // Binary and appended arrays (a file re-saved by ParaView) as ASCII.
+    super::vtk_binary::to_ascii(&mut root)?;
+    let root = root;
     let poly_data = root
         .child("PolyData")
         .ok_or("the <PolyData> element is missing")?;
@@ -753,11 +812,16 @@ mod tests {
     }
 
     #[test]
-    fn binary_arrays_are_rejected_with_a_hint() {
+    fn a_binary_array_that_is_not_base64_is_refused_naming_it() {
         rejects(
             "Name=\"radius\" format=\"ascii\"",
             "Name=\"radius\" format=\"binary\"",
-            "only ASCII arrays",
+            "the array `radius`: its base64 data is not valid",
+        );
+        rejects(
+            "Name=\"radius\" format=\"ascii\"",
+            "Name=\"radius\" format=\"hex\"",
+            "format=\"hex\" is not ascii, binary or appended",
         );
     }
 

@@ -13,10 +13,71 @@ use super::xml::Element;
 // ---------------------------------------------------------------------------
 // Writing
 
+/// How arrays are written: ASCII (exact decimal), or binary (the
+/// little-endian values zlib-compressed in blocks, base64 inline, as VTK
+/// writes compressed data: [`compressed`]; for large models).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Encoding {
+    Ascii,
+    Binary,
+}
+
+/// Bytes per block before compression, as VTK writes them.
+const BLOCK: usize = 32 * 1024;
+
+/// `bytes` compressed as VTK's zlib compressor does: blocks of [`BLOCK`]
+/// bytes, each deflated (level 1: these numbers compress about as well at
+/// any level), behind the header `[blocks, BLOCK, last block's size (0 when
+/// full), each block's compressed size]` in `UInt64` words.
+fn compressed(bytes: &[u8]) -> io::Result<(Vec<u8>, Vec<u8>)> {
+    let chunks: Vec<&[u8]> = bytes.chunks(BLOCK).collect();
+    let mut header: Vec<u64> = vec![
+        chunks.len() as u64,
+        BLOCK as u64,
+        (bytes.len() % BLOCK) as u64,
+    ];
+    let mut packed = Vec::with_capacity(bytes.len() / 2);
+    for chunk in chunks {
+        let before = packed.len();
+        let mut zlib = flate2::write::ZlibEncoder::new(&mut packed, flate2::Compression::fast());
+        zlib.write_all(chunk)?;
+        zlib.finish()?;
+        header.push((packed.len() - before) as u64);
+    }
+    Ok((
+        header.iter().flat_map(|w| w.to_le_bytes()).collect(),
+        packed,
+    ))
+}
+
+/// A value as the bytes of VTK type `ty` (little-endian). The writers only
+/// ask for a type that holds the value (the model is checked first).
+pub(super) trait Encode: Display + Copy {
+    fn encode(self, ty: &str, out: &mut Vec<u8>);
+}
+
+macro_rules! encode_as {
+    ($($t:ty),*) => {$(
+        impl Encode for $t {
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, clippy::cast_possible_wrap, reason = "the writers' values fit their declared types")]
+            fn encode(self, ty: &str, out: &mut Vec<u8>) {
+                match ty {
+                    "Float32" => out.extend((self as f32).to_le_bytes()),
+                    "UInt8" => out.push(self as u8),
+                    "Int32" => out.extend((self as i32).to_le_bytes()),
+                    _ => out.extend((self as i64).to_le_bytes()),
+                }
+            }
+        }
+    )*};
+}
+encode_as!(f32, u8, u32, i64, u64, usize);
+
 /// A cell section of cells with `size` points each (VTK XML offsets are the
 /// end of each cell, without a leading zero).
-pub(super) fn write_cells<T: Display>(
+pub(super) fn write_cells<T: Encode>(
     w: &mut dyn Write,
+    encoding: Encoding,
     section: &str,
     size: usize,
     connectivity: impl Iterator<Item = T>,
@@ -26,38 +87,63 @@ pub(super) fn write_cells<T: Display>(
     let counted = connectivity.inspect(|_| cells += 1);
     // One cell a line, except for vertex cells.
     let per_line = if size > 1 { size } else { 12 };
-    write_values(w, "Int64", "connectivity", 1, per_line, counted)?;
+    // Binary cells as Int32, half the bytes: the writers refuse models
+    // with more points than that holds.
+    let ty = match encoding {
+        Encoding::Ascii => "Int64",
+        Encoding::Binary => "Int32",
+    };
+    write_values(w, encoding, ty, "connectivity", 1, per_line, counted)?;
     let cells = cells / size;
-    write_array(w, "Int64", "offsets", 1, (1..=cells).map(|c| c * size))?;
+    write_array(w, encoding, ty, "offsets", 1, (1..=cells).map(|c| c * size))?;
     writeln!(w, "      </{section}>")
 }
 
-/// One ASCII `DataArray`, one tuple per line for vectors and a dozen values a
-/// line for scalars.
-pub(super) fn write_array<T: Display>(
+/// One `DataArray`; in ASCII one tuple per line for vectors and a dozen
+/// values a line for scalars.
+pub(super) fn write_array<T: Encode>(
     w: &mut dyn Write,
+    encoding: Encoding,
     ty: &str,
     name: &str,
     components: usize,
     values: impl Iterator<Item = T>,
 ) -> io::Result<()> {
     let per_line = if components > 1 { components } else { 12 };
-    write_values(w, ty, name, components, per_line, values)
+    write_values(w, encoding, ty, name, components, per_line, values)
 }
 
-/// One ASCII `DataArray` with `per_line` values a line. `{}` is Rust's
-/// shortest round-trip formatting, so floats read back bit-exactly.
-fn write_values<T: Display>(
+/// One `DataArray`, in ASCII with `per_line` values a line. `{}` is Rust's
+/// shortest round-trip formatting, so floats read back bit-exactly; binary
+/// values are the values' own bits.
+fn write_values<T: Encode>(
     w: &mut dyn Write,
+    encoding: Encoding,
     ty: &str,
     name: &str,
     components: usize,
     per_line: usize,
     values: impl Iterator<Item = T>,
 ) -> io::Result<()> {
+    use base64::Engine as _;
+
     write!(w, r#"        <DataArray type="{ty}" Name="{name}""#)?;
     if components > 1 {
         write!(w, r#" NumberOfComponents="{components}""#)?;
+    }
+    if encoding == Encoding::Binary {
+        let mut bytes = Vec::new();
+        for value in values {
+            value.encode(ty, &mut bytes);
+        }
+        let (header, blocks) = compressed(&bytes)?;
+        let engine = &base64::engine::general_purpose::STANDARD;
+        return writeln!(
+            w,
+            " format=\"binary\">\n          {}{}\n        </DataArray>",
+            engine.encode(header),
+            engine.encode(blocks)
+        );
     }
     write!(w, r#" format="ascii">"#)?;
     for (k, value) in values.enumerate() {

@@ -32,6 +32,26 @@ impl Element {
         self.children.iter().filter(move |c| c.name == name)
     }
 
+    /// Sets attribute `key` to `value`, added if it is not there.
+    pub(super) fn set_attribute(&mut self, key: &str, value: &str) {
+        match self.attributes.iter_mut().find(|(k, _)| k == key) {
+            Some((_, v)) => *v = value.to_owned(),
+            None => self.attributes.push((key.to_owned(), value.to_owned())),
+        }
+    }
+
+    /// Calls `visit` on this element and every element under it, depth
+    /// first, until one fails.
+    pub(super) fn visit_mut(
+        &mut self,
+        visit: &mut dyn FnMut(&mut Element) -> Result<(), String>,
+    ) -> Result<(), String> {
+        visit(self)?;
+        self.children
+            .iter_mut()
+            .try_for_each(|c| c.visit_mut(visit))
+    }
+
     /// The child `DataArray` whose `Name` is `name`.
     pub(super) fn data_array(&self, name: &str) -> Option<&Element> {
         self.children_named("DataArray")

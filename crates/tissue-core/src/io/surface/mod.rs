@@ -30,6 +30,7 @@ mod stl;
 mod vtk;
 mod welding;
 
+pub(crate) use self::vtk::raw_appended_as_base64;
 pub use self::welding::weld;
 
 /// The surface file extensions [`load_surface`] and [`save_surface`] accept.

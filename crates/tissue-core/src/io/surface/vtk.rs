@@ -51,7 +51,7 @@ pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
 /// appended data. Each array's block is encoded as VTK encodes it: header
 /// and data together when uncompressed; the header, then the data, when
 /// compressed (`compressor` set on `<VTKFile>`).
-fn raw_appended_as_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
+pub(crate) fn raw_appended_as_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
     use base64::Engine as _;
     use base64::engine::general_purpose::STANDARD;
 
