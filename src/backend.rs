@@ -32,10 +32,10 @@ use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
-use tissue_solve::SolveStep;
 use tissue_solve::elastic::offsets_product;
 use tissue_solve::structures::{RigidBinding, RigidMotion};
 use tissue_solve::svd3::rotation_of;
+use tissue_solve::{PrepareStage, SolveStep};
 
 /// Which device to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -327,15 +327,29 @@ impl BoundPoints {
 impl Solver {
     /// Prepares stage 2 for `model` on `device`.
     pub fn new(device: Device, model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
+        Self::new_with_progress(device, model, params, &mut |_| {})
+    }
+
+    /// [`Solver::new`], telling `progress` as each stage of the preparation
+    /// starts ([`PrepareStage`]: the plan, the elastic model, the upload,
+    /// the coarse spaces), on either device in the same order.
+    pub fn new_with_progress(
+        device: Device,
+        model: &ParticleModel,
+        params: DeformParams,
+        progress: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
         let device = match device {
-            Device::Cpu => SolverDevice::Cpu(Box::new(Deformer::new(model, params)?)),
+            Device::Cpu => {
+                SolverDevice::Cpu(Box::new(Deformer::new_observed(model, params, progress)?))
+            }
             Device::Gpu {
                 name,
                 device,
                 queue,
             } => {
                 let context = format!("preparing stage 2 on {name}");
-                let deformer = GpuDeformer::new(&device, &queue, model, params)
+                let deformer = GpuDeformer::new_observed(&device, &queue, model, params, progress)
                     .map_err(|e| gpu_error(&context, e))?;
                 let embedding =
                     EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
@@ -371,6 +385,18 @@ impl Solver {
         unloaded: &[Vec3],
         params: DeformParams,
     ) -> Result<Self, Error> {
+        Self::unloaded_with_progress(device, model, unloaded, params, &mut |_| {})
+    }
+
+    /// [`Solver::unloaded`], telling `progress` as each stage of the
+    /// preparation starts, as [`Solver::new_with_progress`] does.
+    pub fn unloaded_with_progress(
+        device: Device,
+        model: &ParticleModel,
+        unloaded: &[Vec3],
+        params: DeformParams,
+        progress: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
         if unloaded.len() != model.len() || unloaded.iter().any(|p| !p.is_finite()) {
             return Err(tissue_core::ParamError {
                 name: "unloaded shape",
@@ -383,7 +409,7 @@ impl Solver {
             positions: unloaded.to_vec(),
             ..model.clone()
         };
-        let mut solver = Self::new(device, &stress_free, params)?;
+        let mut solver = Self::new_with_progress(device, &stress_free, params, progress)?;
         solver.reference = Some(Reference {
             positions: model.positions.clone(),
             connections: model.connections.clone(),

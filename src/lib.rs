@@ -37,8 +37,8 @@ pub mod gravity;
 pub mod deformation {
     pub use tissue_cpu::deformation::Deformer;
     pub use tissue_solve::{
-        DeformParams, DeformReport, ForceModel, Inversions, RotationMethod, SolveStep, StopReason,
-        check_same_topology, inversions,
+        DeformParams, DeformReport, ForceModel, Inversions, PrepareStage, RotationMethod,
+        SolveStep, StopReason, check_same_topology, inversions,
     };
 }
 

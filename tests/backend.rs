@@ -9,7 +9,7 @@ mod common;
 use common::gpu;
 
 use tissue::backend::{Device, Solver, sample_on};
-use tissue::deformation::{DeformParams, ForceModel};
+use tissue::deformation::{DeformParams, ForceModel, PrepareStage};
 use tissue::{SamplingParams, Vec3, deform, phantom};
 
 #[test]
@@ -228,12 +228,13 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     );
 }
 
-/// The solve's progress callback comes once per iteration on both devices,
-/// numbered from 1 across the elastic force's phases, each with the error
-/// estimate the report's history records; the GPU, which runs iterations
-/// in batches, tells none it replays past the stop.
+/// The preparation's progress callback hears each stage once, in order,
+/// on both devices. The solve's comes once per iteration, numbered from 1
+/// across the elastic force's phases, each with the error estimate the
+/// report's history records; the GPU, which runs iterations in batches,
+/// tells none it replays past the stop.
 #[test]
-fn solve_progress_comes_once_per_iteration_on_both_devices() {
+fn progress_comes_in_order_on_both_devices() {
     let Some(gpu) = gpu() else { return };
     let model = tissue::sample(
         &phantom::default_breast(),
@@ -249,7 +250,25 @@ fn solve_progress_comes_once_per_iteration_on_both_devices() {
             let params = DeformParams::default().with(|p| {
                 p.force = force;
             });
-            let mut solver = Solver::new(device, &model, params).unwrap();
+            let on_gpu = matches!(device, Device::Gpu { .. });
+            let mut stages = Vec::new();
+            let mut solver =
+                Solver::new_with_progress(device, &model, params, &mut |stage| stages.push(stage))
+                    .unwrap();
+            // The preparation's stages in order, each once; the GPU's
+            // upload after the plan's.
+            let mut expected = vec![PrepareStage::Plan];
+            if force == ForceModel::Elastic {
+                expected.push(PrepareStage::ElasticModel);
+            }
+            if on_gpu {
+                expected.push(PrepareStage::Upload);
+            }
+            expected.push(PrepareStage::CoarseSpace);
+            if force == ForceModel::Elastic {
+                expected.push(PrepareStage::ElasticCoarse);
+            }
+            assert_eq!(stages, expected, "{name} {force:?}");
             solver.set_surface(&sag).unwrap();
             let mut steps = Vec::new();
             let report = solver
@@ -271,4 +290,16 @@ fn solve_progress_comes_once_per_iteration_on_both_devices() {
         }
         assert_eq!(iterations[0], iterations[1], "{force:?}: CPU, GPU");
     }
+    // Without a coarse space, the deflated modes instead.
+    let mut stages = Vec::new();
+    let no_coarse = DeformParams::default().with(|p| p.coarse = 0.0);
+    Solver::new_with_progress(Device::Cpu, &model, no_coarse, &mut |stage| {
+        stages.push(stage)
+    })
+    .unwrap();
+    assert_eq!(
+        stages,
+        [PrepareStage::Plan, PrepareStage::DeflationModes],
+        "cpu, no coarse space"
+    );
 }

@@ -8,7 +8,7 @@ use serde::Serialize;
 use tissue::backend::{Device, Solver, SolverDevice};
 use tissue_core::deform::interpolate;
 use tissue_core::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, RotationMethod};
+use tissue_cpu::deformation::{DeformParams, PrepareStage, RotationMethod};
 
 use crate::breakdown::{self, Breakdown};
 use crate::memory::GpuStateBytes;
@@ -28,8 +28,13 @@ pub struct Gpu {
 }
 
 /// Stage 2 on the CPU (`gpu` `None`) or on the opened GPU, through the
-/// library's solver.
-fn solver_on(gpu: Option<&Gpu>, model: &ParticleModel, params: DeformParams) -> Result<Solver> {
+/// library's solver; `progress` hears each stage of its preparation.
+fn solver_on(
+    gpu: Option<&Gpu>,
+    model: &ParticleModel,
+    params: DeformParams,
+    progress: &mut dyn FnMut(PrepareStage),
+) -> Result<Solver> {
     let device = match gpu {
         None => Device::Cpu,
         Some(gpu) => Device::Gpu {
@@ -38,7 +43,7 @@ fn solver_on(gpu: Option<&Gpu>, model: &ParticleModel, params: DeformParams) -> 
             queue: gpu.queue.clone(),
         },
     };
-    Ok(Solver::new(device, model, params)?)
+    Ok(Solver::new_with_progress(device, model, params, progress)?)
 }
 
 /// How many times to measure.
@@ -152,8 +157,8 @@ pub fn measure(
             p.max_iterations = repeats.iterations_per_solve;
             p.extrapolate = false;
         });
-        let mut solver =
-            solver_on(gpu, model, fixed.clone()).context("stage 2, fixed iterations")?;
+        let mut solver = solver_on(gpu, model, fixed.clone(), &mut |_| {})
+            .context("stage 2, fixed iterations")?;
         let mut per_iteration = Vec::new();
         let mut iterations_run = Vec::new();
         // One untimed solve first: shader compilation, first-touch of memory.
@@ -191,7 +196,12 @@ pub fn measure(
 
     phase("preparing the solver");
     let started = Instant::now();
-    let mut solver = solver_on(gpu, model, defaults.clone()).context("stage 2")?;
+    // The timed preparation says where it is: at 1M particles it takes a
+    // minute with the elastic force.
+    let mut solver = solver_on(gpu, model, defaults.clone(), &mut |stage| {
+        phase(&format!("preparing: {stage}"));
+    })
+    .context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
     // What the solve runs: on both devices the coarse space replaces deflation.
     let (deflation, coarse_aggregates) = match solver.device() {
@@ -219,6 +229,7 @@ pub fn measure(
         defaults.clone().with(|p| {
             p.extrapolate = false;
         }),
+        &mut |_| {},
     )
     .context("stage 2, from rest")?;
     let mut converge = Vec::new();

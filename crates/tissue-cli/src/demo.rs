@@ -121,8 +121,10 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     tissue::save_surface(&tumour, &out.join("tumour.obj"))?;
 
     let deform_params = DeformParams::default();
-    let mut solver = progress::busy(quiet, PREPARING, || {
-        Solver::new(device, &model, deform_params.clone())
+    let mut solver = progress::busy(quiet, PREPARING, |busy| {
+        Solver::new_with_progress(device, &model, deform_params.clone(), &mut |stage| {
+            busy.say(stage)
+        })
     })?;
     let carried = Carried {
         points: None,

@@ -11,7 +11,7 @@ use glam::Vec3;
 use indicatif::ProgressBar;
 use serde::Serialize;
 use tissue::backend::{Device, Solver};
-use tissue::deformation::DeformParams;
+use tissue::deformation::{DeformParams, PrepareStage};
 use tissue::gravity::{Gravity, SolveProgress, Unloaded, held_vertices, unload};
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -209,19 +209,27 @@ pub struct Posture {
 impl Posture {
     /// The solver of the deformed posture: stress-free in the unloaded
     /// shape with the deformed posture's gravity inside, or, without one,
-    /// the model's own (`params` gains the load).
+    /// the model's own (`params` gains the load); `progress` hears each stage
+    /// of the preparation.
     pub fn solver(
         &self,
         device: Device,
         model: &ParticleModel,
         params: &mut DeformParams,
+        progress: &mut dyn FnMut(PrepareStage),
     ) -> Result<Solver> {
         Ok(match &self.unloaded {
             Some(unloaded) => {
                 params.load = unloaded.deformed_load;
-                Solver::unloaded(device, model, &unloaded.shape.positions, params.clone())?
+                Solver::unloaded_with_progress(
+                    device,
+                    model,
+                    &unloaded.shape.positions,
+                    params.clone(),
+                    progress,
+                )?
             }
-            None => Solver::new(device, model, params.clone())?,
+            None => Solver::new_with_progress(device, model, params.clone(), progress)?,
         })
     }
 

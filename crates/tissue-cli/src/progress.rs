@@ -27,32 +27,69 @@ pub fn bar(template: &str, length: Option<u64>) -> ProgressBar {
 
 /// Runs `work`; unless `quiet`, a spinner saying `what` (and the time
 /// taken) turns while it runs longer than [`SHOW_AFTER`], and is cleared
-/// at its end.
-pub fn busy<T>(quiet: bool, what: &str, work: impl FnOnce() -> T) -> T {
-    if quiet {
-        return work();
+/// at its end. `work` may say what it is doing through its [`Busy`]: the
+/// spinner then reads `what: detail`.
+pub fn busy<T>(quiet: bool, what: &str, work: impl FnOnce(&Busy) -> T) -> T {
+    busy_told(quiet, what, work).0
+}
+
+/// What a [`busy`] work tells its spinner.
+pub struct Busy {
+    tell: Option<mpsc::Sender<Option<String>>>,
+}
+
+impl Busy {
+    /// The spinner's line becomes `what: detail`.
+    pub fn say(&self, detail: impl std::fmt::Display) {
+        if let Some(tell) = &self.tell {
+            // The spinner's thread outlives the work; a failed send is a
+            // spinner already gone with it.
+            let _sent = tell.send(Some(detail.to_string()));
+        }
     }
-    let (done, finished) = mpsc::channel::<()>();
-    let what = what.to_owned();
+}
+
+/// [`busy`], and the spinner's last line (`what`, or `what: detail`).
+fn busy_told<T>(quiet: bool, what: &str, work: impl FnOnce(&Busy) -> T) -> (T, String) {
+    if quiet {
+        return (work(&Busy { tell: None }), what.to_owned());
+    }
+    let (tell, told) = mpsc::channel::<Option<String>>();
+    let line = |detail: Option<&str>| match detail {
+        Some(detail) => format!("{what}: {detail}"),
+        None => what.to_owned(),
+    };
     std::thread::scope(|scope| {
-        scope.spawn(move || {
-            if !matches!(
-                finished.recv_timeout(SHOW_AFTER),
-                Err(mpsc::RecvTimeoutError::Timeout)
-            ) {
-                return;
+        let spinner = scope.spawn(move || {
+            let deadline = Instant::now() + SHOW_AFTER;
+            let mut message = line(None);
+            // Until the spinner is due: only the line changes.
+            loop {
+                match told.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+                    Ok(Some(detail)) => message = line(Some(&detail)),
+                    Ok(None) | Err(mpsc::RecvTimeoutError::Disconnected) => return message,
+                    Err(mpsc::RecvTimeoutError::Timeout) => break,
+                }
             }
             let spinner = bar("{spinner} {msg} ({elapsed})", None);
-            spinner.set_message(what);
+            spinner.set_message(message.clone());
             spinner.enable_steady_tick(Duration::from_millis(120));
-            // Until `work` ends (a message, or the sender dropped by a panic).
-            let _ended = finished.recv();
+            // Until `work` ends (its end, or the sender dropped by a panic).
+            while let Ok(Some(detail)) = told.recv() {
+                message = line(Some(&detail));
+                spinner.set_message(message.clone());
+            }
             spinner.finish_and_clear();
+            message
         });
-        let out = work();
-        // The receiver may have gone (it never waits past a message).
-        let _sent = done.send(());
-        out
+        let busy = Busy {
+            tell: Some(tell.clone()),
+        };
+        let out = work(&busy);
+        // The receiver may have gone (it never waits past the end).
+        let _sent = tell.send(None);
+        let message = spinner.join().unwrap_or_else(|_| line(None));
+        (out, message)
     })
 }
 
@@ -112,13 +149,34 @@ mod tests {
     /// and the spinner's thread ends with the work (the scope joins it).
     #[test]
     fn busy_returns_the_works_value_and_ends_its_spinner() {
-        assert_eq!(busy(true, "quiet", || 1), 1);
-        assert_eq!(busy(false, "quick", || 2), 2);
-        let slow = busy(false, "slow", || {
+        assert_eq!(busy(true, "quiet", |_| 1), 1);
+        assert_eq!(busy(false, "quick", |_| 2), 2);
+        let slow = busy(false, "slow", |_| {
             std::thread::sleep(SHOW_AFTER + Duration::from_millis(200));
             3
         });
         assert_eq!(slow, 3);
+    }
+
+    /// What the work says reaches the spinner's line, before the spinner
+    /// is drawn and after.
+    #[test]
+    fn the_spinner_reads_what_the_work_says() {
+        let (out, line) = busy_told(false, "preparing", |busy| {
+            busy.say("the plan");
+            4
+        });
+        assert_eq!((out, line.as_str()), (4, "preparing: the plan"));
+        let (_, line) = busy_told(false, "preparing", |busy| {
+            busy.say("the plan");
+            std::thread::sleep(SHOW_AFTER + Duration::from_millis(200));
+            busy.say("the coarse space");
+        });
+        assert_eq!(line, "preparing: the coarse space");
+        let (_, line) = busy_told(false, "preparing", |_| ());
+        assert_eq!(line, "preparing");
+        let (_, line) = busy_told(true, "preparing", |busy| busy.say("unseen"));
+        assert_eq!(line, "preparing");
     }
 
     /// A solve's line stays silent when quiet and for a solve faster than

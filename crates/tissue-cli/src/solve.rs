@@ -22,7 +22,7 @@ use crate::progress::{self, SolveBar};
 
 /// What the spinner says while a solver is prepared (the plan, the coarse
 /// levels' factors, the device's buffers).
-pub const PREPARING: &str = "preparing the solver (its coarse levels and buffers)";
+pub const PREPARING: &str = "preparing the solver";
 
 /// The force of stage 2.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -196,8 +196,8 @@ pub fn solver_for(
 ) -> Result<(Solver, Option<Posture>)> {
     let context = || format!("{}: cannot deform this model", path.display());
     let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)? else {
-        let solver = progress::busy(quiet, PREPARING, || {
-            Solver::new(device, model, params.clone())
+        let solver = progress::busy(quiet, PREPARING, |busy| {
+            Solver::new_with_progress(device, model, params.clone(), &mut |stage| busy.say(stage))
         })
         .with_context(context)?;
         return Ok((solver, None));
@@ -207,8 +207,10 @@ pub fn solver_for(
             println!("{line}");
         }
     }
-    let solver = progress::busy(quiet, PREPARING, || posture.solver(device, model, params))
-        .with_context(context)?;
+    let solver = progress::busy(quiet, PREPARING, |busy| {
+        posture.solver(device, model, params, &mut |stage| busy.say(stage))
+    })
+    .with_context(context)?;
     Ok((solver, Some(posture)))
 }
 

@@ -12,8 +12,8 @@ use tissue_solve::coarse_elastic::{
 use tissue_solve::deflation_modes;
 use tissue_solve::elastic::Elastic;
 use tissue_solve::{
-    DeformParams, DeformReport, ForceModel, Iteration, LowModes, RotationMethod, SolveDevice,
-    Tracker,
+    DeformParams, DeformReport, ForceModel, Iteration, LowModes, PrepareStage, RotationMethod,
+    SolveDevice, Tracker,
 };
 
 use crate::state::SLOTS;
@@ -132,7 +132,20 @@ impl GpuDeformer {
         model: &ParticleModel,
         params: DeformParams,
     ) -> Result<Self, GpuError> {
-        let tracker = Tracker::new(model, params, |plan, params| {
+        Self::new_observed(device, queue, model, params, &mut |_| {})
+    }
+
+    /// [`GpuDeformer::new`], telling `observe` as each stage of the
+    /// preparation starts (the CPU twin's stages, and the upload).
+    pub fn new_observed(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &ParticleModel,
+        params: DeformParams,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, GpuError> {
+        let tracker = Tracker::new_observed(model, params, observe, |plan, params, observe| {
+            observe(PrepareStage::Upload);
             let pipelines = Pipelines::new(device)?;
             let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
             if let Some(elastic) = &plan.elastic {
@@ -146,6 +159,9 @@ impl GpuDeformer {
             // (`Iteration::correct`), as on the CPU path.
             // Factored up to what one workgroup substitutes, cycled above
             // (the groups are capped there too), as the CPU twin does.
+            if params.coarse != 0.0 {
+                observe(PrepareStage::CoarseSpace);
+            }
             let coarse = coarse_space(model, plan, &Self::cpu_twin(params)).filter(|space| {
                 let unknowns = space.multilevel().map_or(space.count(), |m| m.groups());
                 let fits = unknowns <= GPU_COARSE_UNKNOWNS;
@@ -162,8 +178,16 @@ impl GpuDeformer {
             }
             let modes = match coarse {
                 Some(_) => None,
-                None => deflation_modes(model, plan, params),
+                None => {
+                    if params.deflation != 0 {
+                        observe(PrepareStage::DeflationModes);
+                    }
+                    deflation_modes(model, plan, params)
+                }
             };
+            if plan.elastic.is_some() {
+                observe(PrepareStage::ElasticCoarse);
+            }
             // The elastic correction is factored or cycled as the CPU
             // twin makes it, its groups' factor at most what one
             // workgroup substitutes.

@@ -289,7 +289,11 @@ impl Model {
     /// Prepares stage 2 on `backend` (`"auto"`, `"gpu"` or `"cpu"`) with the
     /// force `"symmetric"` (the default), `"elastic"` (with `poisson`, the
     /// accurate one) or `"paper"`; `max_iterations` caps every solve.
-    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None))]
+    /// `progress`, if given, is called as each stage of the preparation
+    /// starts with a dict: `stage` (`plan`, `elastic_model`, `upload`,
+    /// `coarse_space`, `deflation_modes`, `elastic_coarse`) and
+    /// `description`.
+    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None, progress = None))]
     fn deformer(
         &self,
         py: Python<'_>,
@@ -297,6 +301,7 @@ impl Model {
         force: &str,
         poisson: Option<f32>,
         max_iterations: Option<usize>,
+        progress: Option<Py<PyAny>>,
     ) -> PyResult<Deformer> {
         let force = match force {
             "symmetric" => ForceModel::Symmetric,
@@ -314,9 +319,18 @@ impl Model {
             p.max_iterations = max_iterations.unwrap_or(p.max_iterations);
         });
         let device = device_of(backend)?;
+        let mut callback = Callback::new(progress.as_ref());
         let solver = py
-            .detach(|| Solver::new(device, &self.model, params))
+            .detach(|| {
+                Solver::new_with_progress(device, &self.model, params, &mut |stage| {
+                    callback.tell(|info| {
+                        info.set_item("stage", stage.name())?;
+                        info.set_item("description", stage.to_string())
+                    });
+                })
+            })
             .map_err(raise)?;
+        callback.result()?;
         Ok(Deformer {
             solver,
             triangles: self.model.surface.triangles.clone(),

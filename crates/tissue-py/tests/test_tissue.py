@@ -158,6 +158,21 @@ def test_progress_is_told_every_iteration(model):
     assert [s["residual"] for s in solves] == pytest.approx(report["residual_history"])
 
 
+def test_the_preparation_tells_its_stages(model):
+    symmetric = []
+    model.deformer(backend="cpu", progress=symmetric.append)
+    assert [s["stage"] for s in symmetric] == ["plan", "coarse_space"]
+    assert all(s["description"] for s in symmetric)
+    elastic = []
+    model.deformer(backend="cpu", force="elastic", progress=elastic.append)
+    assert [s["stage"] for s in elastic] == [
+        "plan",
+        "elastic_model",
+        "coarse_space",
+        "elastic_coarse",
+    ]
+
+
 def test_an_exception_in_progress_is_raised_after_the_work(model):
     def fail(step):
         raise ValueError(f"stop at {step['iteration']}")

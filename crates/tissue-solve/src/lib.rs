@@ -56,5 +56,5 @@ pub use modes::{LowModes, deflation_modes, low_modes};
 pub use params::{DeformParams, ForceModel, RotationMethod};
 pub use plan::Plan;
 pub use predict::{FrameHistory, predict};
-pub use report::{DeformReport, SolveStep, StopReason};
+pub use report::{DeformReport, PrepareStage, SolveStep, StopReason};
 pub use tracker::{Iteration, SolveDevice, Tracker};

@@ -9,6 +9,7 @@ use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 use crate::elastic::Elastic;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
+use crate::report::PrepareStage;
 use crate::spectrum::laplacian_extremes;
 
 /// The largest `|load|` times the model's size [`Plan::for_params`]
@@ -162,6 +163,18 @@ impl Plan {
     /// operator ([`Elastic::lambda_max`], in the Laplacian's units), which
     /// sets its step.
     pub fn for_params(model: &ParticleModel, params: &DeformParams) -> Result<Self, Error> {
+        Self::for_params_observed(model, params, &mut |_| {})
+    }
+
+    /// [`Plan::for_params`], telling `observe` as each of its stages starts
+    /// ([`PrepareStage::Plan`], then with the elastic force
+    /// [`PrepareStage::ElasticModel`]).
+    pub fn for_params_observed(
+        model: &ParticleModel,
+        params: &DeformParams,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
+        observe(PrepareStage::Plan);
         let mut plan = Self::observed(model, params.observed.as_deref())?;
         if params.load != Vec3::ZERO {
             ParamError::check(
@@ -188,6 +201,7 @@ impl Plan {
                 .collect();
         }
         if params.force == ForceModel::Elastic {
+            observe(PrepareStage::ElasticModel);
             // The integration constraint holds inside; a surface particle's
             // gradient vectors integrate to its share of the boundary, free
             // (unobserved) or not.

@@ -45,6 +45,61 @@ pub struct SolveStep {
     pub residual: f32,
 }
 
+/// A stage of preparing stage 2 for a model, told to the preparation's
+/// progress callback as it starts (`Tracker::new_observed`), in this order
+/// where it runs. The stages a device skips are not told: the elastic ones
+/// without the elastic force, the modes where a coarse space corrects
+/// instead, the upload on the CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum PrepareStage {
+    /// The model and parameters checked, the control points found, the
+    /// connection Laplacian's extreme eigenvalues estimated.
+    Plan,
+    /// The elastic force's rest data: the consistent gradients and the
+    /// largest eigenvalue of its operator.
+    ElasticModel,
+    /// The GPU's kernels compiled and the model uploaded.
+    Upload,
+    /// The two-level solve's coarse space: aggregates, their matrix
+    /// factored or its levels built.
+    CoarseSpace,
+    /// The Laplacian's lowest modes, deflated where no coarse space is.
+    DeflationModes,
+    /// The elastic phase's aggregates and the volume smoother's
+    /// contraction at rest.
+    ElasticCoarse,
+}
+
+impl PrepareStage {
+    /// A short name (`plan`, `elastic_model`, ...): the Python package's
+    /// and the logs' spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Plan => "plan",
+            Self::ElasticModel => "elastic_model",
+            Self::Upload => "upload",
+            Self::CoarseSpace => "coarse_space",
+            Self::DeflationModes => "deflation_modes",
+            Self::ElasticCoarse => "elastic_coarse",
+        }
+    }
+}
+
+impl std::fmt::Display for PrepareStage {
+    /// What the stage does, for a progress line.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Plan => "checking the model, estimating its spectrum",
+            Self::ElasticModel => "the elastic model's consistent gradients",
+            Self::Upload => "compiling the kernels, uploading the model",
+            Self::CoarseSpace => "building the coarse space",
+            Self::DeflationModes => "computing the deflated modes",
+            Self::ElasticCoarse => "the elastic coarse space and smoother",
+        })
+    }
+}
+
 /// How a solve went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DeformReport {

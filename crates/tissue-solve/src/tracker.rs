@@ -15,7 +15,7 @@ use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel, RotationMethod};
 use crate::plan::Plan;
 use crate::predict::{FrameHistory, predict};
-use crate::report::{DeformReport, SolveStep, StopReason};
+use crate::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 use crate::svd3::rotation_of;
 
 /// What every iteration of one solve runs with, from the plan and the
@@ -171,9 +171,23 @@ impl<D: SolveDevice> Tracker<D> {
         params: DeformParams,
         prepare: impl FnOnce(&Plan, &DeformParams) -> Result<D, E>,
     ) -> Result<Self, E> {
+        Self::new_observed(model, params, &mut |_| {}, |plan, params, _| {
+            prepare(plan, params)
+        })
+    }
+
+    /// [`Tracker::new`], telling `observe` as each stage of the
+    /// preparation starts ([`PrepareStage`]): the plan's stages here, the
+    /// device's from `prepare`, which is handed `observe` to tell them.
+    pub fn new_observed<E: From<Error>>(
+        model: &ParticleModel,
+        params: DeformParams,
+        observe: &mut dyn FnMut(PrepareStage),
+        prepare: impl FnOnce(&Plan, &DeformParams, &mut dyn FnMut(PrepareStage)) -> Result<D, E>,
+    ) -> Result<Self, E> {
         params.validate().map_err(Error::from)?;
-        let plan = Plan::for_params(model, &params)?;
-        let device = prepare(&plan, &params)?;
+        let plan = Plan::for_params_observed(model, &params, observe)?;
+        let device = prepare(&plan, &params, observe)?;
         // The control points: the observed surface particles.
         let attachments = model
             .attachments

@@ -41,7 +41,7 @@ pub use tissue_solve::params::{
 };
 pub use tissue_solve::plan::Plan;
 pub use tissue_solve::predict::{FrameHistory, affine_fit, predict};
-pub use tissue_solve::report::{DeformReport, StopReason};
+pub use tissue_solve::report::{DeformReport, PrepareStage, StopReason};
 pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
 use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
@@ -72,8 +72,18 @@ impl Deformer {
     /// eigenvalues of the connection-graph Laplacian over free particles,
     /// and builds the coarse space (or, without one, the deflated modes).
     pub fn new(model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
-        let tracker = Tracker::new(model, params, |plan, params| {
-            Ok::<_, Error>(CpuSolve::new(model, plan, params))
+        Self::new_observed(model, params, &mut |_| {})
+    }
+
+    /// [`Deformer::new`], telling `observe` as each stage of the
+    /// preparation starts.
+    pub fn new_observed(
+        model: &ParticleModel,
+        params: DeformParams,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
+        let tracker = Tracker::new_observed(model, params, observe, |plan, params, observe| {
+            Ok::<_, Error>(CpuSolve::new_observed(model, plan, params, observe))
         })?;
         Ok(Self { tracker })
     }
@@ -224,12 +234,31 @@ impl CpuSolve {
     /// The state of `model` at rest, with its coarse space or, without one,
     /// its deflated modes.
     pub fn new(model: &ParticleModel, plan: &Plan, params: &DeformParams) -> Self {
+        Self::new_observed(model, plan, params, &mut |_| {})
+    }
+
+    /// [`CpuSolve::new`], telling `observe` as each stage starts.
+    pub fn new_observed(
+        model: &ParticleModel,
+        plan: &Plan,
+        params: &DeformParams,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Self {
+        if params.coarse != 0.0 {
+            observe(PrepareStage::CoarseSpace);
+        }
         let coarse = coarse_space(model, plan, params).map(Arc::new);
         let modes = if coarse.is_some() {
             None
         } else {
+            if params.deflation != 0 {
+                observe(PrepareStage::DeflationModes);
+            }
             deflation_modes(model, plan, params).map(Arc::new)
         };
+        if plan.elastic.is_some() {
+            observe(PrepareStage::ElasticCoarse);
+        }
         let elastic_aggregates = elastic_aggregates(model, plan, params).map(Arc::new);
         let direct_max = params.elastic_coarse_direct_max_aggregates;
         let volume_smoother = volume_smoother(
