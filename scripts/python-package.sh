@@ -15,7 +15,10 @@ python3 -m venv "$venv"
 # maturin finds patchelf on PATH. It bundles liblzma into the wheel and
 # patches the built module in place, so the wheel is built in a target
 # directory of its own: the workspace's stays as cargo (and `pip install
-# ./crates/tissue-py`) linked it.
+# ./crates/tissue-py`) linked it. The module patched by the last build is
+# removed first: cargo would find it fresh and hand maturin a module that
+# already names the bundled copy, which maturin cannot repair again.
+rm -f target/python-build/release/lib_tissue.so target/python-build/release/deps/lib_tissue.so
 PATH="$(cd "$venv/bin" && pwd):$PATH" CARGO_TARGET_DIR=target/python-build maturin build --release \
     --manifest-path crates/tissue-py/Cargo.toml --out target/wheels
 "$venv/bin/pip" install --quiet --disable-pip-version-check target/wheels/tissue-*.whl
