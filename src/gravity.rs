@@ -41,6 +41,11 @@ use crate::backend::{Device, Solver};
 
 pub use tissue_solve::gravity::{STANDARD_GRAVITY, held_vertices};
 
+/// The held region found automatically (`--fixed-region auto`, Python's
+/// `held=None`): the surface vertices that move less than this many mean
+/// connection lengths between the rest and the deformed surface.
+pub const HELD_SPACINGS: f32 = 1e-3;
+
 /// A change of gravity between the postures smaller than this, in units of
 /// `g`, is none: the skin then says nothing about the stiffness, and the
 /// deformed posture is solved as without gravity.

@@ -12,16 +12,11 @@ use indicatif::ProgressBar;
 use serde::Serialize;
 use tissue::backend::{Device, Solver};
 use tissue::deformation::{DeformParams, PrepareStage};
-use tissue::gravity::{Gravity, SolveProgress, Unloaded, held_vertices, unload};
+use tissue::gravity::{Gravity, HELD_SPACINGS, SolveProgress, Unloaded, held_vertices, unload};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::progress;
 use crate::solve::read_observed;
-
-/// The held region found by `--fixed-region auto`: the surface vertices
-/// that move less than this many mean connection lengths between the rest
-/// and the deformed surface.
-pub const HELD_SPACINGS: f32 = 1e-3;
 
 /// The length unit of the model and its surfaces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]

@@ -16,6 +16,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 use tissue::backend::{Backend, Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
+use tissue::gravity::{Gravity, HELD_SPACINGS, held_vertices, unload};
 use tissue::{ParticleModel, SamplingParams, SamplingReport, SurfaceMesh, Vec3};
 
 create_exception!(
@@ -303,21 +304,7 @@ impl Model {
         max_iterations: Option<usize>,
         progress: Option<Py<PyAny>>,
     ) -> PyResult<Deformer> {
-        let force = match force {
-            "symmetric" => ForceModel::Symmetric,
-            "elastic" => ForceModel::Elastic,
-            "paper" => ForceModel::Paper,
-            other => {
-                return Err(raise(format!(
-                    "unknown force `{other}`, expected symmetric, elastic or paper"
-                )));
-            }
-        };
-        let params = DeformParams::default().with(|p| {
-            p.force = force;
-            p.poisson = poisson.unwrap_or(p.poisson);
-            p.max_iterations = max_iterations.unwrap_or(p.max_iterations);
-        });
+        let params = params_of(force, poisson, max_iterations)?;
         let device = device_of(backend)?;
         let mut callback = Callback::new(progress.as_ref());
         let solver = py
@@ -334,8 +321,256 @@ impl Model {
         Ok(Deformer {
             solver,
             triangles: self.model.surface.triangles.clone(),
+            posture: None,
         })
     }
+
+    /// Prepares stage 2 for a scan in another posture, with gravity
+    /// (`tissue deform --gravity-rest --gravity-deformed`): the organ's
+    /// unloaded shape from this model (the rest scan) under
+    /// `gravity_rest`, Young's modulus `stiffness_kpa` or, without it,
+    /// fitted so that `gravity_deformed` best gives the skin `deformed`
+    /// (`(v, 3)`, the surface vertices in the deformed scan), and a
+    /// deformer stress-free in the unloaded shape with the deformed
+    /// posture's gravity inside; solve it with `deformed`. Gravity vectors
+    /// are in units of g in the model's axes (`(0, 0, -1)`: along -z);
+    /// `density` in kg/m^3; `unit` the model's length unit (`"mm"`,
+    /// `"cm"` or `"m"`). `held`: the surface vertices that do not move
+    /// between the scans (the chest wall), as indices or one flag per
+    /// vertex; `None` finds them, those that move less than a thousandth
+    /// of a connection length. The elastic force always. `progress`, if
+    /// given, is called after each of the search's solves with a dict:
+    /// `solve`, `iterations`, `converged`. The deformer's `posture` says
+    /// what was found. Where gravity does not change and no stiffness is
+    /// given there is no load to fit: a RuntimeWarning, and the deformer
+    /// is the plain elastic one. An unloaded shape not found within 0.1 mm
+    /// also warns.
+    #[pyo3(signature = (
+        deformed,
+        gravity_rest,
+        gravity_deformed,
+        density = 1000.0,
+        stiffness_kpa = None,
+        held = None,
+        unit = "mm",
+        backend = "auto",
+        poisson = None,
+        max_iterations = None,
+        progress = None
+    ))]
+    #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
+    fn deformer_in_posture(
+        &self,
+        py: Python<'_>,
+        deformed: PyArrayLike2<'_, f64, AllowTypeChange>,
+        gravity_rest: [f32; 3],
+        gravity_deformed: [f32; 3],
+        density: f32,
+        stiffness_kpa: Option<f32>,
+        held: Option<&Bound<'_, PyAny>>,
+        unit: &str,
+        backend: &str,
+        poisson: Option<f32>,
+        max_iterations: Option<usize>,
+        progress: Option<Py<PyAny>>,
+    ) -> PyResult<Deformer> {
+        let params = params_of("elastic", poisson, max_iterations)?;
+        let metres_per_unit = match unit {
+            "mm" => 1e-3,
+            "cm" => 1e-2,
+            "m" => 1.0,
+            other => {
+                return Err(raise(format!(
+                    "unknown unit `{other}`, expected mm, cm or m"
+                )));
+            }
+        };
+        let gravity = Gravity {
+            rest: Vec3::from(gravity_rest),
+            deformed: Vec3::from(gravity_deformed),
+            density_kg_m3: density,
+            stiffness_kpa,
+            metres_per_unit,
+        };
+        gravity.validate().map_err(raise)?;
+        let surface = &self.model.surface;
+        let vertices = points_of(&deformed, "deformed vertices")?;
+        if vertices.len() != surface.vertices.len() {
+            return Err(raise(format!(
+                "the deformed surface has {} vertices, the model's surface {}: give the \
+                 model's surface vertices in the deformed scan, in the same order",
+                vertices.len(),
+                surface.vertices.len()
+            )));
+        }
+        let deformed = SurfaceMesh::new(vertices, surface.triangles.clone());
+        let held = match held {
+            Some(held) => held_of(held, surface.vertices.len())?,
+            None => held_vertices(
+                surface,
+                &deformed,
+                HELD_SPACINGS * self.model.mean_connection_length(),
+            )
+            .ok_or_else(|| raise("the deformed surface has other vertices than the model's"))?,
+        };
+        if !held.contains(&true) {
+            return Err(raise(
+                "no surface vertex is held between the two scans (none moved less than a \
+                 thousandth of a connection length): the unloaded shape needs the surface that \
+                 does not move, e.g. the chest wall; give it with held=",
+            ));
+        }
+        let device = device_of(backend)?;
+        let model = &self.model;
+        let triangles = surface.triangles.clone();
+        if !gravity.changes() && gravity.stiffness_kpa.is_none() {
+            warn(
+                py,
+                "gravity does not change between the postures: the skin says nothing about the \
+                 stiffness, and no load is fitted; the deformer is the plain elastic one (give \
+                 stiffness_kpa to solve from the unloaded shape anyway)",
+            )?;
+            let solver = py
+                .detach(|| Solver::new(device, model, params))
+                .map_err(raise)?;
+            let posture = PyDict::new(py);
+            posture.set_item("stiffness_kpa", py.None())?;
+            posture.set_item("stiffness_fitted", false)?;
+            posture.set_item("held_vertices", held.iter().filter(|&&h| h).count())?;
+            return Ok(Deformer {
+                solver,
+                triangles,
+                posture: Some(posture.unbind().into_any()),
+            });
+        }
+        let mut callback = Callback::new(progress.as_ref());
+        let (unloaded, solver) = py
+            .detach(|| {
+                let unloaded = unload(
+                    &device,
+                    model,
+                    &deformed,
+                    &held,
+                    &gravity,
+                    &params,
+                    &mut |p| {
+                        callback.tell(|info| {
+                            info.set_item("solve", p.solve)?;
+                            info.set_item("iterations", p.iterations)?;
+                            info.set_item("converged", p.converged)
+                        });
+                    },
+                )?;
+                let params = params.with(|p| p.load = unloaded.deformed_load);
+                let solver = Solver::unloaded(device, model, &unloaded.shape.positions, params)?;
+                Ok::<_, tissue::Error>((unloaded, solver))
+            })
+            .map_err(raise)?;
+        callback.result()?;
+        if !unloaded.shape.converged {
+            warn(
+                py,
+                &format!(
+                    "the unloaded shape was not found within 0.1 mm: loaded again it is {:.3e} \
+                     model units (RMS) from the rest surface",
+                    unloaded.shape.residual
+                ),
+            )?;
+        }
+        let posture = PyDict::new(py);
+        posture.set_item("stiffness_kpa", unloaded.stiffness_kpa)?;
+        posture.set_item("stiffness_fitted", unloaded.fit.is_some())?;
+        posture.set_item("fit_residual", unloaded.fit.as_ref().map(|f| f.residual))?;
+        let trials: Vec<(f32, Option<f32>)> = unloaded
+            .fit
+            .iter()
+            .flat_map(|f| &f.trials)
+            .map(|t| {
+                (
+                    t.stiffness_kpa,
+                    t.residual.is_finite().then_some(t.residual),
+                )
+            })
+            .collect();
+        posture.set_item("fit_trials", trials)?;
+        posture.set_item("unloaded_residual", unloaded.shape.residual)?;
+        posture.set_item("unloaded_converged", unloaded.shape.converged)?;
+        posture.set_item("held_vertices", held.iter().filter(|&&h| h).count())?;
+        posture.set_item("solves", unloaded.solves)?;
+        let load = unloaded.deformed_load;
+        posture.set_item("load", (load.x, load.y, load.z))?;
+        Ok(Deformer {
+            solver,
+            triangles,
+            posture: Some(posture.unbind().into_any()),
+        })
+    }
+}
+
+/// Stage 2's parameters from the Python keywords.
+fn params_of(
+    force: &str,
+    poisson: Option<f32>,
+    max_iterations: Option<usize>,
+) -> PyResult<DeformParams> {
+    let force = match force {
+        "symmetric" => ForceModel::Symmetric,
+        "elastic" => ForceModel::Elastic,
+        "paper" => ForceModel::Paper,
+        other => {
+            return Err(raise(format!(
+                "unknown force `{other}`, expected symmetric, elastic or paper"
+            )));
+        }
+    };
+    Ok(DeformParams::default().with(|p| {
+        p.force = force;
+        p.poisson = poisson.unwrap_or(p.poisson);
+        p.max_iterations = max_iterations.unwrap_or(p.max_iterations);
+    }))
+}
+
+/// The held region from Python: vertex indices, or one flag per vertex.
+fn held_of(held: &Bound<'_, PyAny>, vertices: usize) -> PyResult<Vec<bool>> {
+    if let Ok(flags) = held.extract::<Vec<bool>>()
+        && !flags.is_empty()
+    {
+        if flags.len() != vertices {
+            return Err(raise(format!(
+                "held: {} flags, expected one per surface vertex ({vertices}), or vertex indices",
+                flags.len()
+            )));
+        }
+        return Ok(flags);
+    }
+    let indices: Vec<i64> = held
+        .extract()
+        .map_err(|_| raise("held must be surface vertex indices or one flag per surface vertex"))?;
+    let mut flags = vec![false; vertices];
+    for index in indices {
+        let slot = usize::try_from(index)
+            .ok()
+            .and_then(|i| flags.get_mut(i))
+            .ok_or_else(|| {
+                raise(format!(
+                    "held: vertex {index} is not a surface vertex (0 to {})",
+                    vertices.saturating_sub(1)
+                ))
+            })?;
+        *slot = true;
+    }
+    Ok(flags)
+}
+
+/// A RuntimeWarning with `message`.
+fn warn(py: Python<'_>, message: &str) -> PyResult<()> {
+    let warning = py.get_type::<PyRuntimeWarning>();
+    PyErr::warn(
+        py,
+        &warning,
+        &std::ffi::CString::new(message).map_err(raise)?,
+        1,
+    )
 }
 
 /// Stage 2 of one model: the surface particles follow a deformed surface
@@ -344,6 +579,8 @@ impl Model {
 struct Deformer {
     solver: Solver,
     triangles: Vec<[u32; 3]>,
+    /// What `Model.deformer_in_posture` found.
+    posture: Option<Py<PyAny>>,
 }
 
 #[pymethods]
@@ -354,6 +591,16 @@ impl Deformer {
             self.solver.positions().len(),
             self.solver.backend()
         )
+    }
+
+    /// What `Model.deformer_in_posture` found (a dict: `stiffness_kpa`,
+    /// `stiffness_fitted`, `fit_residual` and `fit_trials` (model units,
+    /// the free skin's RMS distance from the observed), `unloaded_residual`
+    /// and `unloaded_converged`, `held_vertices`, `solves`, `load`), or
+    /// None for a deformer without gravity.
+    #[getter]
+    fn posture(&self, py: Python<'_>) -> Option<Py<PyAny>> {
+        self.posture.as_ref().map(|p| p.clone_ref(py))
     }
 
     /// Which device solves (`cpu`, or `gpu (adapter, API)`).
@@ -397,13 +644,7 @@ impl Deformer {
                 "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
                 report.iterations, report.stopped_by, report.residual
             );
-            let warning = py.get_type::<PyRuntimeWarning>();
-            PyErr::warn(
-                py,
-                &warning,
-                &std::ffi::CString::new(message).map_err(raise)?,
-                1,
-            )?;
+            warn(py, &message)?;
         }
         as_dict(py, &report)
     }

@@ -173,6 +173,94 @@ def test_the_preparation_tells_its_stages(model):
     ]
 
 
+def test_a_posture_with_a_given_stiffness_solves_from_the_unloaded_shape(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    steps = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        posed = model.deformer_in_posture(
+            sagged, (0, 0, -1), (0, -1, 0), stiffness_kpa=3.0, backend="cpu",
+            progress=steps.append,
+        )
+    posture = posed.posture
+    assert posture["stiffness_kpa"] == 3.0 and not posture["stiffness_fitted"]
+    assert posture["fit_residual"] is None and posture["fit_trials"] == []
+    assert posture["unloaded_converged"] and 0 <= posture["unloaded_residual"] < 0.1
+    assert 0 < posture["held_vertices"] < len(sagged)
+    assert [s["solve"] for s in steps] == list(range(1, posture["solves"] + 1))
+    # The deformed posture's gravity (towards -y) is the load inside.
+    assert posture["load"][1] < 0 and posture["load"][0] == posture["load"][2] == 0
+    assert posed.solve(sagged)["converged"]
+    plain = model.deformer(backend="cpu", force="elastic")
+    assert plain.posture is None
+    assert plain.solve(sagged)["converged"]
+    # The skin is the same; the interior hangs differently.
+    apart = np.linalg.norm(posed.positions - plain.positions, axis=1)
+    assert apart[model.on_surface].max() < 1e-3 < apart.max()
+
+
+def test_a_posture_fits_the_stiffness_from_the_skin(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    posed = model.deformer_in_posture(sagged, (0, 0, -1), (0, -1, 0), backend="cpu")
+    posture = posed.posture
+    assert posture["stiffness_fitted"] and 0.1 <= posture["stiffness_kpa"] <= 100
+    trials = [t for t in posture["fit_trials"] if t[1] is not None]
+    assert len(trials) >= 3
+    # The least residual wins, and it is the fit's.
+    best = min(trials, key=lambda t: t[1])
+    assert best[0] == pytest.approx(posture["stiffness_kpa"])
+    assert best[1] == pytest.approx(posture["fit_residual"])
+    assert posed.solve(sagged)["converged"]
+
+
+def test_the_held_region_is_given_as_indices_or_flags(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    rest, _ = model.surface
+    still = np.linalg.norm(sagged - rest, axis=1) < 1e-6
+    found = []
+    for held in [None, still, np.flatnonzero(still), still.tolist()]:
+        posed = model.deformer_in_posture(
+            sagged, (0, 0, -1), (0, -1, 0), stiffness_kpa=3.0, held=held, backend="cpu"
+        )
+        found.append(posed.posture["held_vertices"])
+    # Found: those that moved less than a thousandth of a connection
+    # length, so the still ones and a few more.
+    assert found[1:] == [still.sum()] * 3 and still.sum() <= found[0] < len(rest)
+
+
+def test_a_posture_without_a_change_of_gravity_is_the_plain_deformer(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    with pytest.warns(RuntimeWarning, match="does not change"):
+        posed = model.deformer_in_posture(sagged, (0, 0, -1), (0, 0, -1), backend="cpu")
+    assert posed.posture["stiffness_kpa"] is None
+    assert posed.solve(sagged)["converged"]
+
+
+def test_bad_postures_raise_naming_the_problem(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    cases = [
+        ({"gravity_rest": (0, 0, -20)}, "gravity_rest"),
+        ({"density": -1.0}, "density"),
+        ({"stiffness_kpa": 0.0}, "stiffness_kpa"),
+        ({"unit": "ft"}, "unknown unit"),
+        ({"held": []}, "no surface vertex is held"),
+        ({"held": [10**9]}, "not a surface vertex"),
+        ({"held": [True, False]}, "one per surface vertex"),
+        ({"deformed": sagged[:-1]}, "vertices"),
+    ]
+    for change, message in cases:
+        arguments = {
+            "deformed": sagged,
+            "gravity_rest": (0, 0, -1),
+            "gravity_deformed": (0, -1, 0),
+            "stiffness_kpa": 3.0,
+            "backend": "cpu",
+        }
+        arguments.update(change)
+        with pytest.raises(tissue.TissueError, match=message):
+            model.deformer_in_posture(**arguments)
+
+
 def test_an_exception_in_progress_is_raised_after_the_work(model):
     def fail(step):
         raise ValueError(f"stop at {step['iteration']}")
@@ -209,3 +297,4 @@ def test_the_readme_example_runs_as_written(capsys):
     exec(compile(blocks[0], str(readme), "exec"), {})
     out = capsys.readouterr().out
     assert "converged: True" in out and "the tumour moved to" in out
+    assert re.search(r"\d\.\d\d kPa; the tumour moved to", out)

@@ -14,6 +14,14 @@ also gives its motion as a 4x4 matrix). Arrays are numpy arrays in the surface's
     report = deformer.solve(vertices)
     moved = deformer.carry([[0.0, 0.0, 20.0]])
 
+With the two scans' postures, ``Model.deformer_in_posture`` first finds
+the organ's unloaded shape and (unless given) its stiffness from the skin,
+then solves with the deformed posture's gravity inside:
+
+    posed = model.deformer_in_posture(vertices, (0, 0, -1), (0, -1, 0))
+    posed.solve(vertices)
+    posed.posture["stiffness_kpa"]
+
 Every computation releases the GIL. Errors are ``tissue.TissueError``,
 with the messages of the command-line tool.
 """
