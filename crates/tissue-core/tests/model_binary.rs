@@ -18,15 +18,8 @@ use tissue_core::{Attachment, Connections, ParticleModel, SurfaceMesh, Vec3};
 /// A tetrahedron with interior and surface particles, connected, with
 /// values that do not survive a careless conversion.
 fn model() -> ParticleModel {
-    let surface = SurfaceMesh::new(
-        vec![
-            Vec3::ZERO,
-            Vec3::new(3.0, 0.0, 0.0),
-            Vec3::new(0.0, 3.0, 0.0),
-            Vec3::new(0.0, 0.0, 3.0),
-        ],
-        vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-    );
+    let (vertices, triangles) = tissue_testkit::tetrahedron(3.0);
+    let surface = SurfaceMesh::new(vertices, triangles);
     let mut positions = Vec::new();
     let mut attachments = Vec::new();
     for k in 0..40 {

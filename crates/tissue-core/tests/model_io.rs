@@ -11,15 +11,8 @@ use tissue_core::{Attachment, Connections, Error, ParticleModel, SurfaceMesh, Ve
 /// A tetrahedron surface with three surface particles and three interior
 /// ones, at coordinates whose decimal forms are awkward.
 fn awkward_model() -> ParticleModel {
-    let surface = SurfaceMesh::new(
-        vec![
-            Vec3::ZERO,
-            Vec3::new(3.0, 0.0, 0.0),
-            Vec3::new(0.0, 3.0, 0.0),
-            Vec3::new(0.0, 0.0, 3.0),
-        ],
-        vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-    );
+    let (vertices, triangles) = tissue_testkit::tetrahedron(3.0);
+    let surface = SurfaceMesh::new(vertices, triangles);
     let third = 1.0_f32 / 3.0;
     ParticleModel {
         positions: vec![

@@ -31,6 +31,19 @@ pub fn octahedron() -> (Vec<Vec3>, Vec<[u32; 3]>) {
     (vertices, triangles)
 }
 
+/// The corner tetrahedron with legs of `edge` along the axes (vertices at
+/// the origin, `edge x`, `edge y`, `edge z`), wound counter-clockwise seen
+/// from outside.
+pub fn tetrahedron(edge: f32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let vertices = vec![
+        Vec3::ZERO,
+        Vec3::new(edge, 0.0, 0.0),
+        Vec3::new(0.0, edge, 0.0),
+        Vec3::new(0.0, 0.0, edge),
+    ];
+    (vertices, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+}
+
 /// The [`octahedron`] with coordinates that are awkward to print and read
 /// back exactly: a third, subnormal-adjacent and huge values, a negative
 /// zero, a value near `f32::MAX`.
