@@ -179,7 +179,7 @@ pub struct Unloaded {
 /// is fitted so that the deformed posture's gravity, the skin free, best
 /// gives the skin of `deformed` (the observed part where
 /// `params.observed` says). `params` must be the elastic force's.
-/// `progress` is told of every solve as it ends (a fit makes 10-15 of
+/// `progress` is told of every solve as it ends (a fit makes 6-10 of
 /// them, each of a few hundred iterations over the free skin).
 ///
 /// # Errors

@@ -114,7 +114,8 @@ fn the_stiffness_is_fitted_from_the_skin_when_not_given() {
     let e = r["stiffness_kpa"].as_f64().unwrap();
     assert!(e > 0.1 && e < 100.0, "{e}");
     let trials = r["fit_trials"].as_array().unwrap();
-    assert!(trials.len() >= 3, "{trials:?}");
+    // The first trial, then at least one small-strain estimate.
+    assert!(trials.len() >= 2, "{trials:?}");
     let best = trials
         .iter()
         .filter_map(|t| t["residual_mm"].as_f64())

@@ -205,7 +205,8 @@ def test_a_posture_fits_the_stiffness_from_the_skin(model):
     posture = posed.posture
     assert posture["stiffness_fitted"] and 0.1 <= posture["stiffness_kpa"] <= 100
     trials = [t for t in posture["fit_trials"] if t[1] is not None]
-    assert len(trials) >= 3
+    # The first trial, then at least one small-strain estimate.
+    assert len(trials) >= 2
     # The least residual wins, and it is the fit's.
     best = min(trials, key=lambda t: t[1])
     assert best[0] == pytest.approx(posture["stiffness_kpa"])
