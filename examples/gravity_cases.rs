@@ -110,7 +110,7 @@ fn main() {
     let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
     let started = std::time::Instant::now();
     // Loads `guess` with `body`: the chest wall held, the rest of the skin free.
-    let solve = |guess: &[Vec3], body: Vec3| {
+    let solve = |guess: &[Vec3], body: Vec3, warm: Option<&[Vec3]>| {
         let m0 = tissue::ParticleModel {
             positions: guess.to_vec(),
             ..model.clone()
@@ -121,14 +121,17 @@ fn main() {
         });
         let mut d = Deformer::new(&m0, params)?;
         d.set_surface(&model.surface)?;
+        if let Some(warm) = warm {
+            d.warm_start(warm)?;
+        }
         let report = d.solve();
         Ok((d.positions().to_vec(), report))
     };
     let (e_kpa, shape) = match given {
         Some(e) => (
             e,
-            unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |x| {
-                solve(x, per_kpa(g_rest) / e)
+            unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |x, warm| {
+                solve(x, per_kpa(g_rest) / e, warm)
             })
             .unwrap(),
         ),

@@ -441,6 +441,21 @@ impl Solver {
         }
     }
 
+    /// Starts the next solve from `positions` (one per particle; the
+    /// control points stay where [`Solver::set_surface`] put them) as from
+    /// a converged solve: the elastic force's elastic phase alone, and both
+    /// phases from `positions` if that fails. Call it after
+    /// `set_surface`. For a search whose solves are near each other.
+    pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
+        match &mut self.device {
+            SolverDevice::Cpu(cpu) => cpu.warm_start(positions),
+            SolverDevice::Gpu(gpu) => gpu
+                .deformer
+                .warm_start(&gpu.device, &gpu.queue, positions)
+                .map_err(|e| gpu_error(format!("uploading a start to {}", gpu.name), e)),
+        }
+    }
+
     /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport, Error> {
         self.solve_with_progress(&mut |_| {})

@@ -250,8 +250,12 @@ pub fn unload(
     let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
     let mut solves = 0;
     // Loads `guess` with `load`: the held region observed where the rest
-    // surface puts it, the rest of the skin free.
-    let mut solve = |guess: &[Vec3], load: Vec3| -> Result<(Vec<Vec3>, DeformReport), Error> {
+    // surface puts it, the rest of the skin free; from `warm` where the
+    // search knows about where the loaded positions are.
+    let mut solve = |guess: &[Vec3],
+                     load: Vec3,
+                     warm: Option<&[Vec3]>|
+     -> Result<(Vec<Vec3>, DeformReport), Error> {
         solves += 1;
         let stress_free = ParticleModel {
             positions: guess.to_vec(),
@@ -263,6 +267,9 @@ pub fn unload(
         });
         let mut solver = Solver::new(device.clone(), &stress_free, held_params)?;
         solver.set_surface(&model.surface)?;
+        if let Some(warm) = warm {
+            solver.warm_start(warm)?;
+        }
         let report = solver.solve()?;
         progress(&SolveProgress {
             solve: solves,
@@ -273,8 +280,8 @@ pub fn unload(
     };
     let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
         Some(e) => {
-            let shape = unloaded_shape(&model.positions, &surface, unloading, |x| {
-                solve(x, rest_per_kpa / e)
+            let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
+                solve(x, rest_per_kpa / e, warm)
             })?;
             (e, shape, None)
         }

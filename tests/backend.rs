@@ -303,3 +303,59 @@ fn progress_comes_in_order_on_both_devices() {
         "cpu, no coarse space"
     );
 }
+
+/// A solve warm-started where a converged solve of the same surface ended
+/// runs its elastic phase alone and stops within a few iterations where it
+/// started, on both devices in the same iterations; a start of the wrong
+/// length or with a non-finite position is refused, naming it.
+#[test]
+fn a_warm_start_at_the_answer_stays_there_on_both_devices() {
+    let Some(gpu) = gpu() else { return };
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let sag = deform::sagged_breast();
+    let params = DeformParams::default().with(|p| p.force = ForceModel::Elastic);
+    let size = phantom::default_breast()
+        .bounds()
+        .map(|(lo, hi)| (hi - lo).length())
+        .unwrap();
+    let mut iterations = Vec::new();
+    for device in [Device::Cpu, gpu] {
+        let name = device.name().to_owned();
+        let mut cold = Solver::new(device.clone(), &model, params.clone()).unwrap();
+        cold.set_surface(&sag).unwrap();
+        let first = cold.solve().unwrap();
+        assert!(first.converged, "{name}: {first:?}");
+        let answer = cold.positions().to_vec();
+        let mut warm = Solver::new(device, &model, params.clone()).unwrap();
+        warm.set_surface(&sag).unwrap();
+        warm.warm_start(&answer).unwrap();
+        let again = warm.solve().unwrap();
+        assert!(again.converged, "{name}: {again:?}");
+        assert!(
+            again.iterations <= 3 && again.iterations < first.iterations,
+            "{name}: {} iterations warm, {} cold",
+            again.iterations,
+            first.iterations
+        );
+        let moved = warm
+            .positions()
+            .iter()
+            .zip(&answer)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        assert!(moved <= 1e-3 * size, "{name}: moved {moved}");
+        iterations.push(again.iterations);
+        let short = warm.warm_start(&answer[1..]).unwrap_err().to_string();
+        assert!(short.contains("warm start"), "{short}");
+        let mut bad = answer.clone();
+        bad[7] = Vec3::NAN;
+        let nan = warm.warm_start(&bad).unwrap_err().to_string();
+        assert!(nan.contains("warm start"), "{nan}");
+    }
+    assert_eq!(iterations[0], iterations[1], "CPU, GPU");
+}

@@ -40,6 +40,7 @@ fn load(
     device: &Device,
     model: &ParticleModel,
     unloaded: &[Vec3],
+    warm: Option<&[Vec3]>,
 ) -> Result<(Vec<Vec3>, tissue::deformation::DeformReport), Error> {
     let guess = ParticleModel {
         positions: unloaded.to_vec(),
@@ -47,6 +48,9 @@ fn load(
     };
     let mut solver = Solver::new(device.clone(), &guess, params(model))?;
     solver.set_surface(&model.surface)?;
+    if let Some(warm) = warm {
+        solver.warm_start(warm)?;
+    }
     let report = solver.solve()?;
     Ok((solver.positions().to_vec(), report))
 }
@@ -67,8 +71,8 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
         max_rounds: 8,
     };
     let surface = surface_flags(&model);
-    let shape = unloaded_shape(&model.positions, &surface, unloading, |x| {
-        load(&Device::Cpu, &model, x)
+    let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
+        load(&Device::Cpu, &model, x, warm)
     })
     .unwrap();
     eprintln!(
@@ -89,7 +93,7 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
         .collect();
     assert!(shape.converged, "{stops:?}");
     assert!(shape.rounds >= 2 && shape.rounds <= 6, "{}", shape.rounds);
-    let (again, report) = load(&Device::Cpu, &model, &shape.positions).unwrap();
+    let (again, report) = load(&Device::Cpu, &model, &shape.positions, None).unwrap();
     assert!(report.converged);
     let rms = (again
         .iter()
@@ -109,7 +113,7 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
         .map(|&i| shape.positions[i].z - model.positions[i].z)
         .sum::<f32>()
         / top.len() as f32;
-    let (sagged, _) = load(&Device::Cpu, &model, &model.positions).unwrap();
+    let (sagged, _) = load(&Device::Cpu, &model, &model.positions, None).unwrap();
     let sag = top
         .iter()
         .map(|&i| model.positions[i].z - sagged[i].z)
@@ -137,8 +141,8 @@ fn the_gpu_finds_the_same_unloaded_shape() {
     let shapes: Vec<_> = [Device::Cpu, gpu]
         .iter()
         .map(|device| {
-            unloaded_shape(&model.positions, &surface, unloading, |x| {
-                load(device, &model, x)
+            unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
+                load(device, &model, x, warm)
             })
             .unwrap()
         })
@@ -175,7 +179,7 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
     let per_kpa = |g: Vec3| gravity_load(g, 1000.0, 1.0, poisson, 1e-2).unwrap();
     let (standing, lying) = (Vec3::new(0.0, 0.0, -1.0), Vec3::new(1.0, 0.0, 0.0));
     let truth = 60.0f32;
-    let solve_on = |device: &Device, x: &[Vec3], body: Vec3| {
+    let solve_on = |device: &Device, x: &[Vec3], body: Vec3, warm: Option<&[Vec3]>| {
         let guess = ParticleModel {
             positions: x.to_vec(),
             ..model.clone()
@@ -188,11 +192,21 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
         });
         let mut solver = Solver::new(device.clone(), &guess, params)?;
         solver.set_surface(&model.surface)?;
+        if let Some(warm) = warm {
+            solver.warm_start(warm)?;
+        }
         let report = solver.solve()?;
         Ok::<_, Error>((solver.positions().to_vec(), report))
     };
-    let (rest, r) = solve_on(&Device::Cpu, &model.positions, per_kpa(standing) / truth).unwrap();
-    let (observed, o) = solve_on(&Device::Cpu, &model.positions, per_kpa(lying) / truth).unwrap();
+    let (rest, r) = solve_on(
+        &Device::Cpu,
+        &model.positions,
+        per_kpa(standing) / truth,
+        None,
+    )
+    .unwrap();
+    let (observed, o) =
+        solve_on(&Device::Cpu, &model.positions, per_kpa(lying) / truth, None).unwrap();
     assert!(r.converged && o.converged);
     let tip = (0..model.len())
         .map(|i| observed[i].x - model.positions[i].x)
@@ -226,9 +240,13 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
     // The GPU half needs an adapter (under `CI=true` it must have one).
     let gpu = common::gpu();
     for device in std::iter::once(Device::Cpu).chain(gpu) {
-        let fit = fit_stiffness(&postures, 20.0, (1.0, 1000.0), unloading, |x, body| {
-            solve_on(&device, x, body)
-        })
+        let fit = fit_stiffness(
+            &postures,
+            20.0,
+            (1.0, 1000.0),
+            unloading,
+            |x, body, warm| solve_on(&device, x, body, warm),
+        )
         .unwrap();
         eprintln!(
             "{}: {:.2} kPa, free skin {:.2e} off, trials {:?}",

@@ -301,6 +301,16 @@ impl GpuDeformer {
         self.tracker.set_surface((device, queue), deformed)
     }
 
+    /// The next solve starts from `positions` (`Tracker::warm_start`).
+    pub fn warm_start(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        positions: &[Vec3],
+    ) -> Result<(), GpuError> {
+        self.tracker.warm_start((device, queue), positions)
+    }
+
     /// Rest particle positions.
     pub fn rest(&self) -> &[Vec3] {
         self.tracker.rest()

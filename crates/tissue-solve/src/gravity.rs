@@ -130,8 +130,12 @@ pub struct UnloadedShape {
 /// (module docs). `forward` loads a guess: given the guess as the model's
 /// positions, it solves stage 2 with the rest posture's gravity, the held
 /// region observed where the rest surface puts it and the rest of the skin
-/// free, and returns the loaded positions and the solve's report.
-/// `surface[i]` says whether particle `i` is on the surface.
+/// free, and returns the loaded positions and the solve's report. Its
+/// second argument, where there is one, is where the loaded positions are
+/// expected (a warm start for the solve): the rest shape itself, from the
+/// second round on, since each round's guess is made so that loading it
+/// gives the rest shape. `surface[i]` says whether particle `i` is on the
+/// surface.
 ///
 /// Stops at the tolerance, after `max_rounds`, or when a round misses by
 /// more than the one before (the search diverges: the load is too large
@@ -146,13 +150,14 @@ pub fn unloaded_shape(
     rest: &[Vec3],
     surface: &[bool],
     unloading: Unloading,
-    forward: impl FnMut(&[Vec3]) -> Result<(Vec<Vec3>, DeformReport), Error>,
+    forward: impl FnMut(&[Vec3], Option<&[Vec3]>) -> Result<(Vec<Vec3>, DeformReport), Error>,
 ) -> Result<UnloadedShape, Error> {
     unloaded_shape_from(rest, rest, surface, unloading, forward)
 }
 
 /// [`unloaded_shape`] from the guess `start` instead of the rest shape
-/// (the unloaded shape for a nearby stiffness, say).
+/// (the unloaded shape for a nearby stiffness, say): its first round is
+/// warm-started too.
 ///
 /// # Errors
 ///
@@ -163,7 +168,7 @@ pub fn unloaded_shape_from(
     start: &[Vec3],
     surface: &[bool],
     unloading: Unloading,
-    mut forward: impl FnMut(&[Vec3]) -> Result<(Vec<Vec3>, DeformReport), Error>,
+    mut forward: impl FnMut(&[Vec3], Option<&[Vec3]>) -> Result<(Vec<Vec3>, DeformReport), Error>,
 ) -> Result<UnloadedShape, Error> {
     if start.len() != rest.len() || surface.len() != rest.len() {
         return Err(Error::Param(ParamError {
@@ -194,7 +199,9 @@ pub fn unloaded_shape_from(
     let mut best: Option<UnloadedShape> = None;
     let mut reports = Vec::new();
     for round in 1..=unloading.max_rounds.max(1) {
-        let (loaded, report) = forward(&guess)?;
+        // Loading a guess made to give the rest shape gives about it.
+        let expected = (round > 1 || start != rest).then_some(rest);
+        let (loaded, report) = forward(&guess, expected)?;
         if loaded.len() != rest.len() || loaded.iter().any(|p| !p.is_finite()) {
             return Err(Error::Param(ParamError {
                 name: "unloaded shape",
@@ -323,8 +330,20 @@ mod tests {
             tolerance: 1e-4,
             max_rounds: 20,
         };
-        let shape =
-            unloaded_shape(&rest, &surface, unloading, |x| Ok((load(x), report(true)))).unwrap();
+        // The first round starts cold; each later one expects the rest
+        // shape, which its guess was made to give.
+        let mut expected = Vec::new();
+        let shape = unloaded_shape(&rest, &surface, unloading, |x, warm| {
+            expected.push(warm.map(<[Vec3]>::to_vec));
+            Ok((load(x), report(true)))
+        })
+        .unwrap();
+        assert_eq!(expected[0], None);
+        assert!(
+            expected[1..]
+                .iter()
+                .all(|w| w.as_deref() == Some(&rest[..]))
+        );
         assert!(shape.converged && shape.residual <= 1e-4, "{shape:?}");
         assert!(shape.rounds > 2 && shape.rounds < 20, "{}", shape.rounds);
         let again = load(&shape.positions);
@@ -349,14 +368,15 @@ mod tests {
             tolerance: 1e-6,
             max_rounds: 10,
         };
-        let runaway = |x: &[Vec3]| -> Result<(Vec<Vec3>, DeformReport), Error> {
-            Ok((x.iter().map(|&p| 3.0 * p + Vec3::Z).collect(), report(true)))
-        };
+        let runaway =
+            |x: &[Vec3], _: Option<&[Vec3]>| -> Result<(Vec<Vec3>, DeformReport), Error> {
+                Ok((x.iter().map(|&p| 3.0 * p + Vec3::Z).collect(), report(true)))
+            };
         let shape = unloaded_shape(&rest, &surface, unloading, runaway).unwrap();
         assert!(!shape.converged);
         assert_eq!(shape.rounds, 2, "stopped when the miss grew");
         assert_eq!(shape.positions, rest, "the first guess was the better");
-        let failed = |x: &[Vec3]| -> Result<(Vec<Vec3>, DeformReport), Error> {
+        let failed = |x: &[Vec3], _: Option<&[Vec3]>| -> Result<(Vec<Vec3>, DeformReport), Error> {
             Ok((
                 x.iter().map(|&p| p + 0.5 * Vec3::Z).collect(),
                 report(false),
@@ -364,7 +384,7 @@ mod tests {
         };
         let shape = unloaded_shape(&rest, &surface, unloading, failed).unwrap();
         assert!(!shape.converged && shape.rounds == 1);
-        let short = |_: &[Vec3]| -> Result<(Vec<Vec3>, DeformReport), Error> {
+        let short = |_: &[Vec3], _: Option<&[Vec3]>| -> Result<(Vec<Vec3>, DeformReport), Error> {
             Ok((vec![Vec3::ZERO], report(true)))
         };
         assert!(unloaded_shape(&rest, &surface, unloading, short).is_err());

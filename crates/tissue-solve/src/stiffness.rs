@@ -89,7 +89,10 @@ pub struct StiffnessFit {
 /// Fits the stiffness (module docs) within `bounds` (kPa), starting at
 /// `start`. `solve` loads positions with a load vector: the model with
 /// those positions, the held region observed where the rest surface puts
-/// it, the rest of the skin free.
+/// it, the rest of the skin free; its third argument, where there is one,
+/// is where the loaded positions are expected (a warm start: the rest
+/// shape for the unloaded shape's rounds, the last trial's deformed
+/// posture scaled to this stiffness for the deformed posture).
 ///
 /// # Errors
 ///
@@ -100,7 +103,7 @@ pub fn fit_stiffness(
     start: f32,
     bounds: (f32, f32),
     unloading: Unloading,
-    mut solve: impl FnMut(&[Vec3], Vec3) -> Result<(Vec<Vec3>, DeformReport), Error>,
+    mut solve: impl FnMut(&[Vec3], Vec3, Option<&[Vec3]>) -> Result<(Vec<Vec3>, DeformReport), Error>,
 ) -> Result<StiffnessFit, Error> {
     let (lo, hi) = bounds;
     ParamError::check(
@@ -117,6 +120,10 @@ pub fn fit_stiffness(
     )?;
     let mut trials: Vec<Trial> = Vec::new();
     let mut best: Option<(Trial, UnloadedShape)> = None;
+    // The last deformed posture solved: its stiffness, unloaded shape and
+    // loaded positions, whose move, scaled by the stiffnesses, warm-starts
+    // the next.
+    let mut last_deformed: Option<(f32, Vec<Vec3>, Vec<Vec3>)> = None;
     // One trial: its residual and the free skin's move (empty where its
     // solves failed).
     let mut run = |e: f32,
@@ -137,14 +144,31 @@ pub fn fit_stiffness(
             }
             None => postures.rest.to_vec(),
         };
-        let unloaded =
-            unloaded_shape_from(postures.rest, &start, postures.surface, unloading, |x| {
-                solve(x, postures.rest_load_per_kpa / e)
-            })?;
+        let unloaded = unloaded_shape_from(
+            postures.rest,
+            &start,
+            postures.surface,
+            unloading,
+            |x, warm| solve(x, postures.rest_load_per_kpa / e, warm),
+        )?;
         // No unloaded shape, no trial: the deformed posture is not solved.
         let (moved, residual) = if unloaded.converged {
-            let (moved, report) = solve(&unloaded.positions, postures.deformed_load_per_kpa / e)?;
+            let expected: Option<Vec<Vec3>> = last_deformed.as_ref().map(|(e_last, u, m)| {
+                let scale = e_last / e;
+                unloaded
+                    .positions
+                    .iter()
+                    .zip(u.iter().zip(m))
+                    .map(|(x, (u, m))| *x + (*m - *u) * scale)
+                    .collect()
+            });
+            let (moved, report) = solve(
+                &unloaded.positions,
+                postures.deformed_load_per_kpa / e,
+                expected.as_deref(),
+            )?;
             if report.converged {
+                last_deformed = Some((e, unloaded.positions.clone(), moved.clone()));
                 let residual = skin_residual(postures, &moved);
                 (moved, residual)
             } else {
@@ -371,7 +395,7 @@ mod tests {
             seconds: 0.0,
             elastic_retries: 0,
         };
-        let fit = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k| {
+        let fit = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _| {
             Ok((load(x, k), ok(true)))
         })
         .unwrap();
@@ -386,12 +410,12 @@ mod tests {
         // the third within 0.5 %, where the estimate settles.
         assert!(fit.trials.len() <= 3, "{:?}", fit.trials);
         // Solves that never converge: refused, naming the stiffness.
-        let failed = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k| {
+        let failed = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _| {
             Ok((load(x, k), ok(false)))
         });
         assert!(failed.is_err());
         assert!(
-            fit_stiffness(&postures, 0.05, (0.1, 100.0), unloading, |x, k| Ok((
+            fit_stiffness(&postures, 0.05, (0.1, 100.0), unloading, |x, k, _| Ok((
                 load(x, k),
                 ok(true)
             )))

@@ -328,6 +328,35 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(self.device.write_positions(cx, &self.current, turn)?)
     }
 
+    /// Starts the next solve from `positions` (one per particle; the
+    /// control points stay where [`Tracker::set_surface`] put them) as if a
+    /// converged solve had left the free particles there: with the elastic
+    /// force its elastic phase alone, and both phases from `positions` if
+    /// that fails, as a tracking frame does. For a solve whose answer is
+    /// known roughly: the next of a search over nearby loads or shapes.
+    pub fn warm_start<E: From<Error> + From<D::Error>>(
+        &mut self,
+        cx: D::Context<'_>,
+        positions: &[Vec3],
+    ) -> Result<(), E> {
+        ParamError::check(
+            positions.len() == self.current.len() && positions.iter().all(|p| p.is_finite()),
+            "warm start",
+            format!("{} positions", positions.len()),
+            format!("{} finite positions, one per particle", self.current.len()),
+        )
+        .map_err(Error::from)?;
+        for (i, &q) in positions.iter().enumerate() {
+            if self.plan.free[i] {
+                self.current[i] = q;
+            }
+        }
+        self.device.write_positions(cx, &self.current, None)?;
+        self.elastic_warm = self.params.force == ForceModel::Elastic;
+        self.elastic_correct = true;
+        Ok(())
+    }
+
     /// Iterates until the stopping rule holds or the cap is reached, then
     /// reads the positions back and records them for the next prediction.
     ///

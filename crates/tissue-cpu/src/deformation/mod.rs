@@ -163,6 +163,11 @@ impl Deformer {
         self.tracker.set_surface((), deformed)
     }
 
+    /// The next solve starts from `positions` (`Tracker::warm_start`).
+    pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
+        self.tracker.warm_start((), positions)
+    }
+
     /// Iterates until the stopping rule holds or the cap is reached.
     ///
     /// Stopping rule: the error estimate `max step / (1 - rho)`, with `rho` the
