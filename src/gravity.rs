@@ -30,12 +30,15 @@
 //! # Ok::<(), tissue::Error>(())
 //! ```
 
+use glam::Mat3;
 use glam::Vec3;
+use tissue_core::SamplingParams;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel};
-use tissue_solve::gravity::{UnloadedShape, Unloading, gravity_load, unloaded_shape};
+use tissue_solve::gravity::{UnloadedShape, Unloading, gravity_load, unloaded_shape_from};
 use tissue_solve::plan::control_points;
-use tissue_solve::stiffness::{Postures, Trial, fit_stiffness, free_skin_targets};
+use tissue_solve::stiffness::{Postures, StiffnessFit, Trial, fit_stiffness, free_skin_targets};
+use tissue_solve::structures::Embedding;
 
 use crate::backend::{Device, Solver};
 
@@ -54,6 +57,16 @@ pub const NO_CHANGE: f32 = 1e-3;
 /// The stiffness the fit starts from, kPa (soft tissue is 0.5 to 50), and
 /// the bounds it searches within.
 pub const FIT_START_KPA: f32 = 3.0;
+
+/// The particles of the model the stiffness is fitted on
+/// ([`Gravity::fit_particles`]): the shared breast cases fit the same
+/// stiffness on 2,000 particles as on 10,000 within 3 % in a fifth of the
+/// time (docs/METHOD.md).
+pub const FIT_PARTICLES: usize = 2_000;
+
+/// The fewest particles [`Gravity::fit_particles`] may ask: fewer leave a
+/// breast a few particles across, too coarse to bend as it does.
+pub const MIN_FIT_PARTICLES: usize = 500;
 
 /// The fit's bounds, kPa.
 pub const FIT_BOUNDS_KPA: (f32, f32) = (0.1, 100.0);
@@ -78,6 +91,12 @@ pub struct Gravity {
     pub stiffness_kpa: Option<f32>,
     /// The model's length unit in metres (`1e-3` for millimetres).
     pub metres_per_unit: f32,
+    /// Where the stiffness is fitted: on a model of this many particles
+    /// sampled on the same surface, where the model has at least twice
+    /// as many ([`FIT_PARTICLES`]; docs/METHOD.md), the model's own
+    /// unloaded shape then found at the fitted stiffness; `None`: on the
+    /// model itself.
+    pub fit_particles: Option<usize>,
 }
 
 impl Gravity {
@@ -90,6 +109,7 @@ impl Gravity {
             density_kg_m3: 1000.0,
             stiffness_kpa,
             metres_per_unit: 1e-3,
+            fit_particles: Some(FIT_PARTICLES),
         }
     }
 
@@ -124,6 +144,17 @@ impl Gravity {
                 "a positive Young's modulus in kPa (soft tissue: 0.5 to 50)",
             )?;
         }
+        if let Some(n) = self.fit_particles {
+            ParamError::check(
+                n >= MIN_FIT_PARTICLES,
+                "fit_particles",
+                n,
+                format!(
+                    "at least {MIN_FIT_PARTICLES} particles to fit the stiffness on (or none: fit \
+                     on the model itself)"
+                ),
+            )?;
+        }
         // The density and the unit: as the load checks them.
         gravity_load(
             Vec3::ZERO,
@@ -144,6 +175,9 @@ pub struct Fit {
     pub residual: f32,
     /// Every trial, in order.
     pub trials: Vec<Trial>,
+    /// The particles of the model the fit ran on: [`Gravity::fit_particles`],
+    /// or the model's own where it is not at least twice that.
+    pub particles: usize,
 }
 
 /// One stage-2 solve of [`unload`]'s search, told to its progress callback.
@@ -178,9 +212,13 @@ pub struct Unloaded {
 /// in every solve, the rest of the skin free; with no stiffness given it
 /// is fitted so that the deformed posture's gravity, the skin free, best
 /// gives the skin of `deformed` (the observed part where
-/// `params.observed` says). `params` must be the elastic force's.
-/// `progress` is told of every solve as it ends (a fit makes 6-10 of
-/// them, each of a few hundred iterations over the free skin).
+/// `params.observed` says), on a coarse model of the same surface where
+/// `gravity.fit_particles` asks one ([`Gravity::fit_particles`]), the
+/// model's own unloaded shape then found at the fitted stiffness.
+/// `params` must be the elastic force's. `progress` is told of every
+/// solve as it ends (a fit makes 6-10 of them, each of a few hundred
+/// iterations over the free skin, and the model's own rounds after a
+/// coarse fit 1-3 more).
 ///
 /// # Errors
 ///
@@ -247,85 +285,70 @@ pub fn unload(
         tolerance: UNLOADED_TOLERANCE_M / gravity.metres_per_unit,
         ..Unloading::MILLIMETRES
     };
-    let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
-    let mut solves = 0;
-    // Loads `guess` with `load`: the held region observed where the rest
-    // surface puts it, the rest of the skin free; from `warm` where the
-    // search knows about where the loaded positions are.
-    let mut solve = |guess: &[Vec3],
-                     load: Vec3,
-                     warm: Option<&[Vec3]>|
-     -> Result<(Vec<Vec3>, DeformReport), Error> {
-        solves += 1;
-        let stress_free = ParticleModel {
-            positions: guess.to_vec(),
-            ..model.clone()
-        };
-        let held_params = params.clone().with(|p| {
-            p.observed = Some(held.to_vec());
-            p.load = load;
-        });
-        let mut solver = Solver::new(device.clone(), &stress_free, held_params)?;
-        solver.set_surface(&model.surface)?;
-        if let Some(warm) = warm {
-            solver.warm_start(warm)?;
-        }
-        let report = solver.solve()?;
-        progress(&SolveProgress {
-            solve: solves,
-            iterations: report.iterations,
-            converged: report.converged,
-        });
-        Ok((solver.positions().to_vec(), report))
+    let mut solves = Solves {
+        device,
+        params,
+        held,
+        progress,
+        count: 0,
     };
     let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
         Some(e) => {
-            let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
-                solve(x, rest_per_kpa / e, warm)
-            })?;
+            let shape = solves.unloaded(model, None, rest_per_kpa / e, unloading)?;
             (e, shape, None)
         }
         None => {
-            // Where the observed deformed skin puts each free skin particle.
-            let observed = params
-                .observed
-                .as_deref()
-                .map(|mask| control_points(model, Some(mask)));
-            let targets: Vec<Option<Vec3>> = free_skin_targets(model, deformed, held)
-                .into_iter()
-                .enumerate()
-                .map(|(i, t)| t.filter(|_| observed.as_ref().is_none_or(|o| o[i])))
-                .collect();
-            ParamError::check(
-                targets.iter().any(Option::is_some),
-                "observed",
-                "no free skin particle observed",
-                "some observed skin outside the held region to fit the stiffness from",
-            )?;
-            let postures = Postures {
-                rest: &model.positions,
-                surface: &surface,
-                targets: &targets,
-                rest_load_per_kpa: rest_per_kpa,
-                deformed_load_per_kpa: deformed_per_kpa,
+            let coarse = gravity
+                .fit_particles
+                .filter(|&n| model.len() >= 2 * n)
+                .and_then(|n| coarse_model(model, n));
+            let fitted = match &coarse {
+                Some(coarse) => {
+                    let fitted =
+                        solves.fit(coarse, deformed, rest_per_kpa, deformed_per_kpa, unloading);
+                    if let Err(e) = &fitted {
+                        log::warn!(
+                            "the stiffness fit on a model of {} particles failed ({e}); fitting on \
+                             the model itself",
+                            coarse.len()
+                        );
+                    }
+                    fitted.ok().map(|f| (coarse, f))
+                }
+                None => None,
             };
-            let fit = fit_stiffness(
-                &postures,
-                FIT_START_KPA,
-                FIT_BOUNDS_KPA,
-                unloading,
-                &mut solve,
-            )?;
-            (
-                fit.stiffness_kpa,
-                fit.unloaded,
-                Some(Fit {
-                    residual: fit.residual,
-                    trials: fit.trials,
-                }),
-            )
+            match fitted {
+                // The model's own unloaded shape at the stiffness fitted on
+                // the coarse one, from the coarse shape's displacement.
+                Some((coarse, f)) => {
+                    let start = carried(&coarse.positions, &f.unloaded.positions, &model.positions);
+                    let shape = solves.unloaded(
+                        model,
+                        Some(&start),
+                        rest_per_kpa / f.stiffness_kpa,
+                        unloading,
+                    )?;
+                    let fit = Fit {
+                        residual: f.residual,
+                        trials: f.trials,
+                        particles: coarse.len(),
+                    };
+                    (f.stiffness_kpa, shape, Some(fit))
+                }
+                None => {
+                    let f =
+                        solves.fit(model, deformed, rest_per_kpa, deformed_per_kpa, unloading)?;
+                    let fit = Fit {
+                        residual: f.residual,
+                        trials: f.trials,
+                        particles: model.len(),
+                    };
+                    (f.stiffness_kpa, f.unloaded, Some(fit))
+                }
+            }
         }
     };
+    let solves = solves.count;
     Ok(Unloaded {
         shape,
         stiffness_kpa,
@@ -333,4 +356,197 @@ pub fn unload(
         deformed_load: deformed_per_kpa / stiffness_kpa,
         solves,
     })
+}
+
+/// The stage-2 solves of [`unload`]'s search on one device, counted and
+/// told to its progress callback.
+struct Solves<'a> {
+    device: &'a Device,
+    params: &'a DeformParams,
+    /// The held region, a flag per surface vertex (the same surface for
+    /// every model the search solves).
+    held: &'a [bool],
+    progress: &'a mut dyn FnMut(&SolveProgress),
+    count: usize,
+}
+
+impl Solves<'_> {
+    /// Loads `model` stress-free in `guess` with `load`: the held region
+    /// observed where the rest surface puts it, the rest of the skin free;
+    /// from `warm` where the search knows about where the loaded positions
+    /// are.
+    fn solve(
+        &mut self,
+        model: &ParticleModel,
+        guess: &[Vec3],
+        load: Vec3,
+        warm: Option<&[Vec3]>,
+    ) -> Result<(Vec<Vec3>, DeformReport), Error> {
+        self.count += 1;
+        let stress_free = ParticleModel {
+            positions: guess.to_vec(),
+            ..model.clone()
+        };
+        let held_params = self.params.clone().with(|p| {
+            p.observed = Some(self.held.to_vec());
+            p.load = load;
+        });
+        let mut solver = Solver::new(self.device.clone(), &stress_free, held_params)?;
+        solver.set_surface(&model.surface)?;
+        if let Some(warm) = warm {
+            solver.warm_start(warm)?;
+        }
+        let report = solver.solve()?;
+        (self.progress)(&SolveProgress {
+            solve: self.count,
+            iterations: report.iterations,
+            converged: report.converged,
+        });
+        Ok((solver.positions().to_vec(), report))
+    }
+
+    /// `model`'s unloaded shape under the rest posture's `load`, from the
+    /// guess `start` (the rest shape where there is none).
+    fn unloaded(
+        &mut self,
+        model: &ParticleModel,
+        start: Option<&[Vec3]>,
+        load: Vec3,
+        unloading: Unloading,
+    ) -> Result<UnloadedShape, Error> {
+        let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
+        let rest = &model.positions;
+        unloaded_shape_from(
+            rest,
+            start.unwrap_or(rest),
+            &surface,
+            unloading,
+            |x, warm| self.solve(model, x, load, warm),
+        )
+    }
+
+    /// The stiffness fitted on `model` (module docs; [`fit_stiffness`]).
+    fn fit(
+        &mut self,
+        model: &ParticleModel,
+        deformed: &SurfaceMesh,
+        rest_per_kpa: Vec3,
+        deformed_per_kpa: Vec3,
+        unloading: Unloading,
+    ) -> Result<StiffnessFit, Error> {
+        // Where the observed deformed skin puts each free skin particle.
+        let observed = self
+            .params
+            .observed
+            .as_deref()
+            .map(|mask| control_points(model, Some(mask)));
+        let targets: Vec<Option<Vec3>> = free_skin_targets(model, deformed, self.held)
+            .into_iter()
+            .enumerate()
+            .map(|(i, t)| t.filter(|_| observed.as_ref().is_none_or(|o| o[i])))
+            .collect();
+        ParamError::check(
+            targets.iter().any(Option::is_some),
+            "observed",
+            "no free skin particle observed",
+            "some observed skin outside the held region to fit the stiffness from",
+        )?;
+        let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
+        let postures = Postures {
+            rest: &model.positions,
+            surface: &surface,
+            targets: &targets,
+            rest_load_per_kpa: rest_per_kpa,
+            deformed_load_per_kpa: deformed_per_kpa,
+        };
+        fit_stiffness(
+            &postures,
+            FIT_START_KPA,
+            FIT_BOUNDS_KPA,
+            unloading,
+            |x, load, warm| self.solve(model, x, load, warm),
+        )
+    }
+}
+
+/// A model of `particles` on `model`'s surface for the stiffness's fit
+/// (stage 1 on the host, the default settings); `None`, with a warning,
+/// where sampling it fails.
+fn coarse_model(model: &ParticleModel, particles: usize) -> Option<ParticleModel> {
+    match crate::sample(&model.surface, &SamplingParams::with_particles(particles)) {
+        Ok(sampled) if sampled.model.surface.vertices.len() == model.surface.vertices.len() => {
+            Some(sampled.model)
+        }
+        Ok(_) => {
+            log::warn!(
+                "the coarse model's surface is not the model's; fitting on the model itself"
+            );
+            None
+        }
+        Err(e) => {
+            log::warn!(
+                "sampling {particles} particles to fit the stiffness on failed ({e}); fitting on \
+                 the model itself"
+            );
+            None
+        }
+    }
+}
+
+/// `points` moved as the particles at `rest` moved to `moved`: each by the
+/// weighted displacement of the particles that carry it
+/// ([`tissue_solve::structures::carriers_of`]).
+fn carried(rest: &[Vec3], moved: &[Vec3], points: &[Vec3]) -> Vec<Vec3> {
+    let embedding = Embedding::new(rest, points);
+    let still = vec![Mat3::IDENTITY; rest.len()];
+    embedding.moved(rest, moved, &still)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+
+    /// The fit's coarse model is 2,000 particles by default, and fewer
+    /// than [`MIN_FIT_PARTICLES`] are refused, naming the field.
+    #[test]
+    fn the_coarse_fit_default_is_pinned_and_too_few_refused() {
+        let g = Gravity::millimetres(Vec3::NEG_Z, Vec3::NEG_Y, None);
+        assert_eq!(g.fit_particles, Some(2_000));
+        assert_eq!(FIT_PARTICLES, 2_000);
+        assert!(g.validate().is_ok());
+        let none = Gravity {
+            fit_particles: None,
+            ..g
+        };
+        assert!(none.validate().is_ok());
+        let few = Gravity {
+            fit_particles: Some(MIN_FIT_PARTICLES - 1),
+            ..g
+        };
+        let said = few.validate().unwrap_err().to_string();
+        assert!(said.contains("fit_particles"), "{said}");
+    }
+
+    /// Points follow the carrying particles' displacement: a translation
+    /// exactly, nothing where nothing moved, and a stretch within what
+    /// the carriers' spread allows.
+    #[test]
+    fn points_are_carried_by_the_particles_displacement() {
+        let grid: Vec<Vec3> = (0..6 * 6 * 6)
+            .map(|i| Vec3::new((i % 6) as f32, (i / 6 % 6) as f32, (i / 36) as f32))
+            .collect();
+        let points = [Vec3::splat(2.5), Vec3::new(1.2, 3.7, 0.4), Vec3::splat(4.0)];
+        let shift = Vec3::new(0.3, -0.2, 0.1);
+        let moved: Vec<Vec3> = grid.iter().map(|p| *p + shift).collect();
+        for (c, p) in carried(&grid, &moved, &points).iter().zip(&points) {
+            assert!(c.distance(*p + shift) < 1e-5, "{c} from {p}");
+        }
+        for (c, p) in carried(&grid, &grid, &points).iter().zip(&points) {
+            assert!(c.distance(*p) < 1e-6, "{c} from {p}");
+        }
+        let stretched: Vec<Vec3> = grid.iter().map(|p| *p * Vec3::new(1.1, 1.0, 1.0)).collect();
+        let centre = carried(&grid, &stretched, &[Vec3::splat(2.5)])[0];
+        assert!((centre.x - 2.75).abs() < 0.05, "{centre}");
+    }
 }

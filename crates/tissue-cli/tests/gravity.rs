@@ -129,6 +129,29 @@ fn the_stiffness_is_fitted_from_the_skin_when_not_given() {
         "{e} among {trials:?}"
     );
     assert!(text(&output).contains("fitted in"), "{}", text(&output));
+    // A model of 2,000 particles is fitted on itself (the coarse model's
+    // default is 2,000, used from twice as many).
+    assert_eq!(r["fit_particles"], 2000);
+    assert!(r["posture_seconds"].as_f64().unwrap() > 0.0);
+    // `--fit-particles 500`: fitted on 500 particles of the same surface,
+    // the model's own unloaded shape then found at that stiffness.
+    let coarse = dir.path().join("coarse");
+    let extra = [&POSTURES[..], &["--fit-particles", "500"]].concat();
+    let (output, report) = deform(&model, &coarse, &extra);
+    assert!(output.status.success(), "{}", text(&output));
+    let c = report.unwrap();
+    assert_eq!(c["fit_particles"], 500);
+    assert!(
+        text(&output).contains("on 500 particles"),
+        "{}",
+        text(&output)
+    );
+    assert!(c["unloaded_residual_mm"].as_f64().unwrap() <= 0.1, "{c}");
+    let e_coarse = c["stiffness_kpa"].as_f64().unwrap();
+    assert!(
+        (e_coarse / e).ln().abs() < 0.25,
+        "{e_coarse} kPa on 500 particles, {e} on the model"
+    );
 }
 
 /// The same gravity in both postures: the skin says nothing about the
@@ -181,6 +204,18 @@ fn bad_posture_options_are_refused() {
         ),
         ([&POSTURES[..], &["--density", "-5"]].concat(), "density"),
         ([&POSTURES[..], &["--stiffness", "0"]].concat(), "stiffness"),
+        (
+            [&POSTURES[..], &["--fit-particles", "100"]].concat(),
+            "fit_particles",
+        ),
+        (
+            [
+                &POSTURES[..],
+                &["--fit-particles", "500", "--stiffness", "3"],
+            ]
+            .concat(),
+            "cannot be used with",
+        ),
         (
             [&POSTURES[..], &["--fixed-region", s(&missing)]].concat(),
             "missing.csv",

@@ -16,7 +16,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 use tissue::backend::{Backend, Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
-use tissue::gravity::{Gravity, HELD_SPACINGS, held_vertices, unload};
+use tissue::gravity::{FIT_PARTICLES, Gravity, HELD_SPACINGS, held_vertices, unload};
 use tissue::{ParticleModel, SamplingParams, SamplingReport, SurfaceMesh, Vec3};
 
 create_exception!(
@@ -344,7 +344,11 @@ impl Model {
     /// what was found. Where gravity does not change and no stiffness is
     /// given there is no load to fit: a RuntimeWarning, and the deformer
     /// is the plain elastic one. An unloaded shape not found within 0.1 mm
-    /// also warns.
+    /// also warns. `fit_particles`: the stiffness is fitted on a model of
+    /// that many particles sampled on the same surface where this one has
+    /// at least twice as many, this model's unloaded shape then found at
+    /// the fitted stiffness (several times faster; docs/METHOD.md);
+    /// `None` fits on this model.
     #[pyo3(signature = (
         deformed,
         gravity_rest,
@@ -356,7 +360,8 @@ impl Model {
         backend = "auto",
         poisson = None,
         max_iterations = None,
-        progress = None
+        progress = None,
+        fit_particles = Some(FIT_PARTICLES)
     ))]
     #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn deformer_in_posture(
@@ -373,6 +378,7 @@ impl Model {
         poisson: Option<f32>,
         max_iterations: Option<usize>,
         progress: Option<Py<PyAny>>,
+        fit_particles: Option<usize>,
     ) -> PyResult<Deformer> {
         let params = params_of("elastic", poisson, max_iterations)?;
         let metres_per_unit = match unit {
@@ -391,6 +397,7 @@ impl Model {
             density_kg_m3: density,
             stiffness_kpa,
             metres_per_unit,
+            fit_particles,
         };
         gravity.validate().map_err(raise)?;
         let surface = &self.model.surface;
@@ -481,6 +488,7 @@ impl Model {
         posture.set_item("stiffness_kpa", unloaded.stiffness_kpa)?;
         posture.set_item("stiffness_fitted", unloaded.fit.is_some())?;
         posture.set_item("fit_residual", unloaded.fit.as_ref().map(|f| f.residual))?;
+        posture.set_item("fit_particles", unloaded.fit.as_ref().map(|f| f.particles))?;
         let trials: Vec<(f32, Option<f32>)> = unloaded
             .fit
             .iter()

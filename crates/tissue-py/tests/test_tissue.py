@@ -212,6 +212,14 @@ def test_a_posture_fits_the_stiffness_from_the_skin(model):
     assert best[0] == pytest.approx(posture["stiffness_kpa"])
     assert best[1] == pytest.approx(posture["fit_residual"])
     assert posed.solve(sagged)["converged"]
+    # The model has 1,500 particles, fewer than twice the coarse default
+    # (2,000): fitted on itself; asked for 500, on a coarse model of the
+    # surface.
+    assert posture["fit_particles"] == len(model)
+    coarse = model.deformer_in_posture(
+        sagged, (0, 0, -1), (0, -1, 0), backend="cpu", fit_particles=500
+    ).posture
+    assert coarse["fit_particles"] == 500 and coarse["unloaded_converged"]
 
 
 def test_the_held_region_is_given_as_indices_or_flags(model):
@@ -248,6 +256,7 @@ def test_bad_postures_raise_naming_the_problem(model):
         ({"held": [10**9]}, "not a surface vertex"),
         ({"held": [True, False]}, "one per surface vertex"),
         ({"deformed": sagged[:-1]}, "vertices"),
+        ({"fit_particles": 10}, "fit_particles"),
     ]
     for change, message in cases:
         arguments = {
