@@ -298,10 +298,19 @@ pub fn unload(
             (e, shape, None)
         }
         None => {
+            let started = std::time::Instant::now();
             let coarse = gravity
                 .fit_particles
                 .filter(|&n| model.len() >= 2 * n)
                 .and_then(|n| coarse_model(model, n));
+            if let Some(coarse) = &coarse {
+                log::info!(
+                    "the stiffness is fitted on {} particles of the same surface (sampled in \
+                     {:.2} s)",
+                    coarse.len(),
+                    started.elapsed().as_secs_f64()
+                );
+            }
             let fitted = match &coarse {
                 Some(coarse) => {
                     let fitted =
@@ -321,6 +330,13 @@ pub fn unload(
                 // The model's own unloaded shape at the stiffness fitted on
                 // the coarse one, from the coarse shape's displacement.
                 Some((coarse, f)) => {
+                    log::info!(
+                        "fitted {:.3} kPa on {} particles in {:.2} s; the model's own unloaded \
+                         shape at it",
+                        f.stiffness_kpa,
+                        coarse.len(),
+                        started.elapsed().as_secs_f64()
+                    );
                     let start = carried(&coarse.positions, &f.unloaded.positions, &model.positions);
                     let shape = solves.unloaded(
                         model,

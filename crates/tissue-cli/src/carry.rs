@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::backend::BoundRigid;
-use tissue::field::SurfaceField;
+use tissue::field::distances_outside;
 use tissue::io::markups::{Markups, is_markups, load_markups};
 use tissue::io::space::Space;
 use tissue::structures::RigidMotion;
@@ -98,21 +98,19 @@ pub struct Outside {
 }
 
 impl Outside {
-    /// `points` measured against `rest`'s field; `tolerance` in model units.
-    fn of(field: &SurfaceField, points: &[Vec3], tolerance: f32) -> Self {
-        points.iter().fold(Self::default(), |o, &p| {
-            let d = field.distance_outside(p);
-            Self {
-                count: o.count + usize::from(d > tolerance),
-                max_mm: o.max_mm.max(d),
-            }
+    /// Points `distances` outside the rest surface; `tolerance` in model
+    /// units.
+    fn of(distances: &[f32], tolerance: f32) -> Self {
+        distances.iter().fold(Self::default(), |o, &d| Self {
+            count: o.count + usize::from(d > tolerance),
+            max_mm: o.max_mm.max(d),
         })
     }
 }
 
-/// The rest surface's field and the tolerance of [`Outside`], for a model.
+/// The rest surface and the tolerance of [`Outside`], for a model.
 pub struct OutsideCheck {
-    field: SurfaceField,
+    rest: SurfaceMesh,
     tolerance: f32,
 }
 
@@ -124,14 +122,16 @@ impl OutsideCheck {
             .map_or(1.0, |(lo, hi)| (hi - lo).length())
             .max(f32::MIN_POSITIVE);
         let tolerance = OUTSIDE_SPACINGS * spacing.max(1e-6 * diagonal);
-        let cell = (diagonal / 64.0).max(tolerance);
-        let field = SurfaceField::new(rest, cell, 2.0 * cell)
-            .map_err(|e| anyhow::anyhow!("the model's rest surface: {e}"))?;
-        Ok(Self { field, tolerance })
+        Ok(Self {
+            rest: rest.clone(),
+            tolerance,
+        })
     }
 
-    fn check(&self, what: &str, points: &[Vec3]) -> Outside {
-        let outside = Outside::of(&self.field, points, self.tolerance);
+    fn check(&self, what: &str, points: &[Vec3]) -> Result<Outside> {
+        let distances = distances_outside(&self.rest, points)
+            .map_err(|e| anyhow::anyhow!("the model's rest surface: {e}"))?;
+        let outside = Outside::of(&distances, self.tolerance);
         if outside.count > 0 {
             log::warn!(
                 "{} of {} points of {what} lie outside the model's rest surface, up to {:.2} \
@@ -143,7 +143,7 @@ impl OutsideCheck {
                 self.tolerance
             );
         }
-        outside
+        Ok(outside)
     }
 }
 
@@ -263,10 +263,10 @@ impl Carried {
                     None => tissue::load_points(path)?,
                 };
                 let source = path.display().to_string();
-                let outside = check
-                    .as_ref()
-                    .map(|c| c.check(&source, &points))
-                    .unwrap_or_default();
+                let outside = match &check {
+                    Some(c) => c.check(&source, &points)?,
+                    None => Outside::default(),
+                };
                 Some(Points {
                     source,
                     markups,
@@ -289,7 +289,7 @@ impl Carried {
             .map(|((kind, source, mesh), name)| {
                 let mut structure = Structure::bind(name, source, kind, mesh, solver)?;
                 if let Some(check) = &check {
-                    structure.outside = check.check(&structure.source, &structure.rest.vertices);
+                    structure.outside = check.check(&structure.source, &structure.rest.vertices)?;
                 }
                 Ok(structure)
             })

@@ -55,7 +55,9 @@ fn main() -> ExitCode {
         Command::Phantom { .. } => false,
     };
     let level = if quiet { "error" } else { "warn" };
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level)).init();
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level))
+        .format_timestamp_millis()
+        .init();
     let outcome = match cli.command {
         Command::Demo(args) => demo::demo(&args),
         Command::Sample(args) => sample::sample(&args),

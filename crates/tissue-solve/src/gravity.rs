@@ -214,6 +214,12 @@ pub fn unloaded_shape_from(
         let miss: Vec<Vec3> = rest.iter().zip(&loaded).map(|(r, l)| *r - *l).collect();
         let residual = rms(&miss, &|i| surface[i]);
         let residual_all = rms(&miss, &|_| true);
+        log::debug!(
+            "unloaded shape, round {round}: loaded, it misses the rest surface by {residual:.4} \
+             (every particle {residual_all:.4}); {} iterations{}",
+            reports.last().map_or(0, |r: &DeformReport| r.iterations),
+            if solved { "" } else { ", not converged" }
+        );
         let worse = best.as_ref().is_some_and(|b| residual > b.residual);
         if !worse {
             best = Some(UnloadedShape {
