@@ -116,16 +116,16 @@ pub struct OutsideCheck {
 
 impl OutsideCheck {
     /// For a model with rest surface `rest` and mean connection length `spacing`.
-    pub fn new(rest: &SurfaceMesh, spacing: f32) -> Result<Self> {
+    pub fn new(rest: &SurfaceMesh, spacing: f32) -> Self {
         let diagonal = rest
             .bounds()
             .map_or(1.0, |(lo, hi)| (hi - lo).length())
             .max(f32::MIN_POSITIVE);
         let tolerance = OUTSIDE_SPACINGS * spacing.max(1e-6 * diagonal);
-        Ok(Self {
+        Self {
             rest: rest.clone(),
             tolerance,
-        })
+        }
     }
 
     fn check(&self, what: &str, points: &[Vec3]) -> Result<Outside> {
@@ -243,14 +243,7 @@ impl Carried {
         let any = args.points.is_some()
             || !args.structures.is_empty()
             || !args.rigid_structures.is_empty();
-        let check = if any {
-            Some(OutsideCheck::new(
-                &model.surface,
-                model.mean_connection_length(),
-            )?)
-        } else {
-            None
-        };
+        let check = any.then(|| OutsideCheck::new(&model.surface, model.mean_connection_length()));
         let points = match &args.points {
             Some(path) => {
                 let markups = if is_markups(path) {

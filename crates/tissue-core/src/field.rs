@@ -549,7 +549,6 @@ fn for_each_cell([lo, hi]: [[u32; 3]; 2], mut f: impl FnMut([u32; 3])) {
     }
 }
 
-/// Face, edge and angle-weighted vertex pseudo-normals of every triangle.
 /// How far each of `points` lies outside the closed, outward surface
 /// `mesh` (0 inside or on it), exactly: a bounding-volume hierarchy over
 /// the triangles (parry3d), each point on its own. For a few thousand
@@ -579,6 +578,7 @@ pub fn distances_outside(mesh: &SurfaceMesh, points: &[Vec3]) -> Result<Vec<f32>
         .collect())
 }
 
+/// Face, edge and angle-weighted vertex pseudo-normals of every triangle.
 fn pseudo_normals(mesh: &SurfaceMesh) -> Vec<[Vec3; 7]> {
     let faces: Vec<Vec3> = (0..mesh.triangles.len())
         .map(|t| {
