@@ -130,7 +130,7 @@ fn main() {
     let (e_kpa, shape) = match given {
         Some(e) => (
             e,
-            unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |x, warm| {
+            unloaded_shape(&rest, &surface, Unloading::MILLIMETRES, |x, warm, _| {
                 solve(x, per_kpa(g_rest) / e, warm)
             })
             .unwrap(),
@@ -145,8 +145,14 @@ fn main() {
                 rest_load_per_kpa: per_kpa(g_rest),
                 deformed_load_per_kpa: per_kpa(g_def),
             };
-            let fit =
-                fit_stiffness(&postures, 3.0, (0.1, 100.0), Unloading::MILLIMETRES, solve).unwrap();
+            let fit = fit_stiffness(
+                &postures,
+                3.0,
+                (0.1, 100.0),
+                Unloading::MILLIMETRES,
+                |x, load, warm, _| solve(x, load, warm),
+            )
+            .unwrap();
             let truth_e = truth["source"]["material"]["E_kPa"].as_f64().unwrap();
             println!(
                 "{case}: fitted E {:.3} kPa (true {truth_e} kPa, for checking: {:+.1} %), free skin {:.3} mm from the observed, trials {:?}, {:.1} s",

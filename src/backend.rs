@@ -456,6 +456,22 @@ impl Solver {
         }
     }
 
+    /// Changes the parameters of the next solves (the tolerance, say); the
+    /// state is kept. What was prepared for the model (the force, the
+    /// Poisson ratio, the observed vertices, the load, the coarse space)
+    /// cannot change: build a new solver for those.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Param`] for parameters out of range or a change of what
+    /// was prepared.
+    pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
+        match &mut self.device {
+            SolverDevice::Cpu(cpu) => cpu.set_params(params),
+            SolverDevice::Gpu(gpu) => gpu.deformer.set_params(params),
+        }
+    }
+
     /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport, Error> {
         self.solve_with_progress(&mut |_| {})

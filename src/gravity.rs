@@ -35,7 +35,9 @@ use glam::Vec3;
 use tissue_core::SamplingParams;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel};
-use tissue_solve::gravity::{UnloadedShape, Unloading, gravity_load, unloaded_shape_from};
+use tissue_solve::gravity::{
+    Accuracy, ROUND_TOLERANCE, UnloadedShape, Unloading, gravity_load, unloaded_shape_from,
+};
 use tissue_solve::plan::control_points;
 use tissue_solve::stiffness::{Postures, StiffnessFit, Trial, fit_stiffness, free_skin_targets};
 use tissue_solve::structures::Embedding;
@@ -291,6 +293,7 @@ pub fn unload(
         held,
         progress,
         count: 0,
+        last_round: None,
     };
     let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
         Some(e) => {
@@ -384,41 +387,80 @@ struct Solves<'a> {
     held: &'a [bool],
     progress: &'a mut dyn FnMut(&SolveProgress),
     count: usize,
+    /// The last round's solver, which the round's confirmation
+    /// ([`Accuracy::Full`] for the same guess and load) solves on from
+    /// where it stopped instead of preparing the model again.
+    last_round: Option<Round>,
+}
+
+/// A round's solve, kept for its confirmation.
+struct Round {
+    guess: Vec<Vec3>,
+    load: Vec3,
+    solver: Solver,
 }
 
 impl Solves<'_> {
     /// Loads `model` stress-free in `guess` with `load`: the held region
     /// observed where the rest surface puts it, the rest of the skin free;
     /// from `warm` where the search knows about where the loaded positions
-    /// are.
+    /// are; as closely as `accuracy` asks. A confirmation of the last
+    /// round (the same guess and load, in full) tightens that round's
+    /// solver and solves on from its state.
     fn solve(
         &mut self,
         model: &ParticleModel,
         guess: &[Vec3],
         load: Vec3,
         warm: Option<&[Vec3]>,
+        accuracy: Accuracy,
     ) -> Result<(Vec<Vec3>, DeformReport), Error> {
         self.count += 1;
-        let stress_free = ParticleModel {
-            positions: guess.to_vec(),
-            ..model.clone()
-        };
         let held_params = self.params.clone().with(|p| {
             p.observed = Some(self.held.to_vec());
             p.load = load;
         });
-        let mut solver = Solver::new(self.device.clone(), &stress_free, held_params)?;
-        solver.set_surface(&model.surface)?;
-        if let Some(warm) = warm {
-            solver.warm_start(warm)?;
-        }
+        let last = self.last_round.take();
+        let mut solver = match last {
+            Some(round)
+                if accuracy == Accuracy::Full && round.load == load && round.guess == guess =>
+            {
+                let mut solver = round.solver;
+                solver.set_params(held_params)?;
+                solver
+            }
+            _ => {
+                let stress_free = ParticleModel {
+                    positions: guess.to_vec(),
+                    ..model.clone()
+                };
+                let params = match accuracy {
+                    Accuracy::Round => held_params.with(|p| p.tolerance *= ROUND_TOLERANCE),
+                    Accuracy::Full => held_params,
+                };
+                let mut solver = Solver::new(self.device.clone(), &stress_free, params)?;
+                solver.set_surface(&model.surface)?;
+                if let Some(warm) = warm {
+                    solver.warm_start(warm)?;
+                }
+                solver
+            }
+        };
         let report = solver.solve()?;
         (self.progress)(&SolveProgress {
             solve: self.count,
             iterations: report.iterations,
             converged: report.converged,
         });
-        Ok((solver.positions().to_vec(), report))
+        let loaded = solver.positions().to_vec();
+        if accuracy == Accuracy::Round {
+            self.last_round = Some(Round {
+                guess: guess.to_vec(),
+                load,
+                solver,
+            });
+        }
+        Ok((loaded, report))
     }
 
     /// `model`'s unloaded shape under the rest posture's `load`, from the
@@ -437,7 +479,7 @@ impl Solves<'_> {
             start.unwrap_or(rest),
             &surface,
             unloading,
-            |x, warm| self.solve(model, x, load, warm),
+            |x, warm, accuracy| self.solve(model, x, load, warm, accuracy),
         )
     }
 
@@ -480,7 +522,7 @@ impl Solves<'_> {
             FIT_START_KPA,
             FIT_BOUNDS_KPA,
             unloading,
-            |x, load, warm| self.solve(model, x, load, warm),
+            |x, load, warm, accuracy| self.solve(model, x, load, warm, accuracy),
         )
     }
 }

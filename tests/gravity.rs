@@ -71,7 +71,7 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
         max_rounds: 8,
     };
     let surface = surface_flags(&model);
-    let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
+    let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm, _| {
         load(&Device::Cpu, &model, x, warm)
     })
     .unwrap();
@@ -141,7 +141,7 @@ fn the_gpu_finds_the_same_unloaded_shape() {
     let shapes: Vec<_> = [Device::Cpu, gpu]
         .iter()
         .map(|device| {
-            unloaded_shape(&model.positions, &surface, unloading, |x, warm| {
+            unloaded_shape(&model.positions, &surface, unloading, |x, warm, _| {
                 load(device, &model, x, warm)
             })
             .unwrap()
@@ -245,7 +245,7 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
             20.0,
             (1.0, 1000.0),
             unloading,
-            |x, body, warm| solve_on(&device, x, body, warm),
+            |x, body, warm, _| solve_on(&device, x, body, warm),
         )
         .unwrap();
         eprintln!(

@@ -289,6 +289,18 @@ impl GpuDeformer {
         self.tracker.plan().lambda_max
     }
 
+    /// The parameters of the next solves.
+    pub fn params(&self) -> &DeformParams {
+        self.tracker.params()
+    }
+
+    /// Changes the parameters of the next solves (the tolerance, say); the
+    /// state is kept ([`Tracker::set_params`]: what was prepared for the
+    /// model cannot change).
+    pub fn set_params(&mut self, params: DeformParams) -> Result<(), tissue_core::Error> {
+        self.tracker.set_params(params)
+    }
+
     /// Places the control points on `deformed`, the rest surface with moved
     /// vertices, predicts the free particles as the CPU path does (unless
     /// `extrapolate` is off) and uploads them (a frame boundary).

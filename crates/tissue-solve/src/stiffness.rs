@@ -30,7 +30,7 @@
 use glam::Vec3;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
-use crate::gravity::{UnloadedShape, Unloading, unloaded_shape_from};
+use crate::gravity::{Accuracy, UnloadedShape, Unloading, unloaded_shape_from};
 use crate::plan::control_points;
 use crate::report::DeformReport;
 
@@ -92,7 +92,9 @@ pub struct StiffnessFit {
 /// it, the rest of the skin free; its third argument, where there is one,
 /// is where the loaded positions are expected (a warm start: the rest
 /// shape for the unloaded shape's rounds, the last trial's deformed
-/// posture scaled to this stiffness for the deformed posture).
+/// posture scaled to this stiffness for the deformed posture); its fourth,
+/// how closely to solve ([`Accuracy`]: the unloaded shape's rounds as
+/// [`unloaded_shape_from`] asks, the deformed posture in full).
 ///
 /// # Errors
 ///
@@ -103,7 +105,12 @@ pub fn fit_stiffness(
     start: f32,
     bounds: (f32, f32),
     unloading: Unloading,
-    mut solve: impl FnMut(&[Vec3], Vec3, Option<&[Vec3]>) -> Result<(Vec<Vec3>, DeformReport), Error>,
+    mut solve: impl FnMut(
+        &[Vec3],
+        Vec3,
+        Option<&[Vec3]>,
+        Accuracy,
+    ) -> Result<(Vec<Vec3>, DeformReport), Error>,
 ) -> Result<StiffnessFit, Error> {
     let (lo, hi) = bounds;
     ParamError::check(
@@ -149,7 +156,7 @@ pub fn fit_stiffness(
             &start,
             postures.surface,
             unloading,
-            |x, warm| solve(x, postures.rest_load_per_kpa / e, warm),
+            |x, warm, accuracy| solve(x, postures.rest_load_per_kpa / e, warm, accuracy),
         )?;
         // No unloaded shape, no trial: the deformed posture is not solved.
         let (moved, residual) = if unloaded.converged {
@@ -166,6 +173,7 @@ pub fn fit_stiffness(
                 &unloaded.positions,
                 postures.deformed_load_per_kpa / e,
                 expected.as_deref(),
+                Accuracy::Full,
             )?;
             if report.converged {
                 last_deformed = Some((e, unloaded.positions.clone(), moved.clone()));
@@ -395,7 +403,7 @@ mod tests {
             seconds: 0.0,
             elastic_retries: 0,
         };
-        let fit = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _| {
+        let fit = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _, _| {
             Ok((load(x, k), ok(true)))
         })
         .unwrap();
@@ -410,12 +418,12 @@ mod tests {
         // the third within 0.5 %, where the estimate settles.
         assert!(fit.trials.len() <= 3, "{:?}", fit.trials);
         // Solves that never converge: refused, naming the stiffness.
-        let failed = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _| {
+        let failed = fit_stiffness(&postures, 10.0, (0.1, 100.0), unloading, |x, k, _, _| {
             Ok((load(x, k), ok(false)))
         });
         assert!(failed.is_err());
         assert!(
-            fit_stiffness(&postures, 0.05, (0.1, 100.0), unloading, |x, k, _| Ok((
+            fit_stiffness(&postures, 0.05, (0.1, 100.0), unloading, |x, k, _, _| Ok((
                 load(x, k),
                 ok(true)
             )))

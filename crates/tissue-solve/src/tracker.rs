@@ -427,6 +427,11 @@ impl<D: SolveDevice> Tracker<D> {
             self.shear_then_elastic(cx, &params, &mut steps)?
         };
         report.seconds = started.elapsed().as_secs_f64();
+        log::debug!(
+            "solve: {} iterations in {:.4} s",
+            report.iterations,
+            report.seconds
+        );
         self.current = self.device.read_positions(cx)?;
         self.history
             .record(&self.current, report.converged, self.params.history);
