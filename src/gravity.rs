@@ -425,6 +425,7 @@ impl Solves<'_> {
             Some(round)
                 if accuracy == Accuracy::Full && round.load == load && round.guess == guess =>
             {
+                log::debug!("the round measured again at the full tolerance, on its own solver");
                 let mut solver = round.solver;
                 solver.set_params(held_params)?;
                 solver
