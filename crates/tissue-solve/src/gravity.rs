@@ -114,10 +114,10 @@ pub enum Accuracy {
     /// A round whose loaded shape only moves the guess: the solve's
     /// tolerance times [`ROUND_TOLERANCE`]. Its error is small beside the
     /// miss it measures (0.05 mm beside 0.3-3 mm on the breast phantoms),
-    /// and the next round corrects it.
+    /// and the next round corrects it. The stiffness search's deformed
+    /// postures too ([`crate::stiffness::fit_stiffness`]).
     Round,
-    /// The solve's own tolerance: the round whose miss is reported, and
-    /// every solve of a deformed posture.
+    /// The solve's own tolerance: the round whose miss is reported.
     Full,
 }
 
