@@ -394,31 +394,56 @@ impl CoarseMultipliers {
                 }
             }
         }
+        // Summed in a dense row per thread (the coarse space's width), each
+        // entry's terms in the order of the neighbourhoods, as an ordered
+        // map would sum them, then read out in column order.
+        let width = 4 * count;
         let mut rows: Vec<Vec<(u32, f64)>> = touching
             .par_iter()
             .enumerate()
-            .flat_map_iter(|(a, neighbourhoods)| {
-                let mut block: Vec<std::collections::BTreeMap<u32, f64>> =
-                    vec![std::collections::BTreeMap::new(); 4];
-                for &i in neighbourhoods {
-                    let Some((touched, local)) = &shares[i as usize] else {
-                        continue;
-                    };
-                    let columns = 4 * touched.len();
-                    let at = 4 * touched.binary_search(&(a as u32)).unwrap_or(0);
-                    for (k, row) in block.iter_mut().enumerate() {
-                        for (c, &b) in touched.iter().enumerate() {
-                            for l in 0..4 {
-                                *row.entry(4 * b + l as u32).or_default() +=
-                                    local[(at + k) * columns + 4 * c + l];
+            .map_init(
+                || (vec![0.0f64; 4 * width], vec![false; width], Vec::new()),
+                |(dense, seen, columns), (a, neighbourhoods)| {
+                    columns.clear();
+                    for &i in neighbourhoods {
+                        let Some((touched, local)) = &shares[i as usize] else {
+                            continue;
+                        };
+                        let stride = 4 * touched.len();
+                        let at = 4 * touched.binary_search(&(a as u32)).unwrap_or(0);
+                        for k in 0..4 {
+                            for (c, &b) in touched.iter().enumerate() {
+                                for l in 0..4 {
+                                    let column = 4 * b as usize + l;
+                                    if !seen[column] {
+                                        seen[column] = true;
+                                        columns.push(column as u32);
+                                    }
+                                    dense[k * width + column] +=
+                                        local[(at + k) * stride + 4 * c + l];
+                                }
                             }
                         }
                     }
-                }
-                block
-                    .into_iter()
-                    .map(|row| row.into_iter().collect::<Vec<_>>())
-            })
+                    columns.sort_unstable();
+                    let block: Vec<Vec<(u32, f64)>> = (0..4)
+                        .map(|k| {
+                            columns
+                                .iter()
+                                .map(|&column| (column, dense[k * width + column as usize]))
+                                .collect()
+                        })
+                        .collect();
+                    for &column in columns.iter() {
+                        seen[column as usize] = false;
+                        for k in 0..4 {
+                            dense[k * width + column as usize] = 0.0;
+                        }
+                    }
+                    block
+                },
+            )
+            .flat_map_iter(Vec::into_iter)
             .collect();
         // The unused linear unknowns of constant-only aggregates: identity
         // rows (their basis is zero, so they correct nothing; their entries
