@@ -393,9 +393,9 @@ struct Solves<'a> {
     last_round: Option<Round>,
 }
 
-/// A round's solve, kept for its confirmation.
+/// A round's solve, kept for its confirmation (its guess is the solver's
+/// rest shape).
 struct Round {
-    guess: Vec<Vec3>,
     load: Vec3,
     solver: Solver,
 }
@@ -423,7 +423,9 @@ impl Solves<'_> {
         let last = self.last_round.take();
         let mut solver = match last {
             Some(round)
-                if accuracy == Accuracy::Full && round.load == load && round.guess == guess =>
+                if accuracy == Accuracy::Full
+                    && round.load == load
+                    && round.solver.rest() == guess =>
             {
                 log::debug!("the round measured again at the full tolerance, on its own solver");
                 let mut solver = round.solver;
@@ -455,11 +457,7 @@ impl Solves<'_> {
         });
         let loaded = solver.positions().to_vec();
         if accuracy == Accuracy::Round {
-            self.last_round = Some(Round {
-                guess: guess.to_vec(),
-                load,
-                solver,
-            });
+            self.last_round = Some(Round { load, solver });
         }
         Ok((loaded, report))
     }
