@@ -28,7 +28,7 @@ use std::str::FromStr;
 
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer};
+use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, SharedLaplacian};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
@@ -339,18 +339,34 @@ impl Solver {
         params: DeformParams,
         progress: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
+        Self::new_shared(device, model, params, None, progress)
+    }
+
+    /// [`Solver::new_with_progress`], taking what another solver of the
+    /// same connections and free particles prepared where it matches
+    /// (`shared`, that solver's [`Solver::shared_laplacian`]): the
+    /// connection Laplacian's spectrum and its coarse space, which do not
+    /// depend on the positions. Anything that does not match is made anew.
+    pub fn new_shared(
+        device: Device,
+        model: &ParticleModel,
+        params: DeformParams,
+        shared: Option<&SharedLaplacian>,
+        progress: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
         let device = match device {
-            Device::Cpu => {
-                SolverDevice::Cpu(Box::new(Deformer::new_observed(model, params, progress)?))
-            }
+            Device::Cpu => SolverDevice::Cpu(Box::new(Deformer::new_shared(
+                model, params, shared, progress,
+            )?)),
             Device::Gpu {
                 name,
                 device,
                 queue,
             } => {
                 let context = format!("preparing stage 2 on {name}");
-                let deformer = GpuDeformer::new_observed(&device, &queue, model, params, progress)
-                    .map_err(|e| gpu_error(&context, e))?;
+                let deformer =
+                    GpuDeformer::new_shared(&device, &queue, model, params, shared, progress)
+                        .map_err(|e| gpu_error(&context, e))?;
                 let embedding =
                     EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
                 SolverDevice::Gpu(Box::new(GpuSolver {
@@ -514,6 +530,16 @@ impl Solver {
         match &self.device {
             SolverDevice::Cpu(cpu) => cpu.rest(),
             SolverDevice::Gpu(gpu) => gpu.deformer.rest(),
+        }
+    }
+
+    /// What this solver prepared that depends only on the model's
+    /// connections and free particles, for another solver of the same
+    /// model in another rest shape ([`Solver::new_shared`]).
+    pub fn shared_laplacian(&self) -> SharedLaplacian {
+        match &self.device {
+            SolverDevice::Cpu(cpu) => cpu.shared_laplacian(),
+            SolverDevice::Gpu(gpu) => gpu.deformer.shared_laplacian(),
         }
     }
 

@@ -34,7 +34,7 @@ use glam::Mat3;
 use glam::Vec3;
 use tissue_core::SamplingParams;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel};
+use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel, SharedLaplacian};
 use tissue_solve::gravity::{
     Accuracy, ROUND_TOLERANCE, UnloadedShape, Unloading, gravity_load, unloaded_shape_from,
 };
@@ -294,6 +294,7 @@ pub fn unload(
         progress,
         count: 0,
         last_round: None,
+        laplacian: None,
     };
     let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
         Some(e) => {
@@ -391,6 +392,10 @@ struct Solves<'a> {
     /// ([`Accuracy::Full`] for the same guess and load) solves on from
     /// where it stopped instead of preparing the model again.
     last_round: Option<Round>,
+    /// What the last solver prepared that the next one of the same model
+    /// takes (every solve holds the same region, so the same particles
+    /// are free): the Laplacian's spectrum and coarse space.
+    laplacian: Option<SharedLaplacian>,
 }
 
 /// A round's solve, kept for its confirmation (its guess is the solver's
@@ -441,7 +446,14 @@ impl Solves<'_> {
                     Accuracy::Round => held_params.with(|p| p.tolerance *= ROUND_TOLERANCE),
                     Accuracy::Full => held_params,
                 };
-                let mut solver = Solver::new(self.device.clone(), &stress_free, params)?;
+                let mut solver = Solver::new_shared(
+                    self.device.clone(),
+                    &stress_free,
+                    params,
+                    self.laplacian.as_ref(),
+                    &mut |_| {},
+                )?;
+                self.laplacian = Some(solver.shared_laplacian());
                 solver.set_surface(&model.surface)?;
                 if let Some(warm) = warm {
                     solver.warm_start(warm)?;

@@ -35,7 +35,7 @@ pub mod gravity;
 /// Stage 2: the deformer (the CPU path; [`backend::Solver`] runs it on the
 /// chosen device), its parameters and its report.
 pub mod deformation {
-    pub use tissue_cpu::deformation::Deformer;
+    pub use tissue_cpu::deformation::{Deformer, SharedLaplacian};
     pub use tissue_solve::{
         DeformParams, DeformReport, ForceModel, Inversions, PrepareStage, RotationMethod,
         SolveStep, StopReason, check_same_topology, inversions,

@@ -440,3 +440,75 @@ fn the_stiffness_is_fitted_on_a_coarse_model_on_both_devices() {
         assert!((cpu - gpu).abs() <= 0.02 * cpu, "CPU {cpu} GPU {gpu}");
     }
 }
+
+/// Solvers of one column in other rest shapes, its base held, share what
+/// depends only on the connections and the free particles: the
+/// Laplacian's spectrum and its coarse space (the unloaded shape's rounds
+/// and the stiffness search's trials do). On both devices a solver
+/// prepared from a share solves to the same positions, to the bit, as one
+/// prepared anew; a solver in another rest shape takes the same coarse
+/// space; one with another region held makes its own.
+#[test]
+fn solvers_of_one_model_share_the_laplacians_preparation() {
+    let model = column(2_000);
+    let stretched = ParticleModel {
+        positions: model
+            .positions
+            .iter()
+            .map(|p| *p * Vec3::new(1.0, 1.0, 1.01))
+            .collect(),
+        ..model.clone()
+    };
+    let all_held = params(&model).with(|p| p.observed = None);
+    let devices = [Some(Device::Cpu), common::gpu()];
+    for device in devices.into_iter().flatten() {
+        let solved = |mut solver: Solver| {
+            solver.set_surface(&model.surface).unwrap();
+            let report = solver.solve().unwrap();
+            assert!(report.converged, "{:?}", report.stopped_by);
+            solver.positions().to_vec()
+        };
+        let first = Solver::new(device.clone(), &model, params(&model)).unwrap();
+        let shared = first.shared_laplacian();
+        let space = shared
+            .coarse()
+            .expect("the column's two-level solve")
+            .clone();
+        let sharing = Solver::new_shared(
+            device.clone(),
+            &model,
+            params(&model),
+            Some(&shared),
+            &mut |_| {},
+        )
+        .unwrap();
+        let again = sharing.shared_laplacian();
+        assert!(std::sync::Arc::ptr_eq(again.coarse().unwrap(), &space));
+        assert_eq!(solved(sharing), solved(first), "{device:?}");
+
+        let moved = Solver::new_shared(
+            device.clone(),
+            &stretched,
+            params(&model),
+            Some(&shared),
+            &mut |_| {},
+        )
+        .unwrap();
+        assert!(std::sync::Arc::ptr_eq(
+            moved.shared_laplacian().coarse().unwrap(),
+            &space
+        ));
+        let own = Solver::new_shared(
+            device.clone(),
+            &model,
+            all_held.clone(),
+            Some(&shared),
+            &mut |_| {},
+        )
+        .unwrap();
+        let theirs = own.shared_laplacian();
+        assert!(!std::sync::Arc::ptr_eq(theirs.coarse().unwrap(), &space));
+        assert_ne!(theirs.key(), shared.key());
+        assert!(shared.spectrum_for(theirs.key()).is_none());
+    }
+}

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
-use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
+use tissue_solve::coarse::{Aggregates, CoarseSpace, SharedLaplacian, coarse_space_shared};
 use tissue_solve::coarse_elastic::{
     CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
 };
@@ -57,6 +57,8 @@ pub struct GpuSolve {
     modes: Option<LowModes>,
     /// The two-level iteration's contraction, with the coarse space.
     coarse_rho: Option<f32>,
+    /// The coarse space uploaded (kept for [`GpuDeformer::shared_laplacian`]).
+    coarse: Option<Arc<CoarseSpace>>,
     /// What the host linearises the elastic phase from, with its two-level
     /// solve (the elastic force, `coarse` and `elastic_coarse_max_aggregates` on).
     elastic_host: Option<ElasticHost>,
@@ -144,25 +146,47 @@ impl GpuDeformer {
         params: DeformParams,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, GpuError> {
-        let tracker = Tracker::new_observed(model, params, observe, |plan, params, observe| {
-            observe(PrepareStage::Upload);
-            let pipelines = Pipelines::new(device)?;
-            let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-            if let Some(elastic) = &plan.elastic {
-                state.set_elastic(device, &pipelines, elastic)?;
-            }
-            if !plan.loads.is_empty() {
-                state.set_loads(device, &pipelines, &plan.loads)?;
-            }
-            // The coarse space, or else the modes, correct the symmetric
-            // force, an elastic solve's shear phase included
-            // (`Iteration::correct`), as on the CPU path.
-            // Factored up to what one workgroup substitutes, cycled above
-            // (the groups are capped there too), as the CPU twin does.
-            if params.coarse != 0.0 {
-                observe(PrepareStage::CoarseSpace);
-            }
-            let coarse = coarse_space(model, plan, &Self::cpu_twin(params)).filter(|space| {
+        Self::new_shared(device, queue, model, params, None, observe)
+    }
+
+    /// [`GpuDeformer::new_observed`], taking what another solver of the
+    /// same connections and free particles prepared where it matches
+    /// ([`SharedLaplacian`]; [`GpuDeformer::shared_laplacian`] of that
+    /// one, or the CPU twin's).
+    pub fn new_shared(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &ParticleModel,
+        params: DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, GpuError> {
+        let tracker =
+            Tracker::new_shared(model, params, shared, observe, |plan, params, observe| {
+                observe(PrepareStage::Upload);
+                let pipelines = Pipelines::new(device)?;
+                let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+                if let Some(elastic) = &plan.elastic {
+                    state.set_elastic(device, &pipelines, elastic)?;
+                }
+                if !plan.loads.is_empty() {
+                    state.set_loads(device, &pipelines, &plan.loads)?;
+                }
+                // The coarse space, or else the modes, correct the symmetric
+                // force, an elastic solve's shear phase included
+                // (`Iteration::correct`), as on the CPU path.
+                // Factored up to what one workgroup substitutes, cycled above
+                // (the groups are capped there too), as the CPU twin does.
+                if params.coarse != 0.0 {
+                    observe(PrepareStage::CoarseSpace);
+                }
+                let coarse = coarse_space_shared(
+                model,
+                plan,
+                &Self::cpu_twin(params),
+                shared.map(|shared| (shared, plan.laplacian_key)),
+            )
+            .filter(|space| {
                 let unknowns = space.multilevel().map_or(space.count(), |m| m.groups());
                 let fits = unknowns <= GPU_COARSE_UNKNOWNS;
                 if !fits {
@@ -173,79 +197,87 @@ impl GpuDeformer {
                 }
                 fits
             });
-            if let Some(space) = &coarse {
-                state.set_coarse(device, &pipelines, space)?;
-            }
-            let modes = match coarse {
-                Some(_) => None,
-                None => {
-                    if params.deflation != 0 {
-                        observe(PrepareStage::DeflationModes);
+                if let Some(space) = &coarse {
+                    state.set_coarse(device, &pipelines, space)?;
+                }
+                let modes = match coarse {
+                    Some(_) => None,
+                    None => {
+                        if params.deflation != 0 {
+                            observe(PrepareStage::DeflationModes);
+                        }
+                        deflation_modes(model, plan, params)
                     }
-                    deflation_modes(model, plan, params)
+                };
+                if plan.elastic.is_some() {
+                    observe(PrepareStage::ElasticCoarse);
                 }
-            };
-            if plan.elastic.is_some() {
-                observe(PrepareStage::ElasticCoarse);
-            }
-            // The elastic correction is factored or cycled as the CPU
-            // twin makes it, its groups' factor at most what one
-            // workgroup substitutes.
-            let twin = Self::cpu_twin(params);
-            let elastic_aggregates = elastic_aggregates(model, plan, &twin);
-            let elastic_host = match (&plan.elastic, elastic_aggregates) {
-                (Some(elastic), Some(aggregates)) => {
-                    state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
-                    Some(ElasticHost {
-                        rest: model.positions.clone(),
-                        connections: model.connections.clone(),
-                        elastic: Arc::clone(elastic),
-                        volume_smoother: volume_smoother(
-                            model,
-                            plan,
-                            &twin,
-                            Some(&aggregates),
-                            twin.elastic_coarse_direct_max_aggregates,
-                        ),
-                        direct_max: twin.elastic_coarse_direct_max_aggregates,
-                        aggregates,
+                // The elastic correction is factored or cycled as the CPU
+                // twin makes it, its groups' factor at most what one
+                // workgroup substitutes.
+                let twin = Self::cpu_twin(params);
+                let elastic_aggregates = elastic_aggregates(model, plan, &twin);
+                let elastic_host = match (&plan.elastic, elastic_aggregates) {
+                    (Some(elastic), Some(aggregates)) => {
+                        state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
+                        Some(ElasticHost {
+                            rest: model.positions.clone(),
+                            connections: model.connections.clone(),
+                            elastic: Arc::clone(elastic),
+                            volume_smoother: volume_smoother(
+                                model,
+                                plan,
+                                &twin,
+                                Some(&aggregates),
+                                twin.elastic_coarse_direct_max_aggregates,
+                            ),
+                            direct_max: twin.elastic_coarse_direct_max_aggregates,
+                            aggregates,
+                        })
+                    }
+                    _ => None,
+                };
+                if let Some(m) = &modes {
+                    let scales: Vec<f32> = m
+                        .gain_scales(plan.contraction(&params.shear()))
+                        .map(|scale| scale as f32)
+                        .collect();
+                    state.set_modes(device, &pipelines, m.vectors(), &scales)?;
+                }
+                let backup = |label, bytes: u64| {
+                    device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some(label),
+                        size: state.len() as u64 * bytes,
+                        usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                        mapped_at_creation: false,
                     })
-                }
-                _ => None,
-            };
-            if let Some(m) = &modes {
-                let scales: Vec<f32> = m
-                    .gain_scales(plan.contraction(&params.shear()))
-                    .map(|scale| scale as f32)
-                    .collect();
-                state.set_modes(device, &pipelines, m.vectors(), &scales)?;
-            }
-            let backup = |label, bytes: u64| {
-                device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size: state.len() as u64 * bytes,
-                    usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
+                };
+                Ok::<_, GpuError>(GpuSolve {
+                    backup_current: backup("backup current", 16),
+                    backup_previous: backup("backup previous", 16),
+                    backup_rotations: backup(
+                        "backup rotations",
+                        std::mem::size_of::<crate::Rotation>() as u64,
+                    ),
+                    pipelines,
+                    state,
+                    modes,
+                    coarse_rho: coarse.as_deref().map(CoarseSpace::rho),
+                    coarse,
+                    elastic_host,
+                    elastic_coarse: None,
+                    iteration: None,
+                    slots: 0,
                 })
-            };
-            Ok::<_, GpuError>(GpuSolve {
-                backup_current: backup("backup current", 16),
-                backup_previous: backup("backup previous", 16),
-                backup_rotations: backup(
-                    "backup rotations",
-                    std::mem::size_of::<crate::Rotation>() as u64,
-                ),
-                pipelines,
-                state,
-                modes,
-                coarse_rho: coarse.as_ref().map(CoarseSpace::rho),
-                elastic_host,
-                elastic_coarse: None,
-                iteration: None,
-                slots: 0,
-            })
-        })?;
+            })?;
         Ok(Self { tracker })
+    }
+
+    /// What this solver prepared that depends only on the connections and
+    /// the free particles, for another solver of the same model in another
+    /// rest shape ([`GpuDeformer::new_shared`]).
+    pub fn shared_laplacian(&self) -> SharedLaplacian {
+        self.tracker.shared_laplacian()
     }
 
     /// The kernels.
@@ -442,6 +474,10 @@ impl SolveDevice for GpuSolve {
 
     fn coarse_rho(&self) -> Option<f32> {
         self.coarse_rho
+    }
+
+    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
+        self.coarse.as_ref()
     }
 
     fn elastic_rho(&self) -> Option<f32> {

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use glam::Vec3;
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
+use crate::coarse::{SharedLaplacian, laplacian_key};
 use crate::elastic::Elastic;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
@@ -58,6 +59,9 @@ pub struct Plan {
     pub lambda_min: f32,
     /// Largest one, with a 2 % margin.
     pub lambda_max: f32,
+    /// [`laplacian_key`] of the connections and `free`: which solvers'
+    /// Laplacian preparation this one may share ([`SharedLaplacian`]).
+    pub laplacian_key: u64,
     /// The model's bounding-box diagonal at rest.
     pub size: f32,
     /// An RMS step below this is `f32` rounding at the model's coordinates.
@@ -91,6 +95,17 @@ impl Plan {
     /// not one flag per surface vertex, [`DeformError::NothingObserved`]
     /// where no surface particle is observed.
     pub fn observed(model: &ParticleModel, observed: Option<&[bool]>) -> Result<Self, Error> {
+        Self::observed_shared(model, observed, None)
+    }
+
+    /// [`Plan::observed`], the Laplacian's extreme eigenvalues taken from
+    /// `shared` where it was made for the same connections and free
+    /// particles.
+    fn observed_shared(
+        model: &ParticleModel,
+        observed: Option<&[bool]>,
+        shared: Option<&SharedLaplacian>,
+    ) -> Result<Self, Error> {
         model.validate()?;
         if model.attachments.iter().all(Option::is_none) {
             return Err(DeformError::NoControlPoints.into());
@@ -132,7 +147,10 @@ impl Plan {
         for (f, a) in free.iter_mut().zip(&anchored) {
             *f = *f && *a;
         }
-        let (lambda_min, lambda_max) = laplacian_extremes(&model.connections, &free);
+        let laplacian_key = laplacian_key(&model.connections, &free);
+        let (lambda_min, lambda_max) = shared
+            .and_then(|shared| shared.spectrum_for(laplacian_key))
+            .unwrap_or_else(|| laplacian_extremes(&model.connections, &free));
         let (lo, hi) = model.positions.iter().fold(
             (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
             |(lo, hi), &p| (lo.min(p), hi.max(p)),
@@ -151,6 +169,7 @@ impl Plan {
             loads: Vec::new(),
             lambda_min,
             lambda_max,
+            laplacian_key,
             size: (hi - lo).length(),
             floor: FLOOR_ULPS * f32::EPSILON * largest,
             elastic: None,
@@ -174,8 +193,20 @@ impl Plan {
         params: &DeformParams,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
+        Self::for_params_shared(model, params, None, observe)
+    }
+
+    /// [`Plan::for_params_observed`], the Laplacian's extreme eigenvalues
+    /// taken from `shared` where it was made for the same connections and
+    /// free particles ([`SharedLaplacian`]).
+    pub fn for_params_shared(
+        model: &ParticleModel,
+        params: &DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
         observe(PrepareStage::Plan);
-        let mut plan = Self::observed(model, params.observed.as_deref())?;
+        let mut plan = Self::observed_shared(model, params.observed.as_deref(), shared)?;
         if params.load != Vec3::ZERO {
             ParamError::check(
                 params.load.length() * plan.size <= MAX_LOAD_SIZE,

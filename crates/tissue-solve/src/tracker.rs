@@ -3,6 +3,7 @@
 //! rule, the history) written once, over [`SolveDevice`], which a device
 //! implements with its kernels and buffers.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Mat3, Vec3};
@@ -10,6 +11,7 @@ use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::acceleration::{Chebyshev, StoppingRule};
 use crate::batches::{Batches, run_batched};
+use crate::coarse::{CoarseSpace, SharedLaplacian};
 use crate::controls::check_same_topology;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel, RotationMethod};
@@ -81,6 +83,12 @@ pub trait SolveDevice {
 
     /// The two-level iteration's contraction, where the device runs one.
     fn coarse_rho(&self) -> Option<f32> {
+        None
+    }
+
+    /// The two-level solve's coarse space, where the device runs one (for
+    /// another solver of the same Laplacian, [`Tracker::shared_laplacian`]).
+    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
         None
     }
 
@@ -185,8 +193,23 @@ impl<D: SolveDevice> Tracker<D> {
         observe: &mut dyn FnMut(PrepareStage),
         prepare: impl FnOnce(&Plan, &DeformParams, &mut dyn FnMut(PrepareStage)) -> Result<D, E>,
     ) -> Result<Self, E> {
+        Self::new_shared(model, params, None, observe, prepare)
+    }
+
+    /// [`Tracker::new_observed`] with what another solver of the same
+    /// connections and free particles prepared ([`SharedLaplacian`]): the
+    /// plan takes its spectrum where it matches, and `prepare` is the
+    /// device's to take its coarse space
+    /// ([`coarse_space_shared`](crate::coarse::coarse_space_shared)).
+    pub fn new_shared<E: From<Error>>(
+        model: &ParticleModel,
+        params: DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+        prepare: impl FnOnce(&Plan, &DeformParams, &mut dyn FnMut(PrepareStage)) -> Result<D, E>,
+    ) -> Result<Self, E> {
         params.validate().map_err(Error::from)?;
-        let plan = Plan::for_params_observed(model, &params, observe)?;
+        let plan = Plan::for_params_shared(model, &params, shared, observe)?;
         let device = prepare(&plan, &params, observe)?;
         // The control points: the observed surface particles.
         let attachments = model
@@ -208,6 +231,18 @@ impl<D: SolveDevice> Tracker<D> {
             elastic_warm: false,
             elastic_correct: true,
         })
+    }
+
+    /// What this solver prepared that another of the same connections and
+    /// free particles may take instead of making it again: the Laplacian's
+    /// spectrum and the device's coarse space.
+    pub fn shared_laplacian(&self) -> SharedLaplacian {
+        SharedLaplacian::new(
+            self.plan.laplacian_key,
+            &self.plan,
+            &self.params,
+            self.device.coarse_space().cloned(),
+        )
     }
 
     /// The device's kernels and buffers.

@@ -33,6 +33,7 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
 pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
+pub use tissue_solve::coarse::SharedLaplacian;
 pub use tissue_solve::controls::check_same_topology;
 pub use tissue_solve::elastic::Elastic;
 pub use tissue_solve::modes::{LowModes, deflation_modes, low_modes};
@@ -54,7 +55,7 @@ pub use polar::{
     POLAR_ITERATIONS, POLAR_MOST_ITERATIONS, polar_rotation, polar_update, warm_rotation,
 };
 
-use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space};
+use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space_shared};
 use tissue_solve::coarse_elastic::{
     CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
 };
@@ -82,10 +83,30 @@ impl Deformer {
         params: DeformParams,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
-        let tracker = Tracker::new_observed(model, params, observe, |plan, params, observe| {
-            Ok::<_, Error>(CpuSolve::new_observed(model, plan, params, observe))
-        })?;
+        Self::new_shared(model, params, None, observe)
+    }
+
+    /// [`Deformer::new_observed`], taking what another solver of the same
+    /// connections and free particles prepared where it matches
+    /// ([`SharedLaplacian`]; [`Deformer::shared_laplacian`] of that one).
+    pub fn new_shared(
+        model: &ParticleModel,
+        params: DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, Error> {
+        let tracker =
+            Tracker::new_shared(model, params, shared, observe, |plan, params, observe| {
+                Ok::<_, Error>(CpuSolve::new_shared(model, plan, params, shared, observe))
+            })?;
         Ok(Self { tracker })
+    }
+
+    /// What this solver prepared that depends only on the connections and
+    /// the free particles, for another solver of the same model in another
+    /// rest shape ([`Deformer::new_shared`]).
+    pub fn shared_laplacian(&self) -> SharedLaplacian {
+        self.tracker.shared_laplacian()
     }
 
     /// Current particle positions.
@@ -249,10 +270,27 @@ impl CpuSolve {
         params: &DeformParams,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Self {
+        Self::new_shared(model, plan, params, None, observe)
+    }
+
+    /// [`CpuSolve::new_observed`], the coarse space taken from `shared`
+    /// where it was made for the same Laplacian and parameters.
+    pub fn new_shared(
+        model: &ParticleModel,
+        plan: &Plan,
+        params: &DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Self {
         if params.coarse != 0.0 {
             observe(PrepareStage::CoarseSpace);
         }
-        let coarse = coarse_space(model, plan, params).map(Arc::new);
+        let coarse = coarse_space_shared(
+            model,
+            plan,
+            params,
+            shared.map(|shared| (shared, plan.laplacian_key)),
+        );
         let modes = if coarse.is_some() {
             None
         } else {
@@ -532,6 +570,10 @@ impl SolveDevice for CpuSolve {
 
     fn coarse_rho(&self) -> Option<f32> {
         self.coarse.as_deref().map(CoarseSpace::rho)
+    }
+
+    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
+        self.coarse.as_ref()
     }
 
     fn elastic_rho(&self) -> Option<f32> {
