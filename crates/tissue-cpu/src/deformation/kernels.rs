@@ -11,7 +11,7 @@ use tissue_solve::modes::{LowModes, add_entries};
 use tissue_solve::params::{ForceModel, RotationMethod};
 use tissue_solve::svd3::rotation_of;
 
-use super::polar::warm_rotation;
+use super::polar::{LANES, warm_rotations};
 
 /// The Chebyshev step: `omega (q_hat - q_old) + q_old`.
 pub fn chebyshev_combine(plain: &[Vec3], previous: &[Vec3], omega: f32) -> Vec<Vec3> {
@@ -45,17 +45,30 @@ pub fn local_rotations(rest: &[Vec3], current: &[Vec3], connections: &Connection
 }
 
 /// [`local_rotations`] by Müller et al.'s polar iteration, warm-started
-/// from `previous` (rest offsets onto current offsets, like `local_rotations`).
+/// from `previous`, eight particles side by side ([`warm_rotations`]) (rest offsets onto current offsets, like `local_rotations`).
 pub fn local_rotations_warm(
     rest: &[Vec3],
     current: &[Vec3],
     connections: &Connections,
     previous: &[Mat3],
 ) -> Vec<Mat3> {
-    (0..rest.len())
-        .into_par_iter()
-        .map(|i| warm_rotation(offsets_product(rest, current, connections, i), previous[i]))
-        .collect()
+    let mut rotations = vec![Mat3::IDENTITY; rest.len()];
+    rotations
+        .par_chunks_mut(LANES)
+        .zip(previous.par_chunks(LANES))
+        .enumerate()
+        .for_each(|(chunk, (out, previous))| {
+            let first = chunk * LANES;
+            let m: [Mat3; LANES] = std::array::from_fn(|l| {
+                if l < out.len() {
+                    offsets_product(rest, current, connections, first + l)
+                } else {
+                    Mat3::ZERO
+                }
+            });
+            warm_rotations(&m[..out.len()], previous, out);
+        });
+    rotations
 }
 
 /// Per particle, the elastic model's terms ([`Elastic::terms`]) and its
@@ -71,22 +84,44 @@ pub fn elastic_terms(
     elastic: &Elastic,
     method: RotationMethod,
 ) -> (Vec<ElasticTerms>, Vec<Mat3>) {
-    (0..rest.len())
-        .into_par_iter()
-        .map(|i| {
-            let (m, n) = elastic.products(rest, current, connections, i);
-            let of = if elastic.is_flat(i) {
-                m
-            } else {
-                elastic.gradient(i, m, n)
-            };
-            let rotation = match method {
-                RotationMethod::Svd => rotation_of(of),
-                RotationMethod::WarmPolar => warm_rotation(of, rotations[i]),
-            };
-            (elastic.terms(i, m, n, rotation), rotation)
-        })
-        .unzip()
+    let blank = ElasticTerms {
+        target: Mat3::ZERO,
+        stress: Mat3::ZERO,
+    };
+    let mut terms = vec![blank; rest.len()];
+    let mut turned = vec![Mat3::IDENTITY; rest.len()];
+    terms
+        .par_chunks_mut(LANES)
+        .zip(turned.par_chunks_mut(LANES))
+        .zip(rotations.par_chunks(LANES))
+        .enumerate()
+        .for_each(|(chunk, ((terms, turned), previous))| {
+            let (first, count) = (chunk * LANES, terms.len());
+            let mut products = [(Mat3::ZERO, Mat3::ZERO); LANES];
+            let mut of = [Mat3::ZERO; LANES];
+            for l in 0..count {
+                let i = first + l;
+                let (m, n) = elastic.products(rest, current, connections, i);
+                products[l] = (m, n);
+                of[l] = if elastic.is_flat(i) {
+                    m
+                } else {
+                    elastic.gradient(i, m, n)
+                };
+            }
+            match method {
+                RotationMethod::Svd => {
+                    for (turned, &of) in turned.iter_mut().zip(&of) {
+                        *turned = rotation_of(of);
+                    }
+                }
+                RotationMethod::WarmPolar => warm_rotations(&of[..count], previous, turned),
+            }
+            for (l, ((m, n), &rotation)) in products.iter().zip(turned.iter()).enumerate() {
+                terms[l] = elastic.terms(first + l, *m, *n, rotation);
+            }
+        });
+    (terms, turned)
 }
 
 /// The elastic force on every particle ([`Elastic::force_on`]), gathered
