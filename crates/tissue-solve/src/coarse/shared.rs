@@ -1,0 +1,127 @@
+//! What solvers of one model share (docs/METHOD.md, "Made (2026-11-29,
+//! eleventh session): the Laplacian's preparation shared"): the connection
+//! Laplacian's spectrum and two-level coarse space depend only on the
+//! connections and the free particles.
+
+use std::sync::Arc;
+
+use tissue_core::{Connections, ParticleModel};
+
+use super::{CoarseSpace, coarse_space};
+use crate::params::DeformParams;
+use crate::plan::Plan;
+
+/// What preparing a solver costs that depends only on a model's
+/// connections and which of its particles are free, not on where they are:
+/// the connection Laplacian's extreme eigenvalues and its two-level coarse
+/// space (the Laplacian has one weight per connection). Solvers of one
+/// model in other rest shapes with the same region held (the unloaded
+/// shape's rounds, the stiffness search's trials) take it from the last
+/// one instead of making it again ([`SharedLaplacian::spectrum_for`],
+/// [`coarse_space_shared`]); anything else makes its own.
+#[derive(Debug, Clone)]
+pub struct SharedLaplacian {
+    /// [`laplacian_key`] of the connections and free particles.
+    key: u64,
+    spectrum: (f32, f32),
+    coarse: Option<(CoarseFor, Arc<CoarseSpace>)>,
+}
+
+/// What a coarse space was made for besides the connections and the free
+/// particles.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CoarseFor {
+    /// The cell in mean connection lengths, [`DeformParams::coarse`].
+    coarse: f32,
+    max_aggregates: usize,
+    direct_max: usize,
+    /// The plain step's contraction its rate was estimated for.
+    contraction: f32,
+}
+
+impl CoarseFor {
+    fn of(plan: &Plan, params: &DeformParams) -> Self {
+        Self {
+            coarse: params.coarse,
+            max_aggregates: params.coarse_max_aggregates,
+            direct_max: params.coarse_direct_max_aggregates,
+            contraction: plan.contraction(&params.shear()),
+        }
+    }
+}
+
+/// A fingerprint of `connections` and `free`: two solvers whose keys agree
+/// have the same connection Laplacian (a 64-bit hash; a model differing
+/// in either is another key but for a chance of about 1 in 10^19).
+pub fn laplacian_key(connections: &Connections, free: &[bool]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    connections.offsets.hash(&mut hasher);
+    connections.indices.hash(&mut hasher);
+    free.hash(&mut hasher);
+    hasher.finish()
+}
+
+impl SharedLaplacian {
+    /// What a solver prepared for the Laplacian of `key`
+    /// ([`laplacian_key`]): its extreme eigenvalues, and the coarse space
+    /// it made for `params` under `plan`, if any.
+    pub fn new(
+        key: u64,
+        plan: &Plan,
+        params: &DeformParams,
+        coarse: Option<Arc<CoarseSpace>>,
+    ) -> Self {
+        Self {
+            key,
+            spectrum: (plan.lambda_min, plan.lambda_max),
+            coarse: coarse.map(|space| (CoarseFor::of(plan, params), space)),
+        }
+    }
+
+    /// The Laplacian's extreme eigenvalues, where `key` is the one they
+    /// were estimated for.
+    pub fn spectrum_for(&self, key: u64) -> Option<(f32, f32)> {
+        (self.key == key).then_some(self.spectrum)
+    }
+
+    /// [`laplacian_key`] of the connections and free particles it was made for.
+    pub fn key(&self) -> u64 {
+        self.key
+    }
+
+    /// The coarse space it holds, if any.
+    pub fn coarse(&self) -> Option<&Arc<CoarseSpace>> {
+        self.coarse.as_ref().map(|(_, space)| space)
+    }
+
+    /// The coarse space, where `key` and what it is asked for match.
+    fn coarse_for(&self, key: u64, made_for: CoarseFor) -> Option<Arc<CoarseSpace>> {
+        match &self.coarse {
+            Some((made, space)) if self.key == key && *made == made_for => Some(Arc::clone(space)),
+            _ => None,
+        }
+    }
+}
+
+/// [`coarse_space`], taken from `shared` where it was made for the same
+/// Laplacian (`key`) and parameters.
+pub fn coarse_space_shared(
+    model: &ParticleModel,
+    plan: &Plan,
+    params: &DeformParams,
+    shared: Option<(&SharedLaplacian, u64)>,
+) -> Option<Arc<CoarseSpace>> {
+    if params.coarse == 0.0 {
+        return None;
+    }
+    let made_for = CoarseFor::of(plan, params);
+    if let Some(space) = shared.and_then(|(shared, key)| shared.coarse_for(key, made_for)) {
+        log::debug!(
+            "two-level solve: the {} aggregates of a solver of the same connections",
+            space.count()
+        );
+        return Some(space);
+    }
+    coarse_space(model, plan, params).map(Arc::new)
+}
