@@ -11,6 +11,7 @@ use tissue_solve::coarse_elastic::{
 };
 use tissue_solve::deflation_modes;
 use tissue_solve::elastic::Elastic;
+use tissue_solve::plan::Plan;
 use tissue_solve::{
     DeformParams, DeformReport, ForceModel, Iteration, LowModes, PrepareStage, RotationMethod,
     SolveDevice, Tracker,
@@ -163,112 +164,7 @@ impl GpuDeformer {
     ) -> Result<Self, GpuError> {
         let tracker =
             Tracker::new_shared(model, params, shared, observe, |plan, params, observe| {
-                observe(PrepareStage::Upload);
-                let pipelines = Pipelines::new(device)?;
-                let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
-                if let Some(elastic) = &plan.elastic {
-                    state.set_elastic(device, &pipelines, elastic)?;
-                }
-                if !plan.loads.is_empty() {
-                    state.set_loads(device, &pipelines, &plan.loads)?;
-                }
-                // The coarse space, or else the modes, correct the symmetric
-                // force, an elastic solve's shear phase included
-                // (`Iteration::correct`), as on the CPU path.
-                // Factored up to what one workgroup substitutes, cycled above
-                // (the groups are capped there too), as the CPU twin does.
-                if params.coarse != 0.0 {
-                    observe(PrepareStage::CoarseSpace);
-                }
-                let coarse = coarse_space_shared(
-                model,
-                plan,
-                &Self::cpu_twin(params),
-                shared.map(|shared| (shared, plan.laplacian_key)),
-            )
-            .filter(|space| {
-                let unknowns = space.multilevel().map_or(space.count(), |m| m.groups());
-                let fits = unknowns <= GPU_COARSE_UNKNOWNS;
-                if !fits {
-                    log::warn!(
-                        "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns in \
-                         one factor, this coarse space has {unknowns}: it deflates instead"
-                    );
-                }
-                fits
-            });
-                if let Some(space) = &coarse {
-                    state.set_coarse(device, &pipelines, space)?;
-                }
-                let modes = match coarse {
-                    Some(_) => None,
-                    None => {
-                        if params.deflation != 0 {
-                            observe(PrepareStage::DeflationModes);
-                        }
-                        deflation_modes(model, plan, params)
-                    }
-                };
-                if plan.elastic.is_some() {
-                    observe(PrepareStage::ElasticCoarse);
-                }
-                // The elastic correction is factored or cycled as the CPU
-                // twin makes it, its groups' factor at most what one
-                // workgroup substitutes.
-                let twin = Self::cpu_twin(params);
-                let elastic_aggregates = elastic_aggregates(model, plan, &twin);
-                let elastic_host = match (&plan.elastic, elastic_aggregates) {
-                    (Some(elastic), Some(aggregates)) => {
-                        state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
-                        Some(ElasticHost {
-                            rest: model.positions.clone(),
-                            connections: model.connections.clone(),
-                            elastic: Arc::clone(elastic),
-                            volume_smoother: volume_smoother(
-                                model,
-                                plan,
-                                &twin,
-                                Some(&aggregates),
-                                twin.elastic_coarse_direct_max_aggregates,
-                            ),
-                            direct_max: twin.elastic_coarse_direct_max_aggregates,
-                            aggregates,
-                        })
-                    }
-                    _ => None,
-                };
-                if let Some(m) = &modes {
-                    let scales: Vec<f32> = m
-                        .gain_scales(plan.contraction(&params.shear()))
-                        .map(|scale| scale as f32)
-                        .collect();
-                    state.set_modes(device, &pipelines, m.vectors(), &scales)?;
-                }
-                let backup = |label, bytes: u64| {
-                    device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some(label),
-                        size: state.len() as u64 * bytes,
-                        usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-                        mapped_at_creation: false,
-                    })
-                };
-                Ok::<_, GpuError>(GpuSolve {
-                    backup_current: backup("backup current", 16),
-                    backup_previous: backup("backup previous", 16),
-                    backup_rotations: backup(
-                        "backup rotations",
-                        std::mem::size_of::<crate::Rotation>() as u64,
-                    ),
-                    pipelines,
-                    state,
-                    modes,
-                    coarse_rho: coarse.as_deref().map(CoarseSpace::rho),
-                    coarse,
-                    elastic_host,
-                    elastic_coarse: None,
-                    iteration: None,
-                    slots: 0,
-                })
+                GpuSolve::prepare(device, queue, model, plan, params, shared, observe)
             })?;
         Ok(Self { tracker })
     }
@@ -419,6 +315,127 @@ impl GpuDeformer {
 }
 
 impl GpuSolve {
+    /// The device half of [`GpuDeformer::new_shared`]: the kernels
+    /// compiled, the model uploaded, the coarse space (from `shared` where
+    /// it fits) or the modes, and the elastic phase's host data, as the
+    /// CPU twin prepares them.
+    fn prepare(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &ParticleModel,
+        plan: &Plan,
+        params: &DeformParams,
+        shared: Option<&SharedLaplacian>,
+        observe: &mut dyn FnMut(PrepareStage),
+    ) -> Result<Self, GpuError> {
+        observe(PrepareStage::Upload);
+        let pipelines = Pipelines::new(device)?;
+        let mut state = DeformState::new(device, queue, &pipelines, model, &plan.free)?;
+        if let Some(elastic) = &plan.elastic {
+            state.set_elastic(device, &pipelines, elastic)?;
+        }
+        if !plan.loads.is_empty() {
+            state.set_loads(device, &pipelines, &plan.loads)?;
+        }
+        // The coarse space, or else the modes, correct the symmetric
+        // force, an elastic solve's shear phase included
+        // (`Iteration::correct`), as on the CPU path.
+        // Factored up to what one workgroup substitutes, cycled above
+        // (the groups are capped there too), as the CPU twin does.
+        if params.coarse != 0.0 {
+            observe(PrepareStage::CoarseSpace);
+        }
+        let coarse = coarse_space_shared(
+            model,
+            plan,
+            &GpuDeformer::cpu_twin(params),
+            shared.map(|shared| (shared, plan.laplacian_key)),
+        )
+        .filter(|space| {
+            let unknowns = space.multilevel().map_or(space.count(), |m| m.groups());
+            let fits = unknowns <= GPU_COARSE_UNKNOWNS;
+            if !fits {
+                log::warn!(
+                    "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns in \
+                     one factor, this coarse space has {unknowns}: it deflates instead"
+                );
+            }
+            fits
+        });
+        if let Some(space) = &coarse {
+            state.set_coarse(device, &pipelines, space)?;
+        }
+        let modes = match coarse {
+            Some(_) => None,
+            None => {
+                if params.deflation != 0 {
+                    observe(PrepareStage::DeflationModes);
+                }
+                deflation_modes(model, plan, params)
+            }
+        };
+        if plan.elastic.is_some() {
+            observe(PrepareStage::ElasticCoarse);
+        }
+        // The elastic correction is factored or cycled as the CPU
+        // twin makes it, its groups' factor at most what one
+        // workgroup substitutes.
+        let twin = GpuDeformer::cpu_twin(params);
+        let elastic_aggregates = elastic_aggregates(model, plan, &twin);
+        let elastic_host = match (&plan.elastic, elastic_aggregates) {
+            (Some(elastic), Some(aggregates)) => {
+                state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
+                Some(ElasticHost {
+                    rest: model.positions.clone(),
+                    connections: model.connections.clone(),
+                    elastic: Arc::clone(elastic),
+                    volume_smoother: volume_smoother(
+                        model,
+                        plan,
+                        &twin,
+                        Some(&aggregates),
+                        twin.elastic_coarse_direct_max_aggregates,
+                    ),
+                    direct_max: twin.elastic_coarse_direct_max_aggregates,
+                    aggregates,
+                })
+            }
+            _ => None,
+        };
+        if let Some(m) = &modes {
+            let scales: Vec<f32> = m
+                .gain_scales(plan.contraction(&params.shear()))
+                .map(|scale| scale as f32)
+                .collect();
+            state.set_modes(device, &pipelines, m.vectors(), &scales)?;
+        }
+        let backup = |label, bytes: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: state.len() as u64 * bytes,
+                usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        Ok(GpuSolve {
+            backup_current: backup("backup current", 16),
+            backup_previous: backup("backup previous", 16),
+            backup_rotations: backup(
+                "backup rotations",
+                std::mem::size_of::<crate::Rotation>() as u64,
+            ),
+            pipelines,
+            state,
+            modes,
+            coarse_rho: coarse.as_deref().map(CoarseSpace::rho),
+            coarse,
+            elastic_host,
+            elastic_coarse: None,
+            iteration: None,
+            slots: 0,
+        })
+    }
+
     /// Makes the elastic phase's correction at the current positions (read
     /// back) on the host, as the CPU path makes its own, and uploads it; a
     /// failure leaves the phase uncorrected, with a warning.
