@@ -173,7 +173,14 @@ impl GpuDeformer {
     /// the free particles, for another solver of the same model in another
     /// rest shape ([`GpuDeformer::new_shared`]).
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        self.tracker.shared_laplacian()
+        // The coarse space was made for the CPU twin's parameters.
+        let plan = self.tracker.plan();
+        SharedLaplacian::new(
+            plan.laplacian_key,
+            plan,
+            &Self::cpu_twin(self.tracker.params()),
+            self.tracker.device().coarse.clone(),
+        )
     }
 
     /// The kernels.
@@ -491,10 +498,6 @@ impl SolveDevice for GpuSolve {
 
     fn coarse_rho(&self) -> Option<f32> {
         self.coarse_rho
-    }
-
-    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
-        self.coarse.as_ref()
     }
 
     fn elastic_rho(&self) -> Option<f32> {

@@ -3,7 +3,6 @@
 //! rule, the history) written once, over [`SolveDevice`], which a device
 //! implements with its kernels and buffers.
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Mat3, Vec3};
@@ -11,7 +10,7 @@ use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::acceleration::{Chebyshev, StoppingRule};
 use crate::batches::{Batches, run_batched};
-use crate::coarse::{CoarseSpace, SharedLaplacian};
+use crate::coarse::SharedLaplacian;
 use crate::controls::check_same_topology;
 use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel, RotationMethod};
@@ -83,12 +82,6 @@ pub trait SolveDevice {
 
     /// The two-level iteration's contraction, where the device runs one.
     fn coarse_rho(&self) -> Option<f32> {
-        None
-    }
-
-    /// The two-level solve's coarse space, where the device runs one (for
-    /// another solver of the same Laplacian, [`Tracker::shared_laplacian`]).
-    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
         None
     }
 
@@ -231,18 +224,6 @@ impl<D: SolveDevice> Tracker<D> {
             elastic_warm: false,
             elastic_correct: true,
         })
-    }
-
-    /// What this solver prepared that another of the same connections and
-    /// free particles may take instead of making it again: the Laplacian's
-    /// spectrum and the device's coarse space.
-    pub fn shared_laplacian(&self) -> SharedLaplacian {
-        SharedLaplacian::new(
-            self.plan.laplacian_key,
-            &self.plan,
-            &self.params,
-            self.device.coarse_space().cloned(),
-        )
     }
 
     /// The device's kernels and buffers.

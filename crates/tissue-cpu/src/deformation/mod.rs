@@ -106,7 +106,13 @@ impl Deformer {
     /// the free particles, for another solver of the same model in another
     /// rest shape ([`Deformer::new_shared`]).
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        self.tracker.shared_laplacian()
+        let plan = self.tracker.plan();
+        SharedLaplacian::new(
+            plan.laplacian_key,
+            plan,
+            self.tracker.params(),
+            self.tracker.device().coarse.clone(),
+        )
     }
 
     /// Current particle positions.
@@ -570,10 +576,6 @@ impl SolveDevice for CpuSolve {
 
     fn coarse_rho(&self) -> Option<f32> {
         self.coarse.as_deref().map(CoarseSpace::rho)
-    }
-
-    fn coarse_space(&self) -> Option<&Arc<CoarseSpace>> {
-        self.coarse.as_ref()
     }
 
     fn elastic_rho(&self) -> Option<f32> {
