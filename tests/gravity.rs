@@ -470,42 +470,24 @@ fn solvers_of_one_model_share_the_laplacians_preparation() {
         };
         let first = Solver::new(device.clone(), &model, params(&model)).unwrap();
         let shared = first.shared_laplacian();
+        let from_share = |model: &ParticleModel, params: DeformParams| {
+            Solver::new_shared(device.clone(), model, params, Some(&shared), &mut |_| {}).unwrap()
+        };
         let space = shared
             .coarse()
             .expect("the column's two-level solve")
             .clone();
-        let sharing = Solver::new_shared(
-            device.clone(),
-            &model,
-            params(&model),
-            Some(&shared),
-            &mut |_| {},
-        )
-        .unwrap();
+        let sharing = from_share(&model, params(&model));
         let again = sharing.shared_laplacian();
         assert!(std::sync::Arc::ptr_eq(again.coarse().unwrap(), &space));
         assert_eq!(solved(sharing), solved(first), "{device:?}");
 
-        let moved = Solver::new_shared(
-            device.clone(),
-            &stretched,
-            params(&model),
-            Some(&shared),
-            &mut |_| {},
-        )
-        .unwrap();
+        let moved = from_share(&stretched, params(&model));
         assert!(std::sync::Arc::ptr_eq(
             moved.shared_laplacian().coarse().unwrap(),
             &space
         ));
-        let own = Solver::new_shared(
-            device.clone(),
-            &model,
-            all_held.clone(),
-            Some(&shared),
-            &mut |_| {},
-        )
-        .unwrap();
+        let own = from_share(&model, all_held.clone());
         let theirs = own.shared_laplacian();
         assert!(!std::sync::Arc::ptr_eq(theirs.coarse().unwrap(), &space));
         assert_ne!(theirs.key(), shared.key());
