@@ -1,7 +1,8 @@
 //! Criterion micro-benchmarks of the hot CPU kernels on the bundled phantom
 //! at 10,000 particles: the grid build, the stage-1 force pass, the stage-2
-//! rotation pass (SVD and warm polar), the force pass, and one whole
-//! deformation iteration. `cargo bench --bench kernels`; in CI
+//! rotation pass (SVD and warm polar), the force pass, one whole
+//! deformation iteration, and the elastic phase's correction (made at the
+//! phase's start, and its smoothed step, the iteration's largest pass). `cargo bench --bench kernels`; in CI
 //! `cargo bench --bench kernels -- --test` runs each once (smoke mode).
 
 #![allow(missing_docs, reason = "criterion's macros generate the items")]
@@ -14,8 +15,11 @@ use glam::{Vec3, Vec4};
 use tissue::deform::Rigid;
 use tissue::field::SurfaceField;
 use tissue::{SamplingParams, phantom};
+use tissue_cpu::coarse::Aggregates;
+use tissue_cpu::coarse_elastic::{CorrectionFor, ElasticCoarse};
 use tissue_cpu::deformation::{
-    ForceModel, deformation_force, integrate, local_rotations, local_rotations_warm,
+    Elastic, ForceModel, Plan, RotationMethod, deformation_force, elastic_force, elastic_residual,
+    elastic_terms, integrate, local_rotations, local_rotations_warm,
 };
 use tissue_cpu::grid::{grid_build, neighbour_rows};
 use tissue_cpu::sampling::{SamplingState, imf_force, initial_radius};
@@ -101,6 +105,48 @@ fn kernels(c: &mut Criterion) {
             );
             integrate(&current, &f, &[], &free, 0.05)
         })
+    });
+
+    // The elastic phase's correction as the solve makes it at the phase's
+    // start, over the default aggregates, with the volume smoother.
+    let (rest, connections) = (&model.positions, &model.connections);
+    let plan = Plan::new(&model).expect("plan");
+    let elastic = Elastic::new(rest, connections, 0.49, &free);
+    let cell = 2.0 * model.mean_connection_length();
+    let aggregates = Aggregates::new(rest, connections, &free, cell, 1_000).expect("aggregates");
+    let made_for = CorrectionFor {
+        contraction: 0.01,
+        volume_delta: Some(tissue_solve::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max)),
+        rho: Some(0.9),
+        direct_max_aggregates: 10_000,
+        envelope: false,
+    };
+    let made = || {
+        ElasticCoarse::at_phase_start(
+            &aggregates,
+            rest,
+            &current,
+            connections,
+            &elastic,
+            made_for,
+            None,
+        )
+        .expect("the correction is made")
+    };
+    c.bench_function("elastic correction made 10k", |b| b.iter(made));
+    let coarse = made();
+    let (terms, _) = elastic_terms(
+        rest,
+        &current,
+        connections,
+        &rotations,
+        &elastic,
+        RotationMethod::WarmPolar,
+    );
+    let force = elastic_force(rest, &current, connections, &terms, &elastic);
+    let residual = elastic_residual(&force, &[], &aggregates.aggregate);
+    c.bench_function("elastic smoothed step 10k", |b| {
+        b.iter(|| coarse.smoothed_step(&aggregates, connections, black_box(&residual)))
     });
 }
 

@@ -121,6 +121,11 @@ impl VolumeSmoother {
     }
 
     /// `M^-1 r` for a residual `r` (zero outside): the smoothed step.
+    ///
+    /// Four passes over the connections (with [`SWEEPS`] 2), each of which
+    /// also makes what the next reads, per particle: `H^T r` with the first
+    /// sweep's pressures, their force `H z`, `H^T H z` with the next sweep's
+    /// pressures, and their force with the step.
     pub(crate) fn smooth(
         &self,
         entries: &Entries,
@@ -129,45 +134,37 @@ impl VolumeSmoother {
         residual: &[DVec3],
     ) -> Vec<DVec3> {
         let (roots, diagonal) = (&self.roots, &self.diagonal);
-        // `H^T x`, per particle `h_i . x`.
-        let changes = |x: &[DVec3]| -> Vec<f64> {
-            volume_changes(entries, connections, inside, x)
-                .iter()
-                .zip(roots)
-                .map(|(c, r)| c * r)
-                .collect()
-        };
-        // `H z`.
-        let forces = |z: &[f64]| -> Vec<DVec3> {
-            let y: Vec<f64> = z.iter().zip(roots).map(|(z, r)| z * r).collect();
-            pressure_forces(entries, connections, inside, &y)
-        };
-        let changes_of_residual = changes(residual);
-        // The first sweep from zero.
-        let mut pressures: Vec<f64> = changes_of_residual
-            .iter()
-            .zip(diagonal)
-            .map(|(&t, &d)| RELAXATION * t / d)
-            .collect();
+        // Per particle `(t_i, z_i)`, `t = H^T r` and the pressure `z_i`,
+        // and apart (the next pass reads it at the neighbours) `y_i =
+        // sqrt(W_i / 2) z_i`, so that `H z = G y`. The first sweep from
+        // zero.
+        let (mut sweep, mut scaled): (Vec<(f64, f64)>, Vec<f64>) = (0..residual.len())
+            .into_par_iter()
+            .map(|i| {
+                let t = change_at(entries, connections, inside, residual, i) * roots[i];
+                let z = RELAXATION * t / diagonal[i];
+                ((t, z), z * roots[i])
+            })
+            .unzip();
         for _ in 1..SWEEPS {
-            let back = changes(&forces(&pressures));
-            pressures = (0..pressures.len())
+            let forces = pressure_forces(entries, connections, inside, &scaled);
+            (sweep, scaled) = (0..residual.len())
                 .into_par_iter()
                 .map(|i| {
-                    let z = pressures[i];
-                    let s_z = self.delta * z + back[i];
-                    z + RELAXATION * (changes_of_residual[i] - s_z) / diagonal[i]
+                    let (t, z) = sweep[i];
+                    let back = change_at(entries, connections, inside, &forces, i) * roots[i];
+                    let s_z = self.delta * z + back;
+                    let z = z + RELAXATION * (t - s_z) / diagonal[i];
+                    ((t, z), z * roots[i])
                 })
-                .collect();
+                .unzip();
         }
-        let forces = forces(&pressures);
-        residual
-            .par_iter()
-            .zip(&forces)
-            .enumerate()
-            .map(|(i, (&r, &f))| {
+        (0..residual.len())
+            .into_par_iter()
+            .map(|i| {
                 if inside(i) {
-                    (r - f) / self.delta
+                    let f = pressure_force_at(entries, connections, &scaled, i);
+                    (residual[i] - f) / self.delta
                 } else {
                     DVec3::ZERO
                 }
@@ -183,24 +180,34 @@ fn slots(connections: &Connections, i: usize) -> std::ops::Range<usize> {
 
 /// `G^T x`: per particle the change of its `J_i` under the displacement
 /// `x` (read as zero at particles `inside` says are not free), `g_i . x`.
+#[cfg(test)]
 pub(crate) fn volume_changes(
     entries: &Entries,
     connections: &Connections,
     inside: &(impl Fn(usize) -> bool + Sync),
     x: &[DVec3],
 ) -> Vec<f64> {
-    let at = |i: usize| if inside(i) { x[i] } else { DVec3::ZERO };
     (0..x.len())
         .into_par_iter()
-        .map(|i| {
-            let (xi, range) = (at(i), slots(connections, i));
-            connections.indices[range.clone()]
-                .iter()
-                .zip(&entries.own[range])
-                .map(|(&j, g)| (at(j as usize) - xi).dot(g.as_dvec3()))
-                .sum()
-        })
+        .map(|i| change_at(entries, connections, inside, x, i))
         .collect()
+}
+
+/// [`volume_changes`] at particle `i`.
+fn change_at(
+    entries: &Entries,
+    connections: &Connections,
+    inside: &impl Fn(usize) -> bool,
+    x: &[DVec3],
+    i: usize,
+) -> f64 {
+    let at = |i: usize| if inside(i) { x[i] } else { DVec3::ZERO };
+    let (xi, range) = (at(i), slots(connections, i));
+    connections.indices[range.clone()]
+        .iter()
+        .zip(&entries.own[range])
+        .map(|(&j, g)| (at(j as usize) - xi).dot(g.as_dvec3()))
+        .sum()
 }
 
 /// `G y`: per particle the force of the pressures `y`,
@@ -216,19 +223,25 @@ pub(crate) fn pressure_forces(
     (0..y.len())
         .into_par_iter()
         .map(|k| {
-            if !inside(k) {
-                return DVec3::ZERO;
+            if inside(k) {
+                pressure_force_at(entries, connections, y, k)
+            } else {
+                DVec3::ZERO
             }
-            let range = slots(connections, k);
-            let mut f = DVec3::ZERO;
-            for ((&i, g), h) in connections.indices[range.clone()]
-                .iter()
-                .zip(&entries.own[range.clone()])
-                .zip(&entries.mirrored[range])
-            {
-                f += y[i as usize] * h.as_dvec3() - y[k] * g.as_dvec3();
-            }
-            f
         })
         .collect()
+}
+
+/// [`pressure_forces`] at a free particle `k`.
+fn pressure_force_at(entries: &Entries, connections: &Connections, y: &[f64], k: usize) -> DVec3 {
+    let range = slots(connections, k);
+    let mut f = DVec3::ZERO;
+    for ((&i, g), h) in connections.indices[range.clone()]
+        .iter()
+        .zip(&entries.own[range.clone()])
+        .zip(&entries.mirrored[range])
+    {
+        f += y[i as usize] * h.as_dvec3() - y[k] * g.as_dvec3();
+    }
+    f
 }

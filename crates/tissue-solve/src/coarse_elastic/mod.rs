@@ -360,12 +360,25 @@ impl ElasticCoarse {
         connections: &Connections,
         u: &[DVec3],
     ) -> Vec<DVec3> {
+        self.operator_then(aggregates, connections, u, |_, k| k)
+    }
+
+    /// [`ElasticCoarse::operator`] with `finish(k, (K u)_k)` made of each
+    /// row in the same pass ([`Entries::operator_then`]).
+    fn operator_then(
+        &self,
+        aggregates: &Aggregates,
+        connections: &Connections,
+        u: &[DVec3],
+        finish: impl Fn(usize, DVec3) -> DVec3 + Sync,
+    ) -> Vec<DVec3> {
         let aggregate = &aggregates.aggregate;
-        self.entries.operator(
+        self.entries.operator_then(
             &self.linearisation.weights,
             connections,
             |i| aggregate[i] != OUTSIDE,
             u,
+            finish,
         )
     }
 
@@ -417,8 +430,7 @@ impl ElasticCoarse {
         let smoother = self.smoother.as_ref()?;
         let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
         let mut step = smoother.smooth(&self.entries, connections, &inside, residual);
-        let ks = self.operator(aggregates, connections, &step);
-        let left: Vec<DVec3> = ks.iter().zip(residual).map(|(k, r)| *k - *r).collect();
+        let left = self.operator_then(aggregates, connections, &step, |k, ks| ks - residual[k]);
         let coarse = self.coarse_of(aggregates, left);
         step.par_iter_mut()
             .zip(&aggregates.aggregate)
@@ -467,12 +479,9 @@ impl ElasticCoarse {
         step: &[DVec3],
     ) -> Vec<f64> {
         let inverse = 1.0 / f64::from(self.contraction);
-        let ks = self.operator(aggregates, connections, step);
-        let left = ks
-            .iter()
-            .zip(step)
-            .map(|(k, s)| *k - *s * inverse)
-            .collect();
+        let left = self.operator_then(aggregates, connections, step, |k, ks| {
+            ks - step[k] * inverse
+        });
         self.coarse_of(aggregates, left)
     }
 
@@ -594,16 +603,21 @@ impl Entries {
         mirrors: &[u32],
         linearisation: &VolumeLinearisation,
     ) -> Self {
-        let n = rest.len();
-        let own: Vec<Vec3> = (0..n)
-            .into_par_iter()
-            .flat_map_iter(|i| {
-                connections
-                    .of(i)
-                    .iter()
-                    .map(move |&j| linearisation.entry(rest, i, j as usize).as_vec3())
-            })
-            .collect();
+        // Row by row into one vector (an indexed split: each thread
+        // writes its own rows where they belong).
+        let mut own = vec![Vec3::ZERO; connections.indices.len()];
+        let mut rows: Vec<&mut [Vec3]> = Vec::with_capacity(rest.len());
+        let mut left = own.as_mut_slice();
+        for i in 0..rest.len() {
+            let (row, tail) = left.split_at_mut(connections.of(i).len());
+            rows.push(row);
+            left = tail;
+        }
+        rows.into_par_iter().enumerate().for_each(|(i, row)| {
+            for (g, &j) in row.iter_mut().zip(connections.of(i)) {
+                *g = linearisation.entry(rest, i, j as usize).as_vec3();
+            }
+        });
         // Connections are symmetric (checked where a model is validated); a
         // missing mirror reads as no coupling.
         let mirrored: Vec<Vec3> = mirrors
@@ -628,6 +642,19 @@ impl Entries {
         connections: &Connections,
         inside: impl Fn(usize) -> bool + Sync,
         u: &[DVec3],
+    ) -> Vec<DVec3> {
+        self.operator_then(weights, connections, inside, u, |_, k| k)
+    }
+
+    /// [`Entries::operator`] with `finish(k, (K u)_k)` made of each
+    /// particle's row in the same pass (a step's residual, say).
+    pub(crate) fn operator_then(
+        &self,
+        weights: &[f64],
+        connections: &Connections,
+        inside: impl Fn(usize) -> bool + Sync,
+        u: &[DVec3],
+        finish: impl Fn(usize, DVec3) -> DVec3 + Sync,
     ) -> Vec<DVec3> {
         let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
         let slots = |i: usize| connections.offsets[i] as usize..connections.offsets[i + 1] as usize;
@@ -655,7 +682,7 @@ impl Entries {
             .into_par_iter()
             .map(|k| {
                 if !inside(k) {
-                    return DVec3::ZERO;
+                    return finish(k, DVec3::ZERO);
                 }
                 let (uk, range) = (at(k), slots(k));
                 let mut r = DVec3::ZERO;
@@ -667,7 +694,7 @@ impl Entries {
                     let i = i as usize;
                     r += (uk - at(i)) + 0.5 * (z[i] * h.as_dvec3() - z[k] * g.as_dvec3());
                 }
-                r
+                finish(k, r)
             })
             .collect()
     }
@@ -753,33 +780,45 @@ fn assemble(
     }
     // One block row per aggregate: its 3x3 blocks summed in the particles'
     // order, then the coarse Laplacian on the diagonal of each block.
+    // Each thread keeps, per aggregate, where its block is in the row being
+    // summed (`NOWHERE` where it has none yet), cleared after each row.
+    const NOWHERE: u32 = u32::MAX;
     touching
         .par_iter()
         .zip(&aggregates.rows)
         .enumerate()
-        .map(|(a, (particles, laplacian))| {
-            let mut blocks: Vec<(u32, DMat3)> = laplacian
-                .iter()
-                .map(|&(b, w)| (b, DMat3::from_diagonal(DVec3::splat(w))))
-                .collect();
-            for &i in particles {
-                let parts = &parts[i as usize];
-                let Some(&(_, u)) = parts.iter().find(|&&(b, _)| b as usize == a) else {
-                    continue;
+        .map_init(
+            || vec![NOWHERE; aggregates.count()],
+            |position, (a, (particles, laplacian))| {
+                let mut blocks: Vec<(u32, DMat3)> = Vec::with_capacity(4 * laplacian.len());
+                let mut add = |b: u32, block: DMat3| match position[b as usize] {
+                    NOWHERE => {
+                        position[b as usize] = blocks.len() as u32;
+                        blocks.push((b, block));
+                    }
+                    at => blocks[at as usize].1 += block,
                 };
-                let u = 0.5 * weights[i as usize] * u;
-                for &(b, v) in parts {
-                    // Column `c` of the block `u v^T` is `u v_c`.
-                    let outer = DMat3::from_cols(u * v.x, u * v.y, u * v.z);
-                    match blocks.iter_mut().find(|(c, _)| *c == b) {
-                        Some((_, block)) => *block += outer,
-                        None => blocks.push((b, outer)),
+                for &(b, w) in laplacian {
+                    add(b, DMat3::from_diagonal(DVec3::splat(w)));
+                }
+                for &i in particles {
+                    let parts = &parts[i as usize];
+                    let Some(&(_, u)) = parts.iter().find(|&&(b, _)| b as usize == a) else {
+                        continue;
+                    };
+                    let u = 0.5 * weights[i as usize] * u;
+                    for &(b, v) in parts {
+                        // Column `c` of the block `u v^T` is `u v_c`.
+                        add(b, DMat3::from_cols(u * v.x, u * v.y, u * v.z));
                     }
                 }
-            }
-            blocks.sort_unstable_by_key(|&(b, _)| b);
-            blocks
-        })
+                for &(b, _) in &blocks {
+                    position[b as usize] = NOWHERE;
+                }
+                blocks.sort_unstable_by_key(|&(b, _)| b);
+                blocks
+            },
+        )
         .collect()
 }
 
