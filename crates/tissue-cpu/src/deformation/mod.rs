@@ -626,10 +626,16 @@ impl SolveDevice for CpuSolve {
                 omegas: omegas.to_vec(),
             });
         }
-        Ok(omegas
-            .iter()
-            .map(|&omega| self.iterate(it, omega))
-            .collect())
+        // The batch runs on one of the pool's threads, so that each pass's
+        // parallel loop starts there rather than being handed to the pool
+        // from outside and waited for (the elastic solves from rest at
+        // 10,000 particles 1-5 % faster on two cores).
+        Ok(rayon::scope(|_| {
+            omegas
+                .iter()
+                .map(|&omega| self.iterate(it, omega))
+                .collect()
+        }))
     }
 
     fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
