@@ -2,7 +2,8 @@
 //! at 10,000 particles: the grid build, the stage-1 force pass, the stage-2
 //! rotation pass (SVD and warm polar), the force pass, one whole
 //! deformation iteration, and the elastic phase's correction (made at the
-//! phase's start, and its smoothed step, the iteration's largest pass). `cargo bench --bench kernels`; in CI
+//! phase's start, its terms and force, and its smoothed step, the
+//! iteration's largest pass). `cargo bench --bench kernels`; in CI
 //! `cargo bench --bench kernels -- --test` runs each once (smoke mode).
 
 #![allow(missing_docs, reason = "criterion's macros generate the items")]
@@ -143,6 +144,21 @@ fn kernels(c: &mut Criterion) {
         &elastic,
         RotationMethod::WarmPolar,
     );
+    c.bench_function("elastic_terms (warm polar) 10k", |b| {
+        b.iter(|| {
+            elastic_terms(
+                rest,
+                black_box(&current),
+                connections,
+                &rotations,
+                &elastic,
+                RotationMethod::WarmPolar,
+            )
+        })
+    });
+    c.bench_function("elastic_force 10k", |b| {
+        b.iter(|| elastic_force(rest, black_box(&current), connections, &terms, &elastic))
+    });
     let force = elastic_force(rest, &current, connections, &terms, &elastic);
     let residual = elastic_residual(&force, &[], &aggregates.aggregate);
     c.bench_function("elastic smoothed step 10k", |b| {

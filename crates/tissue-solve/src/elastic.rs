@@ -32,7 +32,7 @@
 //! flat neighbourhood (no gradient) keeps the pair term `sum_j |e_ij - R_i d_ij|^2`
 //! with `R_i` the polar rotation of `M_i`: `T_i = R_i`, `U_i = 0`.
 
-use glam::{DMat3, DVec3, Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
@@ -174,15 +174,19 @@ impl Elastic {
         connections: &Connections,
         i: usize,
     ) -> (Mat3, Mat3) {
+        // In 4-lane vectors (`Vec3A`): each entry's products and sums are
+        // the ones `Vec3` makes, three at a time.
         let mu = &self.consistency.multipliers;
-        let (mut m, mut n) = (Mat3::ZERO, Mat3::ZERO);
+        let at = |v: &[Vec3], j: usize| Vec3A::from(v[j]);
+        let (ri, ci, ui) = (at(rest, i), at(current, i), at(mu, i));
+        let (mut m, mut n) = (Mat3A::ZERO, Mat3A::ZERO);
         for &j in connections.of(i) {
             let j = j as usize;
-            let (d, e, u) = (rest[j] - rest[i], current[j] - current[i], mu[j] - mu[i]);
-            m += Mat3::from_cols(e * d.x, e * d.y, e * d.z);
-            n += Mat3::from_cols(e * u.x, e * u.y, e * u.z);
+            let (d, e, u) = (at(rest, j) - ri, at(current, j) - ci, at(mu, j) - ui);
+            m += Mat3A::from_cols(e * d.x, e * d.y, e * d.z);
+            n += Mat3A::from_cols(e * u.x, e * u.y, e * u.z);
         }
-        (m, n)
+        (Mat3::from(m), Mat3::from(n))
     }
 
     /// The force on particle `k`: the gather over its connections of the
@@ -198,16 +202,21 @@ impl Elastic {
         connections: &Connections,
         terms: &[ElasticTerms],
     ) -> Vec3 {
+        // In 4-lane vectors, as [`Elastic::products`].
         let mu = &self.consistency.multipliers;
-        let (mut f, mut d_sum, mut u_sum) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        let at = |v: &[Vec3], j: usize| Vec3A::from(v[j]);
+        let (rk, ck, uk) = (at(rest, k), at(current, k), at(mu, k));
+        let (mut f, mut d_sum, mut u_sum) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
         for &i in connections.of(k) {
             let i = i as usize;
-            let (d, e, u) = (rest[k] - rest[i], current[k] - current[i], mu[k] - mu[i]);
-            f += terms[i].target * d - terms[i].stress * u - 2.0 * e;
+            let (d, e, u) = (rk - at(rest, i), ck - at(current, i), uk - at(mu, i));
+            let (target, stress) = (Mat3A::from(terms[i].target), Mat3A::from(terms[i].stress));
+            f += target * d - stress * u - 2.0 * e;
             d_sum += d;
             u_sum += u;
         }
-        f + terms[k].target * d_sum - terms[k].stress * u_sum
+        let (target, stress) = (Mat3A::from(terms[k].target), Mat3A::from(terms[k].stress));
+        Vec3::from(f + target * d_sum - stress * u_sum)
     }
 
     /// The energy at `current`, its rotations by the SVD (for checks).
