@@ -469,12 +469,15 @@ fn mirrors(connections: &Connections) -> Vec<u32> {
 /// the current and rest positions `M_i`, with the current positions and
 /// the multipliers `N_i` ([`Consistency::multipliers_product`]).
 pub fn offsets_outer(a: &[Vec3], b: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
-    let mut m = Mat3::ZERO;
+    // In 4-lane vectors, as [`Elastic::products`].
+    let (ai, bi) = (Vec3A::from(a[i]), Vec3A::from(b[i]));
+    let mut m = Mat3A::ZERO;
     for &j in connections.of(i) {
-        let (u, v) = (a[j as usize] - a[i], b[j as usize] - b[i]);
-        m += Mat3::from_cols(u * v.x, u * v.y, u * v.z);
+        let j = j as usize;
+        let (u, v) = (Vec3A::from(a[j]) - ai, Vec3A::from(b[j]) - bi);
+        m += Mat3A::from_cols(u * v.x, u * v.y, u * v.z);
     }
-    m
+    Mat3::from(m)
 }
 
 /// `cof(F) = det(F) F^-T`, the derivative of `det F`, defined for every `F`:

@@ -2,7 +2,7 @@
 //! name: rotations, force, the plain step, the Chebyshev combine, the step
 //! norms and deflation.
 
-use glam::{DVec3, Mat3, Vec3, Vec3A};
+use glam::{DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 use tissue_solve::coarse::OUTSIDE;
@@ -151,20 +151,23 @@ pub fn deformation_force(
     (0..rest.len())
         .into_par_iter()
         .map(|j| {
-            let mut f = Vec3::ZERO;
+            // In 4-lane vectors (`Vec3A`, `Mat3A`): the products and sums
+            // `Vec3` makes, three at a time.
+            let at = |v: &[Vec3], i: usize| Vec3A::from(v[i]);
+            let (rj, cj, turn_j) = (at(rest, j), at(current, j), Mat3A::from(rotations[j]));
+            let mut f = Vec3A::ZERO;
             for &i in connections.of(j) {
                 let i = i as usize;
-                let d = rest[j] - rest[i];
-                let c = current[j] - current[i];
+                let d = rj - at(rest, i);
+                let c = cj - at(current, i);
+                let turn_i = Mat3A::from(rotations[i]);
                 f += match model {
-                    ForceModel::Paper => rotations[i] * d - c,
+                    ForceModel::Paper => turn_i * d - c,
                     // (The elastic force is gathered by [`elastic_force`].)
-                    ForceModel::Symmetric | ForceModel::Elastic => {
-                        (rotations[i] + rotations[j]) * d - 2.0 * c
-                    }
+                    ForceModel::Symmetric | ForceModel::Elastic => (turn_i + turn_j) * d - 2.0 * c,
                 };
             }
-            f
+            Vec3::from(f)
         })
         .collect()
 }
