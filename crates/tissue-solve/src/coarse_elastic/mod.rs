@@ -163,53 +163,33 @@ impl ElasticCoarse {
     ) -> Result<Self, Error> {
         let started = Instant::now();
         let linearisation = linearise(rest, current, connections, elastic);
-        let blocks = assemble(aggregates, rest, connections, &linearisation);
-        let solve = if aggregates.count() <= made_for.direct_max_aggregates {
-            let rows = scalar_rows(&blocks);
-            if made_for.envelope {
-                Envelope::cholesky(&rows).map(CoarseSolve::Envelope)
-            } else {
-                let previous = match making.previous.map(|p| &p.solve) {
-                    Some(CoarseSolve::Direct(factor)) => Some(factor),
-                    _ => None,
-                };
-                // Factored in `f32` at once where it will only be solved
-                // so (no contraction to estimate with it first).
-                let factor = match previous {
-                    _ if making.single && made_for.rho.is_some() => {
-                        Cholesky::single_of(&rows, previous)
-                    }
-                    Some(previous) => previous.refactor(&rows),
-                    None => Cholesky::new(&rows),
-                };
-                factor.map(CoarseSolve::Direct)
-            }
-        } else {
-            let centres = centres(rest, &aggregates.aggregate, aggregates.count());
-            BlockMultilevel::new(
-                &blocks,
-                &centres,
-                aggregates.cell,
-                made_for.direct_max_aggregates,
-            )
-            .map(CoarseSolve::Multilevel)
-        }
-        .ok_or_else(|| {
+        // The coarse matrix's factor (on one thread at 10,000 particles)
+        // while the slots' entries and the smoother are made beside it.
+        let (solve, (entries, smoother)) = rayon::join(
+            || {
+                let blocks = assemble(aggregates, rest, connections, &linearisation);
+                coarse_solve(aggregates, rest, &blocks, made_for, making)
+            },
+            || {
+                let entries = Entries::new(rest, connections, &elastic.mirrors, &linearisation);
+                let smoother = made_for.volume_delta.map(|delta| {
+                    let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
+                    VolumeSmoother::new(
+                        &entries,
+                        &linearisation.weights,
+                        connections,
+                        &inside,
+                        delta,
+                    )
+                });
+                (entries, smoother)
+            },
+        );
+        let solve = solve.ok_or_else(|| {
             Error::from(DeformError::CoarseSpace(
                 "the elastic coarse matrix is not positive definite (a rounding failure)".into(),
             ))
         })?;
-        let entries = Entries::new(rest, connections, &elastic.mirrors, &linearisation);
-        let smoother = made_for.volume_delta.map(|delta| {
-            let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
-            VolumeSmoother::new(
-                &entries,
-                &linearisation.weights,
-                connections,
-                &inside,
-                delta,
-            )
-        });
         let mut space = Self {
             linearisation,
             entries,
@@ -697,6 +677,45 @@ impl Entries {
                 finish(k, r)
             })
             .collect()
+    }
+}
+
+/// `P^T K P` (its block rows `blocks`) factored, or cycled above
+/// `made_for.direct_max_aggregates`; `None` where it is not positive
+/// definite.
+fn coarse_solve(
+    aggregates: &Aggregates,
+    rest: &[Vec3],
+    blocks: &[Vec<(u32, DMat3)>],
+    made_for: CorrectionFor,
+    making: Making<'_>,
+) -> Option<CoarseSolve> {
+    if aggregates.count() <= made_for.direct_max_aggregates {
+        let rows = scalar_rows(blocks);
+        if made_for.envelope {
+            return Envelope::cholesky(&rows).map(CoarseSolve::Envelope);
+        }
+        let previous = match making.previous.map(|p| &p.solve) {
+            Some(CoarseSolve::Direct(factor)) => Some(factor),
+            _ => None,
+        };
+        // Factored in `f32` at once where it will only be solved so (no
+        // contraction to estimate with it first).
+        let factor = match previous {
+            _ if making.single && made_for.rho.is_some() => Cholesky::single_of(&rows, previous),
+            Some(previous) => previous.refactor(&rows),
+            None => Cholesky::new(&rows),
+        };
+        factor.map(CoarseSolve::Direct)
+    } else {
+        let centres = centres(rest, &aggregates.aggregate, aggregates.count());
+        BlockMultilevel::new(
+            blocks,
+            &centres,
+            aggregates.cell,
+            made_for.direct_max_aggregates,
+        )
+        .map(CoarseSolve::Multilevel)
     }
 }
 
