@@ -193,7 +193,8 @@ pub(crate) fn volume_changes(
         .collect()
 }
 
-/// [`volume_changes`] at particle `i`.
+/// `g_i . x` at particle `i` (`x` read as zero at particles `inside` says
+/// are not free): one particle's row of `G^T x`.
 fn change_at(
     entries: &Entries,
     connections: &Connections,
