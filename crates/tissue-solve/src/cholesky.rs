@@ -29,7 +29,7 @@ use faer::sparse::linalg::cholesky::{
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use faer::{Conj, MatMut, Par, Side};
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 /// `L L^T = P A P^T` of a sparse symmetric positive definite matrix.
 #[derive(Debug, Clone)]
@@ -54,7 +54,7 @@ impl Cholesky {
     /// [`crate::coarse::Envelope::cholesky`] takes it); `None` when it is
     /// not positive definite (or holds a value that is not finite).
     pub fn new(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
-        Self::factored(rows, None, false)
+        Self::of_upper(Upper::of_rows(rows)?, None, false)
     }
 
     /// Factors `rows` as [`Cholesky::new`] does, reusing this factor's
@@ -63,7 +63,7 @@ impl Cholesky {
     /// pattern, as a new linearisation over the same aggregates does; from
     /// the start otherwise.
     pub fn refactor(&self, rows: &[Vec<(u32, f64)>]) -> Option<Self> {
-        Self::factored(rows, Some(self), false)
+        Self::of_upper(Upper::of_rows(rows)?, Some(self), false)
     }
 
     /// [`Cholesky::new`] or [`Cholesky::refactor`] (where `previous` is
@@ -71,48 +71,44 @@ impl Cholesky {
     /// the numeric factorization itself runs in `f32`, where it finds the
     /// matrix positive definite, and in `f64` (then rounded) where not.
     pub fn single_of(rows: &[Vec<(u32, f64)>], previous: Option<&Self>) -> Option<Self> {
-        Self::factored(rows, previous, true).or_else(|| {
-            let factor = match previous {
-                Some(previous) => previous.refactor(rows),
-                None => Self::new(rows),
-            };
-            factor.map(Self::single)
-        })
+        Self::of_upper(Upper::of_rows(rows)?, previous, true)
     }
 
-    fn factored(rows: &[Vec<(u32, f64)>], previous: Option<&Self>, single: bool) -> Option<Self> {
-        let n = rows.len();
-        if rows
-            .iter()
-            .flatten()
-            .any(|&(j, w)| j as usize >= n || !w.is_finite())
-        {
-            return None;
+    /// The factor of the matrix given by block rows, three unknowns a block
+    /// row (`3 a + axis`), each sorted by block column: the same factor as
+    /// of their scalar rows ([`crate::multilevel::scalar_rows`]), made
+    /// without them. Only the blocks on and above the diagonal are read,
+    /// so the blocks below may be left out. `previous` and `single` as in
+    /// [`Cholesky::refactor`] and [`Cholesky::single_of`].
+    pub(crate) fn of_blocks(
+        blocks: &[Vec<(u32, DMat3)>],
+        previous: Option<&Self>,
+        single: bool,
+    ) -> Option<Self> {
+        Self::of_upper(Upper::of_blocks(blocks)?, previous, single)
+    }
+
+    /// `upper` factored in `f64`, or for `single` in `f32` where that finds
+    /// it positive definite and in `f64` (then rounded) where not.
+    fn of_upper(upper: Upper, previous: Option<&Self>, single: bool) -> Option<Self> {
+        if !single {
+            return Self::factored(&upper, previous, false);
         }
-        if rows
-            .iter()
-            .any(|row| row.windows(2).any(|pair| pair[0].0 >= pair[1].0))
-        {
-            return None;
-        }
-        // The lower triangle by columns is the upper triangle by rows.
-        let mut col_ptr = Vec::with_capacity(n + 1);
-        let (mut row_idx, mut values) = (Vec::new(), Vec::new());
-        col_ptr.push(0u32);
-        for (i, row) in rows.iter().enumerate() {
-            for &(j, w) in row.iter().filter(|&&(j, _)| j as usize >= i) {
-                row_idx.push(j);
-                values.push(w);
-            }
-            col_ptr.push(u32::try_from(row_idx.len()).ok()?);
-        }
+        Self::factored(&upper, previous, true)
+            .or_else(|| Self::factored(&upper, previous, false).map(Self::single))
+    }
+
+    fn factored(upper: &Upper, previous: Option<&Self>, single: bool) -> Option<Self> {
+        let n = upper.col_ptr.len() - 1;
+        let (col_ptr, row_idx, values) = (&upper.col_ptr, &upper.row_idx, &upper.values);
         let same = previous.filter(|p| {
             p.pattern.col_ptr() == col_ptr.as_slice() && p.pattern.row_idx() == row_idx.as_slice()
         });
         let (pattern, symbolic) = match same {
             Some(p) => (Arc::clone(&p.pattern), Arc::clone(&p.symbolic)),
             None => {
-                let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+                let pattern =
+                    SymbolicSparseColMat::new_checked(n, n, col_ptr.clone(), None, row_idx.clone());
                 let symbolic = factorize_symbolic_cholesky(
                     pattern.as_ref(),
                     Side::Lower,
@@ -127,7 +123,7 @@ impl Cholesky {
             let narrow: Vec<f32> = values.iter().map(|&v| v as f32).collect();
             Values::Single(numeric(&pattern, &symbolic, &narrow)?)
         } else {
-            Values::Double(numeric(&pattern, &symbolic, &values)?)
+            Values::Double(numeric(&pattern, &symbolic, values)?)
         };
         Some(Self {
             pattern,
@@ -211,6 +207,91 @@ impl Cholesky {
                 }
             }
         }
+    }
+}
+
+/// A symmetric matrix's upper triangle by rows, which is its lower
+/// triangle by columns (what the factorization reads): row `i`'s columns
+/// and values are `col_ptr[i]..col_ptr[i + 1]` of `row_idx` and `values`,
+/// ascending from the diagonal.
+#[derive(Debug)]
+struct Upper {
+    col_ptr: Vec<u32>,
+    row_idx: Vec<u32>,
+    values: Vec<f64>,
+}
+
+impl Upper {
+    /// The upper triangle of `rows` (each sorted by column); `None` where a
+    /// column is out of range, a value is not finite or a row not sorted.
+    fn of_rows(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
+        let n = rows.len();
+        let valid = rows.iter().all(|row| {
+            row.iter().all(|&(j, w)| (j as usize) < n && w.is_finite())
+                && row.windows(2).all(|pair| pair[0].0 < pair[1].0)
+        });
+        if !valid {
+            return None;
+        }
+        let mut upper = Self::with_rows(n);
+        for (i, row) in rows.iter().enumerate() {
+            for &(j, w) in row.iter().filter(|&&(j, _)| j as usize >= i) {
+                upper.row_idx.push(j);
+                upper.values.push(w);
+            }
+            upper.end_row()?;
+        }
+        Some(upper)
+    }
+
+    /// The upper triangle of the scalar rows of `blocks` (block row `a`
+    /// holds unknowns `3 a + axis`; each sorted by block column), read
+    /// from the blocks on and above the diagonal; `None` as
+    /// [`Upper::of_rows`].
+    fn of_blocks(blocks: &[Vec<(u32, DMat3)>]) -> Option<Self> {
+        let count = blocks.len();
+        let valid = blocks.iter().all(|row| {
+            row.iter()
+                .all(|&(b, block)| (b as usize) < count && block.is_finite())
+                && row.windows(2).all(|pair| pair[0].0 < pair[1].0)
+        });
+        if !valid {
+            return None;
+        }
+        let mut upper = Self::with_rows(3 * count);
+        for (a, row) in blocks.iter().enumerate() {
+            let above = &row[row.partition_point(|&(b, _)| (b as usize) < a)..];
+            for axis in 0..3 {
+                let i = 3 * a + axis;
+                for &(b, block) in above {
+                    for c in 0..3 {
+                        let j = 3 * b as usize + c;
+                        if j >= i {
+                            upper.row_idx.push(j as u32);
+                            upper.values.push(block.col(c)[axis]);
+                        }
+                    }
+                }
+                upper.end_row()?;
+            }
+        }
+        Some(upper)
+    }
+
+    fn with_rows(n: usize) -> Self {
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        col_ptr.push(0);
+        Self {
+            col_ptr,
+            row_idx: Vec::new(),
+            values: Vec::new(),
+        }
+    }
+
+    /// Closes the row being written; `None` past `u32`'s entries.
+    fn end_row(&mut self) -> Option<()> {
+        self.col_ptr.push(u32::try_from(self.row_idx.len()).ok()?);
+        Some(())
     }
 }
 
@@ -432,6 +513,83 @@ mod tests {
         assert_eq!(other.len(), 125);
     }
 
+    /// The grid's rows as 3x3 blocks on three unknowns a node, the axes
+    /// coupled by `coupling` within each node's diagonal block (positive
+    /// definite below a coupling of `0.1 / sqrt(2)`).
+    fn grid_blocks(side: usize, coupling: f64) -> Vec<Vec<(u32, DMat3)>> {
+        let couple = DMat3::from_cols_array(&[
+            0.0, coupling, 0.0, //
+            coupling, 0.0, coupling, //
+            0.0, coupling, 0.0,
+        ]);
+        grid_rows(side, 0.1)
+            .iter()
+            .enumerate()
+            .map(|(i, row)| {
+                row.iter()
+                    .map(|&(j, w)| {
+                        let block = DMat3::from_diagonal(glam::DVec3::splat(w));
+                        (
+                            j,
+                            if j as usize == i {
+                                block + couple
+                            } else {
+                                block
+                            },
+                        )
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Block rows factor as their scalar rows do, with or without the
+    /// blocks below the diagonal, in `f64` and in `f32`; what is not a
+    /// matrix is refused.
+    #[test]
+    fn a_factor_of_block_rows_is_the_factor_of_their_scalar_rows() {
+        let blocks = grid_blocks(4, 0.05);
+        let upper: Vec<Vec<(u32, DMat3)>> = blocks
+            .iter()
+            .enumerate()
+            .map(|(a, row)| {
+                row.iter()
+                    .copied()
+                    .filter(|&(b, _)| b as usize >= a)
+                    .collect()
+            })
+            .collect();
+        let rows = crate::multilevel::scalar_rows(&blocks);
+        let b: Vec<f64> = (0..rows.len()).map(|i| (i % 7) as f64 - 3.0).collect();
+        let solved = |factor: &Cholesky| {
+            let mut x = b.clone();
+            factor.solve_scalar(&mut x);
+            x
+        };
+        let expected = solved(&Cholesky::new(&rows).expect("positive definite"));
+        let single = solved(&Cholesky::single_of(&rows, None).expect("positive definite"));
+        for given in [&blocks, &upper] {
+            let factor = Cholesky::of_blocks(given, None, false).expect("positive definite");
+            assert_eq!(factor.len(), rows.len());
+            assert_eq!(solved(&factor), expected);
+            let again = Cholesky::of_blocks(given, Some(&factor), true).expect("positive definite");
+            assert!(again.is_single() && Arc::ptr_eq(&factor.symbolic, &again.symbolic));
+            assert_eq!(solved(&again), single);
+        }
+        let mut broken = blocks.clone();
+        broken[1][0].1.x_axis.y = f64::NAN;
+        assert!(Cholesky::of_blocks(&broken, None, false).is_none());
+        let mut beyond = blocks.clone();
+        beyond[0].push((
+            u32::try_from(blocks.len()).expect("a small grid"),
+            DMat3::IDENTITY,
+        ));
+        assert!(Cholesky::of_blocks(&beyond, None, false).is_none());
+        let mut unsorted = blocks;
+        unsorted[2].reverse();
+        assert!(Cholesky::of_blocks(&unsorted, None, false).is_none());
+    }
+
     #[test]
     fn a_factor_made_in_single_precision_solves_as_the_rounded_one() {
         let rows = grid_rows(10, 0.05);
@@ -446,7 +604,8 @@ mod tests {
         // `f32`, so it is factored in `f64` and rounded.
         let near = 1.0 - 1e-9;
         let singular_in_f32 = vec![vec![(0, 1.0), (1, near)], vec![(0, near), (1, 1.0)]];
-        assert!(Cholesky::factored(&singular_in_f32, None, true).is_none());
+        let upper = Upper::of_rows(&singular_in_f32).expect("valid rows");
+        assert!(Cholesky::factored(&upper, None, true).is_none());
         let factor = Cholesky::single_of(&singular_in_f32, None).expect("positive definite");
         assert!(factor.is_single());
     }

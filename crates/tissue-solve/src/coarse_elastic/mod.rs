@@ -169,7 +169,11 @@ impl ElasticCoarse {
         // while the slots' entries and the smoother are made beside it.
         let (solve, (entries, smoother)) = rayon::join(
             || {
-                let blocks = assemble(aggregates, rest, connections, &linearisation);
+                // A factor on the host reads the blocks on and above the
+                // diagonal alone; the cycles and a device's envelope both.
+                let factored = aggregates.count() <= made_for.direct_max_aggregates;
+                let upper = factored && !made_for.envelope;
+                let blocks = assemble(aggregates, rest, connections, &linearisation, upper);
                 coarse_solve(aggregates, rest, &blocks, made_for, making)
             },
             || {
@@ -573,9 +577,8 @@ fn coarse_solve(
     making: Making<'_>,
 ) -> Option<CoarseSolve> {
     if aggregates.count() <= made_for.direct_max_aggregates {
-        let rows = scalar_rows(blocks);
         if made_for.envelope {
-            return Envelope::cholesky(&rows).map(CoarseSolve::Envelope);
+            return Envelope::cholesky(&scalar_rows(blocks)).map(CoarseSolve::Envelope);
         }
         let previous = match making.previous.map(|p| &p.solve) {
             Some(CoarseSolve::Direct(factor)) => Some(factor),
@@ -583,12 +586,8 @@ fn coarse_solve(
         };
         // Factored in `f32` at once where it will only be solved so (no
         // contraction to estimate with it first).
-        let factor = match previous {
-            _ if making.single && made_for.rho.is_some() => Cholesky::single_of(&rows, previous),
-            Some(previous) => previous.refactor(&rows),
-            None => Cholesky::new(&rows),
-        };
-        factor.map(CoarseSolve::Direct)
+        let single = making.single && made_for.rho.is_some();
+        Cholesky::of_blocks(blocks, previous, single).map(CoarseSolve::Direct)
     } else {
         let centres = centres(rest, &aggregates.aggregate, aggregates.count());
         BlockMultilevel::new(
@@ -638,12 +637,15 @@ fn linearise(
 
 /// The rows of `P^T K P` on three unknowns per aggregate (`3 a + axis`):
 /// the coarse Laplacian on each axis, and per particle with a volume
-/// weight `1/2 W_i (P^T g_i)(P^T g_i)^T`, each sorted by column.
+/// weight `1/2 W_i (P^T g_i)(P^T g_i)^T`, each sorted by column; with
+/// `upper`, only the blocks on and above the diagonal (half the outer
+/// products: what a host factor reads).
 fn assemble(
     aggregates: &Aggregates,
     rest: &[Vec3],
     connections: &Connections,
     linearisation: &VolumeLinearisation,
+    upper: bool,
 ) -> Vec<Vec<(u32, DMat3)>> {
     let weights = &linearisation.weights;
     let aggregate = &aggregates.aggregate;
@@ -699,7 +701,8 @@ fn assemble(
                     }
                     at => blocks[at as usize].1 += block,
                 };
-                for &(b, w) in laplacian {
+                let kept = |b: u32| !upper || b as usize >= a;
+                for &(b, w) in laplacian.iter().filter(|&&(b, _)| kept(b)) {
                     add(b, DMat3::from_diagonal(DVec3::splat(w)));
                 }
                 for &i in particles {
@@ -708,7 +711,7 @@ fn assemble(
                         continue;
                     };
                     let u = 0.5 * weights[i as usize] * u;
-                    for &(b, v) in parts {
+                    for &(b, v) in parts.iter().filter(|&&(b, _)| kept(b)) {
                         // Column `c` of the block `u v^T` is `u v_c`.
                         add(b, DMat3::from_cols(u * v.x, u * v.y, u * v.z));
                     }
@@ -1005,6 +1008,44 @@ mod tests {
         let (scale, off) = largest_and_apart(&a, &b);
         assert!(scale > 0.0);
         assert!(off <= 1e-9 * scale, "{off} of {scale}");
+    }
+
+    /// A factor on the host reads the blocks on and above the diagonal
+    /// alone: assembled so, they are the full rows' blocks to the bit, and
+    /// factored from the blocks they solve as the full scalar rows'
+    /// factor does, to the bit.
+    #[test]
+    fn the_host_factor_reads_the_upper_blocks_alone() {
+        let stretch = Mat3::from_diagonal(Vec3::new(1.1, 0.95, 0.97));
+        let (rest, connections, free) = jittered_block();
+        let current: Vec<Vec3> = rest.iter().map(|&p| turn() * stretch * p).collect();
+        let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let linearisation = linearise(&rest, &current, &connections, &elastic);
+        let full = assemble(&aggregates, &rest, &connections, &linearisation, false);
+        let upper = assemble(&aggregates, &rest, &connections, &linearisation, true);
+        assert!(aggregates.count() > 8);
+        for (a, (full, upper)) in full.iter().zip(&upper).enumerate() {
+            let above: Vec<(u32, DMat3)> = full
+                .iter()
+                .copied()
+                .filter(|&(b, _)| b as usize >= a)
+                .collect();
+            assert_eq!(*upper, above, "block row {a}");
+        }
+        let count = |rows: &[Vec<(u32, DMat3)>]| rows.iter().map(Vec::len).sum::<usize>();
+        // The diagonal's and half the others.
+        assert_eq!(2 * count(&upper), count(&full) + full.len());
+        let rows = scalar_rows(&full);
+        let from_rows = Cholesky::new(&rows).unwrap();
+        let from_blocks = Cholesky::of_blocks(&upper, None, false).unwrap();
+        let b: Vec<f64> = (0..rows.len())
+            .map(|i| ((i * 7) % 11) as f64 - 5.0)
+            .collect();
+        let (mut x, mut y) = (b.clone(), b);
+        from_rows.solve_scalar(&mut x);
+        from_blocks.solve_scalar(&mut y);
+        assert_eq!(x, y);
     }
 
     /// The largest vector of `a` and how far apart `a` and `b` are at most.
