@@ -233,16 +233,16 @@ pub(crate) fn pressure_forces(
         .collect()
 }
 
-/// [`pressure_forces`] at a free particle `k`.
+/// [`pressure_forces`] at a free particle `k`: the mirrored slots alone
+/// ([`Entries::sums`] gives `g_k`'s own entry).
 fn pressure_force_at(entries: &Entries, connections: &Connections, y: &[f64], k: usize) -> DVec3 {
     let range = slots(connections, k);
     let mut f = DVec3::ZERO;
-    for ((&i, g), h) in connections.indices[range.clone()]
+    for (&i, h) in connections.indices[range.clone()]
         .iter()
-        .zip(&entries.own[range.clone()])
         .zip(&entries.mirrored[range])
     {
-        f += y[i as usize] * h.as_dvec3() - y[k] * g.as_dvec3();
+        f += y[i as usize] * h.as_dvec3();
     }
-    f
+    f - y[k] * entries.sums[k]
 }

@@ -21,6 +21,10 @@ pub(crate) struct Entries {
     pub(crate) own: Vec<Vec3>,
     /// `g_j`'s entry at `i`, in the same slot.
     pub(crate) mirrored: Vec<Vec3>,
+    /// Per particle `i` the sum of its own entries (`g_i`'s entry at `i` is
+    /// minus it), so that a gather of `sum_j y_j g_j` at `i` reads the
+    /// mirrored slots alone.
+    pub(crate) sums: Vec<DVec3>,
 }
 
 impl Entries {
@@ -30,6 +34,7 @@ impl Entries {
         mirrors: &[u32],
         linearisation: &VolumeLinearisation,
     ) -> Self {
+        let slots = |i: usize| slots(connections, i);
         // Row by row into one vector (an indexed split: each thread
         // writes its own rows where they belong).
         let mut own = vec![Vec3::ZERO; connections.indices.len()];
@@ -57,7 +62,15 @@ impl Entries {
                 }
             })
             .collect();
-        Self { own, mirrored }
+        let sums = (0..rest.len())
+            .into_par_iter()
+            .map(|i| own[slots(i)].iter().map(|g| g.as_dvec3()).sum())
+            .collect();
+        Self {
+            own,
+            mirrored,
+            sums,
+        }
     }
 
     /// `K u` for the linearisation these are the entries of, whose volume
@@ -84,8 +97,12 @@ impl Entries {
         finish: impl Fn(usize, DVec3) -> DVec3 + Sync,
     ) -> Vec<DVec3> {
         let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
-        let slots = |i: usize| connections.offsets[i] as usize..connections.offsets[i + 1] as usize;
-        let Self { own, mirrored } = self;
+        let slots = |i: usize| slots(connections, i);
+        let Self {
+            own,
+            mirrored,
+            sums,
+        } = self;
         // Per particle `z_i = W_i (g_i . u)`.
         let z: Vec<f64> = (0..u.len())
             .into_par_iter()
@@ -112,17 +129,22 @@ impl Entries {
                     return finish(k, DVec3::ZERO);
                 }
                 let (uk, range) = (at(k), slots(k));
-                let mut r = DVec3::ZERO;
-                for ((&i, g), h) in connections.indices[range.clone()]
+                let (mut laplacian, mut pressures) = (DVec3::ZERO, DVec3::ZERO);
+                for (&i, h) in connections.indices[range.clone()]
                     .iter()
-                    .zip(&own[range.clone()])
                     .zip(&mirrored[range])
                 {
                     let i = i as usize;
-                    r += (uk - at(i)) + 0.5 * (z[i] * h.as_dvec3() - z[k] * g.as_dvec3());
+                    laplacian += uk - at(i);
+                    pressures += z[i] * h.as_dvec3();
                 }
-                finish(k, r)
+                finish(k, laplacian + 0.5 * (pressures - z[k] * sums[k]))
             })
             .collect()
     }
+}
+
+/// The slots of particle `i`'s connections.
+fn slots(connections: &Connections, i: usize) -> std::ops::Range<usize> {
+    connections.offsets[i] as usize..connections.offsets[i + 1] as usize
 }
