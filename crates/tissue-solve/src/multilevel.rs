@@ -20,7 +20,7 @@
 use std::collections::HashMap;
 use std::ops::Range;
 
-use glam::{DMat3, DVec3, Vec3};
+use glam::{DMat3, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
 use crate::cholesky::Cholesky;
@@ -263,18 +263,38 @@ pub struct BlockMultilevel {
     /// The Cholesky factor of `Q^T A Q`, unknown `3 g + axis` for group `g`.
     factor: Cholesky,
     weight: f64,
+    /// `values` and `weighted_inverse_diagonal` rounded to `f32`, where
+    /// the cycles run in `f32` ([`BlockMultilevel::single`]).
+    single: Option<(Vec<Mat3A>, Vec<Mat3A>)>,
 }
 
 impl BlockMultilevel {
-    /// The same cycles with the groups' factor kept in `f32`
-    /// ([`Cholesky::single`]), for the solves made every iteration; the
-    /// symmetry the tests hold is that of the `f64` cycles.
+    /// The same cycles in `f32`, for the solves made every iteration: the
+    /// blocks, the sweeps' vectors and the groups' factor
+    /// ([`Cholesky::single`]), as the GPU's twin runs them
+    /// (`shaders/block_multilevel.wgsl`); four-lane products. The symmetry
+    /// the tests hold is that of the `f64` cycles.
     #[must_use]
     pub fn single(self) -> Self {
+        let narrow = |blocks: &[DMat3]| {
+            blocks
+                .par_iter()
+                .map(|b| Mat3A::from(b.as_mat3()))
+                .collect()
+        };
         Self {
+            single: Some((
+                narrow(&self.values),
+                narrow(&self.weighted_inverse_diagonal),
+            )),
             factor: self.factor.single(),
             ..self
         }
+    }
+
+    /// Whether the cycles run in `f32` ([`BlockMultilevel::single`]).
+    pub fn is_single(&self) -> bool {
+        self.single.is_some()
     }
 
     /// The block rows of `A` (each sorted by column, both triangles), the
@@ -315,6 +335,7 @@ impl BlockMultilevel {
             group_rows: Vec::new(),
             factor: Cholesky::new(&[])?,
             weight: 1.0,
+            single: None,
         };
         space.weight =
             JACOBI_WEIGHT * 2.0 / (WEIGHT_MARGIN * space.largest_jacobi_eigenvalue(&diagonals));
@@ -383,6 +404,10 @@ impl BlockMultilevel {
     /// `b` (a translation per aggregate) replaced by the approximation of
     /// `A^-1 b` that [`CYCLES`] symmetric two-grid cycles from zero give.
     pub fn solve(&self, b: &mut [DVec3]) {
+        if let Some((values, inverse_diagonal)) = &self.single {
+            self.solve_single(values, inverse_diagonal, b);
+            return;
+        }
         let rhs = b.to_vec();
         let mut x: Vec<DVec3> = rhs
             .par_iter()
@@ -411,6 +436,56 @@ impl BlockMultilevel {
             }
         }
         b.copy_from_slice(&x);
+    }
+
+    /// [`BlockMultilevel::solve`] in `f32`, the blocks `values` and the
+    /// weighted inverse diagonal rounded; the groups' sums in `f64`.
+    fn solve_single(&self, values: &[Mat3A], inverse_diagonal: &[Mat3A], b: &mut [DVec3]) {
+        let row_product = |i: usize, x: &[Vec3A]| {
+            (self.starts[i]..self.starts[i + 1])
+                .map(|k| values[k] * x[self.columns[k] as usize])
+                .fold(Vec3A::ZERO, |a, b| a + b)
+        };
+        let sweep = |rhs: &[Vec3A], x: &mut Vec<Vec3A>| {
+            let swept = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| x[i] + inverse_diagonal[i] * (rhs[i] - row_product(i, x)))
+                .collect();
+            *x = swept;
+        };
+        let rhs: Vec<Vec3A> = b.par_iter().map(|b| b.as_vec3a()).collect();
+        let mut x: Vec<Vec3A> = rhs
+            .par_iter()
+            .zip(inverse_diagonal)
+            .map(|(b, d)| *d * *b)
+            .collect();
+        for cycle in 0..CYCLES {
+            for _ in usize::from(cycle == 0)..SWEEPS {
+                sweep(&rhs, &mut x);
+            }
+            let residual: Vec<Vec3A> = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| rhs[i] - row_product(i, &x))
+                .collect();
+            let mut coarse = vec![0.0f64; self.factor.len()];
+            for (&g, r) in self.group.iter().zip(&residual) {
+                let (g, r) = (3 * g as usize, r.as_dvec3());
+                coarse[g] += r.x;
+                coarse[g + 1] += r.y;
+                coarse[g + 2] += r.z;
+            }
+            self.factor.solve_scalar(&mut coarse);
+            x.par_iter_mut().zip(&self.group).for_each(|(x, &g)| {
+                let g = 3 * g as usize;
+                *x += DVec3::new(coarse[g], coarse[g + 1], coarse[g + 2]).as_vec3a();
+            });
+            for _ in 0..SWEEPS {
+                sweep(&rhs, &mut x);
+            }
+        }
+        for (b, x) in b.iter_mut().zip(&x) {
+            *b = x.as_dvec3();
+        }
     }
 
     /// `A x`.
@@ -707,6 +782,29 @@ mod tests {
             })
             .collect();
         (blocks, centres)
+    }
+
+    /// The cycles made for the iterations run in `f32` (blocks, vectors
+    /// and the groups' factor) and solve as the `f64` cycles do, to single
+    /// precision.
+    #[test]
+    fn the_single_precision_block_cycles_solve_as_the_double_ones() {
+        let (rows, centres) = block_grid(12, 4.0);
+        let double = BlockMultilevel::new(&rows, &centres, 1.0, 10_000).expect("definite");
+        let single = double.clone().single();
+        assert!(single.is_single() && !double.is_single());
+        let b = field(rows.len(), 3.0);
+        let (mut x, mut y) = (b.clone(), b);
+        double.solve(&mut x);
+        single.solve(&mut y);
+        let largest = x.iter().map(|v| v.length()).fold(0.0f64, f64::max);
+        let apart = x
+            .iter()
+            .zip(&y)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0f64, f64::max);
+        assert!(apart < 1e-5 * largest, "{apart} apart of {largest}");
+        assert!(apart > 0.0, "the cycles did not run in single precision");
     }
 
     #[test]
