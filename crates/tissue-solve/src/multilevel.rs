@@ -68,18 +68,33 @@ pub struct Multilevel {
     group_rows: Vec<Vec<(u32, f64)>>,
     /// The Cholesky factor of `Q^T A Q`.
     factor: Cholesky,
+    /// `values` and `weighted_inverse_diagonal` rounded to `f32`, where
+    /// the cycles run in `f32` ([`Multilevel::single`]).
+    single: Option<(Vec<f32>, Vec<f32>)>,
 }
 
 impl Multilevel {
-    /// The same cycles with the groups' factor kept in `f32`
-    /// ([`Cholesky::single`]), for the solves made every iteration; the
-    /// symmetry the tests hold is that of the `f64` cycles.
+    /// The same cycles in `f32`, for the solves made every iteration: the
+    /// matrix, the sweeps' vectors and the groups' factor
+    /// ([`Cholesky::single`]), as the GPU's twin runs them
+    /// (`shaders/multilevel.wgsl`); four-lane vectors. The symmetry the
+    /// tests hold is that of the `f64` cycles.
     #[must_use]
     pub fn single(self) -> Self {
+        let narrow = |values: &[f64]| values.iter().map(|&v| v as f32).collect();
         Self {
+            single: Some((
+                narrow(&self.values),
+                narrow(&self.weighted_inverse_diagonal),
+            )),
             factor: self.factor.single(),
             ..self
         }
+    }
+
+    /// Whether the cycles run in `f32` ([`Multilevel::single`]).
+    pub fn is_single(&self) -> bool {
+        self.single.is_some()
     }
 
     /// The aggregates' matrix `rows` (each sorted by column, both
@@ -123,6 +138,7 @@ impl Multilevel {
             group,
             group_rows: ordered,
             factor,
+            single: None,
         })
     }
 
@@ -168,6 +184,10 @@ impl Multilevel {
     /// `b` replaced by `B b`, the approximation of `A^-1 b` that
     /// [`CYCLES`] symmetric two-grid cycles from zero give.
     pub fn solve(&self, b: &mut [DVec3]) {
+        if let Some((values, inverse_diagonal)) = &self.single {
+            self.solve_single(values, inverse_diagonal, b);
+            return;
+        }
         let rhs = b.to_vec();
         // The first sweep from zero, whose residual is `b` itself.
         let mut x: Vec<DVec3> = rhs
@@ -193,6 +213,54 @@ impl Multilevel {
             }
         }
         b.copy_from_slice(&x);
+    }
+
+    /// [`Multilevel::solve`] in `f32`, the matrix `values` and the
+    /// weighted inverse diagonal rounded; the groups' sums in `f64`.
+    fn solve_single(&self, values: &[f32], inverse_diagonal: &[f32], b: &mut [DVec3]) {
+        let residual_at = |i: usize, rhs: &[Vec3A], x: &[Vec3A]| {
+            let mut r = rhs[i];
+            for k in self.row(i) {
+                r -= x[self.columns[k] as usize] * values[k];
+            }
+            r
+        };
+        let sweep = |rhs: &[Vec3A], x: &mut Vec<Vec3A>| {
+            let swept = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| x[i] + residual_at(i, rhs, x) * inverse_diagonal[i])
+                .collect();
+            *x = swept;
+        };
+        let rhs: Vec<Vec3A> = b.par_iter().map(|b| b.as_vec3a()).collect();
+        let mut x: Vec<Vec3A> = rhs
+            .par_iter()
+            .zip(inverse_diagonal)
+            .map(|(b, &w)| *b * w)
+            .collect();
+        for cycle in 0..CYCLES {
+            for _ in usize::from(cycle == 0)..SWEEPS {
+                sweep(&rhs, &mut x);
+            }
+            let residual: Vec<Vec3A> = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| residual_at(i, &rhs, &x))
+                .collect();
+            let mut coarse = vec![DVec3::ZERO; self.groups()];
+            for (&g, r) in self.group.iter().zip(&residual) {
+                coarse[g as usize] += r.as_dvec3();
+            }
+            self.factor.solve(&mut coarse);
+            x.par_iter_mut()
+                .zip(&self.group)
+                .for_each(|(x, &g)| *x += coarse[g as usize].as_vec3a());
+            for _ in 0..SWEEPS {
+                sweep(&rhs, &mut x);
+            }
+        }
+        for (b, x) in b.iter_mut().zip(&x) {
+            *b = x.as_dvec3();
+        }
     }
 
     fn row(&self, i: usize) -> Range<usize> {
@@ -782,6 +850,28 @@ mod tests {
             })
             .collect();
         (blocks, centres)
+    }
+
+    /// The Laplacian's cycles made for the iterations run in `f32` and
+    /// solve as the `f64` cycles do, to single precision.
+    #[test]
+    fn the_single_precision_cycles_solve_as_the_double_ones() {
+        let (rows, centres) = grid(12);
+        let double = Multilevel::new(&rows, &centres, 1.0, 10_000).expect("definite");
+        let single = double.clone().single();
+        assert!(single.is_single() && !double.is_single());
+        let b = field(rows.len(), 5.0);
+        let (mut x, mut y) = (b.clone(), b);
+        double.solve(&mut x);
+        single.solve(&mut y);
+        let largest = x.iter().map(|v| v.length()).fold(0.0f64, f64::max);
+        let apart = x
+            .iter()
+            .zip(&y)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0f64, f64::max);
+        assert!(apart < 1e-5 * largest, "{apart} apart of {largest}");
+        assert!(apart > 0.0, "the cycles did not run in single precision");
     }
 
     /// The cycles made for the iterations run in `f32` (blocks, vectors
