@@ -109,7 +109,7 @@ fn kernels(c: &mut Criterion) {
     });
 
     // The elastic phase's correction as the solve makes it at the phase's
-    // start, over the default aggregates, with the volume smoother,
+    // start, over the default aggregates, with the volume smoother.
     let (rest, connections) = (&model.positions, &model.connections);
     let plan = Plan::new(&model).expect("plan");
     let elastic = Elastic::new(rest, connections, 0.49, &free);

@@ -33,7 +33,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::coarse_elastic::Entries;
+use crate::coarse_elastic::{Entries, slots};
 
 /// `delta` in units of the connection Laplacian's largest eigenvalue (the
 /// plan's, margin included). Measured on both breast phantoms at 10,000
@@ -171,11 +171,6 @@ impl VolumeSmoother {
             })
             .collect()
     }
-}
-
-/// The slots of particle `i`'s connections.
-fn slots(connections: &Connections, i: usize) -> std::ops::Range<usize> {
-    connections.offsets[i] as usize..connections.offsets[i + 1] as usize
 }
 
 /// `G^T x`: per particle the change of its `J_i` under the displacement

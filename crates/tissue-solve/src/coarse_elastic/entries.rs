@@ -144,7 +144,7 @@ impl Entries {
     }
 }
 
-/// The slots of particle `i`'s connections.
-fn slots(connections: &Connections, i: usize) -> std::ops::Range<usize> {
+/// The slots of particle `i`'s connections (where its entries are).
+pub(crate) fn slots(connections: &Connections, i: usize) -> std::ops::Range<usize> {
     connections.offsets[i] as usize..connections.offsets[i + 1] as usize
 }

@@ -32,7 +32,7 @@ use crate::volume_smoother::VolumeSmoother;
 
 mod entries;
 mod setup;
-pub(crate) use entries::Entries;
+pub(crate) use entries::{Entries, slots};
 pub use setup::{
     SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
 };
