@@ -214,7 +214,7 @@ impl Multilevel {
     }
 
     /// [`Multilevel::solve`] in `f32`, the matrix `values` and the
-    /// weighted inverse diagonal rounded; the groups' sums in `f64`.
+    /// weighted inverse diagonal rounded ([`solve_single`]).
     fn solve_single(&self, values: &[f32], inverse_diagonal: &[f32], b: &mut [DVec3]) {
         let residual_at = |i: usize, rhs: &[Vec3A], x: &[Vec3A]| {
             let mut r = rhs[i];
@@ -223,40 +223,14 @@ impl Multilevel {
             }
             r
         };
-        let sweep = |rhs: &[Vec3A], x: &mut Vec<Vec3A>| {
-            let swept = (0..rhs.len())
-                .into_par_iter()
-                .map(|i| x[i] + residual_at(i, rhs, x) * inverse_diagonal[i])
-                .collect();
-            *x = swept;
-        };
-        let rhs: Vec<Vec3A> = b.par_iter().map(|b| b.as_vec3a()).collect();
-        let mut x: Vec<Vec3A> = rhs
-            .par_iter()
-            .zip(inverse_diagonal)
-            .map(|(b, &w)| *b * w)
-            .collect();
-        cycles(
-            &mut x,
-            |x| sweep(&rhs, x),
-            |x| {
-                let residual: Vec<Vec3A> = (0..rhs.len())
-                    .into_par_iter()
-                    .map(|i| residual_at(i, &rhs, x))
-                    .collect();
-                let mut coarse = vec![DVec3::ZERO; self.groups()];
-                for (&g, r) in self.group.iter().zip(&residual) {
-                    coarse[g as usize] += r.as_dvec3();
-                }
-                self.factor.solve(&mut coarse);
-                x.par_iter_mut()
-                    .zip(&self.group)
-                    .for_each(|(x, &g)| *x += coarse[g as usize].as_vec3a());
-            },
+        solve_single(
+            b,
+            &self.group,
+            self.groups(),
+            residual_at,
+            |i, r| r * inverse_diagonal[i],
+            |coarse| self.factor.solve(coarse),
         );
-        for (b, x) in b.iter_mut().zip(&x) {
-            *b = x.as_dvec3();
-        }
     }
 
     fn row(&self, i: usize) -> Range<usize> {
@@ -501,51 +475,28 @@ impl BlockMultilevel {
     }
 
     /// [`BlockMultilevel::solve`] in `f32`, the blocks `values` and the
-    /// weighted inverse diagonal rounded; the groups' sums in `f64`.
+    /// weighted inverse diagonal rounded ([`solve_single`]).
     fn solve_single(&self, values: &[Mat3A], inverse_diagonal: &[Mat3A], b: &mut [DVec3]) {
-        let row_product = |i: usize, x: &[Vec3A]| {
-            (self.starts[i]..self.starts[i + 1])
+        let residual_at = |i: usize, rhs: &[Vec3A], x: &[Vec3A]| {
+            let product = (self.starts[i]..self.starts[i + 1])
                 .map(|k| values[k] * x[self.columns[k] as usize])
-                .fold(Vec3A::ZERO, |a, b| a + b)
+                .fold(Vec3A::ZERO, |a, b| a + b);
+            rhs[i] - product
         };
-        let sweep = |rhs: &[Vec3A], x: &mut Vec<Vec3A>| {
-            let swept = (0..rhs.len())
-                .into_par_iter()
-                .map(|i| x[i] + inverse_diagonal[i] * (rhs[i] - row_product(i, x)))
-                .collect();
-            *x = swept;
-        };
-        let rhs: Vec<Vec3A> = b.par_iter().map(|b| b.as_vec3a()).collect();
-        let mut x: Vec<Vec3A> = rhs
-            .par_iter()
-            .zip(inverse_diagonal)
-            .map(|(b, d)| *d * *b)
-            .collect();
-        cycles(
-            &mut x,
-            |x| sweep(&rhs, x),
-            |x| {
-                let residual: Vec<Vec3A> = (0..rhs.len())
-                    .into_par_iter()
-                    .map(|i| rhs[i] - row_product(i, x))
-                    .collect();
-                let mut coarse = vec![0.0f64; self.factor.len()];
-                for (&g, r) in self.group.iter().zip(&residual) {
-                    let (g, r) = (3 * g as usize, r.as_dvec3());
-                    coarse[g] += r.x;
-                    coarse[g + 1] += r.y;
-                    coarse[g + 2] += r.z;
+        solve_single(
+            b,
+            &self.group,
+            self.groups(),
+            residual_at,
+            |i, r| inverse_diagonal[i] * r,
+            |coarse| {
+                let mut scalar: Vec<f64> = coarse.iter().flat_map(|v| v.to_array()).collect();
+                self.factor.solve_scalar(&mut scalar);
+                for (v, s) in coarse.iter_mut().zip(scalar.chunks_exact(3)) {
+                    *v = DVec3::new(s[0], s[1], s[2]);
                 }
-                self.factor.solve_scalar(&mut coarse);
-                x.par_iter_mut().zip(&self.group).for_each(|(x, &g)| {
-                    let g = 3 * g as usize;
-                    *x += DVec3::new(coarse[g], coarse[g + 1], coarse[g + 2]).as_vec3a();
-                });
             },
         );
-        for (b, x) in b.iter_mut().zip(&x) {
-            *b = x.as_dvec3();
-        }
     }
 
     /// `A x`.
@@ -648,6 +599,56 @@ fn cycles<V>(
         for _ in 0..SWEEPS {
             sweep(x);
         }
+    }
+}
+
+/// The cycles of [`cycles`] in `f32` for the right-hand sides `b` (a
+/// translation per aggregate), replaced by the answer: `residual_at(i,
+/// rhs, x)` is row `i` of `rhs - A x`, `scale(i, r)` the weighted inverse
+/// diagonal's product, and `solve_groups` solves the groups' matrix for
+/// the residuals summed per group (in `f64`, aggregate `i` in `group[i]`
+/// of `groups`). The twin of the GPU's `cycle_*` and `block_cycle_*`
+/// kernels, which run in `f32` too.
+fn solve_single(
+    b: &mut [DVec3],
+    group: &[u32],
+    groups: usize,
+    residual_at: impl Fn(usize, &[Vec3A], &[Vec3A]) -> Vec3A + Sync,
+    scale: impl Fn(usize, Vec3A) -> Vec3A + Sync,
+    solve_groups: impl Fn(&mut [DVec3]),
+) {
+    let rhs: Vec<Vec3A> = b.par_iter().map(|b| b.as_vec3a()).collect();
+    // The first sweep from zero, whose residual is `b` itself.
+    let mut x: Vec<Vec3A> = (0..rhs.len())
+        .into_par_iter()
+        .map(|i| scale(i, rhs[i]))
+        .collect();
+    cycles(
+        &mut x,
+        |x| {
+            let swept = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| x[i] + scale(i, residual_at(i, &rhs, x)))
+                .collect();
+            *x = swept;
+        },
+        |x| {
+            let residual: Vec<Vec3A> = (0..rhs.len())
+                .into_par_iter()
+                .map(|i| residual_at(i, &rhs, x))
+                .collect();
+            let mut coarse = vec![DVec3::ZERO; groups];
+            for (&g, r) in group.iter().zip(&residual) {
+                coarse[g as usize] += r.as_dvec3();
+            }
+            solve_groups(&mut coarse);
+            x.par_iter_mut()
+                .zip(group)
+                .for_each(|(x, &g)| *x += coarse[g as usize].as_vec3a());
+        },
+    );
+    for (b, x) in b.iter_mut().zip(&x) {
+        *b = x.as_dvec3();
     }
 }
 
