@@ -6,7 +6,8 @@
 //! far from it), and without it with the step set from the stiffness at
 //! rest, too long for the particles compressed there. Run again from the
 //! end of the shear phase with half the step (`tracker::ELASTIC_RETRIES`),
-//! it converges and folds nothing.
+//! it converges and folds nothing. Half as deep, the corrected phase
+//! stalls instead, and goes on linearised again where it stalled.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
 use tissue::deform::{Indentation, deform_surface};
@@ -14,13 +15,19 @@ use tissue::deformation::{DeformParams, Deformer, ForceModel, StopReason, invers
 use tissue::{SamplingParams, phantom};
 
 fn poked_model() -> (tissue::ParticleModel, tissue::SurfaceMesh) {
+    poked_model_at(40.0)
+}
+
+/// The phantom at 2,000 particles and its surface poked `depth_mm` deep at
+/// its tip by a probe 15 mm wide.
+fn poked_model_at(depth_mm: f32) -> (tissue::ParticleModel, tissue::SurfaceMesh) {
     let model = tissue::sample(
         &phantom::default_breast(),
         &SamplingParams::with_particles(2_000),
     )
     .unwrap()
     .model;
-    let probe = Indentation::down_at_top(&model.surface, 40.0, 15.0).unwrap();
+    let probe = Indentation::down_at_top(&model.surface, depth_mm, 15.0).unwrap();
     let poked = deform_surface(&model.surface, &probe);
     (model, poked)
 }
@@ -60,4 +67,37 @@ fn a_deep_narrow_indentation_converges_with_the_elastic_force_after_a_retry() {
         folded.count > 0,
         "the symmetric force no longer folds this poke: {folded:?}"
     );
+}
+
+/// Half as deep (20 mm), the corrected elastic phase does not diverge but
+/// stalls: its steps stop falling once the particles under the probe are
+/// taken away from the state its correction was linearised at. The
+/// tracker goes on from where it stalled with the correction made there,
+/// and the solve converges to the tolerance in 60 iterations; run again
+/// from the end of the shear phase without its correction, as before,
+/// it took 150 to the float floor.
+#[test]
+fn a_stalled_elastic_phase_converges_linearised_again_where_it_stalled() {
+    let (model, poked) = poked_model_at(20.0);
+    let mut deformer = Deformer::new(
+        &model,
+        DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        }),
+    )
+    .unwrap();
+    deformer.set_surface(&poked).unwrap();
+    let report = deformer.solve();
+    let folded = inversions(&model.positions, deformer.positions(), &model.connections);
+    eprintln!(
+        "{} iterations, {:?}, {} retries; {folded:?}",
+        report.iterations, report.stopped_by, report.elastic_retries
+    );
+    assert_eq!(report.stopped_by, StopReason::Tolerance, "{report:?}");
+    assert_eq!(
+        report.elastic_retries, 1,
+        "the phase did not stall once: the test no longer tests the rule"
+    );
+    assert!(report.iterations < 100, "{report:?}");
+    assert_eq!(folded.count, 0, "{folded:?}");
 }

@@ -115,8 +115,11 @@ pub struct DeformReport {
     pub stopped_by: StopReason,
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
-    /// How many times the elastic phase diverged and ran again with half
-    /// the step (`tracker::ELASTIC_RETRIES` at most; 0 for the other forces).
+    /// How many times the elastic phase ran again: once linearised again
+    /// where it stalled, and after a divergence or a second stall from the
+    /// end of the shear phase without its correction or with half the
+    /// step (`tracker::ELASTIC_RETRIES` of those at most; 0 for the other
+    /// forces).
     #[serde(default)]
     pub elastic_retries: usize,
 }
