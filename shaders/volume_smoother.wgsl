@@ -8,8 +8,10 @@
 // theirs over sqrt(2)), the smoothed step for the residual r is
 // s = (r − H z) / delta, z from two Jacobi sweeps on
 // (delta I + H^T H) z = H^T r relaxed by theta, D_i its diagonal:
-// - `smoother_residual`, per particle: r_i = (F_i + b_i) / 2 inside the
-//   elastic aggregates (w = 1), 0 outside, into `elastic_step`;
+// - `smoother_residual`, per particle: r_i = d (F_i + b_i) / 2 inside the
+//   elastic aggregates (w = 1), 0 outside, into `elastic_step`, with the
+//   damping d (1, but where a failed smoothed phase is run again: the
+//   two-level step is linear in r, so this takes that fraction of it);
 // - `pressure_start`, per particle: t_i = h_i . r, z_i = theta t_i / D_i;
 // - `pressure_forces`, per particle: (H z)_k, 0 outside;
 // - `pressure_sweep`, per particle: z_i += theta (t_i − delta z_i − h_i . (H z)) / D_i;
@@ -17,7 +19,8 @@
 //   s_k = (r_k − (H z)_k) / delta, q̂_k = q_k + s_k, s_k into `elastic_step`
 //   and r_k into `elastic_residual`, where `coarse_elastic.wgsl`'s
 //   correction takes them (K e' = K s − r).
-// delta and theta come in `params` (volume_delta, volume_relaxation).
+// delta, theta and d come in `params` (volume_delta, volume_relaxation,
+// volume_damping).
 
 #import shared/layout
 
@@ -97,7 +100,7 @@ fn smoother_residual(
     if (arrayLength(&loads) == params.count) {
         f += loads[i].xyz;
     }
-    elastic_step[i] = vec4<f32>(0.5 * f, 1.0);
+    elastic_step[i] = vec4<f32>(0.5 * params.volume_damping * f, 1.0);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

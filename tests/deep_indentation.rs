@@ -1,13 +1,17 @@
 //! A deep, narrow indentation: the phantom's tip pushed 40 mm down (of its
 //! 55 mm height) by a probe 15 mm wide. The symmetric force folds the
 //! tissue under it (particles turned inside out, which `tissue deform`
-//! flags). The elastic phase diverges twice: with its two-level solve,
+//! flags). The elastic phase fails five times: with its two-level solve,
 //! linearised where the phase starts (the particles under the probe are
-//! far from it), and without it with the step set from the stiffness at
-//! rest, too long for the particles compressed there. Run again from the
-//! end of the shear phase with half the step (`tracker::ELASTIC_RETRIES`),
-//! it converges and folds nothing. Half as deep, the corrected phase
-//! stalls instead, and goes on linearised again where it stalled.
+//! far from it), it diverges; with half its step it stalls, again when
+//! linearised where it stalled, and with a quarter of its step; without
+//! it, with the step set from the stiffness at rest, it diverges, too
+//! long for the particles compressed there. Run again from the end of the
+//! shear phase with half the step (`tracker::ELASTIC_RETRIES`), it
+//! converges and folds nothing. Half as
+//! deep, the corrected phase stalls instead, and goes on linearised again
+//! where it stalled; 30 mm deep it diverges, and converges with half its
+//! step.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
 use tissue::deform::{Indentation, deform_surface};
@@ -97,6 +101,38 @@ fn a_stalled_elastic_phase_converges_linearised_again_where_it_stalled() {
     assert_eq!(
         report.elastic_retries, 1,
         "the phase did not stall once: the test no longer tests the rule"
+    );
+    assert!(report.iterations < 100, "{report:?}");
+    assert_eq!(folded.count, 0, "{folded:?}");
+}
+
+/// 30 mm deep, the corrected elastic phase diverges (its first steps too
+/// long for the linearisation they were made from) and is run again from
+/// the end of the shear phase with its correction and half its step
+/// (`tracker::ELASTIC_DAMPING`): it converges to the tolerance in 63
+/// iterations in all, nothing folded; without its correction, as before,
+/// it took 146 to the float floor.
+#[test]
+fn a_diverged_elastic_phase_converges_with_half_its_smoothed_step() {
+    let (model, poked) = poked_model_at(30.0);
+    let mut deformer = Deformer::new(
+        &model,
+        DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        }),
+    )
+    .unwrap();
+    deformer.set_surface(&poked).unwrap();
+    let report = deformer.solve();
+    let folded = inversions(&model.positions, deformer.positions(), &model.connections);
+    eprintln!(
+        "{} iterations, {:?}, {} retries; {folded:?}",
+        report.iterations, report.stopped_by, report.elastic_retries
+    );
+    assert_eq!(report.stopped_by, StopReason::Tolerance, "{report:?}");
+    assert_eq!(
+        report.elastic_retries, 1,
+        "the phase did not fail once: the test no longer tests the damping"
     );
     assert!(report.iterations < 100, "{report:?}");
     assert_eq!(folded.count, 0, "{folded:?}");

@@ -29,6 +29,9 @@ struct Params {
     volume_delta: f32,
     // The relaxation of its Jacobi sweeps on the pressures.
     volume_relaxation: f32,
+    // The fraction of the smoothed two-level step taken: the residual is
+    // scaled by it (1 but where a failed smoothed phase is run again).
+    volume_damping: f32,
 }
 
 // A particle's rotation as three columns (no bare vec3 in storage).

@@ -96,6 +96,7 @@ pub fn cpu(
         contraction: plan.contraction(params),
         correct: true,
         relinearise: true,
+        damping: 1.0,
     };
     let mut solve = deformer.device().clone();
     let Ok(()) = solve.begin((), it);

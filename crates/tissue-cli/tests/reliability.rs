@@ -881,7 +881,8 @@ fn unusable_models_are_not_written_and_a_deep_poke_converges_after_a_retry() {
     ]);
     assert!(out.status.success(), "{}", text(&out));
     let report = json(&out_dir.join("report.json"));
-    // Without the elastic two-level solve, then with half the step.
+    // With half its two-level step (the full one diverges), then
+    // linearised again where that stalled.
     assert_eq!(report["elastic_retries"], 2, "{report}");
     assert_eq!(report["inverted"]["count"], 0, "{report}");
 }

@@ -17,6 +17,7 @@ use tissue_solve::{
     SolveDevice, Tracker,
 };
 
+use crate::Params;
 use crate::state::SLOTS;
 use crate::support::Scopes;
 use crate::{DeformState, GpuError, Pipelines};
@@ -568,7 +569,11 @@ impl SolveDevice for GpuSolve {
         let state = &self.state;
         let batch = omegas.len().min(SLOTS as usize) as u32;
         for (slot, &omega) in (0..batch).zip(omegas) {
-            state.write_params(queue, slot, state.params(it.force, it.alpha, omega, slot));
+            let params = Params {
+                volume_damping: it.damping,
+                ..state.params(it.force, it.alpha, omega, slot)
+            };
+            state.write_params(queue, slot, params);
         }
         self.slots = batch;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {

@@ -144,6 +144,10 @@ pub struct Params {
     pub volume_delta: f32,
     /// The relaxation of its Jacobi sweeps.
     pub volume_relaxation: f32,
+    /// The fraction of the smoothed two-level step taken
+    /// (`tissue_solve::tracker::Iteration::damping`): the residual is
+    /// scaled by it.
+    pub volume_damping: f32,
 }
 
 /// Mirror of WGSL `Rotation` (`shaders/shared/layout.wgsl`): three columns,
@@ -318,6 +322,7 @@ mod tests {
                 ("mode_groups", offset_of!(Params, mode_groups)),
                 ("volume_delta", offset_of!(Params, volume_delta)),
                 ("volume_relaxation", offset_of!(Params, volume_relaxation)),
+                ("volume_damping", offset_of!(Params, volume_damping)),
             ],
         );
     }

@@ -664,6 +664,7 @@ impl DeformState {
             mode_groups: self.mode_groups,
             volume_delta: self.smoothed_delta(),
             volume_relaxation: RELAXATION as f32,
+            volume_damping: 1.0,
         }
     }
 

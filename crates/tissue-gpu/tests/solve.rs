@@ -289,10 +289,15 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
 
 /// A deep, narrow indentation (the tip pushed 40 mm down by a probe 15 mm
 /// wide) with the elastic force: on both devices the elastic phase
-/// diverges and runs again (the tracker's retry, written once): deflated,
-/// with half the step; two-level, first without the elastic correction,
-/// then with half the step. Both converge after the same iterations,
-/// within 1e-5 of the size of each other.
+/// diverges and runs again (the tracker's retries, written once):
+/// deflated, with half the step; two-level, with half its smoothed step
+/// (which stalls), linearised again where it stalled (which stalls too),
+/// with a quarter of it (which stalls), without the elastic correction
+/// (which diverges), then with half the step. Both converge after the
+/// same retries and
+/// iterations within one per phase run (each ends where a divergence or
+/// a stall is seen, on states that differ by rounding), within 1e-5 of
+/// the size of each other.
 #[test]
 fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     let Some((device, queue)) = common::gpu("elastic retry parity") else {
@@ -303,8 +308,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
         .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
     // Deflated (no elastic correction: one retry, half the step) and
-    // two-level (the elastic correction diverges too: two retries).
-    for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
+    // two-level (five retries).
+    for (coarse, retries) in [(0.0, 1), (2.0, 5)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
             p.rotations = RotationMethod::Svd;
@@ -325,7 +330,7 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
         assert_eq!(cpu_report.elastic_retries, gpu_report.elastic_retries);
         assert!(cpu_report.converged && gpu_report.converged);
         assert!(
-            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1 + retries,
             "coarse {coarse}: CPU {} iterations, GPU {}",
             cpu_report.iterations,
             gpu_report.iterations
@@ -335,51 +340,60 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     }
 }
 
-/// A probe 20 mm deep and 15 mm wide at the phantom's tip, the elastic
-/// force with the defaults: on both devices the corrected elastic phase
+/// Probes 15 mm wide at the phantom's tip, the elastic force with the
+/// defaults. 20 mm deep, on both devices the corrected elastic phase
 /// stalls (its steps stop falling, taken away from the state its
-/// correction was linearised at), goes on from there with the correction
-/// made again where it stalled (the tracker's rule, written once), and
-/// converges. The same iterations within one, the same positions within
-/// 1e-5 of the size.
+/// correction was linearised at) and goes on from there with the
+/// correction made again where it stalled; 30 mm deep, it diverges and is
+/// run again from the end of the shear phase with half its step
+/// (`ELASTIC_DAMPING`). The tracker's rules, written once: both converge
+/// to the tolerance after one retry, in the same iterations within one,
+/// the same positions within 1e-5 of the size.
 #[test]
-fn the_gpu_linearises_a_stalled_elastic_phase_again_as_the_cpu_does() {
-    let Some((device, queue)) = common::gpu("stalled elastic parity") else {
+fn the_gpu_runs_a_failed_smoothed_elastic_phase_again_as_the_cpu_does() {
+    let Some((device, queue)) = common::gpu("failed smoothed phase parity") else {
         return;
     };
     let model = common::phantom(2_000);
-    let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 20.0, 15.0)
-        .unwrap_or_else(|| panic!("the phantom has vertices"));
-    let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
-    let params = DeformParams::default().with(|p| {
-        p.force = ForceModel::Elastic;
-    });
-    let (cpu, cpu_report, gpu, gpu_report) =
-        common::solve_on_both(&device, &queue, model, params, &poked);
-    eprintln!(
-        "stalled: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
-        cpu_report.iterations,
-        cpu_report.elastic_retries,
-        cpu_report.stopped_by,
-        gpu_report.iterations,
-        gpu_report.elastic_retries,
-        gpu_report.stopped_by
-    );
-    // One retry, and it converged to the tolerance with its correction:
-    // without it the phase takes well over a hundred iterations to the
-    // float floor.
-    for report in [&cpu_report, &gpu_report] {
-        assert_eq!(report.elastic_retries, 1, "{report:?}");
-        assert_eq!(report.stopped_by, StopReason::Tolerance, "{report:?}");
-        assert!(report.iterations < 100, "{report:?}");
+    for depth in [20.0, 30.0] {
+        let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, depth, 15.0)
+            .unwrap_or_else(|| panic!("the phantom has vertices"));
+        let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
+        let params = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+        });
+        let (cpu, cpu_report, gpu, gpu_report) =
+            common::solve_on_both(&device, &queue, model, params, &poked);
+        eprintln!(
+            "poked {depth} mm: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
+            cpu_report.iterations,
+            cpu_report.elastic_retries,
+            cpu_report.stopped_by,
+            gpu_report.iterations,
+            gpu_report.elastic_retries,
+            gpu_report.stopped_by
+        );
+        // One retry, and it converged to the tolerance with its correction:
+        // without it the phase takes well over a hundred iterations to the
+        // float floor.
+        for report in [&cpu_report, &gpu_report] {
+            assert_eq!(report.elastic_retries, 1, "{depth} mm: {report:?}");
+            assert_eq!(
+                report.stopped_by,
+                StopReason::Tolerance,
+                "{depth} mm: {report:?}"
+            );
+            assert!(report.iterations < 100, "{depth} mm: {report:?}");
+        }
+        assert!(
+            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
+            "{depth} mm: CPU {} iterations, GPU {}",
+            cpu_report.iterations,
+            gpu_report.iterations
+        );
+        let context = format!("poked {depth} mm");
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
     }
-    assert!(
-        cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
-        "CPU {} iterations, GPU {}",
-        cpu_report.iterations,
-        gpu_report.iterations
-    );
-    common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "stalled");
 }
 
 /// The elastic force with the defaults: both devices run the two-level

@@ -465,7 +465,13 @@ impl CpuSolve {
         };
         laps.lap(Pass::Integrate);
         if let Some((c, aggregates)) = elastic_coarse.filter(|_| smoothes) {
-            let residual = elastic_residual(&force, &self.loads, &aggregates.aggregate);
+            let mut residual = elastic_residual(&force, &self.loads, &aggregates.aggregate);
+            // The two-level step is linear in the residual: a damped step
+            // is the step of the residual scaled.
+            if it.damping != 1.0 {
+                let damping = f64::from(it.damping);
+                residual.par_iter_mut().for_each(|r| *r *= damping);
+            }
             plain = match c.smoothed_step(aggregates, &self.connections, &residual) {
                 Some(step) => self
                     .current
