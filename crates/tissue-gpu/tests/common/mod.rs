@@ -149,6 +149,45 @@ pub fn solve_on_both(
     (cpu, cpu_report, gpu, gpu_report)
 }
 
+/// Tells both devices' reports of a solve the tracker may have run again
+/// (`elastic_retries`), then asserts that both converged after the same
+/// retries, in the same iterations within `within`, their positions
+/// within 1e-5 of the size of each other. `context` names the case.
+pub fn assert_same_retried_solve(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    (cpu, cpu_report, gpu, gpu_report): &(
+        tissue_cpu::deformation::Deformer,
+        tissue_cpu::deformation::DeformReport,
+        tissue_gpu::GpuDeformer,
+        tissue_cpu::deformation::DeformReport,
+    ),
+    within: usize,
+    context: &str,
+) {
+    eprintln!(
+        "{context}: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
+        cpu_report.iterations,
+        cpu_report.elastic_retries,
+        cpu_report.stopped_by,
+        gpu_report.iterations,
+        gpu_report.elastic_retries,
+        gpu_report.stopped_by
+    );
+    assert_eq!(
+        cpu_report.elastic_retries, gpu_report.elastic_retries,
+        "{context}"
+    );
+    assert!(cpu_report.converged && gpu_report.converged, "{context}");
+    assert!(
+        cpu_report.iterations.abs_diff(gpu_report.iterations) <= within,
+        "{context}: CPU {} iterations, GPU {}",
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+    assert_same_positions(device, queue, gpu, cpu, 1e-5, context);
+}
+
 /// Asserts that every position `gpu` holds lies within `fraction` of the
 /// model's size of `cpu`'s; returns the worst distance, as a fraction of
 /// the size. `context` names the case in a failure.
