@@ -27,7 +27,7 @@ use tissue_cpu::deformation::{DeformParams, ForceModel};
 
 use crate::machine::{Adapter, Machine};
 use crate::memory::{CpuModelBytes, IterationFloor};
-use crate::stage2::{Cases, Gpu, Repeats, Stage2};
+use crate::stage2::{Cases, Gpu, ProbeCase, Repeats, Stage2};
 
 /// Benchmark sampling and deformation on the CPU and the GPU.
 #[derive(Debug, Parser)]
@@ -73,7 +73,21 @@ struct Args {
     /// The elastic force's Poisson ratio (`DeformParams::poisson`).
     #[arg(long, default_value_t = DeformParams::default().poisson)]
     poisson: f32,
+    /// Also solve from rest under 16 probes pushed straight down at the
+    /// surface's highest vertex, 15, 20, 25 and 30 mm deep and 8, 15, 25 and
+    /// 35 mm wide (on the phantom, 55 mm high; scaled to a --mesh's
+    /// height): how many iterations and retries each took, how it ended,
+    /// and how many particles it left inverted. The deep, narrow ones are
+    /// where a solve is least robust.
+    #[arg(long)]
+    probes: bool,
 }
+
+/// The probes' depths and widths on the phantom (mm), scaled by the
+/// surface's height over its 55 mm.
+const PROBE_DEPTHS_MM: [f32; 4] = [15.0, 20.0, 25.0, 30.0];
+const PROBE_WIDTHS_MM: [f32; 4] = [8.0, 15.0, 25.0, 35.0];
+const PHANTOM_HEIGHT_MM: f32 = 55.0;
 
 /// A stage-2 force model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -185,8 +199,9 @@ fn main() -> ExitCode {
     }
 }
 
-/// The rest surface, its name, and the stage-2 targets on it.
-fn surfaces(mesh: Option<&PathBuf>) -> Result<(String, Cases)> {
+/// The rest surface, its name, and the stage-2 targets on it (with
+/// `probes`, the probe sweep's too).
+fn surfaces(mesh: Option<&PathBuf>, probes: bool) -> Result<(String, Cases)> {
     let (name, rest) = match mesh {
         None => (
             "bundled breast phantom".to_owned(),
@@ -228,12 +243,31 @@ fn surfaces(mesh: Option<&PathBuf>) -> Result<(String, Cases)> {
             deform_surface(&rest, &indentation),
         ));
     }
+    let probes = if probes {
+        let scale = (high.z - low.z) / PHANTOM_HEIGHT_MM;
+        let mut cases = Vec::new();
+        for depth_mm in PROBE_DEPTHS_MM.map(|d| d * scale) {
+            for width_mm in PROBE_WIDTHS_MM.map(|w| w * scale) {
+                let probe = Indentation::down_at_top(&rest, depth_mm, width_mm)
+                    .context("the surface has no vertices")?;
+                cases.push(ProbeCase {
+                    depth_mm,
+                    width_mm,
+                    surface: deform_surface(&rest, &probe),
+                });
+            }
+        }
+        cases
+    } else {
+        Vec::new()
+    };
     Ok((
         name,
         Cases {
             rest,
             targets,
             track: sagged,
+            probes,
         },
     ))
 }
@@ -327,7 +361,7 @@ fn run(args: &Args) -> Result<()> {
         p.coarse = args.coarse;
     });
     params.validate()?;
-    let (mesh, cases) = surfaces(args.mesh.as_ref())?;
+    let (mesh, cases) = surfaces(args.mesh.as_ref(), args.probes)?;
     let machine = Machine::detect();
     let (gpu_found, gpu) = if args.backends.contains(&BackendName::Gpu) {
         let (found, gpu) = open_gpu(!args.no_timestamps);

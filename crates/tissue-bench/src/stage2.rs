@@ -6,6 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use tissue::backend::{Device, Solver, SolverDevice};
+use tissue::deformation::inversions;
 use tissue_core::deform::interpolate;
 use tissue_core::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, PrepareStage, RotationMethod};
@@ -68,6 +69,40 @@ pub struct Cases {
     pub targets: Vec<(String, SurfaceMesh)>,
     /// The target the iteration timing and the tracking loop follow (the sag).
     pub track: SurfaceMesh,
+    /// Probes solved from rest one by one (`--probes`; empty without).
+    pub probes: Vec<ProbeCase>,
+}
+
+/// A probe pushed straight down at the surface's highest vertex.
+#[derive(Debug)]
+pub struct ProbeCase {
+    /// How deep, mm.
+    pub depth_mm: f32,
+    /// How wide (the Gaussian's radius), mm.
+    pub width_mm: f32,
+    /// The rest surface so poked.
+    pub surface: SurfaceMesh,
+}
+
+/// A solve from rest under one probe.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProbeSolve {
+    /// How deep, mm.
+    pub depth_mm: f32,
+    /// How wide, mm.
+    pub width_mm: f32,
+    /// Iterations, every retry's included.
+    pub iterations: usize,
+    /// Wall-clock seconds of the solve.
+    pub seconds: f64,
+    /// Whether the stopping rule held before the cap.
+    pub converged: bool,
+    /// Which rule ended it.
+    pub stopped_by: String,
+    /// How many times the elastic phase ran again (`DeformReport::elastic_retries`).
+    pub retries: usize,
+    /// Particles left turned inside out (`tissue::deformation::inversions`).
+    pub inverted: usize,
 }
 
 /// One iteration's wall time.
@@ -125,6 +160,8 @@ pub struct Stage2 {
     pub stages: Breakdown,
     /// Solves to convergence from rest.
     pub converge: Vec<Converge>,
+    /// Solves from rest under the probes (`--probes`).
+    pub probes: Vec<ProbeSolve>,
     /// The tracking loop.
     pub tracking: Tracking,
     /// The GPU buffers (GPU only).
@@ -248,6 +285,30 @@ pub fn measure(
         });
     }
 
+    let mut probes = Vec::new();
+    for probe in &cases.probes {
+        phase(&format!(
+            "solving a probe {:.0} mm deep and {:.0} mm wide from rest",
+            probe.depth_mm, probe.width_mm
+        ));
+        from_rest.reset()?;
+        from_rest.set_surface(&probe.surface)?;
+        let started = Instant::now();
+        let report = from_rest.solve()?;
+        let seconds = started.elapsed().as_secs_f64();
+        let judged = inversions(&model.positions, from_rest.positions(), &model.connections);
+        probes.push(ProbeSolve {
+            depth_mm: probe.depth_mm,
+            width_mm: probe.width_mm,
+            iterations: report.iterations,
+            seconds,
+            converged: report.converged,
+            stopped_by: format!("{:?}", report.stopped_by),
+            retries: report.elastic_retries,
+            inverted: judged.count,
+        });
+    }
+
     // Tracking: reach half the sag, then frames of 2 % of it each.
     phase("tracking frames");
     solver.reset()?;
@@ -287,6 +348,7 @@ pub fn measure(
         iteration,
         stages,
         converge,
+        probes,
         tracking: Tracking {
             description: format!(
                 "{} frames from 50 % of the sag in steps of 2 % of it",

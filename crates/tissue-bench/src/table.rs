@@ -87,10 +87,7 @@ pub fn markdown(report: &Report) -> String {
     let _ = writeln!(out, "{header}\n{rule}");
     for s in &report.sizes {
         for b in &s.backends {
-            let name = match b.backend {
-                BackendName::Cpu => "cpu",
-                BackendName::Gpu => "gpu",
-            };
+            let name = backend_name(b.backend);
             let (Some(stage2), Some(floor)) = (&b.stage2, &b.floor) else {
                 let _ = writeln!(
                     out,
@@ -143,6 +140,7 @@ pub fn markdown(report: &Report) -> String {
     }
 
     stage_table(&mut out, report);
+    probe_table(&mut out, report);
 
     let _ = writeln!(out, "\n## Memory\n");
     let _ = writeln!(
@@ -180,6 +178,63 @@ pub fn markdown(report: &Report) -> String {
 }
 
 /// One iteration pass by pass, per size and backend.
+/// The probe sweep (`--probes`): one row per probe, size and backend, and
+/// the sums per size and backend.
+fn probe_table(out: &mut String, report: &Report) {
+    let ran = report.sizes.iter().flat_map(|s| {
+        s.backends
+            .iter()
+            .filter_map(move |b| Some((s.particles, b.backend, b.stage2.as_ref()?)))
+    });
+    let ran: Vec<_> = ran
+        .filter(|(_, _, stage2)| !stage2.probes.is_empty())
+        .collect();
+    if ran.is_empty() {
+        return;
+    }
+    let _ = writeln!(out, "\n## Probes from rest\n");
+    let _ = writeln!(
+        out,
+        "| particles | backend | depth x width mm | iterations | retries | stopped by | seconds | inverted |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
+    for (particles, backend, stage2) in &ran {
+        for p in &stage2.probes {
+            let _ = writeln!(
+                out,
+                "| {particles} | {} | {:.0} x {:.0} | {} | {} | {}{} | {:.3} | {} |",
+                backend_name(*backend),
+                p.depth_mm,
+                p.width_mm,
+                p.iterations,
+                p.retries,
+                p.stopped_by,
+                if p.converged { "" } else { " (not converged)" },
+                p.seconds,
+                p.inverted
+            );
+        }
+    }
+    let _ = writeln!(out);
+    for (particles, backend, stage2) in &ran {
+        let probes = &stage2.probes;
+        let _ = writeln!(
+            out,
+            "{particles} particles, {}: {} probes, {} iterations and {:.2} s in all, {} to the tolerance, {} retried, {} with particles inverted",
+            backend_name(*backend),
+            probes.len(),
+            probes.iter().map(|p| p.iterations).sum::<usize>(),
+            probes.iter().map(|p| p.seconds).sum::<f64>(),
+            probes
+                .iter()
+                .filter(|p| p.stopped_by == "Tolerance")
+                .count(),
+            probes.iter().filter(|p| p.retries > 0).count(),
+            probes.iter().filter(|p| p.inverted > 0).count()
+        );
+    }
+}
+
 fn stage_table(out: &mut String, report: &Report) {
     let _ = writeln!(out, "\n## One iteration, pass by pass\n");
     let _ = writeln!(
@@ -191,10 +246,7 @@ fn stage_table(out: &mut String, report: &Report) {
     for s in &report.sizes {
         for b in &s.backends {
             let Some(stage2) = &b.stage2 else { continue };
-            let name = match b.backend {
-                BackendName::Cpu => "cpu",
-                BackendName::Gpu => "gpu",
-            };
+            let name = backend_name(b.backend);
             let stages = &stage2.stages;
             let sum = stages.sum_of_medians_ms.max(f64::MIN_POSITIVE);
             for t in &stages.stages {
@@ -228,5 +280,13 @@ fn stage_table(out: &mut String, report: &Report) {
     }
     for (method, note) in notes {
         let _ = writeln!(out, "\n{method}: {note}");
+    }
+}
+
+/// A backend's name in the tables.
+fn backend_name(backend: BackendName) -> &'static str {
+    match backend {
+        BackendName::Cpu => "cpu",
+        BackendName::Gpu => "gpu",
     }
 }
