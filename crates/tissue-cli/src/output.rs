@@ -603,8 +603,13 @@ pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
 impl SolveReport {
     /// The solve in a few lines for the terminal, indented by `indent`.
     pub fn summary(&self, indent: &str) -> Vec<String> {
+        let retried = match self.elastic_retries {
+            0 => String::new(),
+            1 => " (the elastic phase ran again once: `elastic_retries`)".to_owned(),
+            n => format!(" (the elastic phase ran again {n} times: `elastic_retries`)"),
+        };
         let mut lines = vec![format!(
-            "{indent}{} iterations in {:.3} s, {}; particles moved up to {:.2} mm",
+            "{indent}{} iterations in {:.3} s, {}{retried}; particles moved up to {:.2} mm",
             self.iterations,
             self.seconds,
             convergence(self.stopped_by, self.residual),

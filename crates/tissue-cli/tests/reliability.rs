@@ -882,8 +882,13 @@ fn unusable_models_are_not_written_and_a_deep_poke_converges_after_a_retry() {
     assert!(out.status.success(), "{}", text(&out));
     let report = json(&out_dir.join("report.json"));
     // With half its two-level step (the full one diverges), then
-    // linearised again where that stalled.
+    // linearised again where that stalled; the summary says so.
     assert_eq!(report["elastic_retries"], 2, "{report}");
+    assert!(
+        text(&out).contains("the elastic phase ran again 2 times"),
+        "{}",
+        text(&out)
+    );
     assert_eq!(report["inverted"]["count"], 0, "{report}");
 }
 
