@@ -76,8 +76,8 @@ pub const DAMPED_RETRIES: usize = 2;
 /// of the shear phase: first with its smoothed correction's step damped
 /// ([`DAMPED_RETRIES`] times) where it smoothed, then without the
 /// device's correction, where it ran with one, then each time with half
-/// the step before. The correction is
-/// linearised where the phase starts and the step is set from the
+/// the step before. The correction is linearised where the phase starts
+/// and the step is set from the
 /// stiffness at rest ([`crate::elastic::STIFFENING`] times it); a particle
 /// compressed far more than the rest of the model (a deep, narrow
 /// indentation) can be stiffer still, and far from that linearisation.
@@ -499,10 +499,12 @@ impl<D: SolveDevice> Tracker<D> {
     /// phantom indented at 300,000 particles the phase so made again
     /// converged in 20 iterations, 60 in all and 7.1 s, where without its
     /// correction it took 354 more, 394 in all and 23 s (docs/METHOD.md,
-    /// "Elastic model", *Preparation and 1M*). An elastic phase that diverges, or stalls
-    /// again, runs again from the end of the shear phase: without its
-    /// correction, then with half the step, up to [`ELASTIC_RETRIES`]
-    /// times.
+    /// "Elastic model", *Preparation and 1M*). An elastic phase that
+    /// diverges, or stalls again, runs again from the end of the shear
+    /// phase: where it smoothed, with half, then a quarter of its step
+    /// ([`ELASTIC_DAMPING`], [`DAMPED_RETRIES`]); then without its
+    /// correction; then with half the step, up to [`ELASTIC_RETRIES`]
+    /// times in all.
     fn shear_then_elastic(
         &mut self,
         cx: D::Context<'_>,
