@@ -17,10 +17,9 @@ use tissue_solve::{
     SolveDevice, Tracker,
 };
 
-use crate::Params;
 use crate::state::SLOTS;
 use crate::support::Scopes;
-use crate::{DeformState, GpuError, Pipelines};
+use crate::{DeformState, GpuError, Params, Pipelines};
 
 /// Stage 2 on the GPU for one particle model: the CPU path's tracker (the
 /// same step `alpha` from `lambda_max`, the same spectral Chebyshev `rho`,
