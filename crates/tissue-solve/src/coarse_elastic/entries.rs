@@ -5,6 +5,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
+use crate::coarse::OUTSIDE;
 use crate::elastic::{NO_MIRROR, VolumeLinearisation};
 
 /// `K`'s volume part per connection slot (`connections.indices`' order):
@@ -28,28 +29,21 @@ pub(crate) struct Entries {
 }
 
 impl Entries {
+    /// The entries of `linearisation` over `connections`, whose mirrored
+    /// slots are `mirrors`.
     pub(crate) fn new(
         rest: &[Vec3],
         connections: &Connections,
         mirrors: &[u32],
         linearisation: &VolumeLinearisation,
     ) -> Self {
-        let slots = |i: usize| slots(connections, i);
-        // Row by row into one vector (an indexed split: each thread
-        // writes its own rows where they belong).
-        let mut own = vec![Vec3::ZERO; connections.indices.len()];
-        let mut rows: Vec<&mut [Vec3]> = Vec::with_capacity(rest.len());
-        let mut left = own.as_mut_slice();
-        for i in 0..rest.len() {
-            let (row, tail) = left.split_at_mut(connections.of(i).len());
-            rows.push(row);
-            left = tail;
-        }
-        rows.into_par_iter().enumerate().for_each(|(i, row)| {
-            for (g, &j) in row.iter_mut().zip(connections.of(i)) {
-                *g = linearisation.entry(rest, i, j as usize).as_vec3();
-            }
-        });
+        let (own, _) = own_entries(rest, connections, linearisation, None);
+        Self::of_own(own, connections, mirrors)
+    }
+
+    /// The entries from `g_i`'s own ones ([`own_entries`]): the mirrored
+    /// slots and each particle's sum.
+    pub(crate) fn of_own(own: Vec<Vec3>, connections: &Connections, mirrors: &[u32]) -> Self {
         // Connections are symmetric (checked where a model is validated); a
         // missing mirror reads as no coupling.
         let mirrored: Vec<Vec3> = mirrors
@@ -62,9 +56,14 @@ impl Entries {
                 }
             })
             .collect();
-        let sums = (0..rest.len())
+        let sums = (0..connections.offsets.len().saturating_sub(1))
             .into_par_iter()
-            .map(|i| own[slots(i)].iter().map(|g| g.as_dvec3()).sum())
+            .map(|i| {
+                own[slots(connections, i)]
+                    .iter()
+                    .map(|g| g.as_dvec3())
+                    .sum()
+            })
             .collect();
         Self {
             own,
@@ -142,6 +141,104 @@ impl Entries {
             })
             .collect()
     }
+}
+
+/// Per particle `P^T g_i`: the aggregates its volume gradient reaches and
+/// the sum of its entries at each, in the order they were met (what the
+/// elastic coarse matrix's assembly reads). Particle `i`'s are
+/// `offsets[i]..offsets[i + 1]` of `items`.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Parts {
+    offsets: Vec<usize>,
+    items: Vec<(u32, DVec3)>,
+}
+
+impl Parts {
+    /// Particle `i`'s aggregates and sums.
+    pub(crate) fn of(&self, i: usize) -> &[(u32, DVec3)] {
+        &self.items[self.offsets[i]..self.offsets[i + 1]]
+    }
+}
+
+/// Particles one task of [`own_entries`] takes.
+const CHUNK: usize = 256;
+
+/// `g_i`'s entry at `j` in the slot of `j` in `i`'s row, in `f32`
+/// ([`Entries::own`]), and with `aggregate` (each particle's, or
+/// [`OUTSIDE`]) each particle's [`Parts`] from the same entries in `f64`,
+/// so that each is formed once (empty where it has no volume weight).
+/// Chunk by chunk of particles, each task writing its rows in place and
+/// its parts into a vector of its own.
+pub(crate) fn own_entries(
+    rest: &[Vec3],
+    connections: &Connections,
+    linearisation: &VolumeLinearisation,
+    aggregate: Option<&[u32]>,
+) -> (Vec<Vec3>, Parts) {
+    let n = rest.len();
+    let mut own = vec![Vec3::ZERO; connections.indices.len()];
+    let mut pieces: Vec<&mut [Vec3]> = Vec::with_capacity(n.div_ceil(CHUNK));
+    let mut left = own.as_mut_slice();
+    for first in (0..n).step_by(CHUNK) {
+        let last = n.min(first + CHUNK);
+        let length = (connections.offsets[last] - connections.offsets[first]) as usize;
+        let (piece, tail) = left.split_at_mut(length);
+        pieces.push(piece);
+        left = tail;
+    }
+    let weights = &linearisation.weights;
+    // Each chunk's parts, its offsets from its own start.
+    let chunks: Vec<Parts> = pieces
+        .into_par_iter()
+        .enumerate()
+        .map(|(chunk, piece)| {
+            let first = chunk * CHUNK;
+            let base = connections.offsets[first] as usize;
+            let Parts {
+                mut offsets,
+                mut items,
+            } = Parts::default();
+            for i in first..n.min(first + CHUNK) {
+                let start = items.len();
+                let parted = aggregate.filter(|_| weights[i] != 0.0);
+                for (slot, &j) in slots(connections, i).zip(connections.of(i)) {
+                    let g = linearisation.entry(rest, i, j as usize);
+                    piece[slot - base] = g.as_vec3();
+                    if let Some(aggregate) = parted {
+                        for (a, v) in [(aggregate[j as usize], g), (aggregate[i], -g)] {
+                            if a == OUTSIDE {
+                                continue;
+                            }
+                            match items[start..].iter_mut().find(|(b, _)| *b == a) {
+                                Some((_, w)) => *w += v,
+                                None => items.push((a, v)),
+                            }
+                        }
+                    }
+                }
+                if aggregate.is_some() {
+                    offsets.push(items.len());
+                }
+            }
+            Parts { offsets, items }
+        })
+        .collect();
+    let mut parts = Parts::default();
+    if aggregate.is_some() {
+        parts.offsets.reserve(n + 1);
+        parts.offsets.push(0);
+        parts
+            .items
+            .reserve(chunks.iter().map(|chunk| chunk.items.len()).sum());
+        for chunk in chunks {
+            let base = parts.items.len();
+            parts
+                .offsets
+                .extend(chunk.offsets.iter().map(|end| base + end));
+            parts.items.extend(chunk.items);
+        }
+    }
+    (own, parts)
 }
 
 /// The slots of particle `i`'s connections (where its entries are).

@@ -32,7 +32,9 @@ use crate::volume_smoother::VolumeSmoother;
 
 mod entries;
 mod setup;
+
 pub(crate) use entries::{Entries, slots};
+use entries::{Parts, own_entries};
 pub use setup::{
     SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
 };
@@ -165,6 +167,14 @@ impl ElasticCoarse {
     ) -> Result<Self, Error> {
         let started = Instant::now();
         let linearisation = linearise(rest, current, connections, elastic);
+        // `g_i`'s entries, formed once: rounded into the slots and summed
+        // over the aggregates.
+        let (own, parts) = own_entries(
+            rest,
+            connections,
+            &linearisation,
+            Some(&aggregates.aggregate),
+        );
         // The coarse matrix's factor (on one thread at 10,000 particles)
         // while the slots' entries and the smoother are made beside it.
         let (solve, (entries, smoother)) = rayon::join(
@@ -173,11 +183,11 @@ impl ElasticCoarse {
                 // diagonal alone; the cycles and a device's envelope both.
                 let factored = aggregates.count() <= made_for.direct_max_aggregates;
                 let upper = factored && !made_for.envelope;
-                let blocks = assemble(aggregates, rest, connections, &linearisation, upper);
+                let blocks = assemble(aggregates, &parts, &linearisation.weights, upper);
                 coarse_solve(aggregates, rest, &blocks, made_for, making)
             },
             || {
-                let entries = Entries::new(rest, connections, &elastic.mirrors, &linearisation);
+                let entries = Entries::of_own(own, connections, &elastic.mirrors);
                 let smoother = made_for.volume_delta.map(|delta| {
                     let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
                     VolumeSmoother::new(
@@ -637,47 +647,19 @@ fn linearise(
 
 /// The rows of `P^T K P` on three unknowns per aggregate (`3 a + axis`):
 /// the coarse Laplacian on each axis, and per particle with a volume
-/// weight `1/2 W_i (P^T g_i)(P^T g_i)^T`, each sorted by column; with
-/// `upper`, only the blocks on and above the diagonal (half the outer
+/// weight `1/2 W_i (P^T g_i)(P^T g_i)^T` (`parts`), each sorted by column;
+/// with `upper`, only the blocks on and above the diagonal (half the outer
 /// products: what a host factor reads).
 fn assemble(
     aggregates: &Aggregates,
-    rest: &[Vec3],
-    connections: &Connections,
-    linearisation: &VolumeLinearisation,
+    parts: &Parts,
+    weights: &[f64],
     upper: bool,
 ) -> Vec<Vec<(u32, DMat3)>> {
-    let weights = &linearisation.weights;
-    let aggregate = &aggregates.aggregate;
-    // Per particle, `P^T g_i` (its few aggregates and their 3-vectors).
-    let parts: Vec<Vec<(u32, DVec3)>> = (0..rest.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut parts: Vec<(u32, DVec3)> = Vec::new();
-            if weights[i] == 0.0 {
-                return parts;
-            }
-            let mut add = |a: u32, v: DVec3| {
-                if a == OUTSIDE {
-                    return;
-                }
-                match parts.iter_mut().find(|(b, _)| *b == a) {
-                    Some((_, w)) => *w += v,
-                    None => parts.push((a, v)),
-                }
-            };
-            for &j in connections.of(i) {
-                let g = linearisation.entry(rest, i, j as usize);
-                add(aggregate[j as usize], g);
-                add(aggregate[i], -g);
-            }
-            parts
-        })
-        .collect();
     // Per aggregate, the particles whose `g_i` reaches it, in order.
     let mut touching: Vec<Vec<u32>> = vec![Vec::new(); aggregates.count()];
-    for (i, parts) in parts.iter().enumerate() {
-        for &(a, _) in parts {
+    for i in 0..weights.len() {
+        for &(a, _) in parts.of(i) {
             touching[a as usize].push(i as u32);
         }
     }
@@ -706,7 +688,7 @@ fn assemble(
                     add(b, DMat3::from_diagonal(DVec3::splat(w)));
                 }
                 for &i in particles {
-                    let parts = &parts[i as usize];
+                    let parts = parts.of(i as usize);
                     let Some(&(_, u)) = parts.iter().find(|&&(b, _)| b as usize == a) else {
                         continue;
                     };
@@ -1022,8 +1004,15 @@ mod tests {
         let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
         let elastic = Elastic::new(&rest, &connections, 0.49, &free);
         let linearisation = linearise(&rest, &current, &connections, &elastic);
-        let full = assemble(&aggregates, &rest, &connections, &linearisation, false);
-        let upper = assemble(&aggregates, &rest, &connections, &linearisation, true);
+        let (_, parts) = own_entries(
+            &rest,
+            &connections,
+            &linearisation,
+            Some(&aggregates.aggregate),
+        );
+        let weights = &linearisation.weights;
+        let full = assemble(&aggregates, &parts, weights, false);
+        let upper = assemble(&aggregates, &parts, weights, true);
         assert!(aggregates.count() > 8);
         for (a, (full, upper)) in full.iter().zip(&upper).enumerate() {
             let above: Vec<(u32, DMat3)> = full
