@@ -5,7 +5,8 @@
 //! tracking frames.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
-use tissue::deform::interpolate;
+use glam::Vec3;
+use tissue::deform::{Rigid, deform_surface, interpolate};
 use tissue::{SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
 
@@ -171,4 +172,68 @@ fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
         "{:.2e} of the size apart",
         worst / size
     );
+}
+
+/// The shear phase that starts an elastic solve stops where its error is
+/// below a quarter of the volumes' misfit (`DeformParams::shear_volume_share`):
+/// the pair term's answer it converges to is farther than that from the
+/// elastic one. Sagged from rest (no prediction) the solve takes fewer
+/// iterations than with the shear phase run to its tolerance, to the same
+/// answer within the tolerance; turned 30 degrees, whose misfit falls with
+/// the shear phase's error, it pauses to measure and goes on exactly as
+/// without the measure (the same iterations and positions).
+#[test]
+fn the_shear_phase_stops_once_its_error_is_below_the_volumes_misfit() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(5_000),
+    )
+    .unwrap()
+    .model;
+    let (low, high) = model.surface.bounds().unwrap();
+    let turn = Rigid::about_axis(Vec3::X, 30f32.to_radians(), 0.5 * (low + high), Vec3::ZERO);
+    let turned = deform_surface(&model.surface, &turn);
+    for (case, surface) in [("sag", tissue::deform::sagged_breast()), ("turn", turned)] {
+        let solve = |share: f32| {
+            let params = DeformParams::default().with(|p| {
+                p.force = ForceModel::Elastic;
+                p.extrapolate = false;
+                p.shear_volume_share = share;
+            });
+            let mut deformer = Deformer::new(&model, params).unwrap();
+            deformer.set_surface(&surface).unwrap();
+            let report = deformer.solve();
+            assert!(report.converged, "{case}, share {share}: {report:?}");
+            (report, deformer.positions().to_vec(), deformer.size())
+        };
+        let (whole, to_tolerance, size) = solve(0.0);
+        let (stopped, on_misfit, _) = solve(DeformParams::default().shear_volume_share);
+        eprintln!(
+            "{case}: {} iterations with the shear phase to its tolerance, {} stopped on the misfit",
+            whole.iterations, stopped.iterations
+        );
+        if case == "sag" {
+            assert!(
+                stopped.iterations + 3 <= whole.iterations,
+                "{case}: {} against {}",
+                stopped.iterations,
+                whole.iterations
+            );
+            let apart = to_tolerance
+                .iter()
+                .zip(&on_misfit)
+                .map(|(a, b)| a.distance(*b))
+                .fold(0.0f32, f32::max);
+            let tolerance = DeformParams::default().tolerance;
+            assert!(
+                apart <= 2.0 * tolerance * size,
+                "{case}: {:.1e} of the size apart",
+                apart / size
+            );
+        } else {
+            assert_eq!(stopped.iterations, whole.iterations, "{case}");
+            assert_eq!(stopped.residual_history, whole.residual_history, "{case}");
+            assert_eq!(on_misfit, to_tolerance, "{case}");
+        }
+    }
 }

@@ -507,6 +507,12 @@ impl SolveDevice for GpuSolve {
             .map(ElasticCoarse::rho)
     }
 
+    fn volume_smoother(&self) -> bool {
+        self.elastic_host
+            .as_ref()
+            .is_some_and(|host| host.volume_smoother.is_some())
+    }
+
     fn elastic_smoothed(&self) -> bool {
         self.elastic_rho().is_some()
             && self

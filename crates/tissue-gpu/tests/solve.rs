@@ -290,12 +290,10 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
 /// A deep, narrow indentation (the tip pushed 40 mm down by a probe 15 mm
 /// wide) with the elastic force: on both devices the elastic phase
 /// diverges and runs again (the tracker's retries, written once):
-/// deflated, with half the step; two-level, with half its smoothed step
-/// (which stalls), linearised again where it stalled (which stalls too),
-/// with a quarter of it (which stalls), without the elastic correction
-/// (which diverges), then with half the step. Both converge after the
-/// same retries and
-/// iterations within one per phase run (each ends where a divergence or
+/// deflated, with half the step; two-level (whose shear phase stops on the
+/// volumes' misfit after 4 iterations), with half its smoothed step
+/// (which stalls), then linearised again where it stalled. Both converge
+/// after the same retries and iterations within one per phase run (each ends where a divergence or
 /// a stall is seen, on states that differ by rounding), within 1e-5 of
 /// the size of each other.
 #[test]
@@ -308,8 +306,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
         .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
     // Deflated (no elastic correction: one retry, half the step) and
-    // two-level (five retries).
-    for (coarse, retries) in [(0.0, 1), (2.0, 5)] {
+    // two-level (two retries).
+    for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
             p.rotations = RotationMethod::Svd;

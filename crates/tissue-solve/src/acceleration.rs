@@ -36,6 +36,16 @@ impl Chebyshev {
         }
     }
 
+    /// The sequence after its first `done` weights were taken: a phase
+    /// that went on after a pause.
+    #[must_use]
+    pub fn advanced(mut self, done: usize) -> Self {
+        for iteration in 1..=done {
+            self.omega(iteration);
+        }
+        self
+    }
+
     /// The weight of iteration `iteration` (counted from 1).
     pub fn omega(&mut self, iteration: usize) -> f32 {
         if !self.enabled || iteration <= self.warm_up {
@@ -218,5 +228,30 @@ pub fn error_bound(rho: f32, chebyshev: bool) -> f32 {
         CHEBYSHEV_ENVELOPE / (1.0 - accelerated_rate(rho))
     } else {
         1.0 / (1.0 - rho)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A phase that went on after a pause takes the weights it would have
+    /// taken without one.
+    #[test]
+    fn an_advanced_sequence_goes_on_with_the_same_weights() {
+        let params = DeformParams::default();
+        for done in [0, 1, 2, 7] {
+            let mut whole = Chebyshev::with_rho(&params, 0.9);
+            let before: Vec<f32> = (1..=done).map(|k| whole.omega(k)).collect();
+            assert_eq!(before.len(), done);
+            let mut advanced = Chebyshev::with_rho(&params, 0.9).advanced(done);
+            for k in done + 1..done + 5 {
+                assert_eq!(
+                    advanced.omega(k),
+                    whole.omega(k),
+                    "after {done}, weight {k}"
+                );
+            }
+        }
     }
 }

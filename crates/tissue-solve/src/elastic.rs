@@ -123,6 +123,32 @@ impl Elastic {
         self.consistency.scales[i] == 0.0
     }
 
+    /// How far the neighbourhoods' volumes at `current` are from one
+    /// uniform change: the RMS over the particles with a volume weight of
+    /// `J_i - mean(J)`, `J_i = det F_i`. The volume term drives it towards
+    /// zero (a nearly incompressible body spreads a volume change the
+    /// surface forces over the whole), the pair term does not, so what is
+    /// left of it where the shear phase has converged is what the elastic
+    /// phase has to move; a rigid turn or a uniform scaling leaves none.
+    /// Zero where no particle has a weight. In `f64` sums, in index order.
+    pub fn volume_misfit(&self, rest: &[Vec3], current: &[Vec3], connections: &Connections) -> f32 {
+        let volumes: Vec<f64> = (0..rest.len())
+            .into_par_iter()
+            .filter(|&i| self.weights[i] != 0.0 && !self.is_flat(i))
+            .map(|i| {
+                let (m, n) = self.products(rest, current, connections, i);
+                f64::from(self.gradient(i, m, n).determinant())
+            })
+            .collect();
+        if volumes.is_empty() {
+            return 0.0;
+        }
+        let count = volumes.len() as f64;
+        let mean = volumes.iter().sum::<f64>() / count;
+        let spread = volumes.iter().map(|j| (j - mean).powi(2)).sum::<f64>() / count;
+        spread.sqrt() as f32
+    }
+
     /// Particle `i`'s least-squares gradient `Fh_i = M_i A_i^-1` from its
     /// offsets product `M_i = sum_j e_ij d_ij^T`.
     pub fn least_squares_gradient(&self, i: usize, offsets_product: Mat3) -> Mat3 {
@@ -564,6 +590,41 @@ mod tests {
                 assert!(off < 1e-4, "particle {i}: F off by {off}");
             }
         }
+    }
+
+    /// The volumes' misfit is what a uniform change leaves: none for a
+    /// turn, a uniform scaling or any affine map (every `J_i` the same), and
+    /// the spread of `J` where one half of the block is squeezed.
+    #[test]
+    fn the_volume_misfit_is_the_spread_of_j_about_its_mean() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.49, &free);
+        let turn = Mat3::from_axis_angle(Vec3::new(1.0, 2.0, 2.0).normalize(), 0.7);
+        let (_, affine) = affine(&rest);
+        for (what, current) in [
+            ("turned", rest.iter().map(|&p| turn * p).collect::<Vec<_>>()),
+            ("scaled", rest.iter().map(|&p| 0.8 * p).collect()),
+            ("affine", affine),
+        ] {
+            let misfit = elastic.volume_misfit(&rest, &current, &connections);
+            assert!(misfit < 1e-4, "{what}: {misfit}");
+        }
+        // The lower half squeezed to 0.7 of its height: J 0.7 there, 1
+        // above, 0.85 about the middle; the spread about half the step.
+        let middle = rest.iter().map(|p| p.z).sum::<f32>() / rest.len() as f32;
+        let squeezed: Vec<Vec3> = rest
+            .iter()
+            .map(|&p| {
+                let z = if p.z < middle {
+                    middle - 0.7 * (middle - p.z)
+                } else {
+                    p.z
+                };
+                Vec3::new(p.x, p.y, z)
+            })
+            .collect();
+        let misfit = elastic.volume_misfit(&rest, &squeezed, &connections);
+        assert!((0.08..0.16).contains(&misfit), "squeezed: {misfit}");
     }
 
     /// The patch test, on the force itself: an affine map is an equilibrium

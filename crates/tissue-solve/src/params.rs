@@ -140,6 +140,14 @@ pub struct DeformParams {
     /// volume term's stiffness limits. Off: the plain step. What it saves:
     /// docs/METHOD.md, "The volume smoother".
     pub volume_smoother: bool,
+    /// With the volume smoother, the shear phase that starts an elastic
+    /// solve also stops where its error estimate (a fraction of the
+    /// model's size) is below this share of the volumes' misfit at its
+    /// state ([`crate::elastic::Elastic::volume_misfit`]): what is left of
+    /// it then is less than what the elastic phase moves anyway. 0: only
+    /// at its tolerance ([`crate::tracker::SHEAR_TOLERANCE`]). Why 0.25:
+    /// docs/METHOD.md, "Elastic model", *The shear phase's end*.
+    pub shear_volume_share: f32,
     /// Which vertices of the surface were observed (the deformed surface
     /// is known there), one flag per rest-surface vertex; `None`: every
     /// one. A surface particle is a control point only where every vertex
@@ -178,6 +186,7 @@ impl Default for DeformParams {
             elastic_coarse_max_aggregates: 200_000,
             elastic_coarse_direct_max_aggregates: 1_365,
             volume_smoother: true,
+            shear_volume_share: 0.25,
             observed: None,
             load: Vec3::ZERO,
         }
@@ -270,6 +279,12 @@ impl DeformParams {
             self.elastic_coarse_direct_max_aggregates,
             format!("1 to {MAX_ELASTIC_COARSE_DIRECT_AGGREGATES}"),
         )?;
+        ParamError::check(
+            (0.0..=MAX_SHEAR_VOLUME_SHARE).contains(&self.shear_volume_share),
+            "shear_volume_share",
+            self.shear_volume_share,
+            format!("0 (off) to {MAX_SHEAR_VOLUME_SHARE}"),
+        )?;
         ParamError::check(self.load.is_finite(), "load", self.load, "a finite vector")?;
         ParamError::check(
             (1..=10_000_000).contains(&self.max_iterations),
@@ -279,6 +294,12 @@ impl DeformParams {
         )
     }
 }
+
+/// The largest [`DeformParams::shear_volume_share`]: at 2 the shear phase
+/// of a 30-degree turn from rest stops before it has turned the interior
+/// (its estimate is 1.2-1.7 times the misfit there), and the elastic phase
+/// is slow to do that.
+pub const MAX_SHEAR_VOLUME_SHARE: f32 = 1.0;
 
 /// The most frames [`DeformParams::history`] may keep: each is a copy of
 /// the positions, and a fit with more columns than the surface's changes
@@ -336,6 +357,29 @@ mod tests {
             matches!(&typed, Err(ParamError { name: "history", value, .. }) if value == "17"),
             "{typed:?}"
         );
+    }
+
+    #[test]
+    fn the_shear_phase_stops_at_a_quarter_of_the_volumes_misfit_by_default_and_is_bounded() {
+        assert_eq!(DeformParams::default().shear_volume_share, 0.25);
+        for (share, says) in [
+            (-0.1, "shear_volume_share is -0.1"),
+            (1.5, "shear_volume_share is 1.5"),
+            (f32::NAN, "shear_volume_share is NaN"),
+        ] {
+            let err = refusal(&DeformParams {
+                shear_volume_share: share,
+                ..DeformParams::default()
+            });
+            assert!(err.contains(says), "{err}");
+        }
+        for share in [0.0, MAX_SHEAR_VOLUME_SHARE] {
+            let params = DeformParams {
+                shear_volume_share: share,
+                ..DeformParams::default()
+            };
+            assert!(params.validate().is_ok(), "{share}");
+        }
     }
 
     #[test]

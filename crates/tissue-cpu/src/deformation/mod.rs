@@ -591,6 +591,10 @@ impl SolveDevice for CpuSolve {
             .map(ElasticCoarse::rho)
     }
 
+    fn volume_smoother(&self) -> bool {
+        self.volume_smoother.is_some() && self.elastic_aggregates.is_some()
+    }
+
     fn elastic_smoothed(&self) -> bool {
         self.elastic_rho().is_some()
             && self
