@@ -886,6 +886,13 @@ mod tests {
         /// The phase in hand keeps its step.
         stalling: bool,
         resets: usize,
+        /// The Chebyshev weights of the iterations that stand, in order
+        /// (a replay drops those of its batch past it).
+        executed: Vec<f32>,
+        /// Where the last batch's weights start in `executed`.
+        batch_at: usize,
+        /// The contraction of its two-level solve, where it has one.
+        coarse: Option<f32>,
     }
 
     impl Halving {
@@ -906,6 +913,9 @@ mod tests {
                 stall_phases: 0,
                 stalling: false,
                 resets: 0,
+                executed: Vec::new(),
+                batch_at: 0,
+                coarse: None,
             }
         }
     }
@@ -950,6 +960,14 @@ mod tests {
             self.smoothed && self.elastic_rho().is_some()
         }
 
+        fn volume_smoother(&self) -> bool {
+            self.smoothed
+        }
+
+        fn coarse_rho(&self) -> Option<f32> {
+            self.coarse
+        }
+
         fn elastic_rho(&self) -> Option<f32> {
             let corrected = self.begun.last().is_some_and(|it| it.correct);
             self.elastic_correction.filter(|_| corrected)
@@ -960,6 +978,8 @@ mod tests {
             if let Some(phase) = self.omegas.last_mut() {
                 phase.extend_from_slice(omegas);
             }
+            self.batch_at = self.executed.len();
+            self.executed.extend_from_slice(omegas);
             let elastic = self.begun.last().map(|it| it.force) == Some(ForceModel::Elastic);
             if elastic && std::mem::take(&mut self.diverge_once) {
                 return Ok(vec![(f32::NAN, f32::NAN)]);
@@ -979,6 +999,7 @@ mod tests {
         fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
             self.step = self.batch_start * 0.5f32.powi(count as i32);
             self.replays.push(count);
+            self.executed.truncate(self.batch_at + count);
             Ok(())
         }
 
@@ -1021,6 +1042,52 @@ mod tests {
             // The device is left where the rule held, not at the batch's end.
             assert_eq!(device.step, single.step, "batch {batch}");
         }
+    }
+
+    /// The shear phase before a smoothed elastic phase pauses to measure
+    /// the volumes' misfit (none on the star: one particle has a volume
+    /// weight, so the misfit never stops it) and goes on as if it had
+    /// not: the same iterations, estimates and Chebyshev weights, on a
+    /// device that runs batches (replayed to the pause) as on one that
+    /// runs one iteration at a time, and as without the measure.
+    #[test]
+    fn a_shear_phase_paused_to_measure_the_volumes_goes_on_as_before() {
+        let model = star();
+        let run = |batch: usize, share: f32| {
+            let params = DeformParams {
+                force: ForceModel::Elastic,
+                shear_volume_share: share,
+                ..DeformParams::default()
+            };
+            let mut tracker = Tracker::new(&model, params, |_, _| {
+                let mut device = Halving::new(batch, &model);
+                device.elastic_correction = Some(0.9);
+                device.smoothed = true;
+                // Chebyshev's weights in the shear phase change every
+                // iteration.
+                device.coarse = Some(0.75);
+                Ok::<_, Error>(device)
+            })
+            .unwrap();
+            let Ok(report) = tracker.solve(());
+            assert!(report.converged, "{report:?}");
+            (report, tracker.device)
+        };
+        let (reference, unmeasured) = run(1, 0.0);
+        for batch in [1, 8] {
+            let (report, device) = run(batch, 0.25);
+            assert_eq!(report.iterations, reference.iterations, "batch {batch}");
+            assert_eq!(
+                report.residual_history, reference.residual_history,
+                "batch {batch}"
+            );
+            assert_eq!(device.executed, unmeasured.executed, "batch {batch}");
+        }
+        // With batches of 8 the pause fell inside one, which was replayed
+        // to it.
+        let (_, paused) = run(8, 0.25);
+        let (_, unpaused) = run(8, 0.0);
+        assert_eq!(paused.replays.len(), unpaused.replays.len() + 1);
     }
 
     #[test]
