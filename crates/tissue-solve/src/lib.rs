@@ -29,6 +29,7 @@ pub mod coarse;
 pub mod coarse_elastic;
 pub mod consistent;
 pub mod controls;
+pub mod device;
 pub mod elastic;
 pub mod gravity;
 pub mod grid;

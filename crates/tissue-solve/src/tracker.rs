@@ -5,47 +5,20 @@
 
 use std::time::Instant;
 
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 use tissue_core::{Connections, Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::acceleration::{Chebyshev, StoppingRule};
 use crate::batches::{Batches, run_batched};
 use crate::coarse::SharedLaplacian;
 use crate::controls::check_same_topology;
-use crate::modes::LowModes;
-use crate::params::{DeformParams, ForceModel, RotationMethod};
+use crate::params::{DeformParams, ForceModel};
 use crate::plan::Plan;
 use crate::predict::{FrameHistory, predict};
 use crate::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 use crate::svd3::rotation_of;
 
-/// What every iteration of one solve runs with, from the plan and the
-/// parameters at its start.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Iteration {
-    /// The force model.
-    pub force: ForceModel,
-    /// How the rotations are found.
-    pub rotations: RotationMethod,
-    /// The step `alpha = sigma / m` ([`Plan::alpha`]).
-    pub alpha: f32,
-    /// `c alpha`, what turns an error into the plain step ([`Plan::contraction`]).
-    pub contraction: f32,
-    /// Whether the device applies its correction: with the symmetric and
-    /// the paper's force the Laplacian's (the coarse space or the deflated
-    /// modes), with the elastic force the elastic operator's, where the
-    /// device has one (the Laplacian's is never applied to it).
-    pub correct: bool,
-    /// An elastic phase that starts from a state of its own (after the
-    /// shear phase), not from the last elastic solve: a device whose
-    /// elastic correction is linearised at a state makes it again here.
-    pub relinearise: bool,
-    /// The fraction of the volume smoother's two-level step a smoothed
-    /// elastic iteration takes (the device scales its residual by it): 1,
-    /// but [`ELASTIC_DAMPING`] where a smoothed phase that failed is run
-    /// again. The other iterations ignore it.
-    pub damping: f32,
-}
+pub use crate::device::{Iteration, SolveDevice};
 
 /// The shear phase of an elastic solve stops at this many times the
 /// solve's tolerance: it only has to bring every neighbourhood near its
@@ -93,95 +66,6 @@ pub const DAMPED_RETRIES: usize = 2;
 /// uncorrected full step after 22, half the step converges (docs/METHOD.md,
 /// "Elastic model").
 pub const ELASTIC_RETRIES: usize = 5;
-
-/// What a device does for a stage-2 solve: kernels and buffers, nothing
-/// else. The iteration is the same on every device: rotations, force, the
-/// plain step, the correction (deflation or the coarse space, if any), the
-/// Chebyshev combine; its state is `current` and `previous` positions and
-/// the rotations.
-pub trait SolveDevice {
-    /// The device's error (`std::convert::Infallible` where nothing can fail).
-    type Error;
-    /// What every call needs besides the device's own state (the GPU's
-    /// `wgpu::Device` and `Queue`; nothing on the CPU).
-    type Context<'a>: Copy;
-
-    /// The most iterations one [`SolveDevice::run`] may be asked for.
-    fn batch(&self) -> usize;
-
-    /// The lowest Laplacian modes the device deflates every iteration, if any.
-    fn modes(&self) -> Option<&LowModes> {
-        None
-    }
-
-    /// The two-level iteration's contraction, where the device runs one.
-    fn coarse_rho(&self) -> Option<f32> {
-        None
-    }
-
-    /// The contraction of the elastic phase's iteration where the device
-    /// corrects it (asked after [`SolveDevice::begin`] of an elastic phase);
-    /// `None` runs it on the plan's rate for the elastic operator.
-    fn elastic_rho(&self) -> Option<f32> {
-        None
-    }
-
-    /// Whether the device's corrected elastic phases smooth with the
-    /// volume smoother (known from its preparation): the shear phase
-    /// before one then also stops on the volumes' misfit
-    /// ([`DeformParams::shear_volume_share`]). The plain elastic step is
-    /// set from the stiffness at rest and needs the shear phase's whole
-    /// way: every neighbourhood near its rest volume (on the phantom poked
-    /// 40 mm deep at 2,000 particles, deflated, the uncorrected phase
-    /// diverged once more after a shear phase stopped at half the misfit).
-    fn volume_smoother(&self) -> bool {
-        false
-    }
-
-    /// Whether the elastic phase (asked after [`SolveDevice::begin`] of
-    /// one) runs the volume smoother, whose contraction
-    /// ([`SolveDevice::elastic_rho`]) is measured closely enough for the
-    /// accelerated stopping rule ([`StoppingRule::accelerated`]).
-    fn elastic_smoothed(&self) -> bool {
-        false
-    }
-
-    /// Sets every particle's position at a frame boundary (the prediction
-    /// and the control points). `turn`, when the positions were carried by
-    /// the surface's linear move, is that move's rotation: warm-started
-    /// rotations turn with it.
-    fn write_positions(
-        &mut self,
-        cx: Self::Context<'_>,
-        positions: &[Vec3],
-        turn: Option<Mat3>,
-    ) -> Result<(), Self::Error>;
-
-    /// Starts a solve from the current positions (`previous = current`)
-    /// whose iterations run with `iteration`.
-    fn begin(&mut self, cx: Self::Context<'_>, iteration: Iteration) -> Result<(), Self::Error>;
-
-    /// Runs one iteration per Chebyshev weight in `omegas` (at most
-    /// [`SolveDevice::batch`]) and returns, per iteration, the largest and
-    /// the RMS step the stopping rule measures. Keeps what
-    /// [`SolveDevice::replay`] needs.
-    fn run(
-        &mut self,
-        cx: Self::Context<'_>,
-        omegas: &[f32],
-    ) -> Result<Vec<(f32, f32)>, Self::Error>;
-
-    /// Puts the state back where the last [`SolveDevice::run`] started and
-    /// runs its first `count` iterations again, with the same weights: the
-    /// stopping rule held inside the batch.
-    fn replay(&mut self, cx: Self::Context<'_>, count: usize) -> Result<(), Self::Error>;
-
-    /// The current positions.
-    fn read_positions(&mut self, cx: Self::Context<'_>) -> Result<Vec<Vec3>, Self::Error>;
-
-    /// Back to the rest shape, rotations included.
-    fn reset(&mut self, cx: Self::Context<'_>) -> Result<(), Self::Error>;
-}
 
 /// Stage 2 for one particle model on one device: the control points follow
 /// each deformed surface, the free particles start where [`predict`] puts
@@ -823,6 +707,7 @@ mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
     use std::convert::Infallible;
 
+    use glam::Mat3;
     use tissue_core::{Attachment, Connections};
 
     use super::*;
