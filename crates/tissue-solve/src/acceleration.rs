@@ -242,8 +242,9 @@ mod tests {
         let params = DeformParams::default();
         for done in [0, 1, 2, 7] {
             let mut whole = Chebyshev::with_rho(&params, 0.9);
-            let before: Vec<f32> = (1..=done).map(|k| whole.omega(k)).collect();
-            assert_eq!(before.len(), done);
+            for k in 1..=done {
+                whole.omega(k);
+            }
             let mut advanced = Chebyshev::with_rho(&params, 0.9).advanced(done);
             for k in done + 1..done + 5 {
                 assert_eq!(
