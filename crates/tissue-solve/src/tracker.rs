@@ -544,14 +544,11 @@ impl<D: SolveDevice> Tracker<D> {
                 .plan
                 .solve_rho(p, self.device.modes(), self.device.coarse_rho()),
         };
-        let (chebyshev, mut rule) = (
-            Chebyshev::with_rho(p, rho),
-            if smoothed {
-                StoppingRule::accelerated(&self.plan, p, rho)
-            } else {
-                StoppingRule::with_rho(&self.plan, p, rho)
-            },
-        );
+        let mut rule = if smoothed {
+            StoppingRule::accelerated(&self.plan, p, rho)
+        } else {
+            StoppingRule::with_rho(&self.plan, p, rho)
+        };
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
         // Where the shear phase next measures the volumes' misfit.
@@ -559,14 +556,12 @@ impl<D: SolveDevice> Tracker<D> {
         let mut check = (run.volume_check && share > 0.0 && self.connections.is_some())
             .then_some(p.tolerance * SHEAR_CHECK);
         let mut iterations = 0;
-        let mut chebyshev = Some(chebyshev);
         loop {
+            // After a pause, Chebyshev goes on where it was.
             let mut batches = SolveBatches {
                 device: &mut self.device,
                 cx,
-                chebyshev: chebyshev
-                    .take()
-                    .unwrap_or_else(|| Chebyshev::with_rho(p, rho).advanced(iterations)),
+                chebyshev: Chebyshev::with_rho(p, rho).advanced(iterations),
                 done: iterations,
             };
             let mut paused = false;
