@@ -73,6 +73,20 @@ pub const MIN_FIT_PARTICLES: usize = 500;
 /// The fit's bounds, kPa.
 pub const FIT_BOUNDS_KPA: (f32, f32) = (0.1, 100.0);
 
+/// The longest gravity a posture may have, in g: a posture's gravity is
+/// 1 g, and anything longer than this is a unit mistake (m/s^2) rather
+/// than a load.
+pub const MAX_GRAVITY_G: f32 = 2.0;
+
+/// The densities a posture may have, kg/m^3: fat is about 900, muscle and
+/// gland about 1050, cortical bone about 1900. Outside it the density is
+/// almost surely in other units (1 for g/cm^3).
+pub const DENSITY_KG_M3: std::ops::RangeInclusive<f32> = 100.0..=5000.0;
+
+/// The sizes an organ may have, in metres across at its widest, with the
+/// posture options: outside it the model's unit is almost surely wrong.
+pub const ORGAN_SIZE_M: std::ops::RangeInclusive<f32> = 0.005..=1.0;
+
 /// The unloaded shape, loaded again, must give the rest surface within
 /// this (RMS over the surface particles), in metres: 0.1 mm, what issue 16
 /// asks.
@@ -115,6 +129,37 @@ impl Gravity {
         }
     }
 
+    /// Refuses a model whose size, in metres by
+    /// [`Gravity::metres_per_unit`], is no organ's: from 5 mm to 1 m
+    /// ([`ORGAN_SIZE_M`]) across at its widest. Outside that the unit is
+    /// almost surely wrong (`--unit cm` on a model in millimetres makes a
+    /// breast 1.5 m across), and gravity's load would be wrong by the same
+    /// factor.
+    ///
+    /// # Errors
+    ///
+    /// [`ParamError`] on `unit`, naming the size in metres.
+    pub fn check_size(&self, surface: &SurfaceMesh) -> Result<(), ParamError> {
+        let across = surface
+            .bounds()
+            .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
+        let metres = across * self.metres_per_unit;
+        ParamError::check(
+            ORGAN_SIZE_M.contains(&metres),
+            "unit",
+            format!(
+                "{} m per unit, making the model {metres:.3} m across",
+                self.metres_per_unit
+            ),
+            format!(
+                "the model's length unit, giving an organ {} to {} m across (a model in \
+                 millimetres needs --unit mm, the default)",
+                ORGAN_SIZE_M.start(),
+                ORGAN_SIZE_M.end()
+            ),
+        )
+    }
+
     /// Whether gravity changes between the postures (by [`NO_CHANGE`] or more).
     pub fn changes(&self) -> bool {
         (self.deformed - self.rest).length() >= NO_CHANGE
@@ -131,13 +176,36 @@ impl Gravity {
             ("gravity_rest", self.rest),
             ("gravity_deformed", self.deformed),
         ] {
+            let length = g.length();
+            // 9.81 is gravity in m/s^2; 981 in cm/s^2.
+            let likely = if (8.0..12.0).contains(&length) {
+                format!(" ({length:.2} long: m/s^2? give 0,0,-1 for 1 g along -z)")
+            } else if (800.0..1200.0).contains(&length) {
+                format!(" ({length:.0} long: cm/s^2? give 0,0,-1 for 1 g along -z)")
+            } else {
+                String::new()
+            };
             ParamError::check(
-                g.is_finite() && g.length() <= 10.0,
+                g.is_finite() && length <= MAX_GRAVITY_G,
                 name,
                 g,
-                "a finite vector in units of g, at most 10 g long (0,0,-1: along -z)",
+                format!(
+                    "a finite vector in units of g, at most {MAX_GRAVITY_G} g long: a \
+                     posture's gravity is 1 g (0,0,-1: along -z){likely}"
+                ),
             )?;
         }
+        ParamError::check(
+            DENSITY_KG_M3.contains(&self.density_kg_m3),
+            "density_kg_m3",
+            self.density_kg_m3,
+            format!(
+                "a density in kg/m^3 from {} to {} (soft tissue: about 1000; 1 g/cm^3 is \
+                 1000 kg/m^3)",
+                DENSITY_KG_M3.start(),
+                DENSITY_KG_M3.end()
+            ),
+        )?;
         if let Some(e) = self.stiffness_kpa {
             ParamError::check(
                 e.is_finite() && e > 0.0,
@@ -238,6 +306,7 @@ pub fn unload(
     progress: &mut dyn FnMut(&SolveProgress),
 ) -> Result<Unloaded, Error> {
     gravity.validate()?;
+    gravity.check_size(&model.surface)?;
     ParamError::check(
         params.force == ForceModel::Elastic,
         "force",
@@ -595,6 +664,66 @@ mod tests {
         };
         let said = few.validate().unwrap_err().to_string();
         assert!(said.contains("fit_particles"), "{said}");
+    }
+
+    /// Gravity in m/s^2 or 10 g, a density in g/cm^3 and a model in the
+    /// wrong unit are refused up front, each naming the likely mistake.
+    #[test]
+    fn units_that_are_surely_wrong_are_refused_naming_the_likely_cause() {
+        let g = Gravity::millimetres(Vec3::NEG_Z, Vec3::NEG_Y, None);
+        for (bad, expected) in [
+            (
+                Gravity {
+                    deformed: Vec3::new(0.0, 0.0, -9.81),
+                    ..g
+                },
+                "m/s^2?",
+            ),
+            (
+                Gravity {
+                    rest: Vec3::new(0.0, -981.0, 0.0),
+                    ..g
+                },
+                "cm/s^2?",
+            ),
+            (
+                Gravity {
+                    rest: Vec3::new(0.0, 0.0, -10.0),
+                    ..g
+                },
+                "at most 2 g long",
+            ),
+            (
+                Gravity {
+                    density_kg_m3: 1.0,
+                    ..g
+                },
+                "1 g/cm^3 is 1000 kg/m^3",
+            ),
+        ] {
+            let said = bad.validate().unwrap_err().to_string();
+            assert!(said.contains(expected), "{said}");
+        }
+        assert!(
+            Gravity {
+                rest: Vec3::new(0.0, 0.0, -2.0),
+                density_kg_m3: 900.0,
+                ..g
+            }
+            .validate()
+            .is_ok()
+        );
+        let breast = tissue_core::phantom::breast(&tissue_core::phantom::BreastPhantom::default());
+        assert!(g.check_size(&breast).is_ok());
+        let in_cm = Gravity {
+            metres_per_unit: 1e-2,
+            ..g
+        };
+        let said = in_cm.check_size(&breast).unwrap_err().to_string();
+        assert!(
+            said.contains("unit") && said.contains("--unit mm"),
+            "{said}"
+        );
     }
 
     /// Points follow the carrying particles' displacement: a translation

@@ -22,7 +22,8 @@ use std::path::Path;
 
 pub use tissue_core::io::model::{export_model, load_model, load_points, save_model, save_points};
 pub use tissue_core::io::surface::{
-    load_closed_surface, load_surface, load_surface_as_written, save_surface, weld,
+    coordinate_tag, load_closed_surface, load_surface, load_surface_as_written, save_surface,
+    save_surface_in, weld,
 };
 pub use tissue_core::validate::{Validation, validate};
 pub use tissue_core::*;

@@ -108,10 +108,18 @@ impl Outside {
     }
 }
 
+/// Points farther than this many of the rest surface's bounding-box
+/// diagonals from its centre are refused: no particle can carry them (their
+/// extrapolation overflows single precision long before 1e20), and they
+/// are a unit or typing mistake rather than a place in the patient.
+pub const FARTHEST_DIAGONALS: f32 = 1000.0;
+
 /// The rest surface and the tolerance of [`Outside`], for a model.
 pub struct OutsideCheck {
     rest: SurfaceMesh,
     tolerance: f32,
+    centre: Vec3,
+    diagonal: f32,
 }
 
 impl OutsideCheck {
@@ -122,13 +130,29 @@ impl OutsideCheck {
             .map_or(1.0, |(lo, hi)| (hi - lo).length())
             .max(f32::MIN_POSITIVE);
         let tolerance = OUTSIDE_SPACINGS * spacing.max(1e-6 * diagonal);
+        let centre = rest.bounds().map_or(Vec3::ZERO, |(lo, hi)| 0.5 * (lo + hi));
         Self {
             rest: rest.clone(),
             tolerance,
+            centre,
+            diagonal,
         }
     }
 
     fn check(&self, what: &str, points: &[Vec3]) -> Result<Outside> {
+        let farthest = FARTHEST_DIAGONALS * self.diagonal;
+        if let Some((k, p)) = points.iter().enumerate().find(|(_, p)| {
+            let distance = p.distance(self.centre);
+            distance.is_nan() || distance > farthest
+        }) {
+            bail!(
+                "{what}: point {} is at {p}, more than {FARTHEST_DIAGONALS} times the organ's \
+                 size ({:.3}) from it: no particle can carry it; is it in another unit, or \
+                 mistyped?",
+                k + 1,
+                self.diagonal
+            );
+        }
         let distances = distances_outside(&self.rest, points)
             .map_err(|e| anyhow::anyhow!("the model's rest surface: {e}"))?;
         let outside = Outside::of(&distances, self.tolerance);
@@ -270,11 +294,14 @@ impl Carried {
             None => None,
         };
         let mut named = Vec::new();
+        let spacing = model.mean_connection_length();
         for path in &args.structures {
-            named.push((Kind::Deformable, path.display().to_string(), load(path)?));
+            let mesh = load(path, args.space, spacing)?;
+            named.push((Kind::Deformable, path.display().to_string(), mesh));
         }
         for path in &args.rigid_structures {
-            named.push((Kind::Rigid, path.display().to_string(), load(path)?));
+            let mesh = load(path, args.space, spacing)?;
+            named.push((Kind::Rigid, path.display().to_string(), mesh));
         }
         let structures = named
             .into_iter()
@@ -452,8 +479,32 @@ impl StructureReport {
     }
 }
 
-/// Reads a structure's surface and refuses non-finite coordinates.
-fn load(path: &Path) -> Result<SurfaceMesh> {
+/// A structure smaller than this fraction of the model's mean connection
+/// length is refused: it is in another unit (metres in a model in
+/// millimetres), not a structure the particles can carry.
+pub const SMALLEST_STRUCTURE: f32 = 0.01;
+
+/// Refuses a surface file whose 3D Slicer coordinate tag (`SPACE=RAS` or
+/// `SPACE=LPS`, [`tissue::coordinate_tag`]) names another system than the
+/// run's `--space`: read as it is, it would be mirrored in x and y.
+pub fn check_space_tag(path: &Path, space: Space) -> Result<()> {
+    match tissue::coordinate_tag(path) {
+        Some(tagged) if tagged != space => bail!(
+            "{}: the file says its coordinates are {tagged} (its SPACE={tagged} tag, as 3D \
+             Slicer writes it), but the run's coordinates are {space}: give --space {}, or \
+             save the file in {space}",
+            path.display(),
+            tagged.name().to_ascii_lowercase()
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// Reads a structure's surface and refuses non-finite coordinates, a
+/// coordinate tag other than `space`, and a structure far smaller than the
+/// particles' `spacing` (another unit).
+fn load(path: &Path, space: Space, spacing: f32) -> Result<SurfaceMesh> {
+    check_space_tag(path, space)?;
     let mesh = tissue::load_surface(path)?;
     if let Some((v, p)) = mesh
         .vertices
@@ -463,6 +514,17 @@ fn load(path: &Path) -> Result<SurfaceMesh> {
     {
         bail!(
             "{}: vertex {v} is not finite: {p} (a structure must have finite coordinates)",
+            path.display()
+        );
+    }
+    let across = mesh
+        .bounds()
+        .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
+    if across < SMALLEST_STRUCTURE * spacing {
+        bail!(
+            "{}: the structure is {across:.3e} across, less than a hundredth of the model's \
+             particle spacing ({spacing:.3}): is it in another unit than the model (metres in a \
+             model in millimetres)?",
             path.display()
         );
     }

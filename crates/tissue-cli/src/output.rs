@@ -273,6 +273,7 @@ pub fn remove_earlier_outputs(
     planned: &[PathBuf],
     inputs: &[(&str, &Path)],
 ) -> Result<()> {
+    remove_staged(to.dir)?;
     let reports = [
         to.report.map(Path::to_path_buf),
         Some(to.dir.join(REPORT_FILE)),
@@ -307,13 +308,19 @@ pub fn remove_earlier_outputs(
     Ok(())
 }
 
-/// Makes sure, before any work, that each of `outputs` can be written: its
-/// folder is created if missing, and a file can be made there (a probe,
-/// removed at once). A path under a regular file, a read-only folder or a
-/// full disk then fails here, naming the output, instead of after a
-/// sampling or a solve.
+/// Makes sure, before any work, that each of `outputs` can be written: it
+/// is not a folder, its folder is created if missing, and a file can be
+/// made there (a probe, removed at once). A path under a regular file, a
+/// folder's name, a read-only folder or a full disk then fails here,
+/// naming the output, instead of after a sampling or a solve.
 pub fn prepare_outputs(outputs: &[PathBuf]) -> Result<()> {
     for output in outputs {
+        if output.is_dir() {
+            bail!(
+                "cannot write {}: it is a folder; name a file in it instead",
+                output.display()
+            );
+        }
         let folder = match output.parent() {
             Some(parent) if !parent.as_os_str().is_empty() => parent,
             _ => Path::new("."),
@@ -392,19 +399,31 @@ pub fn write_solution(
         .into());
     }
     std::fs::create_dir_all(to.dir).with_context(|| format!("creating {}", to.dir.display()))?;
+    // Every output is written under a staged name and renamed into place
+    // with the others once all are written: a run that fails on the way
+    // (a point that cannot be carried, a motion that cannot be written, a
+    // full disk) leaves none of them.
+    let mut staging = Staging::default();
     let mut files: Vec<PathBuf> = Vec::new();
 
     let particles = to.dir.join(PARTICLES_FILE);
-    tissue::io::model::save_moved_particles(model, current, deformed, &particles)?;
+    tissue::io::model::save_moved_particles_in(
+        model,
+        current,
+        deformed,
+        carried.space,
+        &staging.stage(&particles),
+    )?;
     files.push(particles);
 
     let (points, structures) = carried.moved(solver)?;
     let points = match (points, &carried.points) {
         (Some(moved), Some(source)) => {
             let path = to.dir.join(source.output_name());
+            let staged = staging.stage(&path);
             match &source.markups {
-                Some(markups) => tissue::io::markups::save_markups(markups, &moved, &path)?,
-                None => tissue::save_points(&moved, &path)?,
+                Some(markups) => tissue::io::markups::save_markups(markups, &moved, &staged)?,
+                None => tissue::save_points(&moved, &staged)?,
             }
             files.push(path);
             Some(PointsReport {
@@ -423,7 +442,7 @@ pub fn write_solution(
     };
     for structure in &structures {
         let path = to.dir.join(&structure.report.name);
-        tissue::save_surface(&structure.mesh, &path)?;
+        tissue::save_surface_in(&structure.mesh, carried.space, &staging.stage(&path))?;
         files.push(path);
     }
     for structure in &structures {
@@ -431,7 +450,7 @@ pub fn write_solution(
         if let (Some(transform), Some(name)) = (&report.transform, &report.transform_file) {
             let path = to.dir.join(name);
             let motion = tissue::io::itk::Affine::from_rows(transform);
-            tissue::io::itk::save_motion_tfm(&motion, carried.space, &path)?;
+            tissue::io::itk::save_motion_tfm(&motion, carried.space, &staging.stage(&path))?;
             files.push(path);
         }
     }
@@ -446,7 +465,11 @@ pub fn write_solution(
                 request.spacing,
             )
             .map_err(|e| anyhow::anyhow!("{}: {e}", request.path.display()))?;
-            tissue::io::nrrd::save_displacement_field(&field, carried.space, request.path)?;
+            tissue::io::nrrd::save_displacement_field(
+                &field,
+                carried.space,
+                &staging.stage(request.path),
+            )?;
             files.push(request.path.to_path_buf());
             Some(FieldReport {
                 file: request.path.display().to_string(),
@@ -471,7 +494,7 @@ pub fn write_solution(
         );
         let moved: Vec<&SurfaceMesh> = structures.iter().map(|s| &s.mesh).collect();
         draw(
-            path,
+            &staging.stage(path),
             title,
             Drawn {
                 model,
@@ -531,8 +554,84 @@ pub fn write_solution(
         posture: posture.cloned(),
         residual_history: solve.residual_history,
     };
-    write_json(&report_path, &report)?;
+    // The report last: it names the files, so it appears after them.
+    write_json(&staging.stage(&report_path), &report)?;
+    staging.commit()?;
     Ok(report)
+}
+
+/// The prefix of an output's staged name ([`Staging`]).
+pub const STAGED_PREFIX: &str = ".tissue-staged-";
+
+/// Outputs written under staged names beside their final ones
+/// (`.tissue-staged-<pid>-NAME`: the extension kept, since the writers go
+/// by it), renamed into place together, in the order they were staged, by
+/// [`Staging::commit`]. Dropped before that (a failure on the way), the
+/// staged files are removed: a run's outputs appear together or not at
+/// all. A process killed between the two leaves staged files, which the
+/// next run into the folder removes ([`remove_staged`]).
+#[derive(Debug, Default)]
+pub struct Staging {
+    /// (staged, final) pairs.
+    staged: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staging {
+    /// The staged name of the output `path`, to write it to.
+    pub fn stage(&mut self, path: &Path) -> PathBuf {
+        let name = path
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        let staged = path.with_file_name(format!("{STAGED_PREFIX}{}-{name}", std::process::id()));
+        self.staged.push((staged.clone(), path.to_path_buf()));
+        staged
+    }
+
+    /// Renames every staged output into place.
+    pub fn commit(mut self) -> Result<()> {
+        let staged = std::mem::take(&mut self.staged);
+        for (k, (from, to)) in staged.iter().enumerate() {
+            if let Err(e) = std::fs::rename(from, to) {
+                // What is not yet in place goes; what is stays, named by
+                // no report (the report is renamed last).
+                for (rest, _) in &staged[k..] {
+                    let _ = std::fs::remove_file(rest);
+                }
+                return Err(e).with_context(|| format!("moving {} into place", to.display()));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        for (staged, _) in &self.staged {
+            let _ = std::fs::remove_file(staged);
+        }
+    }
+}
+
+/// Removes from `dir` the staged outputs ([`Staging`]) a killed run left,
+/// and the temporary files of their writes (`.<staged name>.<random>.part`,
+/// `tissue::io::write_atomically`).
+pub fn remove_staged(dir: &Path) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let staged = path.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
+            n.starts_with(STAGED_PREFIX)
+                || n.strip_prefix('.')
+                    .is_some_and(|n| n.starts_with(STAGED_PREFIX) && n.ends_with(".part"))
+        });
+        if staged && path.is_file() {
+            log::info!("removing {}, left by a stopped run", path.display());
+            std::fs::remove_file(&path).with_context(|| format!("removing {}", path.display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// What a picture shows of a solve (`picture::Scene`).

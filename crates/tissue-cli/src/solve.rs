@@ -432,6 +432,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     }
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
+    crate::carry::check_space_tag(&args.surface, args.carry.space)?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
     let (mut solver, posture) = solver_for(
         &args.model,

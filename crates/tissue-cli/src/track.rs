@@ -274,9 +274,9 @@ fn resumed(summary: &Path, plan: &Value) -> Result<Vec<Value>> {
     Ok(done)
 }
 
-/// Ctrl-C presses so far: the first asks the run to stop after the frame in
-/// hand, the second stops it at once (every file is written to a temporary
-/// one and renamed, so none is left cut off). `None` when no handler could
+/// Ctrl-C presses (SIGINT) and SIGTERMs so far: the first asks the run to
+/// stop after the frame in hand, the second stops it at once (every file is
+/// written to a temporary one and renamed, so none is left cut off). `None` when no handler could
 /// be installed (another one is: the run cannot be stopped between frames).
 fn interrupt_count() -> Option<Arc<AtomicUsize>> {
     let presses = Arc::new(AtomicUsize::new(0));
@@ -331,6 +331,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     // Every frame read and checked before the first solve: a bad frame
     // stops the run before anything is written.
     for frame in &frames {
+        crate::carry::check_space_tag(frame, args.carry.space)?;
         read_deformed(frame, &model.surface)?;
     }
     // The postures' unloaded shape and stiffness, once, from the first frame.

@@ -203,6 +203,21 @@ fn bad_posture_options_are_refused() {
             "gravity_rest",
         ),
         ([&POSTURES[..], &["--density", "-5"]].concat(), "density"),
+        // The likely unit mistakes, each named: m/s^2, g/cm^3, centimetres.
+        (
+            vec![
+                "--gravity-rest",
+                "0,0,-9.81",
+                "--gravity-deformed",
+                "0,-1,0",
+            ],
+            "m/s^2?",
+        ),
+        (
+            [&POSTURES[..], &["--density", "1"]].concat(),
+            "1 g/cm^3 is 1000 kg/m^3",
+        ),
+        ([&POSTURES[..], &["--unit", "cm"]].concat(), "--unit mm"),
         ([&POSTURES[..], &["--stiffness", "0"]].concat(), "stiffness"),
         (
             [&POSTURES[..], &["--fit-particles", "100"]].concat(),

@@ -396,6 +396,64 @@ fn track_checks_every_frame_before_solving_the_first() {
     );
 }
 
+/// `tissue` run with `args` and sent `kill -SIGNAL` once it reports its
+/// first frame: how it exited and what it wrote to stderr.
+fn signalled_after_first_frame(
+    args: &[String],
+    signal: &str,
+) -> (std::process::ExitStatus, String) {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    while !line.starts_with("frame 1/") {
+        line.clear();
+        let read = std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
+        assert!(read > 0, "track ended before its first frame");
+    }
+    let killed = std::process::Command::new("kill")
+        .args([format!("-{signal}"), child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    let mut printed = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut printed).unwrap();
+    (status, printed)
+}
+
+/// SIGTERM (a job scheduler's or `kill`'s stop) stops `track` as Ctrl-C
+/// does: after the frame in hand, with the summary written and exit 130.
+#[test]
+fn sigterm_stops_track_between_frames_as_ctrl_c_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let frames = 30;
+    let pattern = sag_frames(dir.path(), &model, frames);
+    let out = dir.path().join("out");
+    let args = [
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        &pattern,
+        "-o",
+        s(&out),
+    ]
+    .map(str::to_owned);
+    let (status, printed) = signalled_after_first_frame(&args, "TERM");
+    assert_eq!(status.code(), Some(130), "{printed}");
+    assert!(printed.contains("--resume"), "{printed}");
+    let summary = json(&out.join("track.json"));
+    let done = summary["frames"].as_array().unwrap().len();
+    assert!((1..frames).contains(&done), "{summary}");
+    assert_eq!(summary["totals"]["status"], "incomplete", "{summary}");
+}
+
 /// Ctrl-C during `track` finishes the frame in hand, writes the summary
 /// (status `incomplete`, the frames done) and exits 130; `--resume`
 /// continues from the next frame, and its last frame agrees with an
@@ -430,27 +488,7 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
 
     // Stopped by SIGINT once the first frame is reported.
     let cut = dir.path().join("cut");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_tissue"))
-        .args(args(&cut))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    while !line.starts_with("frame 1/") {
-        line.clear();
-        let read = std::io::BufRead::read_line(&mut stdout, &mut line).unwrap();
-        assert!(read > 0, "track ended before its first frame");
-    }
-    let killed = std::process::Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let status = child.wait().unwrap();
-    let mut printed = String::new();
-    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut printed).unwrap();
+    let (status, printed) = signalled_after_first_frame(&args(&cut), "INT");
     assert_eq!(status.code(), Some(130), "{printed}");
     assert!(printed.contains("--resume"), "{printed}");
     let summary = json(&cut.join("track.json"));
@@ -1005,5 +1043,104 @@ fn outputs_are_checked_before_any_work() {
         !text(&out).contains("iterations"),
         "it solved first: {}",
         text(&out)
+    );
+}
+
+/// The files in `dir` whose names do not start with a dot (a run's
+/// outputs; hidden ones are staged or temporary files), sorted.
+fn visible_files(dir: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut names: Vec<String> = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.starts_with('.'))
+        .collect();
+    names.sort();
+    names
+}
+
+/// A run that fails leaves none of its outputs: a landmark at 1e20 and a
+/// rigid structure at 1e30 (refused before the solve, naming the point and
+/// `another unit`); a displacement field named like an existing folder;
+/// and a run killed while it writes (by a file-size limit, as a full disk
+/// stops a write: `ulimit -f`), whose staged files the next run removes.
+#[test]
+fn a_failed_run_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let sag = s(&assets().join("phantom-sag.obj")).to_owned();
+    let far = dir.path().join("far.csv");
+    std::fs::write(&far, "x,y,z\n15,-10,25\n1e20,0,0\n").unwrap();
+    let mut huge = tissue::phantom::default_tumour();
+    for v in &mut huge.vertices {
+        *v *= 1e30;
+    }
+    let huge_path = dir.path().join("huge.obj");
+    tissue::save_surface(&huge, &huge_path).unwrap();
+    let folder = dir.path().join("taken.nrrd");
+    std::fs::create_dir_all(&folder).unwrap();
+    let cases: [(&str, &str, &[&str]); 3] = [
+        ("--points", s(&far), &["far.csv", "point 2", "another unit"]),
+        (
+            "--rigid-structure",
+            s(&huge_path),
+            &["huge.obj", "another unit"],
+        ),
+        ("--displacement-field", s(&folder), &["it is a folder"]),
+    ];
+    for (flag, value, expected) in cases {
+        let out_dir = dir.path().join(format!("out{flag}"));
+        let out = tissue(&[
+            "deform",
+            "--model",
+            &model,
+            "--surface",
+            &sag,
+            flag,
+            value,
+            "-o",
+            s(&out_dir),
+        ]);
+        assert_eq!(out.status.code(), Some(1), "{flag}: {}", text(&out));
+        for word in expected {
+            assert!(text(&out).contains(word), "{flag}: {}", text(&out));
+        }
+        assert_eq!(visible_files(&out_dir), Vec::<String>::new(), "{flag}");
+    }
+
+    // Killed by the file-size limit on its first large write.
+    let out_dir = dir.path().join("killed");
+    let run = |limit: Option<u32>| {
+        let command = format!(
+            "{}exec '{}' deform --model '{model}' --surface '{sag}' --displacement-field \
+             '{}' -o '{}' -q",
+            limit.map_or_else(String::new, |l| format!("ulimit -f {l}; ")),
+            env!("CARGO_BIN_EXE_tissue"),
+            s(&out_dir.join("field.nrrd")),
+            s(&out_dir)
+        );
+        std::process::Command::new("bash")
+            .args(["-c", &command])
+            .output()
+            .unwrap()
+    };
+    let killed = run(Some(64));
+    assert!(!killed.status.success(), "{}", text(&killed));
+    assert_eq!(visible_files(&out_dir), Vec::<String>::new());
+    let whole = run(None);
+    assert!(whole.status.success(), "{}", text(&whole));
+    let left = std::fs::read_dir(&out_dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect::<Vec<_>>();
+    assert!(left.is_empty(), "left behind: {left:?}");
+    assert_eq!(
+        visible_files(&out_dir),
+        ["field.nrrd", "particles.vtp", "report.json"]
     );
 }

@@ -306,9 +306,11 @@ fn a_rigid_structure_s_motion_is_written_as_an_itk_transform() {
 }
 
 /// A NRRD file as its specification describes it, read here without our
-/// writer's code: the header's fields, then the data (raw or gzip).
+/// writer's code: the header's fields (`key: value`) and key/value pairs
+/// (`key:=value`), then the data (raw or gzip).
 struct Nrrd {
     fields: std::collections::HashMap<String, String>,
+    pairs: std::collections::HashMap<String, String>,
     data: Vec<f32>,
 }
 
@@ -323,8 +325,16 @@ impl Nrrd {
         let header = std::str::from_utf8(&bytes[..end]).unwrap();
         let mut lines = header.lines();
         assert!(lines.next().unwrap().starts_with("NRRD000"));
-        let fields = lines
+        let (pairs, fields): (Vec<&str>, Vec<&str>) = lines
             .filter(|l| !l.starts_with('#'))
+            .partition(|l| l.contains(":="));
+        let pairs = pairs
+            .into_iter()
+            .filter_map(|l| l.split_once(":="))
+            .map(|(key, value)| (key.to_owned(), value.to_owned()))
+            .collect();
+        let fields = fields
+            .into_iter()
             .map(|l| {
                 let (key, value) = l.split_once(": ").unwrap_or_else(|| panic!("{l}"));
                 (key.to_owned(), value.to_owned())
@@ -348,7 +358,11 @@ impl Nrrd {
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
-        Self { fields, data }
+        Self {
+            fields,
+            pairs,
+            data,
+        }
     }
 
     fn numbers(text: &str) -> Vec<f64> {
@@ -442,9 +456,14 @@ fn the_displacement_field_takes_the_moved_particles_back_to_rest() {
             ("dimension", "4"),
             ("space", "left-posterior-superior"),
             ("kinds", "vector domain domain domain"),
+            ("measurement frame", "(1,0,0) (0,1,0) (0,0,1)"),
         ] {
             assert_eq!(nrrd.fields[key], value);
         }
+        // What makes 3D Slicer load it as a grid transform, not a volume
+        // (qSlicerTransformsReader), and in which direction.
+        assert_eq!(nrrd.pairs["intent_code"], "1006");
+        assert_eq!(nrrd.pairs["displacement field type"], "resampling");
         let vtp = std::fs::read_to_string(out_dir.join("particles.vtp")).unwrap();
         let moved: Vec<Vec3> = common::vtp_array(&vtp, "Points")
             .chunks_exact(3)
@@ -489,8 +508,19 @@ fn bad_displacement_field_options_are_refused_before_the_solve() {
         ("field.nrrd", "0", "not a positive length"),
         ("field.nrrd", "-3", "not a positive length"),
         ("field.nrrd", "0.01", "choose a larger field spacing"),
+        // Larger than a quarter of the organ: other units, or a typo.
+        (
+            "field.nrrd",
+            "1e9",
+            "fewer than 4 grid steps across the organ",
+        ),
+        // An existing folder of that name.
+        ("taken.nrrd", "2", "it is a folder"),
     ] {
         let field = dir.path().join(file);
+        if file == "taken.nrrd" {
+            std::fs::create_dir_all(&field).unwrap();
+        }
         let out_dir = dir.path().join("out");
         let out = tissue(&[
             "deform",
@@ -511,6 +541,12 @@ fn bad_displacement_field_options_are_refused_before_the_solve() {
             "{file} {spacing}: `{message}` lacks `{expected}`"
         );
         assert!(!message.contains("iterations"), "{message}");
-        assert!(!field.exists() && !out_dir.join("report.json").exists());
+        assert!(field.is_dir() || !field.exists(), "{file}");
+        for left in ["report.json", "particles.vtp"] {
+            assert!(
+                !out_dir.join(left).exists(),
+                "{file} {spacing}: {left} left"
+            );
+        }
     }
 }

@@ -634,6 +634,12 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
     let rest = tissue::load_model(Path::new(&model)).unwrap().surface;
     let few: Vec<Vec3> = rest.vertices[..3].to_vec();
     tissue::save_points(&few, Path::new(&d("observed-few.csv"))).unwrap();
+    // The tumour in metres (18 mm across becomes 0.018), inside the organ.
+    let mut metres = tissue::phantom::default_tumour();
+    for v in &mut metres.vertices {
+        *v = *v * 1e-3 + Vec3::new(15.0, -10.0, 25.0);
+    }
+    tissue::save_surface(&metres, Path::new(&d("tumour-m.obj"))).unwrap();
 
     let deform = |extra: &[&str]| -> Vec<String> {
         let mut args: Vec<String> = vec!["deform".into(), "--model".into(), model.clone()];
@@ -665,6 +671,10 @@ fn bad_stage2_input_fails_with_a_message_and_no_panic() {
         (
             deform(&["--surface", &nan_skin]),
             vec!["nan-skin.obj", "not finite"],
+        ),
+        (
+            deform(&["--surface", &sag, "--rigid-structure", &d("tumour-m.obj")]),
+            vec!["tumour-m.obj", "less than a hundredth", "another unit"],
         ),
         (
             deform(&["--surface", &sag, "--points", &empty]),

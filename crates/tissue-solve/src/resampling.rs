@@ -118,11 +118,17 @@ fn inverse_gradients(
         .collect()
 }
 
+/// The fewest grid steps a displacement field may have across the organ
+/// at its widest.
+pub const MIN_GRID_STEPS: f32 = 4.0;
+
 /// The grid of a field of `spacing` around `deformed`: its origin and
 /// points along each axis, reaching [`FADE_SPACINGS`] beyond the surface's
 /// bounding box. Fails with a message for a spacing that is not a positive
-/// length or a grid of more than [`MAX_GRID_POINTS`]: a check to make
-/// before a solve.
+/// length, one longer than a [`MIN_GRID_STEPS`]th of the surface's
+/// largest extent (a grid too coarse to say anything of the interior:
+/// more likely a unit mistake), or a grid of more than
+/// [`MAX_GRID_POINTS`]: a check to make before a solve.
 pub fn field_grid(deformed: &SurfaceMesh, spacing: f32) -> Result<(Vec3, [usize; 3]), String> {
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(format!(
@@ -132,6 +138,15 @@ pub fn field_grid(deformed: &SurfaceMesh, spacing: f32) -> Result<(Vec3, [usize;
     let (lo, hi) = deformed
         .bounds()
         .ok_or("the deformed surface has no vertices")?;
+    let extent = (hi - lo).max_element();
+    if spacing > extent / MIN_GRID_STEPS {
+        return Err(format!(
+            "the field spacing {spacing} would give fewer than {MIN_GRID_STEPS} grid steps \
+             across the organ ({extent} across at its widest): choose a spacing of at most \
+             {} in the model's units",
+            extent / MIN_GRID_STEPS
+        ));
+    }
     let pad = Vec3::splat(FADE_SPACINGS * spacing);
     let origin = lo - pad;
     let steps = ((hi + pad - origin) / spacing).ceil();
@@ -262,5 +277,16 @@ mod tests {
             let err = resampling_field(&one, &one, &turn, &none, &sphere, spacing).unwrap_err();
             assert!(err.contains("not a positive length"), "{err}");
         }
+        // About 20 across: at most 5 a step.
+        for spacing in [5.1, 1e9, f32::INFINITY] {
+            let err = field_grid(&sphere, spacing).unwrap_err();
+            let expected = if spacing.is_finite() {
+                "fewer than 4 grid steps across the organ"
+            } else {
+                "not a positive length"
+            };
+            assert!(err.contains(expected), "{spacing}: {err}");
+        }
+        assert!(field_grid(&sphere, 4.0).is_ok());
     }
 }

@@ -56,6 +56,39 @@ fn read_text(path: &Path) -> Result<String, Error> {
     })
 }
 
+thread_local! {
+    /// Whether a panic on this thread is being caught by [`catch_quietly`],
+    /// so the panic hook stays silent.
+    static QUIET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `work`, returning a panic inside it as `Err` (as
+/// [`std::panic::catch_unwind`]) without the process's panic hook printing
+/// it: for a dependency that panics on a damaged file, whose caller turns
+/// the panic into an error that says what is wrong. The first call installs,
+/// once for the process, a hook that stays silent while a `catch_quietly`
+/// runs on the panicking thread and otherwise calls the hook that was
+/// there before (Rust's default, or the application's).
+///
+/// # Errors
+///
+/// The panic's payload, when `work` panicked.
+pub fn catch_quietly<T>(work: impl FnOnce() -> T) -> std::thread::Result<T> {
+    static INSTALL: std::sync::Once = std::sync::Once::new();
+    INSTALL.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    let was = QUIET.with(|q| q.replace(true));
+    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
+    QUIET.with(|q| q.set(was));
+    out
+}
+
 /// Writes `path` whole or not at all: `body` writes a temporary file in
 /// the same folder, which is flushed to disk and renamed over `path` only
 /// when `body` succeeds. A failure, a kill or a full disk leaves the file

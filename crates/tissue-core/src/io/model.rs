@@ -17,11 +17,12 @@ use rayon::prelude::*;
 
 use super::vtp::{
     Encoding, count_attribute, field_array, field_integer, piece_cells, piece_points, point_array,
-    write_array, write_cells,
+    write_array, write_cells, write_space_array,
 };
 use super::xml::{Element, parse_xml};
 use super::{extension, format_error, io_error, write_file};
 use crate::error::Error;
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 use crate::model::{Attachment, Connections, ParticleModel};
 
@@ -253,6 +254,33 @@ pub fn save_moved_particles(
     deformed: &SurfaceMesh,
     path: &Path,
 ) -> Result<(), Error> {
+    moved_particles(model, current, deformed, None, path)
+}
+
+/// [`save_moved_particles`], with the file tagged as 3D Slicer tags its
+/// models (a `SPACE` field-data string, `LPS` or `RAS`), so that Slicer
+/// loads it in `space` without asking or mirroring it.
+///
+/// # Errors
+///
+/// Those of [`save_moved_particles`].
+pub fn save_moved_particles_in(
+    model: &ParticleModel,
+    current: &[Vec3],
+    deformed: &SurfaceMesh,
+    space: Space,
+    path: &Path,
+) -> Result<(), Error> {
+    moved_particles(model, current, deformed, Some(space), path)
+}
+
+fn moved_particles(
+    model: &ParticleModel,
+    current: &[Vec3],
+    deformed: &SurfaceMesh,
+    tag: Option<Space>,
+    path: &Path,
+) -> Result<(), Error> {
     if current.len() != model.len() || deformed.vertices.len() != model.surface.vertices.len() {
         return Err(format_error(
             path,
@@ -283,7 +311,9 @@ pub fn save_moved_particles(
         .chain(deformed.vertices.iter().zip(&model.surface.vertices))
         .map(|(now, rest)| *now - *rest)
         .collect();
-    write_file(path, |w| write_poly_data(&moved, Some(&displacement), w))
+    write_file(path, |w| {
+        write_poly_data(&moved, Some(&displacement), tag, w)
+    })
 }
 
 // ---------------------------------------------------------------------------
@@ -329,15 +359,17 @@ const REST_SURFACE_FLAG: u8 = 2;
 /// appears in a later piece without offsetting its point ids, so ParaView
 /// would draw the surface's triangles between particles.
 fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
-    write_poly_data(model, None, w)
+    write_poly_data(model, None, None, w)
 }
 
 /// The model file's layout; with `displacement` (one per particle, then one
 /// per surface vertex) the file is a stage-2 result instead: it gets a
 /// `displacement` array and no model marker, so `load_model` refuses it.
+/// With `tag`, the field data has 3D Slicer's `SPACE` string.
 fn write_poly_data(
     model: &ParticleModel,
     displacement: Option<&[Vec3]>,
+    tag: Option<Space>,
     w: &mut dyn Write,
 ) -> io::Result<()> {
     let n = model.len();
@@ -389,6 +421,9 @@ fn write_poly_data(
         w,
         r#"      <DataArray type="Int64" Name="{PARTICLES_ARRAY}" NumberOfTuples="1" format="ascii">{n}</DataArray>"#
     )?;
+    if let Some(space) = tag {
+        write_space_array(w, space)?;
+    }
     writeln!(w, "    </FieldData>")?;
     writeln!(
         w,

@@ -36,7 +36,10 @@ pub fn nrrd_header(field: &DisplacementField, space: Space) -> String {
          kinds: vector domain domain domain\n\
          endian: little\n\
          encoding: gzip\n\
-         space origin: ({},{},{})\n\n",
+         space origin: ({},{},{})\n\
+         measurement frame: (1,0,0) (0,1,0) (0,0,1)\n\
+         displacement field type:=resampling\n\
+         intent_code:=1006\n\n",
         s.x * h,
         s.y * h,
         s.z * h,
@@ -139,11 +142,16 @@ mod tests {
         for line in [
             "sizes: 3 2 1 3\n",
             "space directions: none (2.5,0,0) (0,2.5,0) (0,0,2.5)\n",
-            "space origin: (-1,2,0.5)\n\n",
+            "space origin: (-1,2,0.5)\n",
             "kinds: vector domain domain domain\n",
+            "measurement frame: (1,0,0) (0,1,0) (0,0,1)\n",
+            // 3D Slicer opens the file as a grid transform only with the
+            // intent code, and reads its direction from the type.
+            "displacement field type:=resampling\n",
         ] {
             assert!(lps.contains(line), "{lps}");
         }
+        assert!(lps.ends_with("\nintent_code:=1006\n\n"), "{lps}");
         let ras = nrrd_header(&field(), Space::Ras);
         assert!(
             ras.contains("space directions: none (-2.5,0,0) (0,-2.5,0) (0,0,2.5)\n"),

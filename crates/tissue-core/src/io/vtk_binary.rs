@@ -219,7 +219,7 @@ fn numbers(bytes: &[u8], ty: &str, big_endian: bool) -> Result<String, String> {
     }
     Ok(match ty {
         "Int8" => each!(i8),
-        "UInt8" => each!(u8),
+        "UInt8" | "String" => each!(u8),
         "Int16" => each!(i16),
         "UInt16" => each!(u16),
         "Int32" => each!(i32),
@@ -251,7 +251,9 @@ pub(super) fn to_ascii(root: &mut Element) -> Result<(), String> {
         ));
     }
     root.visit_mut(&mut |element| {
-        if element.name != "DataArray" {
+        // `Array` holds strings (3D Slicer's `SPACE` tag): decoded as the
+        // bytes' codes, as VTK writes a string array in ASCII.
+        if element.name != "DataArray" && element.name != "Array" {
             return Ok(());
         }
         let name = element.attribute("Name").unwrap_or("").to_owned();

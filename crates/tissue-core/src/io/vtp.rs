@@ -8,6 +8,7 @@ use std::str::FromStr;
 
 use glam::Vec3;
 
+use super::space::Space;
 use super::xml::Element;
 
 // ---------------------------------------------------------------------------
@@ -97,6 +98,24 @@ pub(super) fn write_cells<T: Encode>(
     let cells = cells / size;
     write_array(w, encoding, ty, "offsets", 1, (1..=cells).map(|c| c * size))?;
     writeln!(w, "      </{section}>")
+}
+
+/// 3D Slicer's coordinate-system tag, a field-data string array `SPACE`
+/// holding `LPS` or `RAS`, as VTK writes a string array in ASCII: each
+/// character's code, then 0. Slicer loads a model so tagged in that system
+/// without asking or mirroring it.
+pub(super) fn write_space_array(w: &mut dyn Write, space: Space) -> io::Result<()> {
+    let codes: Vec<String> = space
+        .name()
+        .bytes()
+        .chain([0])
+        .map(|b| b.to_string())
+        .collect();
+    writeln!(
+        w,
+        r#"      <Array type="String" Name="SPACE" NumberOfTuples="1" format="ascii">{}</Array>"#,
+        codes.join(" ")
+    )
 }
 
 /// One `DataArray`; in ASCII one tuple per line for vectors and a dozen

@@ -8,6 +8,12 @@
 //! | `.obj` | `v` and `f` records (any `v/vt/vn` form, polygons, several objects) | `v` / `f` |
 //! | `.ply` | ASCII and binary, triangles or polygons | ASCII |
 //! | `.vtk` | legacy PolyData (`POLYGONS`, `TRIANGLE_STRIPS`) or UnstructuredGrid surface cells, ASCII or binary | legacy ASCII PolyData |
+//! | `.vtp` | VTK XML PolyData: ASCII, binary or appended, uncompressed or zlib, LZ4, LZMA | binary, zlib |
+//!
+//! [`save_surface_in`] also tags the file with its coordinate system as 3D
+//! Slicer does (`SPACE=LPS` or `SPACE=RAS`: a header comment, or a
+//! `SPACE` field-data string in `.vtp`), and [`coordinate_tag`] reads
+//! such a tag back.
 //!
 //! Polygons are split into triangle fans. Every reader ends with an exact
 //! [`weld`], so a vertex is one position however the file spelled it (STL
@@ -21,6 +27,7 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::{Error, MeshError};
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 use crate::validate::{self, ShellsDropped, Validation};
 
@@ -106,13 +113,18 @@ impl Format {
         }
     }
 
-    fn write(self, mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
+    fn write(
+        self,
+        mesh: &SurfaceMesh,
+        tag: Option<Space>,
+        out: &mut impl Write,
+    ) -> std::io::Result<()> {
         match self {
-            Self::Obj => obj::write_obj(mesh, out),
-            Self::Stl => stl::write_stl(mesh, out),
-            Self::Ply => ply::write_ply(mesh, out),
-            Self::Vtk => vtk::write_vtk(mesh, out),
-            Self::Vtp => vtk::write_vtp(mesh, out),
+            Self::Obj => obj::write_obj(mesh, tag, out),
+            Self::Stl => stl::write_stl(mesh, tag, out),
+            Self::Ply => ply::write_ply(mesh, tag, out),
+            Self::Vtk => vtk::write_vtk(mesh, tag, out),
+            Self::Vtp => vtk::write_vtp(mesh, tag, out),
         }
     }
 }
@@ -372,6 +384,25 @@ fn diagonal(mesh: &SurfaceMesh) -> f32 {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn save_surface(mesh: &SurfaceMesh, path: &Path) -> Result<(), Error> {
+    save_tagged(mesh, None, path)
+}
+
+/// [`save_surface`], with the file tagged as holding coordinates in
+/// `space`, the way 3D Slicer tags the models it saves, so that Slicer
+/// loads it without asking or mirroring: `SPACE=LPS` or `SPACE=RAS` in the
+/// header (a comment line in `.obj` and `.ply`, the title line of a legacy
+/// `.vtk`, the 80-byte header of a binary `.stl`) or, in a `.vtp`, a
+/// field-data string array named `SPACE`. The coordinates are written as
+/// they are: the tag says which system they are in.
+///
+/// # Errors
+///
+/// Those of [`save_surface`].
+pub fn save_surface_in(mesh: &SurfaceMesh, space: Space, path: &Path) -> Result<(), Error> {
+    save_tagged(mesh, Some(space), path)
+}
+
+fn save_tagged(mesh: &SurfaceMesh, tag: Option<Space>, path: &Path) -> Result<(), Error> {
     let format = Format::of(path)?;
     if format == Format::Stl && u32::try_from(mesh.triangles.len()).is_err() {
         return Err(Error::Format {
@@ -383,7 +414,55 @@ pub fn save_surface(mesh: &SurfaceMesh, path: &Path) -> Result<(), Error> {
             ),
         });
     }
-    super::write_atomically(path, |mut out| format.write(mesh, &mut out))
+    super::write_atomically(path, |mut out| format.write(mesh, tag, &mut out))
+}
+
+/// The coordinate system a surface file says it is in, with 3D Slicer's
+/// tag (`SPACE=RAS` or `SPACE=LPS` in its header or comments, or a `.vtp`'s
+/// `SPACE` field-data string); `None` when it says nothing (Slicer then
+/// assumes LPS) or cannot be read (loading it reports why).
+pub fn coordinate_tag(path: &Path) -> Option<Space> {
+    let format = Format::of(path).ok()?;
+    let bytes = fs::read(path).ok()?;
+    let header = match format {
+        Format::Vtp => return vtk::vtp_space(&bytes),
+        // Slicer reads the legacy header's second line, an STL's header
+        // (its `solid` line or 80 bytes), a PLY's comments and an OBJ's
+        // leading comments: a tag anywhere in the first lines will do.
+        Format::Vtk | Format::Stl | Format::Ply | Format::Obj => {
+            let end = bytes.len().min(1024);
+            String::from_utf8_lossy(&bytes[..end]).into_owned()
+        }
+    };
+    let header: String = match format {
+        Format::Vtk => header.lines().nth(1).unwrap_or_default().to_owned(),
+        Format::Stl => header.chars().take(80).collect(),
+        Format::Ply => header
+            .lines()
+            .take_while(|l| l.trim() != "end_header")
+            .filter(|l| l.starts_with("comment"))
+            .collect::<Vec<_>>()
+            .join("\n"),
+        Format::Obj => header
+            .lines()
+            .take_while(|l| l.starts_with('#'))
+            .collect::<Vec<_>>()
+            .join("\n"),
+        Format::Vtp => unreachable!("returned above"),
+    };
+    space_in(&header)
+}
+
+/// The space a header names as Slicer reads it: `SPACE=RAS` first, then
+/// `SPACE=LPS`.
+fn space_in(header: &str) -> Option<Space> {
+    if header.contains("SPACE=RAS") {
+        Some(Space::Ras)
+    } else if header.contains("SPACE=LPS") {
+        Some(Space::Lps)
+    } else {
+        None
+    }
 }
 
 /// Splits a polygon into the fan of triangles around its first corner;
@@ -427,7 +506,7 @@ mod tests {
         let mut files = Vec::new();
         for format in [Format::Obj, Format::Stl, Format::Ply, Format::Vtk] {
             let mut bytes = Vec::new();
-            format.write(&mesh, &mut bytes).unwrap();
+            format.write(&mesh, None, &mut bytes).unwrap();
             files.push((format, bytes));
         }
         // A binary little-endian PLY with int indices.

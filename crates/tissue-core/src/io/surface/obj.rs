@@ -5,6 +5,7 @@ use std::io::{Cursor, Write};
 
 use glam::Vec3;
 
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_obj(bytes: &[u8]) -> Result<SurfaceMesh, String> {
@@ -49,13 +50,21 @@ pub(super) fn read_obj(bytes: &[u8]) -> Result<SurfaceMesh, String> {
     Ok(mesh)
 }
 
-pub(super) fn write_obj(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
+pub(super) fn write_obj(
+    mesh: &SurfaceMesh,
+    tag: Option<Space>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
     writeln!(
         out,
         "# tissue surface: {} vertices, {} triangles",
         mesh.vertices.len(),
         mesh.triangles.len()
     )?;
+    // In the leading comments, where 3D Slicer looks for it.
+    if let Some(space) = tag {
+        writeln!(out, "# SPACE={space}")?;
+    }
     for v in &mesh.vertices {
         writeln!(out, "v {} {} {}", v.x, v.y, v.z)?;
     }

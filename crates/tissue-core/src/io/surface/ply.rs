@@ -6,6 +6,7 @@ use std::io::{Cursor, Write};
 use glam::Vec3;
 
 use super::fan;
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_ply(bytes: &[u8]) -> Result<SurfaceMesh, String> {
@@ -52,15 +53,20 @@ pub(super) fn read_ply(bytes: &[u8]) -> Result<SurfaceMesh, String> {
     Ok(SurfaceMesh::new(vertices, triangles))
 }
 
-pub(super) fn write_ply(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
+pub(super) fn write_ply(
+    mesh: &SurfaceMesh,
+    tag: Option<Space>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
     let index_type = if mesh.vertices.len() <= i32::MAX as usize {
         "int"
     } else {
         "uint"
     };
+    let tag = tag.map_or_else(String::new, |space| format!("comment SPACE={space}\n"));
     write!(
         out,
-        "ply\nformat ascii 1.0\ncomment tissue surface\n\
+        "ply\nformat ascii 1.0\ncomment tissue surface\n{tag}\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          element face {}\nproperty list uchar {index_type} vertex_indices\nend_header\n",
         mesh.vertices.len(),

@@ -5,6 +5,7 @@ use std::io::{Cursor, Write};
 
 use glam::Vec3;
 
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 
 /// Binary STL: 80-byte header, `u32` triangle count, then per triangle a
@@ -89,13 +90,34 @@ fn triangle_soup(corners: impl Iterator<Item = Vec3>) -> SurfaceMesh {
 }
 
 /// Binary STL; the caller has checked that the triangle count fits a `u32`.
-pub(super) fn write_stl(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
-    let triangles = (0..mesh.triangles.len()).map(|t| {
+/// The 80-byte header names the writer and, with `tag`, the coordinate
+/// system as 3D Slicer writes it there (`SPACE=LPS`); it never starts with
+/// `solid`, which readers take for ASCII.
+pub(super) fn write_stl(
+    mesh: &SurfaceMesh,
+    tag: Option<Space>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    let mut header = [b' '; 80];
+    let title = match tag {
+        Some(space) => format!("tissue surface SPACE={space}"),
+        None => "tissue surface".to_owned(),
+    };
+    header[..title.len()].copy_from_slice(title.as_bytes());
+    out.write_all(&header)?;
+    out.write_all(&(mesh.triangles.len() as u32).to_le_bytes())?;
+    let mut record = Vec::with_capacity(50);
+    for t in 0..mesh.triangles.len() {
         let [a, b, c] = mesh.corners(t);
-        stl_io::Triangle {
-            normal: stl_io::Normal::new((b - a).cross(c - a).normalize_or_zero().to_array()),
-            vertices: [a, b, c].map(|v| stl_io::Vertex::new(v.to_array())),
+        record.clear();
+        let normal = (b - a).cross(c - a).normalize_or_zero();
+        for v in [normal, a, b, c] {
+            for x in v.to_array() {
+                record.extend_from_slice(&x.to_le_bytes());
+            }
         }
-    });
-    stl_io::write_stl(out, triangles)
+        record.extend_from_slice(&0u16.to_le_bytes());
+        out.write_all(&record)?;
+    }
+    Ok(())
 }

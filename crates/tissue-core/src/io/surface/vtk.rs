@@ -1,13 +1,14 @@
 //! Legacy VTK: PolyData (`POLYGONS`, `TRIANGLE_STRIPS`) or the surface
 //! cells of an UnstructuredGrid, ASCII or binary, read through `vtkio`;
-//! written as legacy ASCII PolyData. VTK XML PolyData (`.vtp`): read and
-//! written through `vtkio`.
+//! written as legacy ASCII PolyData. VTK XML PolyData (`.vtp`): read with
+//! the model reader's XML tree and block decoder, written through `vtkio`.
 
 use std::io::{Cursor, Write};
 
 use glam::Vec3;
 
 use super::fan;
+use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
@@ -20,8 +21,11 @@ pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
 
 /// Runs a `vtkio` parse, turning a panic inside it into an error: it
 /// unwraps on some damaged files (a data array shorter than its count).
+/// The panic is silent ([`crate::io::catch_quietly`]): no `panicked at`
+/// line (or backtrace) reaches the user beside the error that says what is
+/// wrong.
 fn guarded<T>(parse: impl FnOnce() -> Result<T, String>) -> Result<T, String> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse)).unwrap_or_else(|_| {
+    crate::io::catch_quietly(parse).unwrap_or_else(|_| {
         Err(
             "the VTK reader failed on this file: it is damaged, or an array is shorter \
              than its count"
@@ -30,19 +34,143 @@ fn guarded<T>(parse: impl FnOnce() -> Result<T, String>) -> Result<T, String> {
     })
 }
 
-/// VTK XML PolyData (`.vtp`, 3D Slicer's model format and ParaView's):
-/// inline ASCII or base64 binary, appended, compressed or not, read through
-/// `vtkio`; the polygons and strips of every piece.
+/// VTK XML PolyData (`.vtp`, 3D Slicer's model format, VTK's, pyvista's
+/// and ParaView's): inline ASCII or base64 binary, appended raw or base64,
+/// uncompressed or zlib, LZ4 or LZMA in blocks; the polygons (fanned) and
+/// triangle strips of every piece. Read through the model reader's XML tree
+/// and block decoder (`io::vtk_binary`), which reads every layout VTK
+/// writes, the empty compressed arrays of its empty `Verts`, `Lines` and
+/// `Strips` included.
 pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
+    use crate::io::vtp::{count_attribute, piece_points};
+
     let converted = raw_appended_as_base64(bytes)?;
     let bytes = converted.as_deref().unwrap_or(bytes);
-    let vtk = guarded(|| {
-        vtkio::Vtk::parse_xml(Cursor::new(bytes)).map_err(|e| format!("cannot parse VTK XML: {e}"))
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        format!(
+            "not a VTK XML file: invalid UTF-8 at byte {}",
+            e.valid_up_to()
+        )
     })?;
-    match vtk.data {
-        vtkio::model::DataSet::PolyData { .. } => surface_of(vtk.data),
-        _ => Err("a VTK XML file but not PolyData (.vtp holds a surface as PolyData)".into()),
+    if text.trim().is_empty() {
+        return Err("the file is empty".into());
     }
+    let mut root = crate::io::xml::parse_xml(text)?;
+    if root.name != "VTKFile" {
+        return Err(format!(
+            "not a VTK XML file: its root element is <{}>, not <VTKFile>",
+            root.name
+        ));
+    }
+    match root.attribute("type") {
+        Some("PolyData") => {}
+        other => {
+            return Err(format!(
+                "a VTK XML file of type \"{}\", not PolyData (.vtp holds a surface as PolyData)",
+                other.unwrap_or("")
+            ));
+        }
+    }
+    crate::io::vtk_binary::to_ascii(&mut root)?;
+    let poly_data = root
+        .child("PolyData")
+        .ok_or("the <PolyData> element is missing")?;
+    let mut mesh = SurfaceMesh::default();
+    for (k, piece) in poly_data.children_named("Piece").enumerate() {
+        let in_piece = |e: String| format!("piece {k}: {e}");
+        let offset =
+            u32::try_from(mesh.vertices.len()).map_err(|_| "more than 2^32 points".to_string())?;
+        let points = piece_points(piece).map_err(in_piece)?;
+        let count = points.len();
+        mesh.vertices.extend(points);
+        for cell in xml_cells(piece, "Polys", count).map_err(in_piece)? {
+            fan_with_offset(&cell, offset, &mut mesh.triangles).map_err(in_piece)?;
+        }
+        for cell in xml_cells(piece, "Strips", count).map_err(in_piece)? {
+            strip(&cell, offset, &mut mesh.triangles);
+        }
+        if count_attribute(piece, "NumberOfPolys")
+            .map_err(in_piece)?
+            .unwrap_or(0)
+            + count_attribute(piece, "NumberOfStrips")
+                .map_err(in_piece)?
+                .unwrap_or(0)
+            == 0
+            && count > 0
+            && piece.child("Polys").is_none()
+            && piece.child("Strips").is_none()
+        {
+            log::debug!("piece {k} of the .vtp has points but no polygons or strips");
+        }
+    }
+    Ok(mesh)
+}
+
+/// The cells of a piece's `section` (`Polys`, `Strips`) as point lists, from
+/// its `offsets` (each cell's end) and `connectivity`, every index below
+/// `points`; none when the section is absent or declared empty.
+fn xml_cells(
+    piece: &crate::io::xml::Element,
+    section: &str,
+    points: usize,
+) -> Result<Vec<Vec<u32>>, String> {
+    use crate::io::vtp::{count_attribute, values};
+
+    let attribute = format!("NumberOf{section}");
+    let declared = count_attribute(piece, &attribute)?;
+    let Some(element) = piece.child(section) else {
+        return match declared {
+            Some(d) if d > 0 => Err(format!(
+                "{attribute}=\"{d}\" but there is no <{section}> element"
+            )),
+            _ => Ok(Vec::new()),
+        };
+    };
+    if declared == Some(0) {
+        return Ok(Vec::new());
+    }
+    let offsets_array = element
+        .data_array("offsets")
+        .ok_or_else(|| format!("the {section} offsets array is missing"))?;
+    let cells = match declared {
+        Some(d) => d,
+        None => offsets_array.text.split_ascii_whitespace().count(),
+    };
+    let ends: Vec<i64> = values(offsets_array, &format!("{section} offsets"), 1, cells)?;
+    let total = ends.last().copied().unwrap_or(0);
+    let total = usize::try_from(total)
+        .map_err(|_| format!("{section} offsets end at {total}, not a count"))?;
+    let connectivity_array = element
+        .data_array("connectivity")
+        .ok_or_else(|| format!("the {section} connectivity array is missing"))?;
+    let connectivity: Vec<i64> = values(
+        connectivity_array,
+        &format!("{section} connectivity"),
+        1,
+        total,
+    )?;
+    let mut out = Vec::with_capacity(cells);
+    let mut start = 0usize;
+    for (c, &end) in ends.iter().enumerate() {
+        let end = usize::try_from(end)
+            .ok()
+            .filter(|&e| e >= start && e <= total)
+            .ok_or_else(|| {
+                format!("{section} cell {c} ends at offset {end}, before its start {start}")
+            })?;
+        let cell = connectivity[start..end]
+            .iter()
+            .map(|&i| {
+                u32::try_from(i)
+                    .ok()
+                    .filter(|&i| (i as usize) < points)
+                    .ok_or_else(|| format!("{section} cell {c} names point {i} of {points}"))
+            })
+            .collect::<Result<Vec<u32>, String>>()?;
+        out.push(cell);
+        start = end;
+    }
+    Ok(out)
 }
 
 /// A VTK XML file whose appended data is raw binary (ParaView's default
@@ -183,33 +311,76 @@ fn find(bytes: &[u8], needle: &[u8], from: usize) -> Option<usize> {
         .map(|p| from + p)
 }
 
-/// Writes `mesh` as VTK XML PolyData through `vtkio` (binary, as vtkio
-/// writes it; ParaView and 3D Slicer read it).
-pub(super) fn write_vtp(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
-    use vtkio::model::{ByteOrder, DataSet, IOBuffer, PolyDataPiece, Version, VertexNumbers, Vtk};
-    let points: Vec<f32> = mesh.vertices.iter().flat_map(|v| v.to_array()).collect();
-    let connectivity: Vec<u64> = mesh
-        .triangles
-        .iter()
-        .flat_map(|t| t.map(u64::from))
+/// Writes `mesh` as VTK XML PolyData: the points as `Float32` and the
+/// triangles as `Polys`, zlib-compressed in blocks (base64 inline, as the
+/// model file's binary arrays: `io::vtp`); with `tag`, the `SPACE`
+/// field-data string 3D Slicer tags its models with (`LPS` or `RAS`).
+pub(super) fn write_vtp(
+    mesh: &SurfaceMesh,
+    tag: Option<Space>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    use crate::io::vtp::{Encoding, write_array, write_cells, write_space_array};
+
+    // Binary cells are Int32 (`write_cells`).
+    if i32::try_from(mesh.vertices.len()).is_err() {
+        return Err(std::io::Error::other(format!(
+            "{} vertices are more than a .vtp surface's Int32 cells can name",
+            mesh.vertices.len()
+        )));
+    }
+    let w: &mut dyn Write = out;
+    writeln!(w, r#"<?xml version="1.0"?>"#)?;
+    writeln!(
+        w,
+        r#"<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64" compressor="vtkZLibDataCompressor">"#
+    )?;
+    writeln!(w, "  <PolyData>")?;
+    if let Some(space) = tag {
+        writeln!(w, "    <FieldData>")?;
+        write_space_array(w, space)?;
+        writeln!(w, "    </FieldData>")?;
+    }
+    writeln!(
+        w,
+        r#"    <Piece NumberOfPoints="{}" NumberOfPolys="{}">"#,
+        mesh.vertices.len(),
+        mesh.triangles.len()
+    )?;
+    writeln!(w, "      <Points>")?;
+    let points = mesh.vertices.iter().flat_map(|p| p.to_array());
+    write_array(w, Encoding::Binary, "Float32", "Points", 3, points)?;
+    writeln!(w, "      </Points>")?;
+    let corners = mesh.triangles.iter().flatten().map(|&c| u64::from(c));
+    write_cells(w, Encoding::Binary, "Polys", 3, corners)?;
+    writeln!(w, "    </Piece>")?;
+    writeln!(w, "  </PolyData>")?;
+    writeln!(w, "</VTKFile>")
+}
+
+/// The coordinate system a `.vtp` names in its `SPACE` field-data string
+/// (3D Slicer's tag), `None` when it has none or cannot be read.
+pub(super) fn vtp_space(bytes: &[u8]) -> Option<Space> {
+    let converted = raw_appended_as_base64(bytes).ok()?;
+    let text = std::str::from_utf8(converted.as_deref().unwrap_or(bytes)).ok()?;
+    let mut root = crate::io::xml::parse_xml(text).ok()?;
+    crate::io::vtk_binary::to_ascii(&mut root).ok()?;
+    let array = root
+        .child("PolyData")?
+        .child("FieldData")?
+        .children_named("Array")
+        .find(|a| a.attribute("Name") == Some("SPACE"))?;
+    let codes: Vec<u8> = array
+        .text
+        .split_ascii_whitespace()
+        .map_while(|t| t.parse().ok())
+        .take_while(|&b| b != 0)
         .collect();
-    let offsets: Vec<u64> = (1..=mesh.triangles.len() as u64).map(|k| 3 * k).collect();
-    let vtk = Vtk {
-        version: Version::Auto,
-        byte_order: ByteOrder::LittleEndian,
-        title: String::new(),
-        file_path: None,
-        data: DataSet::inline(PolyDataPiece {
-            points: IOBuffer::F32(points),
-            polys: Some(VertexNumbers::XML {
-                connectivity,
-                offsets,
-            }),
-            ..Default::default()
-        }),
-    };
-    vtk.write_xml(&mut *out)
-        .map_err(|e| std::io::Error::other(e.to_string()))
+    match std::str::from_utf8(&codes).ok()? {
+        value if value.contains("RAS") => Some(Space::Ras),
+        value if value.contains("LPS") => Some(Space::Lps),
+        _ => None,
+    }
 }
 
 /// The triangles of a VTK dataset: the polygons (fanned) and strips of
@@ -389,9 +560,18 @@ fn strip(points: &[u32], offset: u32, triangles: &mut Vec<[u32; 3]>) {
     }));
 }
 
-pub(super) fn write_vtk(mesh: &SurfaceMesh, out: &mut impl Write) -> std::io::Result<()> {
+/// Legacy ASCII PolyData; with `tag`, the title line (the second) says
+/// `SPACE=LPS` or `SPACE=RAS`, where 3D Slicer writes and reads it.
+pub(super) fn write_vtk(
+    mesh: &SurfaceMesh,
+    tag: Option<Space>,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
     writeln!(out, "# vtk DataFile Version 3.0")?;
-    writeln!(out, "tissue surface")?;
+    match tag {
+        Some(space) => writeln!(out, "tissue surface SPACE={space}")?,
+        None => writeln!(out, "tissue surface")?,
+    }
     writeln!(out, "ASCII")?;
     writeln!(out, "DATASET POLYDATA")?;
     writeln!(out, "POINTS {} float", mesh.vertices.len())?;
