@@ -540,7 +540,13 @@ pub fn write_solution(
             Status::Converged if posture.is_some_and(|p| !p.unloaded_converged) => {
                 Status::NotConverged
             }
-            Status::Converged if carried.flagged() || inverted.count > 0 => Status::Flagged,
+            Status::Converged
+                if carried.flagged()
+                    || inverted.count > 0
+                    || posture.is_some_and(|p| !p.flags().is_empty()) =>
+            {
+                Status::Flagged
+            }
             status => status,
         },
         stopped_by: solve.stopped_by,
@@ -746,6 +752,9 @@ impl SolveReport {
                 "{outside} points or structure vertices lie outside the model's rest surface \
                  (`outside` in the report): they are carried by extrapolation"
             ));
+        }
+        if let Some(posture) = &self.posture {
+            flags.extend(posture.flags());
         }
         if self.inverted.count > 0 {
             flags.push(format!(

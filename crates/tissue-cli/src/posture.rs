@@ -13,7 +13,8 @@ use serde::Serialize;
 use tissue::backend::{Device, Solver};
 use tissue::deformation::{DeformParams, PrepareStage};
 use tissue::gravity::{
-    FIT_PARTICLES, Gravity, HELD_SPACINGS, SolveProgress, Unloaded, held_vertices, unload,
+    FIT_BOUNDS_KPA, FIT_PARTICLES, Gravity, HELD_SPACINGS, SolveProgress, Unloaded, held_vertices,
+    unload,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -196,6 +197,10 @@ pub struct PostureReport {
     /// The particles of the model the fit ran on (`--fit-particles`, or the
     /// model's own).
     pub fit_particles: Option<usize>,
+    /// How far the free skin moved between the scans: the RMS distance of
+    /// its (observed) vertices from rest to deformed (model units), the
+    /// scale the fit's residual is judged against.
+    pub skin_motion_mm: Option<f32>,
     /// The unloaded shape, loaded again with the rest posture's gravity:
     /// its RMS distance from the rest surface particles (model units).
     pub unloaded_residual_mm: Option<f32>,
@@ -206,6 +211,101 @@ pub struct PostureReport {
     /// Seconds the unloaded shape and the fit took, the coarse model's
     /// sampling included (the solve's own are `seconds`).
     pub posture_seconds: f64,
+}
+
+impl PostureReport {
+    /// What makes a fit implausible, one line each (empty when nothing
+    /// does): a fitted stiffness on a bound of the search
+    /// ([`FIT_BOUNDS_KPA`]: no stiffness in it explains the skin), or a
+    /// fit whose free skin misses the observed by more than the skin moved
+    /// (the gravity, density or units do not explain the deformation).
+    pub fn flags(&self) -> Vec<String> {
+        let mut flags = Vec::new();
+        let (low, high) = FIT_BOUNDS_KPA;
+        if let (true, Some(e)) = (self.stiffness_fitted, self.stiffness_kpa)
+            && (e <= low * (1.0 + BOUND_SHARE) || e >= high * (1.0 - BOUND_SHARE))
+        {
+            flags.push(format!(
+                "the stiffness fit ended at its bound ({e:.3} kPa of {low} to {high}): no \
+                 stiffness explains the skin with this gravity, density ({} kg/m^3) and unit \
+                 ({:?}); check them",
+                self.gravity.density_kg_m3, self.gravity.unit
+            ));
+        }
+        if let (true, Some(fit), Some(motion)) = (
+            self.stiffness_fitted,
+            self.fit_residual_mm,
+            self.skin_motion_mm,
+        ) && fit > motion
+        {
+            flags.push(format!(
+                "the fit's free skin is {fit:.2} mm RMS from the observed, more than the skin \
+                 moved between the scans ({motion:.2} mm RMS): the postures' gravity does not \
+                 explain the deformed skin; check --gravity-rest and --gravity-deformed (their \
+                 directions, in the surfaces' axes)"
+            ));
+        }
+        flags
+    }
+}
+
+/// A fitted stiffness within this share of a bound of [`FIT_BOUNDS_KPA`]
+/// is on the bound.
+const BOUND_SHARE: f32 = 0.01;
+
+/// A `--fixed-region` file's vertices may move this many mean connection
+/// lengths between the scans: a held region does not move.
+pub const HELD_FILE_SPACINGS: f32 = 0.1;
+
+/// Refuses a held region (`held`, one flag per surface vertex) whose
+/// vertices move between `rest` and `deformed` by more than
+/// [`HELD_FILE_SPACINGS`] of `spacing`.
+fn check_held(
+    held: &[bool],
+    rest: &SurfaceMesh,
+    deformed: &SurfaceMesh,
+    spacing: f32,
+) -> Result<()> {
+    let tolerance = HELD_FILE_SPACINGS * spacing;
+    let moved: Vec<f32> = held
+        .iter()
+        .zip(rest.vertices.iter().zip(&deformed.vertices))
+        .filter(|(h, _)| **h)
+        .map(|(_, (a, b))| a.distance(*b))
+        .filter(|&d| d > tolerance)
+        .collect();
+    if !moved.is_empty() {
+        anyhow::bail!(
+            "{} of its vertices move between the rest and the deformed surface, up to {:.2} \
+             (more than {tolerance:.3}, a tenth of the particle spacing): a held region does \
+             not move; give the surface that stays in place (the chest wall), or auto",
+            moved.len(),
+            moved.iter().copied().fold(0.0, f32::max)
+        );
+    }
+    Ok(())
+}
+
+/// The RMS distance the free skin moved from `rest` to `deformed`: the
+/// vertices not `held` and, where `observed` says, observed; `None` when
+/// there are none.
+fn skin_motion(
+    rest: &SurfaceMesh,
+    deformed: &SurfaceMesh,
+    held: &[bool],
+    observed: Option<&[bool]>,
+) -> Option<f32> {
+    let (sum, count) = rest
+        .vertices
+        .iter()
+        .zip(&deformed.vertices)
+        .enumerate()
+        .filter(|(v, _)| !held.get(*v).copied().unwrap_or(true))
+        .filter(|(v, _)| observed.is_none_or(|o| o.get(*v).copied().unwrap_or(false)))
+        .fold((0.0_f64, 0_usize), |(s, n), (_, (a, b))| {
+            (s + f64::from(a.distance_squared(*b)), n + 1)
+        });
+    (count > 0).then(|| (sum / count as f64).sqrt() as f32)
 }
 
 /// What the postures give the solve: the unloaded shape, where gravity
@@ -336,6 +436,13 @@ pub fn prepare(
             let path = Path::new(file);
             let held = read_observed(path, &model.surface)
                 .with_context(|| format!("--fixed-region {file}"))?;
+            check_held(
+                &held,
+                &model.surface,
+                deformed,
+                model.mean_connection_length(),
+            )
+            .with_context(|| format!("--fixed-region {file}"))?;
             (held, file.to_owned())
         }
     };
@@ -348,6 +455,7 @@ pub fn prepare(
             HELD_SPACINGS * model.mean_connection_length()
         );
     }
+    let skin_motion_mm = skin_motion(&model.surface, deformed, &held, params.observed.as_deref());
     let gravity_report = GravityReport {
         rest: rest.to_array(),
         deformed: deformed_gravity.to_array(),
@@ -375,6 +483,7 @@ pub fn prepare(
                 fit_residual_mm: None,
                 fit_trials: Vec::new(),
                 fit_particles: None,
+                skin_motion_mm,
                 unloaded_residual_mm: None,
                 unloaded_converged: true,
                 solves: 0,
@@ -430,6 +539,7 @@ pub fn prepare(
             })
             .collect(),
         fit_particles: unloaded.fit.as_ref().map(|f| f.particles),
+        skin_motion_mm,
         unloaded_residual_mm: Some(unloaded.shape.residual),
         unloaded_converged: unloaded.shape.converged,
         solves: unloaded.solves,

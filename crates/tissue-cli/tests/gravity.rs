@@ -327,3 +327,43 @@ fn track_solves_every_frame_from_one_unloaded_shape() {
         assert_eq!(frame["params"]["force"], "elastic", "frame {k}");
     }
 }
+
+/// A fit that the postures cannot explain is flagged, not reported as a
+/// plain success: gravity pointing against the observed sag
+/// (`--gravity-deformed 0,1,0`) leaves the free skin further from the
+/// observed than it moved, so the run exits 4 with `status: flagged` and
+/// says why. A held region that moves between the scans is refused.
+#[test]
+fn a_fit_the_postures_cannot_explain_is_flagged_and_a_moving_held_region_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let out = dir.path().join("against");
+    let (output, report) = deform(
+        &model_path,
+        &out,
+        &["--gravity-rest", "0,0,-1", "--gravity-deformed", "0,1,0"],
+    );
+    assert_eq!(output.status.code(), Some(4), "{}", text(&output));
+    let r = report.unwrap();
+    assert_eq!(r["status"], "flagged", "{r}");
+    let fit = r["fit_residual_mm"].as_f64().unwrap();
+    let motion = r["skin_motion_mm"].as_f64().unwrap();
+    assert!(fit > motion, "fit {fit} mm, the skin moved {motion} mm");
+    assert!(
+        text(&output).contains("does not explain the deformed skin"),
+        "{}",
+        text(&output)
+    );
+
+    // Every rest vertex as the held region: the sagged skin moved.
+    let all = dir.path().join("all.csv");
+    tissue::save_points(&model.surface.vertices, &all).unwrap();
+    let out = dir.path().join("held");
+    let extra = [&POSTURES[..], &["--fixed-region", s(&all)]].concat();
+    let (output, report) = deform(&model_path, &out, &extra);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    assert!(report.is_none());
+    for word in ["all.csv", "move between the rest and the deformed surface"] {
+        assert!(text(&output).contains(word), "{}", text(&output));
+    }
+}
