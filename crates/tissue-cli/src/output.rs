@@ -346,6 +346,51 @@ pub fn prepare_outputs(outputs: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
+/// The advisory lock file a run holds in its output folder.
+pub const LOCK_FILE: &str = ".tissue.lock";
+
+/// A run's hold on its output folder: an exclusive advisory lock on
+/// [`LOCK_FILE`] there, so that a second `deform` or `track` into the same
+/// folder is refused instead of mixing its files with the first's. The
+/// lock goes with the process (a killed run holds nothing); the file is
+/// removed when the hold is dropped.
+#[derive(Debug)]
+pub struct OutputLock {
+    path: PathBuf,
+    _file: std::fs::File,
+}
+
+impl OutputLock {
+    /// Takes the lock of `dir` (which exists), or says who holds it.
+    pub fn take(dir: &Path) -> Result<Self> {
+        let path = dir.join(LOCK_FILE);
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .with_context(|| format!("cannot write {}: its lock file", path.display()))?;
+        match file.try_lock() {
+            Ok(()) => Ok(Self { path, _file: file }),
+            Err(std::fs::TryLockError::WouldBlock) => bail!(
+                "another tissue run is writing into {} (it holds {}): wait for it to end, or \
+                 choose another output folder",
+                dir.display(),
+                path.display()
+            ),
+            Err(std::fs::TryLockError::Error(e)) => {
+                Err(e).with_context(|| format!("cannot lock {}", path.display()))
+            }
+        }
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
 /// `path` made absolute with its folder's links resolved (the file itself
 /// need not exist), to compare outputs with inputs.
 pub fn resolved(path: &Path) -> PathBuf {

@@ -3,6 +3,7 @@
 //! frame checked before the first solve, the summary rewritten after every
 //! frame, Ctrl-C honoured between frames, and a cut-off run resumable.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -19,9 +20,9 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, Drawn, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence, draw,
-    file_name, planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs,
-    write_json, write_solution,
+    Destination, Drawn, OutputLock, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished,
+    convergence, draw, file_name, planned_outputs, prepare_outputs, refuse_overwriting,
+    remove_earlier_outputs, write_json, write_solution,
 };
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
@@ -136,6 +137,23 @@ struct Plan<'a> {
     /// The posture options, where given (a resume must give the same).
     #[serde(skip_serializing_if = "Option::is_none")]
     gravity: Option<&'a GravityArgs>,
+    /// Each input file's contents as a hash ([`input_hashes`]), by path: a
+    /// resume must read the same files, not only the same names.
+    inputs: BTreeMap<String, String>,
+}
+
+/// The contents of each of `paths` as a 64-bit XXH3 hash in hex, by path
+/// as given.
+fn input_hashes<'p>(paths: impl IntoIterator<Item = &'p Path>) -> Result<BTreeMap<String, String>> {
+    paths
+        .into_iter()
+        .map(|path| {
+            let bytes =
+                std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+            let hash = twox_hash::XxHash3_64::oneshot(&bytes);
+            Ok((path.display().to_string(), format!("{hash:016x}")))
+        })
+        .collect()
 }
 
 fn is_lps(space: &Space) -> bool {
@@ -229,10 +247,12 @@ fn remove_parts(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The frames an earlier run into `dir` finished, from its `track.json`,
-/// for `--resume`: refused unless that run's plan is `plan`; the frames it
-/// lists, in order, up to the first whose folder lost its `report.json`.
-fn resumed(summary: &Path, plan: &Value) -> Result<Vec<Value>> {
+/// The frames an earlier run into `dir` finished, from its `track.json`
+/// (`summary`), for `--resume`: refused unless that run's plan is `plan`
+/// (the same options and the same files, by their contents' hashes),
+/// and when it did all `planned` frames; the frames it lists, in order, up
+/// to the first whose folder in `dir` (`frame-NNNN`) has no `report.json`.
+fn resumed(summary: &Path, plan: &Value, dir: &Path, planned: usize) -> Result<Vec<Value>> {
     if !summary.is_file() {
         bail!(
             "--resume: {} does not exist, so there is no run to continue; run without --resume",
@@ -251,25 +271,55 @@ fn resumed(summary: &Path, plan: &Value) -> Result<Vec<Value>> {
     };
     if let Some(object) = plan.as_object() {
         for (key, value) in object {
-            if earlier_plan.get(key) != Some(value) {
-                bail!(
+            if earlier_plan.get(key) == Some(value) {
+                continue;
+            }
+            let changed = (key == "inputs")
+                .then(|| {
+                    let before = earlier_plan.get(key)?.as_object()?;
+                    value
+                        .as_object()?
+                        .iter()
+                        .find(|(path, hash)| before.get(*path) != Some(*hash))
+                        .map(|(path, _)| path.clone())
+                })
+                .flatten();
+            match changed {
+                Some(path) => bail!(
+                    "--resume: {path} is not what the run in {} read (its contents changed, or \
+                     it is another file): resume with the same files, or run without --resume",
+                    summary.display()
+                ),
+                None => bail!(
                     "--resume: this run's {key} differ from those of the run in {}: \
                      resume with the same model, frames, carried files and options, \
                      or run without --resume",
                     summary.display()
-                );
+                ),
             }
         }
     }
+    // The frames done are those whose folder here holds its report, up to
+    // the first that does not (whatever folder the summary names).
     let mut done = Vec::new();
-    for frame in earlier["frames"].as_array().into_iter().flatten() {
-        let finished = frame["folder"]
-            .as_str()
-            .is_some_and(|folder| Path::new(folder).join(REPORT_FILE).is_file());
-        if !finished {
+    for (k, frame) in earlier["frames"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .enumerate()
+    {
+        let folder = dir.join(format!("frame-{:04}", k + 1));
+        if !folder.join(REPORT_FILE).is_file() {
             break;
         }
         done.push(frame.clone());
+    }
+    if done.len() >= planned {
+        bail!(
+            "--resume: the run in {} has done all of its {planned} frames: nothing to continue \
+             (run without --resume to solve them again)",
+            summary.display()
+        );
     }
     Ok(done)
 }
@@ -380,13 +430,15 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         space: args.carry.space,
         params: &params,
         gravity: args.solve.gravity.given().then_some(&args.solve.gravity),
+        inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;
+    prepare_outputs(std::slice::from_ref(&path))?;
+    let _lock = OutputLock::take(&args.output_dir)?;
     let mut done = if args.resume {
-        resumed(&path, &plan)?
+        resumed(&path, &plan, &args.output_dir, frames.len())?
     } else {
         Vec::new()
     };
-    prepare_outputs(std::slice::from_ref(&path))?;
     remove_stale(&args.output_dir, frames.len(), args.resume)?;
     let resumed_at = (args.resume && !done.is_empty()).then_some(done.len() + 1);
     if resumed_at.is_some() && !args.quiet {

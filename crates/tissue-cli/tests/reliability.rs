@@ -510,8 +510,23 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
         text(&refused)
     );
 
+    // A frame file changed since the stop (one not solved yet), under the
+    // same name: refused, naming it; the run resumes once it is back.
+    let last_frame = dir.path().join(format!("frames/skin-{frames}.obj"));
+    let original = std::fs::read(&last_frame).unwrap();
+    let mut changed = original.clone();
+    changed.extend_from_slice(b"# edited\n");
+    std::fs::write(&last_frame, &changed).unwrap();
     let mut again = args(&cut);
     again.push("--resume".into());
+    let refused = run(&again);
+    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
+    assert!(
+        text(&refused).contains(&format!("skin-{frames}.obj is not what the run")),
+        "{}",
+        text(&refused)
+    );
+    std::fs::write(&last_frame, &original).unwrap();
     let resumed = run(&again);
     assert!(resumed.status.success(), "{}", text(&resumed));
     assert!(
@@ -546,6 +561,27 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
         worst < 1e-4 * size(&model),
         "the resumed run's last frame is {worst} from the uninterrupted run's"
     );
+
+    // A finished run: nothing to continue, said so.
+    let finished = run(&again);
+    assert_eq!(finished.status.code(), Some(1), "{}", text(&finished));
+    assert!(
+        text(&finished).contains(&format!("has done all of its {frames} frames")),
+        "{}",
+        text(&finished)
+    );
+    // A frame whose report was removed is where the run resumes.
+    std::fs::remove_file(cut.join("frame-0003/report.json")).unwrap();
+    let redone = run(&again);
+    assert!(redone.status.success(), "{}", text(&redone));
+    assert!(
+        text(&redone).contains("resuming at frame 3"),
+        "{}",
+        text(&redone)
+    );
+    let summary = json(&cut.join("track.json"));
+    assert_eq!(summary["frames"].as_array().unwrap().len(), frames);
+    assert!(cut.join("frame-0003/report.json").is_file());
 
     // Nothing to resume in a fresh folder.
     let mut fresh = args(&dir.path().join("fresh"));
@@ -1143,4 +1179,43 @@ fn a_failed_run_leaves_no_output() {
         visible_files(&out_dir),
         ["field.nrrd", "particles.vtp", "report.json"]
     );
+}
+
+/// Two runs into one output folder at once: the second is refused before
+/// any work (exit 1, naming the folder and the lock), its files never mixed
+/// with the first's; once the first ends the folder is free again. The
+/// first run is played by this test holding the folder's lock.
+#[test]
+fn a_second_run_into_a_busy_output_folder_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sag = s(&assets().join("phantom-sag.obj")).to_owned();
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let lock = std::fs::File::create(out.join(".tissue.lock")).unwrap();
+    lock.lock().unwrap();
+    let pattern = sag_frames(dir.path(), &model, 2);
+    let runs: [Vec<&str>; 2] = [
+        vec!["deform", "--model", s(&model_path), "--surface", &sag],
+        vec!["track", "--model", s(&model_path), "--frames", &pattern],
+    ];
+    for run in &runs {
+        let mut args = run.clone();
+        args.extend(["-o", s(&out), "-q"]);
+        let refused = tissue(&args);
+        assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
+        assert!(
+            text(&refused).contains("another tissue run is writing into"),
+            "{}",
+            text(&refused)
+        );
+        assert_eq!(visible_files(&out), Vec::<String>::new());
+    }
+    lock.unlock().unwrap();
+    drop(lock);
+    let mut args = runs[0].clone();
+    args.extend(["-o", s(&out), "-q"]);
+    let free = tissue(&args);
+    assert!(free.status.success(), "{}", text(&free));
+    assert!(!out.join(".tissue.lock").exists(), "the lock file stays");
 }
