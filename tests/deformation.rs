@@ -887,3 +887,60 @@ fn the_cycled_coarse_solve_lands_where_the_factored_one_does() {
         .fold(0.0f32, f32::max);
     assert!(worst < 2.0 * 3e-5 * exact.size(), "{worst}");
 }
+
+/// The pipeline in any length unit (issue: a surface 1e6 times larger,
+/// inside the documented size range, once had every particle "flat"):
+/// the phantom scaled by 1e6 and by 1e-6 samples, and its sag solves with
+/// both forces in the same iterations as at its own scale, with no particle
+/// judged inverted and the same displacement, scaled. Moment matrices'
+/// determinants (sixth powers of lengths) leave single precision at those
+/// scales unless formed in their own unit (`elastic::moment_unit`).
+#[test]
+fn the_pipeline_is_the_same_in_any_length_unit() {
+    use tissue::deform::Sag;
+    let breast = phantom::default_breast();
+    let sagged = deform_surface(&breast, &Sag::default());
+    let scaled = |mesh: &SurfaceMesh, by: f32| {
+        SurfaceMesh::new(
+            mesh.vertices.iter().map(|v| *v * by).collect(),
+            mesh.triangles.clone(),
+        )
+    };
+    let run = |by: f32, force: ForceModel| {
+        let model = tissue::sample(&scaled(&breast, by), &SamplingParams::with_particles(1_500))
+            .unwrap_or_else(|e| panic!("scale {by}: {e}"))
+            .model;
+        let params = DeformParams::default().with(|p| p.force = force);
+        let mut deformer = Deformer::new(&model, params).unwrap();
+        deformer.set_surface(&scaled(&sagged, by)).unwrap();
+        let report = deformer.solve();
+        assert!(report.converged, "scale {by}, {force:?}: {report:?}");
+        let inverted = tissue::deformation::inversions(
+            &model.positions,
+            deformer.positions(),
+            &model.connections,
+        );
+        assert_eq!(inverted.count, 0, "scale {by}, {force:?}");
+        let largest = deformer
+            .positions()
+            .iter()
+            .zip(&model.positions)
+            .map(|(a, b)| a.distance(*b) / by)
+            .fold(0.0, f32::max);
+        (report.iterations, largest)
+    };
+    for force in [ForceModel::Symmetric, ForceModel::Elastic] {
+        let (iterations, largest) = run(1.0, force);
+        for by in [1e6, 1e-6] {
+            let (i, l) = run(by, force);
+            assert!(
+                i.abs_diff(iterations) <= 1,
+                "scale {by}, {force:?}: {i} iterations, {iterations} at scale 1"
+            );
+            assert!(
+                (l - largest).abs() <= 1e-3 * largest,
+                "scale {by}, {force:?}: moved {l}, {largest} at scale 1"
+            );
+        }
+    }
+}

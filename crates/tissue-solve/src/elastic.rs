@@ -104,7 +104,7 @@ impl Elastic {
                     return (Mat3::ZERO, 0.0);
                 }
                 // lambda / 2 = nu / (1 - 2 nu) mu with mu = a_i = tr(A_i) / 3.
-                (a.inverse(), ratio * a.diagonal().element_sum() / 3.0)
+                (moment_inverse(a), ratio * a.diagonal().element_sum() / 3.0)
             })
             .unzip();
         let consistency = Consistency::new(rest, connections, &inverse_moments, free);
@@ -446,10 +446,35 @@ impl VolumeLinearisation {
 
 /// Whether a neighbourhood with moment matrix `a` spans three dimensions:
 /// `det A / (tr A / 3)^3` at least [`FLAT_NEIGHBOURHOOD`] (false for fewer
-/// than three connections, or all of them in a plane or on a line).
+/// than three connections, or all of them in a plane or on a line). Formed
+/// in units of [`moment_unit`], so that it holds for any model size.
 pub fn is_round(a: Mat3) -> bool {
+    let Some(unit) = moment_unit(a) else {
+        return false;
+    };
+    let (a, scale) = (a / unit, a.diagonal().element_sum() / 3.0 / unit);
+    a.determinant() > FLAT_NEIGHBOURHOOD * scale * scale * scale
+}
+
+/// The power of two nearest `tr A / 3` for a moment matrix `a` (a squared
+/// length: the connections' lengths squared, summed), `None` where that is
+/// not positive and finite. `A`'s determinant is a sixth power of lengths:
+/// it leaves single precision for connections about 1e6 long and falls to
+/// subnormals for ones about 1e-6 long, so determinants and inverses are
+/// formed from `A` divided by this. A power of two divides exactly, so
+/// wherever `A` itself would do they give the same bits.
+pub fn moment_unit(a: Mat3) -> Option<f32> {
     let scale = a.diagonal().element_sum() / 3.0;
-    scale > 0.0 && a.determinant() > FLAT_NEIGHBOURHOOD * scale * scale * scale
+    (scale > 0.0 && scale.is_finite()).then(|| 2f32.powi(scale.log2().round() as i32))
+}
+
+/// `a`'s inverse for a moment matrix `a` (zero where it has no
+/// [`moment_unit`]), formed in units of [`moment_unit`] for any model size.
+pub fn moment_inverse(a: Mat3) -> Mat3 {
+    match moment_unit(a) {
+        Some(unit) => (a / unit).inverse() / unit,
+        None => Mat3::ZERO,
+    }
 }
 
 /// `A_i = sum_j d_ij d_ij^T` over particle `i`'s connections at rest.

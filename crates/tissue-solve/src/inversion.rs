@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tissue_core::Connections;
 
-use crate::elastic::{is_round, moment, offsets_product};
+use crate::elastic::{is_round, moment, moment_unit, offsets_product};
 
 /// The local volume ratio at or below which a particle counts as inverted.
 pub const INVERTED_VOLUME_RATIO: f32 = 0.0;
@@ -41,8 +41,11 @@ pub fn inversions(rest: &[Vec3], current: &[Vec3], connections: &Connections) ->
             if !is_round(a) {
                 return None;
             }
+            // Both in units of A's (is_round found it): a ratio of sixth
+            // powers of lengths, formed where they stay in range.
+            let unit = moment_unit(a)?;
             let m = offsets_product(rest, current, connections, i);
-            Some(m.determinant() / a.determinant())
+            Some((m / unit).determinant() / (a / unit).determinant())
         })
         .collect();
     // NaN (a non-finite particle) counts as inverted.

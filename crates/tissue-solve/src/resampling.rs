@@ -24,7 +24,7 @@ use tissue_core::displacement::DisplacementField;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{Connections, SurfaceMesh};
 
-use crate::elastic::{is_round, moment, offsets_product};
+use crate::elastic::{is_round, moment, moment_inverse, offsets_product};
 use crate::grid::grid_build;
 use crate::structures::{carriers_of, typical_spacing};
 
@@ -107,7 +107,7 @@ fn inverse_gradients(
         .map(|k| {
             let a = moment(rest, connections, k);
             if is_round(a) {
-                let f = offsets_product(rest, current, connections, k) * a.inverse();
+                let f = offsets_product(rest, current, connections, k) * moment_inverse(a);
                 let ratio = f.determinant();
                 if ratio.is_finite() && ratio >= MIN_VOLUME_RATIO {
                     return f.inverse();
