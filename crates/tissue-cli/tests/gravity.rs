@@ -218,6 +218,11 @@ fn bad_posture_options_are_refused() {
             "1 g/cm^3 is 1000 kg/m^3",
         ),
         ([&POSTURES[..], &["--unit", "cm"]].concat(), "--unit mm"),
+        // The fit's solves all stopped by the cap: the cap is named.
+        (
+            [&POSTURES[..], &["--max-iterations", "3"]].concat(),
+            "raise --max-iterations",
+        ),
         ([&POSTURES[..], &["--stiffness", "0"]].concat(), "stiffness"),
         (
             [&POSTURES[..], &["--fit-particles", "100"]].concat(),

@@ -32,7 +32,7 @@ use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::gravity::{Accuracy, UnloadedShape, Unloading, unloaded_shape_from};
 use crate::plan::control_points;
-use crate::report::DeformReport;
+use crate::report::{DeformReport, StopReason};
 
 /// The search stops where the next estimate is within this of the trial
 /// it came from, in `ln E` (2 %: a stiffness that far off moves the
@@ -128,6 +128,16 @@ pub fn fit_stiffness(
         start,
         format!("within {lo} to {hi} kPa"),
     )?;
+    // Whether a solve stopped at the iteration cap: then a trial that
+    // failed says nothing of the load.
+    let capped = std::cell::Cell::new(None);
+    let mut solve = |x: &[Vec3], load: Vec3, warm: Option<&[Vec3]>, accuracy: Accuracy| {
+        let (moved, report) = solve(x, load, warm, accuracy)?;
+        if report.stopped_by == StopReason::IterationCap {
+            capped.set(Some(report.iterations));
+        }
+        Ok::<_, Error>((moved, report))
+    };
     let mut trials: Vec<Trial> = Vec::new();
     let mut best: Option<(Trial, UnloadedShape)> = None;
     // The last deformed posture solved: its stiffness, unloaded shape and
@@ -217,6 +227,16 @@ pub fn fit_stiffness(
         e0 = (2.0 * e0).min(hi);
     }
     let Some(mut last) = first else {
+        if let Some(iterations) = capped.get() {
+            return Err(Error::Param(ParamError {
+                name: "max_iterations",
+                value: format!("reached after {iterations} iterations"),
+                expected: "enough iterations for the posture's solves to converge: they stopped \
+                           at the iteration cap at every stiffness tried (raise \
+                           --max-iterations, or leave it at its default)"
+                    .into(),
+            }));
+        }
         return Err(Error::Param(ParamError {
             name: "stiffness",
             value: format!("{start} to {e0} kPa"),
