@@ -183,3 +183,85 @@ fn a_damaged_vtk_header_is_named_in_the_error() {
         assert!(!message.contains("Base64Decode"), "{message}");
     }
 }
+
+/// Legacy VTK files that vtkio's parser refuses with only its grammar's
+/// word (`Parse error: Digit`) are refused naming what does not add up.
+#[test]
+fn a_damaged_legacy_vtk_file_is_named_in_the_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let header = "# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\n";
+    let cases = [
+        (
+            format!("{header}POINTS 4 float\n0 0 0 1 0 0\nPOLYGONS 1 4\n3 0 1 2\n"),
+            "POINTS announces 4 points (12 values), but only 6 follow before `POLYGONS`",
+        ),
+        (
+            format!(
+                "{header}POINTS 4 float\n0 0 0 1 0 0 0 1 0 0 0 1\nPOLYGONS 2 8\n3 0 2 1\n3 0 1 x\n"
+            ),
+            "POLYGONS announces 8 values, but value 8 of them is `x`, not a number",
+        ),
+        (
+            format!("{header}POINTS 4 float\n0 0 0 1 0 0 0 1 0 0 0 1\nPOLYGONS 2 8\n3 0 2 1\n"),
+            "POLYGONS announces 8 values, but only 4 follow: the file is cut short",
+        ),
+        (
+            "hello\n".to_owned(),
+            "not a legacy VTK file: its first line is `hello`",
+        ),
+        (
+            "# vtk DataFile Version 3.0\nt\nASCI\n".to_owned(),
+            "says ASCII or BINARY, not `ASCI`",
+        ),
+        (
+            "# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\n".to_owned(),
+            "DATASET STRUCTURED_POINTS, which holds no surface",
+        ),
+    ];
+    for (k, (text, expected)) in cases.into_iter().enumerate() {
+        let path = dir.path().join(format!("bad-{k}.vtk"));
+        std::fs::write(&path, text).unwrap();
+        let message = load_surface(&path).unwrap_err().to_string();
+        assert!(message.contains(&format!("bad-{k}.vtk")), "{message}");
+        assert!(message.contains(expected), "{message}");
+        assert!(!message.contains("Parse error"), "{message}");
+    }
+}
+
+/// A compressed block whose header claims more bytes than zlib can make of
+/// it (a "zlib bomb", or a damaged header) is refused before it is
+/// inflated, naming the array; the file is VTK's own with the `Points`
+/// block's header changed to say 2e9 bytes.
+#[test]
+fn a_block_claiming_more_than_its_compressor_can_make_is_refused() {
+    use base64::Engine as _;
+    let engine = base64::engine::general_purpose::STANDARD;
+    let text = std::fs::read_to_string(fixture("inline-zlib.vtp")).unwrap();
+    let tag = text.find(r#"Name="Points""#).unwrap();
+    let start = tag + text[tag..].find('>').unwrap() + 1;
+    // Where the array's base64 text begins (a suffix of the file).
+    let start = text.len() - text[start..].trim_start().len();
+    // One block, UInt32 words: [blocks, block size, last size, compressed].
+    let header = engine.decode(&text[start..start + 24]).unwrap();
+    let word = |k: usize| u32::from_le_bytes(header[4 * k..4 * k + 4].try_into().unwrap());
+    assert_eq!(word(0), 1, "one block");
+    let mut bomb = header.clone();
+    bomb[8..12].copy_from_slice(&2_000_000_000u32.to_le_bytes());
+    let edited = format!(
+        "{}{}{}",
+        &text[..start],
+        engine.encode(&bomb),
+        &text[start + 24..]
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bomb.vtp");
+    std::fs::write(&path, edited).unwrap();
+    let message = load_surface(&path).unwrap_err().to_string();
+    for expected in [
+        "bomb.vtp",
+        "`Points`",
+        "more than the compressor can make of it",
+    ] {
+        assert!(message.contains(expected), "{message}");
+    }
+}

@@ -154,7 +154,7 @@ fn block(text: &str, layout: &Layout) -> Result<Vec<u8>, String> {
     }
     let compressed: usize = sizes.iter().sum();
     let data = decode(prefix(&text[header_chars..], encoded_len(compressed))?)?;
-    let mut out = Vec::with_capacity(full.saturating_mul(blocks).min(1 << 30));
+    let mut out = Vec::with_capacity(full.saturating_mul(blocks).min(1032 * compressed + 64));
     let mut at = 0;
     for (b, &size) in sizes.iter().enumerate() {
         let expected = if b + 1 == blocks { last } else { full };
@@ -162,6 +162,20 @@ fn block(text: &str, layout: &Layout) -> Result<Vec<u8>, String> {
             .get(at..at + size)
             .ok_or("its compressed blocks end early")?;
         at += size;
+        // No compressor makes more than this of a byte (zlib's deflate at
+        // most 1032, LZ4 255): a header that says more describes no block
+        // VTK wrote, and is refused before it is inflated.
+        let most = match compressor {
+            Compressor::Zlib => 1032,
+            Compressor::Lz4 => 255,
+            Compressor::Lzma => 8192,
+        };
+        if expected > most * size + 64 {
+            return Err(format!(
+                "compressed block {b} is {size} bytes but its header says it holds {expected}, \
+                 more than the compressor can make of it"
+            ));
+        }
         let before = out.len();
         match compressor {
             Compressor::Zlib => {

@@ -12,11 +12,125 @@ use crate::io::space::Space;
 use crate::mesh::SurfaceMesh;
 
 pub(super) fn read_vtk(bytes: &[u8]) -> Result<SurfaceMesh, String> {
+    legacy_header(bytes)?;
     let vtk = guarded(|| {
-        vtkio::Vtk::parse_legacy_be(Cursor::new(bytes))
-            .map_err(|e| format!("cannot parse legacy VTK: {e}"))
+        vtkio::Vtk::parse_legacy_be(Cursor::new(bytes)).map_err(|e| {
+            // vtkio's parser says only where its grammar failed ("Parse
+            // error: Digit"); say what in the file does not add up.
+            match legacy_counts(bytes) {
+                Some(defect) => format!("cannot read legacy VTK: {defect}"),
+                None => format!(
+                    "cannot read legacy VTK ({e}): a section's data does not match its \
+                     header (a count larger than the values that follow, a value that is \
+                     not a number, or a file cut short)"
+                ),
+            }
+        })
     })?;
     surface_of(vtk.data)
+}
+
+/// The first lines of a legacy VTK file checked, each defect named: the
+/// `# vtk DataFile Version` line, the title, `ASCII` or `BINARY`, and a
+/// `DATASET` that can hold a surface.
+fn legacy_header(bytes: &[u8]) -> Result<(), String> {
+    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(4096)]);
+    let mut lines = head.lines();
+    let first = lines.next().unwrap_or_default().trim();
+    if !first.starts_with("# vtk DataFile Version") {
+        return Err(format!(
+            "not a legacy VTK file: its first line is `{}`, not `# vtk DataFile Version N.N`",
+            first.chars().take(60).collect::<String>()
+        ));
+    }
+    let _title = lines.next();
+    let format = lines.next().unwrap_or_default().trim();
+    if !format.eq_ignore_ascii_case("ASCII") && !format.eq_ignore_ascii_case("BINARY") {
+        return Err(format!(
+            "the third line of a legacy VTK file says ASCII or BINARY, not `{}`",
+            format.chars().take(60).collect::<String>()
+        ));
+    }
+    let dataset = lines
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .unwrap_or_default();
+    let kind = dataset.strip_prefix("DATASET").map(str::trim);
+    match kind {
+        Some(k)
+            if k.eq_ignore_ascii_case("POLYDATA")
+                || k.eq_ignore_ascii_case("UNSTRUCTURED_GRID") =>
+        {
+            Ok(())
+        }
+        Some(k) => Err(format!(
+            "a legacy VTK DATASET {k}, which holds no surface (POLYDATA or UNSTRUCTURED_GRID do)"
+        )),
+        None => Err(format!(
+            "the line after ASCII or BINARY is `{}`, not `DATASET POLYDATA`",
+            dataset.chars().take(60).collect::<String>()
+        )),
+    }
+}
+
+/// For an ASCII legacy file that vtkio could not parse: the first section
+/// (`POINTS`, `POLYGONS`, `TRIANGLE_STRIPS`, `CELLS`) whose values are fewer
+/// than its header announces, or one that is not a number; `None` when
+/// the counts add up (or the file is binary).
+fn legacy_counts(bytes: &[u8]) -> Option<String> {
+    let text = std::str::from_utf8(bytes).ok()?;
+    let mut lines = text.lines().skip(2);
+    if !lines.next()?.trim().eq_ignore_ascii_case("ASCII") {
+        return None;
+    }
+    let tokens: Vec<&str> = lines.flat_map(str::split_ascii_whitespace).collect();
+    for (k, token) in tokens.iter().enumerate() {
+        let (expected, what) = match token.to_ascii_uppercase().as_str() {
+            "POINTS" => {
+                let n: usize = tokens.get(k + 1)?.parse().ok()?;
+                let values = n.checked_mul(3)?;
+                (
+                    values,
+                    format!("POINTS announces {n} points ({values} values)"),
+                )
+            }
+            "POLYGONS" | "TRIANGLE_STRIPS" | "CELLS" | "VERTICES" | "LINES" => {
+                let size: usize = tokens.get(k + 2)?.parse().ok()?;
+                // Version 5 files follow with OFFSETS and CONNECTIVITY.
+                if tokens
+                    .get(k + 3)
+                    .is_some_and(|t| t.eq_ignore_ascii_case("OFFSETS"))
+                {
+                    continue;
+                }
+                (size, format!("{token} announces {size} values"))
+            }
+            _ => continue,
+        };
+        // After the keyword and its two numbers (`POINTS n type`,
+        // `POLYGONS n size`).
+        let values = &tokens[(k + 3).min(tokens.len())..];
+        let mut found = 0;
+        for value in values.iter().take(expected) {
+            if value.parse::<f64>().is_err() {
+                // The next section's keyword: the values ran out.
+                if value.chars().all(|c| c.is_ascii_uppercase() || c == '_') {
+                    return Some(format!("{what}, but only {found} follow before `{value}`"));
+                }
+                return Some(format!(
+                    "{what}, but value {} of them is `{value}`, not a number",
+                    found + 1
+                ));
+            }
+            found += 1;
+        }
+        if found < expected {
+            return Some(format!(
+                "{what}, but only {found} follow: the file is cut short"
+            ));
+        }
+    }
+    None
 }
 
 /// Runs a `vtkio` parse, turning a panic inside it into an error: it
