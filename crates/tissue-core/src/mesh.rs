@@ -105,6 +105,59 @@ impl SurfaceMesh {
         }
         Some(SurfaceMesh::new(vertices, rest.triangles.clone()))
     }
+
+    /// `self`, a deformed frame of `rest` as another tool wrote it, made
+    /// `rest`'s mesh with moved vertices where it can be: coinciding
+    /// vertices welded when that gives `rest`'s count (an `stl` file, which
+    /// stores three corners a triangle, is always welded), every triangle's
+    /// winding reversed when all of `rest`'s are (sampling turned an
+    /// inward-facing surface outward), and the vertices renumbered by the
+    /// triangles when only their numbering differs. What cannot be matched
+    /// is returned as it is, for the topology check to name.
+    pub fn as_frame_of(self, rest: &SurfaceMesh, stl: bool) -> SurfaceMesh {
+        let mut deformed = if self.vertices.len() == rest.vertices.len() {
+            self
+        } else {
+            let welded = crate::io::surface::weld(&self, 0.0);
+            if welded.vertices.len() == rest.vertices.len() || stl {
+                welded
+            } else {
+                self
+            }
+        };
+        let reversed = deformed.triangles.len() == rest.triangles.len()
+            && deformed
+                .triangles
+                .iter()
+                .zip(&rest.triangles)
+                .all(|(d, r)| [d[0], d[2], d[1]] == *r);
+        if reversed && !deformed.triangles.is_empty() {
+            log::info!(
+                "reversed the winding of every triangle, as sampling did to the rest surface"
+            );
+            for t in &mut deformed.triangles {
+                t.swap(1, 2);
+            }
+        }
+        if deformed.triangles != rest.triangles {
+            let flipped = || {
+                let mut f = deformed.clone();
+                f.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+                f
+            };
+            let renumbered = deformed
+                .renumbered_like(rest)
+                .or_else(|| flipped().renumbered_like(rest));
+            if let Some(renumbered) = renumbered {
+                log::info!(
+                    "the frame's vertices are numbered differently from the rest surface's; \
+                     matched them by the triangles"
+                );
+                deformed = renumbered;
+            }
+        }
+        deformed
+    }
 }
 
 #[cfg(test)]

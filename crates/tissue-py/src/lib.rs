@@ -8,7 +8,8 @@
 use std::path::PathBuf;
 
 use numpy::{
-    AllowTypeChange, PyArray1, PyArray2, PyArrayLike2, PyArrayMethods, PyUntypedArrayMethods,
+    AllowTypeChange, PyArray1, PyArray2, PyArrayLike1, PyArrayLike2, PyArrayMethods,
+    PyUntypedArrayMethods,
 };
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyRuntimeWarning};
@@ -61,6 +62,73 @@ fn points_of(array: &PyArrayLike2<'_, f64, AllowTypeChange>, what: &str) -> PyRe
     Ok(points)
 }
 
+/// Points from any array-like: `(n, 3)`, or one point of 3 numbers.
+fn points_from(object: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<Vec3>> {
+    if let Ok(array) = object.extract::<PyArrayLike2<'_, f64, AllowTypeChange>>() {
+        return points_of(&array, what);
+    }
+    if let Ok(one) = object.extract::<PyArrayLike1<'_, f64, AllowTypeChange>>() {
+        let values = one.as_array();
+        if values.len() != 3 {
+            return Err(raise(format!(
+                "{what}: one point is 3 numbers, got {}",
+                values.len()
+            )));
+        }
+        let point = Vec3::new(values[0] as f32, values[1] as f32, values[2] as f32);
+        if !point.is_finite() {
+            return Err(raise(format!("{what}: the point is not finite ({point})")));
+        }
+        return Ok(vec![point]);
+    }
+    Err(raise(format!(
+        "{what} must be an (n, 3) array of points, or one point of 3 numbers"
+    )))
+}
+
+/// The surface `rest` deformed, from a file path (any surface format, as
+/// `tissue deform --surface` reads it), a `(vertices, triangles)` pair or
+/// a trimesh, meshio or pyvista mesh (in the file's vertex order), or
+/// the `(v, 3)` vertices alone in the model's order: welded, turned and
+/// renumbered by the triangles where another tool wrote the same mesh in
+/// its own order (`SurfaceMesh::as_frame_of`), then checked to be `rest`
+/// with moved vertices.
+fn deformed_surface(rest: &SurfaceMesh, surface: &Bound<'_, PyAny>) -> PyResult<SurfaceMesh> {
+    if let Some(pair) = pair_of_mesh_object(surface)? {
+        let deformed = mesh_from_pair(&pair)?.as_frame_of(rest, false);
+        tissue::deformation::check_same_topology(rest, &deformed)
+            .map_err(|e| raise(format!("the deformed mesh: {e}")))?;
+        return Ok(deformed);
+    }
+    let (deformed, what) = if let Ok(pair) = surface.cast::<PyTuple>() {
+        (
+            mesh_from_pair(pair)?.as_frame_of(rest, false),
+            "the deformed surface".to_owned(),
+        )
+    } else if let Ok(path) = surface.extract::<PathBuf>() {
+        let written = tissue::load_surface_as_written(&path).map_err(raise)?;
+        let stl = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
+        (written.as_frame_of(rest, stl), path.display().to_string())
+    } else {
+        let vertices = points_from(surface, "deformed vertices")?;
+        if vertices.len() != rest.vertices.len() {
+            return Err(raise(format!(
+                "the deformed surface has {} vertices, the model's surface {}: give the \
+                 model's surface vertices in the same order, or the deformed mesh as \
+                 (vertices, triangles) or a file path, matched by its triangles",
+                vertices.len(),
+                rest.vertices.len()
+            )));
+        }
+        return Ok(SurfaceMesh::new(vertices, rest.triangles.clone()));
+    };
+    tissue::deformation::check_same_topology(rest, &deformed)
+        .map_err(|e| raise(format!("{what}: {e}")))?;
+    Ok(deformed)
+}
+
 /// `points` as an `(n, 3)` float64 array.
 /// An `(n, k)` array of coordinates handed to Python.
 type Points<'py> = Bound<'py, PyArray2<f64>>;
@@ -73,9 +141,57 @@ fn array_of<'py>(py: Python<'py>, points: &[Vec3]) -> PyResult<Bound<'py, PyArra
     PyArray1::from_vec(py, flat).reshape([points.len(), 3])
 }
 
-/// A surface from a file path or a `(vertices, triangles)` pair.
+/// A mesh object of another Python library as a `(vertices, triangles)`
+/// pair: trimesh's `Trimesh` (`vertices`, `faces`), meshio's `Mesh`
+/// (`points`, `cells_dict["triangle"]`) or pyvista's `PolyData` (`points`,
+/// `regular_faces`); `None` for anything else.
+fn pair_of_mesh_object<'py>(object: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyTuple>>> {
+    let py = object.py();
+    let pair = |vertices: Bound<'py, PyAny>, triangles: Bound<'py, PyAny>| {
+        PyTuple::new(py, [vertices, triangles]).map(Some)
+    };
+    if object.cast::<PyTuple>().is_ok() || object.extract::<PathBuf>().is_ok() {
+        return Ok(None);
+    }
+    if object.hasattr("vertices")? && object.hasattr("faces")? {
+        return pair(object.getattr("vertices")?, object.getattr("faces")?);
+    }
+    if object.hasattr("points")? && object.hasattr("cells_dict")? {
+        let cells = object.getattr("cells_dict")?;
+        let triangles = cells.get_item("triangle").map_err(|_| {
+            raise("the meshio mesh has no triangle cells (cells_dict[\"triangle\"])")
+        })?;
+        return pair(object.getattr("points")?, triangles);
+    }
+    if object.hasattr("points")? && object.hasattr("regular_faces")? {
+        let faces = object.getattr("regular_faces").map_err(|e| {
+            raise(format!(
+                "the pyvista mesh's faces are not all triangles (triangulate() it first): {e}"
+            ))
+        })?;
+        return pair(object.getattr("points")?, faces);
+    }
+    Ok(None)
+}
+
+/// A surface from a file path, a `(vertices, triangles)` pair, or a mesh
+/// object of trimesh, meshio or pyvista ([`pair_of_mesh_object`]).
 fn surface_of(surface: &Bound<'_, PyAny>) -> PyResult<SurfaceMesh> {
+    if let Some(pair) = pair_of_mesh_object(surface)? {
+        return mesh_from_pair(&pair);
+    }
     if let Ok(pair) = surface.cast::<PyTuple>() {
+        return mesh_from_pair(pair);
+    }
+    let path: PathBuf = surface
+        .extract()
+        .map_err(|_| raise("a surface is a file path or a (vertices, triangles) pair"))?;
+    tissue::load_closed_surface(&path).map_err(raise)
+}
+
+/// A mesh from a `(vertices, triangles)` pair of array-likes.
+fn mesh_from_pair(pair: &Bound<'_, PyTuple>) -> PyResult<SurfaceMesh> {
+    {
         if pair.len() != 2 {
             return Err(raise(
                 "a surface is a file path or a (vertices, triangles) pair",
@@ -105,12 +221,8 @@ fn surface_of(surface: &Bound<'_, PyAny>) -> PyResult<SurfaceMesh> {
             }
             corners.push(triangle);
         }
-        return Ok(SurfaceMesh::new(vertices, corners));
+        Ok(SurfaceMesh::new(vertices, corners))
     }
-    let path: PathBuf = surface
-        .extract()
-        .map_err(|_| raise("a surface is a file path or a (vertices, triangles) pair"))?;
-    tissue::load_closed_surface(&path).map_err(raise)
 }
 
 /// A Python progress callback, called from computing (GIL-free) code with a
@@ -158,15 +270,19 @@ fn device_of(backend: &str) -> PyResult<Device> {
 /// them) with a dict: `iteration`, `max_iterations`, `step_rms`,
 /// `radius_rms`.
 #[pyfunction]
-#[pyo3(signature = (surface, particles, seed = 0, backend = "cpu", progress = None))]
+#[pyo3(signature = (surface, particles, seed = 0, backend = "auto", progress = None))]
 fn sample(
     py: Python<'_>,
     surface: &Bound<'_, PyAny>,
-    particles: usize,
+    particles: i64,
     seed: u64,
     backend: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
+    let particles = usize::try_from(particles)
+        .ok()
+        .filter(|&n| n >= 4)
+        .ok_or_else(|| raise(format!("particles is {particles}, expected at least 4")))?;
     let surface = surface_of(surface)?;
     let params = SamplingParams::with_particles(particles).with(|p| {
         p.seed = seed;
@@ -280,11 +396,25 @@ impl Model {
         self.report.as_ref().map(|r| as_dict(py, r)).transpose()
     }
 
-    /// Writes the model (`.vtp`, or `.csv` / `.ply` for positions alone);
-    /// an existing file is replaced only once the new one is complete.
+    /// Writes the model by the name's extension: `.vtp` the whole model
+    /// (what `load_model` reads), `.csv` or `.ply` the particles'
+    /// positions alone; an existing file is replaced only once the new one
+    /// is complete.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| tissue::save_model(&self.model, &path))
+        py.detach(|| tissue::export_model(&self.model, &path))
             .map_err(raise)
+    }
+
+    /// The connections between particles, `(m, 2)` particle indices, each
+    /// pair once.
+    #[getter]
+    fn connections<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<i64>>> {
+        let pairs = self.model.connections.pair_list();
+        let flat: Vec<i64> = pairs
+            .iter()
+            .flat_map(|&(i, j)| [i64::from(i), i64::from(j)])
+            .collect();
+        PyArray1::from_vec(py, flat).reshape([pairs.len(), 2])
     }
 
     /// Prepares stage 2 on `backend` (`"auto"`, `"gpu"` or `"cpu"`) with the
@@ -320,7 +450,8 @@ impl Model {
         callback.result()?;
         Ok(Deformer {
             solver,
-            triangles: self.model.surface.triangles.clone(),
+            rest: self.model.surface.clone(),
+            spacing: self.model.mean_connection_length(),
             posture: None,
         })
     }
@@ -330,7 +461,9 @@ impl Model {
     /// unloaded shape from this model (the rest scan) under
     /// `gravity_rest`, Young's modulus `stiffness_kpa` or, without it,
     /// fitted so that `gravity_deformed` best gives the skin `deformed`
-    /// (`(v, 3)`, the surface vertices in the deformed scan), and a
+    /// (the deformed scan's skin, as `Deformer.solve` takes it: a file
+    /// path, a `(vertices, triangles)` pair, or the `(v, 3)` vertices in
+    /// the model's order), and a
     /// deformer stress-free in the unloaded shape with the deformed
     /// posture's gravity inside; solve it with `deformed`. Gravity vectors
     /// are in units of g in the model's axes (`(0, 0, -1)`: along -z);
@@ -367,7 +500,7 @@ impl Model {
     fn deformer_in_posture(
         &self,
         py: Python<'_>,
-        deformed: PyArrayLike2<'_, f64, AllowTypeChange>,
+        deformed: &Bound<'_, PyAny>,
         gravity_rest: [f32; 3],
         gravity_deformed: [f32; 3],
         density: f32,
@@ -401,16 +534,7 @@ impl Model {
         };
         gravity.validate().map_err(raise)?;
         let surface = &self.model.surface;
-        let vertices = points_of(&deformed, "deformed vertices")?;
-        if vertices.len() != surface.vertices.len() {
-            return Err(raise(format!(
-                "the deformed surface has {} vertices, the model's surface {}: give the \
-                 model's surface vertices in the deformed scan, in the same order",
-                vertices.len(),
-                surface.vertices.len()
-            )));
-        }
-        let deformed = SurfaceMesh::new(vertices, surface.triangles.clone());
+        let deformed = deformed_surface(surface, deformed)?;
         let held = match held {
             Some(held) => held_of(held, surface.vertices.len())?,
             None => held_vertices(
@@ -429,7 +553,6 @@ impl Model {
         }
         let device = device_of(backend)?;
         let model = &self.model;
-        let triangles = surface.triangles.clone();
         if !gravity.changes() && gravity.stiffness_kpa.is_none() {
             warn(
                 py,
@@ -446,7 +569,8 @@ impl Model {
             posture.set_item("held_vertices", held.iter().filter(|&&h| h).count())?;
             return Ok(Deformer {
                 solver,
-                triangles,
+                rest: self.model.surface.clone(),
+                spacing: self.model.mean_connection_length(),
                 posture: Some(posture.unbind().into_any()),
             });
         }
@@ -509,7 +633,8 @@ impl Model {
         posture.set_item("load", (load.x, load.y, load.z))?;
         Ok(Deformer {
             solver,
-            triangles,
+            rest: self.model.surface.clone(),
+            spacing: self.model.mean_connection_length(),
             posture: Some(posture.unbind().into_any()),
         })
     }
@@ -586,10 +711,61 @@ fn warn(py: Python<'_>, message: &str) -> PyResult<()> {
 #[pyclass(module = "tissue._tissue")]
 struct Deformer {
     solver: Solver,
-    triangles: Vec<[u32; 3]>,
+    /// The model's rest surface: deformed surfaces are matched to it, and
+    /// carried points checked against it.
+    rest: SurfaceMesh,
+    /// The model's mean connection length.
+    spacing: f32,
     /// What `Model.deformer_in_posture` found.
     posture: Option<Py<PyAny>>,
 }
+
+impl Deformer {
+    /// Raises for a point no particle can carry (more than
+    /// [`FARTHEST_DIAGONALS`] of the organ's sizes away: another unit, or
+    /// mistyped); warns (RuntimeWarning) of points outside the model's rest
+    /// surface by more than a particle spacing, as `tissue deform` flags
+    /// them: they are carried by extrapolation.
+    fn check_inside(&self, py: Python<'_>, points: &[Vec3], what: &str) -> PyResult<()> {
+        let Some((lo, hi)) = self.rest.bounds() else {
+            return Ok(());
+        };
+        let (centre, diagonal) = (0.5 * (lo + hi), (hi - lo).length());
+        if let Some((k, p)) = points.iter().enumerate().find(|(_, p)| {
+            let d = p.distance(centre);
+            d.is_nan() || d > FARTHEST_DIAGONALS * diagonal
+        }) {
+            return Err(raise(format!(
+                "{what}: point {k} is at {p}, more than {FARTHEST_DIAGONALS} times the organ's \
+                 size ({diagonal:.3}) from it: no particle can carry it; is it in another unit, \
+                 or mistyped?"
+            )));
+        }
+        let distances = py
+            .detach(|| tissue::field::distances_outside(&self.rest, points))
+            .map_err(raise)?;
+        let tolerance = self.spacing.max(1e-6 * diagonal);
+        let outside: Vec<f32> = distances.into_iter().filter(|&d| d > tolerance).collect();
+        if !outside.is_empty() {
+            warn(
+                py,
+                &format!(
+                    "{} of {} {what} lie outside the model's rest surface, up to {:.2} (more \
+                     than one particle spacing, {tolerance:.2}): they are carried by \
+                     extrapolation; check their frame and units",
+                    outside.len(),
+                    points.len(),
+                    outside.iter().copied().fold(0.0, f32::max)
+                ),
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Points farther than this many of the rest surface's diagonals from its
+/// centre cannot be carried (as `tissue deform` refuses them).
+const FARTHEST_DIAGONALS: f32 = 1000.0;
 
 #[pymethods]
 impl Deformer {
@@ -617,21 +793,23 @@ impl Deformer {
         self.solver.backend()
     }
 
-    /// Moves the surface to `vertices` (`(v, 3)`, the model's surface
-    /// vertices in the same order) and solves; returns the report as a
-    /// dict. A solve that did not converge warns (RuntimeWarning) and
+    /// Moves the surface to `surface` and solves; returns the report as a
+    /// dict. `surface` is the deformed skin as a file path (any surface
+    /// format), a `(vertices, triangles)` pair in the file's vertex order
+    /// (as numpy, meshio or trimesh read it), or its `(v, 3)` vertices in
+    /// the model's surface order: a mesh written by another tool is matched
+    /// to the model's by its triangles, as `tissue deform` does. A solve that did not converge warns (RuntimeWarning) and
     /// says so in the report. `progress`, if given, is called after every
     /// iteration with a dict: `iteration`, `max_iterations`, `residual`
     /// (the error estimate, a fraction of the model's size).
-    #[pyo3(signature = (vertices, progress = None))]
+    #[pyo3(signature = (surface, progress = None))]
     fn solve(
         &mut self,
         py: Python<'_>,
-        vertices: PyArrayLike2<'_, f64, AllowTypeChange>,
+        surface: &Bound<'_, PyAny>,
         progress: Option<Py<PyAny>>,
     ) -> PyResult<Py<PyAny>> {
-        let vertices = points_of(&vertices, "deformed vertices")?;
-        let deformed = SurfaceMesh::new(vertices, self.triangles.clone());
+        let deformed = deformed_surface(&self.rest, surface)?;
         let solver = &mut self.solver;
         let mut callback = Callback::new(progress.as_ref());
         let report = py
@@ -668,9 +846,10 @@ impl Deformer {
     fn carry<'py>(
         &self,
         py: Python<'py>,
-        points: PyArrayLike2<'_, f64, AllowTypeChange>,
+        points: &Bound<'_, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let points = points_of(&points, "points")?;
+        let points = points_from(points, "points")?;
+        self.check_inside(py, &points, "points")?;
         let solver = &self.solver;
         let moved = py
             .detach(|| {
@@ -690,12 +869,13 @@ impl Deformer {
     fn carry_rigid<'py>(
         &self,
         py: Python<'py>,
-        vertices: PyArrayLike2<'_, f64, AllowTypeChange>,
+        vertices: &Bound<'_, PyAny>,
     ) -> PyResult<(Points<'py>, Points<'py>)> {
-        let vertices = points_of(&vertices, "vertices")?;
+        let vertices = points_from(vertices, "vertices")?;
         if vertices.is_empty() {
             return Err(raise("a rigid structure needs at least one vertex"));
         }
+        self.check_inside(py, &vertices, "the rigid structure's vertices")?;
         let solver = &self.solver;
         let motion = py
             .detach(|| {

@@ -308,3 +308,139 @@ def test_the_readme_example_runs_as_written(capsys):
     out = capsys.readouterr().out
     assert "converged: True" in out and "the tumour moved to" in out
     assert re.search(r"\d\.\d\d kPa; the tumour moved to", out)
+
+
+def test_save_writes_what_the_extension_names(model, tmp_path):
+    model.save(tmp_path / "m.vtp")
+    assert len(tissue.load_model(tmp_path / "m.vtp")) == len(model)
+    model.save(tmp_path / "m.csv")
+    rows = (tmp_path / "m.csv").read_text().strip().splitlines()
+    assert len(rows) == len(model) + 1, rows[:2]  # a header, then a row each
+    first = np.array([float(x) for x in rows[1].split(",")])
+    np.testing.assert_allclose(first, model.positions[0], rtol=1e-6)
+    model.save(tmp_path / "m.ply")
+    head = (tmp_path / "m.ply").read_bytes()[:200].decode("ascii", "replace")
+    assert head.startswith("ply") and f"element vertex {len(model)}" in head
+    with pytest.raises(tissue.TissueError):
+        tissue.load_model(tmp_path / "m.csv")
+    with pytest.raises(tissue.TissueError):
+        model.save(tmp_path / "m.xyz")
+
+
+def _renumbered(vertices, triangles, seed):
+    """The same mesh with its vertices in another order, as another tool
+    may write it."""
+    order = np.random.default_rng(seed).permutation(len(vertices))
+    where = np.empty_like(order)
+    where[order] = np.arange(len(order))
+    return vertices[order], where[triangles]
+
+
+def test_a_deformed_mesh_in_its_own_vertex_order_is_matched_by_triangles(model, tmp_path):
+    sagged, triangles = tissue.phantom_breast_sagged()
+    rest, rest_triangles = model.surface
+    np.testing.assert_array_equal(triangles, rest_triangles)
+    expected = model.deformer(backend="cpu")
+    expected.solve(sagged)
+    vertices, shuffled = _renumbered(sagged, triangles, 5)
+    deformer = model.deformer(backend="cpu")
+    assert deformer.solve((vertices, shuffled))["converged"]
+    np.testing.assert_allclose(deformer.positions, expected.positions, atol=1e-5)
+    # A file another tool wrote, in its order: a path is read as the CLI reads it.
+    path = tmp_path / "sagged.ply"
+    with open(path, "w") as f:
+        f.write(f"ply\nformat ascii 1.0\nelement vertex {len(vertices)}\n")
+        f.write("property float x\nproperty float y\nproperty float z\n")
+        f.write(f"element face {len(shuffled)}\nproperty list uchar int vertex_indices\n")
+        f.write("end_header\n")
+        for v in vertices:
+            f.write("{!r} {!r} {!r}\n".format(*(float(x) for x in v)))
+        for t in shuffled:
+            f.write("3 {} {} {}\n".format(*t))
+    from_file = model.deformer(backend="cpu")
+    assert from_file.solve(str(path))["converged"]
+    np.testing.assert_allclose(from_file.positions, expected.positions, atol=1e-4)
+    # Another mesh is refused, naming the mismatch.
+    with pytest.raises(tissue.TissueError, match="vertices|triangles"):
+        model.deformer(backend="cpu").solve((vertices[:-3], shuffled[:-6]))
+
+
+def test_points_outside_the_organ_warn_and_points_no_particle_reaches_raise(model):
+    deformer = model.deformer(backend="cpu")
+    deformer.solve(tissue.phantom_breast_sagged()[0])
+    inside = model.positions[~model.on_surface][:5]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        deformer.carry(inside)
+    with pytest.warns(RuntimeWarning, match="outside the model's rest surface"):
+        deformer.carry([[1000.0, 0.0, 0.0]])
+    with pytest.warns(RuntimeWarning, match="outside the model's rest surface"):
+        deformer.carry_rigid(inside + [0.0, 0.0, 500.0])
+    with pytest.raises(tissue.TissueError, match="another unit"):
+        deformer.carry([[1e20, 0.0, 0.0]])
+
+
+def test_one_point_and_bad_counts_are_told_plainly(model):
+    deformer = model.deformer(backend="cpu")
+    one = deformer.carry(model.positions[~model.on_surface][0])
+    assert one.shape == (1, 3)
+    with pytest.raises(tissue.TissueError, match="3 numbers"):
+        deformer.carry([1.0, 2.0])
+    with pytest.raises(tissue.TissueError, match="at least 4"):
+        tissue.sample(tissue.phantom_breast(), particles=-5)
+
+
+def test_the_connections_are_pairs_of_particles(model):
+    pairs = model.connections
+    assert pairs.ndim == 2 and pairs.shape[1] == 2 and len(pairs) > len(model)
+    assert pairs.min() >= 0 and pairs.max() < len(model)
+    assert (pairs[:, 0] != pairs[:, 1]).all()
+    assert len({tuple(sorted(p)) for p in pairs.tolist()}) == len(pairs)
+
+
+def test_the_package_ships_type_stubs_and_a_stripped_module():
+    package = Path(tissue.__file__).parent
+    assert (package / "py.typed").is_file()
+    stubs = (package / "_tissue.pyi").read_text()
+    for name in ["def sample", "class Model", "class Deformer", "def carry_rigid"]:
+        assert name in stubs
+    (module,) = [p for p in package.iterdir() if p.name.startswith("_tissue") and p.suffix in (".so", ".pyd")]
+    assert module.stat().st_size < 20 * 2**20, f"{module.stat().st_size} bytes"
+
+
+def test_meshes_of_trimesh_and_meshio_are_taken_as_they_are(model):
+    trimesh = pytest.importorskip("trimesh")
+    meshio = pytest.importorskip("meshio")
+    vertices, triangles = tissue.phantom_breast()
+    from_trimesh = tissue.sample(
+        trimesh.Trimesh(vertices, triangles, process=False), particles=300
+    )
+    from_meshio = tissue.sample(
+        meshio.Mesh(vertices, [("triangle", triangles)]), particles=300
+    )
+    from_arrays = tissue.sample((vertices, triangles), particles=300)
+    np.testing.assert_array_equal(from_trimesh.positions, from_arrays.positions)
+    np.testing.assert_array_equal(from_meshio.positions, from_arrays.positions)
+    sagged, _ = tissue.phantom_breast_sagged()
+    moved, shuffled = _renumbered(sagged, triangles, 9)
+    expected = model.deformer(backend="cpu")
+    expected.solve(sagged)
+    for mesh in [
+        trimesh.Trimesh(moved, shuffled, process=False),
+        meshio.Mesh(moved, [("triangle", shuffled)]),
+    ]:
+        deformer = model.deformer(backend="cpu")
+        assert deformer.solve(mesh)["converged"]
+        np.testing.assert_allclose(deformer.positions, expected.positions, atol=1e-5)
+
+
+def test_a_pyvista_like_mesh_is_read_through_its_regular_faces(model):
+    # pyvista's PolyData exposes `points` and, for triangles, `regular_faces`.
+    class PolyData:
+        def __init__(self, points, faces):
+            self.points, self.regular_faces = points, faces
+
+    vertices, triangles = tissue.phantom_breast()
+    from_pyvista = tissue.sample(PolyData(vertices, triangles), particles=300)
+    from_arrays = tissue.sample((vertices, triangles), particles=300)
+    np.testing.assert_array_equal(from_pyvista.positions, from_arrays.positions)
