@@ -1099,9 +1099,10 @@ fn visible_files(dir: &Path) -> Vec<String> {
 
 /// A run that fails leaves none of its outputs: a landmark at 1e20 and a
 /// rigid structure at 1e30 (refused before the solve, naming the point and
-/// `another unit`); a displacement field named like an existing folder;
-/// and a run killed while it writes (by a file-size limit, as a full disk
-/// stops a write: `ulimit -f`), whose staged files the next run removes.
+/// `another unit`); a displacement field named like an existing folder; a
+/// write that fails as on a full disk (a file-size limit, `ulimit -f`,
+/// with its signal ignored); and a run killed while it writes (the same
+/// limit's signal), whose staged files the next run removes.
 #[test]
 fn a_failed_run_leaves_no_output() {
     let dir = tempfile::tempdir().unwrap();
@@ -1147,13 +1148,13 @@ fn a_failed_run_leaves_no_output() {
         assert_eq!(visible_files(&out_dir), Vec::<String>::new(), "{flag}");
     }
 
-    // Killed by the file-size limit on its first large write.
-    let out_dir = dir.path().join("killed");
-    let run = |limit: Option<u32>| {
+    // A write that fails as on a full disk: the file-size limit with its
+    // signal ignored makes the write fail (EFBIG), and the run says so.
+    let out_dir = dir.path().join("full");
+    let run = |shell: &str| {
         let command = format!(
-            "{}exec '{}' deform --model '{model}' --surface '{sag}' --displacement-field \
+            "{shell}exec '{}' deform --model '{model}' --surface '{sag}' --displacement-field \
              '{}' -o '{}' -q",
-            limit.map_or_else(String::new, |l| format!("ulimit -f {l}; ")),
             env!("CARGO_BIN_EXE_tissue"),
             s(&out_dir.join("field.nrrd")),
             s(&out_dir)
@@ -1163,10 +1164,19 @@ fn a_failed_run_leaves_no_output() {
             .output()
             .unwrap()
     };
-    let killed = run(Some(64));
+    let full = run("trap '' XFSZ; ulimit -f 64; ");
+    assert_eq!(full.status.code(), Some(1), "{}", text(&full));
+    assert!(text(&full).contains("File too large"), "{}", text(&full));
+    assert_eq!(
+        std::fs::read_dir(&out_dir).unwrap().count(),
+        0,
+        "files left"
+    );
+    // Killed by the file-size limit on its first large write.
+    let killed = run("ulimit -f 64; ");
     assert!(!killed.status.success(), "{}", text(&killed));
     assert_eq!(visible_files(&out_dir), Vec::<String>::new());
-    let whole = run(None);
+    let whole = run("");
     assert!(whole.status.success(), "{}", text(&whole));
     let left = std::fs::read_dir(&out_dir)
         .unwrap()

@@ -444,3 +444,14 @@ def test_a_pyvista_like_mesh_is_read_through_its_regular_faces(model):
     from_pyvista = tissue.sample(PolyData(vertices, triangles), particles=300)
     from_arrays = tissue.sample((vertices, triangles), particles=300)
     np.testing.assert_array_equal(from_pyvista.positions, from_arrays.positions)
+
+
+def test_every_surface_vtk_writes_is_sampled_from_its_path():
+    # tests/fixtures/vtk: one surface as VTK writes it in each layout,
+    # 3D Slicer's and pyvista's default save among them.
+    fixtures = Path(__file__).resolve().parents[3] / "tests" / "fixtures" / "vtk"
+    files = sorted(fixtures.glob("*.vt[kp]"))
+    assert len(files) >= 20, files
+    for path in files:
+        model = tissue.sample(str(path), particles=300, backend="cpu")
+        assert len(model) == 300, path.name
