@@ -18,6 +18,7 @@ use pyo3::types::{PyDict, PyTuple};
 use tissue::backend::{Backend, Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::gravity::{FIT_PARTICLES, Gravity, HELD_SPACINGS, held_vertices, unload};
+use tissue::io::space::Space;
 use tissue::{ParticleModel, SamplingParams, SamplingReport, SurfaceMesh, Vec3};
 
 create_exception!(
@@ -450,8 +451,9 @@ impl Model {
         callback.result()?;
         Ok(Deformer {
             solver,
-            rest: self.model.surface.clone(),
+            model: self.model.clone(),
             spacing: self.model.mean_connection_length(),
+            deformed: None,
             posture: None,
         })
     }
@@ -569,8 +571,9 @@ impl Model {
             posture.set_item("held_vertices", held.iter().filter(|&&h| h).count())?;
             return Ok(Deformer {
                 solver,
-                rest: self.model.surface.clone(),
+                model: self.model.clone(),
                 spacing: self.model.mean_connection_length(),
+                deformed: None,
                 posture: Some(posture.unbind().into_any()),
             });
         }
@@ -633,8 +636,9 @@ impl Model {
         posture.set_item("load", (load.x, load.y, load.z))?;
         Ok(Deformer {
             solver,
-            rest: self.model.surface.clone(),
+            model: self.model.clone(),
             spacing: self.model.mean_connection_length(),
+            deformed: None,
             posture: Some(posture.unbind().into_any()),
         })
     }
@@ -711,11 +715,13 @@ fn warn(py: Python<'_>, message: &str) -> PyResult<()> {
 #[pyclass(module = "tissue._tissue")]
 struct Deformer {
     solver: Solver,
-    /// The model's rest surface: deformed surfaces are matched to it, and
-    /// carried points checked against it.
-    rest: SurfaceMesh,
+    /// The model: deformed surfaces are matched to its rest surface,
+    /// carried points checked against it, results written with it.
+    model: ParticleModel,
     /// The model's mean connection length.
     spacing: f32,
+    /// The deformed surface of the last solve.
+    deformed: Option<SurfaceMesh>,
     /// What `Model.deformer_in_posture` found.
     posture: Option<Py<PyAny>>,
 }
@@ -727,7 +733,7 @@ impl Deformer {
     /// surface by more than a particle spacing, as `tissue deform` flags
     /// them: they are carried by extrapolation.
     fn check_inside(&self, py: Python<'_>, points: &[Vec3], what: &str) -> PyResult<()> {
-        let Some((lo, hi)) = self.rest.bounds() else {
+        let Some((lo, hi)) = self.model.surface.bounds() else {
             return Ok(());
         };
         let (centre, diagonal) = (0.5 * (lo + hi), (hi - lo).length());
@@ -742,7 +748,7 @@ impl Deformer {
             )));
         }
         let distances = py
-            .detach(|| tissue::field::distances_outside(&self.rest, points))
+            .detach(|| tissue::field::distances_outside(&self.model.surface, points))
             .map_err(raise)?;
         let tolerance = self.spacing.max(1e-6 * diagonal);
         let outside: Vec<f32> = distances.into_iter().filter(|&d| d > tolerance).collect();
@@ -809,7 +815,7 @@ impl Deformer {
         surface: &Bound<'_, PyAny>,
         progress: Option<Py<PyAny>>,
     ) -> PyResult<Py<PyAny>> {
-        let deformed = deformed_surface(&self.rest, surface)?;
+        let deformed = deformed_surface(&self.model.surface, surface)?;
         let solver = &mut self.solver;
         let mut callback = Callback::new(progress.as_ref());
         let report = py
@@ -825,6 +831,7 @@ impl Deformer {
             })
             .map_err(raise)?;
         callback.result()?;
+        self.deformed = Some(deformed);
         if !report.converged {
             let message = format!(
                 "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
@@ -896,11 +903,151 @@ impl Deformer {
         ))
     }
 
+    /// Writes the last solve's result as `tissue deform` writes
+    /// `particles.vtp`: the moved particles and the deformed surface with
+    /// their `displacement` from rest (ParaView colours by it), tagged with
+    /// `space` (`"lps"` or `"ras"`) for 3D Slicer.
+    #[pyo3(signature = (path, space = "lps"))]
+    fn save_particles(&self, py: Python<'_>, path: PathBuf, space: &str) -> PyResult<()> {
+        let space: Space = space.parse().map_err(raise)?;
+        let deformed = self.solved()?;
+        let current = self.solver.positions();
+        py.detach(|| {
+            tissue::io::model::save_moved_particles_in(&self.model, current, deformed, space, &path)
+        })
+        .map_err(raise)
+    }
+
+    /// Writes the interior's displacement after the last solve on a grid of
+    /// `spacing` (default: half the mean connection length) as a NRRD
+    /// file 3D Slicer opens as a grid transform (`tissue deform
+    /// --displacement-field`; docs/FORMATS.md), in `space`.
+    #[pyo3(signature = (path, spacing = None, space = "lps"))]
+    fn save_displacement_field(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        spacing: Option<f32>,
+        space: &str,
+    ) -> PyResult<()> {
+        let space: Space = space.parse().map_err(raise)?;
+        let deformed = self.solved()?;
+        let spacing = spacing.unwrap_or(0.5 * self.spacing);
+        let rotations = self.solver.rotations().map_err(raise)?;
+        py.detach(|| {
+            let field = tissue::resampling::resampling_field(
+                self.solver.reference(),
+                self.solver.positions(),
+                &rotations,
+                &self.model.connections,
+                deformed,
+                spacing,
+            )
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+            tissue::io::nrrd::save_displacement_field(&field, space, &path)
+                .map_err(|e| e.to_string())
+        })
+        .map_err(raise)
+    }
+
+    /// Carries the landmarks of `points` (a 3D Slicer markups `.mrk.json`,
+    /// in `space` unless the file says, or a `.csv` / `.ply` of points) to
+    /// where the last solve moved them and writes them to `output` in the
+    /// same form (a markups file keeps its labels and settings, as `tissue
+    /// deform --points` writes it); returns them, `(k, 3)`. The output may
+    /// not be the input.
+    #[pyo3(signature = (points, output, space = "lps"))]
+    fn carry_file<'py>(
+        &self,
+        py: Python<'py>,
+        points: PathBuf,
+        output: PathBuf,
+        space: &str,
+    ) -> PyResult<Points<'py>> {
+        let space: Space = space.parse().map_err(raise)?;
+        self.solved()?;
+        let same = match (points.canonicalize(), output.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if same {
+            return Err(raise(format!(
+                "{}: the output would overwrite the points file; choose another path",
+                output.display()
+            )));
+        }
+        let markups = points
+            .to_string_lossy()
+            .to_ascii_lowercase()
+            .ends_with(".json")
+            .then(|| tissue::io::markups::load_markups(&points, space))
+            .transpose()
+            .map_err(raise)?;
+        let rest = match &markups {
+            Some(markups) => markups.points().to_vec(),
+            None => tissue::load_points(&points).map_err(raise)?,
+        };
+        self.check_inside(py, &rest, "points")?;
+        let solver = &self.solver;
+        let moved = py
+            .detach(|| {
+                let bound = solver.bind(&rest)?;
+                let moved = solver.carry(&bound)?;
+                match &markups {
+                    Some(markups) => tissue::io::markups::save_markups(markups, &moved, &output)?,
+                    None => tissue::save_points(&moved, &output)?,
+                }
+                Ok::<_, tissue::Error>(moved)
+            })
+            .map_err(raise)?;
+        array_of(py, &moved)
+    }
+
     /// Back to rest: the next solve starts from the rest shape.
     fn reset(&mut self, py: Python<'_>) -> PyResult<()> {
         let solver = &mut self.solver;
+        self.deformed = None;
         py.detach(|| solver.reset()).map_err(raise)
     }
+}
+
+impl Deformer {
+    /// The last solve's deformed surface, or an error saying to solve first.
+    fn solved(&self) -> PyResult<&SurfaceMesh> {
+        self.deformed
+            .as_ref()
+            .ok_or_else(|| raise("nothing solved yet: call solve() first"))
+    }
+}
+
+/// Writes a rigid structure's motion (the 4x4 matrix `Deformer.carry_rigid`
+/// returns, rest to moved) as the ITK `.tfm` 3D Slicer and ITK read
+/// (`tissue deform --rigid-structure` writes the same), in `space`.
+#[pyfunction]
+#[pyo3(signature = (matrix, path, space = "lps"))]
+fn save_motion(
+    py: Python<'_>,
+    matrix: PyArrayLike2<'_, f64, AllowTypeChange>,
+    path: PathBuf,
+    space: &str,
+) -> PyResult<()> {
+    let space: Space = space.parse().map_err(raise)?;
+    if matrix.shape() != [4, 4] {
+        return Err(raise(format!(
+            "a motion is a 4x4 matrix, got shape {:?}",
+            matrix.shape()
+        )));
+    }
+    let view = matrix.as_array();
+    let mut rows = [[0f32; 4]; 4];
+    for (r, row) in rows.iter_mut().enumerate() {
+        for (c, value) in row.iter_mut().enumerate() {
+            *value = view[[r, c]] as f32;
+        }
+    }
+    let motion = tissue::io::itk::Affine::from_rows(&rows);
+    py.detach(|| tissue::io::itk::save_motion_tfm(&motion, space, &path))
+        .map_err(raise)
 }
 
 #[pymodule]
@@ -911,6 +1058,7 @@ fn _tissue(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load_model, m)?)?;
     m.add_function(wrap_pyfunction!(phantom_breast, m)?)?;
     m.add_function(wrap_pyfunction!(phantom_breast_sagged, m)?)?;
+    m.add_function(wrap_pyfunction!(save_motion, m)?)?;
     m.add_class::<Model>()?;
     m.add_class::<Deformer>()?;
     Ok(())

@@ -455,3 +455,56 @@ def test_every_surface_vtk_writes_is_sampled_from_its_path():
     for path in files:
         model = tissue.sample(str(path), particles=300, backend="cpu")
         assert len(model) == 300, path.name
+
+
+def test_results_are_written_as_the_command_line_writes_them(model, tmp_path):
+    deformer = model.deformer(backend="cpu")
+    with pytest.raises(tissue.TissueError, match="solve"):
+        deformer.save_particles(tmp_path / "early.vtp")
+    deformer.solve(tissue.phantom_breast_sagged()[0])
+    # particles.vtp, tagged for 3D Slicer.
+    deformer.save_particles(tmp_path / "particles.vtp", space="ras")
+    text = (tmp_path / "particles.vtp").read_text()
+    assert 'Name="displacement"' in text and 'Name="SPACE"' in text
+    assert "82 65 83 0" in text  # "RAS"
+    # The displacement field, a grid transform for Slicer.
+    deformer.save_displacement_field(tmp_path / "field.nrrd")
+    header = (tmp_path / "field.nrrd").read_bytes().split(b"\n\n")[0].decode()
+    assert "intent_code:=1006" in header and "kinds: vector domain domain domain" in header
+    # Landmarks from a markups file and a CSV, moved and written alike.
+    inside = model.positions[~model.on_surface][:3]
+    expected = deformer.carry(inside)
+    markups = {
+        "@schema": "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#",
+        "markups": [
+            {
+                "type": "Fiducial",
+                "coordinateSystem": "LPS",
+                "controlPoints": [
+                    {"id": str(k), "label": f"P{k}", "position": list(map(float, p))}
+                    for k, p in enumerate(inside)
+                ],
+            }
+        ],
+    }
+    import json
+
+    (tmp_path / "in.mrk.json").write_text(json.dumps(markups))
+    moved = deformer.carry_file(tmp_path / "in.mrk.json", tmp_path / "out.mrk.json")
+    np.testing.assert_allclose(moved, expected, atol=1e-6)
+    out = json.loads((tmp_path / "out.mrk.json").read_text())
+    points = out["markups"][0]["controlPoints"]
+    assert [p["label"] for p in points] == ["P0", "P1", "P2"]
+    np.testing.assert_allclose([p["position"] for p in points], expected, atol=1e-4)
+    np.savetxt(tmp_path / "in.csv", inside, delimiter=",", header="x,y,z", comments="")
+    moved = deformer.carry_file(tmp_path / "in.csv", tmp_path / "out.csv")
+    np.testing.assert_allclose(moved, expected, atol=1e-6)
+    with pytest.raises(tissue.TissueError, match="overwrite"):
+        deformer.carry_file(tmp_path / "in.csv", tmp_path / "in.csv")
+    # A rigid structure's motion as an ITK transform.
+    _, motion = deformer.carry_rigid(inside)
+    tissue.save_motion(motion, tmp_path / "tumour.tfm")
+    tfm = (tmp_path / "tumour.tfm").read_text()
+    assert "AffineTransform_double_3_3" in tfm
+    with pytest.raises(tissue.TissueError, match="4x4"):
+        tissue.save_motion(np.eye(3), tmp_path / "bad.tfm")

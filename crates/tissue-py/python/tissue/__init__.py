@@ -22,6 +22,12 @@ then solves with the deformed posture's gravity inside:
     posed.solve(vertices)
     posed.posture["stiffness_kpa"]
 
+The results go to the files 3D Slicer and ParaView read, as the command
+line writes them: ``Deformer.save_particles`` (``particles.vtp``),
+``Deformer.save_displacement_field`` (a NRRD grid transform),
+``Deformer.carry_file`` (landmarks of a ``.mrk.json`` or ``.csv``, moved)
+and ``save_motion`` (a rigid structure's ``.tfm``).
+
 Every computation releases the GIL. Errors are ``tissue.TissueError``,
 with the messages of the command-line tool.
 """
@@ -35,6 +41,7 @@ from ._tissue import (
     phantom_breast,
     phantom_breast_sagged,
     sample,
+    save_motion,
 )
 
 __all__ = [
@@ -46,4 +53,5 @@ __all__ = [
     "phantom_breast",
     "phantom_breast_sagged",
     "sample",
+    "save_motion",
 ]
