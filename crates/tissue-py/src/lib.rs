@@ -424,8 +424,12 @@ impl Model {
     /// `progress`, if given, is called as each stage of the preparation
     /// starts with a dict: `stage` (`plan`, `elastic_model`, `upload`,
     /// `coarse_space`, `deflation_modes`, `elastic_coarse`) and
-    /// `description`.
-    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None, progress = None))]
+    /// `description`. `observed`: the surface vertices the deformed
+    /// surfaces observe (`tissue deform --observed`), as indices or one
+    /// flag per vertex; the rest of the skin is free, the mechanics
+    /// deciding where it goes. None: all.
+    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None, progress = None, observed = None))]
+    #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn deformer(
         &self,
         py: Python<'_>,
@@ -434,8 +438,13 @@ impl Model {
         poisson: Option<f32>,
         max_iterations: Option<usize>,
         progress: Option<Py<PyAny>>,
+        observed: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Deformer> {
-        let params = params_of(force, poisson, max_iterations)?;
+        let mut params = params_of(force, poisson, max_iterations)?;
+        if let Some(observed) = observed {
+            let vertices = self.model.surface.vertices.len();
+            params.observed = Some(vertex_mask(observed, vertices, "observed")?);
+        }
         let device = device_of(backend)?;
         let mut callback = Callback::new(progress.as_ref());
         let solver = py
@@ -669,20 +678,28 @@ fn params_of(
 
 /// The held region from Python: vertex indices, or one flag per vertex.
 fn held_of(held: &Bound<'_, PyAny>, vertices: usize) -> PyResult<Vec<bool>> {
-    if let Ok(flags) = held.extract::<Vec<bool>>()
+    vertex_mask(held, vertices, "held")
+}
+
+/// A set of surface vertices from Python (`what` names the keyword):
+/// vertex indices, or one flag per vertex.
+fn vertex_mask(set: &Bound<'_, PyAny>, vertices: usize, what: &str) -> PyResult<Vec<bool>> {
+    if let Ok(flags) = set.extract::<Vec<bool>>()
         && !flags.is_empty()
     {
         if flags.len() != vertices {
             return Err(raise(format!(
-                "held: {} flags, expected one per surface vertex ({vertices}), or vertex indices",
+                "{what}: {} flags, expected one per surface vertex ({vertices}), or vertex indices",
                 flags.len()
             )));
         }
         return Ok(flags);
     }
-    let indices: Vec<i64> = held
-        .extract()
-        .map_err(|_| raise("held must be surface vertex indices or one flag per surface vertex"))?;
+    let indices: Vec<i64> = set.extract().map_err(|_| {
+        raise(format!(
+            "{what} must be surface vertex indices or one flag per surface vertex"
+        ))
+    })?;
     let mut flags = vec![false; vertices];
     for index in indices {
         let slot = usize::try_from(index)
@@ -690,7 +707,7 @@ fn held_of(held: &Bound<'_, PyAny>, vertices: usize) -> PyResult<Vec<bool>> {
             .and_then(|i| flags.get_mut(i))
             .ok_or_else(|| {
                 raise(format!(
-                    "held: vertex {index} is not a surface vertex (0 to {})",
+                    "{what}: vertex {index} is not a surface vertex (0 to {})",
                     vertices.saturating_sub(1)
                 ))
             })?;

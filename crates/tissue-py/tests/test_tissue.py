@@ -508,3 +508,23 @@ def test_results_are_written_as_the_command_line_writes_them(model, tmp_path):
     assert "AffineTransform_double_3_3" in tfm
     with pytest.raises(tissue.TissueError, match="4x4"):
         tissue.save_motion(np.eye(3), tmp_path / "bad.tfm")
+
+
+def test_part_of_the_skin_may_be_observed(model):
+    sagged, _ = tissue.phantom_breast_sagged()
+    rest, _ = model.surface
+    full = model.deformer(backend="cpu", force="elastic")
+    full.solve(sagged)
+    everything = model.deformer(backend="cpu", force="elastic", observed=np.ones(len(rest), bool))
+    everything.solve(sagged)
+    np.testing.assert_array_equal(everything.positions, full.positions)
+    # The front half of the skin seen (the half nearer the apex, z large).
+    seen = np.flatnonzero(rest[:, 2] > np.median(rest[:, 2]))
+    half = model.deformer(backend="cpu", force="elastic", observed=seen)
+    assert half.solve(sagged)["converged"]
+    apart = np.linalg.norm(half.positions - full.positions, axis=1).max()
+    assert apart > 1e-3, apart
+    with pytest.raises(tissue.TissueError, match="observed: 3 flags"):
+        model.deformer(backend="cpu", observed=[True, False, True])
+    with pytest.raises(tissue.TissueError, match="observed: vertex"):
+        model.deformer(backend="cpu", observed=[len(rest) + 5])

@@ -53,6 +53,7 @@ class Model:
         poisson: Optional[float] = None,
         max_iterations: Optional[int] = None,
         progress: Optional[Progress] = None,
+        observed: Optional[ArrayLike] = None,
     ) -> Deformer: ...
     def deformer_in_posture(
         self,
