@@ -443,10 +443,20 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let resumed_at = (args.resume && !done.is_empty()).then_some(done.len() + 1);
     if resumed_at.is_some() && !args.quiet {
         println!(
-            "resuming at frame {} of {} (the frames before it are done)",
+            "resuming at frame {} of {} (the frames before it are done; solving them again, \
+             unwritten, to start where the stopped run was)",
             done.len() + 1,
             frames.len()
         );
+    }
+    // The solver's state at a frame (the warm start, the prediction from
+    // the last frames) is what the frames before made it: solving them
+    // again, as deterministic as the first time, makes the resumed run's
+    // frames those of an uninterrupted run, to the bit. Their files stay.
+    for frame in &frames[..done.len()] {
+        let deformed = read_frame(frame, &model.surface)?;
+        set_deformed(frame, &mut solver, &deformed)?;
+        solver.solve()?;
     }
     let summary = Summary {
         path: &path,
