@@ -3,6 +3,7 @@
 mod backend;
 mod carry;
 mod demo;
+mod folder;
 mod frames;
 mod output;
 mod picture;

@@ -13,8 +13,8 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
 use crate::output::{
-    Destination, FieldRequest, OutputLock, Solved, Status, Unfinished, planned_outputs,
-    prepare_outputs, refuse_overwriting, remove_earlier_outputs, write_solution,
+    Destination, FieldRequest, Solved, Status, Unfinished, planned_outputs, prepare_outputs,
+    refuse_overwriting, remove_earlier_outputs, write_solution,
 };
 use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
@@ -416,7 +416,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let planned = planned_outputs(&destination, &carried);
     refuse_overwriting(&planned, &args.inputs())?;
     prepare_outputs(&planned)?;
-    let _lock = OutputLock::take(&args.output_dir)?;
+    let _lock = crate::folder::OutputLock::take(&args.output_dir)?;
     remove_earlier_outputs(&destination, &planned, &args.inputs())?;
     let mut bar = SolveBar::new("solving", args.quiet);
     let solve = solver.solve_with_progress(&mut |step| bar.step(step));

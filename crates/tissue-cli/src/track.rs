@@ -20,9 +20,9 @@ use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
 use crate::output::{
-    Destination, Drawn, OutputLock, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished,
-    convergence, draw, file_name, planned_outputs, prepare_outputs, refuse_overwriting,
-    remove_earlier_outputs, write_json, write_solution,
+    Destination, Drawn, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence, draw,
+    file_name, planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs,
+    write_json, write_solution,
 };
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
@@ -433,7 +433,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;
     prepare_outputs(std::slice::from_ref(&path))?;
-    let _lock = OutputLock::take(&args.output_dir)?;
+    let _lock = crate::folder::OutputLock::take(&args.output_dir)?;
     let mut done = if args.resume {
         resumed(&path, &plan, &args.output_dir, frames.len())?
     } else {

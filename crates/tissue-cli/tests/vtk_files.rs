@@ -13,39 +13,19 @@ use std::path::{Path, PathBuf};
 
 use common::{json, s, text, tissue};
 use tissue::io::space::Space;
+use tissue_testkit::{
+    VTK_LEGACY_FIXTURES, VTK_SLICER_FIXTURES, VTK_XML_FIXTURES, vtk_fixture as fixture,
+};
 
-fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/fixtures/vtk")
-        .join(name)
+/// The fixtures of the rest surface in `ascii.vtp`'s coordinates, with no
+/// coordinate tag, and the same surface moved (the same vertices and
+/// triangles).
+fn untagged() -> impl Iterator<Item = &'static str> {
+    VTK_XML_FIXTURES
+        .into_iter()
+        .chain(VTK_LEGACY_FIXTURES)
+        .chain(["moved-appended-zlib.vtp"])
 }
-
-/// The fixtures of the rest surface in the coordinates of `ascii.vtp`, no
-/// coordinate tag or an LPS one (the run's default).
-const UNTAGGED: [&str; 18] = [
-    "ascii.vtp",
-    "binary-inline.vtp",
-    "appended-raw.vtp",
-    "appended-base64.vtp",
-    "appended-zlib.vtp",
-    "default.vtp",
-    "inline-zlib.vtp",
-    "appended-lz4.vtp",
-    "appended-lzma.vtp",
-    "inline-lz4.vtp",
-    "inline-lzma.vtp",
-    "appended-zlib-uint64.vtp",
-    "appended-zlib-smallblocks.vtp",
-    "legacy-ascii.vtk",
-    "legacy-binary.vtk",
-    "legacy-v42-ascii.vtk",
-    "legacy-v42-binary.vtk",
-    "moved-appended-zlib.vtp",
-];
-
-/// Slicer's own saves, tagged: `slicer-ras.vtp` holds `ascii.vtp`'s
-/// coordinates, the LPS ones the same mirrored in x and y.
-const SLICER: [&str; 3] = ["slicer-ras.vtp", "slicer-lps.vtp", "slicer-lps.vtk"];
 
 fn sampled(dir: &Path, surface: &Path, particles: &str) -> PathBuf {
     let model = dir.join(format!(
@@ -73,7 +53,7 @@ fn sampled(dir: &Path, surface: &Path, particles: &str) -> PathBuf {
 #[test]
 fn every_surface_vtk_writes_is_sampled() {
     let dir = tempfile::tempdir().unwrap();
-    for name in UNTAGGED.iter().chain(&SLICER) {
+    for name in untagged().chain(VTK_SLICER_FIXTURES) {
         let model = sampled(dir.path(), &fixture(name), "400");
         assert!(tissue::load_model(&model).unwrap().len() >= 300, "{name}");
     }
@@ -83,7 +63,7 @@ fn every_surface_vtk_writes_is_sampled() {
 fn every_surface_vtk_writes_is_read_as_skin_structure_and_observed_patch() {
     let dir = tempfile::tempdir().unwrap();
     let model = sampled(dir.path(), &fixture("ascii.vtp"), "1000");
-    for name in UNTAGGED {
+    for name in untagged() {
         let file = fixture(name);
         // The observed patch is given at rest.
         let patch = if name.starts_with("moved") {

@@ -7,48 +7,23 @@
 //! Slicer's files and from ours.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
-use std::path::PathBuf;
-
 use tissue_core::io::space::Space;
 use tissue_core::io::surface::{
     coordinate_tag, load_closed_surface, load_surface, save_surface, save_surface_in,
 };
 use tissue_core::{Error, SurfaceMesh};
+use tissue_testkit::{
+    VTK_LEGACY_FIXTURES, VTK_SLICER_FIXTURES, VTK_XML_FIXTURES, vtk_fixture as fixture,
+};
 
-fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/fixtures/vtk")
-        .join(name)
+/// Every fixture of the rest surface: VTK's layouts, its legacy files and
+/// 3D Slicer's saves.
+fn every_fixture() -> impl Iterator<Item = &'static str> {
+    VTK_XML_FIXTURES
+        .into_iter()
+        .chain(VTK_LEGACY_FIXTURES)
+        .chain(VTK_SLICER_FIXTURES)
 }
-
-/// Every `.vtp` the fixtures hold of the rest surface (the same points,
-/// bit for bit, as `ascii.vtp`).
-const XML: [&str; 15] = [
-    "ascii.vtp",
-    "binary-inline.vtp",
-    "appended-raw.vtp",
-    "appended-base64.vtp",
-    "appended-zlib.vtp",
-    "default.vtp",
-    "inline-zlib.vtp",
-    "appended-lz4.vtp",
-    "appended-lzma.vtp",
-    "inline-lz4.vtp",
-    "inline-lzma.vtp",
-    "appended-zlib-uint64.vtp",
-    "appended-zlib-smallblocks.vtp",
-    "slicer-ras.vtp",
-    "slicer-lps.vtp",
-];
-
-/// The legacy files: ASCII ones hold six significant digits.
-const LEGACY: [&str; 5] = [
-    "legacy-ascii.vtk",
-    "legacy-binary.vtk",
-    "legacy-v42-ascii.vtk",
-    "legacy-v42-binary.vtk",
-    "slicer-lps.vtk",
-];
 
 /// `mesh` with x and y negated (what Slicer writes for an LPS save of a
 /// RAS model).
@@ -71,7 +46,7 @@ fn every_surface_vtk_writes_reads_as_the_same_closed_surface() {
         .unwrap()
         .signed_volume();
     assert!((volume - 60_560.3).abs() < 1.0, "volume {volume}");
-    for name in XML.iter().chain(&LEGACY) {
+    for name in every_fixture() {
         let path = fixture(name);
         let mesh = load_surface(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         let expected = if name.starts_with("slicer-lps") {

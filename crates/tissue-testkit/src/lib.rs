@@ -210,3 +210,42 @@ pub fn cylinder() -> (Vec<Vec3>, Vec<[u32; 3]>) {
     }
     (vertices, triangles)
 }
+
+/// `tests/fixtures/vtk/NAME`: one closed surface (226 vertices, 448
+/// triangles) as VTK itself writes it, made by `make_fixtures.py` there.
+pub fn vtk_fixture(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/fixtures/vtk")
+        .join(name)
+}
+
+/// The `.vtp` fixtures of the rest surface in `ascii.vtp`'s coordinates,
+/// untagged: every layout `vtkXMLPolyDataWriter` writes.
+pub const VTK_XML_FIXTURES: [&str; 13] = [
+    "ascii.vtp",
+    "binary-inline.vtp",
+    "appended-raw.vtp",
+    "appended-base64.vtp",
+    "appended-zlib.vtp",
+    "default.vtp",
+    "inline-zlib.vtp",
+    "appended-lz4.vtp",
+    "appended-lzma.vtp",
+    "inline-lz4.vtp",
+    "inline-lzma.vtp",
+    "appended-zlib-uint64.vtp",
+    "appended-zlib-smallblocks.vtp",
+];
+
+/// The legacy `.vtk` fixtures of the same surface, untagged (ASCII ones
+/// hold six significant digits).
+pub const VTK_LEGACY_FIXTURES: [&str; 4] = [
+    "legacy-ascii.vtk",
+    "legacy-binary.vtk",
+    "legacy-v42-ascii.vtk",
+    "legacy-v42-binary.vtk",
+];
+
+/// 3D Slicer's saves of the same surface, tagged: `slicer-ras.vtp` in
+/// `ascii.vtp`'s coordinates, the LPS ones mirrored in x and y.
+pub const VTK_SLICER_FIXTURES: [&str; 3] = ["slicer-ras.vtp", "slicer-lps.vtp", "slicer-lps.vtk"];

@@ -1,0 +1,356 @@
+//! `tissue.Deformer`: stage 2 of one model from Python, and the files its
+//! results go to.
+
+use std::path::PathBuf;
+
+use numpy::{
+    AllowTypeChange, PyArray1, PyArray2, PyArrayLike2, PyArrayMethods, PyUntypedArrayMethods,
+};
+use pyo3::prelude::*;
+use tissue::backend::Solver;
+use tissue::io::space::Space;
+use tissue::{ParticleModel, SurfaceMesh, Vec3};
+
+use crate::convert::{
+    Callback, Points, array_of, as_dict, deformed_surface, points_from, raise, warn,
+};
+
+/// Stage 2 of one model: the surface particles follow a deformed surface
+/// and the interior follows them.
+#[pyclass(module = "tissue._tissue")]
+pub(crate) struct Deformer {
+    pub(crate) solver: Solver,
+    /// The model: deformed surfaces are matched to its rest surface,
+    /// carried points checked against it, results written with it.
+    pub(crate) model: ParticleModel,
+    /// The model's mean connection length.
+    pub(crate) spacing: f32,
+    /// The deformed surface of the last solve.
+    pub(crate) deformed: Option<SurfaceMesh>,
+    /// What `Model.deformer_in_posture` found.
+    pub(crate) posture: Option<Py<PyAny>>,
+}
+
+impl Deformer {
+    /// Raises for a point no particle can carry (more than
+    /// [`FARTHEST_DIAGONALS`] of the organ's sizes away: another unit, or
+    /// mistyped); warns (RuntimeWarning) of points outside the model's rest
+    /// surface by more than a particle spacing, as `tissue deform` flags
+    /// them: they are carried by extrapolation.
+    fn check_inside(&self, py: Python<'_>, points: &[Vec3], what: &str) -> PyResult<()> {
+        let Some((lo, hi)) = self.model.surface.bounds() else {
+            return Ok(());
+        };
+        let (centre, diagonal) = (0.5 * (lo + hi), (hi - lo).length());
+        if let Some((k, p)) = points.iter().enumerate().find(|(_, p)| {
+            let d = p.distance(centre);
+            d.is_nan() || d > FARTHEST_DIAGONALS * diagonal
+        }) {
+            return Err(raise(format!(
+                "{what}: point {k} is at {p}, more than {FARTHEST_DIAGONALS} times the organ's \
+                 size ({diagonal:.3}) from it: no particle can carry it; is it in another unit, \
+                 or mistyped?"
+            )));
+        }
+        let distances = py
+            .detach(|| tissue::field::distances_outside(&self.model.surface, points))
+            .map_err(raise)?;
+        let tolerance = self.spacing.max(1e-6 * diagonal);
+        let outside: Vec<f32> = distances.into_iter().filter(|&d| d > tolerance).collect();
+        if !outside.is_empty() {
+            warn(
+                py,
+                &format!(
+                    "{} of {} {what} lie outside the model's rest surface, up to {:.2} (more \
+                     than one particle spacing, {tolerance:.2}): they are carried by \
+                     extrapolation; check their frame and units",
+                    outside.len(),
+                    points.len(),
+                    outside.iter().copied().fold(0.0, f32::max)
+                ),
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Points farther than this many of the rest surface's diagonals from its
+/// centre cannot be carried (as `tissue deform` refuses them).
+pub(crate) const FARTHEST_DIAGONALS: f32 = 1000.0;
+
+#[pymethods]
+impl Deformer {
+    fn __repr__(&self) -> String {
+        format!(
+            "<tissue.Deformer: {} particles on {}>",
+            self.solver.positions().len(),
+            self.solver.backend()
+        )
+    }
+
+    /// What `Model.deformer_in_posture` found (a dict: `stiffness_kpa`,
+    /// `stiffness_fitted`, `fit_residual` and `fit_trials` (model units,
+    /// the free skin's RMS distance from the observed), `unloaded_residual`
+    /// and `unloaded_converged`, `held_vertices`, `solves`, `load`), or
+    /// None for a deformer without gravity.
+    #[getter]
+    fn posture(&self, py: Python<'_>) -> Option<Py<PyAny>> {
+        self.posture.as_ref().map(|p| p.clone_ref(py))
+    }
+
+    /// Which device solves (`cpu`, or `gpu (adapter, API)`).
+    #[getter]
+    fn backend(&self) -> String {
+        self.solver.backend()
+    }
+
+    /// Moves the surface to `surface` and solves; returns the report as a
+    /// dict. `surface` is the deformed skin as a file path (any surface
+    /// format), a `(vertices, triangles)` pair in the file's vertex order
+    /// (as numpy, meshio or trimesh read it), or its `(v, 3)` vertices in
+    /// the model's surface order: a mesh written by another tool is matched
+    /// to the model's by its triangles, as `tissue deform` does. A solve that did not converge warns (RuntimeWarning) and
+    /// says so in the report. `progress`, if given, is called after every
+    /// iteration with a dict: `iteration`, `max_iterations`, `residual`
+    /// (the error estimate, a fraction of the model's size).
+    #[pyo3(signature = (surface, progress = None))]
+    fn solve(
+        &mut self,
+        py: Python<'_>,
+        surface: &Bound<'_, PyAny>,
+        progress: Option<Py<PyAny>>,
+    ) -> PyResult<Py<PyAny>> {
+        let deformed = deformed_surface(&self.model.surface, surface)?;
+        let solver = &mut self.solver;
+        let mut callback = Callback::new(progress.as_ref());
+        let report = py
+            .detach(|| {
+                solver.set_surface(&deformed)?;
+                solver.solve_with_progress(&mut |step| {
+                    callback.tell(|info| {
+                        info.set_item("iteration", step.iteration)?;
+                        info.set_item("max_iterations", step.max_iterations)?;
+                        info.set_item("residual", step.residual)
+                    });
+                })
+            })
+            .map_err(raise)?;
+        callback.result()?;
+        self.deformed = Some(deformed);
+        if !report.converged {
+            let message = format!(
+                "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
+                report.iterations, report.stopped_by, report.residual
+            );
+            warn(py, &message)?;
+        }
+        as_dict(py, &report)
+    }
+
+    /// The particles after the last solve, `(n, 3)`.
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        array_of(py, self.solver.positions())
+    }
+
+    /// Where points given at rest (`(k, 3)`, inside the model: a tumour's
+    /// vertices, landmarks) are after the last solve, `(k, 3)`.
+    fn carry<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'_, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let points = points_from(points, "points")?;
+        self.check_inside(py, &points, "points")?;
+        let solver = &self.solver;
+        let moved = py
+            .detach(|| {
+                let bound = solver.bind(&points)?;
+                solver.carry(&bound)
+            })
+            .map_err(raise)?;
+        array_of(py, &moved)
+    }
+
+    /// How a rigid structure with rest vertices `vertices` (`(k, 3)`,
+    /// inside the model: a tumour taken as rigid) moved in the last solve:
+    /// its vertices moved, `(k, 3)`, and the motion as a 4x4 homogeneous
+    /// matrix (rest coordinates to moved ones), a rotation about its rest
+    /// centroid fitted to the particles around it and the centroid
+    /// carried like a landmark (as `tissue deform --rigid-structure`).
+    fn carry_rigid<'py>(
+        &self,
+        py: Python<'py>,
+        vertices: &Bound<'_, PyAny>,
+    ) -> PyResult<(Points<'py>, Points<'py>)> {
+        let vertices = points_from(vertices, "vertices")?;
+        if vertices.is_empty() {
+            return Err(raise("a rigid structure needs at least one vertex"));
+        }
+        self.check_inside(py, &vertices, "the rigid structure's vertices")?;
+        let solver = &self.solver;
+        let motion = py
+            .detach(|| {
+                let bound = solver.bind_rigid(&vertices)?;
+                solver.carry_rigid(&bound)
+            })
+            .map_err(raise)?;
+        let moved: Vec<Vec3> = vertices.iter().map(|&x| motion.apply(x)).collect();
+        let matrix: Vec<f64> = motion
+            .homogeneous()
+            .iter()
+            .flatten()
+            .map(|&v| f64::from(v))
+            .collect();
+        Ok((
+            array_of(py, &moved)?,
+            PyArray1::from_vec(py, matrix).reshape([4, 4])?,
+        ))
+    }
+
+    /// Writes the last solve's result as `tissue deform` writes
+    /// `particles.vtp`: the moved particles and the deformed surface with
+    /// their `displacement` from rest (ParaView colours by it), tagged with
+    /// `space` (`"lps"` or `"ras"`) for 3D Slicer.
+    #[pyo3(signature = (path, space = "lps"))]
+    fn save_particles(&self, py: Python<'_>, path: PathBuf, space: &str) -> PyResult<()> {
+        let space: Space = space.parse().map_err(raise)?;
+        let deformed = self.solved()?;
+        let current = self.solver.positions();
+        py.detach(|| {
+            tissue::io::model::save_moved_particles_in(&self.model, current, deformed, space, &path)
+        })
+        .map_err(raise)
+    }
+
+    /// Writes the interior's displacement after the last solve on a grid of
+    /// `spacing` (default: half the mean connection length) as a NRRD
+    /// file 3D Slicer opens as a grid transform (`tissue deform
+    /// --displacement-field`; docs/FORMATS.md), in `space`.
+    #[pyo3(signature = (path, spacing = None, space = "lps"))]
+    fn save_displacement_field(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        spacing: Option<f32>,
+        space: &str,
+    ) -> PyResult<()> {
+        let space: Space = space.parse().map_err(raise)?;
+        let deformed = self.solved()?;
+        let spacing = spacing.unwrap_or(0.5 * self.spacing);
+        let rotations = self.solver.rotations().map_err(raise)?;
+        py.detach(|| {
+            let field = tissue::resampling::resampling_field(
+                self.solver.reference(),
+                self.solver.positions(),
+                &rotations,
+                &self.model.connections,
+                deformed,
+                spacing,
+            )
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+            tissue::io::nrrd::save_displacement_field(&field, space, &path)
+                .map_err(|e| e.to_string())
+        })
+        .map_err(raise)
+    }
+
+    /// Carries the landmarks of `points` (a 3D Slicer markups `.mrk.json`,
+    /// in `space` unless the file says, or a `.csv` / `.ply` of points) to
+    /// where the last solve moved them and writes them to `output` in the
+    /// same form (a markups file keeps its labels and settings, as `tissue
+    /// deform --points` writes it); returns them, `(k, 3)`. The output may
+    /// not be the input.
+    #[pyo3(signature = (points, output, space = "lps"))]
+    fn carry_file<'py>(
+        &self,
+        py: Python<'py>,
+        points: PathBuf,
+        output: PathBuf,
+        space: &str,
+    ) -> PyResult<Points<'py>> {
+        let space: Space = space.parse().map_err(raise)?;
+        self.solved()?;
+        let same = match (points.canonicalize(), output.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if same {
+            return Err(raise(format!(
+                "{}: the output would overwrite the points file; choose another path",
+                output.display()
+            )));
+        }
+        let markups = points
+            .to_string_lossy()
+            .to_ascii_lowercase()
+            .ends_with(".json")
+            .then(|| tissue::io::markups::load_markups(&points, space))
+            .transpose()
+            .map_err(raise)?;
+        let rest = match &markups {
+            Some(markups) => markups.points().to_vec(),
+            None => tissue::load_points(&points).map_err(raise)?,
+        };
+        self.check_inside(py, &rest, "points")?;
+        let solver = &self.solver;
+        let moved = py
+            .detach(|| {
+                let bound = solver.bind(&rest)?;
+                let moved = solver.carry(&bound)?;
+                match &markups {
+                    Some(markups) => tissue::io::markups::save_markups(markups, &moved, &output)?,
+                    None => tissue::save_points(&moved, &output)?,
+                }
+                Ok::<_, tissue::Error>(moved)
+            })
+            .map_err(raise)?;
+        array_of(py, &moved)
+    }
+
+    /// Back to rest: the next solve starts from the rest shape.
+    fn reset(&mut self, py: Python<'_>) -> PyResult<()> {
+        let solver = &mut self.solver;
+        self.deformed = None;
+        py.detach(|| solver.reset()).map_err(raise)
+    }
+}
+
+impl Deformer {
+    /// The last solve's deformed surface, or an error saying to solve first.
+    fn solved(&self) -> PyResult<&SurfaceMesh> {
+        self.deformed
+            .as_ref()
+            .ok_or_else(|| raise("nothing solved yet: call solve() first"))
+    }
+}
+
+/// Writes a rigid structure's motion (the 4x4 matrix `Deformer.carry_rigid`
+/// returns, rest to moved) as the ITK `.tfm` 3D Slicer and ITK read
+/// (`tissue deform --rigid-structure` writes the same), in `space`.
+#[pyfunction]
+#[pyo3(signature = (matrix, path, space = "lps"))]
+pub(crate) fn save_motion(
+    py: Python<'_>,
+    matrix: PyArrayLike2<'_, f64, AllowTypeChange>,
+    path: PathBuf,
+    space: &str,
+) -> PyResult<()> {
+    let space: Space = space.parse().map_err(raise)?;
+    if matrix.shape() != [4, 4] {
+        return Err(raise(format!(
+            "a motion is a 4x4 matrix, got shape {:?}",
+            matrix.shape()
+        )));
+    }
+    let view = matrix.as_array();
+    let mut rows = [[0f32; 4]; 4];
+    for (r, row) in rows.iter_mut().enumerate() {
+        for (c, value) in row.iter_mut().enumerate() {
+            *value = view[[r, c]] as f32;
+        }
+    }
+    let motion = tissue::io::itk::Affine::from_rows(&rows);
+    py.detach(|| tissue::io::itk::save_motion_tfm(&motion, space, &path))
+        .map_err(raise)
+}
