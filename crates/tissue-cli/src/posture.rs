@@ -572,4 +572,52 @@ mod tests {
         assert_eq!(Unit::Cm.metres(), 1e-2);
         assert_eq!(Unit::M.metres(), 1.0);
     }
+
+    /// A fit is flagged when its stiffness lies on a bound of the search,
+    /// or its free skin misses the observed by more than the skin moved; a
+    /// given stiffness, or a fit inside the bounds that explains the skin,
+    /// is not.
+    #[test]
+    fn a_fit_on_a_bound_or_missing_the_skin_is_flagged() {
+        let report = |stiffness: f32, fitted: bool, fit: f32, motion: f32| PostureReport {
+            gravity: GravityReport {
+                rest: [0.0, 0.0, -1.0],
+                deformed: [0.0, -1.0, 0.0],
+                change: 2f32.sqrt(),
+                density_kg_m3: 1000.0,
+                unit: Unit::Mm,
+                held: HeldReport {
+                    vertices: 10,
+                    of: 100,
+                    from: "auto".into(),
+                },
+            },
+            stiffness_kpa: Some(stiffness),
+            stiffness_fitted: fitted,
+            fit_residual_mm: fitted.then_some(fit),
+            fit_trials: Vec::new(),
+            fit_particles: None,
+            skin_motion_mm: Some(motion),
+            unloaded_residual_mm: Some(0.01),
+            unloaded_converged: true,
+            solves: 8,
+            posture_seconds: 1.0,
+        };
+        let (low, high) = FIT_BOUNDS_KPA;
+        assert!(report(3.0, true, 0.2, 5.0).flags().is_empty());
+        assert!(
+            report(low, false, 0.0, 5.0).flags().is_empty(),
+            "given, not fitted"
+        );
+        for bound in [low, high] {
+            let flags = report(bound, true, 0.2, 5.0).flags();
+            assert_eq!(flags.len(), 1, "{flags:?}");
+            assert!(flags[0].contains("ended at its bound"), "{flags:?}");
+        }
+        let flags = report(3.0, true, 6.0, 5.0).flags();
+        assert!(
+            flags.len() == 1 && flags[0].contains("more than the skin moved"),
+            "{flags:?}"
+        );
+    }
 }
