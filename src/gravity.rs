@@ -1,4 +1,4 @@
-//! Posture-aware stage 2 on any device (issue 16): the organ's unloaded
+//! Posture-aware stage 2 on any device: the organ's unloaded
 //! shape from the rest scan and its posture's gravity, the stiffness
 //! fitted from the deformed skin where it is not given, and what a
 //! [`Solver`] needs to solve the deformed posture stress-free in that
@@ -88,8 +88,7 @@ pub const DENSITY_KG_M3: std::ops::RangeInclusive<f32> = 100.0..=5000.0;
 pub const ORGAN_SIZE_M: std::ops::RangeInclusive<f32> = 0.005..=1.0;
 
 /// The unloaded shape, loaded again, must give the rest surface within
-/// this (RMS over the surface particles), in metres: 0.1 mm, what issue 16
-/// asks.
+/// this (RMS over the surface particles), in metres: 0.1 mm.
 pub const UNLOADED_TOLERANCE_M: f32 = 1e-4;
 
 /// What a navigation system knows of the two scans besides the surfaces.

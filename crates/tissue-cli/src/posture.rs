@@ -1,4 +1,4 @@
-//! `--gravity-rest`, `--gravity-deformed` and their options (issue 16): the
+//! `--gravity-rest`, `--gravity-deformed` and their options: the
 //! organ's unloaded shape and its stiffness from the two postures, made
 //! once per run ([`tissue::gravity`]), and what the report says of them.
 

@@ -10,7 +10,8 @@ use crate::error::ParamError;
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum SurfaceMode {
     /// A particle found outside is moved back onto the surface by exactly its
-    /// penetration depth. Measured best (`../shared/METHOD-NOTES.md`).
+    /// penetration depth. Measured best (docs/METHOD.md, "Eq. (3): keeping
+    /// particles inside").
     Projection,
     /// The paper's literal surface force, eq. (3): `-mu * n` while outside.
     PaperForce {

@@ -29,9 +29,9 @@
 //! `S` is a fourth-order operator (each neighbourhood's projection leaves
 //! second differences of `mu`, the constraint takes differences of those),
 //! so with Jacobi alone its iterations grow about as `n^(2/3)`: 166 at
-//! 10,000 particles, 665 at 100,000 (4.4 s; breast_c, this machine). A
-//! coarse space of constants and linear functions over aggregates
-//! (`CoarseMultipliers`) takes them to 29 and 38 (0.034 and 0.80 s).
+//! 10,000 particles, 665 at 100,000 (breast_c). A coarse space of
+//! constants and linear functions over aggregates (`CoarseMultipliers`)
+//! takes them to 29 and 38.
 
 use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;

@@ -1,4 +1,4 @@
-//! Gravity and the organ's unloaded shape (issue 16, item 2): the body
+//! Gravity and the organ's unloaded shape: the body
 //! force a posture's gravity puts on the particles, the held region of
 //! the surface, and the unloaded positions from which gravity, with the
 //! held region fixed and the rest of the skin free, gives the rest shape.
@@ -99,9 +99,9 @@ pub struct Unloading {
 }
 
 impl Unloading {
-    /// 0.1 mm in a model in millimetres (issue 16 asks the unloaded shape,
-    /// loaded again, to give the rest surface within 0.1 mm RMS), at most 8
-    /// rounds (the phantoms need 3 and 4).
+    /// 0.1 mm in a model in millimetres (the unloaded shape, loaded again,
+    /// must give the rest surface within 0.1 mm RMS), at most 8 rounds (the
+    /// phantoms need 3 and 4).
     pub const MILLIMETRES: Self = Self {
         tolerance: 0.1,
         max_rounds: 8,

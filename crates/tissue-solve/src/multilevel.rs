@@ -6,7 +6,7 @@
 //! factor grows as `n^(5/3)` within its envelope, and as `n^2` even
 //! sparsely ([`crate::cholesky`]: the fill of a 3-D graph's factor), so at
 //! a million particles (about 86,000 aggregates of 2 spacings) it is out
-//! of reach, and the cells had to grow instead, which costs the fine
+//! of reach, and growing the cells instead would cost the fine
 //! iteration its speed. Here the aggregates themselves are grouped, those
 //! whose centres share a cell [`GROUP`] times as large, into a second
 //! coarse space `Q` whose matrix `Q^T A Q` is small enough to factor, and
@@ -38,12 +38,10 @@ pub const SWEEPS: usize = 3;
 pub const JACOBI_WEIGHT: f64 = 2.0 / 3.0;
 
 /// The groups' cells, in the aggregates' cells: about `GROUP^3`
-/// aggregates a group. 3 until 2026-11-28; 2 since the groups are capped
-/// at 4,096 (`DeformParams::coarse_direct_max_aggregates`, what the GPU
-/// substitutes in one workgroup): the phantom's sag at 100,000 particles
-/// 15 -> 13 iterations (12 factored), at 1,000,000 16 either way, where
-/// the cap grows the groups to about 3 anyway (docs/METHOD.md,
-/// "Multilevel").
+/// aggregates a group. 2, since the groups are capped at 4,096
+/// (`DeformParams::coarse_direct_max_aggregates`, what the GPU substitutes
+/// in one workgroup); where the cap bites it grows the groups to about 3
+/// anyway (docs/METHOD.md, "Multilevel").
 pub const GROUP: f32 = 2.0;
 
 /// [`BlockMultilevel`]'s groups' cells, in the aggregates' cells: its

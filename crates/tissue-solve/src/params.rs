@@ -129,9 +129,8 @@ pub struct DeformParams {
     /// ([`crate::multilevel::BlockMultilevel`]), the groups at most this
     /// many. The default, 1,365, is the most whose 4,095 unknowns the GPU
     /// substitutes in one workgroup, so both devices solve every elastic
-    /// correction the same way (2,000 until 2026-11-28: the phantom's sag
-    /// at 100,000 particles takes 32 iterations either way). What it
-    /// saves: docs/METHOD.md, "Elastic model".
+    /// correction the same way. What it saves: docs/METHOD.md, "Elastic
+    /// model".
     pub elastic_coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve smooths with the volume term
     /// taken implicitly ([`crate::volume_smoother`]: the shear part stepped

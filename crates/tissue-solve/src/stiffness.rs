@@ -1,4 +1,4 @@
-//! The tissue's stiffness fitted from the skin (issue 16, item 3).
+//! The tissue's stiffness fitted from the skin.
 //!
 //! Gravity's load is `rho g / (2 mu)`: for a given density the one unknown
 //! is the stiffness, and the skin the scanner sees in the second posture

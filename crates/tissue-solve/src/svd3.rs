@@ -1,84 +1,50 @@
-//! 3x3 singular value decomposition and the best-fit rotation of stage 2.
+//! 3x3 singular value decomposition and the best-fit rotation of stage 2
+//! (docs/METHOD.md, "Rotations").
 //!
 //! # Convention: the signed SVD
 //!
 //! [`svd3`] returns `m = u · diag(sigma) · vᵀ` with `u` and `v` proper
-//! rotations (det +1) and `sigma.x ≥ sigma.y ≥ |sigma.z|`; `sigma.x` and
-//! `sigma.y` are never negative, and `sigma.z` carries the sign of `det(m)`
-//! (either sign, up to rounding, when `m` is singular).
-//! This is the "signed SVD" of McAdams et al. 2011, *Computing the Singular
-//! Value Decomposition of 3x3 matrices with minimal branching and elementary
-//! floating point operations*. It differs from the textbook SVD (orthogonal
-//! `u`, `v`, all `sigma ≥ 0`) only when `det(m) < 0`: then the textbook
-//! `u` or `v` would be a reflection, and here the reflection is moved into the
-//! smallest singular value instead. The payoff is that `u · vᵀ` is always the
-//! closest rotation to `m` ([`rotation_of`]) with no sign fix-up.
+//! rotations (det +1) and `sigma.x ≥ sigma.y ≥ |sigma.z|`; only `sigma.z` may
+//! be negative, carrying the sign of `det(m)` (either sign, up to rounding,
+//! when `m` is singular). This is the "signed SVD" of McAdams et al. 2011: a
+//! reflection goes into the smallest singular value rather than into `u` or
+//! `v`, so `u · vᵀ` is always the closest rotation to `m` ([`rotation_of`]).
 //!
 //! # Method (McAdams et al. 2011, plus one exact polish sweep)
 //!
-//! 1. Divide `m` by its largest |element| so that nothing in `mᵀm` overflows
-//!    or underflows (subnormal and near-`f32::MAX` inputs included); `sigma`
-//!    is scaled back at the end.
-//! 2. `v` from the symmetric eigen-decomposition of `mᵀm`: [`JACOBI_SWEEPS`]
-//!    cyclic sweeps of McAdams' approximate Jacobi rotations (half-angle from
-//!    `b / 2(a − d)`, capped at `π/8`; one division and no square root on the
-//!    critical path), accumulated as a quaternion, so `v` is orthonormal to
-//!    rounding whatever the sweeps did.
+//! 1. Divide `m` by its largest |element|, so `mᵀm` neither overflows nor
+//!    underflows; `sigma` is scaled back at the end.
+//! 2. `v` from [`JACOBI_SWEEPS`] cyclic sweeps of McAdams' approximate
+//!    Jacobi rotations on `mᵀm`, accumulated as a quaternion (orthonormal to
+//!    rounding).
 //! 3. [`POLISH_SWEEPS`] sweep of exact one-sided Jacobi rotations on the
-//!    columns of `b = m·v`, each making a pair of columns orthogonal. It
-//!    finishes what the approximate sweeps left (they converge slowly for
-//!    nearly equal eigenvalues), and it measures the small singular values
-//!    from `b` itself: `mᵀm` squares the condition number, so when the two
-//!    smallest singular values are below `≈ 3e-4 · sigma.x` their eigenvectors
-//!    are lost in its rounding, and without this step the QR below leaves an
-//!    off-diagonal residual of up to `√ε · sigma.x ≈ 3e-4 · sigma.x` (a
-//!    variant with exact sweeps and no polish gave 1.5e-5 relative on
-//!    `R·diag(1, 1e-3, 1e-6)·R′`).
+//!    columns of `b = m·v`: `mᵀm` squares the condition number, so the small
+//!    singular values must be measured from `b` itself.
 //! 4. Sort the columns of `b` and `v` by descending norm (each swap negates one
 //!    column so `det v` stays +1).
-//! 5. QR of `b` by three Givens rotations: `b = u · r`, `u` a rotation;
-//!    `sigma = diag(r)`, where `r₁₁, r₂₂ ≥ 0` by construction and `r₃₃` takes
-//!    the sign of `det m`; clamped to exact order (the clamp moves values by
-//!    rounding only).
+//! 5. QR of `b` by three Givens rotations: `b = u · r`, `sigma = diag(r)`,
+//!    clamped to exact order.
 //!
-//! Fixed loop counts, no allocation, no recursion, and every data-dependent
-//! choice is a select (`if` on plain values, or a 0/1 blend): the loop bodies
-//! are meant to be held side by side with the WGSL twin. Entries far below the
-//! rounding of the scaled `mᵀm` are flushed to zero (see `NEGLIGIBLE`), which
-//! keeps the CPU out of slow subnormal arithmetic and matches GPUs, which
-//! flush subnormals anyway.
+//! Fixed loop counts, no allocation, and every data-dependent choice a select,
+//! so the loop bodies match the WGSL twin line for line. Entries far below the
+//! rounding of the scaled `mᵀm` are flushed to zero (`NEGLIGIBLE`), as GPUs
+//! flush subnormals.
 //!
 //! # Accuracy
 //!
-//! Measured by `tests/svd3.rs` over 250,000 random matrices (entries in
-//! `[-1, 1]`, whole-matrix and per-entry log-uniform scales `1e-6..1e6`) and
-//! 138,000 adversarial ones (rank 0–2, repeated and negative singular values,
-//! reflections, `I + 1e-7` noise, condition numbers to `1e8`, each also scaled
-//! by `1e-30..1e30`): relative reconstruction error
-//! `‖u·diag(sigma)·vᵀ − m‖_F / ‖m‖_F` at most `8e-7`, `uᵀu`, `vᵀv` within
-//! `9e-7` of `I`, `det u`, `det v` within `9e-7` of 1 (tests assert `1e-5`).
-//! A finite `m` never yields NaN; `sigma` overflows to infinity only when a
-//! singular value exceeds `f32::MAX`. The zero matrix gives `u = v = I`,
-//! `sigma = 0`.
-//!
-//! # Cost
-//!
-//! About 400 ns per [`svd3`] or [`rotation_of`] call: a throwaway timing (not
-//! kept in the repository) over 10⁶ random matrices, release build, one thread
-//! of a shared 2-core x86-64 container whose other core was busy. The cost is
-//! latency: 15 dependent rotations, each waiting on a division.
+//! `tissue-cpu`'s `tests/svd3.rs` asserts, over random and adversarial
+//! matrices (rank 0–2, repeated and negative singular values, scales
+//! `1e-30..1e30`), relative reconstruction error, orthonormality of `u`, `v`
+//! and `det u`, `det v` all within `1e-5`. A finite `m` never yields NaN;
+//! the zero matrix gives `u = v = I`, `sigma = 0`.
 //!
 //! # Stage 2: which way the rotation goes
 //!
-//! Stage 2 fits each particle's rotation from its neighbours' offsets, rest
-//! `p = p_j − p_i` and current `q = q_j − q_i`. With
-//! `M_i = Σ_j p · qᵀ` (rest × current; the paper's `A_relaxᵀ · A_current`
-//! with one offset per row), the paper's `R_i = U·Vᵀ` of `svd(M_i)` is
-//! `rotation_of(M_i)`, and it maps **current onto rest**: if `q = R·p`
-//! exactly, `M_i = (Σ p·pᵀ)·Rᵀ`, a symmetric factor times `Rᵀ`, so
-//! `rotation_of(M_i) = Rᵀ`. The rotated rest offset is therefore
-//! `R_iᵀ · p`. To avoid this transpose altogether use [`best_rotation`],
-//! which returns the rotation mapping rest offsets onto current offsets.
+//! With rest offsets `p = p_j − p_i`, current `q = q_j − q_i` and
+//! `M_i = Σ_j p · qᵀ` (the paper's `A_relaxᵀ · A_current`), the paper's
+//! `R_i = U·Vᵀ` is `rotation_of(M_i)` and maps **current onto rest**: if
+//! `q = R·p`, `rotation_of(M_i) = Rᵀ`. [`best_rotation`] returns the rotation
+//! mapping rest offsets onto current ones, with no transpose.
 
 use std::f32::consts::FRAC_1_SQRT_2;
 

@@ -35,21 +35,16 @@ pub const SHEAR_CHECK: f32 = 100.0;
 /// The fraction of its two-level step a smoothed elastic phase takes when
 /// it is run again from the end of the shear phase after it diverged (or
 /// stalled a second time), before the correction is given up; Chebyshev
-/// and the stopping rule then take the contraction `1 - d (1 - rho)`. The
-/// first corrected steps under a deep probe are too long for the
-/// linearisation they were made from (on the phantom at 5,000 particles
-/// poked 20 mm deep, 7 mm at the largest, two spacings, then growing):
-/// on the phantom at 2,000 particles poked 15-30 mm deep by probes 8-35
-/// mm wide, half the step from the start converged every probe with its
-/// correction in 33-55 iterations, where the full one failed on 11 of 16
-/// (docs/METHOD.md, "Elastic model").
+/// and the stopping rule then take the contraction `1 - d (1 - rho)`.
+/// Under a deep probe the first corrected steps are too long for the
+/// linearisation they were made from; damping slows every healthy phase,
+/// so it is taken only after a failure (docs/METHOD.md, "Elastic model").
 pub const ELASTIC_DAMPING: f32 = 0.5;
 
 /// How many times a smoothed elastic phase that fails is run again with
-/// [`ELASTIC_DAMPING`] of the step before (0.5, then 0.25). On the phantom
-/// at 10,000 particles poked 15-30 mm deep by probes 8-35 mm wide, one
-/// damped retry brought ten of the 14 probes that failed to the
-/// tolerance, a second two more (docs/METHOD.md, "Elastic model").
+/// [`ELASTIC_DAMPING`] of the step before (0.5, then 0.25): a quarter step
+/// brings deep probes to the tolerance that half of it does not
+/// (docs/METHOD.md, "Elastic model").
 pub const DAMPED_RETRIES: usize = 2;
 
 /// How many times an elastic phase that diverged is run again from the end
@@ -57,13 +52,10 @@ pub const DAMPED_RETRIES: usize = 2;
 /// ([`DAMPED_RETRIES`] times) where it smoothed, then without the
 /// device's correction, where it ran with one, then each time with half
 /// the step before. The correction is linearised where the phase starts
-/// and the step is set from the
-/// stiffness at rest ([`crate::elastic::STIFFENING`] times it); a particle
-/// compressed far more than the rest of the model (a deep, narrow
-/// indentation) can be stiffer still, and far from that linearisation.
-/// Measured on the phantom at 2,000 particles poked 40 mm deep and 15 mm
-/// wide at its tip: the corrected phase diverges after 6 iterations, the
-/// uncorrected full step after 22, half the step converges (docs/METHOD.md,
+/// and the step is set from the stiffness at rest
+/// ([`crate::elastic::STIFFENING`] times it); a particle compressed far
+/// more than the rest of the model (a deep, narrow indentation) can be
+/// stiffer still, and far from that linearisation (docs/METHOD.md,
 /// "Elastic model").
 pub const ELASTIC_RETRIES: usize = 5;
 
@@ -405,10 +397,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// where it stalled with its correction linearised there: the stall is
     /// the iteration taken away from the state its correction was made
     /// for (under a deep probe the particles it compresses stiffen, and
-    /// the steps settle at a size that no longer falls). On the bench's
-    /// phantom indented at 300,000 particles the phase so made again
-    /// converged in 20 iterations, 60 in all and 7.1 s, where without its
-    /// correction it took 354 more, 394 in all and 23 s (docs/METHOD.md,
+    /// the steps settle at a size that no longer falls; docs/METHOD.md,
     /// "Elastic model", *Preparation and 1M*). An elastic phase that
     /// diverges, or stalls again, runs again from the end of the shear
     /// phase: where it smoothed, with half, then a quarter of its step

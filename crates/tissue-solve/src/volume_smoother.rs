@@ -24,10 +24,10 @@
 //! connections as the operator's are. The GPU's twin,
 //! `shaders/volume_smoother.wgsl`, runs the same passes in `f32`.
 //!
-//! Measured on the breast phantoms at 10,000 particles, at the state where
-//! the elastic phase starts: the two-level iteration's contraction 0.971 ->
-//! 0.878 (breast_c) and 0.878 (breast_d); the linear problem to a
-//! thousandth of the error in 15-16 iterations instead of 33.
+//! On the breast phantoms at 10,000 particles, at the state where the
+//! elastic phase starts, it takes the two-level iteration's contraction
+//! from 0.97 (the plain step) to 0.88: the linear problem to a thousandth
+//! of the error in 15-16 iterations instead of 33.
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -36,15 +36,10 @@ use tissue_core::Connections;
 use crate::coarse_elastic::{Entries, slots};
 
 /// `delta` in units of the connection Laplacian's largest eigenvalue (the
-/// plan's, margin included). Measured on both breast phantoms at 10,000
-/// particles (the linear problem at the elastic phase's start, two sweeps
-/// of 0.5): 1.25 leaves the iteration's most negative eigenvalue at -0.96
-/// (a Chebyshev rate of 0.964), 1.5 at -0.51 with the largest 0.878, 2.0
-/// at -0.20 with 0.902. 1.5 diverged six or seven iterations into the
-/// elastic phase on breast_c at 100,000 particles (factored or cycled
-/// coarse solve), where 2.0 converges (40 iterations with the cycles);
-/// at 10,000, 2.0 costs 1-3 iterations (docs/METHOD.md, "The volume
-/// smoother").
+/// plan's, margin included). 2.0 keeps the iteration's most negative
+/// eigenvalue near -0.2; smaller values bring it towards -1 (1.5 diverges
+/// on breast_c at 100,000 particles), and 2.0 costs 1-3 iterations at
+/// 10,000 (docs/METHOD.md, "The volume smoother").
 pub const SHEAR_STEP: f64 = 2.0;
 
 /// The Jacobi sweeps' relaxation on the pressures. With `SHEAR_STEP` 1.5

@@ -1,7 +1,7 @@
-//! What solvers of one model share (docs/METHOD.md, "Made (2026-11-29,
-//! eleventh session): the Laplacian's preparation shared"): the connection
-//! Laplacian's spectrum and two-level coarse space depend only on the
-//! connections and the free particles.
+//! What solvers of one model share: the connection Laplacian's spectrum and
+//! two-level coarse space depend only on the connections and the free
+//! particles, not on the positions (docs/METHOD.md, "Gravity and the
+//! unloaded shape", *The Laplacian's preparation shared*).
 
 use std::sync::Arc;
 

@@ -57,9 +57,8 @@ pub fn rest_rate(
 /// which aggregates of at most 2 spacings carry and coarser ones do not:
 /// on breast_c at 10,000 particles, cells of 2.5, 3 and 4 spacings put the
 /// iteration's most negative eigenvalue at -1.14, -1.27 and -1.44 (it
-/// diverges), and at 100,000 particles, whose 1,000 aggregates (the cap
-/// before the cycles) needed cells of 4.9 spacings, at -3.3
-/// (docs/METHOD.md, "The volume smoother").
+/// diverges), and cells of 4.9 spacings (1,000 aggregates at 100,000
+/// particles) at -3.3 (docs/METHOD.md, "The volume smoother").
 pub const SMOOTHER_MAX_CELL: f32 = 2.0;
 
 /// A measured contraction at or above this leaves the plain step in place
