@@ -27,7 +27,9 @@ use std::fmt;
 use std::str::FromStr;
 
 use glam::{Mat3, Vec3};
-use tissue_core::{Connections, DeformError, Error, ParticleModel, SamplingParams, SurfaceMesh};
+use tissue_core::{
+    Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
+};
 use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, SharedLaplacian};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
@@ -59,10 +61,7 @@ impl FromStr for Backend {
             "auto" => Ok(Self::Auto),
             "gpu" => Ok(Self::Gpu),
             "cpu" => Ok(Self::Cpu),
-            _ => Err(Error::Gpu {
-                context: "choosing a backend".into(),
-                message: format!("unknown backend `{s}`, expected auto, gpu or cpu"),
-            }),
+            _ => Err(Error::UnknownBackend(s.to_owned())),
         }
     }
 }
@@ -116,11 +115,20 @@ impl fmt::Display for Picked {
 
 /// `error`, with what was being done; the model's own errors pass unchanged.
 pub(crate) fn gpu_error(context: impl Into<String>, error: GpuError) -> Error {
+    let kind = match &error {
+        GpuError::NoAdapter(_) => GpuFailure::NoAdapter,
+        GpuError::RequestDevice(_) => GpuFailure::NoDevice,
+        GpuError::LimitExceeded { .. } => GpuFailure::LimitExceeded,
+        GpuError::OutOfMemory(_) => GpuFailure::OutOfMemory,
+        GpuError::DeviceLost(_) => GpuFailure::DeviceLost,
+        _ => GpuFailure::Other,
+    };
     match error {
         GpuError::Model(e) => e,
         other => Error::Gpu {
             context: context.into(),
-            message: other.to_string(),
+            kind,
+            source: Box::new(other),
         },
     }
 }
@@ -678,9 +686,51 @@ mod tests {
             assert_eq!(parsed, backend);
         }
         assert_eq!("GPU".parse::<Backend>().unwrap(), Backend::Gpu);
-        let err = "cuda".parse::<Backend>().unwrap_err().to_string();
-        assert!(err.contains("unknown backend `cuda`"), "{err}");
+        let err = "cuda".parse::<Backend>().unwrap_err();
+        assert!(
+            matches!(&err, Error::UnknownBackend(name) if name == "cuda"),
+            "{err}"
+        );
+        assert!(err.to_string().contains("unknown backend `cuda`"), "{err}");
         assert_eq!(Backend::default(), Backend::Auto);
+    }
+
+    /// A GPU failure reaches the facade's error typed: its kind to match
+    /// (out of memory, no adapter, ...) and the GPU crate's own error as
+    /// its source; the model's own errors pass through unchanged.
+    #[test]
+    fn gpu_failures_keep_their_kind_and_source() {
+        use std::error::Error as _;
+        let err = gpu_error("stage 2 on a GPU", GpuError::OutOfMemory("4 EiB".into()));
+        let Error::Gpu { kind, .. } = &err else {
+            panic!("{err:?}");
+        };
+        assert_eq!(*kind, GpuFailure::OutOfMemory);
+        assert!(
+            err.to_string()
+                .starts_with("stage 2 on a GPU: the GPU ran out of memory")
+        );
+        let source = err.source().and_then(|s| s.downcast_ref::<GpuError>());
+        assert!(
+            matches!(source, Some(GpuError::OutOfMemory(_))),
+            "{source:?}"
+        );
+        for (gpu, expected) in [
+            (GpuError::NoAdapter("none".into()), GpuFailure::NoAdapter),
+            (GpuError::RequestDevice("no".into()), GpuFailure::NoDevice),
+            (GpuError::DeviceLost("gone".into()), GpuFailure::DeviceLost),
+            (GpuError::Validation("bad".into()), GpuFailure::Other),
+        ] {
+            assert!(
+                matches!(gpu_error("x", gpu), Error::Gpu { kind, .. } if kind == expected),
+                "{expected:?}"
+            );
+        }
+        let model = Error::InvalidModel("no particles".into());
+        assert!(matches!(
+            gpu_error("x", GpuError::Model(model)),
+            Error::InvalidModel(_)
+        ));
     }
 
     /// `sample_on` skipped the surface check `sample` makes: an open surface

@@ -115,7 +115,13 @@ pub fn gpu() -> Option<Device> {
             eprintln!("backend: {picked}");
             Some(picked.device)
         }
-        Err(Error::Gpu { message, .. }) if message.starts_with("no GPU adapter") => {
+        Err(
+            error @ Error::Gpu {
+                kind: tissue::GpuFailure::NoAdapter,
+                ..
+            },
+        ) => {
+            let message = error.to_string();
             assert!(
                 std::env::var("CI").as_deref() != Ok("true"),
                 "no GPU adapter under CI=true ({message}); install Mesa lavapipe"

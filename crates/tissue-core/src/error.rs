@@ -371,14 +371,40 @@ pub enum Error {
     #[error(transparent)]
     Deformation(#[from] DeformError),
     /// The GPU path failed: no adapter, a device limit, device loss, out of
-    /// memory (the GPU crate's own error, as text, with what was being done).
-    #[error("{context}: {message}")]
+    /// memory. `kind` says which, to act on (fall back to the CPU on
+    /// [`GpuFailure::OutOfMemory`], say); `source` is the GPU crate's own
+    /// error (`tissue_gpu::GpuError`, to downcast to).
+    #[error("{context}: {source}")]
     Gpu {
         /// What was being done, e.g. `stage 2 on NVIDIA H100, Vulkan`.
         context: String,
+        /// Which kind of failure.
+        kind: GpuFailure,
         /// The GPU crate's error.
-        message: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
     },
+    /// A backend name that is not `auto`, `gpu` or `cpu`.
+    #[error("unknown backend `{0}`, expected auto, gpu or cpu")]
+    UnknownBackend(String),
+}
+
+/// The kind of a GPU failure ([`Error::Gpu`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum GpuFailure {
+    /// No adapter was found.
+    NoAdapter,
+    /// The adapter would not open a device.
+    NoDevice,
+    /// A buffer or dispatch above a device limit.
+    LimitExceeded,
+    /// The device ran out of memory.
+    OutOfMemory,
+    /// The device was lost or stopped responding.
+    DeviceLost,
+    /// Anything else: a shader, a validation or internal error, a readback.
+    Other,
 }
 
 /// Result with tissue's core error.
