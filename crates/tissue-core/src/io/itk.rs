@@ -80,7 +80,7 @@ pub fn resampling_transform(motion: &Affine, space: Space) -> Option<Affine> {
 /// `Parameters` the 3x3 matrix row by row, then the translation;
 /// `FixedParameters` the centre of rotation, 0 0 0, so that the
 /// translation is the map's offset.
-pub fn tfm_text(motion: &Affine, space: Space) -> Result<String, String> {
+pub(crate) fn tfm_text(motion: &Affine, space: Space) -> Result<String, String> {
     let transform = resampling_transform(motion, space)
         .ok_or("the motion cannot be inverted (singular or not finite)")?;
     let m = transform.matrix.transpose().to_cols_array(); // rows, one after another

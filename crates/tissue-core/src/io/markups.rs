@@ -155,7 +155,7 @@ fn shortest(x: f32) -> Value {
 }
 
 /// Reads the text of a markups file (see [`load_markups`]).
-pub fn parse_markups(text: &str, space: Space) -> Result<Markups, String> {
+pub(crate) fn parse_markups(text: &str, space: Space) -> Result<Markups, String> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let document: Value =
         serde_json::from_str(text).map_err(|e| format!("not a JSON file: {e}"))?;
