@@ -97,7 +97,7 @@ pub(crate) fn tfm_text(motion: &Affine, space: Space) -> Result<String, String> 
 }
 
 /// Writes `motion` (rest to moved, in `space`) as an ITK transform file
-/// ([`tfm_text`]).
+/// (`tfm_text`).
 ///
 /// # Errors
 ///
