@@ -156,7 +156,7 @@ fn guarded<T>(parse: impl FnOnce() -> Result<T, String>) -> Result<T, String> {
 /// writes, the empty compressed arrays of its empty `Verts`, `Lines` and
 /// `Strips` included.
 pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
-    use crate::io::vtp::{count_attribute, piece_points};
+    use crate::io::vtp::piece_points;
 
     let converted = raw_appended_as_base64(bytes)?;
     let bytes = converted.as_deref().unwrap_or(bytes);
@@ -202,19 +202,6 @@ pub(super) fn read_vtp(bytes: &[u8]) -> Result<SurfaceMesh, String> {
         }
         for cell in xml_cells(piece, "Strips", count).map_err(in_piece)? {
             strip(&cell, offset, &mut mesh.triangles);
-        }
-        if count_attribute(piece, "NumberOfPolys")
-            .map_err(in_piece)?
-            .unwrap_or(0)
-            + count_attribute(piece, "NumberOfStrips")
-                .map_err(in_piece)?
-                .unwrap_or(0)
-            == 0
-            && count > 0
-            && piece.child("Polys").is_none()
-            && piece.child("Strips").is_none()
-        {
-            log::debug!("piece {k} of the .vtp has points but no polygons or strips");
         }
     }
     Ok(mesh)
