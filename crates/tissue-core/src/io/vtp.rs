@@ -252,6 +252,27 @@ pub(super) fn piece_points(piece: &Element) -> Result<Vec<Vec3>, String> {
         .collect())
 }
 
+/// The piece's `section` element (`Verts`, `Lines`, `Polys`, `Strips`) and
+/// its declared count (`NumberOf<section>`, if given); `None` when the
+/// piece has no such element and declares none, an error when it declares
+/// cells but has no element.
+pub(super) fn cell_section<'a>(
+    piece: &'a Element,
+    section: &str,
+) -> Result<Option<(&'a Element, Option<usize>)>, String> {
+    let attribute = format!("NumberOf{section}");
+    let declared = count_attribute(piece, &attribute)?;
+    match piece.child(section) {
+        Some(element) => Ok(Some((element, declared))),
+        None => match declared {
+            Some(d) if d > 0 => Err(format!(
+                "{attribute}=\"{d}\" but there is no <{section}> element"
+            )),
+            _ => Ok(None),
+        },
+    }
+}
+
 /// Cells of `section` (`Verts`, `Lines`, `Polys`), each with exactly `K`
 /// points, all indices below `points`.
 pub(super) fn piece_cells<const K: usize>(
@@ -259,15 +280,8 @@ pub(super) fn piece_cells<const K: usize>(
     section: &str,
     points: usize,
 ) -> Result<Vec<[u32; K]>, String> {
-    let attribute = format!("NumberOf{section}");
-    let declared = count_attribute(piece, &attribute)?;
-    let Some(element) = piece.child(section) else {
-        return match declared {
-            Some(d) if d > 0 => Err(format!(
-                "{attribute}=\"{d}\" but there is no <{section}> element"
-            )),
-            _ => Ok(Vec::new()),
-        };
+    let Some((element, declared)) = cell_section(piece, section)? else {
+        return Ok(Vec::new());
     };
     let what = |name: &str| format!("{section} {name}");
     let offsets_array = element
@@ -283,7 +297,7 @@ pub(super) fn piece_cells<const K: usize>(
         .ok_or_else(|| format!("the {} array is missing", what("connectivity")))?;
     let corners = cells
         .checked_mul(K)
-        .ok_or_else(|| format!("{attribute}=\"{cells}\" is beyond any real file"))?;
+        .ok_or_else(|| format!("NumberOf{section}=\"{cells}\" is beyond any real file"))?;
     let connectivity: Vec<i64> = values(connectivity_array, &what("connectivity"), 1, corners)?;
     let kind = match section {
         "Verts" => "vertex",

@@ -215,17 +215,10 @@ fn xml_cells(
     section: &str,
     points: usize,
 ) -> Result<Vec<Vec<u32>>, String> {
-    use crate::io::vtp::{count_attribute, values};
+    use crate::io::vtp::{cell_section, values};
 
-    let attribute = format!("NumberOf{section}");
-    let declared = count_attribute(piece, &attribute)?;
-    let Some(element) = piece.child(section) else {
-        return match declared {
-            Some(d) if d > 0 => Err(format!(
-                "{attribute}=\"{d}\" but there is no <{section}> element"
-            )),
-            _ => Ok(Vec::new()),
-        };
+    let Some((element, declared)) = cell_section(piece, section)? else {
+        return Ok(Vec::new());
     };
     if declared == Some(0) {
         return Ok(Vec::new());
