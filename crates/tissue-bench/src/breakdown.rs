@@ -5,9 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
-use tissue_cpu::deformation::{
-    Chebyshev, DeformParams, Deformer, Iteration, RotationMethod, SolveDevice,
-};
+use tissue_cpu::deformation::{Chebyshev, DeformParams, Deformer, Iteration, Pass, SolveDevice};
 use tissue_gpu::GpuDeformer;
 use tissue_gpu::timing::KernelTimer;
 
@@ -101,44 +99,35 @@ pub fn cpu(
     let mut solve = deformer.device().clone();
     let Ok(()) = solve.begin((), it);
 
-    let mut times: [Vec<f64>; 6] = Default::default();
+    // Each pass of the iteration, in order, with its seconds per sample.
+    let mut passes: Vec<(Pass, Vec<f64>)> = solve
+        .passes()
+        .into_iter()
+        .map(|p| (p, Vec::new()))
+        .collect();
     let mut whole = Vec::new();
     // One untimed round first: first touch of the output allocations.
     for sample in 0..=samples {
-        let mut laps = [0.0f64; 6];
+        let mut laps = vec![0.0f64; passes.len()];
         let (t_whole, norms) = timed(|| {
             solve.iterate_timed(it, omega, &mut |pass, seconds| {
-                laps[pass as usize] += seconds;
+                if let Some(k) = passes.iter().position(|(p, _)| *p == pass) {
+                    laps[k] += seconds;
+                }
             })
         });
         std::hint::black_box(norms);
         if sample > 0 {
-            for (list, t) in times.iter_mut().zip(laps) {
+            for ((_, list), t) in passes.iter_mut().zip(laps) {
                 list.push(t);
             }
             whole.push(t_whole);
         }
     }
-    let [rotations, force, integrate, correction, norms, combine] = times;
-    let rotation_name = match params.rotations {
-        RotationMethod::Svd => "local_rotations (svd)",
-        RotationMethod::WarmPolar => "local_rotations_warm (warm polar)",
-    };
-    let integrate_and_combine = integrate.iter().zip(&combine).map(|(a, b)| a + b).collect();
-    let mut passes = vec![
-        (rotation_name.to_owned(), rotations),
-        ("deformation_force".to_owned(), force),
-        (
-            "integrate + chebyshev_combine".to_owned(),
-            integrate_and_combine,
-        ),
-    ];
-    if let Some(modes) = deformer.modes() {
-        passes.push((format!("deflate ({} modes)", modes.count()), correction));
-    } else if deformer.coarse().is_some() {
-        passes.push(("coarse correction (two-level)".to_owned(), correction));
-    }
-    passes.push(("step norms".to_owned(), norms));
+    let passes = passes
+        .into_iter()
+        .map(|(pass, times)| (pass.name().to_owned(), times))
+        .collect();
     Breakdown::new(
         "wall_clock",
         format!(

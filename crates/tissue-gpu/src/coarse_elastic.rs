@@ -20,7 +20,7 @@ pub(crate) struct ElasticCoarseBuffers {
     /// Whether a linearisation (gradients and factor) is uploaded.
     pub(crate) linearised: bool,
     /// The volume smoother's `delta`, where the uploaded linearisation has
-    /// one (its iterations are then `SMOOTHED_ELASTIC_ITERATION`s).
+    /// one (its iterations then make the smoothed step, `Pass::SmoothedStep`).
     pub(crate) smoother: Option<f32>,
     aggregate: Storage<u32>,
     member_starts: Storage<u32>,

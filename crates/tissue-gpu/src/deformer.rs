@@ -193,6 +193,12 @@ impl GpuDeformer {
         &self.tracker.device().state
     }
 
+    /// The passes every iteration of the last solve ran, in order (the
+    /// CPU path's `CpuSolve::passes`).
+    pub fn passes(&self) -> Vec<tissue_solve::passes::Pass> {
+        self.state().passes()
+    }
+
     /// The lowest Laplacian modes deflated every iteration, if any (the
     /// CPU path's `Deformer::modes`).
     pub fn modes(&self) -> Option<&LowModes> {
@@ -551,8 +557,7 @@ impl SolveDevice for GpuSolve {
             self.linearise((device, queue), iteration)?;
         }
         self.iteration = Some(iteration);
-        self.state
-            .set_phase(iteration.force == ForceModel::Elastic, iteration.correct);
+        self.state.set_phase(iteration.force, iteration.correct);
         self.state.set_rotations(iteration.rotations);
         let state = &self.state;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {

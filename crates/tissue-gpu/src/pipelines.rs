@@ -1,12 +1,16 @@
 //! The compiled kernels and the step that records them.
 
-use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS, CYCLE_LEN};
+use tissue_solve::params::RotationMethod;
+use tissue_solve::passes::{Choices, Pass};
+use tissue_solve::volume_smoother::SWEEPS;
+
+use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
 use crate::state::DeformState;
 use crate::support::Scopes;
 use crate::{GpuError, shaders};
 
 /// One stage-2 kernel (a WGSL entry point bound to the state's buffers).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Kernel {
     /// `local_rotations.wgsl`: `R_i` from `M_i` through the 3x3 SVD.
     LocalRotations,
@@ -184,228 +188,88 @@ impl Kernel {
         Kernel::BlockCycleProlong,
     ];
 
-    /// One iteration without deflation, in order.
-    pub const ITERATION: [Kernel; 5] = [
-        Kernel::LocalRotations,
-        Kernel::DeformationForce,
-        Kernel::Integrate,
-        Kernel::StepNorms,
-        Kernel::Chebyshev,
-    ];
-
-    /// One iteration with the elastic force, in order: the terms (with
-    /// each particle's rotation, of its gradient), then the elastic force. Never deflated: deflation
-    /// assumes the Laplacian's modes, which are not the elastic operator's.
-    pub const ELASTIC_ITERATION: [Kernel; 5] = [
-        Kernel::ElasticTargets,
-        Kernel::ElasticForce,
-        Kernel::Integrate,
-        Kernel::StepNorms,
-        Kernel::Chebyshev,
-    ];
-
-    /// One deflated iteration, in order: the plain step is deflated before
-    /// the combine, and the norms are of the update the combine made.
-    pub const DEFLATED_ITERATION: [Kernel; 8] = [
-        Kernel::LocalRotations,
-        Kernel::DeformationForce,
-        Kernel::Integrate,
-        Kernel::DeflateProject,
-        Kernel::DeflateGains,
-        Kernel::DeflateApply,
-        Kernel::Chebyshev,
-        Kernel::UpdateNorms,
-    ];
-
-    /// One iteration of the two-level solve, in order: the plain step is
-    /// corrected over the aggregates before the combine (where deflation
-    /// would be), and the norms are of the update the combine made.
-    pub const COARSE_ITERATION: [Kernel; 10] = [
-        Kernel::LocalRotations,
-        Kernel::DeformationForce,
-        Kernel::Integrate,
-        Kernel::CoarseResidual,
-        Kernel::CoarseRestrict,
-        Kernel::CoarseForward,
-        Kernel::CoarseBackward,
-        Kernel::CoarseApply,
-        Kernel::Chebyshev,
-        Kernel::UpdateNorms,
-    ];
-
-    /// [`Kernel::COARSE_ITERATION`] with the coarse Laplacian solved by
-    /// two-grid cycles (`crate::multilevel::CYCLE_KERNELS`) in place of
-    /// its factor's two substitutions.
-    pub const MULTILEVEL_ITERATION: [Kernel; 10 - 2 + CYCLE_LEN] = Kernel::cycled(
-        Kernel::COARSE_ITERATION,
-        Kernel::CoarseForward,
-        Kernel::CoarseBackward,
-        CYCLE_KERNELS,
-    );
-
-    /// One iteration of the elastic phase with its two-level solve, in
-    /// order: the elastic correction between the plain step and the
-    /// combine, the norms of the update the combine made.
-    pub const CORRECTED_ELASTIC_ITERATION: [Kernel; 12] = [
-        Kernel::ElasticTargets,
-        Kernel::ElasticForce,
-        Kernel::Integrate,
-        Kernel::ElasticStep,
-        Kernel::ElasticChange,
-        Kernel::ElasticResidual,
-        Kernel::ElasticRestrict,
-        Kernel::ElasticForward,
-        Kernel::ElasticBackward,
-        Kernel::ElasticApply,
-        Kernel::Chebyshev,
-        Kernel::UpdateNorms,
-    ];
-
-    /// One iteration of the elastic phase with its two-level solve and the
-    /// volume smoother, in order: the smoothed step (its two sweeps,
-    /// `tissue_solve::volume_smoother::SWEEPS`) in place of the plain one,
-    /// then the elastic correction and the combine.
-    pub const SMOOTHED_ELASTIC_ITERATION: [Kernel; 16] = [
-        Kernel::ElasticTargets,
-        Kernel::ElasticForce,
-        Kernel::SmootherResidual,
-        Kernel::PressureStart,
-        Kernel::PressureForces,
-        Kernel::PressureSweep,
-        Kernel::PressureForces,
-        Kernel::SmoothedStep,
-        Kernel::ElasticChange,
-        Kernel::ElasticResidual,
-        Kernel::ElasticRestrict,
-        Kernel::ElasticForward,
-        Kernel::ElasticBackward,
-        Kernel::ElasticApply,
-        Kernel::Chebyshev,
-        Kernel::UpdateNorms,
-    ];
-
-    /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the elastic coarse
-    /// matrix solved by two-grid cycles
-    /// (`crate::multilevel::BLOCK_CYCLE_KERNELS`) in place of its factor's
-    /// two substitutions.
-    pub const CYCLED_ELASTIC_ITERATION: [Kernel; 12 - 2 + CYCLE_LEN] = Kernel::cycled(
-        Kernel::CORRECTED_ELASTIC_ITERATION,
-        Kernel::ElasticForward,
-        Kernel::ElasticBackward,
-        BLOCK_CYCLE_KERNELS,
-    );
-
-    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`] with the elastic coarse
-    /// matrix solved by two-grid cycles.
-    pub const CYCLED_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16 - 2 + CYCLE_LEN] = Kernel::cycled(
-        Kernel::SMOOTHED_ELASTIC_ITERATION,
-        Kernel::ElasticForward,
-        Kernel::ElasticBackward,
-        BLOCK_CYCLE_KERNELS,
-    );
-
-    /// [`Kernel::ITERATION`] with the warm-started rotations.
-    pub const WARM_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ITERATION);
-
-    /// [`Kernel::ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_ELASTIC_ITERATION: [Kernel; 5] = Kernel::warm(Kernel::ELASTIC_ITERATION);
-
-    /// [`Kernel::DEFLATED_ITERATION`] with the warm-started rotations.
-    pub const WARM_DEFLATED_ITERATION: [Kernel; 8] = Kernel::warm(Kernel::DEFLATED_ITERATION);
-
-    /// [`Kernel::COARSE_ITERATION`] with the warm-started rotations.
-    pub const WARM_COARSE_ITERATION: [Kernel; 10] = Kernel::warm(Kernel::COARSE_ITERATION);
-
-    /// [`Kernel::MULTILEVEL_ITERATION`] with the warm-started rotations.
-    pub const WARM_MULTILEVEL_ITERATION: [Kernel; 10 - 2 + CYCLE_LEN] =
-        Kernel::warm(Kernel::MULTILEVEL_ITERATION);
-
-    /// [`Kernel::CYCLED_ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_CYCLED_ELASTIC_ITERATION: [Kernel; 12 - 2 + CYCLE_LEN] =
-        Kernel::warm(Kernel::CYCLED_ELASTIC_ITERATION);
-
-    /// [`Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16 - 2 + CYCLE_LEN] =
-        Kernel::warm(Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION);
-
-    /// [`Kernel::CORRECTED_ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_CORRECTED_ELASTIC_ITERATION: [Kernel; 12] =
-        Kernel::warm(Kernel::CORRECTED_ELASTIC_ITERATION);
-
-    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`] with the warm-started rotations.
-    pub const WARM_SMOOTHED_ELASTIC_ITERATION: [Kernel; 16] =
-        Kernel::warm(Kernel::SMOOTHED_ELASTIC_ITERATION);
-
-    /// The most kernels any iteration runs (what a timestamp query set for
-    /// one iteration must hold): the longest of every list above.
-    pub const LONGEST_ITERATION: usize = {
-        let lengths = [
-            Kernel::ITERATION.len(),
-            Kernel::ELASTIC_ITERATION.len(),
-            Kernel::DEFLATED_ITERATION.len(),
-            Kernel::COARSE_ITERATION.len(),
-            Kernel::MULTILEVEL_ITERATION.len(),
-            Kernel::CORRECTED_ELASTIC_ITERATION.len(),
-            Kernel::SMOOTHED_ELASTIC_ITERATION.len(),
-            Kernel::CYCLED_ELASTIC_ITERATION.len(),
-            Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION.len(),
-        ];
-        let (mut longest, mut k) = (0, 0);
-        while k < lengths.len() {
-            if lengths[k] > longest {
-                longest = lengths[k];
+    /// The kernels that run `pass`, in order, appended to `out`.
+    pub fn of_pass(pass: Pass, out: &mut Vec<Kernel>) {
+        match pass {
+            Pass::Rotations(RotationMethod::Svd) => out.push(Kernel::LocalRotations),
+            Pass::Rotations(RotationMethod::WarmPolar) => out.push(Kernel::LocalRotationsWarm),
+            Pass::ElasticTerms(RotationMethod::Svd) => out.push(Kernel::ElasticTargets),
+            Pass::ElasticTerms(RotationMethod::WarmPolar) => {
+                out.push(Kernel::ElasticTargetsWarm);
             }
-            k += 1;
-        }
-        longest
-    };
-
-    /// `iteration` with `cycle` in place of its `forward` substitution and
-    /// without its `backward` one (`M` is `N - 2 + CYCLE_LEN`).
-    const fn cycled<const N: usize, const M: usize>(
-        iteration: [Kernel; N],
-        forward: Kernel,
-        backward: Kernel,
-        cycle: [Kernel; CYCLE_LEN],
-    ) -> [Kernel; M] {
-        assert!(M == N - 2 + CYCLE_LEN);
-        let mut out = [cycle[0]; M];
-        let (mut from, mut to) = (0, 0);
-        while from < N {
-            let kernel = iteration[from];
-            if kernel as usize == forward as usize {
-                let mut k = 0;
-                while k < CYCLE_LEN {
-                    out[to] = cycle[k];
-                    (to, k) = (to + 1, k + 1);
+            Pass::Force => out.push(Kernel::DeformationForce),
+            Pass::ElasticForce => out.push(Kernel::ElasticForce),
+            Pass::PlainStep => out.push(Kernel::Integrate),
+            Pass::SmoothedStep { cycled } => {
+                // The pressures' first Jacobi sweep in `pressure_start`, each
+                // further one a `pressure_sweep` after a `pressure_forces`,
+                // and a last `pressure_forces` for the step.
+                out.extend([Kernel::SmootherResidual, Kernel::PressureStart]);
+                for _ in 1..SWEEPS {
+                    out.extend([Kernel::PressureForces, Kernel::PressureSweep]);
                 }
-            } else if kernel as usize != backward as usize {
-                out[to] = kernel;
-                to += 1;
+                out.extend([Kernel::PressureForces, Kernel::SmoothedStep]);
+                Kernel::elastic_correction(cycled, out);
             }
-            from += 1;
+            Pass::Deflate => out.extend([
+                Kernel::DeflateProject,
+                Kernel::DeflateGains,
+                Kernel::DeflateApply,
+            ]),
+            Pass::CoarseCorrection { cycled } => {
+                out.extend([Kernel::CoarseResidual, Kernel::CoarseRestrict]);
+                if cycled {
+                    out.extend(CYCLE_KERNELS);
+                } else {
+                    out.extend([Kernel::CoarseForward, Kernel::CoarseBackward]);
+                }
+                out.push(Kernel::CoarseApply);
+            }
+            Pass::ElasticCorrection { cycled } => {
+                out.push(Kernel::ElasticStep);
+                Kernel::elastic_correction(cycled, out);
+            }
+            Pass::StepNorms => out.push(Kernel::StepNorms),
+            Pass::Combine => out.push(Kernel::Chebyshev),
+            Pass::UpdateNorms => out.push(Kernel::UpdateNorms),
         }
-        assert!(to == M);
+    }
+
+    /// The elastic correction of the step in the plain buffer: its
+    /// linearised change and residual, their sums per aggregate, the
+    /// aggregates' system solved (by its factor's two substitutions, or by
+    /// cycles), the solution applied.
+    fn elastic_correction(cycled: bool, out: &mut Vec<Kernel>) {
+        out.extend([
+            Kernel::ElasticChange,
+            Kernel::ElasticResidual,
+            Kernel::ElasticRestrict,
+        ]);
+        if cycled {
+            out.extend(BLOCK_CYCLE_KERNELS);
+        } else {
+            out.extend([Kernel::ElasticForward, Kernel::ElasticBackward]);
+        }
+        out.push(Kernel::ElasticApply);
+    }
+
+    /// The kernels of an iteration of `passes`, in order.
+    pub fn of_passes(passes: &[Pass]) -> Vec<Kernel> {
+        let mut out = Vec::new();
+        for &pass in passes {
+            Kernel::of_pass(pass, &mut out);
+        }
         out
     }
 
-    /// `iteration` with [`Kernel::LocalRotationsWarm`] in place of
-    /// [`Kernel::LocalRotations`] and [`Kernel::ElasticTargetsWarm`] in
-    /// place of [`Kernel::ElasticTargets`], so each warm list is its SVD
-    /// list but for the rotations.
-    const fn warm<const N: usize>(iteration: [Kernel; N]) -> [Kernel; N] {
-        let mut out = iteration;
-        let mut k = 0;
-        while k < N {
-            if matches!(out[k], Kernel::LocalRotations) {
-                out[k] = Kernel::LocalRotationsWarm;
-            }
-            if matches!(out[k], Kernel::ElasticTargets) {
-                out[k] = Kernel::ElasticTargetsWarm;
-            }
-            k += 1;
-        }
-        out
+    /// The most kernels any iteration runs (what a timestamp query set for
+    /// one iteration must hold).
+    pub fn longest_iteration() -> usize {
+        Choices::all()
+            .iter()
+            .map(|choices| Kernel::of_passes(&choices.passes()).len())
+            .max()
+            .unwrap_or(0)
     }
 
     /// `(shader file, entry point)`.
@@ -638,11 +502,8 @@ impl Pipelines {
 
     /// The step: `iterations` solver iterations (at most [`crate::SLOTS`]),
     /// iteration `k` with the parameters of slot `k`, in one compute pass,
-    /// the kernels of [`DeformState::iteration`]: rotations (by the SVD or
-    /// warm-started, [`DeformState::set_rotations`]), force, plain
-    /// step, its norms, Chebyshev combine; deflated, rotations, force, plain
-    /// step, its deflation, Chebyshev combine, the update's norms; with the
-    /// elastic force, the terms between the rotations and the elastic force.
+    /// the kernels of [`DeformState::iteration`] (each pass of the
+    /// iteration's [`tissue_solve::passes::Choices::passes`] by its kernels).
     pub fn record_iterations(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -653,8 +514,9 @@ impl Pipelines {
             label: Some("tissue stage 2 iterations"),
             timestamp_writes: None,
         });
+        let iteration = state.iteration();
         for slot in 0..iterations.min(crate::SLOTS) {
-            for &kernel in state.iteration() {
+            for &kernel in &iteration {
                 self.dispatch_in(&mut pass, state, kernel, slot);
             }
         }
@@ -665,25 +527,54 @@ impl Pipelines {
 mod tests {
     use super::{Kernel, KernelId};
     use crate::grid::GridKernel;
+    use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
     use crate::sampler::SamplingKernel;
     use crate::structures::EmbeddingMoved;
+    use tissue_solve::params::RotationMethod;
+    use tissue_solve::passes::{Choices, Correction, Pass};
 
-    /// The GPU's smoothed iteration runs as many Jacobi sweeps on the
-    /// pressures as the CPU's smoother: the first in `pressure_start`, each
-    /// further one a `pressure_sweep` after a `pressure_forces`, and a last
+    fn kernels(pass: Pass) -> Vec<Kernel> {
+        Kernel::of_passes(&[pass])
+    }
+
+    /// The GPU's smoothed step runs as many Jacobi sweeps on the pressures
+    /// as the CPU's smoother: the first in `pressure_start`, each further
+    /// one a `pressure_sweep` after a `pressure_forces`, and a last
     /// `pressure_forces` for the step.
     #[test]
-    fn the_smoothed_iteration_sweeps_as_often_as_the_cpu_smoother() {
-        let count = |kernel| {
-            Kernel::SMOOTHED_ELASTIC_ITERATION
-                .iter()
-                .filter(|&&k| k == kernel)
-                .count()
-        };
+    fn the_smoothed_step_sweeps_as_often_as_the_cpu_smoother() {
+        let smoothed = kernels(Pass::SmoothedStep { cycled: false });
+        let count = |kernel| smoothed.iter().filter(|&&k| k == kernel).count();
         let sweeps = tissue_solve::volume_smoother::SWEEPS;
         assert_eq!(count(Kernel::PressureStart), 1);
         assert_eq!(count(Kernel::PressureSweep), sweeps - 1);
         assert_eq!(count(Kernel::PressureForces), sweeps);
+    }
+
+    /// The default iteration (the symmetric force, the two-level solve
+    /// factored), kernel by kernel.
+    #[test]
+    fn the_default_iteration_runs_its_kernels_in_order() {
+        let choices = Choices {
+            elastic: false,
+            rotations: RotationMethod::Svd,
+            correction: Correction::Coarse { cycled: false },
+        };
+        assert_eq!(
+            Kernel::of_passes(&choices.passes()),
+            [
+                Kernel::LocalRotations,
+                Kernel::DeformationForce,
+                Kernel::Integrate,
+                Kernel::CoarseResidual,
+                Kernel::CoarseRestrict,
+                Kernel::CoarseForward,
+                Kernel::CoarseBackward,
+                Kernel::CoarseApply,
+                Kernel::Chebyshev,
+                Kernel::UpdateNorms,
+            ]
+        );
     }
 
     /// `index` is the declaration order; the per-kernel tables (the
@@ -697,90 +588,87 @@ mod tests {
 
     #[test]
     fn the_warm_iterations_differ_from_the_svd_ones_only_in_the_rotations() {
-        for (svd, warm) in [
-            (&Kernel::ITERATION[..], &Kernel::WARM_ITERATION[..]),
-            (
-                &Kernel::ELASTIC_ITERATION[..],
-                &Kernel::WARM_ELASTIC_ITERATION[..],
-            ),
-            (
-                &Kernel::DEFLATED_ITERATION[..],
-                &Kernel::WARM_DEFLATED_ITERATION[..],
-            ),
-            (
-                &Kernel::MULTILEVEL_ITERATION[..],
-                &Kernel::WARM_MULTILEVEL_ITERATION[..],
-            ),
-            (
-                &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
-                &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION[..],
-            ),
-            (
-                &Kernel::CYCLED_ELASTIC_ITERATION[..],
-                &Kernel::WARM_CYCLED_ELASTIC_ITERATION[..],
-            ),
-            (
-                &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
-                &Kernel::WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
-            ),
-        ] {
+        for svd in Choices::all()
+            .into_iter()
+            .filter(|c| c.rotations == RotationMethod::Svd)
+        {
+            let warm = Choices {
+                rotations: RotationMethod::WarmPolar,
+                ..svd
+            };
+            let (svd, warm) = (
+                Kernel::of_passes(&svd.passes()),
+                Kernel::of_passes(&warm.passes()),
+            );
             assert_eq!(svd.len(), warm.len());
-            for (&s, &w) in svd.iter().zip(warm) {
+            for (&s, &w) in svd.iter().zip(&warm) {
                 match s {
                     Kernel::LocalRotations => assert_eq!(w, Kernel::LocalRotationsWarm),
                     Kernel::ElasticTargets => assert_eq!(w, Kernel::ElasticTargetsWarm),
                     other => assert_eq!(w, other),
                 }
             }
-            assert!(
-                warm.contains(&Kernel::LocalRotationsWarm)
-                    || warm.contains(&Kernel::ElasticTargetsWarm)
-            );
-            assert_eq!(
-                svd.contains(&Kernel::ElasticTargets),
-                warm.contains(&Kernel::ElasticTargetsWarm)
-            );
         }
     }
 
-    /// Each cycled iteration is its factored one with the cycles in place
-    /// of the factor's two substitutions, and nothing else changed.
+    /// Each cycled pass is its factored one with the cycles in place of
+    /// the factor's two substitutions, and nothing else changed.
     #[test]
-    fn the_multilevel_iteration_cycles_where_the_coarse_one_substitutes() {
-        use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
+    fn a_cycled_pass_cycles_where_the_factored_one_substitutes() {
         for (factored, cycled, forward, backward, cycle) in [
             (
-                &Kernel::COARSE_ITERATION[..],
-                &Kernel::MULTILEVEL_ITERATION[..],
+                Pass::CoarseCorrection { cycled: false },
+                Pass::CoarseCorrection { cycled: true },
                 Kernel::CoarseForward,
                 Kernel::CoarseBackward,
                 CYCLE_KERNELS,
             ),
             (
-                &Kernel::CORRECTED_ELASTIC_ITERATION[..],
-                &Kernel::CYCLED_ELASTIC_ITERATION[..],
+                Pass::ElasticCorrection { cycled: false },
+                Pass::ElasticCorrection { cycled: true },
                 Kernel::ElasticForward,
                 Kernel::ElasticBackward,
                 BLOCK_CYCLE_KERNELS,
             ),
             (
-                &Kernel::SMOOTHED_ELASTIC_ITERATION[..],
-                &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION[..],
+                Pass::SmoothedStep { cycled: false },
+                Pass::SmoothedStep { cycled: true },
                 Kernel::ElasticForward,
                 Kernel::ElasticBackward,
                 BLOCK_CYCLE_KERNELS,
             ),
         ] {
             let mut expected = Vec::new();
-            for &kernel in factored {
+            for kernel in kernels(factored) {
                 if kernel == forward {
                     expected.extend(cycle);
                 } else if kernel != backward {
                     expected.push(kernel);
                 }
             }
-            assert_eq!(cycled, &expected[..]);
-            assert!(Kernel::LONGEST_ITERATION >= cycled.len());
+            assert_eq!(kernels(cycled), expected);
+            assert!(Kernel::longest_iteration() >= expected.len());
+        }
+    }
+
+    /// Each pass starts with a kernel of its own shader, and every stage-2
+    /// kernel but the frame boundary's turn runs in some iteration.
+    #[test]
+    fn every_pass_runs_its_shader_and_every_kernel_runs_in_a_pass() {
+        let mut used = std::collections::HashSet::new();
+        for choices in Choices::all() {
+            for pass in choices.passes() {
+                let list = kernels(pass);
+                assert_eq!(list[0].entry().0, pass.shader(), "{pass:?}");
+                used.extend(list);
+            }
+        }
+        for kernel in Kernel::ALL {
+            assert_eq!(
+                used.contains(&kernel),
+                kernel != Kernel::TurnRotations,
+                "{kernel:?}"
+            );
         }
     }
 

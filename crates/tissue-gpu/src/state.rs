@@ -5,6 +5,7 @@ use tissue_core::ParticleModel;
 use tissue_solve::coarse::{Aggregates, CoarseSpace};
 use tissue_solve::coarse_elastic::ElasticCoarse;
 use tissue_solve::elastic::Elastic;
+use tissue_solve::passes::{Choices, Correction, Holds, Pass};
 use tissue_solve::volume_smoother::RELAXATION;
 use tissue_solve::{ForceModel, RotationMethod};
 
@@ -37,19 +38,19 @@ pub struct DeformState {
     pub(crate) step_groups: u32,
     /// `x * y` of the deflate_project dispatch: rows of `projections`.
     mode_groups: u32,
-    /// Modes deflated each iteration (0: none, [`Kernel::ITERATION`]).
+    /// Modes deflated each iteration (0: none).
     modes: u32,
     /// The elastic model's data is uploaded ([`DeformState::set_elastic`]).
     elastic: bool,
-    /// The phase the next iterations run ([`DeformState::set_phase`]): the
-    /// elastic force, with [`Kernel::ELASTIC_ITERATION`] (an elastic
-    /// state's only).
-    elastic_phase: bool,
-    /// Whether the next iterations deflate (a deflated state's only).
+    /// The force of the phase the next iterations run
+    /// ([`DeformState::set_phase`]; the elastic force's terms run on an
+    /// elastic state only).
+    phase_force: ForceModel,
+    /// Whether the next iterations correct their step.
     correct_phase: bool,
-    /// Whether the next iterations warm-start the rotations
-    /// ([`DeformState::set_rotations`]): the `WARM_*` iterations.
-    warm: bool,
+    /// How the next iterations find the rotations
+    /// ([`DeformState::set_rotations`]).
+    rotation_method: RotationMethod,
     /// [`SLOTS`] [`Params`], `params_stride` bytes apart: a uniform buffer,
     /// raw, as its slots sit at the dynamic offset alignment.
     pub(crate) params: wgpu::Buffer,
@@ -204,9 +205,9 @@ impl DeformState {
                 mode_groups,
                 modes: 0,
                 elastic: false,
-                elastic_phase: false,
+                phase_force: ForceModel::Symmetric,
                 correct_phase: true,
-                warm: false,
+                rotation_method: RotationMethod::Svd,
                 params: device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("params"),
                     size: params_stride * u64::from(SLOTS),
@@ -266,7 +267,7 @@ impl DeformState {
     }
 
     /// Deflates the plain step along `m = scales.len()` modes every
-    /// iteration from now on ([`Kernel::DEFLATED_ITERATION`]): `vectors`
+    /// iteration from now on ([`Pass::Deflate`]): `vectors`
     /// particle-major (`vectors[i * m + k]`, 0 at control points), `scales[k]` the
     /// factor `1 / (c alpha lambda_k) − 1` that turns mode `k`'s projection
     /// into its gain (see `tissue_solve::LowModes::deflate`).
@@ -320,7 +321,7 @@ impl DeformState {
     /// Uploads the elastic model's rest data (`tissue_solve::Plan::elastic`)
     /// for the elastic force: from now on the elastic phase's iterations
     /// compute every particle's terms after the rotations and gather the
-    /// elastic force over them ([`Kernel::ELASTIC_ITERATION`]). Refused on
+    /// elastic force over them ([`Pass::ElasticTerms`]). Refused on
     /// a deflated state ([`DeformState::set_modes`]).
     pub fn set_elastic(
         &mut self,
@@ -357,7 +358,7 @@ impl DeformState {
             ))
         })?;
         self.elastic = true;
-        self.elastic_phase = true;
+        self.phase_force = ForceModel::Elastic;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
     }
@@ -390,14 +391,14 @@ impl DeformState {
     /// or the state's symmetric or paper force; `correct`, whether a
     /// deflated state deflates. An elastic solve's shear phase is
     /// `(false, true)`, its elastic phase `(true, false)`.
-    pub fn set_phase(&mut self, elastic: bool, correct: bool) {
-        self.elastic_phase = elastic && self.elastic;
+    pub fn set_phase(&mut self, force: ForceModel, correct: bool) {
+        self.phase_force = force;
         self.correct_phase = correct;
     }
 
     /// Uploads the two-level solve's coarse space (the CPU path's, made on
     /// the host): the next iterations that correct run
-    /// [`Kernel::COARSE_ITERATION`] instead of deflating.
+    /// [`Pass::CoarseCorrection`] instead of deflating.
     pub fn set_coarse(
         &mut self,
         device: &wgpu::Device,
@@ -498,7 +499,7 @@ impl DeformState {
     /// the polar update warm-started from the stored rotations (the `WARM_*`
     /// iterations of [`DeformState::iteration`]).
     pub fn set_rotations(&mut self, rotations: RotationMethod) {
-        self.warm = rotations == RotationMethod::WarmPolar;
+        self.rotation_method = rotations;
     }
 
     /// Whether [`DeformState::set_elastic`] gave the elastic model's data.
@@ -506,44 +507,41 @@ impl DeformState {
         self.elastic
     }
 
-    /// The kernels of one iteration, in order: [`Kernel::ELASTIC_ITERATION`]
-    /// in the elastic phase ([`DeformState::set_elastic`], then
-    /// [`DeformState::set_phase`]), [`Kernel::DEFLATED_ITERATION`] where
-    /// [`DeformState::set_modes`] gave modes and the phase corrects, else
-    /// [`Kernel::ITERATION`]; each as its `WARM_*` list when the rotations
-    /// are warm-started ([`DeformState::set_rotations`]).
-    pub fn iteration(&self) -> &'static [Kernel] {
-        let two_level = self.coarse.aggregates > 0 && self.correct_phase;
-        let cycled = self.coarse.cycles.groups > 0;
-        let deflated = self.modes > 0 && self.correct_phase;
-        let elastic_corrected = self.elastic_coarse.linearised && self.correct_phase;
-        if self.elastic_phase && elastic_corrected {
-            let smoothed = self.elastic_coarse.smoother.is_some();
-            let cycled = self.elastic_coarse.cycles.groups > 0;
-            match (smoothed, cycled, self.warm) {
-                (true, false, false) => return &Kernel::SMOOTHED_ELASTIC_ITERATION,
-                (true, false, true) => return &Kernel::WARM_SMOOTHED_ELASTIC_ITERATION,
-                (true, true, false) => return &Kernel::CYCLED_SMOOTHED_ELASTIC_ITERATION,
-                (true, true, true) => return &Kernel::WARM_CYCLED_SMOOTHED_ELASTIC_ITERATION,
-                (false, true, false) => return &Kernel::CYCLED_ELASTIC_ITERATION,
-                (false, true, true) => return &Kernel::WARM_CYCLED_ELASTIC_ITERATION,
-                (false, false, _) => {}
-            }
+    /// What this state holds for its iterations, for the rule that picks
+    /// their passes ([`Choices::of`]).
+    fn holds(&self) -> Holds {
+        let elastic = &self.elastic_coarse;
+        Holds {
+            elastic: self.elastic,
+            modes: self.modes > 0,
+            coarse: (self.coarse.aggregates > 0).then_some(self.coarse.cycles.groups > 0),
+            elastic_correction: elastic
+                .linearised
+                .then_some((elastic.cycles.groups > 0, elastic.smoother.is_some())),
         }
-        match (self.elastic_phase, two_level, deflated, self.warm) {
-            (true, _, _, false) if elastic_corrected => &Kernel::CORRECTED_ELASTIC_ITERATION,
-            (true, _, _, true) if elastic_corrected => &Kernel::WARM_CORRECTED_ELASTIC_ITERATION,
-            (true, _, _, false) => &Kernel::ELASTIC_ITERATION,
-            (true, _, _, true) => &Kernel::WARM_ELASTIC_ITERATION,
-            (false, true, _, false) if cycled => &Kernel::MULTILEVEL_ITERATION,
-            (false, true, _, true) if cycled => &Kernel::WARM_MULTILEVEL_ITERATION,
-            (false, true, _, false) => &Kernel::COARSE_ITERATION,
-            (false, true, _, true) => &Kernel::WARM_COARSE_ITERATION,
-            (false, false, true, false) => &Kernel::DEFLATED_ITERATION,
-            (false, false, true, true) => &Kernel::WARM_DEFLATED_ITERATION,
-            (false, false, false, false) => &Kernel::ITERATION,
-            (false, false, false, true) => &Kernel::WARM_ITERATION,
-        }
+    }
+
+    /// The choices of the next iterations: the phase's force and
+    /// correction ([`DeformState::set_phase`]), the rotations
+    /// ([`DeformState::set_rotations`]), and what the state holds.
+    pub fn choices(&self) -> Choices {
+        Choices::of(
+            self.phase_force,
+            self.rotation_method,
+            self.correct_phase,
+            self.holds(),
+        )
+    }
+
+    /// The passes of one iteration, in order ([`Choices::passes`]).
+    pub fn passes(&self) -> Vec<Pass> {
+        self.choices().passes()
+    }
+
+    /// The kernels of one iteration, in order: each pass of
+    /// [`DeformState::passes`] by its kernels ([`Kernel::of_pass`]).
+    pub fn iteration(&self) -> Vec<Kernel> {
+        Kernel::of_passes(&self.passes())
     }
 
     /// A bind group per kernel, in [`Kernel::ALL`] order. `UpdateNorms`
@@ -668,10 +666,13 @@ impl DeformState {
         }
     }
 
-    /// The volume smoother's `delta` where the next iterations are
-    /// [`Kernel::SMOOTHED_ELASTIC_ITERATION`]s, else 0.
+    /// The volume smoother's `delta` where the next iterations make the
+    /// smoothed step ([`Pass::SmoothedStep`]), else 0.
     fn smoothed_delta(&self) -> f32 {
-        let smoothed = self.elastic_phase && self.correct_phase && self.elastic_coarse.linearised;
+        let smoothed = matches!(
+            self.choices().correction,
+            Correction::Elastic { smoothed: true, .. }
+        );
         match self.elastic_coarse.smoother {
             Some(delta) if smoothed => delta,
             _ => 0.0,

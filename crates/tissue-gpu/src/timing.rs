@@ -10,10 +10,6 @@ use crate::readback::read_buffer;
 use crate::state::DeformState;
 use crate::support::Scopes;
 
-/// Timestamps of the longest iteration ([`Kernel::LONGEST_ITERATION`]): a
-/// start and an end per kernel.
-const QUERIES: u32 = 2 * Kernel::LONGEST_ITERATION as u32;
-
 /// GPU time of one iteration, from the device's own clock.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IterationTimes {
@@ -46,15 +42,17 @@ impl KernelTimer {
                 "the device was opened without wgpu::Features::TIMESTAMP_QUERY".into(),
             ));
         }
+        // A start and an end per kernel of the longest iteration.
+        let count = 2 * Kernel::longest_iteration() as u32;
         let scope = Scopes::push(device);
         let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
             label: Some("kernel timestamps"),
             ty: wgpu::QueryType::Timestamp,
-            count: QUERIES,
+            count,
         });
         let resolved = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("kernel timestamps resolved"),
-            size: u64::from(QUERIES) * wgpu::QUERY_SIZE as u64,
+            size: u64::from(count) * wgpu::QUERY_SIZE as u64,
             usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
@@ -82,7 +80,7 @@ impl KernelTimer {
         });
         let iteration = state.iteration();
         let used = 2 * iteration.len() as u32;
-        for (k, &kernel) in (0u32..).zip(iteration) {
+        for (k, &kernel) in (0u32..).zip(&iteration) {
             pipelines.dispatch_timed(
                 &mut encoder,
                 state,

@@ -7,7 +7,7 @@
 //!   Chebyshev acceleration and the stopping rule ([`acceleration`]), the
 //!   tracking prediction and its history ([`predict`]), the deflated modes
 //!   ([`modes`]), the deformed surface's checks and control points
-//!   ([`controls`]), how a solve went ([`report`]), and the one tracker
+//!   ([`controls`]), what one iteration runs ([`passes`]), how a solve went ([`report`]), and the one tracker
 //!   that runs frames on any device ([`tracker`], over [`SolveDevice`]);
 //!   batches of iterations with the replay that stops every device at the
 //!   same iteration ([`batches`], stage 1's GPU loop too).
@@ -37,6 +37,7 @@ pub mod inversion;
 pub mod modes;
 pub mod multilevel;
 pub mod params;
+pub mod passes;
 pub mod plan;
 pub mod predict;
 pub mod quality;
@@ -55,6 +56,7 @@ pub use controls::check_same_topology;
 pub use inversion::{Inversions, inversions};
 pub use modes::{LowModes, deflation_modes, low_modes};
 pub use params::{DeformParams, ForceModel, RotationMethod};
+pub use passes::{Choices, Correction, Holds, Pass};
 pub use plan::Plan;
 pub use predict::{FrameHistory, predict};
 pub use report::{DeformReport, PrepareStage, SolveStep, StopReason};

@@ -22,7 +22,7 @@ pub enum ForceModel {
 }
 
 /// How each particle's rotation is found every iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RotationMethod {
     /// A full 3x3 SVD of `M_i` (`svd3::rotation_of`) every iteration.

@@ -36,10 +36,13 @@ pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
 pub use tissue_solve::coarse::SharedLaplacian;
 pub use tissue_solve::controls::check_same_topology;
 pub use tissue_solve::elastic::Elastic;
+use tissue_solve::elastic::ElasticTerms;
 pub use tissue_solve::modes::{LowModes, deflation_modes, low_modes};
 pub use tissue_solve::params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_DEFLATION, MAX_HISTORY, RotationMethod,
 };
+pub use tissue_solve::passes::Pass;
+use tissue_solve::passes::{Choices, Holds};
 pub use tissue_solve::plan::Plan;
 pub use tissue_solve::predict::{FrameHistory, affine_fit, predict};
 pub use tissue_solve::report::{DeformReport, PrepareStage, StopReason};
@@ -128,6 +131,12 @@ impl Deformer {
     /// The state and kernels the solves run on.
     pub fn device(&self) -> &CpuSolve {
         self.tracker.device()
+    }
+
+    /// The passes every iteration of the last solve ran, in order (the GPU
+    /// path's `GpuDeformer::passes`).
+    pub fn passes(&self) -> Vec<Pass> {
+        self.tracker.device().passes()
     }
 
     /// Each particle's rotation (rest offsets onto current offsets) from the last iteration.
@@ -400,140 +409,188 @@ impl CpuSolve {
         self.iterate_with(it, omega, &mut Laps::on(clock))
     }
 
-    fn iterate_with(&mut self, it: Iteration, omega: f32, laps: &mut Laps<'_>) -> (f32, f32) {
-        let elastic = self
-            .elastic
+    /// What this device holds for its iterations, for the rule that picks
+    /// their passes ([`Choices::of`]).
+    fn holds(&self) -> Holds {
+        let elastic_correction = self
+            .elastic_coarse
             .as_deref()
-            .filter(|_| it.force == ForceModel::Elastic);
-        // The elastic phase finds each particle's rotation with its terms
-        // (of its gradient); the other forces, of `M_i`.
-        let terms = match elastic {
-            Some(elastic) => {
-                let (terms, rotations) = elastic_terms(
+            .filter(|_| self.elastic_aggregates.is_some())
+            .map(|c| (c.multilevel().is_some(), c.smoother().is_some()));
+        Holds {
+            elastic: self.elastic.is_some(),
+            modes: self.modes.is_some(),
+            coarse: self.coarse.as_deref().map(|c| c.multilevel().is_some()),
+            elastic_correction,
+        }
+    }
+
+    /// The passes every iteration of the solve in hand runs, in order
+    /// (empty before a solve's [`SolveDevice::begin`]).
+    pub fn passes(&self) -> Vec<Pass> {
+        self.iteration
+            .map(|it| Choices::of_iteration(&it, self.holds()).passes())
+            .unwrap_or_default()
+    }
+
+    /// One iteration: the passes of [`CpuSolve::passes`], each by its twin.
+    fn iterate_with(&mut self, it: Iteration, omega: f32, laps: &mut Laps<'_>) -> (f32, f32) {
+        let mut work = Work::default();
+        for pass in Choices::of_iteration(&it, self.holds()).passes() {
+            self.run_pass(pass, it, omega, &mut work);
+            laps.lap(pass);
+        }
+        let next = work.next.unwrap_or_else(|| self.current.clone());
+        self.previous = std::mem::replace(&mut self.current, next);
+        work.measured
+    }
+
+    /// One pass of an iteration, on what the passes before it left in `work`.
+    fn run_pass(&mut self, pass: Pass, it: Iteration, omega: f32, work: &mut Work) {
+        let elastic_coarse = self
+            .elastic_coarse
+            .as_deref()
+            .zip(self.elastic_aggregates.as_deref());
+        match pass {
+            Pass::Rotations(RotationMethod::Svd) => {
+                self.rotations = local_rotations(&self.rest, &self.current, &self.connections);
+            }
+            Pass::Rotations(RotationMethod::WarmPolar) => {
+                self.rotations = local_rotations_warm(
                     &self.rest,
                     &self.current,
                     &self.connections,
                     &self.rotations,
-                    elastic,
-                    it.rotations,
                 );
-                self.rotations = rotations;
-                Some(terms)
             }
-            None => {
-                self.rotations = match it.rotations {
-                    RotationMethod::Svd => {
-                        local_rotations(&self.rest, &self.current, &self.connections)
-                    }
-                    RotationMethod::WarmPolar => local_rotations_warm(
+            Pass::ElasticTerms(method) => {
+                if let Some(elastic) = self.elastic.as_deref() {
+                    let (terms, rotations) = elastic_terms(
                         &self.rest,
                         &self.current,
                         &self.connections,
                         &self.rotations,
+                        elastic,
+                        method,
+                    );
+                    self.rotations = rotations;
+                    work.terms = terms;
+                }
+            }
+            Pass::Force => {
+                work.force = deformation_force(
+                    &self.rest,
+                    &self.current,
+                    &self.rotations,
+                    &self.connections,
+                    it.force,
+                );
+            }
+            Pass::ElasticForce => {
+                if let Some(elastic) = self.elastic.as_deref() {
+                    work.force = elastic_force(
+                        &self.rest,
+                        &self.current,
+                        &self.connections,
+                        &work.terms,
+                        elastic,
+                    );
+                }
+            }
+            Pass::PlainStep => {
+                work.plain = integrate(
+                    &self.current,
+                    &work.force,
+                    &self.loads,
+                    &self.free,
+                    it.alpha,
+                );
+            }
+            Pass::SmoothedStep { .. } => {
+                // The corrected elastic step made whole from the residual.
+                let step = elastic_coarse.and_then(|(c, aggregates)| {
+                    let mut residual =
+                        elastic_residual(&work.force, &self.loads, &aggregates.aggregate);
+                    // The two-level step is linear in the residual: a
+                    // damped step is the step of the residual scaled.
+                    if it.damping != 1.0 {
+                        let damping = f64::from(it.damping);
+                        residual.par_iter_mut().for_each(|r| *r *= damping);
+                    }
+                    c.smoothed_step(aggregates, &self.connections, &residual)
+                });
+                work.plain = match step {
+                    Some(step) => self
+                        .current
+                        .par_iter()
+                        .zip(&step)
+                        .map(|(&q, s)| q + s.as_vec3())
+                        .collect(),
+                    None => integrate(
+                        &self.current,
+                        &work.force,
+                        &self.loads,
+                        &self.free,
+                        it.alpha,
                     ),
                 };
-                None
             }
-        };
-        laps.lap(Pass::Rotations);
-        let force = match (elastic, &terms) {
-            (Some(elastic), Some(terms)) => {
-                elastic_force(&self.rest, &self.current, &self.connections, terms, elastic)
+            Pass::Deflate => {
+                if let Some(modes) = self.modes.as_deref() {
+                    deflate(modes, &self.current, &mut work.plain, it.contraction);
+                }
             }
-            _ => deformation_force(
-                &self.rest,
-                &self.current,
-                &self.rotations,
-                &self.connections,
-                it.force,
-            ),
-        };
-        laps.lap(Pass::Force);
-        let elastic_coarse = self
-            .elastic_coarse
-            .as_deref()
-            .zip(self.elastic_aggregates.as_deref())
-            .filter(|_| it.correct && it.force == ForceModel::Elastic);
-        // With the volume smoother the corrected elastic step is made whole
-        // from the residual (the correction's pass); otherwise the plain
-        // step, then its correction.
-        let smoothes = elastic_coarse.is_some_and(|(c, _)| c.smoother().is_some());
-        let mut plain = if smoothes {
-            Vec::new()
-        } else {
-            integrate(&self.current, &force, &self.loads, &self.free, it.alpha)
-        };
-        laps.lap(Pass::Integrate);
-        if let Some((c, aggregates)) = elastic_coarse.filter(|_| smoothes) {
-            let mut residual = elastic_residual(&force, &self.loads, &aggregates.aggregate);
-            // The two-level step is linear in the residual: a damped step
-            // is the step of the residual scaled.
-            if it.damping != 1.0 {
-                let damping = f64::from(it.damping);
-                residual.par_iter_mut().for_each(|r| *r *= damping);
+            Pass::CoarseCorrection { .. } => {
+                if let Some(coarse) = self.coarse.as_deref() {
+                    coarse.correct(
+                        &self.current,
+                        &mut work.plain,
+                        &self.connections,
+                        it.contraction,
+                    );
+                }
             }
-            plain = match c.smoothed_step(aggregates, &self.connections, &residual) {
-                Some(step) => self
-                    .current
-                    .par_iter()
-                    .zip(&step)
-                    .map(|(&q, s)| q + s.as_vec3())
-                    .collect(),
-                // `smoothes` said the correction has its smoother.
-                None => integrate(&self.current, &force, &self.loads, &self.free, it.alpha),
-            };
+            Pass::ElasticCorrection { .. } => {
+                if let Some((c, aggregates)) = elastic_coarse {
+                    c.correct(
+                        aggregates,
+                        &self.current,
+                        &mut work.plain,
+                        &self.connections,
+                    );
+                }
+            }
+            Pass::StepNorms => work.measured = steps(&self.current, &work.plain),
+            Pass::Combine => {
+                let plain = std::mem::take(&mut work.plain);
+                work.next = Some(if omega == 1.0 {
+                    plain
+                } else {
+                    chebyshev_combine(&plain, &self.previous, omega)
+                });
+            }
+            Pass::UpdateNorms => {
+                if let Some(next) = &work.next {
+                    work.measured = steps(&self.current, next);
+                }
+            }
         }
-        // The Laplacian's corrections never apply to the elastic force.
-        let laplacian = it.correct && it.force != ForceModel::Elastic;
-        let modes = self.modes.as_deref().filter(|_| laplacian);
-        let coarse = self.coarse.as_deref().filter(|_| laplacian);
-        if let Some(m) = modes {
-            deflate(m, &self.current, &mut plain, it.contraction);
-        }
-        if let Some(c) = coarse {
-            c.correct(&self.current, &mut plain, &self.connections, it.contraction);
-        }
-        if let Some((c, aggregates)) = elastic_coarse.filter(|_| !smoothes) {
-            c.correct(aggregates, &self.current, &mut plain, &self.connections);
-        }
-        laps.lap(Pass::Correction);
-        // Deflated or two-level, the plain step no longer bounds the error of the
-        // modes coupled to the rotations (re-fitting them lowers the
-        // curvature below the Laplacian's, so the exact correction for
-        // fixed rotations under-corrects them): the error is bounded by
-        // the geometric tail of the updates actually made instead.
-        let corrected = modes.is_some() || coarse.is_some() || elastic_coarse.is_some();
-        let plain_steps = (!corrected).then(|| steps(&self.current, &plain));
-        laps.lap(Pass::Norms);
-        let next = if omega == 1.0 {
-            plain
-        } else {
-            chebyshev_combine(&plain, &self.previous, omega)
-        };
-        laps.lap(Pass::Combine);
-        let measured = plain_steps.unwrap_or_else(|| steps(&self.current, &next));
-        laps.lap(Pass::Norms);
-        self.previous = std::mem::replace(&mut self.current, next);
-        measured
     }
 }
 
-/// The passes of one CPU iteration, in order (the step norms come before
-/// the combine without a correction, after it with one).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Pass {
-    /// `local_rotations` or `local_rotations_warm`.
-    Rotations,
-    /// `deformation_force`.
-    Force,
-    /// `integrate`, the plain step.
-    Integrate,
-    /// The coarse correction or deflation (nothing without either).
-    Correction,
-    /// `steps`, what the stopping rule measures.
-    Norms,
-    /// `chebyshev_combine`.
-    Combine,
+/// What one iteration's passes hand on to the next ones.
+#[derive(Default)]
+struct Work {
+    /// The elastic terms ([`Pass::ElasticTerms`]).
+    terms: Vec<ElasticTerms>,
+    /// The force on each particle.
+    force: Vec<Vec3>,
+    /// The step's positions, plain or corrected.
+    plain: Vec<Vec3>,
+    /// The positions after the combine.
+    next: Option<Vec<Vec3>>,
+    /// The largest and RMS step the stopping rule measures.
+    measured: (f32, f32),
 }
 
 /// The clock of a timed iteration: each lap's seconds to `clock`; off, no

@@ -1,0 +1,93 @@
+//! Both devices run the same pass list, from the one rule in
+//! `tissue_solve::passes`, for every combination of the iteration's
+//! choices a solve reaches: the force, the rotations, and the correction
+//! (none, deflation, the two-level solve factored or cycled, the elastic
+//! one factored or cycled, with the volume smoother or without).
+
+mod common;
+
+use std::collections::HashSet;
+
+use tissue_cpu::deformation::{DeformParams, ForceModel, Pass, RotationMethod};
+use tissue_gpu::Kernel;
+use tissue_solve::passes::Choices;
+
+/// A named change to the default parameters.
+type Setting = (&'static str, fn(&mut DeformParams));
+
+#[test]
+fn both_devices_run_the_same_passes_for_every_combination() {
+    let Some((device, queue)) = common::gpu("pass lists") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let corrections: [Setting; 8] = [
+        ("two-level", |_| {}),
+        ("two-level cycled", |p| p.coarse_direct_max_aggregates = 1),
+        ("deflated", |p| {
+            p.coarse = 0.0;
+            p.deflation = 8;
+        }),
+        ("uncorrected", |p| {
+            p.coarse = 0.0;
+            p.deflation = 0;
+        }),
+        ("elastic smoothed", |_| {}),
+        ("elastic plain step", |p| p.volume_smoother = false),
+        ("elastic cycled", |p| {
+            p.elastic_coarse_direct_max_aggregates = 16
+        }),
+        ("elastic plain step cycled", |p| {
+            p.volume_smoother = false;
+            p.elastic_coarse_direct_max_aggregates = 16;
+        }),
+    ];
+    let mut seen = HashSet::new();
+    for force in [
+        ForceModel::Symmetric,
+        ForceModel::Paper,
+        ForceModel::Elastic,
+    ] {
+        for rotations in [RotationMethod::Svd, RotationMethod::WarmPolar] {
+            for (name, set) in &corrections {
+                let elastic_case = name.starts_with("elastic");
+                if elastic_case != (force == ForceModel::Elastic) && !name.ends_with("uncorrected")
+                {
+                    continue;
+                }
+                let params = DeformParams::default().with(|p| {
+                    p.force = force;
+                    p.rotations = rotations;
+                    p.max_iterations = 200;
+                    set(p);
+                });
+                let context = format!("{force:?}, {rotations:?}, {name}");
+                let (cpu, cpu_report, gpu, gpu_report) =
+                    common::solve_sag_on_both(&device, &queue, model, params);
+                eprintln!(
+                    "{context}: CPU {:?} {} it, GPU {:?} {} it, retries {:?} {:?}",
+                    cpu_report.stopped_by,
+                    cpu_report.iterations,
+                    gpu_report.stopped_by,
+                    gpu_report.iterations,
+                    cpu_report.elastic_retries,
+                    gpu_report.elastic_retries
+                );
+                let passes = cpu.passes();
+                assert!(!passes.is_empty(), "{context}: no passes");
+                assert_eq!(gpu.passes(), passes, "{context}");
+                assert_eq!(
+                    gpu.state().iteration(),
+                    Kernel::of_passes(&passes),
+                    "{context}"
+                );
+                seen.insert(passes);
+            }
+        }
+    }
+    // Every combination is reached.
+    let expected: HashSet<Vec<Pass>> = Choices::all().iter().map(Choices::passes).collect();
+    let missing: Vec<_> = expected.difference(&seen).collect();
+    assert!(missing.is_empty(), "combinations not reached: {missing:?}");
+    assert_eq!(seen, expected);
+}
