@@ -151,11 +151,18 @@ fn elastic_restrict(
     elastic_coarse[3u * a + 2u] = sum.z;
 }
 
+// The bound factor's unknowns: one row start each past the first. Not the
+// vector's length alone: a buffer holds 16 bytes at least, so the vector of
+// one aggregate or group (three unknowns) has a fourth element.
+fn elastic_unknowns() -> u32 {
+    return min(arrayLength(&elastic_coarse), arrayLength(&elastic_row_starts) - 1u);
+}
+
 // L L^T x = b in place in `elastic_coarse`, by one workgroup each way, as
 // `coarse.wgsl::coarse_forward` and `coarse_backward` do for one coordinate.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_forward(@builtin(local_invocation_index) local: u32) {
-    let n = select(arrayLength(&elastic_coarse), 0u, params.count == 0u);
+    let n = select(elastic_unknowns(), 0u, params.count == 0u);
     for (var j = 0u; j < n; j++) {
         let y = elastic_coarse[j] / elastic_row_values[elastic_row_starts[j + 1u] - 1u];
         let end = elastic_column_starts[j + 1u];
@@ -173,7 +180,7 @@ fn elastic_forward(@builtin(local_invocation_index) local: u32) {
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_backward(@builtin(local_invocation_index) local: u32) {
-    let n = select(arrayLength(&elastic_coarse), 0u, params.count == 0u);
+    let n = select(elastic_unknowns(), 0u, params.count == 0u);
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
         let start = elastic_row_starts[i];

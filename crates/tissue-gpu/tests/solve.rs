@@ -770,3 +770,35 @@ fn the_default_solve_takes_the_cpus_iterations_at_10k_and_100k() {
         );
     }
 }
+
+/// The elastic correction's cycles with one group: its vector of three
+/// unknowns sits in a buffer of four floats (a buffer holds 16 bytes at
+/// least), and the substitutions solve the factor's three, not four. The
+/// GPU converges as the CPU does, without a retry.
+#[test]
+fn elastic_cycles_of_one_group_match_the_cpu() {
+    let Some((device, queue)) = common::gpu("elastic cycles of one group") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    for smoother in [true, false] {
+        let params = DeformParams::default().with(|p| {
+            p.force = ForceModel::Elastic;
+            p.volume_smoother = smoother;
+            p.elastic_coarse_direct_max_aggregates = 1;
+        });
+        let (cpu, cpu_report, gpu, gpu_report) =
+            common::solve_sag_on_both(&device, &queue, model, params);
+        let context = format!("volume smoother {smoother}");
+        assert_eq!(gpu.state().elastic_groups(), 1, "{context}");
+        assert!(gpu_report.converged, "{context}: {gpu_report:?}");
+        assert_eq!(gpu_report.elastic_retries, 0, "{context}");
+        assert!(
+            gpu_report.iterations.abs_diff(cpu_report.iterations) <= 1,
+            "{context}: GPU {} iterations, CPU {}",
+            gpu_report.iterations,
+            cpu_report.iterations
+        );
+        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-4, &context);
+    }
+}
