@@ -3,7 +3,7 @@
 // F_j = Σ_i [R_i (p_j − p_i) − (q_j − q_i)]; 1: the symmetric
 // F_j = Σ_i [(R_i + R_j)(p_j − p_i) − 2 (q_j − q_i)], −½ the energy's gradient.
 // (The elastic force has a kernel of its own: elastic_targets.wgsl.)
-// Twin: `tissue_cpu::deformation::deformation_force`.
+// Twin: `tissue_cpu::kernels::deformation_force`.
 
 #import shared/layout
 

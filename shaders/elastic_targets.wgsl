@@ -8,11 +8,11 @@
 //   Q_i = a_i (F_i − R_i) + W_i (J_i − 1) cof(F_i), the target
 //   T_i = M_i A_i⁻¹ − Q_i B_i and the stress U_i = a_i Q_i. A flat
 //   neighbourhood (a_i = 0) keeps the pair term: T_i = R_i (of M_i), U_i = 0.
-//   Twin: `tissue_cpu::deformation::elastic_terms` (`Elastic::terms`).
+//   Twin: `tissue_cpu::kernels::elastic_targets::elastic_terms` (`Elastic::terms`).
 // - `elastic_force`: f_k = Σ_i [(T_i + T_k) d_ik − (U_i + U_k)(μ_k − μ_i) − 2 e_ik],
 //   gathered as Σ_i [T_i d_ik − U_i (μ_k − μ_i) − 2 e_ik] + T_k Σ_i d_ik
 //   − U_k Σ_i (μ_k − μ_i) (k's own terms once, not per connection).
-//   Twin: `tissue_cpu::deformation::elastic_force` (`Elastic::force_on`).
+//   Twin: `tissue_cpu::kernels::elastic_targets::elastic_force` (`Elastic::force_on`).
 
 #import shared/layout
 #import shared/svd3

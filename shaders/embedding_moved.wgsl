@@ -1,5 +1,5 @@
 // Structures and landmarks: where each embedded point goes, twin of
-// `tissue_cpu::structures::embedding_moved`:
+// `tissue_cpu::kernels::embedding_moved`:
 // x' = sum_k w_k (q_k + R_k (x - p_k)) over the point's carriers (weights
 // summing to one; unused carrier slots have weight 0).
 

@@ -1,4 +1,4 @@
-// Stage 1: the uniform grid, twin of `tissue_cpu::grid::grid_build` (and,
+// Stage 1: the uniform grid, twin of `tissue_cpu::kernels::grid_build` (and,
 // for the one-invocation `grid_layout`, of `tissue_cpu::grid::grid_layout`).
 // In dispatch order: bounds (and the largest radius) by order-preserving
 // u32 atomics, the layout, each particle's cell and counts, an exclusive
@@ -98,7 +98,7 @@ fn grid_layout() {
             key_value(atomicLoad(&bounds[BOUND_HI + 1u])),
             key_value(atomicLoad(&bounds[BOUND_HI + 2u])),
         );
-        // `tissue_cpu::grid::neighbour_rows` folds the radii from 0.
+        // `tissue_cpu::kernels::neighbour_rows` folds the radii from 0.
         r_max = key_value(max(atomicLoad(&bounds[BOUND_RADIUS]), order_key(0.0)));
     }
     let reach = params.factor * 2.0 * r_max + params.skin;

@@ -3,7 +3,7 @@
 // M_i = Σ_j (q_j − q_i)(p_j − p_i)ᵀ: by the SVD (`local_rotations`, twin
 // `tissue_cpu::deformation::local_rotations`) or by the polar update
 // warm-started from the particle's stored rotation (`local_rotations_warm`,
-// twin `tissue_cpu::deformation::local_rotations_warm`). `turn_rotations`
+// twin `tissue_cpu::kernels::local_rotations::local_rotations_warm`). `turn_rotations`
 // premultiplies every stored rotation by `turn` at a frame boundary (the
 // CPU device's `write_positions` with a turn).
 

@@ -1,6 +1,6 @@
 // Stage 1, the Verlet check: the neighbour rows may miss a pair once some
 // particle moved, or its radius grew, by more than half the skin since they
-// were built (`built`). Twin of `tissue_cpu::sampling::needs_rebuild`, on the
+// were built (`built`). Twin of `tissue_cpu::kernels::needs_rebuild`, on the
 // new state `next`. The first iteration of a batch that needs a rebuild
 // records its slot + 1 in `halt`; the later ones then do nothing.
 

@@ -1,4 +1,4 @@
-// Stage 1: neighbour rows (CSR), twin of `tissue_cpu::grid::neighbour_rows`:
+// Stage 1: neighbour rows (CSR), twin of `tissue_cpu::kernels::neighbour_rows`:
 // j is in row i when j != i and |p_i - p_j| < factor (r_i + r_j) + skin,
 // searched in the cells (half the reach wide) within `grid.span` cells of
 // p_i's, in the CPU's order. After `grid_build.wgsl` (with `params.rows` 1):

@@ -1,6 +1,6 @@
 // Stage 1, eqs. (7)-(8): each balloon inflates when under-compressed and
 // deflates when over-compressed; dr is a change of ln r, its ln argument
-// clamped to [exp(-x), exp(x)]. Twin of `tissue_cpu::sampling::radius_update`
+// clamped to [exp(-x), exp(x)]. Twin of `tissue_cpu::kernels::radius_update`
 // (radii: `current.w`; compressions: `forces.w`); writes `next.w`.
 
 #import shared/sampling

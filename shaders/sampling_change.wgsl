@@ -1,7 +1,7 @@
 // Stage 1 convergence: per workgroup, the sum of squared steps of particles
 // the wall did not hold (before or after), their count, and the sum of
 // (ln r_new / r_old)^2; the host finishes in f64 (RMS step in r0, RMS change
-// of ln r). Twin of `tissue_cpu::sampling::change`.
+// of ln r). Twin of `tissue_cpu::kernels::sampling_change::change`.
 
 #import shared/sampling
 

@@ -1,7 +1,7 @@
 // Stage 1, eq. (1): dp = F r0 / m~, the step capped at max_step r0; in
 // projection mode a particle that ends outside is moved back onto the surface
 // by its penetration depth, the wall's reaction (outward normal, depth m~ / r0)
-// in `contact_next`. Twin of `tissue_cpu::sampling::integrate`; writes
+// in `contact_next`. Twin of `tissue_cpu::kernels::sampling_integrate::integrate`; writes
 // `next.xyz` (radius_update wrote `next.w`).
 
 #import shared/sampling

@@ -1,6 +1,6 @@
 // The plain step's size for the stopping rule: per workgroup, the largest
 // |q̂ − q|² and the sum of |q̂ − q|² over its particles; the host finishes
-// (max over workgroups, then sqrt; sum in f64, then RMS). Twin of `steps`
+// (max over workgroups, then sqrt; sum in f64, then RMS). Twin of `tissue_cpu::kernels::step_norms`
 // in `tissue_cpu::deformation`.
 
 #import shared/layout

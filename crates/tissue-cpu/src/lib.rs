@@ -1,6 +1,7 @@
 //! The CPU reference path of tissue: rayon-parallel and Jacobi-style (each
 //! particle's update reads only the previous state), so results do not depend
-//! on the thread count. Each stage is the twin of a GPU shader of the same name.
+//! on the thread count. Each stage is the twin of a GPU shader of the same
+//! name, in [`kernels`] under that name.
 //!
 //! What belongs to neither device (parameters, plan, acceleration, stopping,
 //! prediction, modes, stage 1's preparation and finish) lives in
@@ -15,6 +16,7 @@ pub use tissue_solve::coarse;
 /// (its correction is the CPU's kernel).
 pub use tissue_solve::coarse_elastic;
 pub mod deformation;
+pub mod kernels;
 pub mod sampling;
 
 pub use sampling::{Progress, Sampled, sample};

@@ -51,7 +51,7 @@ pub enum Kernel {
     DeflateApply,
     /// `step_norms.wgsl` on the update made, `current` against `previous`
     /// after the combine: the step a deflated solve's stopping rule takes
-    /// (the CPU's `steps(current, next)`).
+    /// (the CPU's `step_norms(current, next)`).
     UpdateNorms,
     /// `coarse.wgsl::coarse_residual`: per particle `(L e')_i` from the
     /// plain step, for the two-level solve.

@@ -368,6 +368,26 @@ mod tests {
         }
     }
 
+    /// Every shader with entry points has its CPU twin, a module of
+    /// `tissue_cpu::kernels` named as the shader, and every twin has its
+    /// shader (the test-only kernels under `tests/` have none).
+    #[test]
+    fn every_shader_has_its_cpu_twin_named_as_it() {
+        let twins = tissue_cpu::kernels::TWINS;
+        for (name, _) in SHADERS.iter().filter(|(n, _)| !n.starts_with("tests/")) {
+            assert!(
+                twins.contains(name),
+                "shaders/{name}.wgsl has no twin tissue_cpu::kernels::{name}"
+            );
+        }
+        for twin in twins {
+            assert!(
+                SHADERS.iter().any(|(n, _)| n == twin),
+                "tissue_cpu::kernels::{twin} is the twin of no shader"
+            );
+        }
+    }
+
     #[test]
     fn shared_files_validate_on_their_own() {
         for (name, text) in SHARED {

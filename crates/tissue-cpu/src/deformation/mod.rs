@@ -2,8 +2,8 @@
 //!
 //! Surface particles (control points) follow the deformed surface through
 //! their triangle + barycentric attachment; every other particle moves by
-//! `q += F / m` until the residual force vanishes. Stage functions, each the
-//! twin of a GPU shader of the same name:
+//! `q += F / m` until the residual force vanishes. The stage functions are
+//! in [`crate::kernels`], each the twin of a GPU shader of the same name:
 //! - `local_rotations`: per particle, the rotation `R_i` that best maps its
 //!   rest offsets `p_j - p_i` onto its current ones `q_j - q_i` (Procrustes
 //!   through a 3x3 SVD). The paper writes `R_i^T (p_j - p_i)` for the rotated
@@ -21,9 +21,6 @@
 //! The frame loop (prediction, acceleration, stopping, history) is
 //! `tissue_solve::Tracker`'s, the same as the GPU path's; [`CpuSolve`] is
 //! this path's [`SolveDevice`]: the kernels and the state they work on.
-
-mod kernels;
-mod polar;
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -50,13 +47,16 @@ pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
 use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
-pub use kernels::{
-    chebyshev_combine, deflate, deformation_force, elastic_force, elastic_residual, elastic_terms,
-    integrate, local_rotations, local_rotations_warm, steps,
-};
-pub use polar::{
+pub use crate::kernels::deflate::deflate;
+pub use crate::kernels::deformation_force::deformation_force;
+pub use crate::kernels::elastic_targets::{elastic_force, elastic_terms};
+pub use crate::kernels::integrate::{chebyshev_combine, integrate};
+pub use crate::kernels::local_rotations::{local_rotations, local_rotations_warm};
+pub use crate::kernels::polar::{
     POLAR_ITERATIONS, POLAR_MOST_ITERATIONS, polar_rotation, polar_update, warm_rotation,
 };
+pub use crate::kernels::step_norms::step_norms;
+pub use crate::kernels::volume_smoother::elastic_residual;
 
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space_shared};
 use tissue_solve::coarse_elastic::{
@@ -560,7 +560,7 @@ impl CpuSolve {
                     );
                 }
             }
-            Pass::StepNorms => work.measured = steps(&self.current, &work.plain),
+            Pass::StepNorms => work.measured = step_norms(&self.current, &work.plain),
             Pass::Combine => {
                 let plain = std::mem::take(&mut work.plain);
                 work.next = Some(if omega == 1.0 {
@@ -571,7 +571,7 @@ impl CpuSolve {
             }
             Pass::UpdateNorms => {
                 if let Some(next) = &work.next {
-                    work.measured = steps(&self.current, next);
+                    work.measured = step_norms(&self.current, next);
                 }
             }
         }

@@ -1,0 +1,83 @@
+//! Twin of `shaders/elastic_targets.wgsl`: the elastic model's terms with
+//! each particle's rotation (`elastic_terms`), and the elastic force gathered
+//! over them (`elastic_force`).
+
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+use tissue_core::Connections;
+use tissue_solve::elastic::{Elastic, ElasticTerms};
+use tissue_solve::params::RotationMethod;
+use tissue_solve::svd3::rotation_of;
+
+use super::polar::{LANES, warm_rotations};
+
+/// The shader this module is the twin of.
+pub const SHADER: &str = "elastic_targets";
+
+/// Per particle, the elastic model's terms ([`Elastic::terms`]) and its
+/// rotation: the polar rotation of its gradient `F_i`, or of `M_i` for a
+/// flat neighbourhood, by `method` (warm polar from `rotations`, the last
+/// iteration's). The elastic phase's rotations pass: the rotations of the
+/// `M_i` alone are not needed in it.
+pub fn elastic_terms(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    rotations: &[Mat3],
+    elastic: &Elastic,
+    method: RotationMethod,
+) -> (Vec<ElasticTerms>, Vec<Mat3>) {
+    let blank = ElasticTerms {
+        target: Mat3::ZERO,
+        stress: Mat3::ZERO,
+    };
+    let mut terms = vec![blank; rest.len()];
+    let mut turned = vec![Mat3::IDENTITY; rest.len()];
+    terms
+        .par_chunks_mut(LANES)
+        .zip(turned.par_chunks_mut(LANES))
+        .zip(rotations.par_chunks(LANES))
+        .enumerate()
+        .for_each(|(chunk, ((terms, turned), previous))| {
+            let (first, count) = (chunk * LANES, terms.len());
+            let mut products = [(Mat3::ZERO, Mat3::ZERO); LANES];
+            let mut of = [Mat3::ZERO; LANES];
+            for l in 0..count {
+                let i = first + l;
+                let (m, n) = elastic.products(rest, current, connections, i);
+                products[l] = (m, n);
+                of[l] = if elastic.is_flat(i) {
+                    m
+                } else {
+                    elastic.gradient(i, m, n)
+                };
+            }
+            match method {
+                RotationMethod::Svd => {
+                    for (turned, &of) in turned.iter_mut().zip(&of) {
+                        *turned = rotation_of(of);
+                    }
+                }
+                RotationMethod::WarmPolar => warm_rotations(&of[..count], previous, turned),
+            }
+            for (l, ((m, n), &rotation)) in products.iter().zip(turned.iter()).enumerate() {
+                terms[l] = elastic.terms(first + l, *m, *n, rotation);
+            }
+        });
+    (terms, turned)
+}
+
+/// The elastic force on every particle ([`Elastic::force_on`]), gathered
+/// over its connections from the terms of [`elastic_terms`].
+pub fn elastic_force(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    terms: &[ElasticTerms],
+    elastic: &Elastic,
+) -> Vec<Vec3> {
+    (0..rest.len())
+        .into_par_iter()
+        .map(|k| elastic.force_on(k, rest, current, connections, terms))
+        .collect()
+}

@@ -1,0 +1,32 @@
+//! Twin of `shaders/volume_smoother.wgsl`: the residual the volume smoother
+//! starts from (`elastic_residual`, `smoother_residual`'s twin); the
+//! smoothed step itself, written once for the host, is
+//! `tissue_solve::coarse_elastic::ElasticCoarse::smoothed_step` (its
+//! pressures' sweeps `tissue_solve::volume_smoother::VolumeSmoother`).
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+use tissue_solve::coarse::OUTSIDE;
+
+pub use tissue_solve::volume_smoother::VolumeSmoother;
+
+/// The shader this module is the twin of.
+pub const SHADER: &str = "volume_smoother";
+
+/// The elastic phase's residual for the volume smoother: half the force,
+/// loads included, at the particles inside an aggregate (`K e = -r` for the
+/// error `e` while the rotations are held), in `f64`; zero elsewhere.
+pub fn elastic_residual(force: &[Vec3], loads: &[Vec3], aggregate: &[u32]) -> Vec<DVec3> {
+    force
+        .par_iter()
+        .zip(aggregate)
+        .enumerate()
+        .map(|(i, (&f, &a))| {
+            if a == OUTSIDE {
+                return DVec3::ZERO;
+            }
+            let b = loads.get(i).copied().unwrap_or(Vec3::ZERO);
+            0.5 * (f + b).as_dvec3()
+        })
+        .collect()
+}
