@@ -434,6 +434,31 @@ pub fn indented_breast() -> SurfaceMesh {
     }
 }
 
+/// Why two surfaces cannot be blended ([`interpolate`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum BlendError {
+    /// The blend's parameter is NaN or infinite.
+    #[error("interpolation parameter {0} is not finite")]
+    NotFinite(f32),
+    /// The surfaces have other vertex counts.
+    #[error("vertex counts differ: {0} and {1}")]
+    Vertices(usize, usize),
+    /// The surfaces have other triangle counts.
+    #[error("triangle counts differ: {0} and {1}")]
+    Triangles(usize, usize),
+    /// A triangle differs between the surfaces.
+    #[error("triangle {index} differs: {from:?} and {to:?}")]
+    Triangle {
+        /// The triangle.
+        index: usize,
+        /// Its corners in the first surface.
+        from: [u32; 3],
+        /// Its corners in the second.
+        to: [u32; 3],
+    },
+}
+
 /// The vertex-wise linear blend `(1 - t) · from + t · to`.
 ///
 /// Both meshes must have the same triangles (and so the same structure) and
@@ -442,31 +467,31 @@ pub fn indented_breast() -> SurfaceMesh {
 ///
 /// # Errors
 ///
-/// A message when the vertex counts, the triangle counts or the triangles
-/// differ, or when `t` is not finite.
-pub fn interpolate(from: &SurfaceMesh, to: &SurfaceMesh, t: f32) -> Result<SurfaceMesh, String> {
+/// Where the vertex counts, the triangle counts or the triangles differ,
+/// or `t` is not finite.
+pub fn interpolate(
+    from: &SurfaceMesh,
+    to: &SurfaceMesh,
+    t: f32,
+) -> Result<SurfaceMesh, BlendError> {
     if !t.is_finite() {
-        return Err(format!("interpolation parameter {t} is not finite"));
+        return Err(BlendError::NotFinite(t));
     }
     if from.vertices.len() != to.vertices.len() {
-        return Err(format!(
-            "vertex counts differ: {} and {}",
-            from.vertices.len(),
-            to.vertices.len()
-        ));
+        return Err(BlendError::Vertices(from.vertices.len(), to.vertices.len()));
     }
     if from.triangles.len() != to.triangles.len() {
-        return Err(format!(
-            "triangle counts differ: {} and {}",
+        return Err(BlendError::Triangles(
             from.triangles.len(),
-            to.triangles.len()
+            to.triangles.len(),
         ));
     }
-    if let Some(i) = (0..from.triangles.len()).find(|&i| from.triangles[i] != to.triangles[i]) {
-        return Err(format!(
-            "triangle {i} differs: {:?} and {:?}",
-            from.triangles[i], to.triangles[i]
-        ));
+    if let Some(index) = (0..from.triangles.len()).find(|&i| from.triangles[i] != to.triangles[i]) {
+        return Err(BlendError::Triangle {
+            index,
+            from: from.triangles[index],
+            to: to.triangles[index],
+        });
     }
     let vertices = from
         .vertices

@@ -39,6 +39,7 @@ impl ParamError {
 
 /// A surface mesh that cannot be used: what is wrong, how often, and one place.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum MeshError {
     /// The mesh has no triangles (or no vertices).
     #[error("the surface is empty: {vertices} vertices, {triangles} triangles")]
@@ -150,8 +151,40 @@ pub enum MeshError {
     },
 }
 
+/// Why a surface field (or an exact distance query) cannot be made for a
+/// surface ([`crate::field::SurfaceField::new`],
+/// [`crate::field::distances_outside`]).
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum FieldError {
+    /// The surface has no vertices.
+    #[error("the surface has no vertices")]
+    NoVertices,
+    /// The cell size is not a positive number.
+    #[error("field cell size {0} is not a positive number")]
+    Cell(f32),
+    /// The exact margin is not a non-negative number.
+    #[error("field margin {0} is not a non-negative number")]
+    Margin(f32),
+    /// The grid over the surface's box would be absurdly large.
+    #[error(
+        "the surface field would need {cells:.0} cells (more than {most:.0}); the particle \
+         count is too large for this surface's bounding box"
+    )]
+    TooManyCells {
+        /// Cells the grid would need.
+        cells: f64,
+        /// The most allowed.
+        most: f64,
+    },
+    /// The triangles cannot be oriented consistently (parry3d's reason).
+    #[error("the surface cannot be oriented: {0}")]
+    NotOrientable(String),
+}
+
 /// Why stage 1 could not produce a model.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum SamplingError {
     /// The surface has no vertices.
     #[error("the surface has no vertices")]
@@ -163,8 +196,8 @@ pub enum SamplingError {
         volume: f64,
     },
     /// The surface field could not be built.
-    #[error("{0}")]
-    Field(String),
+    #[error(transparent)]
+    Field(#[from] FieldError),
     /// Too few random starting points fell inside the surface.
     #[error("only {placed} of {attempts} random points fell inside the surface")]
     RandomPlacement {
@@ -235,6 +268,7 @@ pub enum SamplingError {
 
 /// Why stage 2 cannot run or go on.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum DeformError {
     /// The deformed surface has other counts than the rest surface.
     #[error(
@@ -321,6 +355,7 @@ pub enum DeformError {
 
 /// Everything that can go wrong in tissue's core.
 #[derive(Debug, Error)]
+#[non_exhaustive]
 pub enum Error {
     /// A file could not be read or written.
     #[error("{path}: {source}")]

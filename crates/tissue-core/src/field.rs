@@ -23,6 +23,7 @@ use parry3d::query::PointQuery;
 use parry3d::shape::{TriMesh, TriMeshFlags};
 use rayon::prelude::*;
 
+use crate::error::FieldError;
 use crate::mesh::SurfaceMesh;
 
 /// Cell state: the surface passes near; the cell has candidate triangles.
@@ -146,17 +147,16 @@ impl SurfaceField {
     /// (validate it first) with cells of edge `cell`; queries closer than
     /// `margin` to the surface are answered exactly.
     ///
-    /// Fails with a message when the grid would be absurdly large or the
-    /// surface cannot be oriented.
-    pub fn new(mesh: &SurfaceMesh, cell: f32, margin: f32) -> Result<Self, String> {
-        let (lo, hi) = mesh.bounds().ok_or("the surface has no vertices")?;
+    /// Fails where the surface has no vertices, the cell or the margin is
+    /// not a length, the grid would be absurdly large or the surface cannot
+    /// be oriented.
+    pub fn new(mesh: &SurfaceMesh, cell: f32, margin: f32) -> Result<Self, FieldError> {
+        let (lo, hi) = mesh.bounds().ok_or(FieldError::NoVertices)?;
         if !(cell.is_finite() && cell > 0.0) {
-            return Err(format!("field cell size {cell} is not a positive number"));
+            return Err(FieldError::Cell(cell));
         }
         if !(margin.is_finite() && margin >= 0.0) {
-            return Err(format!(
-                "field margin {margin} is not a non-negative number"
-            ));
+            return Err(FieldError::Margin(margin));
         }
         let pad = 2.0 * cell + margin;
         let origin = lo - Vec3::splat(pad);
@@ -165,10 +165,10 @@ impl SurfaceField {
         let total = f64::from(dims_f.x) * f64::from(dims_f.y) * f64::from(dims_f.z);
         const MAX_CELLS: f64 = 64.0 * 1024.0 * 1024.0;
         if total > MAX_CELLS {
-            return Err(format!(
-                "the surface field would need {total:.0} cells (more than {MAX_CELLS:.0}); \
-                 the particle count is too large for this surface's bounding box"
-            ));
+            return Err(FieldError::TooManyCells {
+                cells: total,
+                most: MAX_CELLS,
+            });
         }
         let dims = [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32];
         let corners: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
@@ -195,7 +195,7 @@ impl SurfaceField {
             mesh.triangles.clone(),
             TriMeshFlags::ORIENTED,
         )
-        .map_err(|e| format!("the surface cannot be oriented: {e:?}"))?;
+        .map_err(|e| FieldError::NotOrientable(format!("{e:?}")))?;
         let outside = field.sides(&band, &parry_mesh);
 
         let cells = field.cell_count();
@@ -557,14 +557,14 @@ fn for_each_cell([lo, hi]: [[u32; 3]; 2], mut f: impl FnMut([u32; 3])) {
 ///
 /// # Errors
 ///
-/// A message where the surface cannot be oriented.
-pub fn distances_outside(mesh: &SurfaceMesh, points: &[Vec3]) -> Result<Vec<f32>, String> {
+/// [`FieldError::NotOrientable`] where the surface cannot be oriented.
+pub fn distances_outside(mesh: &SurfaceMesh, points: &[Vec3]) -> Result<Vec<f32>, FieldError> {
     let parry_mesh = TriMesh::with_flags(
         mesh.vertices.clone(),
         mesh.triangles.clone(),
         TriMeshFlags::ORIENTED,
     )
-    .map_err(|e| format!("the surface cannot be oriented: {e:?}"))?;
+    .map_err(|e| FieldError::NotOrientable(format!("{e:?}")))?;
     Ok(points
         .par_iter()
         .map(|&p| {
@@ -815,6 +815,7 @@ mod tests {
     #[test]
     fn absurd_cell_counts_are_refused() {
         let err = SurfaceField::new(&octahedron(), 1e-4, 0.0).unwrap_err();
-        assert!(err.contains("cells"), "{err}");
+        assert!(matches!(err, FieldError::TooManyCells { .. }), "{err}");
+        assert!(err.to_string().contains("cells"), "{err}");
     }
 }

@@ -50,6 +50,7 @@ use bytemuck::{Pod, Zeroable};
 
 /// Errors of the GPU path.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum GpuError {
     /// No adapter (GPU or software rasteriser) was found.
     #[error("no GPU adapter: {0}")]

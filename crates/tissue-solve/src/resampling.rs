@@ -20,6 +20,7 @@
 
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
+use tissue_core::FieldError;
 use tissue_core::displacement::DisplacementField;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{Connections, SurfaceMesh};
@@ -41,13 +42,64 @@ pub const MIN_VOLUME_RATIO: f32 = 0.1;
 /// The most grid points a field may have (8 Mi: 96 MiB of vectors).
 pub const MAX_GRID_POINTS: usize = 1 << 23;
 
+/// Why a displacement field cannot be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FieldGridError {
+    /// The spacing is not a positive length.
+    #[error("the field spacing {0} is not a positive length")]
+    Spacing(f32),
+    /// The deformed surface has no vertices.
+    #[error("the deformed surface has no vertices")]
+    NoVertices,
+    /// A spacing too coarse to say anything of the interior (more likely a
+    /// unit mistake).
+    #[error(
+        "the field spacing {spacing} would give fewer than {MIN_GRID_STEPS} grid steps across \
+         the organ ({extent} across at its widest): choose a spacing of at most {most} in the \
+         model's units"
+    )]
+    TooCoarse {
+        /// The spacing asked for.
+        spacing: f32,
+        /// The surface's largest extent.
+        extent: f32,
+        /// The largest spacing accepted.
+        most: f32,
+    },
+    /// A grid of more than [`MAX_GRID_POINTS`].
+    #[error(
+        "a grid of spacing {spacing} around the surface would have {points:.0} points (at most \
+         {MAX_GRID_POINTS}): choose a larger field spacing"
+    )]
+    TooManyPoints {
+        /// The spacing asked for.
+        spacing: f32,
+        /// Points the grid would have.
+        points: f64,
+    },
+    /// The particles' arrays disagree in length, or are empty.
+    #[error("{rest} rest positions, {current} current positions and {rotations} rotations")]
+    Lengths {
+        /// Rest positions.
+        rest: usize,
+        /// Current positions.
+        current: usize,
+        /// Rotations.
+        rotations: usize,
+    },
+    /// The deformed surface's distance field cannot be made.
+    #[error(transparent)]
+    Surface(#[from] FieldError),
+}
+
 /// The resampling displacement field of particles moved from `rest` to
 /// `current` with `rotations` (rest offsets onto current offsets) and
 /// `connections`, on a grid of `spacing` around `deformed` (the surface the
 /// particles follow, closed and outward, as a solve checks it).
 ///
-/// Fails with a message for a spacing that is not positive, a grid of more
-/// than [`MAX_GRID_POINTS`], or a surface the distance field cannot use.
+/// Fails for a spacing that is not positive, a grid of more than
+/// [`MAX_GRID_POINTS`], or a surface the distance field cannot use.
 pub fn resampling_field(
     rest: &[Vec3],
     current: &[Vec3],
@@ -55,14 +107,13 @@ pub fn resampling_field(
     connections: &Connections,
     deformed: &SurfaceMesh,
     spacing: f32,
-) -> Result<DisplacementField, String> {
+) -> Result<DisplacementField, FieldGridError> {
     if rest.len() != current.len() || rest.len() != rotations.len() || rest.is_empty() {
-        return Err(format!(
-            "{} rest positions, {} current positions and {} rotations",
-            rest.len(),
-            current.len(),
-            rotations.len()
-        ));
+        return Err(FieldGridError::Lengths {
+            rest: rest.len(),
+            current: current.len(),
+            rotations: rotations.len(),
+        });
     }
     let (origin, dims) = field_grid(deformed, spacing)?;
     let inverse_gradients = inverse_gradients(rest, current, rotations, connections);
@@ -124,38 +175,35 @@ pub const MIN_GRID_STEPS: f32 = 4.0;
 
 /// The grid of a field of `spacing` around `deformed`: its origin and
 /// points along each axis, reaching [`FADE_SPACINGS`] beyond the surface's
-/// bounding box. Fails with a message for a spacing that is not a positive
-/// length, one longer than a [`MIN_GRID_STEPS`]th of the surface's
+/// bounding box. Fails for a spacing that is not a positive length, one longer than a [`MIN_GRID_STEPS`]th of the surface's
 /// largest extent (a grid too coarse to say anything of the interior:
 /// more likely a unit mistake), or a grid of more than
 /// [`MAX_GRID_POINTS`]: a check to make before a solve.
-pub fn field_grid(deformed: &SurfaceMesh, spacing: f32) -> Result<(Vec3, [usize; 3]), String> {
+pub fn field_grid(
+    deformed: &SurfaceMesh,
+    spacing: f32,
+) -> Result<(Vec3, [usize; 3]), FieldGridError> {
     if !(spacing.is_finite() && spacing > 0.0) {
-        return Err(format!(
-            "the field spacing {spacing} is not a positive length"
-        ));
+        return Err(FieldGridError::Spacing(spacing));
     }
-    let (lo, hi) = deformed
-        .bounds()
-        .ok_or("the deformed surface has no vertices")?;
+    let (lo, hi) = deformed.bounds().ok_or(FieldGridError::NoVertices)?;
     let extent = (hi - lo).max_element();
     if spacing > extent / MIN_GRID_STEPS {
-        return Err(format!(
-            "the field spacing {spacing} would give fewer than {MIN_GRID_STEPS} grid steps \
-             across the organ ({extent} across at its widest): choose a spacing of at most \
-             {} in the model's units",
-            extent / MIN_GRID_STEPS
-        ));
+        return Err(FieldGridError::TooCoarse {
+            spacing,
+            extent,
+            most: extent / MIN_GRID_STEPS,
+        });
     }
     let pad = Vec3::splat(FADE_SPACINGS * spacing);
     let origin = lo - pad;
     let steps = ((hi + pad - origin) / spacing).ceil();
     let total = f64::from(steps.x + 1.0) * f64::from(steps.y + 1.0) * f64::from(steps.z + 1.0);
     if total.is_nan() || total > MAX_GRID_POINTS as f64 {
-        return Err(format!(
-            "a grid of spacing {spacing} around the surface would have {total:.0} points \
-             (at most {MAX_GRID_POINTS}): choose a larger field spacing"
-        ));
+        return Err(FieldGridError::TooManyPoints {
+            spacing,
+            points: total,
+        });
     }
     let dims = [
         steps.x as usize + 1,
@@ -272,10 +320,14 @@ mod tests {
         let turn = [Mat3::IDENTITY];
         let none = Connections::from_pairs(1, []);
         let err = resampling_field(&one, &one, &turn, &none, &sphere, 1e-3).unwrap_err();
-        assert!(err.contains("choose a larger field spacing"), "{err}");
+        assert!(matches!(err, FieldGridError::TooManyPoints { .. }), "{err}");
+        assert!(
+            err.to_string().contains("choose a larger field spacing"),
+            "{err}"
+        );
         for spacing in [0.0, -1.0, f32::NAN] {
             let err = resampling_field(&one, &one, &turn, &none, &sphere, spacing).unwrap_err();
-            assert!(err.contains("not a positive length"), "{err}");
+            assert!(err.to_string().contains("not a positive length"), "{err}");
         }
         // About 20 across: at most 5 a step.
         for spacing in [5.1, 1e9, f32::INFINITY] {
@@ -285,7 +337,7 @@ mod tests {
             } else {
                 "not a positive length"
             };
-            assert!(err.contains(expected), "{spacing}: {err}");
+            assert!(err.to_string().contains(expected), "{spacing}: {err}");
         }
         assert!(field_grid(&sphere, 4.0).is_ok());
     }
