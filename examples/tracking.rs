@@ -2,7 +2,7 @@
 //! sequences of small surface changes, against a tight reference solve of
 //! every frame.
 //!
-//! `cargo run --release --example tracking [particles] [coarse] [deflation] [history] [sequence]`
+//! `cargo run --release --example tracking [particles] [coarse] [history] [sequence]`
 //! (`sequence`: only the sequences whose name contains it)
 //!
 //! For every frame it prints the iterations the solve took, the "oracle"
@@ -29,7 +29,6 @@ fn main() -> Result<(), tissue::Error> {
     let mut number = |default: usize| args.next().and_then(|t| t.parse().ok()).unwrap_or(default);
     let params = defaults.clone().with(|p| {
         p.coarse = coarse;
-        p.deflation = number(defaults.deflation);
         p.history = number(defaults.history);
     });
     let only = args.next().unwrap_or_default();
@@ -37,12 +36,11 @@ fn main() -> Result<(), tissue::Error> {
     let model = tissue::sample(&breast, &SamplingParams::with_particles(particles))?.model;
     let deformer = Deformer::new(&model, params.clone())?;
     println!(
-        "{} particles, size {:.1} mm, coarse cell {} ({} aggregates), deflation {}, history {}, tolerance {:e}",
+        "{} particles, size {:.1} mm, coarse cell {} ({} aggregates), history {}, tolerance {:e}",
         model.len(),
         deformer.size(),
         params.coarse,
         deformer.coarse().map_or(0, |c| c.count()),
-        deformer.modes().map_or(0, |m| m.count()),
         params.history,
         params.tolerance
     );

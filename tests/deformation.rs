@@ -548,34 +548,6 @@ fn the_prediction_follows_a_sag_and_an_indentation_out_of_step() {
     assert!(fitted[3..].iter().all(|&r| r < 0.05), "{fitted:?}");
 }
 
-/// Deflation is left out for models above `deflation_max_particles` free
-/// particles (the preparation would take minutes at 1M), and the solve
-/// still converges to the same answer.
-#[test]
-fn deflation_is_left_out_above_its_particle_limit() {
-    let model = breast_model();
-    let sagged = tissue::deform::sagged_breast();
-    // Without the two-level solve, which would replace deflation.
-    let deflated = DeformParams::default().with(|p| {
-        p.coarse = 0.0;
-    });
-    let capped = deflated.clone().with(|p| {
-        p.deflation_max_particles = 1_000;
-    });
-    let mut without = Deformer::new(model, capped).unwrap();
-    assert!(without.modes().is_none());
-    let mut with = Deformer::new(model, deflated).unwrap();
-    assert_eq!(with.modes().map(|m| m.count()), Some(32));
-    for deformer in [&mut without, &mut with] {
-        deformer.set_surface(&sagged).unwrap();
-        assert!(deformer.solve().converged);
-    }
-    let worst = (0..model.len())
-        .map(|i| with.positions()[i].distance(without.positions()[i]))
-        .fold(0.0f32, f32::max);
-    assert!(worst < 2.0 * 3e-5 * with.size(), "{worst}");
-}
-
 /// The rest shape counts as a solved frame: after a first frame of half
 /// the sag, a frame grown by 2 % of the sag starts from the change rest to
 /// half (the same shape), within 1 % of its change of the answer (0.65 %
@@ -635,7 +607,7 @@ fn mixed(
 /// By default (the two-level solve) every tracking frame whose surface
 /// moves by at most 2 % of the size takes at most 10 iterations, the first
 /// change away from rest included (nothing to predict it from), and fewer
-/// in all than deflation alone; every frame is within the tolerance of a
+/// in all than without it; every frame is within the tolerance of a
 /// tight reference solve:
 /// - a sag in 3 mm steps (1.6 % of the size a frame) and an indentation
 ///   growing 1.6 mm a frame;
@@ -672,7 +644,7 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
         ("sag and indentation out of step", out_of_step),
     ];
     for (name, frames) in sequences {
-        let mut deflated = Deformer::new(
+        let mut plain = Deformer::new(
             model,
             DeformParams::default().with(|p| {
                 p.coarse = 0.0;
@@ -680,8 +652,7 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
         )
         .unwrap();
         let mut deformer = Deformer::new(model, defaults.clone()).unwrap();
-        assert!(deformer.coarse().is_some() && deformer.modes().is_none());
-        assert_eq!(deflated.modes().map(|m| m.count()), Some(32));
+        assert!(deformer.coarse().is_some() && plain.coarse().is_none());
         let size = deformer.size();
         reference.reset();
         let (mut with, mut without, mut small) = (Vec::new(), Vec::new(), Vec::new());
@@ -693,10 +664,10 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
                 .fold(0.0f32, f32::max);
             small.push(moved <= 0.02 * size);
             last = frame;
-            deflated.set_surface(frame).unwrap();
+            plain.set_surface(frame).unwrap();
             deformer.set_surface(frame).unwrap();
             reference.set_surface(frame).unwrap();
-            let (a, b) = (deflated.solve(), deformer.solve());
+            let (a, b) = (plain.solve(), deformer.solve());
             assert!(a.converged && b.converged && reference.solve().converged);
             without.push(a.iterations);
             with.push(b.iterations);
@@ -711,12 +682,12 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
             );
         }
         eprintln!(
-            "{name}: iterations {with:?} by default, {without:?} deflated (small: {small:?})"
+            "{name}: iterations {with:?} by default, {without:?} without the two-level solve (small: {small:?})"
         );
         assert!(small[0] && small.iter().filter(|&&s| s).count() >= frames.len() - 2);
         assert!(
             with.iter().zip(&small).all(|(&n, &s)| !s || n <= 10),
-            "{name}: iterations {with:?} by default ({without:?} deflated)"
+            "{name}: iterations {with:?} by default ({without:?} without the two-level solve)"
         );
         assert!(
             with.iter().sum::<usize>() < without.iter().sum::<usize>(),

@@ -19,10 +19,6 @@ struct Params {
     slot: u32,
     // Workgroups per dispatch (x times y), the length of a `partials` row.
     groups: u32,
-    // Modes deflated (0: none), the length of a particle's row of `vectors`.
-    modes: u32,
-    // Workgroups of a deflate_project dispatch (x times y): rows of `projections`.
-    mode_groups: u32,
     // The volume smoother's delta in a smoothed elastic iteration
     // (volume_smoother.wgsl); 0 in every other, whose elastic correction
     // takes the plain step's residual.

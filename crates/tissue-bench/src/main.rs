@@ -56,15 +56,9 @@ struct Args {
     /// even where the adapter offers timestamp queries.
     #[arg(long)]
     no_timestamps: bool,
-    /// Deflate this many of the Laplacian's lowest modes in stage 2
-    /// (`DeformParams::deflation`, the library's default), on every
-    /// backend, where the two-level solve is off; 0 measures the solver
-    /// without it.
-    #[arg(long, default_value_t = DeformParams::default().deflation)]
-    deflation: usize,
     /// The two-level solve's cell in mean connection lengths
-    /// (`DeformParams::coarse`, the library's default; on both backends,
-    /// where it replaces deflation); 0 measures the solver without it.
+    /// (`DeformParams::coarse`, the library's default; on both backends);
+    /// 0 measures the solver without it.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     coarse: f32,
     /// The stage-2 force model (`DeformParams::force`).
@@ -357,7 +351,6 @@ fn run(args: &Args) -> Result<()> {
             ForceName::Elastic => ForceModel::Elastic,
         };
         p.poisson = args.poisson;
-        p.deflation = args.deflation;
         p.coarse = args.coarse;
     });
     params.validate()?;

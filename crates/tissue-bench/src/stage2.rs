@@ -146,13 +146,10 @@ pub struct Tracking {
 pub struct Stage2 {
     /// How rotations are found on this backend.
     pub rotations: String,
-    /// Modes deflated (`DeformParams::deflation`; 0: none, as on the CPU
-    /// where the coarse space replaces them).
-    pub deflation: usize,
     /// Aggregates of the two-level solve's coarse space (CPU; 0: none).
     pub coarse_aggregates: usize,
-    /// Seconds to prepare stage 2 for the model (the spectrum, with
-    /// deflation the modes, and on the GPU the kernels and buffers).
+    /// Seconds to prepare stage 2 for the model (the spectrum, the coarse
+    /// space, and on the GPU the kernels and buffers).
     pub prepare_seconds: f64,
     /// One iteration.
     pub iteration: IterationTiming,
@@ -240,19 +237,10 @@ pub fn measure(
     })
     .context("stage 2")?;
     let prepare_seconds = started.elapsed().as_secs_f64();
-    // What the solve runs: on both devices the coarse space replaces deflation.
-    let (deflation, coarse_aggregates) = match solver.device() {
-        SolverDevice::Cpu(deformer) => (
-            deformer.modes().map_or(0, |m| m.count()),
-            deformer.coarse().map_or(0, |c| c.count()),
-        ),
-        SolverDevice::Gpu(on_gpu) => {
-            let deformer = on_gpu.deformer();
-            (
-                deformer.modes().map_or(0, |m| m.count()),
-                deformer.state().aggregates(),
-            )
-        }
+    // What the solve runs: the coarse space's aggregates on both devices.
+    let coarse_aggregates = match solver.device() {
+        SolverDevice::Cpu(deformer) => deformer.coarse().map_or(0, |c| c.count()),
+        SolverDevice::Gpu(on_gpu) => on_gpu.deformer().state().aggregates(),
     };
     let gpu_state_bytes = match solver.device() {
         SolverDevice::Cpu(_) => None,
@@ -342,7 +330,6 @@ pub fn measure(
     };
     Ok(Stage2 {
         rotations: rotations.to_owned(),
-        deflation,
         coarse_aggregates,
         prepare_seconds,
         iteration,

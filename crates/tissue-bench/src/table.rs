@@ -108,11 +108,6 @@ pub fn markdown(report: &Report) -> String {
                         "{}, two-level over {} aggregates, prepared in {:.2} s",
                         stage2.rotations, stage2.coarse_aggregates, stage2.prepare_seconds
                     )
-                } else if stage2.deflation > 0 {
-                    format!(
-                        "{}, {} modes deflated, prepared in {:.2} s",
-                        stage2.rotations, stage2.deflation, stage2.prepare_seconds
-                    )
                 } else {
                     stage2.rotations.clone()
                 },

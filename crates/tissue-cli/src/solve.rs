@@ -50,17 +50,10 @@ pub struct SolveArgs {
     /// Stop when every particle's error estimate is below this fraction of the model's size.
     #[arg(long, default_value_t = DeformParams::default().tolerance)]
     pub tolerance: f32,
-    /// Remove the error of this many of the lowest modes exactly every
-    /// iteration (computed once per model, on either backend; what it costs
-    /// and saves: docs/METHOD.md). 0 turns it off. Default: 32 for `track`;
-    /// 0 for `deform`, whose one frame does not repay the preparation on
-    /// large models.
-    #[arg(long)]
-    pub deflation: Option<usize>,
     /// Two-level solve: every iteration removes the error's part that is
     /// constant over aggregates of particles (grid cells of this many mean
     /// connection lengths) exactly (docs/METHOD.md, "Two-level solve"), on
-    /// both backends. 0 turns it off. Where it is on, neither backend deflates.
+    /// both backends. 0 turns it off.
     #[arg(long, default_value_t = DeformParams::default().coarse)]
     pub coarse: f32,
     /// Only these vertices of the surface were observed: the observed patch
@@ -75,13 +68,8 @@ pub struct SolveArgs {
 }
 
 impl SolveArgs {
-    /// The stage-2 parameters, checked; `frames` says whether a sequence
-    /// (deflation by default) or one frame (none by default) is solved.
-    pub fn params(&self, frames: Frames) -> Result<DeformParams> {
-        let deflation = self.deflation.unwrap_or(match frames {
-            Frames::One => 0,
-            Frames::Sequence => DeformParams::default().deflation,
-        });
+    /// The stage-2 parameters, checked.
+    pub fn params(&self) -> Result<DeformParams> {
         let force = match (self.force, self.gravity.given()) {
             (None, false) | (Some(Force::Symmetric), false) => ForceModel::Symmetric,
             (None, true) | (Some(Force::Elastic), _) => ForceModel::Elastic,
@@ -97,21 +85,11 @@ impl SolveArgs {
             p.poisson = self.poisson;
             p.max_iterations = self.max_iterations;
             p.tolerance = self.tolerance;
-            p.deflation = deflation;
             p.coarse = self.coarse;
         });
         params.validate()?;
         Ok(params)
     }
-}
-
-/// What a command solves: the default deflation depends on it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Frames {
-    /// One deformed surface (`deform`).
-    One,
-    /// A sequence, each frame from the last (`track`).
-    Sequence,
 }
 
 /// Options of `tissue deform`.
@@ -382,7 +360,7 @@ fn field_request<'a>(
 
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
-    let mut params = args.solve.params(Frames::One)?;
+    let mut params = args.solve.params()?;
     if let Some(path) = &args.picture {
         picture::check_name(path)?;
     }
@@ -481,28 +459,6 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
 mod tests {
     use super::*;
 
-    /// `deform` (one frame) leaves deflation out by default, `track` keeps
-    /// the library's 32 modes, and `--deflation` wins over both.
-    #[test]
-    fn deflation_defaults_to_none_for_one_frame_and_32_for_a_sequence() {
-        let args = |deflation| SolveArgs {
-            force: Some(Force::Symmetric),
-            poisson: DeformParams::default().poisson,
-            max_iterations: 100,
-            tolerance: 1e-4,
-            deflation,
-            coarse: DeformParams::default().coarse,
-            observed: None,
-            gravity: GravityArgs::default(),
-        };
-        let deflation = |given, frames| args(given).params(frames).map(|p| p.deflation).ok();
-        assert_eq!(deflation(None, Frames::One), Some(0));
-        assert_eq!(deflation(None, Frames::Sequence), Some(32));
-        assert_eq!(deflation(Some(8), Frames::One), Some(8));
-        assert_eq!(deflation(Some(0), Frames::Sequence), Some(0));
-        assert_eq!(deflation(Some(100_000), Frames::Sequence), None);
-    }
-
     /// Both commands solve two-level with the library's cell unless told
     /// otherwise, and a cell below one connection length is refused.
     #[test]
@@ -512,16 +468,14 @@ mod tests {
             poisson: DeformParams::default().poisson,
             max_iterations: 100,
             tolerance: 1e-4,
-            deflation: None,
             coarse,
             observed: None,
             gravity: GravityArgs::default(),
         };
-        let coarse = |given, frames| args(given).params(frames).map(|p| p.coarse);
-        assert_eq!(coarse(2.0, Frames::One).ok(), Some(2.0));
-        assert_eq!(coarse(2.0, Frames::Sequence).ok(), Some(2.0));
-        assert_eq!(coarse(0.0, Frames::One).ok(), Some(0.0));
-        let refused = coarse(0.5, Frames::One).err().map(|e| e.to_string());
+        let coarse = |given| args(given).params().map(|p| p.coarse);
+        assert_eq!(coarse(2.0).ok(), Some(2.0));
+        assert_eq!(coarse(0.0).ok(), Some(0.0));
+        let refused = coarse(0.5).err().map(|e| e.to_string());
         assert!(
             refused
                 .as_deref()

@@ -27,9 +27,7 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
 use crate::progress::SolveBar;
-use crate::solve::{
-    Frames, SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for,
-};
+use crate::solve::{SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -368,7 +366,7 @@ fn totals(done: &[Value], planned: usize, status: Status, started: Instant) -> T
 /// `tissue track`.
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
-    let mut params = (args.solve.params(Frames::Sequence)?).with(|p| {
+    let mut params = (args.solve.params()?).with(|p| {
         p.history = args.history;
     });
     params.validate()?;

@@ -9,12 +9,11 @@ use tissue_solve::coarse::{Aggregates, CoarseSpace, SharedLaplacian, coarse_spac
 use tissue_solve::coarse_elastic::{
     CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
 };
-use tissue_solve::deflation_modes;
 use tissue_solve::elastic::Elastic;
 use tissue_solve::plan::Plan;
 use tissue_solve::{
-    DeformParams, DeformReport, ForceModel, Iteration, LowModes, PrepareStage, RotationMethod,
-    SolveDevice, Tracker,
+    DeformParams, DeformReport, ForceModel, Iteration, PrepareStage, RotationMethod, SolveDevice,
+    Tracker,
 };
 
 use crate::state::SLOTS;
@@ -29,9 +28,7 @@ use crate::{DeformState, GpuError, Params, Pipelines};
 /// not settle), the stored rotations turned with the surface at a frame
 /// boundary as the CPU path turns them. With `params.coarse`, the CPU
 /// path's coarse space (the same aggregates and factor, made on the host)
-/// corrects the plain step every iteration (`shaders/coarse.wgsl`); without
-/// it, with `params.deflation`, the same modes as the CPU path's deflate
-/// it. The elastic phase's two-level solve is the CPU path's, made on the
+/// corrects the plain step every iteration (`shaders/coarse.wgsl`). The elastic phase's two-level solve is the CPU path's, made on the
 /// host where the phase starts, its aggregates grown until their factor
 /// fits the GPU's coarse solve (the CPU's cycles above that have no
 /// kernels here yet). With the elastic force the GPU
@@ -53,9 +50,6 @@ pub struct GpuDeformer {
 pub struct GpuSolve {
     pipelines: Pipelines,
     state: DeformState,
-    /// The modes deflated every iteration, as the CPU path computes them;
-    /// `None` without deflation, with the coarse space, or when none came out.
-    modes: Option<LowModes>,
     /// The two-level iteration's contraction, with the coarse space.
     coarse_rho: Option<f32>,
     /// The coarse space uploaded (kept for [`GpuDeformer::shared_laplacian`]).
@@ -124,11 +118,10 @@ impl GpuDeformer {
     }
 
     /// Checks `model` and `params`, estimates the Laplacian's extreme
-    /// eigenvalues and, with `params.deflation`, its lowest modes (on the
-    /// host, by the same calls as the CPU path, so both deflate the same
-    /// modes), compiles the kernels and uploads the model and the modes;
-    /// with the elastic force, the elastic model's rest data instead of
-    /// the modes, as the CPU path deflates nothing then.
+    /// eigenvalues and builds the coarse space (on the host, by the same
+    /// calls as the CPU path), compiles the kernels and uploads the model,
+    /// the coarse space and, with the elastic force, the elastic model's
+    /// rest data.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -199,14 +192,7 @@ impl GpuDeformer {
         self.state().passes()
     }
 
-    /// The lowest Laplacian modes deflated every iteration, if any (the
-    /// CPU path's `Deformer::modes`).
-    pub fn modes(&self) -> Option<&LowModes> {
-        self.tracker.device().modes.as_ref()
-    }
-
-    /// Bytes of every GPU buffer the deformer holds: the state's (with the
-    /// modes, when deflated), and the three backups a batch is replayed from.
+    /// Bytes of every GPU buffer the deformer holds: the state's, and the three backups a batch is replayed from.
     pub fn buffer_bytes(&self) -> u64 {
         let gpu = self.tracker.device();
         gpu.state.buffer_bytes()
@@ -330,7 +316,7 @@ impl GpuDeformer {
 impl GpuSolve {
     /// The device half of [`GpuDeformer::new_shared`]: the kernels
     /// compiled, the model uploaded, the coarse space (from `shared` where
-    /// it fits) or the modes, and the elastic phase's host data, as the
+    /// it fits), and the elastic phase's host data, as the
     /// CPU twin prepares them.
     fn prepare(
         device: &wgpu::Device,
@@ -350,8 +336,7 @@ impl GpuSolve {
         if !plan.loads.is_empty() {
             state.set_loads(device, &pipelines, &plan.loads)?;
         }
-        // The coarse space, or else the modes, correct the symmetric
-        // force, an elastic solve's shear phase included
+        // The coarse space corrects the symmetric force, an elastic solve's shear phase included
         // (`Iteration::correct`), as on the CPU path.
         // Factored up to what one workgroup substitutes, cycled above
         // (the groups are capped there too), as the CPU twin does.
@@ -370,7 +355,7 @@ impl GpuSolve {
             if !fits {
                 log::warn!(
                     "the GPU's coarse solve takes at most {GPU_COARSE_UNKNOWNS} unknowns in \
-                     one factor, this coarse space has {unknowns}: it deflates instead"
+                     one factor, this coarse space has {unknowns}: the GPU solves without it"
                 );
             }
             fits
@@ -378,15 +363,6 @@ impl GpuSolve {
         if let Some(space) = &coarse {
             state.set_coarse(device, &pipelines, space)?;
         }
-        let modes = match coarse {
-            Some(_) => None,
-            None => {
-                if params.deflation != 0 {
-                    observe(PrepareStage::DeflationModes);
-                }
-                deflation_modes(model, plan, params)
-            }
-        };
         if plan.elastic.is_some() {
             observe(PrepareStage::ElasticCoarse);
         }
@@ -415,13 +391,6 @@ impl GpuSolve {
             }
             _ => None,
         };
-        if let Some(m) = &modes {
-            let scales: Vec<f32> = m
-                .gain_scales(plan.contraction(&params.shear()))
-                .map(|scale| scale as f32)
-                .collect();
-            state.set_modes(device, &pipelines, m.vectors(), &scales)?;
-        }
         let backup = |label, bytes: u64| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -439,7 +408,6 @@ impl GpuSolve {
             ),
             pipelines,
             state,
-            modes,
             coarse_rho: coarse.as_deref().map(CoarseSpace::rho),
             coarse,
             elastic_host,
@@ -496,10 +464,6 @@ impl SolveDevice for GpuSolve {
     /// One uniform slot and one row of step partials per iteration.
     fn batch(&self) -> usize {
         SLOTS as usize
-    }
-
-    fn modes(&self) -> Option<&LowModes> {
-        self.modes.as_ref()
     }
 
     fn coarse_rho(&self) -> Option<f32> {

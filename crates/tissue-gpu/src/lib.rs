@@ -1,14 +1,14 @@
 //! The GPU path of tissue: stage 2 (deformation) as WGSL compute shaders
-//! through wgpu, each kernel the twin of a `tissue_cpu::deformation` function
-//! of the same name with the same inputs in the same order.
+//! through wgpu, each shader the twin of the `tissue_cpu::kernels` module of
+//! its name, with the same inputs in the same order.
 //!
 //! - [`Pipelines`]: the compiled kernels, built once from a `&Device`.
 //! - [`DeformState`]: the buffers of one particle model.
-//! - [`Pipelines::record_iterations`]: the step, rotations → force →
-//!   integrate → step norms → Chebyshev (deflated: rotations → force →
-//!   integrate → deflate → Chebyshev → the update's norms; elastic:
-//!   rotations → targets → force → …, never deflated), K times into one
-//!   command buffer.
+//! - [`Pipelines::record_iterations`]: the step, each pass of the
+//!   iteration's list (`tissue_solve::passes`: rotations → force →
+//!   integrate → the correction → Chebyshev, the step norms before or after
+//!   it) by its kernels ([`Kernel::of_pass`]), K times into one command
+//!   buffer.
 //! - [`GpuDeformer`]: stage 2 on the GPU, `tissue_solve::Tracker` over [`GpuSolve`].
 //! - [`GridPipelines`]: stage 1's uniform grid and neighbour rows
 //!   (`tissue_cpu::grid`) on the GPU, [`GpuGrid`] and [`GpuRows`].
@@ -136,10 +136,6 @@ pub struct Params {
     pub slot: u32,
     /// Workgroups of a `step_norms` dispatch: the length of a partials row.
     pub groups: u32,
-    /// Modes deflated (0: none).
-    pub modes: u32,
-    /// Workgroups of a `deflate_project` dispatch: rows of its projections.
-    pub mode_groups: u32,
     /// The volume smoother's `delta` in a smoothed elastic iteration
     /// (`volume_smoother.wgsl`); 0 in every other.
     pub volume_delta: f32,
@@ -319,8 +315,6 @@ mod tests {
                 ("omega", offset_of!(Params, omega)),
                 ("slot", offset_of!(Params, slot)),
                 ("groups", offset_of!(Params, groups)),
-                ("modes", offset_of!(Params, modes)),
-                ("mode_groups", offset_of!(Params, mode_groups)),
                 ("volume_delta", offset_of!(Params, volume_delta)),
                 ("volume_relaxation", offset_of!(Params, volume_relaxation)),
                 ("volume_damping", offset_of!(Params, volume_damping)),

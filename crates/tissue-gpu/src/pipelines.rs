@@ -41,16 +41,8 @@ pub enum Kernel {
     StepNorms,
     /// `integrate.wgsl::chebyshev`: the Chebyshev combine; updates current and previous.
     Chebyshev,
-    /// `deflate.wgsl::deflate_project`: each workgroup's share of the
-    /// plain step's projection on every mode.
-    DeflateProject,
-    /// `deflate.wgsl::deflate_gains`: one workgroup sums the projections
-    /// into each mode's gain.
-    DeflateGains,
-    /// `deflate.wgsl::deflate_apply`: adds the gains along the modes to the plain step.
-    DeflateApply,
     /// `step_norms.wgsl` on the update made, `current` against `previous`
-    /// after the combine: the step a deflated solve's stopping rule takes
+    /// after the combine: the step a corrected solve's stopping rule takes
     /// (the CPU's `step_norms(current, next)`).
     UpdateNorms,
     /// `coarse.wgsl::coarse_residual`: per particle `(L e')_i` from the
@@ -140,7 +132,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 45] = [
+    pub const ALL: [Kernel; 42] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -151,9 +143,6 @@ impl Kernel {
         Kernel::Integrate,
         Kernel::StepNorms,
         Kernel::Chebyshev,
-        Kernel::DeflateProject,
-        Kernel::DeflateGains,
-        Kernel::DeflateApply,
         Kernel::UpdateNorms,
         Kernel::CoarseResidual,
         Kernel::CoarseRestrict,
@@ -211,11 +200,6 @@ impl Kernel {
                 out.extend([Kernel::PressureForces, Kernel::SmoothedStep]);
                 Kernel::elastic_correction(cycled, out);
             }
-            Pass::Deflate => out.extend([
-                Kernel::DeflateProject,
-                Kernel::DeflateGains,
-                Kernel::DeflateApply,
-            ]),
             Pass::CoarseCorrection { cycled } => {
                 out.extend([Kernel::CoarseResidual, Kernel::CoarseRestrict]);
                 if cycled {
@@ -285,9 +269,6 @@ impl Kernel {
             Kernel::Integrate => ("integrate", "integrate"),
             Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
             Kernel::Chebyshev => ("integrate", "chebyshev"),
-            Kernel::DeflateProject => ("deflate", "deflate_project"),
-            Kernel::DeflateGains => ("deflate", "deflate_gains"),
-            Kernel::DeflateApply => ("deflate", "deflate_apply"),
             Kernel::CoarseResidual => ("coarse", "coarse_residual"),
             Kernel::CoarseRestrict => ("coarse", "coarse_restrict"),
             Kernel::CoarseForward => ("coarse", "coarse_forward"),
@@ -344,8 +325,7 @@ impl Kernel {
     pub(crate) fn per_particle(self) -> bool {
         !matches!(
             self,
-            Kernel::DeflateGains
-                | Kernel::CoarseForward
+            Kernel::CoarseForward
                 | Kernel::CoarseBackward
                 | Kernel::CoarseRestrict
                 | Kernel::ElasticForward

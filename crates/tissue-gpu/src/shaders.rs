@@ -49,7 +49,6 @@ pub const SHADERS: &[(&str, &str)] = &[
     ),
     ("integrate", include_str!("../shaders/integrate.wgsl")),
     ("step_norms", include_str!("../shaders/step_norms.wgsl")),
-    ("deflate", include_str!("../shaders/deflate.wgsl")),
     ("coarse", include_str!("../shaders/coarse.wgsl")),
     ("multilevel", include_str!("../shaders/multilevel.wgsl")),
     (
@@ -359,7 +358,7 @@ mod tests {
                 }
             }
         }
-        assert!(found.iter().any(|name| name == "deflate"), "{found:?}");
+        assert!(found.iter().any(|name| name == "coarse"), "{found:?}");
         for name in found {
             assert!(
                 SHADERS.iter().chain(SHARED).any(|(n, _)| *n == name),
@@ -418,9 +417,6 @@ mod tests {
             ("integrate", "integrate"),
             ("integrate", "chebyshev"),
             ("step_norms", "step_norms"),
-            ("deflate", "deflate_project"),
-            ("deflate", "deflate_gains"),
-            ("deflate", "deflate_apply"),
             ("coarse", "coarse_residual"),
             ("coarse", "coarse_restrict"),
             ("coarse", "coarse_forward"),

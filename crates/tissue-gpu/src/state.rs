@@ -25,9 +25,8 @@ pub const SLOTS: u32 = 8;
 
 /// Stage-2 buffers for one model. Positions are `vec4<f32>` (w unused,
 /// `Storage<[f32; 4]>`), rotations three `vec4` columns
-/// (`Storage<Rotation>`); the deflation buffers are empty (16 bytes each)
-/// until [`DeformState::set_modes`] fills them, the elastic model's until
-/// [`DeformState::set_elastic`] does.
+/// (`Storage<Rotation>`); the elastic model's buffers are empty (16 bytes
+/// each) until [`DeformState::set_elastic`] fills them.
 #[derive(Debug)]
 pub struct DeformState {
     pub(crate) count: u32,
@@ -36,10 +35,6 @@ pub struct DeformState {
     workgroups: [[u32; 2]; Kernel::ALL.len()],
     /// `x * y` of the step_norms dispatch: the length of a partials row.
     pub(crate) step_groups: u32,
-    /// `x * y` of the deflate_project dispatch: rows of `projections`.
-    mode_groups: u32,
-    /// Modes deflated each iteration (0: none).
-    modes: u32,
     /// The elastic model's data is uploaded ([`DeformState::set_elastic`]).
     elastic: bool,
     /// The force of the phase the next iterations run
@@ -80,14 +75,6 @@ pub struct DeformState {
     pub(crate) indices: Storage<u32>,
     /// Per slot, per step_norms workgroup, `(max |q̂ − q|², sum |q̂ − q|²)`.
     pub(crate) partials: Storage<[f32; 2]>,
-    /// The modes, particle-major, `modes` per particle (empty without deflation).
-    pub(crate) vectors: Storage<f32>,
-    /// Per mode, `1 / (c alpha lambda_k) − 1`.
-    pub(crate) scales: Storage<f32>,
-    /// Per deflate_project workgroup and mode, its share of the projection (`vec4`).
-    pub(crate) projections: Storage<[f32; 4]>,
-    /// Per mode, the gain along it (`vec4`).
-    pub(crate) gains: Storage<[f32; 4]>,
     /// Per particle the elastic model's rest data (empty without it).
     pub(crate) elastic_particles: Storage<ElasticParticle>,
     /// Per particle its terms of the elastic force (empty without it).
@@ -177,7 +164,6 @@ impl DeformState {
             x * y
         };
         let step_groups = groups_of(Kernel::StepNorms);
-        let mode_groups = groups_of(Kernel::DeflateProject);
         let params_stride = u64::from(limits.min_uniform_buffer_offset_alignment)
             .max(std::mem::size_of::<Params>() as u64);
 
@@ -202,8 +188,6 @@ impl DeformState {
                 params_stride,
                 workgroups: workgroups_of,
                 step_groups,
-                mode_groups,
-                modes: 0,
                 elastic: false,
                 phase_force: ForceModel::Symmetric,
                 correct_phase: true,
@@ -236,10 +220,6 @@ impl DeformState {
                     (SLOTS * step_groups) as usize,
                     &what("partials"),
                 )?,
-                vectors: Storage::init(device, "vectors", &[], &what("vectors"))?,
-                scales: Storage::init(device, "scales", &[], &what("scales"))?,
-                projections: Storage::init(device, "projections", &[], &what("projections"))?,
-                gains: Storage::init(device, "gains", &[], &what("gains"))?,
                 elastic_particles: Storage::init(
                     device,
                     "elastic_particles",
@@ -266,63 +246,10 @@ impl DeformState {
         Ok(state)
     }
 
-    /// Deflates the plain step along `m = scales.len()` modes every
-    /// iteration from now on ([`Pass::Deflate`]): `vectors`
-    /// particle-major (`vectors[i * m + k]`, 0 at control points), `scales[k]` the
-    /// factor `1 / (c alpha lambda_k) − 1` that turns mode `k`'s projection
-    /// into its gain (see `tissue_solve::LowModes::deflate`).
-    /// Zero modes turn deflation off. Refused on an elastic state
-    /// ([`DeformState::set_elastic`]): the modes are the Laplacian's.
-    pub fn set_modes(
-        &mut self,
-        device: &wgpu::Device,
-        pipelines: &Pipelines,
-        vectors: &[f32],
-        scales: &[f32],
-    ) -> Result<(), GpuError> {
-        let n = self.len();
-        let m = scales.len();
-        if vectors.len() != n * m {
-            return Err(GpuError::Length {
-                what: "mode entries (one per particle and mode)",
-                expected: n * m,
-                got: vectors.len(),
-            });
-        }
-        let modes = u32::try_from(m)
-            .ok()
-            .filter(|_| u32::try_from(n * m).is_ok())
-            .ok_or_else(|| GpuError::LimitExceeded {
-                limit: "u32 mode entry index",
-                what: format!("{m} modes over {n} particles"),
-                asked: (n * m) as u64,
-                allowed: u64::from(u32::MAX),
-            })?;
-        let what = |buffer: &str| format!("the {buffer} buffer ({m} modes, {n} particles)");
-        let rows = self.mode_groups as usize * m;
-        (self.vectors, self.scales, self.projections, self.gains) = scoped(device, || {
-            Ok((
-                Storage::init(device, "vectors", vectors, &what("vectors"))?,
-                Storage::init(device, "scales", scales, &what("scales"))?,
-                Storage::zeroed(device, "projections", rows, &what("projections"))?,
-                Storage::zeroed(device, "gains", m, &what("gains"))?,
-            ))
-        })?;
-        self.modes = modes;
-        self.bind_groups = self.bind_all(device, pipelines)?;
-        Ok(())
-    }
-
-    /// Modes deflated every iteration (0: none).
-    pub fn modes(&self) -> usize {
-        self.modes as usize
-    }
-
     /// Uploads the elastic model's rest data (`tissue_solve::Plan::elastic`)
     /// for the elastic force: from now on the elastic phase's iterations
     /// compute every particle's terms after the rotations and gather the
-    /// elastic force over them ([`Pass::ElasticTerms`]). Refused on
-    /// a deflated state ([`DeformState::set_modes`]).
+    /// elastic force over them ([`Pass::ElasticTerms`]).
     pub fn set_elastic(
         &mut self,
         device: &wgpu::Device,
@@ -388,9 +315,9 @@ impl DeformState {
 
     /// Sets what the next iterations run: the elastic force (an elastic
     /// state's targets after the rotations, the force gathered over them)
-    /// or the state's symmetric or paper force; `correct`, whether a
-    /// deflated state deflates. An elastic solve's shear phase is
-    /// `(false, true)`, its elastic phase `(true, false)`.
+    /// or the state's symmetric or paper force; `correct`, whether the
+    /// iterations apply the state's correction (its coarse space, or the
+    /// elastic one).
     pub fn set_phase(&mut self, force: ForceModel, correct: bool) {
         self.phase_force = force;
         self.correct_phase = correct;
@@ -398,7 +325,7 @@ impl DeformState {
 
     /// Uploads the two-level solve's coarse space (the CPU path's, made on
     /// the host): the next iterations that correct run
-    /// [`Pass::CoarseCorrection`] instead of deflating.
+    /// [`Pass::CoarseCorrection`].
     pub fn set_coarse(
         &mut self,
         device: &wgpu::Device,
@@ -513,7 +440,6 @@ impl DeformState {
         let elastic = &self.elastic_coarse;
         Holds {
             elastic: self.elastic,
-            modes: self.modes > 0,
             coarse: (self.coarse.aggregates > 0).then_some(self.coarse.cycles.groups > 0),
             elastic_correction: elastic
                 .linearised
@@ -595,10 +521,6 @@ impl DeformState {
             ("offsets", self.offsets.buffer()),
             ("indices", self.indices.buffer()),
             ("partials", self.partials.buffer()),
-            ("vectors", self.vectors.buffer()),
-            ("scales", self.scales.buffer()),
-            ("projections", self.projections.buffer()),
-            ("gains", self.gains.buffer()),
             ("elastic_particles", self.elastic_particles.buffer()),
             ("elastic_terms", self.elastic_terms.buffer()),
         ];
@@ -658,8 +580,6 @@ impl DeformState {
             omega,
             slot: slot.min(SLOTS - 1),
             groups: self.step_groups,
-            modes: self.modes,
-            mode_groups: self.mode_groups,
             volume_delta: self.smoothed_delta(),
             volume_relaxation: RELAXATION as f32,
             volume_damping: 1.0,

@@ -11,8 +11,8 @@ use tissue_core::ParticleModel;
 use tissue_cpu::coarse::Aggregates;
 use tissue_cpu::coarse_elastic::{CorrectionFor, ElasticCoarse};
 use tissue_cpu::deformation::{
-    DeformParams, Elastic, ForceModel, Pass, Plan, RotationMethod, deformation_force,
-    elastic_force, elastic_residual, elastic_terms, integrate, local_rotations, low_modes,
+    Elastic, ForceModel, Pass, Plan, RotationMethod, deformation_force, elastic_force,
+    elastic_residual, elastic_terms, integrate, local_rotations,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
 
@@ -27,16 +27,13 @@ const ELASTIC_ITERATION: [Kernel; 5] = [
     Kernel::Chebyshev,
 ];
 
-/// A deflated iteration, kernel by kernel.
-const DEFLATED_ITERATION: [Kernel; 8] = [
+/// An iteration of the rotations' force without a correction, kernel by kernel.
+const SYMMETRIC_ITERATION: [Kernel; 5] = [
     Kernel::LocalRotations,
     Kernel::DeformationForce,
     Kernel::Integrate,
-    Kernel::DeflateProject,
-    Kernel::DeflateGains,
-    Kernel::DeflateApply,
+    Kernel::StepNorms,
     Kernel::Chebyshev,
-    Kernel::UpdateNorms,
 ];
 
 /// A smooth non-rigid deformation of the rest shape: a twist about z and ripples.
@@ -327,8 +324,7 @@ fn elastic_targets_matches_the_cpu_twin() {
 
 /// The elastic phase's kernels in turn (rotations, terms, force) against
 /// the CPU's elastic force at the same positions; the shear phase of the
-/// same state gathers the symmetric force. Deflation is refused in the
-/// elastic phase.
+/// same state gathers the symmetric force.
 #[test]
 fn an_elastic_state_gathers_the_force_over_the_terms() {
     let Some((device, queue)) = common::gpu("elastic force parity") else {
@@ -366,14 +362,11 @@ fn an_elastic_state_gathers_the_force_over_the_terms() {
         state
             .set_elastic(&device, &pipelines, &elastic)
             .unwrap_or_else(|e| panic!("{e}"));
-        // Deflation may come too: it corrects an elastic solve's shear phase
-        // (the symmetric force), and the elastic phase runs without it.
-        state
-            .set_modes(&device, &pipelines, &vec![0.0; model.len()], &[1.0])
-            .unwrap_or_else(|e| panic!("{e}"));
+        // The shear phase runs the symmetric force's kernels, the elastic
+        // phase the elastic ones.
         assert_eq!(state.iteration(), ELASTIC_ITERATION);
         state.set_phase(ForceModel::Symmetric, true);
-        assert_eq!(state.iteration(), DEFLATED_ITERATION);
+        assert_eq!(state.iteration(), SYMMETRIC_ITERATION);
         state.set_phase(ForceModel::Elastic, false);
         assert_eq!(state.iteration(), ELASTIC_ITERATION);
         state
@@ -646,149 +639,6 @@ fn chebyshev_matches_the_cpu_combine() {
         .read_positions(&device, &queue)
         .unwrap_or_else(|e| panic!("{e}"));
     assert_within_ulps(&got, &expected, &current, 8.0, "integrate + chebyshev");
-}
-
-/// `integrate` then the three deflate kernels against `integrate` then
-/// `LowModes::deflate`, with the CPU path's modes (16) and gain factors.
-#[test]
-fn deflate_matches_the_cpu_twin() {
-    let Some((device, queue)) = common::gpu("deflate parity") else {
-        return;
-    };
-    for n in SIZES {
-        let model = common::phantom(n);
-        let current = deformed(model);
-        let force = symmetric_force(model, &current);
-        let plan = Plan::new(model).unwrap_or_else(|e| panic!("{e}"));
-        let params = DeformParams::default().with(|p| {
-            p.deflation = 16;
-        });
-        let modes = low_modes(
-            &model.connections,
-            &plan.free,
-            params.deflation,
-            plan.lambda_min,
-            plan.lambda_max,
-        );
-        assert_eq!(modes.count(), 16, "n = {n}: the modes came out");
-        let alpha = plan.alpha(&params);
-        let contraction = plan.contraction(&params);
-        let plain = integrate(&current, &force, &[], &plan.free, alpha);
-        let mut expected = plain.clone();
-        tissue_cpu::deformation::deflate(&modes, &current, &mut expected, contraction);
-        let scales: Vec<f32> = modes
-            .values()
-            .iter()
-            .map(|&lambda| (1.0 / (f64::from(contraction) * lambda) - 1.0) as f32)
-            .collect();
-
-        let (pipelines, mut state) = setup(&device, &queue, model);
-        assert!(
-            matches!(
-                state.set_modes(&device, &pipelines, &modes.vectors()[1..], &scales),
-                Err(tissue_gpu::GpuError::Length { .. })
-            ),
-            "n = {n}: a short mode block is refused"
-        );
-        state
-            .set_modes(&device, &pipelines, modes.vectors(), &scales)
-            .unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(state.iteration(), DEFLATED_ITERATION);
-        state
-            .write_current(&queue, &current)
-            .unwrap_or_else(|e| panic!("{e}"));
-        state
-            .write_force(&queue, &force)
-            .unwrap_or_else(|e| panic!("{e}"));
-        state.write_params(
-            &queue,
-            0,
-            state.params(ForceModel::Symmetric, alpha, 1.0, 0),
-        );
-        for kernel in [
-            Kernel::Integrate,
-            Kernel::DeflateProject,
-            Kernel::DeflateGains,
-            Kernel::DeflateApply,
-        ] {
-            run(&device, &queue, &pipelines, &state, kernel);
-        }
-        let got = state
-            .read_plain(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        // The correction is a sum of gains, each a projection summed in
-        // another order (f32 per workgroup and over workgroups, against f32
-        // per 1024 particles and f64 across) and scaled by up to
-        // lambda_max / lambda_1: it agrees to a small fraction of its
-        // largest entry, plus an ulp or two of the coordinates it is added to.
-        let largest_correction = expected
-            .iter()
-            .zip(&plain)
-            .map(|(e, p)| (*e - *p).abs().max_element())
-            .fold(0.0f32, f32::max);
-        let largest = current
-            .iter()
-            .map(|q| q.abs().max_element())
-            .fold(0.0, f32::max);
-        assert!(largest_correction > 0.0, "n = {n}: deflation moved nothing");
-        let tolerance = 1e-5 * largest_correction + 4.0 * f32::EPSILON * largest;
-        let mut worst = 0.0f32;
-        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-            let off = (*g - *e).abs().max_element();
-            worst = worst.max(off);
-            assert!(
-                off <= tolerance,
-                "n = {n}, particle {i}: GPU {g} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
-            );
-            if !plan.free[i] {
-                assert_eq!(*g, current[i], "n = {n}, control point {i} moved");
-            }
-        }
-        eprintln!(
-            "deflate, n = {n}: largest correction {largest_correction:e}, worst difference {worst:e} (tolerance {tolerance:e})"
-        );
-    }
-}
-
-/// Modes too many for one storage binding are an error naming the limit,
-/// and leave the state undeflated.
-#[test]
-fn modes_above_the_binding_limit_are_refused() {
-    let Some((device, queue)) = common::gpu("deflation binding limit") else {
-        return;
-    };
-    let model = common::phantom(2_000);
-    let (pipelines, mut state) = setup(&device, &queue, model);
-    let limit = device.limits().max_storage_buffer_binding_size;
-    let n = model.len();
-    let modes = (limit / (4 * n as u64)) as usize + 1;
-    let refused = state.set_modes(
-        &device,
-        &pipelines,
-        &vec![0.0; n * modes],
-        &vec![0.0; modes],
-    );
-    assert!(
-        matches!(
-            refused,
-            Err(tissue_gpu::GpuError::LimitExceeded {
-                limit: "max_storage_buffer_binding_size",
-                ..
-            })
-        ),
-        "{refused:?}"
-    );
-    assert_eq!(state.modes(), 0);
-    assert_eq!(
-        state.iteration(),
-        [
-            Kernel::LocalRotations,
-            Kernel::DeformationForce,
-            Kernel::Integrate,
-            Kernel::StepNorms,
-            Kernel::Chebyshev,
-        ]
-    );
 }
 
 /// Every `got` within `ulps` ulps of the largest coordinate of `scale` of

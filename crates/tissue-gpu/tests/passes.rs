@@ -1,7 +1,7 @@
 //! Both devices run the same pass list, from the one rule in
 //! `tissue_solve::passes`, for every combination of the iteration's
 //! choices a solve reaches: the force, the rotations, and the correction
-//! (none, deflation, the two-level solve factored or cycled, the elastic
+//! (none, the two-level solve factored or cycled, the elastic
 //! one factored or cycled, with the volume smoother or without).
 
 mod common;
@@ -21,17 +21,10 @@ fn both_devices_run_the_same_passes_for_every_combination() {
         return;
     };
     let model = common::phantom(2_000);
-    let corrections: [Setting; 8] = [
+    let corrections: [Setting; 7] = [
         ("two-level", |_| {}),
         ("two-level cycled", |p| p.coarse_direct_max_aggregates = 1),
-        ("deflated", |p| {
-            p.coarse = 0.0;
-            p.deflation = 8;
-        }),
-        ("uncorrected", |p| {
-            p.coarse = 0.0;
-            p.deflation = 0;
-        }),
+        ("uncorrected", |p| p.coarse = 0.0),
         ("elastic smoothed", |_| {}),
         ("elastic plain step", |p| p.volume_smoother = false),
         ("elastic cycled", |p| {

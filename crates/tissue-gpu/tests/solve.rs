@@ -42,8 +42,7 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
 /// GPU corrects with the CPU path's own coarse space (the same aggregates
 /// and factor, solved in f32 where the CPU solves in f64), stops within
 /// one iteration of the CPU, lands within 1e-5 of the size of its
-/// positions, and, with the symmetric force, needs fewer iterations than
-/// deflating the GPU's 32 modes.
+/// positions, and needs fewer iterations than without the coarse space.
 #[test]
 fn a_two_level_gpu_solve_matches_the_cpu_solve() {
     let Some((device, queue)) = common::gpu("two-level solve parity") else {
@@ -65,8 +64,7 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             "{force:?}: {aggregates:?}"
         );
         assert_eq!(Some(gpu.state().aggregates()), aggregates, "{force:?}");
-        assert!(gpu.modes().is_none(), "{force:?}: the GPU deflates too");
-        let (_, _, _, deflated) = common::solve_sag_on_both(
+        let (_, _, _, plain) = common::solve_sag_on_both(
             &device,
             &queue,
             model,
@@ -75,12 +73,12 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             }),
         );
         eprintln!(
-            "{force:?} two-level: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU deflated {}",
+            "{force:?} two-level: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU without {}",
             cpu_report.iterations,
             cpu_report.stopped_by,
             gpu_report.iterations,
             gpu_report.stopped_by,
-            deflated.iterations
+            plain.iterations
         );
         assert!(cpu_report.converged && gpu_report.converged, "{force:?}");
         assert!(
@@ -89,13 +87,11 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        // (The paper's one-sided force gains nothing over deflation: 63
-        // iterations against 62 at 3,001 particles.)
         assert!(
-            force == ForceModel::Paper || gpu_report.iterations < deflated.iterations,
-            "{force:?}: {} two-level, {} deflated",
+            gpu_report.iterations < plain.iterations,
+            "{force:?}: {} two-level, {} without",
             gpu_report.iterations,
-            deflated.iterations
+            plain.iterations
         );
         common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &format!("{force:?}"));
     }
@@ -148,82 +144,8 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
     eprintln!("iterations per frame (CPU, GPU): {counts:?}");
 }
 
-/// Deflation (32 modes) on the sag from rest: the GPU deflates the CPU
-/// path's very modes, stops after the same iterations (one either way, if
-/// the reductions' rounding tips the rule), lands within 1e-5 of the size of
-/// the CPU's positions, and needs fewer iterations than undeflated.
-#[test]
-fn a_deflated_gpu_solve_matches_the_deflated_cpu_solve() {
-    let Some((device, queue)) = common::gpu("deflated solve parity") else {
-        return;
-    };
-    // Not a multiple of the workgroup size: the last workgroup is partial.
-    let model = common::phantom(3_001);
-    for force in [ForceModel::Symmetric, ForceModel::Paper] {
-        // Without the two-level solve, which the GPU would run instead.
-        let plain = DeformParams::default().with(|p| {
-            p.force = force;
-            p.rotations = RotationMethod::Svd;
-            p.deflation = 0;
-            p.coarse = 0.0;
-        });
-        let deflated = plain.clone().with(|p| {
-            p.deflation = 32;
-        });
-        let (cpu, cpu_report, gpu, gpu_report) =
-            common::solve_sag_on_both(&device, &queue, model, deflated);
-        let modes = gpu.modes().unwrap_or_else(|| panic!("{force:?}: no modes"));
-        assert_eq!(modes.count(), 32, "{force:?}");
-        // The same call as the CPU path's: the same f32 vectors; the f64
-        // eigenvalues may differ in the last bit, as low_modes' parallel
-        // reductions add in an order that depends on the thread schedule.
-        let same = cpu.modes().is_some_and(|m| {
-            m.vectors() == modes.vectors()
-                && m.next() == modes.next()
-                && m.values()
-                    .iter()
-                    .zip(modes.values())
-                    .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs())
-        });
-        assert!(same, "{force:?}: the GPU deflates other modes than the CPU");
-        let mut undeflated = tissue_gpu::GpuDeformer::new(&device, &queue, model, plain)
-            .unwrap_or_else(|e| panic!("{e}"));
-        undeflated
-            .set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
-            .unwrap_or_else(|e| panic!("{e}"));
-        let undeflated_report = undeflated
-            .solve(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
-        eprintln!(
-            "{force:?} deflated: CPU {} iterations, {:?}; GPU {} iterations, {:?}; GPU undeflated {}",
-            cpu_report.iterations,
-            cpu_report.stopped_by,
-            gpu_report.iterations,
-            gpu_report.stopped_by,
-            undeflated_report.iterations
-        );
-        assert!(cpu_report.converged, "{force:?}: {cpu_report:?}");
-        assert!(gpu_report.converged, "{force:?}: {gpu_report:?}");
-        assert!(
-            cpu_report.iterations.abs_diff(gpu_report.iterations) <= 1,
-            "{force:?}: CPU {} iterations deflated, GPU {}",
-            cpu_report.iterations,
-            gpu_report.iterations
-        );
-        assert!(
-            undeflated_report.converged && gpu_report.iterations < undeflated_report.iterations,
-            "{force:?}: {} iterations deflated, {undeflated_report:?} undeflated",
-            gpu_report.iterations
-        );
-        let context = format!("{force:?} deflated");
-        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
-        eprintln!("{force:?} deflated: worst distance {worst:e} of the size");
-    }
-}
-
-/// The elastic force (Poisson ratio 0.49) on the sag from rest: both paths
-/// deflate the shear phase (the CPU's coarse space off, as the GPU has
-/// none) and neither corrects the elastic phase, so both run the same
+/// The elastic force (Poisson ratio 0.49) on the sag from rest without the
+/// two-level solve: neither path corrects either phase, so both run the same
 /// iterations and stop at the same one, within 1e-5 of the size of each
 /// other.
 #[test]
@@ -237,11 +159,9 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         p.rotations = RotationMethod::Svd;
         p.coarse = 0.0;
     });
-    assert!(params.deflation > 0, "{params:?}");
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
-    assert!(cpu.modes().is_some() && cpu.coarse().is_none());
-    assert!(gpu.modes().is_some(), "the GPU deflates the shear phase");
+    assert!(cpu.coarse().is_none() && gpu.state().aggregates() == 0);
     assert!(gpu.state().elastic());
     eprintln!(
         "Elastic: CPU {} iterations, {:?}, {:.3} s; GPU {} iterations, {:?}, {:.3} s",
@@ -290,7 +210,7 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
 /// A deep, narrow indentation (the tip pushed 40 mm down by a probe 15 mm
 /// wide) with the elastic force: on both devices the elastic phase
 /// diverges and runs again (the tracker's retries, written once):
-/// deflated, with half the step; two-level (whose shear phase stops on the
+/// without the two-level solve, with half the step; two-level (whose shear phase stops on the
 /// volumes' misfit after 4 iterations), with half its smoothed step
 /// (which stalls), then linearised again where it stalled. Both converge
 /// after the same retries and iterations within one per phase run (each ends where a divergence or
@@ -305,8 +225,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
         .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
-    // Deflated (no elastic correction: one retry, half the step) and
-    // two-level (two retries).
+    // Without the two-level solve (no elastic correction: one retry, half
+    // the step) and two-level (two retries).
     for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
@@ -445,7 +365,6 @@ fn a_coarse_space_too_large_for_one_factor_is_cycled_on_both_devices() {
         "{groups:?} groups"
     );
     assert_eq!(gpu.state().aggregates(), space.count());
-    assert!(gpu.modes().is_none());
     assert!(
         cpu_report.converged && gpu_report.converged,
         "{cpu_report:?} {gpu_report:?}"
@@ -488,7 +407,6 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
         cycles.groups()
     );
     assert_eq!(gpu.state().aggregates(), space.count());
-    assert!(gpu.modes().is_none());
     assert!(
         cpu_report.converged && gpu_report.converged,
         "{cpu_report:?} {gpu_report:?}"
@@ -508,7 +426,6 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
         model,
         params.clone().with(|p| {
             p.coarse = 0.0;
-            p.deflation = 0;
         }),
     )
     .unwrap_or_else(|e| panic!("{e}"));

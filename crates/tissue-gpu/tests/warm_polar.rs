@@ -200,7 +200,7 @@ fn turn_rotations_premultiplies_every_rotation() {
 }
 
 /// The sag from rest at 2,000 particles with warm rotations on both paths,
-/// deflated (both forces) and not: the same iterations (one either way, if
+/// two-level (both forces) and not: the same iterations (one either way, if
 /// the reductions' rounding tips the rule) and positions within 1e-5 of the
 /// size, the SVD test's tolerance.
 #[test]
@@ -209,22 +209,22 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         return;
     };
     let model = common::phantom(2_000);
-    let deflated = DeformParams::default().deflation;
-    assert!(deflated > 0);
-    for (force, deflation) in [
-        (ForceModel::Symmetric, deflated),
-        (ForceModel::Paper, deflated),
-        (ForceModel::Symmetric, 0),
+    let two_level = DeformParams::default().coarse;
+    assert!(two_level > 0.0);
+    for (force, coarse) in [
+        (ForceModel::Symmetric, two_level),
+        (ForceModel::Paper, two_level),
+        (ForceModel::Symmetric, 0.0),
     ] {
         let params = DeformParams::default().with(|p| {
             p.force = force;
-            p.deflation = deflation;
+            p.coarse = coarse;
             p.rotations = RotationMethod::WarmPolar;
         });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
         eprintln!(
-            "{force:?}, {deflation} modes, warm: CPU {} iterations, {:?}; GPU {} iterations, {:?}",
+            "{force:?}, coarse {coarse}, warm: CPU {} iterations, {:?}; GPU {} iterations, {:?}",
             cpu_report.iterations,
             cpu_report.stopped_by,
             gpu_report.iterations,
@@ -237,7 +237,7 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        let context = format!("{force:?}, {deflation} modes, warm");
+        let context = format!("{force:?}, coarse {coarse}, warm");
         let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
         let rotations = gpu
             .read_rotations(&device, &queue)
@@ -248,7 +248,7 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             .map(|(g, c)| entry_difference(*g, *c))
             .fold(0.0f32, f32::max);
         eprintln!(
-            "{force:?}, {deflation} modes, warm: worst distance {worst:e} of the size; worst rotation entry {worst_rotation:e}"
+            "{force:?}, coarse {coarse}, warm: worst distance {worst:e} of the size; worst rotation entry {worst_rotation:e}"
         );
     }
 }
@@ -337,7 +337,7 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
     assert!(turned_by[5] > 0.1 && turned_by[6] > 0.1, "{turned_by:?}");
 }
 
-/// The elastic force with warm rotations: the sag from rest (the deflated
+/// The elastic force with warm rotations: the sag from rest (the plain
 /// shear phase, then the elastic phase) and a deep, narrow poke whose
 /// elastic phase diverges and runs again from the end of the shear phase
 /// with the rotations it left. The same iterations and retries on both

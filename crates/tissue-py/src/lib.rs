@@ -185,7 +185,7 @@ impl Model {
     /// accurate one) or `"paper"`; `max_iterations` caps every solve.
     /// `progress`, if given, is called as each stage of the preparation
     /// starts with a dict: `stage` (`plan`, `elastic_model`, `upload`,
-    /// `coarse_space`, `deflation_modes`, `elastic_coarse`) and
+    /// `coarse_space`, `elastic_coarse`) and
     /// `description`. `observed`: the surface vertices the deformed
     /// surfaces observe (`tissue deform --observed`), as indices or one
     /// flag per vertex; the rest of the skin is free, the mechanics

@@ -26,7 +26,7 @@ impl Chebyshev {
         }
     }
 
-    /// The sequence for one solve with contraction `rho` (a deflated one, say).
+    /// The sequence for one solve with contraction `rho` (a two-level one, say).
     pub fn with_rho(params: &DeformParams, rho: f32) -> Self {
         Self {
             rho,
@@ -119,7 +119,7 @@ impl StoppingRule {
         }
     }
 
-    /// The rule for one solve with contraction `rho` (a deflated one, say).
+    /// The rule for one solve with contraction `rho` (a two-level one, say).
     pub fn with_rho(plan: &Plan, params: &DeformParams, rho: f32) -> Self {
         Self {
             bound: 1.0 / (1.0 - rho),

@@ -5,7 +5,6 @@
 
 use glam::{Mat3, Vec3};
 
-use crate::modes::LowModes;
 use crate::params::{ForceModel, RotationMethod};
 
 /// What every iteration of one solve runs with, from the plan and the
@@ -21,8 +20,7 @@ pub struct Iteration {
     /// `c alpha`, what turns an error into the plain step ([`crate::plan::Plan::contraction`]).
     pub contraction: f32,
     /// Whether the device applies its correction: with the symmetric and
-    /// the paper's force the Laplacian's (the coarse space or the deflated
-    /// modes), with the elastic force the elastic operator's, where the
+    /// the paper's force the Laplacian's coarse space, with the elastic force the elastic operator's, where the
     /// device has one (the Laplacian's is never applied to it).
     pub correct: bool,
     /// An elastic phase that starts from a state of its own (after the
@@ -38,7 +36,7 @@ pub struct Iteration {
 
 /// What a device does for a stage-2 solve: kernels and buffers, nothing
 /// else. The iteration is the same on every device: rotations, force, the
-/// plain step, the correction (deflation or the coarse space, if any), the
+/// plain step, the correction (a coarse space, if any), the
 /// Chebyshev combine; its state is `current` and `previous` positions and
 /// the rotations.
 pub trait SolveDevice {
@@ -50,11 +48,6 @@ pub trait SolveDevice {
 
     /// The most iterations one [`SolveDevice::run`] may be asked for.
     fn batch(&self) -> usize;
-
-    /// The lowest Laplacian modes the device deflates every iteration, if any.
-    fn modes(&self) -> Option<&LowModes> {
-        None
-    }
 
     /// The two-level iteration's contraction, where the device runs one.
     fn coarse_rho(&self) -> Option<f32> {
@@ -74,7 +67,7 @@ pub trait SolveDevice {
     /// ([`crate::params::DeformParams::shear_volume_share`]). The plain elastic step is
     /// set from the stiffness at rest and needs the shear phase's whole
     /// way: every neighbourhood near its rest volume (on the phantom poked
-    /// 40 mm deep at 2,000 particles, deflated, the uncorrected phase
+    /// 40 mm deep at 2,000 particles, the uncorrected phase
     /// diverged once more after a shear phase stopped at half the misfit).
     fn volume_smoother(&self) -> bool {
         false

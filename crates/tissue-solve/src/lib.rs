@@ -5,8 +5,7 @@
 //!   mathematics ([`elastic`], its consistent gradients [`consistent`]), what a solve knows before it
 //!   starts ([`plan`], with the Laplacian's spectrum from [`spectrum`]),
 //!   Chebyshev acceleration and the stopping rule ([`acceleration`]), the
-//!   tracking prediction and its history ([`predict`]), the deflated modes
-//!   ([`modes`]), the deformed surface's checks and control points
+//!   tracking prediction and its history ([`predict`]), the deformed surface's checks and control points
 //!   ([`controls`]), what one iteration runs ([`passes`]), how a solve went ([`report`]), and the one tracker
 //!   that runs frames on any device ([`tracker`], over [`SolveDevice`]);
 //!   batches of iterations with the replay that stops every device at the
@@ -34,7 +33,6 @@ pub mod elastic;
 pub mod gravity;
 pub mod grid;
 pub mod inversion;
-pub mod modes;
 pub mod multilevel;
 pub mod params;
 pub mod passes;
@@ -54,7 +52,6 @@ pub mod volume_smoother;
 pub use acceleration::{Chebyshev, StoppingRule};
 pub use controls::check_same_topology;
 pub use inversion::{Inversions, inversions};
-pub use modes::{LowModes, deflation_modes, low_modes};
 pub use params::{DeformParams, ForceModel, RotationMethod};
 pub use passes::{Choices, Correction, Holds, Pass};
 pub use plan::Plan;

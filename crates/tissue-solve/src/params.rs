@@ -75,30 +75,12 @@ pub struct DeformParams {
     /// the new frame's surface move with (`0`: the affine map alone). Each
     /// costs a copy of the positions. 2 by default: see docs/METHOD.md.
     pub history: usize,
-    /// Deflation: the number of lowest eigenvectors of the Dirichlet
-    /// Laplacian over free particles (computed once per model) whose error
-    /// every iteration removes exactly; Chebyshev and the stopping rule then
-    /// use the next eigenvalue instead of the smallest (see
-    /// [`crate::modes::LowModes`]). Its preparation grows faster than the
-    /// model, so one frame alone may not repay it: `tissue deform` turns it
-    /// off unless asked. What it saves and costs: docs/METHOD.md and
-    /// BENCHMARKS.md.
-    ///
-    /// Models with more free particles than [`DeformParams::deflation_max_particles`]
-    /// are solved without it, and a device that runs the two-level solve
-    /// ([`DeformParams::coarse`]) does not deflate.
-    pub deflation: usize,
-    /// Deflation is left out (with a log warning) for models with more free
-    /// particles than this: the modes' preparation grows faster than the
-    /// model, and past this size a solve from rest takes less time than the
-    /// preparation (docs/METHOD.md). Raise it to deflate larger models.
-    pub deflation_max_particles: usize,
     /// Two-level solve: the edge of the grid cells whose free particles form
     /// one aggregate of the coarse space, in mean connection lengths; every
     /// iteration then removes the error's part in that space exactly
     /// ([`crate::coarse`]; the GPU's kernels in `shaders/coarse.wgsl`). 0
     /// turns it off. The default and what it saves: docs/METHOD.md,
-    /// "Two-level solve". Where it is on, neither path deflates.
+    /// "Two-level solve".
     pub coarse: f32,
     /// The coarse space's cells grow (by factors of 1.25) until there are at
     /// most this many aggregates (at the default, cells of 2 spacings up to
@@ -177,8 +159,6 @@ impl Default for DeformParams {
             max_iterations: 5_000,
             extrapolate: true,
             history: 2,
-            deflation: 32,
-            deflation_max_particles: 200_000,
             coarse: 2.0,
             coarse_max_aggregates: 200_000,
             coarse_direct_max_aggregates: 4_096,
@@ -202,8 +182,7 @@ impl DeformParams {
     }
 
     /// The parameters of the shear phase that starts every elastic solve
-    /// (the symmetric force, whose coarse space or deflated modes a device
-    /// prepares); `self` for the other forces.
+    /// (the symmetric force, whose coarse space a device prepares); `self` for the other forces.
     pub fn shear(&self) -> Self {
         let force = match self.force {
             ForceModel::Elastic => ForceModel::Symmetric,
@@ -240,12 +219,6 @@ impl DeformParams {
             "history",
             self.history,
             format!("0 to {MAX_HISTORY} frames"),
-        )?;
-        ParamError::check(
-            self.deflation <= MAX_DEFLATION,
-            "deflation",
-            self.deflation,
-            format!("0 to {MAX_DEFLATION} modes"),
         )?;
         ParamError::check(
             self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse),
@@ -322,10 +295,6 @@ pub const MAX_ELASTIC_COARSE_AGGREGATES: usize = 1_000_000;
 /// numbers, and it is made again every solve from rest.
 pub const MAX_ELASTIC_COARSE_DIRECT_AGGREGATES: usize = 5_000;
 
-/// The most modes [`DeformParams::deflation`] may ask for: each costs a
-/// pass over the particles per iteration and `4 n` bytes.
-pub const MAX_DEFLATION: usize = 256;
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -379,17 +348,6 @@ mod tests {
             };
             assert!(params.validate().is_ok(), "{share}");
         }
-    }
-
-    #[test]
-    fn deflation_defaults_to_32_modes_and_is_bounded() {
-        assert_eq!(DeformParams::default().deflation, 32);
-        assert_eq!(DeformParams::default().deflation_max_particles, 200_000);
-        let err = refusal(&DeformParams {
-            deflation: MAX_DEFLATION + 1,
-            ..DeformParams::default()
-        });
-        assert!(err.contains("deflation is 257"), "{err}");
     }
 
     #[test]

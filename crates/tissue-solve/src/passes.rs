@@ -36,8 +36,6 @@ pub enum Pass {
         /// (`block_multilevel`), not by its factor.
         cycled: bool,
     },
-    /// `deflate`: the plain step's error along the lowest Laplacian modes removed.
-    Deflate,
     /// `coarse`: the two-level solve's correction of the plain step over
     /// the Laplacian's aggregates.
     CoarseCorrection {
@@ -73,7 +71,6 @@ impl Pass {
             Pass::Force => "deformation_force",
             Pass::PlainStep | Pass::Combine => "integrate",
             Pass::SmoothedStep { .. } => "volume_smoother",
-            Pass::Deflate => "deflate",
             Pass::CoarseCorrection { .. } => "coarse",
             Pass::ElasticCorrection { .. } => "coarse_elastic",
             Pass::StepNorms | Pass::UpdateNorms => "step_norms",
@@ -92,7 +89,6 @@ impl Pass {
             Pass::PlainStep => "integrate",
             Pass::SmoothedStep { cycled: false } => "smoothed step (factored)",
             Pass::SmoothedStep { cycled: true } => "smoothed step (cycled)",
-            Pass::Deflate => "deflate",
             Pass::CoarseCorrection { cycled: false } => "coarse correction (factored)",
             Pass::CoarseCorrection { cycled: true } => "coarse correction (cycled)",
             Pass::ElasticCorrection { cycled: false } => "elastic correction (factored)",
@@ -109,8 +105,6 @@ impl Pass {
 pub enum Correction {
     /// Not at all: the plain step, its norms, the combine.
     None,
-    /// The lowest Laplacian modes deflated ([`Pass::Deflate`]).
-    Deflation,
     /// The two-level solve over the Laplacian's aggregates.
     Coarse {
         /// Its coarse system solved by cycles.
@@ -131,8 +125,6 @@ pub enum Correction {
 pub struct Holds {
     /// The elastic model's rest data.
     pub elastic: bool,
-    /// Deflated Laplacian modes.
-    pub modes: bool,
     /// The Laplacian's coarse space; `Some(true)` where it is solved by cycles.
     pub coarse: Option<bool>,
     /// The elastic phase's correction, linearised at the state; `Some((cycled,
@@ -157,7 +149,7 @@ impl Choices {
     /// runs where the device has the elastic data; its correction is the
     /// elastic one (the Laplacian's corrections assume the Laplacian's
     /// modes, not the elastic operator's). The other forces take the
-    /// Laplacian's coarse space where there is one, else its deflated modes.
+    /// Laplacian's coarse space where there is one.
     pub fn of(force: ForceModel, rotations: RotationMethod, correct: bool, holds: Holds) -> Self {
         let elastic_force = force == ForceModel::Elastic;
         let correction = match (correct, elastic_force) {
@@ -166,10 +158,9 @@ impl Choices {
                 Some((cycled, smoothed)) => Correction::Elastic { cycled, smoothed },
                 None => Correction::None,
             },
-            (true, false) => match (holds.coarse, holds.modes) {
-                (Some(cycled), _) => Correction::Coarse { cycled },
-                (None, true) => Correction::Deflation,
-                (None, false) => Correction::None,
+            (true, false) => match holds.coarse {
+                Some(cycled) => Correction::Coarse { cycled },
+                None => Correction::None,
             },
         };
         Self {
@@ -205,7 +196,6 @@ impl Choices {
                 passes.extend([Pass::PlainStep, Pass::StepNorms, Pass::Combine]);
                 return passes;
             }
-            Correction::Deflation => passes.extend([Pass::PlainStep, Pass::Deflate]),
             Correction::Coarse { cycled } => {
                 passes.extend([Pass::PlainStep, Pass::CoarseCorrection { cycled }]);
             }
@@ -229,7 +219,7 @@ impl Choices {
 
     /// Every combination of choices, for the devices' tables and tests.
     pub fn all() -> Vec<Choices> {
-        let mut corrections = vec![Correction::None, Correction::Deflation];
+        let mut corrections = vec![Correction::None];
         for cycled in [false, true] {
             corrections.push(Correction::Coarse { cycled });
             for smoothed in [false, true] {
@@ -302,7 +292,6 @@ mod tests {
     fn the_elastic_force_takes_only_the_elastic_correction() {
         let holds = Holds {
             elastic: true,
-            modes: true,
             coarse: Some(false),
             elastic_correction: None,
         };
@@ -332,22 +321,21 @@ mod tests {
     }
 
     #[test]
-    fn the_coarse_space_wins_over_deflation_and_the_elastic_force_needs_its_data() {
+    fn the_laplacian_forces_take_the_coarse_space_and_the_elastic_force_needs_its_data() {
         let holds = Holds {
             elastic: false,
-            modes: true,
             coarse: Some(true),
             elastic_correction: None,
         };
         let choices = Choices::of(ForceModel::Paper, RotationMethod::Svd, true, holds);
         assert_eq!(choices.correction, Correction::Coarse { cycled: true });
-        let deflated = Holds {
+        let without = Holds {
             coarse: None,
             ..holds
         };
-        let choices = Choices::of(ForceModel::Symmetric, RotationMethod::Svd, true, deflated);
-        assert_eq!(choices.correction, Correction::Deflation);
-        let choices = Choices::of(ForceModel::Elastic, RotationMethod::Svd, true, deflated);
+        let choices = Choices::of(ForceModel::Symmetric, RotationMethod::Svd, true, without);
+        assert_eq!(choices.correction, Correction::None);
+        let choices = Choices::of(ForceModel::Elastic, RotationMethod::Svd, true, holds);
         assert!(!choices.elastic, "no elastic data, no elastic terms");
         assert_eq!(choices.correction, Correction::None);
     }
@@ -357,9 +345,9 @@ mod tests {
         let all = Choices::all();
         let unique: std::collections::HashSet<_> = all.iter().collect();
         assert_eq!(unique.len(), all.len());
-        // Rotations 2 x (4 without the elastic force: none, deflation,
-        // coarse factored or cycled; 5 with it: none, and the elastic
-        // correction factored or cycled, smoothed or not).
-        assert_eq!(all.len(), 2 * 4 + 2 * 5);
+        // Rotations 2 x (3 without the elastic force: none, coarse
+        // factored or cycled; 5 with it: none, and the elastic correction
+        // factored or cycled, smoothed or not).
+        assert_eq!(all.len(), 2 * 3 + 2 * 5);
     }
 }

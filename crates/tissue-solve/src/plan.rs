@@ -8,7 +8,6 @@ use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
 use crate::coarse::{SharedLaplacian, laplacian_key};
 use crate::elastic::Elastic;
-use crate::modes::LowModes;
 use crate::params::{DeformParams, ForceModel};
 use crate::report::PrepareStage;
 use crate::spectrum::laplacian_extremes;
@@ -296,22 +295,12 @@ impl Plan {
 
     /// The contraction a solve's Chebyshev weights and stopping rule use:
     /// [`Plan::rho`]; with a coarse space, the two-level iteration's
-    /// (`coarse_rho`, measured by the device that built it); with deflation,
-    /// what the modes leave ([`LowModes::rho`]). The elastic force runs
-    /// without either (both are made for the Laplacian): [`Plan::rho`].
-    pub fn solve_rho(
-        &self,
-        params: &DeformParams,
-        modes: Option<&LowModes>,
-        coarse_rho: Option<f32>,
-    ) -> f32 {
-        if params.force == ForceModel::Elastic {
-            return self.rho(params);
-        }
-        match (coarse_rho, modes) {
-            (Some(rho), _) => rho,
-            (None, Some(m)) => m.rho(self, params),
-            (None, None) => self.rho(params),
+    /// (`coarse_rho`, measured by the device that built it). The elastic
+    /// force runs without it (it is made for the Laplacian): [`Plan::rho`].
+    pub fn solve_rho(&self, params: &DeformParams, coarse_rho: Option<f32>) -> f32 {
+        match coarse_rho {
+            Some(rho) if params.force != ForceModel::Elastic => rho,
+            _ => self.rho(params),
         }
     }
 }

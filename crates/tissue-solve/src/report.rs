@@ -48,8 +48,7 @@ pub struct SolveStep {
 /// A stage of preparing stage 2 for a model, told to the preparation's
 /// progress callback as it starts (`Tracker::new_observed`), in this order
 /// where it runs. The stages a device skips are not told: the elastic ones
-/// without the elastic force, the modes where a coarse space corrects
-/// instead, the upload on the CPU.
+/// without the elastic force, the upload on the CPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[non_exhaustive]
 pub enum PrepareStage {
@@ -64,8 +63,6 @@ pub enum PrepareStage {
     /// The two-level solve's coarse space: aggregates, their matrix
     /// factored or its levels built.
     CoarseSpace,
-    /// The Laplacian's lowest modes, deflated where no coarse space is.
-    DeflationModes,
     /// The elastic phase's aggregates and the volume smoother's
     /// contraction at rest.
     ElasticCoarse,
@@ -80,7 +77,6 @@ impl PrepareStage {
             Self::ElasticModel => "elastic_model",
             Self::Upload => "upload",
             Self::CoarseSpace => "coarse_space",
-            Self::DeflationModes => "deflation_modes",
             Self::ElasticCoarse => "elastic_coarse",
         }
     }
@@ -94,7 +90,6 @@ impl std::fmt::Display for PrepareStage {
             Self::ElasticModel => "the elastic model's consistent gradients",
             Self::Upload => "compiling the kernels, uploading the model",
             Self::CoarseSpace => "building the coarse space",
-            Self::DeflationModes => "computing the deflated modes",
             Self::ElasticCoarse => "the elastic coarse space and smoother",
         })
     }

@@ -176,7 +176,7 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// Changes the parameters of the next solves (the tolerance between
     /// frames, say); the state is kept. What the device prepared once (the
-    /// coarse space, the modes, the step) stays as it was prepared, so the
+    /// coarse space, the step) stays as it was prepared, so the
     /// force, (for the elastic force) the Poisson ratio, the observed
     /// vertices and the load cannot change.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
@@ -231,8 +231,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// The contraction the Chebyshev weights and the stopping rule use (of
     /// the last phase, for the elastic force).
     pub fn rho(&self) -> f32 {
-        self.plan
-            .solve_rho(&self.params, self.device.modes(), self.device.coarse_rho())
+        self.plan.solve_rho(&self.params, self.device.coarse_rho())
     }
 
     /// Places the control points on `deformed`, which must be the rest
@@ -529,9 +528,7 @@ impl<D: SolveDevice> Tracker<D> {
             // where the full one does by `lambda`.
             (ForceModel::Elastic, Some(rho)) if smoothed => 1.0 - run.damping * (1.0 - rho),
             (ForceModel::Elastic, Some(rho)) => rho,
-            _ => self
-                .plan
-                .solve_rho(p, self.device.modes(), self.device.coarse_rho()),
+            _ => self.plan.solve_rho(p, self.device.coarse_rho()),
         };
         let mut rule = if smoothed {
             StoppingRule::accelerated(&self.plan, p, rho)

@@ -113,12 +113,13 @@ pub fn check_breakdown(stages: &Value, method: &str, passes: &[&str], context: &
 
 /// The CPU passes of one iteration with the defaults (warm polar
 /// rotations, the two-level solve).
-pub const CPU_PASSES: [&str; 5] = [
-    "local_rotations_warm (warm polar)",
+pub const CPU_PASSES: [&str; 6] = [
+    "local_rotations_warm",
     "deformation_force",
-    "integrate + chebyshev_combine",
-    "coarse correction (two-level)",
-    "step norms",
+    "integrate",
+    "coarse correction (factored)",
+    "chebyshev",
+    "step_norms (update)",
 ];
 
 /// The GPU kernels of one iteration with the defaults (warm polar
@@ -132,18 +133,6 @@ pub const GPU_PASSES: [&str; 10] = [
     "coarse_forward",
     "coarse_backward",
     "coarse_apply",
-    "chebyshev",
-    "step_norms (update)",
-];
-
-/// The GPU kernels of one deflated iteration (`--coarse 0`), in dispatch order.
-pub const GPU_DEFLATED_PASSES: [&str; 8] = [
-    "local_rotations_warm",
-    "deformation_force",
-    "integrate",
-    "deflate_project",
-    "deflate_gains",
-    "deflate_apply",
     "chebyshev",
     "step_norms (update)",
 ];

@@ -34,9 +34,8 @@ pub use tissue_solve::coarse::SharedLaplacian;
 pub use tissue_solve::controls::check_same_topology;
 pub use tissue_solve::elastic::Elastic;
 use tissue_solve::elastic::ElasticTerms;
-pub use tissue_solve::modes::{LowModes, deflation_modes, low_modes};
 pub use tissue_solve::params::{
-    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_DEFLATION, MAX_HISTORY, RotationMethod,
+    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod,
 };
 pub use tissue_solve::passes::Pass;
 use tissue_solve::passes::{Choices, Holds};
@@ -47,7 +46,6 @@ pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
 use tissue_solve::tracker::Tracker;
 pub use tissue_solve::tracker::{Iteration, SolveDevice};
 
-pub use crate::kernels::deflate::deflate;
 pub use crate::kernels::deformation_force::deformation_force;
 pub use crate::kernels::elastic_targets::{elastic_force, elastic_terms};
 pub use crate::kernels::integrate::{chebyshev_combine, integrate};
@@ -74,7 +72,7 @@ pub struct Deformer {
 impl Deformer {
     /// Prepares stage 2 for `model`: checks it, estimates the extreme
     /// eigenvalues of the connection-graph Laplacian over free particles,
-    /// and builds the coarse space (or, without one, the deflated modes).
+    /// and builds the coarse space.
     pub fn new(model: &ParticleModel, params: DeformParams) -> Result<Self, Error> {
         Self::new_observed(model, params, &mut |_| {})
     }
@@ -164,11 +162,6 @@ impl Deformer {
         self.tracker.plan().lambda_max
     }
 
-    /// The lowest Laplacian modes deflated every iteration, if any.
-    pub fn modes(&self) -> Option<&LowModes> {
-        self.tracker.device().modes.as_deref()
-    }
-
     /// The coarse space of the two-level solve, if any.
     pub fn coarse(&self) -> Option<&CoarseSpace> {
         self.tracker.device().coarse.as_deref()
@@ -180,9 +173,9 @@ impl Deformer {
     }
 
     /// Changes the parameters of the next solves (the tolerance between
-    /// frames, say); the current state is kept. The coarse space and the
-    /// deflated modes are prepared once, by [`Deformer::new`], for its
-    /// `coarse`, `coarse_max_aggregates`, `deflation` and `step_fraction`:
+    /// frames, say); the current state is kept. The coarse space is
+    /// prepared once, by [`Deformer::new`], for its `coarse`,
+    /// `coarse_max_aggregates` and `step_fraction`:
     /// build a new deformer to change those.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
         self.tracker.set_params(params)
@@ -226,7 +219,7 @@ impl Deformer {
 }
 
 /// The CPU's stage-2 state and kernels: the positions, the rotations, and
-/// the correction (the coarse space of the two-level solve, or deflation).
+/// the correction (the coarse space of the two-level solve).
 #[derive(Debug, Clone)]
 pub struct CpuSolve {
     rest: Vec<Vec3>,
@@ -237,9 +230,6 @@ pub struct CpuSolve {
     current: Vec<Vec3>,
     previous: Vec<Vec3>,
     rotations: Vec<Mat3>,
-    /// The lowest Laplacian modes removed exactly every iteration (not
-    /// with a coarse space).
-    modes: Option<Arc<LowModes>>,
     /// The coarse space of the two-level solve.
     coarse: Option<Arc<CoarseSpace>>,
     /// The elastic model's rest data, with the elastic force.
@@ -272,8 +262,7 @@ struct BatchStart {
 }
 
 impl CpuSolve {
-    /// The state of `model` at rest, with its coarse space or, without one,
-    /// its deflated modes.
+    /// The state of `model` at rest, with its coarse space.
     pub fn new(model: &ParticleModel, plan: &Plan, params: &DeformParams) -> Self {
         Self::new_observed(model, plan, params, &mut |_| {})
     }
@@ -306,14 +295,6 @@ impl CpuSolve {
             params,
             shared.map(|shared| (shared, plan.laplacian_key)),
         );
-        let modes = if coarse.is_some() {
-            None
-        } else {
-            if params.deflation != 0 {
-                observe(PrepareStage::DeflationModes);
-            }
-            deflation_modes(model, plan, params).map(Arc::new)
-        };
         if plan.elastic.is_some() {
             observe(PrepareStage::ElasticCoarse);
         }
@@ -334,7 +315,6 @@ impl CpuSolve {
             current: model.positions.clone(),
             previous: model.positions.clone(),
             rotations: vec![Mat3::IDENTITY; model.len()],
-            modes,
             coarse,
             elastic: plan.elastic.clone(),
             elastic_aggregates,
@@ -419,7 +399,6 @@ impl CpuSolve {
             .map(|c| (c.multilevel().is_some(), c.smoother().is_some()));
         Holds {
             elastic: self.elastic.is_some(),
-            modes: self.modes.is_some(),
             coarse: self.coarse.as_deref().map(|c| c.multilevel().is_some()),
             elastic_correction,
         }
@@ -535,11 +514,6 @@ impl CpuSolve {
                     ),
                 };
             }
-            Pass::Deflate => {
-                if let Some(modes) = self.modes.as_deref() {
-                    deflate(modes, &self.current, &mut work.plain, it.contraction);
-                }
-            }
             Pass::CoarseCorrection { .. } => {
                 if let Some(coarse) = self.coarse.as_deref() {
                     coarse.correct(
@@ -631,10 +605,6 @@ impl SolveDevice for CpuSolve {
     /// nothing is ever replayed.
     fn batch(&self) -> usize {
         1
-    }
-
-    fn modes(&self) -> Option<&LowModes> {
-        self.modes.as_deref()
     }
 
     fn coarse_rho(&self) -> Option<f32> {

@@ -10,7 +10,6 @@
 pub mod block_multilevel;
 pub mod coarse;
 pub mod coarse_elastic;
-pub mod deflate;
 pub mod deformation_force;
 pub mod elastic_targets;
 pub mod embedding_moved;
@@ -34,7 +33,6 @@ pub const TWINS: &[&str] = &[
     block_multilevel::SHADER,
     coarse::SHADER,
     coarse_elastic::SHADER,
-    deflate::SHADER,
     deformation_force::SHADER,
     elastic_targets::SHADER,
     embedding_moved::SHADER,
