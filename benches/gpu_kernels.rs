@@ -50,10 +50,8 @@ fn gpu_kernels(c: &mut Criterion) {
     let part_way = |params: DeformParams| {
         let mut deformer =
             GpuDeformer::new(&device, &queue, &sampled.model, params).expect("the GPU deformer");
-        deformer
-            .set_surface(&device, &queue, &sagged)
-            .expect("the sagged surface");
-        deformer.solve(&device, &queue).expect("24 iterations");
+        deformer.set_surface(&sagged).expect("the sagged surface");
+        deformer.solve().expect("24 iterations");
         deformer
     };
     let symmetric = part_way(params.clone());

@@ -460,7 +460,7 @@ impl Solver {
             SolverDevice::Cpu(cpu) => cpu.set_surface(deformed),
             SolverDevice::Gpu(gpu) => gpu
                 .deformer
-                .set_surface(&gpu.device, &gpu.queue, deformed)
+                .set_surface(deformed)
                 .map_err(|e| gpu_error(format!("uploading a surface to {}", gpu.name), e)),
         }
     }
@@ -475,7 +475,7 @@ impl Solver {
             SolverDevice::Cpu(cpu) => cpu.warm_start(positions),
             SolverDevice::Gpu(gpu) => gpu
                 .deformer
-                .warm_start(&gpu.device, &gpu.queue, positions)
+                .warm_start(positions)
                 .map_err(|e| gpu_error(format!("uploading a start to {}", gpu.name), e)),
         }
     }
@@ -513,7 +513,7 @@ impl Solver {
             SolverDevice::Gpu(gpu) => {
                 let report = gpu
                     .deformer
-                    .solve_observed(&gpu.device, &gpu.queue, progress)
+                    .solve_observed(progress)
                     .map_err(|e| gpu_error(format!("stage 2 on {}", gpu.name), e))?;
                 Ok(report)
             }
@@ -526,7 +526,7 @@ impl Solver {
             SolverDevice::Cpu(cpu) => cpu.reset(),
             SolverDevice::Gpu(gpu) => {
                 gpu.deformer
-                    .reset(&gpu.device, &gpu.queue)
+                    .reset()
                     .map_err(|e| gpu_error(format!("resetting stage 2 on {}", gpu.name), e))?;
             }
         }
@@ -588,7 +588,7 @@ impl Solver {
             SolverDevice::Cpu(cpu) => Ok(cpu.rotations().to_vec()),
             SolverDevice::Gpu(gpu) => gpu
                 .deformer
-                .read_rotations(&gpu.device, &gpu.queue)
+                .read_rotations()
                 .map_err(|e| gpu_error(format!("reading rotations from {}", gpu.name), e)),
         }
     }

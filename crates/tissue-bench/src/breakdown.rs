@@ -97,7 +97,7 @@ pub fn cpu(
         damping: 1.0,
     };
     let mut solve = deformer.device().clone();
-    let Ok(()) = solve.begin((), it);
+    let Ok(()) = solve.begin(it);
 
     // Each pass of the iteration, in order, with its seconds per sample.
     let mut passes: Vec<(Pass, Vec<f64>)> = solve

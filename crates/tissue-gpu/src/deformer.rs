@@ -48,6 +48,10 @@ pub struct GpuDeformer {
 /// [`SolveDevice`] asks of a device.
 #[derive(Debug)]
 pub struct GpuSolve {
+    /// The device and queue the solve runs on (handles: clones of the
+    /// caller's).
+    device: wgpu::Device,
+    queue: wgpu::Queue,
     pipelines: Pipelines,
     state: DeformState,
     /// The two-level iteration's contraction, with the coarse space.
@@ -176,6 +180,16 @@ impl GpuDeformer {
         )
     }
 
+    /// The device the solve runs on.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.tracker.device().device
+    }
+
+    /// The queue the solve submits to.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.tracker.device().queue
+    }
+
     /// The kernels.
     pub fn pipelines(&self) -> &Pipelines {
         &self.tracker.device().pipelines
@@ -231,23 +245,13 @@ impl GpuDeformer {
     /// Places the control points on `deformed`, the rest surface with moved
     /// vertices, predicts the free particles as the CPU path does (unless
     /// `extrapolate` is off) and uploads them (a frame boundary).
-    pub fn set_surface(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        deformed: &SurfaceMesh,
-    ) -> Result<(), GpuError> {
-        self.tracker.set_surface((device, queue), deformed)
+    pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), GpuError> {
+        self.tracker.set_surface(deformed)
     }
 
     /// The next solve starts from `positions` (`Tracker::warm_start`).
-    pub fn warm_start(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        positions: &[Vec3],
-    ) -> Result<(), GpuError> {
-        self.tracker.warm_start((device, queue), positions)
+    pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), GpuError> {
+        self.tracker.warm_start(positions)
     }
 
     /// Rest particle positions.
@@ -262,12 +266,9 @@ impl GpuDeformer {
     }
 
     /// Reads the current positions back (a frame boundary).
-    pub fn positions(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-    ) -> Result<Vec<Vec3>, GpuError> {
-        self.state().read_positions(device, queue)
+    pub fn positions(&self) -> Result<Vec<Vec3>, GpuError> {
+        let gpu = self.tracker.device();
+        gpu.state.read_positions(&gpu.device, &gpu.queue)
     }
 
     /// Reads back each particle's rotation (rest offsets onto current
@@ -275,39 +276,31 @@ impl GpuDeformer {
     /// `tissue_cpu::deformation::Deformer::rotations` has them: what
     /// `Embedding::moved` and `RigidBinding::motion` need. Stalls until the
     /// GPU is done: frame boundaries only.
-    pub fn read_rotations(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-    ) -> Result<Vec<Mat3>, GpuError> {
-        self.state().read_rotations(device, queue)
+    pub fn read_rotations(&self) -> Result<Vec<Mat3>, GpuError> {
+        let gpu = self.tracker.device();
+        gpu.state.read_rotations(&gpu.device, &gpu.queue)
     }
 
     /// Back to the rest shape.
-    pub fn reset(&mut self, device: &wgpu::Device, queue: &wgpu::Queue) -> Result<(), GpuError> {
-        self.tracker.reset((device, queue))
+    pub fn reset(&mut self) -> Result<(), GpuError> {
+        self.tracker.reset()
     }
 
     /// Iterates until the stopping rule of `Deformer::solve` holds or the cap
     /// is reached (see the type's doc for what differs).
-    pub fn solve(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-    ) -> Result<DeformReport, GpuError> {
-        self.solve_observed(device, queue, &mut |_| {})
+    pub fn solve(&mut self) -> Result<DeformReport, GpuError> {
+        self.solve_observed(&mut |_| {})
     }
 
     /// [`Deformer::solve`], telling `observe` where it is after every
     /// iteration (as the CPU's twin does, at the same iterations).
     pub fn solve_observed(
         &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         observe: &mut dyn FnMut(&tissue_solve::SolveStep),
     ) -> Result<DeformReport, GpuError> {
-        let scope = Scopes::push(device);
-        let report = self.tracker.solve_observed((device, queue), observe);
+        let device = self.tracker.device().device.clone();
+        let scope = Scopes::push(&device);
+        let report = self.tracker.solve_observed(observe);
         scope.pop()?;
         report
     }
@@ -400,6 +393,8 @@ impl GpuSolve {
             })
         };
         Ok(GpuSolve {
+            device: device.clone(),
+            queue: queue.clone(),
             backup_current: backup("backup current", 16),
             backup_previous: backup("backup previous", 16),
             backup_rotations: backup(
@@ -420,15 +415,12 @@ impl GpuSolve {
     /// Makes the elastic phase's correction at the current positions (read
     /// back) on the host, as the CPU path makes its own, and uploads it; a
     /// failure leaves the phase uncorrected, with a warning.
-    fn linearise(
-        &mut self,
-        (device, queue): (&wgpu::Device, &wgpu::Queue),
-        iteration: Iteration,
-    ) -> Result<(), GpuError> {
+    fn linearise(&mut self, iteration: Iteration) -> Result<(), GpuError> {
         if self.elastic_host.is_none() {
             return Ok(());
         }
-        let current = self.read_positions((device, queue))?;
+        let device = self.device.clone();
+        let current = self.read_positions()?;
         let Some(host) = &self.elastic_host else {
             return Ok(());
         };
@@ -450,7 +442,7 @@ impl GpuSolve {
         match &self.elastic_coarse {
             Some(coarse) => self
                 .state
-                .linearise_elastic(device, &self.pipelines, coarse)?,
+                .linearise_elastic(&device, &self.pipelines, coarse)?,
             None => self.state.forget_elastic_linearisation(),
         }
         Ok(())
@@ -459,7 +451,6 @@ impl GpuSolve {
 
 impl SolveDevice for GpuSolve {
     type Error = GpuError;
-    type Context<'a> = (&'a wgpu::Device, &'a wgpu::Queue);
 
     /// One uniform slot and one row of step partials per iteration.
     fn batch(&self) -> usize {
@@ -491,12 +482,9 @@ impl SolveDevice for GpuSolve {
                 .is_some_and(|c| c.smoother().is_some())
     }
 
-    fn write_positions(
-        &mut self,
-        (device, queue): Self::Context<'_>,
-        positions: &[Vec3],
-        turn: Option<Mat3>,
-    ) -> Result<(), GpuError> {
+    fn write_positions(&mut self, positions: &[Vec3], turn: Option<Mat3>) -> Result<(), GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         self.state.write_current(queue, positions)?;
         if let Some(turn) = turn {
             // The warm-started rotations turn with the surface too, on the
@@ -512,13 +500,11 @@ impl SolveDevice for GpuSolve {
         Ok(())
     }
 
-    fn begin(
-        &mut self,
-        (device, queue): Self::Context<'_>,
-        iteration: Iteration,
-    ) -> Result<(), GpuError> {
+    fn begin(&mut self, iteration: Iteration) -> Result<(), GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         if ElasticCoarse::is_needed_anew(self.elastic_coarse.as_ref(), &iteration) {
-            self.linearise((device, queue), iteration)?;
+            self.linearise(iteration)?;
         }
         self.iteration = Some(iteration);
         self.state.set_phase(iteration.force, iteration.correct);
@@ -532,11 +518,9 @@ impl SolveDevice for GpuSolve {
         Ok(())
     }
 
-    fn run(
-        &mut self,
-        (device, queue): Self::Context<'_>,
-        omegas: &[f32],
-    ) -> Result<Vec<(f32, f32)>, GpuError> {
+    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         let Some(it) = self.iteration else {
             return Ok(Vec::new());
         };
@@ -578,7 +562,9 @@ impl SolveDevice for GpuSolve {
             .collect())
     }
 
-    fn replay(&mut self, (device, queue): Self::Context<'_>, count: usize) -> Result<(), GpuError> {
+    fn replay(&mut self, count: usize) -> Result<(), GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         let state = &self.state;
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("solve replay"),
@@ -603,14 +589,15 @@ impl SolveDevice for GpuSolve {
         crate::wait(device)
     }
 
-    fn read_positions(
-        &mut self,
-        (device, queue): Self::Context<'_>,
-    ) -> Result<Vec<Vec3>, GpuError> {
+    fn read_positions(&mut self) -> Result<Vec<Vec3>, GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         self.state.read_positions(device, queue)
     }
 
-    fn reset(&mut self, (device, queue): Self::Context<'_>) -> Result<(), GpuError> {
+    fn reset(&mut self) -> Result<(), GpuError> {
+        let (device, queue) = (self.device.clone(), self.queue.clone());
+        let (device, queue) = (&device, &queue);
         // The rotations start from the identity again, as the CPU path's.
         self.state
             .write_rotations(queue, &vec![Mat3::IDENTITY; self.state.len()])?;
@@ -701,8 +688,8 @@ mod tests {
         let (model, frame) = model_and_frame();
         let mut deformer = GpuDeformer::new(&device, &queue, &model, DeformParams::default())?;
         deformer.tracker.device_mut().state.readback.least = least_staging;
-        deformer.set_surface(&device, &queue, &frame)?;
-        deformer.solve(&device, &queue)
+        deformer.set_surface(&frame)?;
+        deformer.solve()
     }
 
     #[test]

@@ -37,16 +37,12 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
     });
     let mut gpu =
         GpuDeformer::new(&device, &queue, model, params).unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(&device, &queue, &tissue_core::deform::sagged_breast())
+    gpu.set_surface(&tissue_core::deform::sagged_breast())
         .unwrap_or_else(|e| panic!("{e}"));
-    let start = gpu
-        .positions(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+    let start = gpu.positions().unwrap_or_else(|e| panic!("{e}"));
+    let report = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(report.iterations, 1);
-    let got = gpu
-        .read_rotations(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let got = gpu.read_rotations().unwrap_or_else(|e| panic!("{e}"));
     let expected = local_rotations(&model.positions, &start, &model.connections);
     // As in parity.rs: an f32 SVD of a well-conditioned M agrees to ~1e-6.
     let tolerance = 1e-4;
@@ -75,9 +71,7 @@ fn read_rotations_after_a_solve_matches_the_cpu_deformer() {
         gpu_report.iterations, cpu_report.iterations,
         "the same stopping rule, so the rotations come from the same iteration"
     );
-    let got = gpu
-        .read_rotations(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let got = gpu.read_rotations().unwrap_or_else(|e| panic!("{e}"));
     // The positions agree to 1e-5 of the size (solve.rs); over a neighbour
     // spacing of ~1/20 of the size that turns a rotation by ~2e-4.
     let tolerance = 1e-3;

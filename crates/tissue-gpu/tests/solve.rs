@@ -33,7 +33,7 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             "{force:?}: the GPU solve did not converge: {gpu_report:?}"
         );
         let context = format!("{force:?}");
-        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
+        let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, &context);
         eprintln!("{force:?}: worst distance {worst:e} of the size");
     }
 }
@@ -93,7 +93,7 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             gpu_report.iterations,
             plain.iterations
         );
-        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &format!("{force:?}"));
+        common::assert_same_positions(&gpu, &cpu, 1e-5, &format!("{force:?}"));
     }
 }
 
@@ -121,10 +121,9 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
             tissue_core::deform::interpolate(&model.surface, &sagged, 0.5 + 0.05 * k as f32)
                 .unwrap_or_else(|e| panic!("{e}"));
         cpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
-        gpu.set_surface(&device, &queue, &frame)
-            .unwrap_or_else(|e| panic!("{e}"));
+        gpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
         let on_cpu = cpu.solve();
-        let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+        let on_gpu = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
         assert!(on_gpu.converged, "frame {k}: {on_gpu:?}");
         // Rounding may tip the stopping rule one iteration either way.
         assert!(
@@ -178,7 +177,7 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
         cpu_report.iterations, gpu_report.iterations,
         "the same iteration and stopping rule on both"
     );
-    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "Elastic");
+    let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "Elastic");
     let tolerance = 1e-5 * cpu.size();
     // The volume term matters: the symmetric solve lands elsewhere.
     let mut symmetric = tissue_cpu::deformation::Deformer::new(
@@ -236,7 +235,7 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
         let solved = common::solve_on_both(&device, &queue, model, params, &poked);
         assert_eq!(solved.1.elastic_retries, retries, "{:?}", solved.1);
         let context = format!("poke, coarse {coarse}");
-        common::assert_same_retried_solve(&device, &queue, &solved, 1 + retries, &context);
+        common::assert_same_retried_solve(&solved, 1 + retries, &context);
     }
 }
 
@@ -276,7 +275,7 @@ fn the_gpu_runs_a_failed_smoothed_elastic_phase_again_as_the_cpu_does() {
             assert!(report.iterations < 100, "{depth} mm: {report:?}");
         }
         let context = format!("poked {depth} mm");
-        common::assert_same_retried_solve(&device, &queue, &solved, 1, &context);
+        common::assert_same_retried_solve(&solved, 1, &context);
     }
 }
 
@@ -331,7 +330,7 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
         gpu_report.iterations,
         uncorrected.iterations
     );
-    common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "corrected elastic");
+    common::assert_same_positions(&gpu, &cpu, 1e-5, "corrected elastic");
 }
 
 /// A coarse space of more aggregates than the GPU's one-workgroup
@@ -370,7 +369,7 @@ fn a_coarse_space_too_large_for_one_factor_is_cycled_on_both_devices() {
         "{cpu_report:?} {gpu_report:?}"
     );
     assert_eq!(gpu_report.iterations, cpu_report.iterations);
-    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled, 10k");
+    let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "cycled, 10k");
     eprintln!(
         "10k, cells of 1 spacing: {} aggregates in {groups:?} groups, {} iterations on both, \
          positions within {worst:e} of the size",
@@ -412,7 +411,7 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
         "{cpu_report:?} {gpu_report:?}"
     );
     assert_eq!(gpu_report.iterations, cpu_report.iterations);
-    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled");
+    let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "cycled");
     eprintln!(
         "2k, cycled: {} aggregates in {} groups, {} iterations on both, positions within \
          {worst:e} of the size",
@@ -490,7 +489,7 @@ fn a_cycled_elastic_coarse_matrix_runs_on_the_gpu_as_on_the_cpu() {
         cpu_report.iterations,
         gpu_report.iterations
     );
-    let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled elastic");
+    let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "cycled elastic");
     eprintln!(
         "2k elastic, cycled: {} aggregates in {} groups, CPU {} iterations, GPU {}, positions \
          within {worst:e} of the size",
@@ -541,8 +540,7 @@ fn an_elastic_coarse_matrix_too_large_for_one_factor_is_cycled_on_both_devices()
         cpu_report.iterations,
         gpu_report.iterations
     );
-    let worst =
-        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "cycled elastic, 10k");
+    let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "cycled elastic, 10k");
     eprintln!(
         "10k elastic, cells of 1 spacing: {} aggregates in {} groups, CPU {} iterations, GPU \
          {}, positions within {worst:e} of the size",
@@ -599,8 +597,7 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
             cpu_report.iterations,
             gpu_report.iterations
         );
-        let worst =
-            common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &format!("{force:?}"));
+        let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, &format!("{force:?}"));
         eprintln!("{force:?}: positions within {worst:.2e} of the size");
         // The load moved the free particles: the unloaded solve is elsewhere.
         let (unloaded, _, _, _) = common::solve_sag_on_both(
@@ -648,7 +645,7 @@ fn the_default_solve_takes_the_cpus_iterations_at_10k_and_100k() {
         );
         let (c, g) = (cpu_report.iterations, gpu_report.iterations);
         assert!(10 * c.abs_diff(g) <= c, "{n}: from rest CPU {c}, GPU {g}");
-        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "from rest");
+        let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, "from rest");
         // Frames from the sag back towards rest, each moving the skin by 2 %
         // of the size.
         let largest = model
@@ -667,10 +664,9 @@ fn the_default_solve_takes_the_cpus_iterations_at_10k_and_100k() {
             let frame = tissue_core::deform::interpolate(&model.surface, &sagged, t)
                 .unwrap_or_else(|e| panic!("{e}"));
             cpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
-            gpu.set_surface(&device, &queue, &frame)
-                .unwrap_or_else(|e| panic!("{e}"));
+            gpu.set_surface(&frame).unwrap_or_else(|e| panic!("{e}"));
             let on_cpu = cpu.solve();
-            let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+            let on_gpu = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
             assert!(on_cpu.converged && on_gpu.converged, "{n}, frame {k}");
             assert!(
                 on_cpu.iterations <= 10 && on_gpu.iterations <= 10,
@@ -680,7 +676,7 @@ fn the_default_solve_takes_the_cpus_iterations_at_10k_and_100k() {
             );
             frames.push((on_cpu.iterations, on_gpu.iterations));
         }
-        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, "tracked");
+        common::assert_same_positions(&gpu, &cpu, 1e-5, "tracked");
         eprintln!(
             "{n}: from rest CPU {c}, GPU {g} iterations, positions within {worst:e} of the size; \
              frames of 2 % of the size (CPU, GPU): {frames:?}"
@@ -716,6 +712,6 @@ fn elastic_cycles_of_one_group_match_the_cpu() {
             gpu_report.iterations,
             cpu_report.iterations
         );
-        common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-4, &context);
+        common::assert_same_positions(&gpu, &cpu, 1e-4, &context);
     }
 }

@@ -34,12 +34,8 @@ fn embedded_points_move_as_the_cpu_twin_moves_them() {
     let moved = on_gpu
         .moved(&device, &queue, &kernel, gpu.state())
         .unwrap_or_else(|e| panic!("{e}"));
-    let current = gpu
-        .positions(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let rotations = gpu
-        .read_rotations(&device, &queue)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let current = gpu.positions().unwrap_or_else(|e| panic!("{e}"));
+    let rotations = gpu.read_rotations().unwrap_or_else(|e| panic!("{e}"));
     let expected = embedding.moved(&model.positions, &current, &rotations);
     assert_eq!(moved.len(), expected.len());
     // f32 sums of 8 terms of ~100 mm, summed in another order: a few ulps
@@ -83,9 +79,9 @@ fn a_rigid_motion_carries_embedded_points_rigidly_on_the_gpu() {
     );
     let mut gpu = GpuDeformer::new(&device, &queue, model, DeformParams::default())
         .unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(&device, &queue, &deform_surface(&model.surface, &rigid))
+    gpu.set_surface(&deform_surface(&model.surface, &rigid))
         .unwrap_or_else(|e| panic!("{e}"));
-    let report = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+    let report = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
     assert!(report.converged, "{report:?}");
     let kernel = EmbeddingKernel::new(&device).unwrap_or_else(|e| panic!("{e}"));
     let tumour = phantom::default_tumour().vertices;

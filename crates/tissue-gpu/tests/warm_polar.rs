@@ -238,10 +238,8 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
             gpu_report.iterations
         );
         let context = format!("{force:?}, coarse {coarse}, warm");
-        let worst = common::assert_same_positions(&device, &queue, &gpu, &cpu, 1e-5, &context);
-        let rotations = gpu
-            .read_rotations(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
+        let worst = common::assert_same_positions(&gpu, &cpu, 1e-5, &context);
+        let rotations = gpu.read_rotations().unwrap_or_else(|e| panic!("{e}"));
         let worst_rotation = rotations
             .iter()
             .zip(cpu.rotations())
@@ -298,13 +296,10 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
     for (k, frame) in frames.iter().enumerate() {
         let before = cpu.rotations().to_vec();
         cpu.set_surface(frame).unwrap_or_else(|e| panic!("{e}"));
-        gpu.set_surface(&device, &queue, frame)
-            .unwrap_or_else(|e| panic!("{e}"));
+        gpu.set_surface(frame).unwrap_or_else(|e| panic!("{e}"));
         // The rotations the next solve starts from: turned alike.
         let (mut off, mut turned) = (0.0f32, 0.0f32);
-        let on_gpu = gpu
-            .read_rotations(&device, &queue)
-            .unwrap_or_else(|e| panic!("{e}"));
+        let on_gpu = gpu.read_rotations().unwrap_or_else(|e| panic!("{e}"));
         for ((g, c), b) in on_gpu.iter().zip(cpu.rotations()).zip(&before) {
             off = off.max(entry_difference(*g, *c));
             turned = turned.max(entry_difference(*c, *b));
@@ -312,7 +307,7 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
         assert!(off <= 1e-4, "frame {k}: start rotations differ by {off:e}");
         turned_by.push(turned);
         let on_cpu = cpu.solve();
-        let on_gpu = gpu.solve(&device, &queue).unwrap_or_else(|e| panic!("{e}"));
+        let on_gpu = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
         assert!(on_gpu.converged, "frame {k}: {on_gpu:?}");
         assert!(
             on_cpu.iterations.abs_diff(on_gpu.iterations) <= 1,
@@ -362,6 +357,6 @@ fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
     ] {
         let solved = common::solve_on_both(&device, &queue, model, params.clone(), &surface);
         let context = format!("warm elastic {name}");
-        common::assert_same_retried_solve(&device, &queue, &solved, 1, &context);
+        common::assert_same_retried_solve(&solved, 1, &context);
     }
 }

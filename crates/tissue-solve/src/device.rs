@@ -42,9 +42,6 @@ pub struct Iteration {
 pub trait SolveDevice {
     /// The device's error (`std::convert::Infallible` where nothing can fail).
     type Error;
-    /// What every call needs besides the device's own state (the GPU's
-    /// `wgpu::Device` and `Queue`; nothing on the CPU).
-    type Context<'a>: Copy;
 
     /// The most iterations one [`SolveDevice::run`] may be asked for.
     fn batch(&self) -> usize;
@@ -87,33 +84,28 @@ pub trait SolveDevice {
     /// rotations turn with it.
     fn write_positions(
         &mut self,
-        cx: Self::Context<'_>,
         positions: &[Vec3],
         turn: Option<Mat3>,
     ) -> Result<(), Self::Error>;
 
     /// Starts a solve from the current positions (`previous = current`)
     /// whose iterations run with `iteration`.
-    fn begin(&mut self, cx: Self::Context<'_>, iteration: Iteration) -> Result<(), Self::Error>;
+    fn begin(&mut self, iteration: Iteration) -> Result<(), Self::Error>;
 
     /// Runs one iteration per Chebyshev weight in `omegas` (at most
     /// [`SolveDevice::batch`]) and returns, per iteration, the largest and
     /// the RMS step the stopping rule measures. Keeps what
     /// [`SolveDevice::replay`] needs.
-    fn run(
-        &mut self,
-        cx: Self::Context<'_>,
-        omegas: &[f32],
-    ) -> Result<Vec<(f32, f32)>, Self::Error>;
+    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Self::Error>;
 
     /// Puts the state back where the last [`SolveDevice::run`] started and
     /// runs its first `count` iterations again, with the same weights: the
     /// stopping rule held inside the batch.
-    fn replay(&mut self, cx: Self::Context<'_>, count: usize) -> Result<(), Self::Error>;
+    fn replay(&mut self, count: usize) -> Result<(), Self::Error>;
 
     /// The current positions.
-    fn read_positions(&mut self, cx: Self::Context<'_>) -> Result<Vec<Vec3>, Self::Error>;
+    fn read_positions(&mut self) -> Result<Vec<Vec3>, Self::Error>;
 
     /// Back to the rest shape, rotations included.
-    fn reset(&mut self, cx: Self::Context<'_>) -> Result<(), Self::Error>;
+    fn reset(&mut self) -> Result<(), Self::Error>;
 }

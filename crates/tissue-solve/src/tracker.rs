@@ -240,7 +240,6 @@ impl<D: SolveDevice> Tracker<D> {
     /// `extrapolate` is off).
     pub fn set_surface<E: From<Error> + From<D::Error>>(
         &mut self,
-        cx: D::Context<'_>,
         deformed: &SurfaceMesh,
     ) -> Result<(), E> {
         check_same_topology(&self.surface, deformed).map_err(Error::from)?;
@@ -267,7 +266,7 @@ impl<D: SolveDevice> Tracker<D> {
         for (i, q) in controls {
             self.current[i] = q;
         }
-        Ok(self.device.write_positions(cx, &self.current, turn)?)
+        Ok(self.device.write_positions(&self.current, turn)?)
     }
 
     /// Starts the next solve from `positions` (one per particle; the
@@ -278,7 +277,6 @@ impl<D: SolveDevice> Tracker<D> {
     /// known roughly: the next of a search over nearby loads or shapes.
     pub fn warm_start<E: From<Error> + From<D::Error>>(
         &mut self,
-        cx: D::Context<'_>,
         positions: &[Vec3],
     ) -> Result<(), E> {
         ParamError::check(
@@ -293,7 +291,7 @@ impl<D: SolveDevice> Tracker<D> {
                 self.current[i] = q;
             }
         }
-        self.device.write_positions(cx, &self.current, None)?;
+        self.device.write_positions(&self.current, None)?;
         self.elastic_warm = self.params.force == ForceModel::Elastic;
         self.elastic_correct = true;
         Ok(())
@@ -316,8 +314,8 @@ impl<D: SolveDevice> Tracker<D> {
     /// force alone (the shear phase would lead away from the last solution),
     /// and solves again with both phases from the frame's start if that
     /// diverges. The report counts every iteration run.
-    pub fn solve(&mut self, cx: D::Context<'_>) -> Result<DeformReport, D::Error> {
-        self.solve_observed(cx, &mut |_| {})
+    pub fn solve(&mut self) -> Result<DeformReport, D::Error> {
+        self.solve_observed(&mut |_| {})
     }
 
     /// [`Tracker::solve`], telling `observe` where it is after every
@@ -325,7 +323,6 @@ impl<D: SolveDevice> Tracker<D> {
     /// counted, and the error estimate the report's history records).
     pub fn solve_observed(
         &mut self,
-        cx: D::Context<'_>,
         observe: &mut dyn FnMut(&SolveStep),
     ) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
@@ -337,7 +334,6 @@ impl<D: SolveDevice> Tracker<D> {
         };
         let mut report = if params.force != ForceModel::Elastic {
             self.phase(
-                cx,
                 &params,
                 params.max_iterations,
                 PhaseRun::corrected(false),
@@ -346,7 +342,6 @@ impl<D: SolveDevice> Tracker<D> {
         } else if self.elastic_warm {
             let correct = self.elastic_correct;
             let warm = self.phase(
-                cx,
                 &params,
                 params.max_iterations,
                 PhaseRun {
@@ -366,9 +361,9 @@ impl<D: SolveDevice> Tracker<D> {
                     },
                     warm.iterations
                 );
-                self.device.reset(cx)?;
-                self.device.write_positions(cx, &self.current, None)?;
-                let mut again = self.shear_then_elastic(cx, &params, &mut steps)?;
+                self.device.reset()?;
+                self.device.write_positions(&self.current, None)?;
+                let mut again = self.shear_then_elastic(&params, &mut steps)?;
                 again.iterations += warm.iterations;
                 again.residual_history.splice(0..0, warm.residual_history);
                 again
@@ -376,7 +371,7 @@ impl<D: SolveDevice> Tracker<D> {
                 warm
             }
         } else {
-            self.shear_then_elastic(cx, &params, &mut steps)?
+            self.shear_then_elastic(&params, &mut steps)?
         };
         report.seconds = started.elapsed().as_secs_f64();
         log::debug!(
@@ -384,7 +379,7 @@ impl<D: SolveDevice> Tracker<D> {
             report.iterations,
             report.seconds
         );
-        self.current = self.device.read_positions(cx)?;
+        self.current = self.device.read_positions()?;
         self.history
             .record(&self.current, report.converged, self.params.history);
         self.elastic_warm = params.force == ForceModel::Elastic && report.converged;
@@ -405,7 +400,6 @@ impl<D: SolveDevice> Tracker<D> {
     /// times in all.
     fn shear_then_elastic(
         &mut self,
-        cx: D::Context<'_>,
         params: &DeformParams,
         steps: &mut Steps<'_>,
     ) -> Result<DeformReport, D::Error> {
@@ -414,7 +408,6 @@ impl<D: SolveDevice> Tracker<D> {
             ..params.shear()
         };
         let first = self.phase(
-            cx,
             &shear,
             params.max_iterations,
             PhaseRun {
@@ -426,14 +419,14 @@ impl<D: SolveDevice> Tracker<D> {
         if first.stopped_by.failed() {
             return Ok(first);
         }
-        let after_shear = self.device.read_positions(cx)?;
+        let after_shear = self.device.read_positions()?;
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let mut elastic = params.clone();
         let mut run = PhaseRun::corrected(true);
         let (mut retries, mut damped, mut relinearised) = (0, 0, false);
         loop {
             let left = params.max_iterations.saturating_sub(used).max(1);
-            let mut second = self.phase(cx, &elastic, left, run, steps)?;
+            let mut second = self.phase(&elastic, left, run, steps)?;
             let corrected = run.correct && self.device.elastic_rho().is_some();
             let smoothed = corrected && self.device.elastic_smoothed();
             used += second.iterations;
@@ -494,8 +487,8 @@ impl<D: SolveDevice> Tracker<D> {
                     elastic.step_fraction / params.step_fraction
                 );
             }
-            self.device.reset(cx)?;
-            self.device.write_positions(cx, &after_shear, None)?;
+            self.device.reset()?;
+            self.device.write_positions(&after_shear, None)?;
         }
     }
 
@@ -504,7 +497,6 @@ impl<D: SolveDevice> Tracker<D> {
     /// as in [`Iteration`]; every iteration told to `steps`.
     fn phase(
         &mut self,
-        cx: D::Context<'_>,
         p: &DeformParams,
         cap: usize,
         run: PhaseRun,
@@ -520,7 +512,7 @@ impl<D: SolveDevice> Tracker<D> {
             relinearise: run.relinearise,
             damping: run.damping,
         };
-        self.device.begin(cx, iteration)?;
+        self.device.begin(iteration)?;
         let begun = started.elapsed().as_secs_f64();
         let smoothed = p.force == ForceModel::Elastic && self.device.elastic_smoothed();
         let rho = match (p.force, self.device.elastic_rho()) {
@@ -546,7 +538,6 @@ impl<D: SolveDevice> Tracker<D> {
             // After a pause, Chebyshev goes on where it was.
             let mut batches = SolveBatches {
                 device: &mut self.device,
-                cx,
                 chebyshev: Chebyshev::with_rho(p, rho).advanced(iterations),
                 done: iterations,
             };
@@ -567,7 +558,7 @@ impl<D: SolveDevice> Tracker<D> {
                 break;
             }
             let error = rule.last_error().unwrap_or(f32::NAN);
-            let misfit = self.volume_misfit(cx)?;
+            let misfit = self.volume_misfit()?;
             let at = share * misfit;
             log::trace!(
                 "the shear phase after {iterations} iterations: error {error:.1e}, the volumes' \
@@ -595,18 +586,18 @@ impl<D: SolveDevice> Tracker<D> {
     /// The volumes' misfit at the device's state
     /// ([`crate::elastic::Elastic::volume_misfit`]); zero without the
     /// elastic model.
-    fn volume_misfit(&mut self, cx: D::Context<'_>) -> Result<f32, D::Error> {
+    fn volume_misfit(&mut self) -> Result<f32, D::Error> {
         let (Some(elastic), Some(connections)) = (self.plan.elastic.clone(), &self.connections)
         else {
             return Ok(0.0);
         };
-        let positions = self.device.read_positions(cx)?;
+        let positions = self.device.read_positions()?;
         Ok(elastic.volume_misfit(&self.rest, &positions, connections))
     }
 
     /// Back to the rest shape (no warm start, no history but the rest).
-    pub fn reset(&mut self, cx: D::Context<'_>) -> Result<(), D::Error> {
-        self.device.reset(cx)?;
+    pub fn reset(&mut self) -> Result<(), D::Error> {
+        self.device.reset()?;
         self.elastic_warm = false;
         self.current.clone_from(&self.rest);
         self.history = FrameHistory::at_rest(&self.rest, self.params.history);
@@ -659,15 +650,14 @@ impl Steps<'_> {
 
 /// A solve's batches on a device: the Chebyshev weights of each batch, which
 /// may run ahead of the stopping rule because a replay repeats them exactly.
-struct SolveBatches<'a, 'c, D: SolveDevice> {
+struct SolveBatches<'a, D: SolveDevice> {
     device: &'a mut D,
-    cx: D::Context<'c>,
     chebyshev: Chebyshev,
     /// Iterations of the phase run before these batches.
     done: usize,
 }
 
-impl<D: SolveDevice> Batches for SolveBatches<'_, '_, D> {
+impl<D: SolveDevice> Batches for SolveBatches<'_, D> {
     type Measure = (f32, f32);
     type Error = D::Error;
 
@@ -675,11 +665,11 @@ impl<D: SolveDevice> Batches for SolveBatches<'_, '_, D> {
         let omegas: Vec<f32> = (1..=count)
             .map(|k| self.chebyshev.omega(self.done + done + k))
             .collect();
-        self.device.run(self.cx, &omegas)
+        self.device.run(&omegas)
     }
 
     fn replay(&mut self, count: usize) -> Result<(), D::Error> {
-        self.device.replay(self.cx, count)
+        self.device.replay(count)
     }
 }
 
@@ -788,7 +778,6 @@ mod tests {
 
     impl SolveDevice for Halving {
         type Error = Infallible;
-        type Context<'a> = ();
 
         fn batch(&self) -> usize {
             self.batch
@@ -796,7 +785,6 @@ mod tests {
 
         fn write_positions(
             &mut self,
-            (): (),
             positions: &[Vec3],
             turn: Option<Mat3>,
         ) -> Result<(), Infallible> {
@@ -805,7 +793,7 @@ mod tests {
             Ok(())
         }
 
-        fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
+        fn begin(&mut self, iteration: Iteration) -> Result<(), Infallible> {
             self.step = 1.0;
             self.begun.push(iteration);
             self.omegas.push(Vec::new());
@@ -839,7 +827,7 @@ mod tests {
             self.elastic_correction.filter(|_| corrected)
         }
 
-        fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
+        fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
             assert!(omegas.len() <= self.batch);
             if let Some(phase) = self.omegas.last_mut() {
                 phase.extend_from_slice(omegas);
@@ -862,18 +850,18 @@ mod tests {
                 .collect())
         }
 
-        fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
+        fn replay(&mut self, count: usize) -> Result<(), Infallible> {
             self.step = self.batch_start * 0.5f32.powi(count as i32);
             self.replays.push(count);
             self.executed.truncate(self.batch_at + count);
             Ok(())
         }
 
-        fn read_positions(&mut self, (): ()) -> Result<Vec<Vec3>, Infallible> {
+        fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {
             Ok(self.positions.clone())
         }
 
-        fn reset(&mut self, (): ()) -> Result<(), Infallible> {
+        fn reset(&mut self) -> Result<(), Infallible> {
             self.step = 1.0;
             self.resets += 1;
             Ok(())
@@ -886,7 +874,7 @@ mod tests {
             Ok::<_, Error>(Halving::new(batch, &model))
         })
         .unwrap();
-        let Ok(report) = tracker.solve(());
+        let Ok(report) = tracker.solve();
         (report, tracker.device)
     }
 
@@ -935,7 +923,7 @@ mod tests {
                 Ok::<_, Error>(device)
             })
             .unwrap();
-            let Ok(report) = tracker.solve(());
+            let Ok(report) = tracker.solve();
             assert!(report.converged, "{report:?}");
             (report, tracker.device)
         };
@@ -967,7 +955,7 @@ mod tests {
             Ok::<_, Error>(Halving::new(1, &model))
         })
         .unwrap();
-        let Ok(report) = tracker.solve(());
+        let Ok(report) = tracker.solve();
         let plan = tracker.plan().clone();
         let [shear, elastic] = tracker.device.begun[..] else {
             panic!("{:?}", tracker.device.begun);
@@ -992,7 +980,7 @@ mod tests {
         assert_eq!(report.residual_history.len(), report.iterations);
         // The next frame starts from a converged elastic solve: the elastic
         // phase alone. After a reset, both again.
-        let Ok(next) = tracker.solve(());
+        let Ok(next) = tracker.solve();
         assert!(next.converged);
         assert_eq!(tracker.device.begun.len(), 3);
         let warm = tracker.device.begun[2];
@@ -1000,8 +988,8 @@ mod tests {
             (warm.force, warm.correct, warm.relinearise),
             (ForceModel::Elastic, true, false)
         );
-        let Ok(()) = tracker.reset(());
-        let Ok(_) = tracker.solve(());
+        let Ok(()) = tracker.reset();
+        let Ok(_) = tracker.solve();
         let forces: Vec<ForceModel> = tracker.device.begun[3..]
             .iter()
             .map(|it| it.force)
@@ -1011,7 +999,7 @@ mod tests {
         // the shear phase first; the report counts the lost iteration too.
         tracker.device.diverge_once = true;
         let resets = tracker.device.resets;
-        let Ok(again) = tracker.solve(());
+        let Ok(again) = tracker.solve();
         assert!(again.converged, "{again:?}");
         assert_eq!(tracker.device.resets, resets + 1);
         let forces: Vec<ForceModel> = tracker.device.begun[5..]
@@ -1111,7 +1099,7 @@ mod tests {
                 Ok::<_, Error>(device)
             })
             .unwrap();
-            let Ok(report) = tracker.solve(());
+            let Ok(report) = tracker.solve();
             assert!(report.converged, "{stalls}: {report:?}");
             assert_eq!(report.elastic_retries, stalls, "{report:?}");
             let elastic: Vec<(bool, bool, f32)> = tracker.device.begun[1..]
@@ -1161,7 +1149,7 @@ mod tests {
                 Ok::<_, Error>(device)
             })
             .unwrap();
-            let Ok(report) = tracker.solve(());
+            let Ok(report) = tracker.solve();
             assert!(report.converged, "{diverging}: {report:?}");
             assert_eq!(report.elastic_retries, diverging, "{report:?}");
             let elastic: Vec<(bool, f32)> = tracker.device.begun[1..]
@@ -1201,7 +1189,7 @@ mod tests {
                 Ok::<_, Error>(device)
             })
             .unwrap();
-            let Ok(report) = tracker.solve(());
+            let Ok(report) = tracker.solve();
             assert!(report.converged, "{report:?}");
             assert_eq!(report.elastic_retries, 2);
             let elastic: Vec<(bool, f32)> = tracker.device.begun[1..]
@@ -1223,7 +1211,7 @@ mod tests {
                 vec![(true, alpha), (true, halved), (true, quartered)]
             };
             assert_eq!(elastic, expected, "{correction:?}");
-            let Ok(next) = tracker.solve(());
+            let Ok(next) = tracker.solve();
             assert!(next.converged);
             let warm = tracker.device.begun[4];
             assert_eq!(warm.correct, correction.is_none(), "{correction:?}");
@@ -1245,7 +1233,7 @@ mod tests {
             .iter_mut()
             .for_each(|v| *v = turn * *v + shift);
         let Ok(()) = tracker
-            .set_surface::<Error>((), &moved)
+            .set_surface::<Error>(&moved)
             .map_err(|e| panic!("{e}"));
         let device = tracker.device();
         for (v, &want) in moved.vertices.iter().enumerate() {
@@ -1258,7 +1246,7 @@ mod tests {
 
         let mut other = model.surface.clone();
         other.vertices.pop();
-        let err = tracker.set_surface::<Error>((), &other).unwrap_err();
+        let err = tracker.set_surface::<Error>(&other).unwrap_err();
         assert!(err.to_string().contains("5 vertices"), "{err}");
     }
 }

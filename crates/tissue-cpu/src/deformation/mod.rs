@@ -183,18 +183,18 @@ impl Deformer {
 
     /// Back to the rest shape (no warm start).
     pub fn reset(&mut self) {
-        let Ok(()) = self.tracker.reset(());
+        let Ok(()) = self.tracker.reset();
     }
 
     /// Places the control points on `deformed`, which must be the rest surface
     /// with moved vertices (same vertex count, same triangles).
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
-        self.tracker.set_surface((), deformed)
+        self.tracker.set_surface(deformed)
     }
 
     /// The next solve starts from `positions` (`Tracker::warm_start`).
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
-        self.tracker.warm_start((), positions)
+        self.tracker.warm_start(positions)
     }
 
     /// Iterates until the stopping rule holds or the cap is reached.
@@ -213,7 +213,7 @@ impl Deformer {
         &mut self,
         observe: &mut dyn FnMut(&tissue_solve::SolveStep),
     ) -> DeformReport {
-        let Ok(report) = self.tracker.solve_observed((), observe);
+        let Ok(report) = self.tracker.solve_observed(observe);
         report
     }
 }
@@ -599,7 +599,6 @@ impl<'a> Laps<'a> {
 
 impl SolveDevice for CpuSolve {
     type Error = Infallible;
-    type Context<'a> = ();
 
     /// One iteration at a time: the stopping rule is checked after each, so
     /// nothing is ever replayed.
@@ -632,7 +631,6 @@ impl SolveDevice for CpuSolve {
 
     fn write_positions(
         &mut self,
-        (): (),
         positions: &[Vec3],
         turn: Option<Mat3>,
     ) -> Result<(), Infallible> {
@@ -644,14 +642,14 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
-    fn begin(&mut self, (): (), iteration: Iteration) -> Result<(), Infallible> {
+    fn begin(&mut self, iteration: Iteration) -> Result<(), Infallible> {
         self.previous.clone_from(&self.current);
         self.linearise(iteration);
         self.iteration = Some(iteration);
         Ok(())
     }
 
-    fn run(&mut self, (): (), omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
+    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
         let Some(it) = self.iteration else {
             return Ok(Vec::new());
         };
@@ -675,7 +673,7 @@ impl SolveDevice for CpuSolve {
         }))
     }
 
-    fn replay(&mut self, (): (), count: usize) -> Result<(), Infallible> {
+    fn replay(&mut self, count: usize) -> Result<(), Infallible> {
         let (Some(it), Some(start)) = (self.iteration, self.batch_start.take()) else {
             return Ok(());
         };
@@ -687,11 +685,11 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
-    fn read_positions(&mut self, (): ()) -> Result<Vec<Vec3>, Infallible> {
+    fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {
         Ok(self.current.clone())
     }
 
-    fn reset(&mut self, (): ()) -> Result<(), Infallible> {
+    fn reset(&mut self) -> Result<(), Infallible> {
         self.current.clone_from(&self.rest);
         self.rotations.fill(Mat3::IDENTITY);
         Ok(())

@@ -143,9 +143,8 @@ pub fn solve_on_both(
     let cpu_report = cpu.solve();
     let mut gpu = tissue_gpu::GpuDeformer::new(device, queue, model, params)
         .unwrap_or_else(|e| panic!("{e}"));
-    gpu.set_surface(device, queue, deformed)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let gpu_report = gpu.solve(device, queue).unwrap_or_else(|e| panic!("{e}"));
+    gpu.set_surface(deformed).unwrap_or_else(|e| panic!("{e}"));
+    let gpu_report = gpu.solve().unwrap_or_else(|e| panic!("{e}"));
     (cpu, cpu_report, gpu, gpu_report)
 }
 
@@ -154,8 +153,6 @@ pub fn solve_on_both(
 /// retries, in the same iterations within `within`, their positions
 /// within 1e-5 of the size of each other. `context` names the case.
 pub fn assert_same_retried_solve(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
     (cpu, cpu_report, gpu, gpu_report): &(
         tissue_cpu::deformation::Deformer,
         tissue_cpu::deformation::DeformReport,
@@ -185,23 +182,19 @@ pub fn assert_same_retried_solve(
         cpu_report.iterations,
         gpu_report.iterations
     );
-    assert_same_positions(device, queue, gpu, cpu, 1e-5, context);
+    assert_same_positions(gpu, cpu, 1e-5, context);
 }
 
 /// Asserts that every position `gpu` holds lies within `fraction` of the
 /// model's size of `cpu`'s; returns the worst distance, as a fraction of
 /// the size. `context` names the case in a failure.
 pub fn assert_same_positions(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
     gpu: &tissue_gpu::GpuDeformer,
     cpu: &tissue_cpu::deformation::Deformer,
     fraction: f32,
     context: &str,
 ) -> f32 {
-    let got = gpu
-        .positions(device, queue)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let got = gpu.positions().unwrap_or_else(|e| panic!("{e}"));
     let tolerance = fraction * cpu.size();
     let mut worst = 0.0f32;
     for (i, (g, c)) in got.iter().zip(cpu.positions()).enumerate() {
