@@ -52,7 +52,7 @@ fn main() -> Result<(), tissue::Error> {
             for chebyshev in [false, true] {
                 let params = DeformParams::default().with(|p| {
                     p.force = force;
-                    p.chebyshev = chebyshev;
+                    p.tuning.chebyshev = chebyshev;
                     p.max_iterations = 5_000;
                 });
                 let mut deformer = Deformer::new(&model, params)?;

@@ -25,11 +25,11 @@ fn main() -> Result<(), tissue::Error> {
     let coarse = args
         .next()
         .and_then(|t| t.parse().ok())
-        .unwrap_or(defaults.coarse);
+        .unwrap_or(defaults.tuning.coarse);
     let mut number = |default: usize| args.next().and_then(|t| t.parse().ok()).unwrap_or(default);
     let params = defaults.clone().with(|p| {
-        p.coarse = coarse;
-        p.history = number(defaults.history);
+        p.tuning.coarse = coarse;
+        p.tuning.history = number(defaults.tuning.history);
     });
     let only = args.next().unwrap_or_default();
     let breast = phantom::default_breast();
@@ -39,9 +39,9 @@ fn main() -> Result<(), tissue::Error> {
         "{} particles, size {:.1} mm, coarse cell {} ({} aggregates), history {}, tolerance {:e}",
         model.len(),
         deformer.size(),
-        params.coarse,
+        params.tuning.coarse,
         deformer.coarse().map_or(0, |c| c.count()),
-        params.history,
+        params.tuning.history,
         params.tolerance
     );
     println!();

@@ -39,12 +39,12 @@ pub mod deformation {
     pub use tissue_cpu::deformation::{Deformer, SharedLaplacian};
     pub use tissue_solve::{
         DeformParams, DeformReport, ForceModel, Inversions, PrepareStage, RotationMethod,
-        SolveStep, StopReason, check_same_topology, inversions,
+        SolveStep, SolverTuning, StopReason, check_same_topology, inversions,
     };
 }
 
 /// Under the facade, for tools and research code that need the parts:
-/// the device-neutral algorithm (plan, acceleration, prediction, modes,
+/// the device-neutral algorithm (plan, acceleration, prediction,
 /// the tracker), and each device's kernels and buffers. These change more
 /// freely than the rest of the API.
 pub mod advanced {

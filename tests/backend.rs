@@ -130,7 +130,7 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     .unwrap()
     .model;
     let defaults = DeformParams::default();
-    assert!(defaults.coarse > 0.0);
+    assert!(defaults.tuning.coarse > 0.0);
     let solve = |device: Device, params: &DeformParams| solve_sag(&model, device, params);
     let size = phantom_size();
     let tolerance = 3.0 * 3e-5 * size;
@@ -138,7 +138,7 @@ fn the_default_two_level_cpu_solve_agrees_with_the_gpu() {
     let plain = solve(
         Device::Cpu,
         &defaults.clone().with(|p| {
-            p.coarse = 0.0;
+            p.tuning.coarse = 0.0;
         }),
     );
     eprintln!(
@@ -229,7 +229,7 @@ fn progress_comes_in_order_on_both_devices() {
     }
     // Without a coarse space, nothing is prepared after the plan.
     let mut stages = Vec::new();
-    let no_coarse = DeformParams::default().with(|p| p.coarse = 0.0);
+    let no_coarse = DeformParams::default().with(|p| p.tuning.coarse = 0.0);
     Solver::new_with_progress(Device::Cpu, &model, no_coarse, &mut |stage| {
         stages.push(stage)
     })

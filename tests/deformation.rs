@@ -77,7 +77,7 @@ fn rigid_motion_moves_every_particle_and_point_rigidly() {
     );
     let deformed = deform_surface(&model.surface, &rigid);
     let solver_alone = DeformParams::default().with(|p| {
-        p.extrapolate = false;
+        p.tuning.extrapolate = false;
     });
     let unpredicted = solve(model, &deformed, solver_alone);
     let deformer = solve(model, &deformed, DeformParams::default());
@@ -182,7 +182,7 @@ fn svd_and_warm_polar_rotations_reach_the_same_solution() {
     let sagged = tissue::deform::sagged_breast();
     let solve_with = |rotations| {
         let params = DeformParams::default().with(|p| {
-            p.rotations = rotations;
+            p.tuning.rotations = rotations;
             p.tolerance = 1e-6;
         });
         solve(model, &sagged, params).positions().to_vec()
@@ -438,7 +438,7 @@ fn prediction_cuts_tracking_iterations() {
     let sagged = tissue::deform::sagged_breast();
     let run = |extrapolate| {
         let params = DeformParams::default().with(|p| {
-            p.extrapolate = extrapolate;
+            p.tuning.extrapolate = extrapolate;
         });
         let mut deformer = Deformer::new(model, params).unwrap();
         (0..8)
@@ -465,7 +465,7 @@ fn prediction_cuts_tracking_iterations() {
 /// prediction's worst distance from the answer over the change's largest.
 fn prediction_errors(history: usize, frames: &[SurfaceMesh]) -> Vec<f32> {
     let params = DeformParams::default().with(|p| {
-        p.history = history;
+        p.tuning.history = history;
         p.tolerance = 1e-6;
     });
     let mut deformer = Deformer::new(breast_model(), params).unwrap();
@@ -647,7 +647,7 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
         let mut plain = Deformer::new(
             model,
             DeformParams::default().with(|p| {
-                p.coarse = 0.0;
+                p.tuning.coarse = 0.0;
             }),
         )
         .unwrap();
@@ -831,10 +831,10 @@ fn the_cycled_coarse_solve_lands_where_the_factored_one_does() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     let factored = DeformParams::default().with(|p| {
-        p.extrapolate = false;
+        p.tuning.extrapolate = false;
     });
     let cycled = factored.clone().with(|p| {
-        p.coarse_direct_max_aggregates = 100;
+        p.tuning.coarse_direct_max_aggregates = 100;
     });
     let mut exact = Deformer::new(model, factored).unwrap();
     let mut approximate = Deformer::new(model, cycled).unwrap();

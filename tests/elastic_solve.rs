@@ -21,9 +21,9 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
     let corrected = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
     });
-    assert_eq!(corrected.elastic_coarse_max_aggregates, 200_000);
+    assert_eq!(corrected.tuning.elastic_coarse_max_aggregates, 200_000);
     let plain = corrected.clone().with(|p| {
-        p.elastic_coarse_max_aggregates = 0;
+        p.tuning.elastic_coarse_max_aggregates = 0;
     });
     let tight = plain.clone().with(|p| {
         p.tolerance = 1e-6;
@@ -105,7 +105,7 @@ fn the_volume_smoother_needs_small_aggregates() {
     );
     // Few aggregates: cells grown past 2 spacings.
     let coarse = params.clone().with(|p| {
-        p.elastic_coarse_max_aggregates = 40;
+        p.tuning.elastic_coarse_max_aggregates = 40;
     });
     let mut plain = Deformer::new(&model, coarse).unwrap();
     assert!(plain.device().volume_smoother().is_none());
@@ -116,7 +116,7 @@ fn the_volume_smoother_needs_small_aggregates() {
     let off = Deformer::new(
         &model,
         params.clone().with(|p| {
-            p.volume_smoother = false;
+            p.tuning.volume_smoother = false;
         }),
     )
     .unwrap();
@@ -139,7 +139,7 @@ fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
         p.force = ForceModel::Elastic;
     });
     let cycled = factored.clone().with(|p| {
-        p.elastic_coarse_direct_max_aggregates = 40;
+        p.tuning.elastic_coarse_direct_max_aggregates = 40;
     });
     let sagged = tissue::deform::sagged_breast();
     let mut a = Deformer::new(&model, factored.clone()).unwrap();
@@ -175,7 +175,7 @@ fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
 }
 
 /// The shear phase that starts an elastic solve stops where its error is
-/// below a quarter of the volumes' misfit (`DeformParams::shear_volume_share`):
+/// below a quarter of the volumes' misfit (`SolverTuning::shear_volume_share`):
 /// the pair term's answer it converges to is farther than that from the
 /// elastic one. Sagged from rest (no prediction) the solve takes fewer
 /// iterations than with the shear phase run to its tolerance, to the same
@@ -197,8 +197,8 @@ fn the_shear_phase_stops_once_its_error_is_below_the_volumes_misfit() {
         let solve = |share: f32| {
             let params = DeformParams::default().with(|p| {
                 p.force = ForceModel::Elastic;
-                p.extrapolate = false;
-                p.shear_volume_share = share;
+                p.tuning.extrapolate = false;
+                p.tuning.shear_volume_share = share;
             });
             let mut deformer = Deformer::new(&model, params).unwrap();
             deformer.set_surface(&surface).unwrap();
@@ -207,7 +207,7 @@ fn the_shear_phase_stops_once_its_error_is_below_the_volumes_misfit() {
             (report, deformer.positions().to_vec(), deformer.size())
         };
         let (whole, to_tolerance, size) = solve(0.0);
-        let (stopped, on_misfit, _) = solve(DeformParams::default().shear_volume_share);
+        let (stopped, on_misfit, _) = solve(DeformParams::default().tuning.shear_volume_share);
         eprintln!(
             "{case}: {} iterations with the shear phase to its tolerance, {} stopped on the misfit",
             whole.iterations, stopped.iterations

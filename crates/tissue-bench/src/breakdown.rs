@@ -89,7 +89,7 @@ pub fn cpu(
         .unwrap_or(1.0);
     let it = Iteration {
         force: params.force,
-        rotations: params.rotations,
+        rotations: params.tuning.rotations,
         alpha: plan.alpha(params),
         contraction: plan.contraction(params),
         correct: true,

@@ -57,9 +57,9 @@ struct Args {
     #[arg(long)]
     no_timestamps: bool,
     /// The two-level solve's cell in mean connection lengths
-    /// (`DeformParams::coarse`, the library's default; on both backends);
+    /// (`SolverTuning::coarse`, the library's default; on both backends);
     /// 0 measures the solver without it.
-    #[arg(long, default_value_t = DeformParams::default().coarse)]
+    #[arg(long, default_value_t = DeformParams::default().tuning.coarse)]
     coarse: f32,
     /// The stage-2 force model (`DeformParams::force`).
     #[arg(long, value_enum, default_value_t = ForceName::Symmetric)]
@@ -351,7 +351,7 @@ fn run(args: &Args) -> Result<()> {
             ForceName::Elastic => ForceModel::Elastic,
         };
         p.poisson = args.poisson;
-        p.coarse = args.coarse;
+        p.tuning.coarse = args.coarse;
     });
     params.validate()?;
     let (mesh, cases) = surfaces(args.mesh.as_ref(), args.probes)?;

@@ -189,7 +189,7 @@ pub fn measure(
         let fixed = defaults.clone().with(|p| {
             p.tolerance = f32::MIN_POSITIVE;
             p.max_iterations = repeats.iterations_per_solve;
-            p.extrapolate = false;
+            p.tuning.extrapolate = false;
         });
         let mut solver = solver_on(gpu, model, fixed.clone(), &mut |_| {})
             .context("stage 2, fixed iterations")?;
@@ -252,7 +252,7 @@ pub fn measure(
         gpu,
         model,
         defaults.clone().with(|p| {
-            p.extrapolate = false;
+            p.tuning.extrapolate = false;
         }),
         &mut |_| {},
     )
@@ -324,7 +324,7 @@ pub fn measure(
         );
     }
     // Both devices find the rotations as the parameters say.
-    let rotations = match defaults.rotations {
+    let rotations = match defaults.tuning.rotations {
         RotationMethod::Svd => "svd",
         RotationMethod::WarmPolar => "warm_polar",
     };

@@ -54,7 +54,7 @@ pub struct SolveArgs {
     /// constant over aggregates of particles (grid cells of this many mean
     /// connection lengths) exactly (docs/METHOD.md, "Two-level solve"), on
     /// both backends. 0 turns it off.
-    #[arg(long, default_value_t = DeformParams::default().coarse)]
+    #[arg(long, default_value_t = DeformParams::default().tuning.coarse)]
     pub coarse: f32,
     /// Only these vertices of the surface were observed: the observed patch
     /// of the rest surface as a surface file, or its vertices as points
@@ -85,7 +85,7 @@ impl SolveArgs {
             p.poisson = self.poisson;
             p.max_iterations = self.max_iterations;
             p.tolerance = self.tolerance;
-            p.coarse = self.coarse;
+            p.tuning.coarse = self.coarse;
         });
         params.validate()?;
         Ok(params)
@@ -472,7 +472,7 @@ mod tests {
             observed: None,
             gravity: GravityArgs::default(),
         };
-        let coarse = |given| args(given).params().map(|p| p.coarse);
+        let coarse = |given| args(given).params().map(|p| p.tuning.coarse);
         assert_eq!(coarse(2.0).ok(), Some(2.0));
         assert_eq!(coarse(0.0).ok(), Some(0.0));
         let refused = coarse(0.5).err().map(|e| e.to_string());

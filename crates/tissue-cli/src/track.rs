@@ -54,7 +54,7 @@ pub struct TrackArgs {
     pub solve: SolveArgs,
     /// Start each frame from the fit of its surface move by this many of the
     /// last frames' changes (0: by the affine part of the move alone).
-    #[arg(long, default_value_t = DeformParams::default().history)]
+    #[arg(long, default_value_t = DeformParams::default().tuning.history)]
     pub history: usize,
     #[command(flatten)]
     pub backend: BackendArgs,
@@ -367,7 +367,7 @@ fn totals(done: &[Value], planned: usize, status: Status, started: Instant) -> T
 pub fn track(args: &TrackArgs) -> Result<()> {
     let started = Instant::now();
     let mut params = (args.solve.params()?).with(|p| {
-        p.history = args.history;
+        p.tuning.history = args.history;
     });
     params.validate()?;
     if let Some(path) = &args.picture {

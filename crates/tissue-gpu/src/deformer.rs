@@ -113,9 +113,12 @@ impl GpuDeformer {
     /// GPU solves them.
     pub fn cpu_twin(params: &DeformParams) -> DeformParams {
         params.clone().with(|p| {
-            p.coarse_direct_max_aggregates =
-                params.coarse_direct_max_aggregates.min(GPU_COARSE_UNKNOWNS);
-            p.elastic_coarse_direct_max_aggregates = params
+            p.tuning.coarse_direct_max_aggregates = params
+                .tuning
+                .coarse_direct_max_aggregates
+                .min(GPU_COARSE_UNKNOWNS);
+            p.tuning.elastic_coarse_direct_max_aggregates = params
+                .tuning
                 .elastic_coarse_direct_max_aggregates
                 .min(GPU_COARSE_UNKNOWNS / 3);
         })
@@ -333,7 +336,7 @@ impl GpuSolve {
         // (`Iteration::correct`), as on the CPU path.
         // Factored up to what one workgroup substitutes, cycled above
         // (the groups are capped there too), as the CPU twin does.
-        if params.coarse != 0.0 {
+        if params.tuning.coarse != 0.0 {
             observe(PrepareStage::CoarseSpace);
         }
         let coarse = coarse_space_shared(
@@ -376,9 +379,9 @@ impl GpuSolve {
                         plan,
                         &twin,
                         Some(&aggregates),
-                        twin.elastic_coarse_direct_max_aggregates,
+                        twin.tuning.elastic_coarse_direct_max_aggregates,
                     ),
-                    direct_max: twin.elastic_coarse_direct_max_aggregates,
+                    direct_max: twin.tuning.elastic_coarse_direct_max_aggregates,
                     aggregates,
                 })
             }
@@ -629,19 +632,25 @@ mod tests {
     #[test]
     fn by_default_both_devices_factor_or_cycle_the_same_coarse_spaces() {
         let defaults = DeformParams::default();
-        assert_eq!(defaults.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
         assert_eq!(
-            defaults.elastic_coarse_direct_max_aggregates,
+            defaults.tuning.coarse_direct_max_aggregates,
+            GPU_COARSE_UNKNOWNS
+        );
+        assert_eq!(
+            defaults.tuning.elastic_coarse_direct_max_aggregates,
             GPU_COARSE_UNKNOWNS / 3
         );
         assert_eq!(GpuDeformer::cpu_twin(&defaults), defaults);
         let larger = defaults.clone().with(|p| {
-            p.coarse_direct_max_aggregates = 10_000;
-            p.elastic_coarse_direct_max_aggregates = 2_000;
+            p.tuning.coarse_direct_max_aggregates = 10_000;
+            p.tuning.elastic_coarse_direct_max_aggregates = 2_000;
         });
         let twin = GpuDeformer::cpu_twin(&larger);
-        assert_eq!(twin.coarse_direct_max_aggregates, GPU_COARSE_UNKNOWNS);
-        assert_eq!(twin.elastic_coarse_direct_max_aggregates, 1_365);
+        assert_eq!(
+            twin.tuning.coarse_direct_max_aggregates,
+            GPU_COARSE_UNKNOWNS
+        );
+        assert_eq!(twin.tuning.elastic_coarse_direct_max_aggregates, 1_365);
     }
 
     /// A device of wgpu's no-op backend: its buffers are host memory,

@@ -620,7 +620,7 @@ mod tests {
         };
         let model = crate::testing::phantom(3_000);
         let params = DeformParams::default().with(|p| {
-            p.coarse_direct_max_aggregates = 40;
+            p.tuning.coarse_direct_max_aggregates = 40;
         });
         let plan = Plan::for_params(&model, &params).unwrap();
         let space = coarse_space(&model, &plan, &params).unwrap();

@@ -23,16 +23,18 @@ fn both_devices_run_the_same_passes_for_every_combination() {
     let model = common::phantom(2_000);
     let corrections: [Setting; 7] = [
         ("two-level", |_| {}),
-        ("two-level cycled", |p| p.coarse_direct_max_aggregates = 1),
-        ("uncorrected", |p| p.coarse = 0.0),
+        ("two-level cycled", |p| {
+            p.tuning.coarse_direct_max_aggregates = 1
+        }),
+        ("uncorrected", |p| p.tuning.coarse = 0.0),
         ("elastic smoothed", |_| {}),
-        ("elastic plain step", |p| p.volume_smoother = false),
+        ("elastic plain step", |p| p.tuning.volume_smoother = false),
         ("elastic cycled", |p| {
-            p.elastic_coarse_direct_max_aggregates = 16
+            p.tuning.elastic_coarse_direct_max_aggregates = 16
         }),
         ("elastic plain step cycled", |p| {
-            p.volume_smoother = false;
-            p.elastic_coarse_direct_max_aggregates = 16;
+            p.tuning.volume_smoother = false;
+            p.tuning.elastic_coarse_direct_max_aggregates = 16;
         }),
     ];
     let mut seen = HashSet::new();
@@ -50,7 +52,7 @@ fn both_devices_run_the_same_passes_for_every_combination() {
                 }
                 let params = DeformParams::default().with(|p| {
                     p.force = force;
-                    p.rotations = rotations;
+                    p.tuning.rotations = rotations;
                     p.max_iterations = 200;
                     set(p);
                 });

@@ -32,7 +32,7 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
-        p.rotations = RotationMethod::Svd;
+        p.tuning.rotations = RotationMethod::Svd;
         p.max_iterations = 1;
     });
     let mut gpu =
@@ -63,7 +63,7 @@ fn read_rotations_after_a_solve_matches_the_cpu_deformer() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
-        p.rotations = RotationMethod::Svd;
+        p.tuning.rotations = RotationMethod::Svd;
     });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);

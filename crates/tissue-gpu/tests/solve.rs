@@ -15,7 +15,7 @@ fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
         let params = DeformParams::default().with(|p| {
             p.force = force;
-            p.rotations = RotationMethod::Svd;
+            p.tuning.rotations = RotationMethod::Svd;
         });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
@@ -53,9 +53,9 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
     for force in [ForceModel::Symmetric, ForceModel::Paper] {
         let params = DeformParams::default().with(|p| {
             p.force = force;
-            p.rotations = RotationMethod::Svd;
+            p.tuning.rotations = RotationMethod::Svd;
         });
-        assert_eq!(params.coarse, 2.0);
+        assert_eq!(params.tuning.coarse, 2.0);
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params.clone());
         let aggregates = cpu.coarse().map(|c| c.count());
@@ -69,7 +69,7 @@ fn a_two_level_gpu_solve_matches_the_cpu_solve() {
             &queue,
             model,
             params.clone().with(|p| {
-                p.coarse = 0.0;
+                p.tuning.coarse = 0.0;
             }),
         );
         eprintln!(
@@ -106,7 +106,7 @@ fn gpu_tracking_predicts_and_follows_frames_as_the_cpu_does() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
-        p.rotations = RotationMethod::Svd;
+        p.tuning.rotations = RotationMethod::Svd;
     });
     let sagged = tissue_core::deform::sagged_breast();
     let mut cpu =
@@ -155,8 +155,8 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
-        p.rotations = RotationMethod::Svd;
-        p.coarse = 0.0;
+        p.tuning.rotations = RotationMethod::Svd;
+        p.tuning.coarse = 0.0;
     });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
@@ -229,8 +229,8 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
-            p.rotations = RotationMethod::Svd;
-            p.coarse = coarse;
+            p.tuning.rotations = RotationMethod::Svd;
+            p.tuning.coarse = coarse;
         });
         let solved = common::solve_on_both(&device, &queue, model, params, &poked);
         assert_eq!(solved.1.elastic_retries, retries, "{:?}", solved.1);
@@ -293,7 +293,7 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
     });
-    assert!(params.coarse > 0.0 && params.elastic_coarse_max_aggregates > 0);
+    assert!(params.tuning.coarse > 0.0 && params.tuning.elastic_coarse_max_aggregates > 0);
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
     let (_, _, _, uncorrected) = common::solve_sag_on_both(
@@ -301,7 +301,7 @@ fn a_corrected_elastic_gpu_solve_matches_the_cpu_solve() {
         &queue,
         model,
         params.clone().with(|p| {
-            p.elastic_coarse_max_aggregates = 0;
+            p.tuning.elastic_coarse_max_aggregates = 0;
         }),
     );
     eprintln!(
@@ -346,7 +346,7 @@ fn a_coarse_space_too_large_for_one_factor_is_cycled_on_both_devices() {
     let model = common::phantom(10_000);
     // Cells of one spacing: nearly every free particle its own aggregate.
     let params = DeformParams::default().with(|p| {
-        p.coarse = 1.0;
+        p.tuning.coarse = 1.0;
     });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);
@@ -390,7 +390,7 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
-        p.coarse_direct_max_aggregates = 50;
+        p.tuning.coarse_direct_max_aggregates = 50;
     });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params.clone());
@@ -424,7 +424,7 @@ fn a_cycled_coarse_space_runs_on_the_gpu_as_on_the_cpu() {
     let mut plain = tissue_cpu::deformation::Deformer::new(
         model,
         params.clone().with(|p| {
-            p.coarse = 0.0;
+            p.tuning.coarse = 0.0;
         }),
     )
     .unwrap_or_else(|e| panic!("{e}"));
@@ -454,7 +454,7 @@ fn a_cycled_elastic_coarse_matrix_runs_on_the_gpu_as_on_the_cpu() {
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
-        p.elastic_coarse_direct_max_aggregates = 40;
+        p.tuning.elastic_coarse_direct_max_aggregates = 40;
     });
     let (cpu, cpu_report, gpu, gpu_report) =
         common::solve_sag_on_both(&device, &queue, model, params);
@@ -512,10 +512,10 @@ fn an_elastic_coarse_matrix_too_large_for_one_factor_is_cycled_on_both_devices()
     let model = common::phantom(10_000);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
-        p.coarse = 1.0;
+        p.tuning.coarse = 1.0;
     });
     assert_eq!(
-        params.elastic_coarse_direct_max_aggregates,
+        params.tuning.elastic_coarse_direct_max_aggregates,
         tissue_gpu::GPU_COARSE_UNKNOWNS / 3
     );
     let (cpu, cpu_report, gpu, gpu_report) =
@@ -697,8 +697,8 @@ fn elastic_cycles_of_one_group_match_the_cpu() {
     for smoother in [true, false] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
-            p.volume_smoother = smoother;
-            p.elastic_coarse_direct_max_aggregates = 1;
+            p.tuning.volume_smoother = smoother;
+            p.tuning.elastic_coarse_direct_max_aggregates = 1;
         });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);

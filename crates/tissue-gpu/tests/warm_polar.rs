@@ -209,7 +209,7 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
         return;
     };
     let model = common::phantom(2_000);
-    let two_level = DeformParams::default().coarse;
+    let two_level = DeformParams::default().tuning.coarse;
     assert!(two_level > 0.0);
     for (force, coarse) in [
         (ForceModel::Symmetric, two_level),
@@ -218,8 +218,8 @@ fn the_warm_gpu_solve_of_the_sag_matches_the_cpu_solve() {
     ] {
         let params = DeformParams::default().with(|p| {
             p.force = force;
-            p.coarse = coarse;
-            p.rotations = RotationMethod::WarmPolar;
+            p.tuning.coarse = coarse;
+            p.tuning.rotations = RotationMethod::WarmPolar;
         });
         let (cpu, cpu_report, gpu, gpu_report) =
             common::solve_sag_on_both(&device, &queue, model, params);
@@ -262,9 +262,12 @@ fn warm_gpu_tracking_follows_frames_as_the_cpu_does() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
-        p.rotations = RotationMethod::WarmPolar;
+        p.tuning.rotations = RotationMethod::WarmPolar;
     });
-    assert!(params.extrapolate, "the frames are predicted, and turned");
+    assert!(
+        params.tuning.extrapolate,
+        "the frames are predicted, and turned"
+    );
     let sagged = tissue_core::deform::sagged_breast();
     let mut cpu =
         tissue_cpu::deformation::Deformer::new(model, tissue_gpu::GpuDeformer::cpu_twin(&params))
@@ -345,8 +348,8 @@ fn warm_gpu_elastic_solves_and_retries_match_the_cpu() {
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
-        p.rotations = RotationMethod::WarmPolar;
-        p.coarse = 0.0;
+        p.tuning.rotations = RotationMethod::WarmPolar;
+        p.tuning.coarse = 0.0;
     });
     let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
         .unwrap_or_else(|| panic!("the phantom has vertices"));

@@ -20,8 +20,8 @@ impl Chebyshev {
     pub fn new(plan: &Plan, params: &DeformParams) -> Self {
         Self {
             rho: plan.rho(params),
-            enabled: params.chebyshev,
-            warm_up: params.warm_up,
+            enabled: params.tuning.chebyshev,
+            warm_up: params.tuning.warm_up,
             omega: 1.0,
         }
     }
@@ -30,8 +30,8 @@ impl Chebyshev {
     pub fn with_rho(params: &DeformParams, rho: f32) -> Self {
         Self {
             rho,
-            enabled: params.chebyshev,
-            warm_up: params.warm_up,
+            enabled: params.tuning.chebyshev,
+            warm_up: params.tuning.warm_up,
             omega: 1.0,
         }
     }
@@ -135,7 +135,7 @@ impl StoppingRule {
     /// measured contraction no longer holds.
     pub fn accelerated(plan: &Plan, params: &DeformParams, rho: f32) -> Self {
         Self {
-            bound: error_bound(rho, params.chebyshev),
+            bound: error_bound(rho, params.tuning.chebyshev),
             max_steps: Some(Vec::new()),
             ..Self::new(plan, params)
         }

@@ -61,7 +61,7 @@ pub trait SolveDevice {
     /// Whether the device's corrected elastic phases smooth with the
     /// volume smoother (known from its preparation): the shear phase
     /// before one then also stops on the volumes' misfit
-    /// ([`crate::params::DeformParams::shear_volume_share`]). The plain elastic step is
+    /// ([`crate::params::SolverTuning::shear_volume_share`]). The plain elastic step is
     /// set from the stiffness at rest and needs the shear phase's whole
     /// way: every neighbourhood near its rest volume (on the phantom poked
     /// 40 mm deep at 2,000 particles, the uncorrected phase

@@ -52,7 +52,7 @@ pub mod volume_smoother;
 pub use acceleration::{Chebyshev, StoppingRule};
 pub use controls::check_same_topology;
 pub use inversion::{Inversions, inversions};
-pub use params::{DeformParams, ForceModel, RotationMethod};
+pub use params::{DeformParams, ForceModel, RotationMethod, SolverTuning};
 pub use passes::{Choices, Correction, Holds, Pass};
 pub use plan::Plan;
 pub use predict::{FrameHistory, predict};

@@ -39,7 +39,7 @@ pub const JACOBI_WEIGHT: f64 = 2.0 / 3.0;
 
 /// The groups' cells, in the aggregates' cells: about `GROUP^3`
 /// aggregates a group. 2, since the groups are capped at 4,096
-/// (`DeformParams::coarse_direct_max_aggregates`, what the GPU substitutes
+/// (`SolverTuning::coarse_direct_max_aggregates`, what the GPU substitutes
 /// in one workgroup); where the cap bites it grows the groups to about 3
 /// anyway (docs/METHOD.md, "Multilevel").
 pub const GROUP: f32 = 2.0;

@@ -34,7 +34,10 @@ pub enum RotationMethod {
     WarmPolar,
 }
 
-/// Parameters of stage 2; `docs/METHOD.md` explains the defaults.
+/// Parameters of stage 2 a user sets: the force and its Poisson ratio, the
+/// tolerance and the iteration cap, the observed vertices and the load;
+/// how the solver reaches the answer is [`SolverTuning`] (`tuning`).
+/// `docs/METHOD.md` explains the defaults.
 ///
 /// The struct is `#[non_exhaustive]`, so that a parameter can be added
 /// without breaking callers: outside this crate, start from `default()`
@@ -45,16 +48,6 @@ pub enum RotationMethod {
 pub struct DeformParams {
     /// Force model.
     pub force: ForceModel,
-    /// How rotations are found.
-    pub rotations: RotationMethod,
-    /// Step as a fraction of the largest stable step (`2 / lambda_max` for the
-    /// paper's force, `1 / lambda_max` for the symmetric one).
-    pub step_fraction: f32,
-    /// Chebyshev semi-iterative acceleration (Wang 2015).
-    pub chebyshev: bool,
-    /// Plain iterations before Chebyshev starts. `rho` comes from the
-    /// Laplacian's spectrum, so none are needed; 0 measured best.
-    pub warm_up: usize,
     /// Stop when the error estimate `step / (1 - rho)` of every free particle is
     /// below this fraction of the model's size. The default sits a little
     /// above where the estimate bottoms out at single precision
@@ -66,6 +59,45 @@ pub struct DeformParams {
     /// 0 is the symmetric force, 0.5 incompressible. docs/METHOD.md,
     /// "Elastic model", gives the measurements behind the default.
     pub poisson: f32,
+    /// Which vertices of the surface were observed (the deformed surface
+    /// is known there), one flag per rest-surface vertex; `None`: every
+    /// one. A surface particle is a control point only where every vertex
+    /// of its triangle is observed; the others move with the solve, as
+    /// interior particles do (docs/METHOD.md, "Free surface and body
+    /// forces"). Not written out with the parameters (it is as long as the
+    /// surface).
+    #[serde(skip)]
+    pub observed: Option<Vec<bool>>,
+    /// A body force on every particle per unit of its stiffness weight
+    /// `a_i = tr(A_i) / 3` (the same weight the shear term carries), in
+    /// reciprocal model units: gravity `g` on tissue of density `rho` and
+    /// shear modulus `mu` is `rho g / (2 mu)` (docs/METHOD.md, "Free
+    /// surface and body forces"). Zero: none.
+    pub load: Vec3,
+    /// How the solver reaches the answer (written flat beside the others).
+    #[serde(flatten)]
+    pub tuning: SolverTuning,
+}
+
+/// How the stage-2 solver reaches the answer: the rotations' method, the
+/// step and its acceleration, the tracking prediction, the two-level
+/// solves and the volume smoother. The defaults are measured
+/// (`docs/METHOD.md`); a user changes them to compare, not to get a
+/// right answer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+#[non_exhaustive]
+pub struct SolverTuning {
+    /// How rotations are found.
+    pub rotations: RotationMethod,
+    /// Step as a fraction of the largest stable step (`2 / lambda_max` for the
+    /// paper's force, `1 / lambda_max` for the symmetric one).
+    pub step_fraction: f32,
+    /// Chebyshev semi-iterative acceleration (Wang 2015).
+    pub chebyshev: bool,
+    /// Plain iterations before Chebyshev starts. `rho` comes from the
+    /// Laplacian's spectrum, so none are needed; 0 measured best.
+    pub warm_up: usize,
     /// Tracking: start a new frame from the current state carried by the
     /// least-squares affine map of the surface's move, plus the combination
     /// of the last frames' non-affine changes that best matches the
@@ -97,7 +129,7 @@ pub struct DeformParams {
     /// docs/METHOD.md, "Two-level solve".
     pub coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve: where the CPU runs the
-    /// two-level solve ([`DeformParams::coarse`] on), the elastic operator,
+    /// two-level solve ([`SolverTuning::coarse`] on), the elastic operator,
     /// linearised where each elastic phase starts, is corrected over
     /// aggregates of the same cells, grown until there are at most this
     /// many (three unknowns each, made again every solve from rest). 0
@@ -129,34 +161,29 @@ pub struct DeformParams {
     /// at its tolerance ([`crate::tracker::SHEAR_TOLERANCE`]). Why 0.25:
     /// docs/METHOD.md, "Elastic model", *The shear phase's end*.
     pub shear_volume_share: f32,
-    /// Which vertices of the surface were observed (the deformed surface
-    /// is known there), one flag per rest-surface vertex; `None`: every
-    /// one. A surface particle is a control point only where every vertex
-    /// of its triangle is observed; the others move with the solve, as
-    /// interior particles do (docs/METHOD.md, "Free surface and body
-    /// forces"). Not written out with the parameters (it is as long as the
-    /// surface).
-    #[serde(skip)]
-    pub observed: Option<Vec<bool>>,
-    /// A body force on every particle per unit of its stiffness weight
-    /// `a_i = tr(A_i) / 3` (the same weight the shear term carries), in
-    /// reciprocal model units: gravity `g` on tissue of density `rho` and
-    /// shear modulus `mu` is `rho g / (2 mu)` (docs/METHOD.md, "Free
-    /// surface and body forces"). Zero: none.
-    pub load: Vec3,
 }
 
 impl Default for DeformParams {
     fn default() -> Self {
         Self {
             force: ForceModel::Symmetric,
-            rotations: RotationMethod::WarmPolar,
+            tolerance: 3e-5,
+            max_iterations: 5_000,
             poisson: 0.49,
+            observed: None,
+            load: Vec3::ZERO,
+            tuning: SolverTuning::default(),
+        }
+    }
+}
+
+impl Default for SolverTuning {
+    fn default() -> Self {
+        Self {
+            rotations: RotationMethod::WarmPolar,
             step_fraction: 0.9,
             chebyshev: true,
             warm_up: 0,
-            tolerance: 3e-5,
-            max_iterations: 5_000,
             extrapolate: true,
             history: 2,
             coarse: 2.0,
@@ -166,8 +193,6 @@ impl Default for DeformParams {
             elastic_coarse_direct_max_aggregates: 1_365,
             volume_smoother: true,
             shear_volume_share: 0.25,
-            observed: None,
-            load: Vec3::ZERO,
         }
     }
 }
@@ -197,9 +222,9 @@ impl DeformParams {
     /// Checks every parameter, naming the first that is out of range.
     pub fn validate(&self) -> Result<(), ParamError> {
         ParamError::check(
-            self.step_fraction > 0.0 && self.step_fraction < 1.0,
+            self.tuning.step_fraction > 0.0 && self.tuning.step_fraction < 1.0,
             "step_fraction",
-            self.step_fraction,
+            self.tuning.step_fraction,
             "in (0, 1)",
         )?;
         ParamError::check(
@@ -215,46 +240,46 @@ impl DeformParams {
             "a positive number",
         )?;
         ParamError::check(
-            self.history <= MAX_HISTORY,
+            self.tuning.history <= MAX_HISTORY,
             "history",
-            self.history,
+            self.tuning.history,
             format!("0 to {MAX_HISTORY} frames"),
         )?;
         ParamError::check(
-            self.coarse == 0.0 || (1.0..=1_000.0).contains(&self.coarse),
+            self.tuning.coarse == 0.0 || (1.0..=1_000.0).contains(&self.tuning.coarse),
             "coarse",
-            self.coarse,
+            self.tuning.coarse,
             "0 (off) or a cell of 1 to 1000 mean connection lengths",
         )?;
         ParamError::check(
-            (1..=MAX_COARSE_AGGREGATES).contains(&self.coarse_max_aggregates),
+            (1..=MAX_COARSE_AGGREGATES).contains(&self.tuning.coarse_max_aggregates),
             "coarse_max_aggregates",
-            self.coarse_max_aggregates,
+            self.tuning.coarse_max_aggregates,
             format!("1 to {MAX_COARSE_AGGREGATES}"),
         )?;
         ParamError::check(
-            (1..=MAX_COARSE_DIRECT_AGGREGATES).contains(&self.coarse_direct_max_aggregates),
+            (1..=MAX_COARSE_DIRECT_AGGREGATES).contains(&self.tuning.coarse_direct_max_aggregates),
             "coarse_direct_max_aggregates",
-            self.coarse_direct_max_aggregates,
+            self.tuning.coarse_direct_max_aggregates,
             format!("1 to {MAX_COARSE_DIRECT_AGGREGATES}"),
         )?;
         ParamError::check(
-            self.elastic_coarse_max_aggregates <= MAX_ELASTIC_COARSE_AGGREGATES,
+            self.tuning.elastic_coarse_max_aggregates <= MAX_ELASTIC_COARSE_AGGREGATES,
             "elastic_coarse_max_aggregates",
-            self.elastic_coarse_max_aggregates,
+            self.tuning.elastic_coarse_max_aggregates,
             format!("0 (off) to {MAX_ELASTIC_COARSE_AGGREGATES}"),
         )?;
         ParamError::check(
             (1..=MAX_ELASTIC_COARSE_DIRECT_AGGREGATES)
-                .contains(&self.elastic_coarse_direct_max_aggregates),
+                .contains(&self.tuning.elastic_coarse_direct_max_aggregates),
             "elastic_coarse_direct_max_aggregates",
-            self.elastic_coarse_direct_max_aggregates,
+            self.tuning.elastic_coarse_direct_max_aggregates,
             format!("1 to {MAX_ELASTIC_COARSE_DIRECT_AGGREGATES}"),
         )?;
         ParamError::check(
-            (0.0..=MAX_SHEAR_VOLUME_SHARE).contains(&self.shear_volume_share),
+            (0.0..=MAX_SHEAR_VOLUME_SHARE).contains(&self.tuning.shear_volume_share),
             "shear_volume_share",
-            self.shear_volume_share,
+            self.tuning.shear_volume_share,
             format!("0 (off) to {MAX_SHEAR_VOLUME_SHARE}"),
         )?;
         ParamError::check(self.load.is_finite(), "load", self.load, "a finite vector")?;
@@ -267,30 +292,30 @@ impl DeformParams {
     }
 }
 
-/// The largest [`DeformParams::shear_volume_share`]: at 2 the shear phase
+/// The largest [`SolverTuning::shear_volume_share`]: at 2 the shear phase
 /// of a 30-degree turn from rest stops before it has turned the interior
 /// (its estimate is 1.2-1.7 times the misfit there), and the elastic phase
 /// is slow to do that.
 pub const MAX_SHEAR_VOLUME_SHARE: f32 = 1.0;
 
-/// The most frames [`DeformParams::history`] may keep: each is a copy of
+/// The most frames [`SolverTuning::history`] may keep: each is a copy of
 /// the positions, and a fit with more columns than the surface's changes
 /// have independent shapes only adds noise.
 pub const MAX_HISTORY: usize = 16;
 
-/// The most aggregates [`DeformParams::coarse_max_aggregates`] may allow:
+/// The most aggregates [`SolverTuning::coarse_max_aggregates`] may allow:
 /// their matrix and the cycles' vectors take about 500 bytes each.
 pub const MAX_COARSE_AGGREGATES: usize = 1_000_000;
 
-/// The most aggregates [`DeformParams::coarse_direct_max_aggregates`] may
+/// The most aggregates [`SolverTuning::coarse_direct_max_aggregates`] may
 /// allow: the factor of 50,000 holds about 70 million numbers (0.5 GB).
 pub const MAX_COARSE_DIRECT_AGGREGATES: usize = 50_000;
 
-/// The most aggregates [`DeformParams::elastic_coarse_max_aggregates`] may
+/// The most aggregates [`SolverTuning::elastic_coarse_max_aggregates`] may
 /// allow: their block matrix and the cycles' vectors take about 2 kB each.
 pub const MAX_ELASTIC_COARSE_AGGREGATES: usize = 1_000_000;
 
-/// The most aggregates [`DeformParams::elastic_coarse_direct_max_aggregates`]
+/// The most aggregates [`SolverTuning::elastic_coarse_direct_max_aggregates`]
 /// may allow: the factor of 15,000 unknowns holds about 40 million
 /// numbers, and it is made again every solve from rest.
 pub const MAX_ELASTIC_COARSE_DIRECT_AGGREGATES: usize = 5_000;
@@ -309,18 +334,13 @@ mod tests {
 
     #[test]
     fn history_defaults_to_two_frames_and_is_bounded() {
-        assert_eq!(DeformParams::default().history, 2);
-        let err = refusal(&DeformParams {
-            history: MAX_HISTORY + 1,
-            ..DeformParams::default()
-        });
+        assert_eq!(DeformParams::default().tuning.history, 2);
+        let err = refusal(&DeformParams::default().with(|p| p.tuning.history = MAX_HISTORY + 1));
         assert!(err.contains("history is 17"), "{err}");
         // A typed error, as the sampling parameters have: the field it names.
-        let typed = DeformParams {
-            history: MAX_HISTORY + 1,
-            ..DeformParams::default()
-        }
-        .validate();
+        let typed = DeformParams::default()
+            .with(|p| p.tuning.history = MAX_HISTORY + 1)
+            .validate();
         assert!(
             matches!(&typed, Err(ParamError { name: "history", value, .. }) if value == "17"),
             "{typed:?}"
@@ -329,23 +349,18 @@ mod tests {
 
     #[test]
     fn the_shear_phase_stops_at_a_quarter_of_the_volumes_misfit_by_default_and_is_bounded() {
-        assert_eq!(DeformParams::default().shear_volume_share, 0.25);
+        assert_eq!(DeformParams::default().tuning.shear_volume_share, 0.25);
         for (share, says) in [
             (-0.1, "shear_volume_share is -0.1"),
             (1.5, "shear_volume_share is 1.5"),
             (f32::NAN, "shear_volume_share is NaN"),
         ] {
-            let err = refusal(&DeformParams {
-                shear_volume_share: share,
-                ..DeformParams::default()
-            });
+            let err =
+                refusal(&DeformParams::default().with(|p| p.tuning.shear_volume_share = share));
             assert!(err.contains(says), "{err}");
         }
         for share in [0.0, MAX_SHEAR_VOLUME_SHARE] {
-            let params = DeformParams {
-                shear_volume_share: share,
-                ..DeformParams::default()
-            };
+            let params = DeformParams::default().with(|p| p.tuning.shear_volume_share = share);
             assert!(params.validate().is_ok(), "{share}");
         }
     }
@@ -353,59 +368,53 @@ mod tests {
     #[test]
     fn the_two_level_solve_defaults_to_cells_of_two_spacings_and_is_bounded() {
         let defaults = DeformParams::default();
-        assert_eq!(defaults.coarse, 2.0);
-        assert_eq!(defaults.coarse_max_aggregates, 200_000);
-        assert_eq!(defaults.coarse_direct_max_aggregates, 4_096);
-        assert_eq!(defaults.elastic_coarse_max_aggregates, 200_000);
-        assert_eq!(defaults.elastic_coarse_direct_max_aggregates, 1_365);
+        assert_eq!(defaults.tuning.coarse, 2.0);
+        assert_eq!(defaults.tuning.coarse_max_aggregates, 200_000);
+        assert_eq!(defaults.tuning.coarse_direct_max_aggregates, 4_096);
+        assert_eq!(defaults.tuning.elastic_coarse_max_aggregates, 200_000);
+        assert_eq!(defaults.tuning.elastic_coarse_direct_max_aggregates, 1_365);
         for (coarse, says) in [
             (0.5, "coarse is 0.5"),
             (-1.0, "coarse is -1"),
             (f32::NAN, "coarse is NaN"),
             (f32::INFINITY, "coarse is inf"),
         ] {
-            let err = refusal(&DeformParams {
-                coarse,
-                ..DeformParams::default()
-            });
+            let err = refusal(&DeformParams::default().with(|p| p.tuning.coarse = coarse));
             assert!(err.contains(says), "{err}");
         }
-        let err = refusal(&DeformParams {
-            coarse_max_aggregates: MAX_COARSE_AGGREGATES + 1,
-            ..DeformParams::default()
-        });
+        let err = refusal(
+            &DeformParams::default()
+                .with(|p| p.tuning.coarse_max_aggregates = MAX_COARSE_AGGREGATES + 1),
+        );
         assert!(err.contains("coarse_max_aggregates is 1000001"), "{err}");
-        let err = refusal(&DeformParams {
-            coarse_direct_max_aggregates: MAX_COARSE_DIRECT_AGGREGATES + 1,
-            ..DeformParams::default()
-        });
+        let err =
+            refusal(&DeformParams::default().with(|p| {
+                p.tuning.coarse_direct_max_aggregates = MAX_COARSE_DIRECT_AGGREGATES + 1
+            }));
         assert!(
             err.contains("coarse_direct_max_aggregates is 50001"),
             "{err}"
         );
-        let err = refusal(&DeformParams {
-            elastic_coarse_max_aggregates: MAX_ELASTIC_COARSE_AGGREGATES + 1,
-            ..DeformParams::default()
-        });
+        let err =
+            refusal(&DeformParams::default().with(|p| {
+                p.tuning.elastic_coarse_max_aggregates = MAX_ELASTIC_COARSE_AGGREGATES + 1
+            }));
         assert!(
             err.contains("elastic_coarse_max_aggregates is 1000001"),
             "{err}"
         );
-        let err = refusal(&DeformParams {
-            elastic_coarse_direct_max_aggregates: 0,
-            ..DeformParams::default()
-        });
+        let err = refusal(
+            &DeformParams::default().with(|p| p.tuning.elastic_coarse_direct_max_aggregates = 0),
+        );
         assert!(
             err.contains("elastic_coarse_direct_max_aggregates is 0"),
             "{err}"
         );
         assert!(
-            DeformParams {
-                coarse: 0.0,
-                ..DeformParams::default()
-            }
-            .validate()
-            .is_ok()
+            DeformParams::default()
+                .with(|p| p.tuning.coarse = 0.0)
+                .validate()
+                .is_ok()
         );
     }
 }

@@ -271,7 +271,8 @@ impl Plan {
             ForceModel::Paper => 2.0,
             ForceModel::Symmetric | ForceModel::Elastic => 1.0,
         };
-        params.step_fraction * limit / self.lambda_max_for(params.force).max(f32::MIN_POSITIVE)
+        params.tuning.step_fraction * limit
+            / self.lambda_max_for(params.force).max(f32::MIN_POSITIVE)
     }
 
     /// `c alpha`: the plain step is `-c alpha L e` for the error `e` while the
@@ -290,7 +291,7 @@ impl Plan {
     /// Laplacian's, `lambda_max` is its operator's.
     pub fn rho(&self, params: &DeformParams) -> f32 {
         let lambda_max = self.lambda_max_for(params.force);
-        (1.0 - 2.0 * params.step_fraction * self.lambda_min / lambda_max).clamp(0.0, 0.9999)
+        (1.0 - 2.0 * params.tuning.step_fraction * self.lambda_min / lambda_max).clamp(0.0, 0.9999)
     }
 
     /// The contraction a solve's Chebyshev weights and stopping rule use:

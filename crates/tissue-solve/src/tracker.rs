@@ -26,7 +26,7 @@ pub use crate::device::{Iteration, SolveDevice};
 pub const SHEAR_TOLERANCE: f32 = 10.0;
 
 /// The shear phase measures the volumes' misfit
-/// ([`DeformParams::shear_volume_share`]) first where its estimate falls
+/// ([`crate::params::SolverTuning::shear_volume_share`]) first where its estimate falls
 /// below this many times its tolerance (so [`SHEAR_TOLERANCE`] times this
 /// many times the solve's), then each time it falls below its share of the
 /// last misfit measured.
@@ -85,7 +85,7 @@ pub struct Tracker<D> {
     /// (a warm frame runs as it did).
     elastic_correct: bool,
     /// The model's connections, with the elastic force: the shear phase
-    /// measures the volumes' misfit ([`DeformParams::shear_volume_share`]).
+    /// measures the volumes' misfit ([`crate::params::SolverTuning::shear_volume_share`]).
     connections: Option<Connections>,
 }
 
@@ -140,7 +140,7 @@ impl<D: SolveDevice> Tracker<D> {
         let connections = plan.elastic.is_some().then(|| model.connections.clone());
         Ok(Self {
             device,
-            history: FrameHistory::at_rest(&model.positions, params.history),
+            history: FrameHistory::at_rest(&model.positions, params.tuning.history),
             plan,
             params,
             surface: model.surface.clone(),
@@ -249,7 +249,7 @@ impl<D: SolveDevice> Tracker<D> {
             .map(|&(i, t, bary)| (i, deformed.point_on(t as usize, bary)))
             .collect();
         let mut turn = None;
-        if self.params.extrapolate {
+        if self.params.tuning.extrapolate {
             let (prediction, linear) = predict(
                 &self.current,
                 &self.history,
@@ -304,7 +304,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// not converge) has two phases: the symmetric force (with the device's
     /// correction) to [`SHEAR_TOLERANCE`] times the tolerance (or, before a
     /// phase the volume smoother smooths, until its error is below
-    /// [`DeformParams::shear_volume_share`] of the volumes' misfit), then
+    /// [`crate::params::SolverTuning::shear_volume_share`] of the volumes' misfit), then
     /// the elastic force from there. The volume term's stiffness grows with
     /// `cof(F)`; from rest, particles next to a moved surface are stretched
     /// many times over and no step set at rest is stable for them, while
@@ -381,7 +381,7 @@ impl<D: SolveDevice> Tracker<D> {
         );
         self.current = self.device.read_positions()?;
         self.history
-            .record(&self.current, report.converged, self.params.history);
+            .record(&self.current, report.converged, self.params.tuning.history);
         self.elastic_warm = params.force == ForceModel::Elastic && report.converged;
         Ok(report)
     }
@@ -479,12 +479,12 @@ impl<D: SolveDevice> Tracker<D> {
                     second.iterations
                 );
             } else {
-                elastic.step_fraction *= 0.5;
+                elastic.tuning.step_fraction *= 0.5;
                 log::warn!(
                     "the elastic phase {how} after {} iterations; solving it again from the \
                      end of the shear phase with a step {} times the first",
                     second.iterations,
-                    elastic.step_fraction / params.step_fraction
+                    elastic.tuning.step_fraction / params.tuning.step_fraction
                 );
             }
             self.device.reset()?;
@@ -505,7 +505,7 @@ impl<D: SolveDevice> Tracker<D> {
         let started = Instant::now();
         let iteration = Iteration {
             force: p.force,
-            rotations: p.rotations,
+            rotations: p.tuning.rotations,
             alpha: self.plan.alpha(p),
             contraction: self.plan.contraction(p),
             correct: run.correct,
@@ -530,7 +530,7 @@ impl<D: SolveDevice> Tracker<D> {
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
         // Where the shear phase next measures the volumes' misfit.
-        let share = p.shear_volume_share;
+        let share = p.tuning.shear_volume_share;
         let mut check = (run.volume_check && share > 0.0 && self.connections.is_some())
             .then_some(p.tolerance * SHEAR_CHECK);
         let mut iterations = 0;
@@ -600,7 +600,7 @@ impl<D: SolveDevice> Tracker<D> {
         self.device.reset()?;
         self.elastic_warm = false;
         self.current.clone_from(&self.rest);
-        self.history = FrameHistory::at_rest(&self.rest, self.params.history);
+        self.history = FrameHistory::at_rest(&self.rest, self.params.tuning.history);
         Ok(())
     }
 }
@@ -613,7 +613,7 @@ struct PhaseRun {
     relinearise: bool,
     damping: f32,
     /// The shear phase of an elastic solve: it also stops on the volumes'
-    /// misfit ([`DeformParams::shear_volume_share`]).
+    /// misfit ([`crate::params::SolverTuning::shear_volume_share`]).
     volume_check: bool,
 }
 
@@ -908,11 +908,10 @@ mod tests {
     fn a_shear_phase_paused_to_measure_the_volumes_goes_on_as_before() {
         let model = star();
         let run = |batch: usize, share: f32| {
-            let params = DeformParams {
-                force: ForceModel::Elastic,
-                shear_volume_share: share,
-                ..DeformParams::default()
-            };
+            let params = DeformParams::default().with(|p| {
+                p.force = ForceModel::Elastic;
+                p.tuning.shear_volume_share = share;
+            });
             let mut tracker = Tracker::new(&model, params, |_, _| {
                 let mut device = Halving::new(batch, &model);
                 device.elastic_correction = Some(0.9);
@@ -1163,7 +1162,7 @@ mod tests {
             // The damped phase's first weight (after the shear phase and
             // the diverged one; no warm-up): 2 / (2 - rho^2) for its
             // contraction, the mock's 0.5 damped.
-            assert_eq!(params.warm_up, 0);
+            assert_eq!(params.tuning.warm_up, 0);
             let rho = 1.0 - ELASTIC_DAMPING * (1.0 - 0.5);
             let damped = tracker.device.omegas[2][0];
             assert!((damped - 2.0 / (2.0 - rho * rho)).abs() < 1e-6, "{damped}");
@@ -1197,14 +1196,16 @@ mod tests {
                 .map(|it| (it.correct, it.alpha))
                 .collect();
             let alpha = tracker.plan().alpha(&params);
-            let halved = tracker.plan().alpha(&DeformParams {
-                step_fraction: 0.5 * params.step_fraction,
-                ..params.clone()
-            });
-            let quartered = tracker.plan().alpha(&DeformParams {
-                step_fraction: 0.25 * params.step_fraction,
-                ..params.clone()
-            });
+            let halved = tracker.plan().alpha(
+                &params
+                    .clone()
+                    .with(|p| p.tuning.step_fraction = 0.5 * params.tuning.step_fraction),
+            );
+            let quartered = tracker.plan().alpha(
+                &params
+                    .clone()
+                    .with(|p| p.tuning.step_fraction = 0.25 * params.tuning.step_fraction),
+            );
             let expected = if correction.is_some() {
                 vec![(true, alpha), (false, alpha), (false, halved)]
             } else {

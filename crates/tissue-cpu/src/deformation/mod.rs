@@ -35,7 +35,7 @@ pub use tissue_solve::controls::check_same_topology;
 pub use tissue_solve::elastic::Elastic;
 use tissue_solve::elastic::ElasticTerms;
 pub use tissue_solve::params::{
-    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod,
+    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
 };
 pub use tissue_solve::passes::Pass;
 use tissue_solve::passes::{Choices, Holds};
@@ -240,7 +240,7 @@ pub struct CpuSolve {
     /// elastic phase after a shear phase started.
     elastic_coarse: Option<Arc<ElasticCoarse>>,
     /// Up to how many aggregates the elastic coarse matrix is factored
-    /// (`DeformParams::elastic_coarse_direct_max_aggregates`).
+    /// (`SolverTuning::elastic_coarse_direct_max_aggregates`).
     elastic_direct_max: usize,
     /// The volume smoother's `delta` and its two-level iteration's
     /// contraction, estimated once at rest, where the elastic phase's
@@ -286,7 +286,7 @@ impl CpuSolve {
         shared: Option<&SharedLaplacian>,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Self {
-        if params.coarse != 0.0 {
+        if params.tuning.coarse != 0.0 {
             observe(PrepareStage::CoarseSpace);
         }
         let coarse = coarse_space_shared(
@@ -299,7 +299,7 @@ impl CpuSolve {
             observe(PrepareStage::ElasticCoarse);
         }
         let elastic_aggregates = elastic_aggregates(model, plan, params).map(Arc::new);
-        let direct_max = params.elastic_coarse_direct_max_aggregates;
+        let direct_max = params.tuning.elastic_coarse_direct_max_aggregates;
         let volume_smoother = volume_smoother(
             model,
             plan,

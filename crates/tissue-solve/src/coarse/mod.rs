@@ -273,17 +273,17 @@ pub fn coarse_space(
     plan: &Plan,
     params: &DeformParams,
 ) -> Option<CoarseSpace> {
-    if params.coarse == 0.0 {
+    if params.tuning.coarse == 0.0 {
         return None;
     }
     let space = CoarseSpace::new(
         &model.positions,
         &model.connections,
         &plan.free,
-        params.coarse * model.mean_connection_length(),
+        params.tuning.coarse * model.mean_connection_length(),
         (
-            params.coarse_max_aggregates,
-            params.coarse_direct_max_aggregates,
+            params.tuning.coarse_max_aggregates,
+            params.tuning.coarse_direct_max_aggregates,
         ),
         plan.contraction(&params.shear()),
     );

@@ -31,7 +31,7 @@ pub struct SharedLaplacian {
 /// particles.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CoarseFor {
-    /// The cell in mean connection lengths, [`DeformParams::coarse`].
+    /// The cell in mean connection lengths, [`crate::params::SolverTuning::coarse`].
     coarse: f32,
     max_aggregates: usize,
     direct_max: usize,
@@ -42,9 +42,9 @@ struct CoarseFor {
 impl CoarseFor {
     fn of(plan: &Plan, params: &DeformParams) -> Self {
         Self {
-            coarse: params.coarse,
-            max_aggregates: params.coarse_max_aggregates,
-            direct_max: params.coarse_direct_max_aggregates,
+            coarse: params.tuning.coarse,
+            max_aggregates: params.tuning.coarse_max_aggregates,
+            direct_max: params.tuning.coarse_direct_max_aggregates,
             contraction: plan.contraction(&params.shear()),
         }
     }
@@ -112,7 +112,7 @@ pub fn coarse_space_shared(
     params: &DeformParams,
     shared: Option<(&SharedLaplacian, u64)>,
 ) -> Option<Arc<CoarseSpace>> {
-    if params.coarse == 0.0 {
+    if params.tuning.coarse == 0.0 {
         return None;
     }
     let made_for = CoarseFor::of(plan, params);

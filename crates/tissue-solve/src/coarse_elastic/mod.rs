@@ -1151,7 +1151,11 @@ mod tests {
         use crate::volume_smoother::{RELAXATION, SHEAR_STEP, SWEEPS};
         assert_eq!((SHEAR_STEP, RELAXATION, SWEEPS), (2.0, 0.5, 2));
         assert_eq!(REST_RATE_STEPS, 40);
-        assert!(crate::params::DeformParams::default().volume_smoother);
+        assert!(
+            crate::params::DeformParams::default()
+                .tuning
+                .volume_smoother
+        );
     }
 
     /// Lanczos' estimate of the two-level iteration's radius against the

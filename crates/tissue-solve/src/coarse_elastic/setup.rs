@@ -86,7 +86,7 @@ pub fn volume_smoother(
     direct_max_aggregates: usize,
 ) -> Option<(f64, f32)> {
     let (aggregates, elastic) = (aggregates?, plan.elastic.as_deref()?);
-    if !params.volume_smoother {
+    if !params.tuning.volume_smoother {
         return None;
     }
     let free_skin = model
@@ -141,15 +141,18 @@ pub fn elastic_aggregates(
     plan: &Plan,
     params: &DeformParams,
 ) -> Option<Aggregates> {
-    if plan.elastic.is_none() || params.coarse == 0.0 || params.elastic_coarse_max_aggregates == 0 {
+    if plan.elastic.is_none()
+        || params.tuning.coarse == 0.0
+        || params.tuning.elastic_coarse_max_aggregates == 0
+    {
         return None;
     }
     Aggregates::new(
         &model.positions,
         &model.connections,
         &plan.free,
-        params.coarse * model.mean_connection_length(),
-        params.elastic_coarse_max_aggregates,
+        params.tuning.coarse * model.mean_connection_length(),
+        params.tuning.elastic_coarse_max_aggregates,
     )
     .inspect_err(|e| log::warn!("the elastic phase runs without its two-level solve: {e}"))
     .ok()
