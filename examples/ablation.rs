@@ -3,7 +3,7 @@
 //!
 //! `cargo run --release --example ablation [particles]`
 
-use tissue::params::InitialPlacement;
+use tissue::InitialPlacement;
 use tissue::{SamplingParams, SurfaceMode, phantom};
 
 fn main() -> Result<(), tissue::Error> {

@@ -25,8 +25,17 @@ pub use tissue_core::io::surface::{
     coordinate_tag, load_closed_surface, load_surface, load_surface_as_written, save_surface,
     save_surface_in, weld,
 };
+pub use tissue_core::params::InitialPlacement;
 pub use tissue_core::validate::{Validation, validate};
-pub use tissue_core::*;
+pub use tissue_core::{
+    Attachment, ConnectionStats, Connections, DeformError, Error, FieldError, GpuFailure,
+    MeshError, ParamError, ParticleModel, SamplingError, SamplingParams, SamplingReport,
+    StageSeconds, SurfaceMesh, SurfaceMode, Vec3,
+};
+/// Surfaces and fields: self-crossing, the phantom's deformations, the
+/// displacement field, the signed distance field, file formats, the
+/// bundled phantom.
+pub use tissue_core::{crossing, deform, displacement, field, io, phantom};
 pub use tissue_solve::sampling::{Progress, Sampled};
 pub use tissue_solve::{resampling, structures};
 
@@ -43,14 +52,15 @@ pub mod deformation {
     };
 }
 
-/// Under the facade, for tools and research code that need the parts:
-/// the device-neutral algorithm (plan, acceleration, prediction,
-/// the tracker), and each device's kernels and buffers. These change more
-/// freely than the rest of the API.
+/// Under the facade, for tools and research code that need the parts: the
+/// gravity model and the unloaded shape's search, the stiffness fit, the
+/// elastic model's mathematics, the 3x3 rotation, the iteration's passes,
+/// the plan and the tracker over a device, and stage 1 on the CPU without
+/// the facade's checks. These change more freely than the rest of the API.
 pub mod advanced {
-    pub use tissue_cpu as cpu;
-    pub use tissue_gpu as gpu;
-    pub use tissue_solve as solve;
+    pub use tissue_cpu::sample as sample_on_cpu;
+    pub use tissue_solve::{SolveDevice, Tracker};
+    pub use tissue_solve::{elastic, gravity, passes, plan, stiffness, svd3};
 }
 
 /// Stage 1: fills a closed surface with `params.particles` particles relaxed

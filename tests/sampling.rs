@@ -14,7 +14,7 @@ fn sample(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
 /// use (`tissue_solve::quality::check_usable`): what the paper's own
 /// choices give.
 fn sample_unchecked(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
-    tissue::advanced::cpu::sample(mesh, params, &mut |_| {})
+    tissue::advanced::sample_on_cpu(mesh, params, &mut |_| {})
         .unwrap_or_else(|e| panic!("sampling failed: {e}"))
 }
 
@@ -176,7 +176,7 @@ fn the_literal_paper_preset_runs_and_shows_why_it_is_not_the_default() {
 #[test]
 fn a_random_start_relaxes_to_the_same_quality() {
     let params = SamplingParams::with_particles(3_000).with(|p| {
-        p.initial = tissue::params::InitialPlacement::Random;
+        p.initial = tissue::InitialPlacement::Random;
     });
     let sampled = sample(&phantom::default_breast(), &params);
     eprintln!("random start: {:?}", sampled.report);
