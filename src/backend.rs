@@ -674,10 +674,104 @@ impl BoundRigid {
     }
 }
 
+/// Runs `work` on `device`. Where `backend` is `auto` and the work failed
+/// for want of room on the GPU it picked (`capacity` says which errors
+/// those are: [`Error::is_gpu_capacity`] for the library's own), runs it
+/// again on the CPU and says so: the second value is the reason, to print
+/// or warn with. Any other failure, or one under `gpu`, is returned as it
+/// is.
+pub fn with_cpu_fallback<T, E: fmt::Display>(
+    backend: Backend,
+    device: Device,
+    capacity: impl Fn(&E) -> bool,
+    mut work: impl FnMut(Device) -> Result<T, E>,
+) -> Result<(T, Option<String>), E> {
+    let on_gpu = matches!(device, Device::Gpu { .. });
+    let name = device.name().to_owned();
+    match work(device) {
+        Err(error) if backend == Backend::Auto && on_gpu && capacity(&error) => {
+            let reason = format!("{name} has no room for this model ({error}); running on the CPU");
+            work(Device::Cpu).map(|done| (done, Some(reason)))
+        }
+        other => other.map(|done| (done, None)),
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used, reason = "tests")]
 mod tests {
     use super::*;
+
+    /// A no-op GPU device (wgpu's no-op backend): something `auto` may
+    /// have picked, without a GPU in the machine.
+    fn noop_gpu() -> Device {
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle();
+        descriptor.backends = wgpu::Backends::NOOP;
+        descriptor.backend_options.noop.enable = true;
+        let instance = wgpu::Instance::new(descriptor);
+        let adapter = pollster::block_on(instance.request_adapter(&Default::default())).unwrap();
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&Default::default())).unwrap();
+        Device::Gpu {
+            name: "no-op".into(),
+            device,
+            queue,
+        }
+    }
+
+    fn out_of_memory() -> Error {
+        gpu_error("stage 2 on no-op", GpuError::OutOfMemory("4 EiB".into()))
+    }
+
+    /// `auto` runs the work again on the CPU where the GPU it picked has
+    /// no room (out of memory, or a limit), and says why; `gpu` returns
+    /// the failure; any other failure is returned under `auto` too.
+    #[test]
+    fn auto_falls_back_to_the_cpu_where_the_gpu_has_no_room() {
+        let work = |device: Device| match device {
+            Device::Gpu { .. } => Err(out_of_memory()),
+            Device::Cpu => Ok("cpu"),
+        };
+        let (done, reason) =
+            with_cpu_fallback(Backend::Auto, noop_gpu(), Error::is_gpu_capacity, work).unwrap();
+        assert_eq!(done, "cpu");
+        let reason = reason.unwrap();
+        assert!(
+            reason.contains("no-op") && reason.contains("4 EiB"),
+            "{reason}"
+        );
+        let refused = with_cpu_fallback(Backend::Gpu, noop_gpu(), Error::is_gpu_capacity, work);
+        assert!(refused.is_err_and(|e| e.is_gpu_capacity()));
+        let limit = |device: Device| match device {
+            Device::Gpu { .. } => Err(gpu_error(
+                "stage 2",
+                GpuError::LimitExceeded {
+                    limit: "max_storage_buffer_binding_size",
+                    what: "positions".into(),
+                    asked: 1 << 40,
+                    allowed: 1 << 27,
+                },
+            )),
+            Device::Cpu => Ok(()),
+        };
+        let (_, reason) =
+            with_cpu_fallback(Backend::Auto, noop_gpu(), Error::is_gpu_capacity, limit).unwrap();
+        assert!(reason.is_some());
+        let lost = |_: Device| -> Result<(), Error> {
+            Err(gpu_error("stage 2", GpuError::DeviceLost("gone".into())))
+        };
+        let kept = with_cpu_fallback(Backend::Auto, noop_gpu(), Error::is_gpu_capacity, lost);
+        assert!(kept.is_err_and(|e| !e.is_gpu_capacity()));
+        // On the CPU already, nothing is run again.
+        let mut runs = 0;
+        let (_, reason) =
+            with_cpu_fallback(Backend::Auto, Device::Cpu, Error::is_gpu_capacity, |_| {
+                runs += 1;
+                Ok::<(), Error>(())
+            })
+            .unwrap();
+        assert_eq!((runs, reason), (1, None));
+    }
 
     #[test]
     fn backends_parse_and_print_their_names() {

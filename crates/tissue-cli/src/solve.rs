@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
 use glam::{IVec3, Vec3};
+use tissue::backend::with_cpu_fallback;
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -192,6 +193,46 @@ pub fn solver_for(
     Ok((solver, Some(posture)))
 }
 
+/// [`solver_for`] on `device`; where `backend` is `auto` and the GPU it
+/// picked has no room for the model (out of memory, or a limit it
+/// exceeds), on the CPU instead, saying so unless `quiet`
+/// (`tissue::backend::with_cpu_fallback`).
+#[allow(
+    clippy::too_many_arguments,
+    reason = "solver_for's, and the backend asked for"
+)]
+pub fn solver_falling_back(
+    backend: crate::backend::Backend,
+    path: &Path,
+    model: &ParticleModel,
+    deformed: &SurfaceMesh,
+    gravity: &GravityArgs,
+    params: &mut DeformParams,
+    device: Device,
+    quiet: bool,
+) -> Result<(Solver, Option<Posture>)> {
+    let asked = params.clone();
+    let (solver, fell_back) =
+        with_cpu_fallback(backend.into(), device, ran_out_on_gpu, |device| {
+            *params = asked.clone();
+            solver_for(path, model, deformed, gravity, params, device, quiet)
+        })?;
+    if let (Some(why), false) = (fell_back, quiet) {
+        println!("backend: cpu ({why})");
+    }
+    Ok(solver)
+}
+
+/// Whether `error` (or one it wraps) is a GPU without room for the work
+/// ([`tissue::Error::is_gpu_capacity`]).
+pub fn ran_out_on_gpu(error: &anyhow::Error) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<tissue::Error>()
+            .is_some_and(tissue::Error::is_gpu_capacity)
+    })
+}
+
 /// The observed-vertex mask of `rest` (the model's rest surface) from
 /// `path`: the observed patch of the rest surface as a surface file (its
 /// vertices), or its vertices as a point file (`.csv`, `.ply`). Each point
@@ -368,7 +409,8 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     crate::carry::check_space_tag(&args.surface, args.carry.space)?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
-    let (mut solver, posture) = solver_for(
+    let (mut solver, posture) = solver_falling_back(
+        args.backend.backend,
         &args.model,
         &model,
         &deformed,
@@ -458,6 +500,24 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A GPU without room (out of memory, a limit), under any context, is
+    /// what `auto` falls back on; a lost device or another error is not.
+    #[test]
+    fn only_a_gpu_without_room_is_a_reason_to_fall_back() {
+        let gpu = |kind| {
+            anyhow::Error::from(tissue::Error::Gpu {
+                context: "preparing stage 2 on a GPU".into(),
+                kind,
+                source: "what the GPU said".into(),
+            })
+            .context("model.vtp: cannot deform this model")
+        };
+        assert!(ran_out_on_gpu(&gpu(tissue::GpuFailure::OutOfMemory)));
+        assert!(ran_out_on_gpu(&gpu(tissue::GpuFailure::LimitExceeded)));
+        assert!(!ran_out_on_gpu(&gpu(tissue::GpuFailure::DeviceLost)));
+        assert!(!ran_out_on_gpu(&anyhow!("out of memory, said in words")));
+    }
 
     /// Both commands solve two-level with the library's cell unless told
     /// otherwise, and a cell below one connection length is refused.

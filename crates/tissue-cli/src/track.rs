@@ -27,7 +27,9 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
 use crate::progress::SolveBar;
-use crate::solve::{SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_for};
+use crate::solve::{
+    SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_falling_back,
+};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -387,7 +389,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         (true, Some(first)) => Some(read_frame(first, &model.surface)?),
         _ => None,
     };
-    let (mut solver, posture) = solver_for(
+    let (mut solver, posture) = solver_falling_back(
+        args.backend.backend,
         &args.model,
         &model,
         first_frame.as_ref().unwrap_or(&model.surface),

@@ -445,6 +445,21 @@ pub enum GpuFailure {
 /// Result with tissue's core error.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+impl Error {
+    /// Whether this is a GPU without room for the work: out of memory, or
+    /// a device limit the model exceeds. `auto` runs the work on the CPU
+    /// instead (`tissue::backend::with_cpu_fallback`).
+    pub fn is_gpu_capacity(&self) -> bool {
+        matches!(
+            self,
+            Error::Gpu {
+                kind: GpuFailure::OutOfMemory | GpuFailure::LimitExceeded,
+                ..
+            }
+        )
+    }
+}
+
 impl From<std::convert::Infallible> for Error {
     fn from(never: std::convert::Infallible) -> Self {
         match never {}

@@ -12,10 +12,10 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
-use tissue::backend::{Backend, Device, Solver};
+use tissue::backend::{Backend, Device, Solver, with_cpu_fallback};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::gravity::{FIT_PARTICLES, Gravity, HELD_SPACINGS, held_vertices, unload};
-use tissue::{ParticleModel, SamplingParams, SamplingReport, Vec3};
+use tissue::{Error, ParticleModel, SamplingParams, SamplingReport, Vec3};
 
 mod convert;
 mod deformer;
@@ -207,19 +207,26 @@ impl Model {
             let vertices = self.model.surface.vertices.len();
             params.observed = Some(vertex_mask(observed, vertices, "observed")?);
         }
-        let device = device_of(backend)?;
+        let backend: Backend = backend.parse().map_err(raise)?;
+        let device = Device::pick(backend).map_err(raise)?.device;
         let mut callback = Callback::new(progress.as_ref());
-        let solver = py
+        let (solver, fell_back) = py
             .detach(|| {
-                Solver::new_with_progress(device, &self.model, params, &mut |stage| {
-                    callback.tell(|info| {
-                        info.set_item("stage", stage.name())?;
-                        info.set_item("description", stage.to_string())
-                    });
+                // `auto` runs on the CPU where the GPU it picked has no room.
+                with_cpu_fallback(backend, device, Error::is_gpu_capacity, |device| {
+                    Solver::new_with_progress(device, &self.model, params.clone(), &mut |stage| {
+                        callback.tell(|info| {
+                            info.set_item("stage", stage.name())?;
+                            info.set_item("description", stage.to_string())
+                        });
+                    })
                 })
             })
             .map_err(raise)?;
         callback.result()?;
+        if let Some(why) = fell_back {
+            warn(py, &why)?;
+        }
         Ok(Deformer {
             solver,
             model: self.model.clone(),
