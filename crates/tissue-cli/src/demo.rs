@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
+use tissue::backend::with_cpu_fallback;
 use tissue::deformation::DeformParams;
 use tissue::{SamplingParams, SamplingReport, SurfaceMesh, deform, phantom};
 
@@ -121,11 +122,22 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
     tissue::save_surface(&tumour, &out.join("tumour.obj"))?;
 
     let deform_params = DeformParams::default();
-    let mut solver = progress::busy(quiet, PREPARING, |busy| {
-        Solver::new_with_progress(device, &model, deform_params.clone(), &mut |stage| {
-            busy.say(stage)
-        })
+    // `auto` prepares stage 2 on the CPU where the GPU it picked has no room.
+    let (mut solver, fell_back) = progress::busy(quiet, PREPARING, |busy| {
+        with_cpu_fallback(
+            args.backend.backend.into(),
+            device,
+            tissue::Error::is_gpu_capacity,
+            |device| {
+                Solver::new_with_progress(device, &model, deform_params.clone(), &mut |stage| {
+                    busy.say(stage)
+                })
+            },
+        )
     })?;
+    if let (Some(why), false) = (fell_back, quiet) {
+        println!("backend: cpu ({why})");
+    }
     let carried = Carried {
         points: None,
         structures: [Kind::Deformable, Kind::Rigid]

@@ -34,8 +34,13 @@ create_exception!(
 );
 
 fn device_of(backend: &str) -> PyResult<Device> {
+    Ok(picked(backend)?.1)
+}
+
+/// The backend `backend` names and the device it picks.
+fn picked(backend: &str) -> PyResult<(Backend, Device)> {
     let backend: Backend = backend.parse().map_err(raise)?;
-    Ok(Device::pick(backend).map_err(raise)?.device)
+    Ok((backend, Device::pick(backend).map_err(raise)?.device))
 }
 
 /// Stage 1: fills a closed surface (a file path, or a `(vertices,
@@ -207,8 +212,7 @@ impl Model {
             let vertices = self.model.surface.vertices.len();
             params.observed = Some(vertex_mask(observed, vertices, "observed")?);
         }
-        let backend: Backend = backend.parse().map_err(raise)?;
-        let device = Device::pick(backend).map_err(raise)?.device;
+        let (backend, device) = picked(backend)?;
         let mut callback = Callback::new(progress.as_ref());
         let (solver, fell_back) = py
             .detach(|| {
@@ -331,7 +335,7 @@ impl Model {
                  does not move, e.g. the chest wall; give it with held=",
             ));
         }
-        let device = device_of(backend)?;
+        let (backend, device) = picked(backend)?;
         let model = &self.model;
         if !gravity.changes() && gravity.stiffness_kpa.is_none() {
             warn(
@@ -340,9 +344,16 @@ impl Model {
                  stiffness, and no load is fitted; the deformer is the plain elastic one (give \
                  stiffness_kpa to solve from the unloaded shape anyway)",
             )?;
-            let solver = py
-                .detach(|| Solver::new(device, model, params))
+            let (solver, fell_back) = py
+                .detach(|| {
+                    with_cpu_fallback(backend, device, Error::is_gpu_capacity, |device| {
+                        Solver::new(device, model, params.clone())
+                    })
+                })
                 .map_err(raise)?;
+            if let Some(why) = fell_back {
+                warn(py, &why)?;
+            }
             let posture = PyDict::new(py);
             posture.set_item("stiffness_kpa", py.None())?;
             posture.set_item("stiffness_fitted", false)?;
@@ -356,29 +367,36 @@ impl Model {
             });
         }
         let mut callback = Callback::new(progress.as_ref());
-        let (unloaded, solver) = py
+        // `auto` runs the posture on the CPU where the GPU it picked has no room.
+        let ((unloaded, solver), fell_back) = py
             .detach(|| {
-                let unloaded = unload(
-                    &device,
-                    model,
-                    &deformed,
-                    &held,
-                    &gravity,
-                    &params,
-                    &mut |p| {
-                        callback.tell(|info| {
-                            info.set_item("solve", p.solve)?;
-                            info.set_item("iterations", p.iterations)?;
-                            info.set_item("converged", p.converged)
-                        });
-                    },
-                )?;
-                let params = params.with(|p| p.load = unloaded.deformed_load);
-                let solver = Solver::unloaded(device, model, &unloaded.shape.positions, params)?;
-                Ok::<_, tissue::Error>((unloaded, solver))
+                with_cpu_fallback(backend, device, Error::is_gpu_capacity, |device| {
+                    let unloaded = unload(
+                        &device,
+                        model,
+                        &deformed,
+                        &held,
+                        &gravity,
+                        &params,
+                        &mut |p| {
+                            callback.tell(|info| {
+                                info.set_item("solve", p.solve)?;
+                                info.set_item("iterations", p.iterations)?;
+                                info.set_item("converged", p.converged)
+                            });
+                        },
+                    )?;
+                    let params = params.clone().with(|p| p.load = unloaded.deformed_load);
+                    let solver =
+                        Solver::unloaded(device, model, &unloaded.shape.positions, params)?;
+                    Ok::<_, tissue::Error>((unloaded, solver))
+                })
             })
             .map_err(raise)?;
         callback.result()?;
+        if let Some(why) = fell_back {
+            warn(py, &why)?;
+        }
         if !unloaded.shape.converged {
             warn(
                 py,
