@@ -159,68 +159,78 @@ pub fn read_model(
     Ok(model)
 }
 
-/// Stage 2 for `model` on `device` under `params`: with the posture
-/// options, the organ's unloaded shape (and stiffness) first, from the
-/// rest scan and the deformed surface `deformed`, and the solver then
-/// stress-free in it with the deformed posture's gravity inside (`params`
-/// gains that load; unless `quiet`, what was found is printed).
-pub fn solver_for(
-    path: &Path,
-    model: &ParticleModel,
-    deformed: &SurfaceMesh,
-    gravity: &GravityArgs,
-    params: &mut DeformParams,
-    device: Device,
-    quiet: bool,
-) -> Result<(Solver, Option<Posture>)> {
-    let context = || format!("{}: cannot deform this model", path.display());
-    let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)? else {
-        let solver = progress::busy(quiet, PREPARING, |busy| {
-            Solver::new_with_progress(device, model, params.clone(), &mut |stage| busy.say(stage))
-        })
-        .with_context(context)?;
-        return Ok((solver, None));
-    };
-    if !quiet {
-        for line in posture.summary("") {
-            println!("{line}");
-        }
-    }
-    let solver = progress::busy(quiet, PREPARING, |busy| {
-        posture.solver(device, model, params, &mut |stage| busy.say(stage))
-    })
-    .with_context(context)?;
-    Ok((solver, Some(posture)))
+/// What stage 2 is prepared for: the model (read from `path`), the
+/// deformed surface, the posture options; `quiet` prints nothing.
+pub struct Stage2<'a> {
+    pub path: &'a Path,
+    pub model: &'a ParticleModel,
+    pub deformed: &'a SurfaceMesh,
+    pub gravity: &'a GravityArgs,
+    pub quiet: bool,
 }
 
-/// [`solver_for`] on `device`; where `backend` is `auto` and the GPU it
-/// picked has no room for the model (out of memory, or a limit it
-/// exceeds), on the CPU instead, saying so unless `quiet`
-/// (`tissue::backend::with_cpu_fallback`).
-#[allow(
-    clippy::too_many_arguments,
-    reason = "solver_for's, and the backend asked for"
-)]
-pub fn solver_falling_back(
-    backend: crate::backend::Backend,
-    path: &Path,
-    model: &ParticleModel,
-    deformed: &SurfaceMesh,
-    gravity: &GravityArgs,
-    params: &mut DeformParams,
-    device: Device,
-    quiet: bool,
-) -> Result<(Solver, Option<Posture>)> {
-    let asked = params.clone();
-    let (solver, fell_back) =
-        with_cpu_fallback(backend.into(), device, ran_out_on_gpu, |device| {
-            *params = asked.clone();
-            solver_for(path, model, deformed, gravity, params, device, quiet)
-        })?;
-    if let (Some(why), false) = (fell_back, quiet) {
-        println!("backend: cpu ({why})");
+impl Stage2<'_> {
+    /// [`Stage2::solver_on`] `device`; where `backend` is `auto` and the
+    /// GPU it picked has no room for the model (out of memory, or a limit
+    /// it exceeds), on the CPU instead, saying so unless `quiet`
+    /// (`tissue::backend::with_cpu_fallback`).
+    pub fn solver(
+        &self,
+        backend: crate::backend::Backend,
+        device: Device,
+        params: &mut DeformParams,
+    ) -> Result<(Solver, Option<Posture>)> {
+        let asked = params.clone();
+        let (solver, fell_back) =
+            with_cpu_fallback(backend.into(), device, ran_out_on_gpu, |device| {
+                *params = asked.clone();
+                self.solver_on(device, params)
+            })?;
+        if let (Some(why), false) = (fell_back, self.quiet) {
+            println!("backend: cpu ({why})");
+        }
+        Ok(solver)
     }
-    Ok(solver)
+
+    /// Stage 2 on `device` under `params`: with the posture options, the
+    /// organ's unloaded shape (and stiffness) first, from the rest scan and
+    /// the deformed surface, and the solver then stress-free in it with the
+    /// deformed posture's gravity inside (`params` gains that load; unless
+    /// `quiet`, what was found is printed).
+    fn solver_on(
+        &self,
+        device: Device,
+        params: &mut DeformParams,
+    ) -> Result<(Solver, Option<Posture>)> {
+        let Self {
+            path,
+            model,
+            deformed,
+            gravity,
+            quiet,
+        } = *self;
+        let context = || format!("{}: cannot deform this model", path.display());
+        let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)?
+        else {
+            let solver = progress::busy(quiet, PREPARING, |busy| {
+                Solver::new_with_progress(device, model, params.clone(), &mut |stage| {
+                    busy.say(stage)
+                })
+            })
+            .with_context(context)?;
+            return Ok((solver, None));
+        };
+        if !quiet {
+            for line in posture.summary("") {
+                println!("{line}");
+            }
+        }
+        let solver = progress::busy(quiet, PREPARING, |busy| {
+            posture.solver(device, model, params, &mut |stage| busy.say(stage))
+        })
+        .with_context(context)?;
+        Ok((solver, Some(posture)))
+    }
 }
 
 /// Whether `error` (or one it wraps) is a GPU without room for the work
@@ -409,16 +419,14 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     crate::carry::check_space_tag(&args.surface, args.carry.space)?;
     let deformed = read_deformed(&args.surface, &model.surface)?;
-    let (mut solver, posture) = solver_falling_back(
-        args.backend.backend,
-        &args.model,
-        &model,
-        &deformed,
-        &args.solve.gravity,
-        &mut params,
-        device,
-        args.quiet,
-    )?;
+    let stage2 = Stage2 {
+        path: &args.model,
+        model: &model,
+        deformed: &deformed,
+        gravity: &args.solve.gravity,
+        quiet: args.quiet,
+    };
+    let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
     set_deformed(&args.surface, &mut solver, &deformed)?;
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let field = match &args.displacement_field {

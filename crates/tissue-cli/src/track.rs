@@ -27,9 +27,7 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
 use crate::progress::SolveBar;
-use crate::solve::{
-    SolveArgs, read_deformed, read_frame, read_model, set_deformed, solver_falling_back,
-};
+use crate::solve::{SolveArgs, Stage2, read_deformed, read_frame, read_model, set_deformed};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -389,16 +387,14 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         (true, Some(first)) => Some(read_frame(first, &model.surface)?),
         _ => None,
     };
-    let (mut solver, posture) = solver_falling_back(
-        args.backend.backend,
-        &args.model,
-        &model,
-        first_frame.as_ref().unwrap_or(&model.surface),
-        &args.solve.gravity,
-        &mut params,
-        device,
-        args.quiet,
-    )?;
+    let stage2 = Stage2 {
+        path: &args.model,
+        model: &model,
+        deformed: first_frame.as_ref().unwrap_or(&model.surface),
+        gravity: &args.solve.gravity,
+        quiet: args.quiet,
+    };
+    let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
     let posture_report = posture.as_ref().map(|p| &p.report);
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let model_name = args.model.display().to_string();
