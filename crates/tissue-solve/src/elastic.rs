@@ -54,9 +54,7 @@ pub const FLAT_NEIGHBOURHOOD: f32 = 1e-3;
 /// (docs/METHOD.md, "Elastic model"); 2.0 leaves a third more margin.
 pub const STIFFENING: f32 = 2.0;
 
-/// The largest Poisson ratio [`crate::params::DeformParams::poisson`] accepts:
-/// at 0.5 the volume term's weight is infinite.
-pub const MAX_POISSON: f32 = 0.499;
+pub use crate::params::MAX_POISSON;
 
 /// What the elastic model knows of each particle at rest.
 #[derive(Debug, Clone, PartialEq)]

@@ -30,6 +30,7 @@ pub mod consistent;
 pub mod controls;
 pub mod device;
 pub mod elastic;
+pub mod envelope;
 pub mod gravity;
 pub mod grid;
 pub mod inversion;

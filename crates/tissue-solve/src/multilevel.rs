@@ -24,7 +24,7 @@ use glam::{DMat3, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
 use crate::cholesky::Cholesky;
-use crate::coarse::{Envelope, reverse_cuthill_mckee};
+use crate::envelope::{Envelope, reverse_cuthill_mckee};
 
 /// Symmetric two-grid cycles per coarse solve.
 pub const CYCLES: usize = 3;

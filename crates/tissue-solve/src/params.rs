@@ -5,7 +5,9 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use tissue_core::ParamError;
 
-pub use crate::elastic::MAX_POISSON;
+/// The largest Poisson ratio [`DeformParams::poisson`] accepts: at 0.5 the
+/// volume term's weight is infinite.
+pub const MAX_POISSON: f32 = 0.499;
 
 /// Which force model stage 2 uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

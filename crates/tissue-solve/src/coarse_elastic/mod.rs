@@ -24,10 +24,10 @@ use tissue_core::{Connections, DeformError, Error};
 
 use crate::cholesky::Cholesky;
 use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
+use crate::device::Iteration;
 use crate::elastic::{Elastic, VolumeLinearisation, cofactor};
 use crate::multilevel::{BlockMultilevel, scalar_rows};
 use crate::params::ForceModel;
-use crate::tracker::Iteration;
 use crate::volume_smoother::VolumeSmoother;
 
 mod entries;
