@@ -5,7 +5,7 @@
 //! The coarse matrices of this crate (the aggregates' Laplacian, the
 //! elastic operator's `P^T K P`, the multipliers' coarse space, the groups
 //! of the multilevel cycles) were factored within their envelope in reverse
-//! Cuthill-McKee order ([`crate::coarse::Envelope`]), which fills the whole
+//! Cuthill-McKee order ([`crate::envelope::Envelope`]), which fills the whole
 //! band: at 10,000 particles the elastic matrix's 2,502 unknowns took 220
 //! million multiply-adds, 100-160 ms on the development machine, made again
 //! at every elastic phase's start. This factor takes 12-20 ms on the same
@@ -51,7 +51,7 @@ enum Values {
 impl Cholesky {
     /// Factors the symmetric positive definite matrix given by `rows`
     /// (each sorted by column, both triangles present, as
-    /// [`crate::coarse::Envelope::cholesky`] takes it); `None` when it is
+    /// [`crate::envelope::Envelope::cholesky`] takes it); `None` when it is
     /// not positive definite (or holds a value that is not finite).
     pub fn new(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
         Self::of_upper(Upper::of_rows(rows)?, None, false)
@@ -344,7 +344,7 @@ fn substitute<T: faer::traits::RealField>(
 #[allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
-    use crate::coarse::Envelope;
+    use crate::envelope::Envelope;
 
     /// The Laplacian of a `side^3` grid, 6-connected, plus `shift` on the
     /// diagonal, as rows sorted by column.

@@ -33,12 +33,12 @@
 //! constants and linear functions over aggregates (`CoarseMultipliers`)
 //! takes them to 29 and 38.
 
-use glam::{DMat3, DVec3, Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
+use crate::aggregates::{Aggregates, OUTSIDE, centres};
 use crate::cholesky::Cholesky;
-use crate::coarse::{Aggregates, OUTSIDE, centres};
 
 /// The multipliers are solved until the constraint's largest residual is
 /// this fraction of the uncorrected one: on the phantom at 5,000 particles
@@ -217,7 +217,7 @@ impl Consistency {
         connections: &Connections,
         i: usize,
     ) -> Mat3 {
-        crate::elastic::offsets_outer(current, &self.multipliers, connections, i)
+        offsets_outer(current, &self.multipliers, connections, i)
     }
 
     /// `c_ij`, particle `i`'s gradient vector for its neighbour `j`.
@@ -544,6 +544,21 @@ fn conjugate_gradients(
     }
     let residual = largest(&r);
     (x, residual, iterations)
+}
+
+/// `sum_j (a_j - a_i)(b_j - b_i)^T` over particle `i`'s connections: with
+/// the current and rest positions `M_i`, with the current positions and
+/// the multipliers `N_i` ([`Consistency::multipliers_product`]).
+pub fn offsets_outer(a: &[Vec3], b: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
+    // In 4-lane vectors, as `Elastic::products`.
+    let (ai, bi) = (Vec3A::from(a[i]), Vec3A::from(b[i]));
+    let mut m = Mat3A::ZERO;
+    for &j in connections.of(i) {
+        let j = j as usize;
+        let (u, v) = (Vec3A::from(a[j]) - ai, Vec3A::from(b[j]) - bi);
+        m += Mat3A::from_cols(u * v.x, u * v.y, u * v.z);
+    }
+    Mat3::from(m)
 }
 
 #[cfg(test)]

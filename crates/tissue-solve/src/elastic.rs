@@ -36,8 +36,10 @@ use glam::{DMat3, DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::coarse_elastic::Entries;
 use crate::consistent::Consistency;
+pub use crate::consistent::offsets_outer;
+use crate::entries::Entries;
+pub use crate::entries::{NO_MIRROR, VolumeLinearisation};
 use crate::spectrum::lanczos_extremes;
 use crate::svd3::rotation_of;
 
@@ -73,9 +75,6 @@ pub struct Elastic {
     /// `j`'s slot of `i` ([`NO_MIRROR`] where `j` does not list `i`).
     pub mirrors: Vec<u32>,
 }
-
-/// [`Elastic::mirrors`]' entry for a connection its neighbour does not list.
-pub const NO_MIRROR: u32 = u32::MAX;
 
 /// What particle `i` puts into its neighbours' elastic force.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -370,78 +369,6 @@ fn largest_eigenvalue(free: &[bool], apply: impl Fn(&[DVec3]) -> Vec<DVec3>) -> 
     hi
 }
 
-/// The elastic operator for a small displacement, rotations held, at one
-/// state: `K = L + 1/2 sum_i W_i g_i g_i^T` with `g_i` the gradient of `J_i`,
-/// whose entry at neighbour `j` is `cof(F_i) c_ij
-/// = [cof(F_i) B_i] d_ij + [a_i cof(F_i)] (mu_j - mu_i)` and minus their sum
-/// at `i` (the Gauss-Newton part; the `(J_i - 1)` second derivative is left
-/// out, small where every neighbourhood is near its rest volume).
-#[derive(Debug, Clone, PartialEq)]
-pub struct VolumeLinearisation {
-    /// `W_i`.
-    pub weights: Vec<f64>,
-    /// `cof(F_i) B_i` (zero where flat).
-    pub corrections: Vec<DMat3>,
-    /// `a_i cof(F_i)`.
-    pub scales: Vec<DMat3>,
-    /// `mu_i`.
-    pub multipliers: Vec<DVec3>,
-}
-
-impl VolumeLinearisation {
-    /// `g_i`'s entry at neighbour `j`.
-    #[inline]
-    pub fn entry(&self, rest: &[Vec3], i: usize, j: usize) -> DVec3 {
-        self.corrections[i] * (rest[j] - rest[i]).as_dvec3()
-            + self.scales[i] * (self.multipliers[j] - self.multipliers[i])
-    }
-
-    /// `K u` over the particles `inside` says (others read as zero; their
-    /// rows are zero).
-    pub fn operator(
-        &self,
-        rest: &[Vec3],
-        connections: &Connections,
-        inside: impl Fn(usize) -> bool + Sync,
-        u: &[DVec3],
-    ) -> Vec<DVec3> {
-        let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
-        // Per particle `z_i = W_i (g_i . u)`.
-        let z: Vec<f64> = (0..rest.len())
-            .into_par_iter()
-            .map(|i| {
-                if self.weights[i] == 0.0 {
-                    return 0.0;
-                }
-                let change: f64 = connections
-                    .of(i)
-                    .iter()
-                    .map(|&j| (at(j as usize) - at(i)).dot(self.entry(rest, i, j as usize)))
-                    .sum();
-                self.weights[i] * change
-            })
-            .collect();
-        (0..rest.len())
-            .into_par_iter()
-            .map(|k| {
-                if !inside(k) {
-                    return DVec3::ZERO;
-                }
-                // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`,
-                // gathered: `g_i`'s entry at `k`, and `g_k`'s at `k` minus
-                // the sum of its own.
-                let mut r = DVec3::ZERO;
-                for &i in connections.of(k) {
-                    let i = i as usize;
-                    let (into_k, out_of_k) = (self.entry(rest, i, k), self.entry(rest, k, i));
-                    r += (at(k) - at(i)) + 0.5 * (z[i] * into_k - z[k] * out_of_k);
-                }
-                r
-            })
-            .collect()
-    }
-}
-
 /// Whether a neighbourhood with moment matrix `a` spans three dimensions:
 /// `det A / (tr A / 3)^3` at least [`FLAT_NEIGHBOURHOOD`] (false for fewer
 /// than three connections, or all of them in a plane or on a line). Formed
@@ -512,21 +439,6 @@ fn mirrors(connections: &Connections) -> Vec<u32> {
             })
         })
         .collect()
-}
-
-/// `sum_j (a_j - a_i)(b_j - b_i)^T` over particle `i`'s connections: with
-/// the current and rest positions `M_i`, with the current positions and
-/// the multipliers `N_i` ([`Consistency::multipliers_product`]).
-pub fn offsets_outer(a: &[Vec3], b: &[Vec3], connections: &Connections, i: usize) -> Mat3 {
-    // In 4-lane vectors, as [`Elastic::products`].
-    let (ai, bi) = (Vec3A::from(a[i]), Vec3A::from(b[i]));
-    let mut m = Mat3A::ZERO;
-    for &j in connections.of(i) {
-        let j = j as usize;
-        let (u, v) = (Vec3A::from(a[j]) - ai, Vec3A::from(b[j]) - bi);
-        m += Mat3A::from_cols(u * v.x, u * v.y, u * v.z);
-    }
-    Mat3::from(m)
 }
 
 /// `cof(F) = det(F) F^-T`, the derivative of `det F`, defined for every `F`:

@@ -22,6 +22,7 @@
 //! The devices (`tissue-cpu`, `tissue-gpu`) implement kernels and buffers.
 
 pub mod acceleration;
+pub mod aggregates;
 pub mod batches;
 pub mod cholesky;
 pub mod coarse;
@@ -30,6 +31,7 @@ pub mod consistent;
 pub mod controls;
 pub mod device;
 pub mod elastic;
+mod entries;
 pub mod envelope;
 pub mod gravity;
 pub mod grid;

@@ -6,7 +6,6 @@ use std::sync::Arc;
 use glam::Vec3;
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
-use crate::coarse::{SharedLaplacian, laplacian_key};
 use crate::elastic::Elastic;
 use crate::params::{DeformParams, ForceModel};
 use crate::report::PrepareStage;
@@ -59,7 +58,7 @@ pub struct Plan {
     /// Largest one, with a 2 % margin.
     pub lambda_max: f32,
     /// [`laplacian_key`] of the connections and `free`: which solvers'
-    /// Laplacian preparation this one may share ([`SharedLaplacian`]).
+    /// Laplacian preparation this one may share (`SharedLaplacian`).
     pub laplacian_key: u64,
     /// The model's bounding-box diagonal at rest.
     pub size: f32,
@@ -103,7 +102,7 @@ impl Plan {
     fn observed_shared(
         model: &ParticleModel,
         observed: Option<&[bool]>,
-        shared: Option<&SharedLaplacian>,
+        shared: Option<&SharedSpectrum>,
     ) -> Result<Self, Error> {
         model.validate()?;
         if model.attachments.iter().all(Option::is_none) {
@@ -148,7 +147,7 @@ impl Plan {
         }
         let laplacian_key = laplacian_key(&model.connections, &free);
         let (lambda_min, lambda_max) = shared
-            .and_then(|shared| shared.spectrum_for(laplacian_key))
+            .and_then(|shared| shared.for_key(laplacian_key))
             .unwrap_or_else(|| laplacian_extremes(&model.connections, &free));
         let (lo, hi) = model.positions.iter().fold(
             (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
@@ -197,11 +196,11 @@ impl Plan {
 
     /// [`Plan::for_params_observed`], the Laplacian's extreme eigenvalues
     /// taken from `shared` where it was made for the same connections and
-    /// free particles ([`SharedLaplacian`]).
+    /// free particles ([`SharedSpectrum`], a `SharedLaplacian`'s).
     pub fn for_params_shared(
         model: &ParticleModel,
         params: &DeformParams,
-        shared: Option<&SharedLaplacian>,
+        shared: Option<&SharedSpectrum>,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
         observe(PrepareStage::Plan);
@@ -303,6 +302,39 @@ impl Plan {
             Some(rho) if params.force != ForceModel::Elastic => rho,
             _ => self.rho(params),
         }
+    }
+}
+
+/// A fingerprint of `connections` and `free`: two solvers whose keys agree
+/// have the same connection Laplacian (a 64-bit hash; a model differing
+/// in either is another key but for a chance of about 1 in 10^19).
+pub fn laplacian_key(connections: &Connections, free: &[bool]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    connections.offsets.hash(&mut hasher);
+    connections.indices.hash(&mut hasher);
+    free.hash(&mut hasher);
+    hasher.finish()
+}
+
+/// The connection Laplacian's extreme eigenvalues that another solver
+/// estimated, and the [`laplacian_key`] of the connections and free
+/// particles it estimated them for: a plan for the same key takes them
+/// instead of estimating them again.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SharedSpectrum {
+    /// [`laplacian_key`] of the connections and free particles.
+    pub key: u64,
+    /// The smallest eigenvalue.
+    pub lambda_min: f32,
+    /// The largest eigenvalue.
+    pub lambda_max: f32,
+}
+
+impl SharedSpectrum {
+    /// The eigenvalues, where `key` is the one they were estimated for.
+    pub fn for_key(&self, key: u64) -> Option<(f32, f32)> {
+        (self.key == key).then_some((self.lambda_min, self.lambda_max))
     }
 }
 

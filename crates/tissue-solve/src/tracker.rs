@@ -127,7 +127,12 @@ impl<D: SolveDevice> Tracker<D> {
         prepare: impl FnOnce(&Plan, &DeformParams, &mut dyn FnMut(PrepareStage)) -> Result<D, E>,
     ) -> Result<Self, E> {
         params.validate().map_err(Error::from)?;
-        let plan = Plan::for_params_shared(model, &params, shared, observe)?;
+        let plan = Plan::for_params_shared(
+            model,
+            &params,
+            shared.map(SharedLaplacian::spectrum),
+            observe,
+        )?;
         let device = prepare(&plan, &params, observe)?;
         // The control points: the observed surface particles.
         let attachments = model

@@ -33,7 +33,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::coarse_elastic::{Entries, slots};
+use crate::entries::{Entries, slots};
 
 /// `delta` in units of the connection Laplacian's largest eigenvalue (the
 /// plan's, margin included). 2.0 keeps the iteration's most negative

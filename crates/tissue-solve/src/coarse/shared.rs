@@ -5,11 +5,12 @@
 
 use std::sync::Arc;
 
-use tissue_core::{Connections, ParticleModel};
+use tissue_core::ParticleModel;
 
 use super::{CoarseSpace, coarse_space};
 use crate::params::DeformParams;
-use crate::plan::Plan;
+pub use crate::plan::laplacian_key;
+use crate::plan::{Plan, SharedSpectrum};
 
 /// What preparing a solver costs that depends only on a model's
 /// connections and which of its particles are free, not on where they are:
@@ -21,9 +22,9 @@ use crate::plan::Plan;
 /// [`coarse_space_shared`]); anything else makes its own.
 #[derive(Debug, Clone)]
 pub struct SharedLaplacian {
-    /// [`laplacian_key`] of the connections and free particles.
-    key: u64,
-    spectrum: (f32, f32),
+    /// The Laplacian's extreme eigenvalues, and the [`laplacian_key`] of
+    /// the connections and free particles they were made for.
+    spectrum: SharedSpectrum,
     coarse: Option<(CoarseFor, Arc<CoarseSpace>)>,
 }
 
@@ -50,18 +51,6 @@ impl CoarseFor {
     }
 }
 
-/// A fingerprint of `connections` and `free`: two solvers whose keys agree
-/// have the same connection Laplacian (a 64-bit hash; a model differing
-/// in either is another key but for a chance of about 1 in 10^19).
-pub fn laplacian_key(connections: &Connections, free: &[bool]) -> u64 {
-    use std::hash::{Hash, Hasher};
-    let mut hasher = std::collections::hash_map::DefaultHasher::new();
-    connections.offsets.hash(&mut hasher);
-    connections.indices.hash(&mut hasher);
-    free.hash(&mut hasher);
-    hasher.finish()
-}
-
 impl SharedLaplacian {
     /// What a solver prepared for the Laplacian of `key`
     /// ([`laplacian_key`]): its extreme eigenvalues, and the coarse space
@@ -73,8 +62,11 @@ impl SharedLaplacian {
         coarse: Option<Arc<CoarseSpace>>,
     ) -> Self {
         Self {
-            key,
-            spectrum: (plan.lambda_min, plan.lambda_max),
+            spectrum: SharedSpectrum {
+                key,
+                lambda_min: plan.lambda_min,
+                lambda_max: plan.lambda_max,
+            },
             coarse: coarse.map(|space| (CoarseFor::of(plan, params), space)),
         }
     }
@@ -82,12 +74,17 @@ impl SharedLaplacian {
     /// The Laplacian's extreme eigenvalues, where `key` is the one they
     /// were estimated for.
     pub fn spectrum_for(&self, key: u64) -> Option<(f32, f32)> {
-        (self.key == key).then_some(self.spectrum)
+        self.spectrum.for_key(key)
+    }
+
+    /// The Laplacian's extreme eigenvalues with their key, for a plan.
+    pub fn spectrum(&self) -> &SharedSpectrum {
+        &self.spectrum
     }
 
     /// [`laplacian_key`] of the connections and free particles it was made for.
     pub fn key(&self) -> u64 {
-        self.key
+        self.spectrum.key
     }
 
     /// The coarse space it holds, if any.
@@ -98,7 +95,9 @@ impl SharedLaplacian {
     /// The coarse space, where `key` and what it is asked for match.
     fn coarse_for(&self, key: u64, made_for: CoarseFor) -> Option<Arc<CoarseSpace>> {
         match &self.coarse {
-            Some((made, space)) if self.key == key && *made == made_for => Some(Arc::clone(space)),
+            Some((made, space)) if self.spectrum.key == key && *made == made_for => {
+                Some(Arc::clone(space))
+            }
             _ => None,
         }
     }

@@ -30,11 +30,10 @@ use crate::multilevel::{BlockMultilevel, scalar_rows};
 use crate::params::ForceModel;
 use crate::volume_smoother::VolumeSmoother;
 
-mod entries;
 mod setup;
 
-pub(crate) use entries::{Entries, slots};
-use entries::{Parts, own_entries};
+pub(crate) use crate::entries::Entries;
+use crate::entries::{Parts, own_entries};
 pub use setup::{
     SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
 };

@@ -1,12 +1,86 @@
 //! The elastic operator's volume part per connection slot, for the CPU's
-//! products with `K` ([`super::ElasticCoarse`], the volume smoother).
+//! products with `K` ([`crate::coarse_elastic::ElasticCoarse`], the volume smoother).
 
-use glam::{DVec3, Vec3};
+use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::coarse::OUTSIDE;
-use crate::elastic::{NO_MIRROR, VolumeLinearisation};
+use crate::aggregates::OUTSIDE;
+
+/// `Elastic::mirrors`' entry for a connection its neighbour does not list.
+pub const NO_MIRROR: u32 = u32::MAX;
+
+/// The elastic operator for a small displacement, rotations held, at one
+/// state: `K = L + 1/2 sum_i W_i g_i g_i^T` with `g_i` the gradient of `J_i`,
+/// whose entry at neighbour `j` is `cof(F_i) c_ij
+/// = [cof(F_i) B_i] d_ij + [a_i cof(F_i)] (mu_j - mu_i)` and minus their sum
+/// at `i` (the Gauss-Newton part; the `(J_i - 1)` second derivative is left
+/// out, small where every neighbourhood is near its rest volume).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VolumeLinearisation {
+    /// `W_i`.
+    pub weights: Vec<f64>,
+    /// `cof(F_i) B_i` (zero where flat).
+    pub corrections: Vec<DMat3>,
+    /// `a_i cof(F_i)`.
+    pub scales: Vec<DMat3>,
+    /// `mu_i`.
+    pub multipliers: Vec<DVec3>,
+}
+
+impl VolumeLinearisation {
+    /// `g_i`'s entry at neighbour `j`.
+    #[inline]
+    pub fn entry(&self, rest: &[Vec3], i: usize, j: usize) -> DVec3 {
+        self.corrections[i] * (rest[j] - rest[i]).as_dvec3()
+            + self.scales[i] * (self.multipliers[j] - self.multipliers[i])
+    }
+
+    /// `K u` over the particles `inside` says (others read as zero; their
+    /// rows are zero).
+    pub fn operator(
+        &self,
+        rest: &[Vec3],
+        connections: &Connections,
+        inside: impl Fn(usize) -> bool + Sync,
+        u: &[DVec3],
+    ) -> Vec<DVec3> {
+        let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
+        // Per particle `z_i = W_i (g_i . u)`.
+        let z: Vec<f64> = (0..rest.len())
+            .into_par_iter()
+            .map(|i| {
+                if self.weights[i] == 0.0 {
+                    return 0.0;
+                }
+                let change: f64 = connections
+                    .of(i)
+                    .iter()
+                    .map(|&j| (at(j as usize) - at(i)).dot(self.entry(rest, i, j as usize)))
+                    .sum();
+                self.weights[i] * change
+            })
+            .collect();
+        (0..rest.len())
+            .into_par_iter()
+            .map(|k| {
+                if !inside(k) {
+                    return DVec3::ZERO;
+                }
+                // The Laplacian's part and `1/2 sum_i z_i g_i` at `k`,
+                // gathered: `g_i`'s entry at `k`, and `g_k`'s at `k` minus
+                // the sum of its own.
+                let mut r = DVec3::ZERO;
+                for &i in connections.of(k) {
+                    let i = i as usize;
+                    let (into_k, out_of_k) = (self.entry(rest, i, k), self.entry(rest, k, i));
+                    r += (at(k) - at(i)) + 0.5 * (z[i] * into_k - z[k] * out_of_k);
+                }
+                r
+            })
+            .collect()
+    }
+}
 
 /// `K`'s volume part per connection slot (`connections.indices`' order):
 /// `g_i`'s entry at `j` in the slot of `j` in `i`'s row, and in the same

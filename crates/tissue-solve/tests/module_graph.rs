@@ -1,0 +1,90 @@
+//! The crate's modules use each other without a loop: the graph of `crate::`
+//! paths in their code (comments and unit tests left out) is a DAG, so each
+//! module can be read and changed knowing only the ones below it.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+/// The top-level module a source file belongs to (`coarse/shared.rs` is
+/// `coarse`), `None` for the crate root.
+fn module_of(src: &Path, file: &Path) -> Option<String> {
+    let relative = file.strip_prefix(src).ok()?;
+    let first = relative.components().next()?.as_os_str().to_string_lossy();
+    let name = first.trim_end_matches(".rs").to_owned();
+    (name != "lib").then_some(name)
+}
+
+fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let path = entry.unwrap_or_else(|e| panic!("{e}")).path();
+        if path.is_dir() {
+            files(&path, out);
+        } else if path.extension().is_some_and(|x| x == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// Every `crate::NAME` in `code`.
+fn uses(code: &str) -> BTreeSet<String> {
+    let mut found = BTreeSet::new();
+    let mut rest = code;
+    while let Some(at) = rest.find("crate::") {
+        rest = &rest[at + "crate::".len()..];
+        let name: String = rest
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        found.insert(name);
+    }
+    found
+}
+
+#[test]
+fn the_modules_use_each_other_without_a_loop() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut all = Vec::new();
+    files(&src, &mut all);
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for file in &all {
+        let Some(module) = module_of(&src, file) else {
+            continue;
+        };
+        let text = std::fs::read_to_string(file).unwrap_or_else(|e| panic!("{e}"));
+        let code_part = text.split("#[cfg(test)]").next().unwrap_or_default();
+        let code: String = code_part
+            .lines()
+            .filter(|line| !line.trim_start().starts_with("//"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let entry = graph.entry(module.clone()).or_default();
+        entry.extend(uses(&code).into_iter().filter(|used| *used != module));
+    }
+    assert!(graph.len() > 20, "{} modules read", graph.len());
+    // Depth-first search; a module met again while on the path closes a loop.
+    fn visit(
+        module: &str,
+        graph: &BTreeMap<String, BTreeSet<String>>,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) {
+        if done.contains(module) {
+            return;
+        }
+        if let Some(at) = path.iter().position(|m| m == module) {
+            panic!("a loop of modules: {} -> {module}", path[at..].join(" -> "));
+        }
+        path.push(module.to_owned());
+        for used in graph.get(module).into_iter().flatten() {
+            if graph.contains_key(used) {
+                visit(used, graph, path, done);
+            }
+        }
+        path.pop();
+        done.insert(module.to_owned());
+    }
+    let mut done = BTreeSet::new();
+    for module in graph.keys() {
+        visit(module, &graph, &mut Vec::new(), &mut done);
+    }
+}
