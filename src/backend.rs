@@ -23,6 +23,7 @@
 //! # Ok::<(), tissue::Error>(())
 //! ```
 
+use std::convert::Infallible;
 use std::fmt;
 use std::str::FromStr;
 
@@ -30,14 +31,14 @@ use glam::{Mat3, Vec3};
 use tissue_core::{
     Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
 };
-use tissue_cpu::deformation::{DeformParams, DeformReport, Deformer, SharedLaplacian};
+use tissue_cpu::deformation::{CpuSolve, DeformParams, DeformReport, SharedLaplacian};
 use tissue_cpu::structures::Embedding;
 use tissue_cpu::{Progress, Sampled};
-use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
+use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
 use tissue_solve::elastic::offsets_product;
 use tissue_solve::structures::{RigidBinding, RigidMotion};
 use tissue_solve::svd3::rotation_of;
-use tissue_solve::{PrepareStage, SolveStep};
+use tissue_solve::{Iteration, Plan, PrepareStage, SolveDevice, SolveStep, Tracker};
 
 /// Which device to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -266,9 +267,10 @@ pub fn sample_on(
     crate::usable(sampled)
 }
 
-/// Stage 2 on the chosen device, with the positions of the last solve at
-/// hand on the host (read back once per solve, a frame boundary). Structures
-/// and landmarks are carried where the particles are: on the GPU, by
+/// Stage 2 on the chosen device: the one [`Tracker`] over a
+/// [`SolverDevice`], with the positions of the last solve at hand on the
+/// host (read back once per solve, a frame boundary). Structures and
+/// landmarks are carried where the particles are: on the GPU, by
 /// `embedding_moved.wgsl`, reading back only the moved points.
 ///
 /// Its reference, the posture displacements, structures and landmarks are
@@ -278,17 +280,19 @@ pub fn sample_on(
 /// carrying on the host.
 #[derive(Debug)]
 pub struct Solver {
-    device: SolverDevice,
+    tracker: Tracker<SolverDevice>,
     /// The model's rest posture and connections, where the solver's rest
     /// shape is another ([`Solver::unloaded`]).
     reference: Option<Reference>,
 }
 
-/// The device half of a [`Solver`].
+/// The device half of a [`Solver`]: the CPU's or the GPU's kernels and
+/// buffers, one [`SolveDevice`] that forwards to either, their errors made
+/// the library's.
 #[derive(Debug)]
 pub enum SolverDevice {
     /// The CPU path.
-    Cpu(Box<Deformer>),
+    Cpu(Box<CpuSolve>),
     /// The GPU path.
     Gpu(Box<GpuSolver>),
 }
@@ -300,22 +304,127 @@ struct Reference {
     connections: Connections,
 }
 
-/// The GPU half of [`Solver`].
+/// The GPU half of [`SolverDevice`]: the solve's kernels and buffers, and
+/// the kernel that carries bound points.
 #[derive(Debug)]
 pub struct GpuSolver {
     name: String,
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    deformer: GpuDeformer,
+    solve: GpuSolve,
     embedding: EmbeddingKernel,
 }
 
 impl GpuSolver {
-    /// The GPU deformer, for what the facade does not wrap (its kernels and
-    /// buffers, the rotations).
-    pub fn deformer(&self) -> &GpuDeformer {
-        &self.deformer
+    /// The GPU solve, for what the facade does not wrap (its kernels and
+    /// buffers).
+    pub fn solve(&self) -> &GpuSolve {
+        &self.solve
     }
+
+    /// `what` on the GPU solve, its failure said to be `doing` on this GPU.
+    fn on<T>(
+        &mut self,
+        doing: &str,
+        what: impl FnOnce(&mut GpuSolve) -> Result<T, GpuError>,
+    ) -> Result<T, Error> {
+        what(&mut self.solve).map_err(|e| gpu_error(format!("{doing} on {}", self.name), e))
+    }
+}
+
+/// Every call forwards to the device's own solve; a GPU failure comes back
+/// as [`Error::Gpu`], saying what was being done on which GPU.
+impl SolveDevice for SolverDevice {
+    type Error = Error;
+
+    fn batch(&self) -> usize {
+        match self {
+            Self::Cpu(cpu) => cpu.batch(),
+            Self::Gpu(gpu) => gpu.solve.batch(),
+        }
+    }
+
+    fn coarse_rho(&self) -> Option<f32> {
+        match self {
+            Self::Cpu(cpu) => cpu.coarse_rho(),
+            Self::Gpu(gpu) => gpu.solve.coarse_rho(),
+        }
+    }
+
+    fn elastic_rho(&self) -> Option<f32> {
+        match self {
+            Self::Cpu(cpu) => cpu.elastic_rho(),
+            Self::Gpu(gpu) => gpu.solve.elastic_rho(),
+        }
+    }
+
+    fn volume_smoother(&self) -> bool {
+        match self {
+            Self::Cpu(cpu) => SolveDevice::volume_smoother(cpu.as_ref()),
+            Self::Gpu(gpu) => gpu.solve.volume_smoother(),
+        }
+    }
+
+    fn elastic_smoothed(&self) -> bool {
+        match self {
+            Self::Cpu(cpu) => cpu.elastic_smoothed(),
+            Self::Gpu(gpu) => gpu.solve.elastic_smoothed(),
+        }
+    }
+
+    fn write_positions(&mut self, positions: &[Vec3], turn: Option<Mat3>) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.write_positions(positions, turn)),
+            Self::Gpu(gpu) => gpu.on("uploading positions", |g| {
+                g.write_positions(positions, turn)
+            }),
+        }
+    }
+
+    fn begin(&mut self, iteration: Iteration) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.begin(iteration)),
+            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.begin(iteration)),
+        }
+    }
+
+    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.run(omegas)),
+            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.run(omegas)),
+        }
+    }
+
+    fn replay(&mut self, count: usize) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.replay(count)),
+            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.replay(count)),
+        }
+    }
+
+    fn read_positions(&mut self) -> Result<Vec<Vec3>, Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.read_positions()),
+            Self::Gpu(gpu) => gpu.on("reading positions", GpuSolve::read_positions),
+        }
+    }
+
+    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
+        match self {
+            Self::Cpu(cpu) => cpu.shared_laplacian(plan, params),
+            Self::Gpu(gpu) => gpu.solve.shared_laplacian(plan, params),
+        }
+    }
+
+    fn reset(&mut self) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(SolveDevice::reset(cpu.as_mut())),
+            Self::Gpu(gpu) => gpu.on("resetting stage 2", SolveDevice::reset),
+        }
+    }
+}
+
+/// The CPU solve's result, which cannot fail.
+fn infallible<T>(done: Result<T, Infallible>) -> Result<T, Error> {
+    done.map_err(|never| match never {})
 }
 
 /// Points bound to the particles, ready to be carried on the solver's device.
@@ -362,32 +471,34 @@ impl Solver {
         shared: Option<&SharedLaplacian>,
         progress: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
-        let device = match device {
-            Device::Cpu => SolverDevice::Cpu(Box::new(Deformer::new_shared(
-                model, params, shared, progress,
-            )?)),
-            Device::Gpu {
-                name,
-                device,
-                queue,
-            } => {
-                let context = format!("preparing stage 2 on {name}");
-                let deformer =
-                    GpuDeformer::new_shared(&device, &queue, model, params, shared, progress)
+        let tracker =
+            Tracker::new_shared(model, params, shared, progress, |plan, params, observe| {
+                Ok::<_, Error>(match device {
+                    Device::Cpu => SolverDevice::Cpu(Box::new(CpuSolve::new_shared(
+                        model, plan, params, shared, observe,
+                    ))),
+                    Device::Gpu {
+                        name,
+                        device,
+                        queue,
+                    } => {
+                        let context = format!("preparing stage 2 on {name}");
+                        let solve = GpuSolve::prepare(
+                            &device, &queue, model, plan, params, shared, observe,
+                        )
                         .map_err(|e| gpu_error(&context, e))?;
-                let embedding =
-                    EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
-                SolverDevice::Gpu(Box::new(GpuSolver {
-                    name,
-                    device,
-                    queue,
-                    deformer,
-                    embedding,
-                }))
-            }
-        };
+                        let embedding =
+                            EmbeddingKernel::new(&device).map_err(|e| gpu_error(&context, e))?;
+                        SolverDevice::Gpu(Box::new(GpuSolver {
+                            name,
+                            solve,
+                            embedding,
+                        }))
+                    }
+                })
+            })?;
         Ok(Self {
-            device,
+            tracker,
             reference: None,
         })
     }
@@ -441,28 +552,38 @@ impl Solver {
         Ok(solver)
     }
 
-    /// The device's solver, for what the facade does not wrap.
+    /// The tracker over the device (a solver with a reference of its own,
+    /// [`Solver::unloaded`], leaves it behind).
+    pub fn into_tracker(self) -> Tracker<SolverDevice> {
+        self.tracker
+    }
+
+    /// The device's solve, for what the facade does not wrap.
     pub fn device(&self) -> &SolverDevice {
-        &self.device
+        self.tracker.device()
     }
 
     /// `cpu`, or the GPU adapter's name and graphics backend (for the reports).
     pub fn backend(&self) -> String {
-        match &self.device {
+        match self.tracker.device() {
             SolverDevice::Cpu(_) => "cpu".to_owned(),
             SolverDevice::Gpu(gpu) => gpu.name.clone(),
         }
     }
 
+    /// The solve's plan: free particles, spectrum, size, float floor.
+    pub fn plan(&self) -> &Plan {
+        self.tracker.plan()
+    }
+
+    /// The parameters of the next solves.
+    pub fn params(&self) -> &DeformParams {
+        self.tracker.params()
+    }
+
     /// Places the control points on `deformed`, the rest surface with moved vertices.
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
-        match &mut self.device {
-            SolverDevice::Cpu(cpu) => cpu.set_surface(deformed),
-            SolverDevice::Gpu(gpu) => gpu
-                .deformer
-                .set_surface(deformed)
-                .map_err(|e| gpu_error(format!("uploading a surface to {}", gpu.name), e)),
-        }
+        self.tracker.set_surface(deformed)
     }
 
     /// Starts the next solve from `positions` (one per particle; the
@@ -471,13 +592,7 @@ impl Solver {
     /// phases from `positions` if that fails. Call it after
     /// `set_surface`. For a search whose solves are near each other.
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
-        match &mut self.device {
-            SolverDevice::Cpu(cpu) => cpu.warm_start(positions),
-            SolverDevice::Gpu(gpu) => gpu
-                .deformer
-                .warm_start(positions)
-                .map_err(|e| gpu_error(format!("uploading a start to {}", gpu.name), e)),
-        }
+        self.tracker.warm_start(positions)
     }
 
     /// Changes the parameters of the next solves (the tolerance, say); the
@@ -490,10 +605,7 @@ impl Solver {
     /// [`Error::Param`] for parameters out of range or a change of what
     /// was prepared.
     pub fn set_params(&mut self, params: DeformParams) -> Result<(), Error> {
-        match &mut self.device {
-            SolverDevice::Cpu(cpu) => cpu.set_params(params),
-            SolverDevice::Gpu(gpu) => gpu.deformer.set_params(params),
-        }
+        self.tracker.set_params(params)
     }
 
     /// Solves, and on the GPU reads the positions back.
@@ -508,47 +620,24 @@ impl Solver {
         &mut self,
         progress: &mut dyn FnMut(&SolveStep),
     ) -> Result<DeformReport, Error> {
-        match &mut self.device {
-            SolverDevice::Cpu(cpu) => Ok(cpu.solve_observed(progress)),
-            SolverDevice::Gpu(gpu) => {
-                let report = gpu
-                    .deformer
-                    .solve_observed(progress)
-                    .map_err(|e| gpu_error(format!("stage 2 on {}", gpu.name), e))?;
-                Ok(report)
-            }
-        }
+        self.tracker.solve_observed(progress)
     }
 
     /// Back to the rest shape.
     pub fn reset(&mut self) -> Result<(), Error> {
-        match &mut self.device {
-            SolverDevice::Cpu(cpu) => cpu.reset(),
-            SolverDevice::Gpu(gpu) => {
-                gpu.deformer
-                    .reset()
-                    .map_err(|e| gpu_error(format!("resetting stage 2 on {}", gpu.name), e))?;
-            }
-        }
-        Ok(())
+        self.tracker.reset()
     }
 
     /// Rest particle positions: the shape the solve is stress-free in.
     pub fn rest(&self) -> &[Vec3] {
-        match &self.device {
-            SolverDevice::Cpu(cpu) => cpu.rest(),
-            SolverDevice::Gpu(gpu) => gpu.deformer.rest(),
-        }
+        self.tracker.rest()
     }
 
     /// What this solver prepared that depends only on the model's
     /// connections and free particles, for another solver of the same
     /// model in another rest shape ([`Solver::new_shared`]).
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        match &self.device {
-            SolverDevice::Cpu(cpu) => cpu.shared_laplacian(),
-            SolverDevice::Gpu(gpu) => gpu.deformer.shared_laplacian(),
-        }
+        self.tracker.shared_laplacian()
     }
 
     /// The posture displacements, structures and landmarks are measured
@@ -561,12 +650,10 @@ impl Solver {
         }
     }
 
-    /// Particle positions after the last solve.
+    /// Particle positions after the last solve (or the last
+    /// [`Solver::set_surface`], [`Solver::warm_start`] or [`Solver::reset`]).
     pub fn positions(&self) -> &[Vec3] {
-        match &self.device {
-            SolverDevice::Cpu(cpu) => cpu.positions(),
-            SolverDevice::Gpu(gpu) => gpu.deformer.host_positions(),
-        }
+        self.tracker.positions()
     }
 
     /// Each particle's rotation (reference offsets onto current offsets)
@@ -584,10 +671,10 @@ impl Solver {
                 })
                 .collect());
         }
-        match &self.device {
+        match self.tracker.device() {
             SolverDevice::Cpu(cpu) => Ok(cpu.rotations().to_vec()),
             SolverDevice::Gpu(gpu) => gpu
-                .deformer
+                .solve
                 .read_rotations()
                 .map_err(|e| gpu_error(format!("reading rotations from {}", gpu.name), e)),
         }
@@ -598,13 +685,13 @@ impl Solver {
     /// binding.
     pub fn bind(&self, points: &[Vec3]) -> Result<BoundPoints, Error> {
         let embedding = Embedding::new(self.reference(), points);
-        let gpu = match &self.device {
+        let gpu = match self.tracker.device() {
             SolverDevice::Gpu(gpu) if self.reference.is_none() => Some(
                 GpuEmbedding::new(
-                    &gpu.device,
+                    gpu.solve.device(),
                     &gpu.embedding,
                     &embedding,
-                    gpu.deformer.rest().len(),
+                    self.tracker.rest().len(),
                 )
                 .map_err(|e| gpu_error(format!("binding points on {}", gpu.name), e))?,
             ),
@@ -615,18 +702,18 @@ impl Solver {
 
     /// Where `bound`'s points are after the last solve.
     pub fn carry(&self, bound: &BoundPoints) -> Result<Vec<Vec3>, Error> {
-        match (&self.device, &bound.gpu) {
+        match (self.tracker.device(), &bound.gpu) {
             (SolverDevice::Gpu(gpu), Some(on_gpu)) => on_gpu
                 .moved(
-                    &gpu.device,
-                    &gpu.queue,
+                    gpu.solve.device(),
+                    gpu.solve.queue(),
                     &gpu.embedding,
-                    gpu.deformer.state(),
+                    gpu.solve.state(),
                 )
                 .map_err(|e| gpu_error(format!("carrying points on {}", gpu.name), e)),
             (SolverDevice::Cpu(cpu), None) if self.reference.is_none() => Ok(bound
                 .embedding
-                .moved(cpu.rest(), cpu.positions(), cpu.rotations())),
+                .moved(self.rest(), cpu.positions(), cpu.rotations())),
             (_, None) if self.reference.is_some() => {
                 Ok(bound
                     .embedding

@@ -5,8 +5,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
-use tissue_cpu::deformation::{Chebyshev, DeformParams, Deformer, Iteration, Pass, SolveDevice};
-use tissue_gpu::GpuDeformer;
+use tissue_cpu::deformation::{
+    Chebyshev, CpuSolve, DeformParams, Iteration, Pass, Plan, SolveDevice,
+};
+use tissue_gpu::GpuSolve;
 use tissue_gpu::timing::KernelTimer;
 
 use crate::stage2::Gpu;
@@ -72,16 +74,16 @@ fn timed<T>(f: impl FnOnce() -> T) -> (f64, T) {
 }
 
 /// The CPU iteration of `Deformer::solve`, pass by pass: the solve's own
-/// iteration (`CpuSolve::iterate_timed`) on a copy of `deformer`'s state
+/// iteration (`CpuSolve::iterate_timed`) on a copy of `solve`'s state (`plan` its solver's)
 /// (after `iterations` iterations of `params`), run on for `samples`
 /// iterations, each pass timed where it runs.
 pub fn cpu(
-    deformer: &Deformer,
+    plan: &Plan,
+    solve: &CpuSolve,
     params: &DeformParams,
     iterations: usize,
     samples: usize,
 ) -> Result<Breakdown> {
-    let plan = deformer.plan();
     let mut chebyshev = Chebyshev::new(plan, params);
     let omega = (1..=iterations + 1)
         .map(|k| chebyshev.omega(k))
@@ -96,7 +98,7 @@ pub fn cpu(
         relinearise: true,
         damping: 1.0,
     };
-    let mut solve = deformer.device().clone();
+    let mut solve = solve.clone();
     let Ok(()) = solve.begin(it);
 
     // Each pass of the iteration, in order, with its seconds per sample.
@@ -146,12 +148,12 @@ fn wait(gpu: &Gpu) -> Result<()> {
         .context("waiting for the GPU")
 }
 
-/// The GPU iteration kernel by kernel on `deformer`'s current state (each
+/// The GPU iteration kernel by kernel on `solve`'s current state (each
 /// timed run moves it on by an iteration), `samples` times each: by
 /// timestamp queries where the device has them, by the wall clock around a
 /// submit and a wait otherwise.
-pub fn gpu(gpu: &Gpu, deformer: &GpuDeformer, samples: usize) -> Result<Breakdown> {
-    let (pipelines, state) = (deformer.pipelines(), deformer.state());
+pub fn gpu(gpu: &Gpu, solve: &GpuSolve, samples: usize) -> Result<Breakdown> {
+    let (pipelines, state) = (solve.pipelines(), solve.state());
     let iteration = state.iteration();
     let names: Vec<&str> = iteration.iter().map(|k| k.name()).collect();
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); iteration.len()];

@@ -5,7 +5,7 @@ use std::mem::size_of;
 
 use serde::Serialize;
 use tissue_core::{Attachment, ParticleModel};
-use tissue_gpu::GpuDeformer;
+use tissue_gpu::GpuSolve;
 
 /// Bytes of a [`ParticleModel`] on the CPU (the surface mesh excluded).
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -62,10 +62,10 @@ pub struct GpuStateBytes {
 }
 
 impl GpuStateBytes {
-    /// The buffers `deformer` holds for a model of `particles` particles.
-    pub fn of(deformer: &GpuDeformer, particles: usize) -> Self {
-        let state_total = deformer.state().buffer_bytes();
-        let deformer_total = deformer.buffer_bytes();
+    /// The buffers `solve` holds for a model of `particles` particles.
+    pub fn of(solve: &GpuSolve, particles: usize) -> Self {
+        let state_total = solve.state().buffer_bytes();
+        let deformer_total = solve.buffer_bytes();
         let n = particles.max(1) as f64;
         Self {
             state_total,

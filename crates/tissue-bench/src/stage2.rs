@@ -208,14 +208,15 @@ pub fn measure(
             }
         }
         let stages = match (solver.device(), gpu) {
-            (SolverDevice::Cpu(deformer), _) => breakdown::cpu(
-                deformer,
+            (SolverDevice::Cpu(cpu), _) => breakdown::cpu(
+                solver.plan(),
+                cpu,
                 &fixed,
                 repeats.iterations_per_solve,
                 repeats.stage_samples,
             ),
             (SolverDevice::Gpu(on_gpu), Some(gpu)) => {
-                breakdown::gpu(gpu, on_gpu.deformer(), repeats.stage_samples)
+                breakdown::gpu(gpu, on_gpu.solve(), repeats.stage_samples)
             }
             (SolverDevice::Gpu(_), None) => anyhow::bail!("a GPU solver without a GPU"),
         }
@@ -239,12 +240,12 @@ pub fn measure(
     let prepare_seconds = started.elapsed().as_secs_f64();
     // What the solve runs: the coarse space's aggregates on both devices.
     let coarse_aggregates = match solver.device() {
-        SolverDevice::Cpu(deformer) => deformer.coarse().map_or(0, |c| c.count()),
-        SolverDevice::Gpu(on_gpu) => on_gpu.deformer().state().aggregates(),
+        SolverDevice::Cpu(cpu) => cpu.coarse().map_or(0, |c| c.count()),
+        SolverDevice::Gpu(on_gpu) => on_gpu.solve().state().aggregates(),
     };
     let gpu_state_bytes = match solver.device() {
         SolverDevice::Cpu(_) => None,
-        SolverDevice::Gpu(on_gpu) => Some(GpuStateBytes::of(on_gpu.deformer(), model.len())),
+        SolverDevice::Gpu(on_gpu) => Some(GpuStateBytes::of(on_gpu.solve(), model.len())),
     };
     // From rest, the solver alone: the tracking prediction would carry a
     // rigid rotation there exactly, and hide the solver's convergence.

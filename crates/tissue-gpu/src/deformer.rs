@@ -173,34 +173,32 @@ impl GpuDeformer {
     /// the free particles, for another solver of the same model in another
     /// rest shape ([`GpuDeformer::new_shared`]).
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        // The coarse space was made for the CPU twin's parameters.
-        let plan = self.tracker.plan();
-        SharedLaplacian::new(
-            plan.laplacian_key,
-            plan,
-            &Self::cpu_twin(self.tracker.params()),
-            self.tracker.device().coarse.clone(),
-        )
+        self.tracker.shared_laplacian()
+    }
+
+    /// The kernels and buffers the solves run on.
+    pub fn solve_device(&self) -> &GpuSolve {
+        self.tracker.device()
     }
 
     /// The device the solve runs on.
     pub fn device(&self) -> &wgpu::Device {
-        &self.tracker.device().device
+        self.tracker.device().device()
     }
 
     /// The queue the solve submits to.
     pub fn queue(&self) -> &wgpu::Queue {
-        &self.tracker.device().queue
+        self.tracker.device().queue()
     }
 
     /// The kernels.
     pub fn pipelines(&self) -> &Pipelines {
-        &self.tracker.device().pipelines
+        self.tracker.device().pipelines()
     }
 
     /// The buffers.
     pub fn state(&self) -> &DeformState {
-        &self.tracker.device().state
+        self.tracker.device().state()
     }
 
     /// The passes every iteration of the last solve ran, in order (the
@@ -209,13 +207,9 @@ impl GpuDeformer {
         self.state().passes()
     }
 
-    /// Bytes of every GPU buffer the deformer holds: the state's, and the three backups a batch is replayed from.
+    /// Bytes of every GPU buffer the deformer holds ([`GpuSolve::buffer_bytes`]).
     pub fn buffer_bytes(&self) -> u64 {
-        let gpu = self.tracker.device();
-        gpu.state.buffer_bytes()
-            + gpu.backup_current.size()
-            + gpu.backup_previous.size()
-            + gpu.backup_rotations.size()
+        self.tracker.device().buffer_bytes()
     }
 
     /// The model's size (bounding-box diagonal at rest).
@@ -270,8 +264,7 @@ impl GpuDeformer {
 
     /// Reads the current positions back (a frame boundary).
     pub fn positions(&self) -> Result<Vec<Vec3>, GpuError> {
-        let gpu = self.tracker.device();
-        gpu.state.read_positions(&gpu.device, &gpu.queue)
+        self.tracker.device().read_current()
     }
 
     /// Reads back each particle's rotation (rest offsets onto current
@@ -280,8 +273,7 @@ impl GpuDeformer {
     /// `Embedding::moved` and `RigidBinding::motion` need. Stalls until the
     /// GPU is done: frame boundaries only.
     pub fn read_rotations(&self) -> Result<Vec<Mat3>, GpuError> {
-        let gpu = self.tracker.device();
-        gpu.state.read_rotations(&gpu.device, &gpu.queue)
+        self.tracker.device().read_rotations()
     }
 
     /// Back to the rest shape.
@@ -301,20 +293,17 @@ impl GpuDeformer {
         &mut self,
         observe: &mut dyn FnMut(&tissue_solve::SolveStep),
     ) -> Result<DeformReport, GpuError> {
-        let device = self.tracker.device().device.clone();
-        let scope = Scopes::push(&device);
-        let report = self.tracker.solve_observed(observe);
-        scope.pop()?;
-        report
+        self.tracker.solve_observed(observe)
     }
 }
 
 impl GpuSolve {
-    /// The device half of [`GpuDeformer::new_shared`]: the kernels
+    /// The device half of [`GpuDeformer::new_shared`] (what
+    /// `Tracker::new_shared` is given to make the device): the kernels
     /// compiled, the model uploaded, the coarse space (from `shared` where
     /// it fits), and the elastic phase's host data, as the
     /// CPU twin prepares them.
-    fn prepare(
+    pub fn prepare(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         model: &ParticleModel,
@@ -415,6 +404,47 @@ impl GpuSolve {
         })
     }
 
+    /// The device the solve runs on.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The queue the solve submits to.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// The kernels.
+    pub fn pipelines(&self) -> &Pipelines {
+        &self.pipelines
+    }
+
+    /// The buffers.
+    pub fn state(&self) -> &DeformState {
+        &self.state
+    }
+
+    /// Bytes of every GPU buffer the solve holds: the state's, and the
+    /// three backups a batch is replayed from.
+    pub fn buffer_bytes(&self) -> u64 {
+        self.state.buffer_bytes()
+            + self.backup_current.size()
+            + self.backup_previous.size()
+            + self.backup_rotations.size()
+    }
+
+    /// Reads the current positions back (a frame boundary).
+    pub fn read_current(&self) -> Result<Vec<Vec3>, GpuError> {
+        self.state.read_positions(&self.device, &self.queue)
+    }
+
+    /// Reads back each particle's rotation (rest offsets onto current
+    /// offsets) from the last iteration, as the CPU path has them. Stalls
+    /// until the GPU is done: frame boundaries only.
+    pub fn read_rotations(&self) -> Result<Vec<Mat3>, GpuError> {
+        self.state.read_rotations(&self.device, &self.queue)
+    }
+
     /// Makes the elastic phase's correction at the current positions (read
     /// back) on the host, as the CPU path makes its own, and uploads it; a
     /// failure leaves the phase uncorrected, with a warning.
@@ -423,7 +453,7 @@ impl GpuSolve {
             return Ok(());
         }
         let device = self.device.clone();
-        let current = self.read_positions()?;
+        let current = self.read_positions_unscoped()?;
         let Some(host) = &self.elastic_host else {
             return Ok(());
         };
@@ -485,7 +515,63 @@ impl SolveDevice for GpuSolve {
                 .is_some_and(|c| c.smoother().is_some())
     }
 
+    /// The coarse space, made for the CPU twin's parameters of `params`
+    /// ([`GpuDeformer::cpu_twin`]).
+    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
+        SharedLaplacian::new(
+            plan.laplacian_key,
+            plan,
+            &GpuDeformer::cpu_twin(params),
+            self.coarse.clone(),
+        )
+    }
+
     fn write_positions(&mut self, positions: &[Vec3], turn: Option<Mat3>) -> Result<(), GpuError> {
+        self.scoped(|gpu| gpu.write_positions_unscoped(positions, turn))
+    }
+
+    fn begin(&mut self, iteration: Iteration) -> Result<(), GpuError> {
+        self.scoped(|gpu| gpu.begin_unscoped(iteration))
+    }
+
+    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, GpuError> {
+        self.scoped(|gpu| gpu.run_unscoped(omegas))
+    }
+
+    fn replay(&mut self, count: usize) -> Result<(), GpuError> {
+        self.scoped(|gpu| gpu.replay_unscoped(count))
+    }
+
+    fn read_positions(&mut self) -> Result<Vec<Vec3>, GpuError> {
+        self.scoped(Self::read_positions_unscoped)
+    }
+
+    fn reset(&mut self) -> Result<(), GpuError> {
+        self.scoped(Self::reset_unscoped)
+    }
+}
+
+/// What [`SolveDevice`] asks, each call inside error scopes of its own
+/// ([`GpuSolve::scoped`]).
+impl GpuSolve {
+    /// `work`, with wgpu's validation and out-of-memory errors caught as
+    /// [`GpuError`]s: every call the tracker makes fails with a typed
+    /// error rather than wgpu's uncaptured-error handler.
+    fn scoped<T>(
+        &mut self,
+        work: impl FnOnce(&mut Self) -> Result<T, GpuError>,
+    ) -> Result<T, GpuError> {
+        let scope = Scopes::push(&self.device);
+        let done = work(self);
+        scope.pop()?;
+        done
+    }
+
+    fn write_positions_unscoped(
+        &mut self,
+        positions: &[Vec3],
+        turn: Option<Mat3>,
+    ) -> Result<(), GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         self.state.write_current(queue, positions)?;
@@ -503,7 +589,7 @@ impl SolveDevice for GpuSolve {
         Ok(())
     }
 
-    fn begin(&mut self, iteration: Iteration) -> Result<(), GpuError> {
+    fn begin_unscoped(&mut self, iteration: Iteration) -> Result<(), GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         if ElasticCoarse::is_needed_anew(self.elastic_coarse.as_ref(), &iteration) {
@@ -521,7 +607,7 @@ impl SolveDevice for GpuSolve {
         Ok(())
     }
 
-    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, GpuError> {
+    fn run_unscoped(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         let Some(it) = self.iteration else {
@@ -565,7 +651,7 @@ impl SolveDevice for GpuSolve {
             .collect())
     }
 
-    fn replay(&mut self, count: usize) -> Result<(), GpuError> {
+    fn replay_unscoped(&mut self, count: usize) -> Result<(), GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         let state = &self.state;
@@ -592,13 +678,13 @@ impl SolveDevice for GpuSolve {
         crate::wait(device)
     }
 
-    fn read_positions(&mut self) -> Result<Vec<Vec3>, GpuError> {
+    fn read_positions_unscoped(&mut self) -> Result<Vec<Vec3>, GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         self.state.read_positions(device, queue)
     }
 
-    fn reset(&mut self) -> Result<(), GpuError> {
+    fn reset_unscoped(&mut self) -> Result<(), GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
         // The rotations start from the identity again, as the CPU path's.

@@ -5,7 +5,9 @@
 
 use glam::{Mat3, Vec3};
 
-use crate::params::{ForceModel, RotationMethod};
+use crate::coarse::SharedLaplacian;
+use crate::params::{DeformParams, ForceModel, RotationMethod};
+use crate::plan::Plan;
 
 /// What every iteration of one solve runs with, from the plan and the
 /// parameters at its start.
@@ -108,4 +110,10 @@ pub trait SolveDevice {
 
     /// Back to the rest shape, rotations included.
     fn reset(&mut self) -> Result<(), Self::Error>;
+
+    /// What the device prepared that depends only on the connections and
+    /// the free particles (its coarse space, if any), with `plan` and
+    /// `params` the solve's, for another solve of the model in another
+    /// rest shape.
+    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian;
 }

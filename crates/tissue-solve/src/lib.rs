@@ -40,6 +40,7 @@ pub mod multilevel;
 pub mod params;
 pub mod passes;
 pub mod plan;
+pub mod posture;
 pub mod predict;
 pub mod quality;
 pub mod report;

@@ -158,6 +158,14 @@ impl<D: SolveDevice> Tracker<D> {
         })
     }
 
+    /// What the solve prepared that depends only on the connections and
+    /// the free particles: the Laplacian's spectrum and the device's
+    /// coarse space, for another tracker of the same model in another rest
+    /// shape ([`Tracker::new_shared`]).
+    pub fn shared_laplacian(&self) -> SharedLaplacian {
+        self.device.shared_laplacian(&self.plan, &self.params)
+    }
+
     /// The device's kernels and buffers.
     pub fn device(&self) -> &D {
         &self.device
@@ -817,6 +825,10 @@ mod tests {
 
         fn elastic_smoothed(&self) -> bool {
             self.smoothed && self.elastic_rho().is_some()
+        }
+
+        fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
+            SharedLaplacian::new(plan.laplacian_key, plan, params, None)
         }
 
         fn volume_smoother(&self) -> bool {

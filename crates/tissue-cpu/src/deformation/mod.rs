@@ -107,13 +107,7 @@ impl Deformer {
     /// the free particles, for another solver of the same model in another
     /// rest shape ([`Deformer::new_shared`]).
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        let plan = self.tracker.plan();
-        SharedLaplacian::new(
-            plan.laplacian_key,
-            plan,
-            self.tracker.params(),
-            self.tracker.device().coarse.clone(),
-        )
+        self.tracker.shared_laplacian()
     }
 
     /// Current particle positions.
@@ -324,6 +318,22 @@ impl CpuSolve {
             iteration: None,
             batch_start: None,
         }
+    }
+
+    /// Current particle positions.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.current
+    }
+
+    /// Each particle's rotation (rest offsets onto current offsets) from
+    /// the last iteration.
+    pub fn rotations(&self) -> &[Mat3] {
+        &self.rotations
+    }
+
+    /// The coarse space of the two-level solve, if any.
+    pub fn coarse(&self) -> Option<&CoarseSpace> {
+        self.coarse.as_deref()
     }
 
     /// The elastic phase's coarse correction made where the last corrected
@@ -683,6 +693,11 @@ impl SolveDevice for CpuSolve {
             self.iterate(it, omega);
         }
         Ok(())
+    }
+
+    /// The coarse space, made for `params`.
+    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
+        SharedLaplacian::new(plan.laplacian_key, plan, params, self.coarse.clone())
     }
 
     fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {
