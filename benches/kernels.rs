@@ -17,13 +17,13 @@ use tissue::deform::Rigid;
 use tissue::field::SurfaceField;
 use tissue::{SamplingParams, phantom};
 use tissue_cpu::coarse::Aggregates;
-use tissue_cpu::coarse_elastic::{CorrectionFor, ElasticCoarse};
+use tissue_cpu::coarse::{CorrectionFor, ElasticCoarse};
 use tissue_cpu::deformation::{
     Elastic, ForceModel, Plan, RotationMethod, deformation_force, elastic_force, elastic_residual,
     elastic_terms, integrate, local_rotations, local_rotations_warm,
 };
-use tissue_cpu::grid::{grid_build, neighbour_rows};
 use tissue_cpu::sampling::{SamplingState, imf_force, initial_radius};
+use tissue_cpu::stage1::{grid_build, neighbour_rows};
 
 const PARTICLES: usize = 10_000;
 
@@ -117,7 +117,7 @@ fn kernels(c: &mut Criterion) {
     let aggregates = Aggregates::new(rest, connections, &free, cell, 1_000).expect("aggregates");
     let made_for = CorrectionFor {
         contraction: 0.01,
-        volume_delta: Some(tissue_solve::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max)),
+        volume_delta: Some(tissue_solve::coarse::SHEAR_STEP * f64::from(plan.lambda_max)),
         rho: Some(0.9),
         direct_max_aggregates: 10_000,
         envelope: false,

@@ -17,8 +17,8 @@
 use std::collections::HashMap;
 
 use glam::{Mat3, Vec3};
-use tissue::advanced::gravity::{Unloading, gravity_load, held_vertices, unloaded_shape};
-use tissue::advanced::stiffness::{Postures, fit_stiffness, free_skin_targets};
+use tissue::advanced::model::{Postures, fit_stiffness, free_skin_targets};
+use tissue::advanced::model::{Unloading, gravity_load, held_vertices, unloaded_shape};
 use tissue::deformation::{DeformParams, Deformer, ForceModel};
 use tissue::structures::Embedding;
 
@@ -45,9 +45,8 @@ fn key(v: Vec3) -> [u32; 3] {
 fn rotations(rest: &[Vec3], current: &[Vec3], model: &tissue::ParticleModel) -> Vec<Mat3> {
     (0..rest.len())
         .map(|i| {
-            let m =
-                tissue::advanced::elastic::offsets_product(rest, current, &model.connections, i);
-            tissue::advanced::svd3::rotation_of(m)
+            let m = tissue::advanced::model::offsets_product(rest, current, &model.connections, i);
+            tissue::advanced::model::rotation_of(m)
         })
         .collect()
 }

@@ -32,12 +32,12 @@ use tissue_core::{
     Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
 };
 use tissue_cpu::deformation::{CpuSolve, DeformParams, DeformReport, SharedLaplacian};
-use tissue_cpu::structures::Embedding;
+use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
-use tissue_solve::elastic::offsets_product;
-use tissue_solve::structures::{RigidBinding, RigidMotion};
-use tissue_solve::svd3::rotation_of;
+use tissue_solve::model::offsets_product;
+use tissue_solve::model::rotation_of;
+use tissue_solve::model::{RigidBinding, RigidMotion};
 use tissue_solve::{Iteration, Plan, PrepareStage, SolveDevice, SolveStep, Tracker};
 
 /// Which device to use.
@@ -505,7 +505,7 @@ impl Solver {
 
     /// Prepares stage 2 for `model` stress-free in the shape `unloaded`
     /// (one position per particle: the organ's unloaded shape,
-    /// `tissue_solve::gravity`), whose surface attachments and connections
+    /// `tissue_solve::model::gravity`), whose surface attachments and connections
     /// are the model's; displacements, structures and landmarks are still
     /// measured from the model's own positions, its rest posture
     /// ([`Solver::reference`]).
@@ -726,7 +726,7 @@ impl Solver {
     /// Binds a rigid structure with rest `vertices` (reference
     /// coordinates): its centroid is carried like a landmark, its rotation
     /// fitted to the particles nearest that centroid
-    /// ([`RigidBinding`](tissue_solve::structures::RigidBinding)).
+    /// ([`RigidBinding`](tissue_solve::model::RigidBinding)).
     pub fn bind_rigid(&self, vertices: &[Vec3]) -> Result<BoundRigid, Error> {
         let binding = RigidBinding::new(self.reference(), vertices);
         let centre = self.bind(&binding.centre().points)?;

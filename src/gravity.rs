@@ -3,7 +3,7 @@
 //! fitted from the deformed skin where it is not given, and what a
 //! [`Solver`] needs to solve the deformed posture stress-free in that
 //! shape with its own gravity inside (docs/METHOD.md, "Gravity and the
-//! unloaded shape"). The search is `tissue_solve::posture`'s, run here
+//! unloaded shape"). The search is `tissue_solve::stage2::posture`'s, run here
 //! on a [`Device`].
 //!
 //! ```
@@ -34,19 +34,19 @@
 use tissue_core::{Error, ParticleModel, SamplingParams, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_solve::Tracker;
-use tissue_solve::posture::PostureDevice;
+use tissue_solve::stage2::PostureDevice;
 
 use crate::backend::{Device, Solver, SolverDevice};
 
-pub use tissue_solve::gravity::{STANDARD_GRAVITY, held_vertices};
-pub use tissue_solve::posture::{
+pub use tissue_solve::model::{STANDARD_GRAVITY, held_vertices};
+pub use tissue_solve::stage2::{
     DENSITY_KG_M3, FIT_BOUNDS_KPA, FIT_PARTICLES, FIT_START_KPA, Fit, Gravity, HELD_SPACINGS,
     MAX_GRAVITY_G, MIN_FIT_PARTICLES, NO_CHANGE, ORGAN_SIZE_M, SolveProgress, UNLOADED_TOLERANCE_M,
     Unloaded,
 };
 
 /// The unloaded shape of `model` (its positions the rest scan) under
-/// `gravity`, on `device`: `tissue_solve::posture::unload`, each solve a
+/// `gravity`, on `device`: `tissue_solve::stage2::unload`, each solve a
 /// [`Solver`] on `device`, the stiffness fit's coarse model sampled on
 /// the host. `held` is one flag per surface vertex: the surface that does
 /// not move between the scans (the chest wall), observed in every solve,
@@ -72,7 +72,7 @@ pub fn unload(
     params: &DeformParams,
     progress: &mut dyn FnMut(&SolveProgress),
 ) -> Result<Unloaded, Error> {
-    tissue_solve::posture::unload(
+    tissue_solve::stage2::unload(
         &mut OnDevice(device),
         model,
         deformed,

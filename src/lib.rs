@@ -36,8 +36,21 @@ pub use tissue_core::{
 /// displacement field, the signed distance field, file formats, the
 /// bundled phantom.
 pub use tissue_core::{crossing, deform, displacement, field, io, phantom};
-pub use tissue_solve::sampling::{Progress, Sampled};
-pub use tissue_solve::{resampling, structures};
+pub use tissue_solve::stage1::{Progress, Sampled};
+
+/// Structures bound to particles: points carried by their nearest
+/// particles' motion, rigid structures by the rotation fitted to theirs.
+pub mod structures {
+    pub use tissue_solve::model::{
+        CARRIERS, Embedding, RigidBinding, RigidMotion, carriers_of, embedding_moved,
+    };
+}
+
+/// The displacement field from the deformed posture back to rest, on a
+/// grid around the organ.
+pub mod resampling {
+    pub use tissue_solve::model::{FieldGridError, field_grid, resampling_field};
+}
 
 pub mod backend;
 pub mod gravity;
@@ -52,15 +65,17 @@ pub mod deformation {
     };
 }
 
-/// Under the facade, for tools and research code that need the parts: the
-/// gravity model and the unloaded shape's search, the stiffness fit, the
-/// elastic model's mathematics, the 3x3 rotation, the iteration's passes,
-/// the plan and the tracker over a device, and stage 1 on the CPU without
-/// the facade's checks. These change more freely than the rest of the API.
+/// Under the facade, for tools and research code that need the parts:
+/// `model` (the gravity model and the unloaded shape's search, the
+/// stiffness fit, the elastic model's mathematics, the 3x3 rotation),
+/// `stage2` (the iteration's passes, the plan, the posture search, the
+/// tracker over a device), `coarse` (the two-level solves), and stage 1 on
+/// the CPU without the facade's checks. These change more freely than the
+/// rest of the API.
 pub mod advanced {
     pub use tissue_cpu::sample as sample_on_cpu;
     pub use tissue_solve::{SolveDevice, Tracker};
-    pub use tissue_solve::{elastic, gravity, passes, plan, stiffness, svd3};
+    pub use tissue_solve::{coarse, model, stage2};
 }
 
 /// Stage 1: fills a closed surface with `params.particles` particles relaxed
@@ -94,9 +109,9 @@ pub fn sample_with_progress(
 
 /// `sampled`, unless stage 2 could not use its model: no particle inside,
 /// or too many that cannot carry a rotation
-/// ([`tissue_solve::quality::check_usable`]).
+/// ([`tissue_solve::stage1::check_usable`]).
 pub(crate) fn usable(sampled: Sampled) -> Result<Sampled, Error> {
-    tissue_solve::quality::check_usable(&sampled.model)?;
+    tissue_solve::stage1::check_usable(&sampled.model)?;
     Ok(sampled)
 }
 

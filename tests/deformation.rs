@@ -11,7 +11,7 @@ use tissue_cpu::deformation::{
     DeformParams, Deformer, Elastic, ForceModel, RotationMethod, deformation_force, elastic_force,
     elastic_terms, local_rotations,
 };
-use tissue_cpu::structures::{Embedding, RigidBinding};
+use tissue_cpu::model::{Embedding, RigidBinding};
 
 /// The phantom at 5,000 particles, sampled once for all tests.
 fn breast_model() -> &'static ParticleModel {
@@ -823,7 +823,7 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
 
 /// Above `coarse_direct_max_aggregates` the coarse Laplacian is solved by
 /// two-grid cycles over groups of aggregates instead of its factor
-/// (`tissue_solve::multilevel`, what a million particles need): the sag
+/// (`tissue_solve::coarse::multilevel`, what a million particles need): the sag
 /// from rest lands on the factored solve's answer within the tolerance,
 /// in at most a few more iterations.
 #[test]

@@ -100,7 +100,7 @@ fn the_volume_smoother_needs_small_aggregates() {
         .volume_smoother()
         .unwrap_or_else(|| panic!("the default elastic solve smooths with the volume term"));
     assert!(
-        rho > 0.5 && rho < tissue_cpu::coarse_elastic::SMOOTHER_MAX_RATE,
+        rho > 0.5 && rho < tissue_cpu::coarse::SMOOTHER_MAX_RATE,
         "{rho}"
     );
     // Few aggregates: cells grown past 2 spacings.

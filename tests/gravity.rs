@@ -6,7 +6,7 @@
 
 mod common;
 
-use tissue::advanced::gravity::{Unloading, gravity_load, unloaded_shape};
+use tissue::advanced::model::{Unloading, gravity_load, unloaded_shape};
 use tissue::backend::{Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{Error, ParticleModel, SamplingParams, SurfaceMesh, Vec3};
@@ -173,7 +173,7 @@ fn the_gpu_finds_the_same_unloaded_shape() {
 /// within 2 % of each other on the CPU and the GPU.
 #[test]
 fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
-    use tissue::advanced::stiffness::{Postures, fit_stiffness};
+    use tissue::advanced::model::{Postures, fit_stiffness};
     let model = column(1_000);
     let poisson = 0.45;
     let per_kpa = |g: Vec3| gravity_load(g, 1000.0, 1.0, poisson, 1e-2).unwrap();

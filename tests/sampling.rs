@@ -11,7 +11,7 @@ fn sample(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
 }
 
 /// Stage 1 alone, without the facade's refusal of a model stage 2 cannot
-/// use (`tissue_solve::quality::check_usable`): what the paper's own
+/// use (`tissue_solve::stage1::check_usable`): what the paper's own
 /// choices give.
 fn sample_unchecked(mesh: &SurfaceMesh, params: &SamplingParams) -> tissue::Sampled {
     tissue::advanced::sample_on_cpu(mesh, params, &mut |_| {})

@@ -10,19 +10,19 @@
 use std::time::Instant;
 
 use tissue_core::{Error, SamplingParams, SurfaceMesh};
-pub use tissue_solve::sampling::{
+pub use tissue_solve::stage1::{
     FIELD_CELL_IN_R0, FIELD_MARGIN_IN_R0, ForceOut, Prepared, Progress, SKIN_IN_R0, Sampled,
     SamplingState, converged_after, finish, initial_positions, initial_radius,
     place_surface_particles, prepare,
 };
 
-use crate::grid::neighbour_rows;
 pub use crate::kernels::imf_force::{imf_force, imf_pair};
 pub use crate::kernels::needs_rebuild::needs_rebuild;
 pub use crate::kernels::radius_update::radius_update;
 pub use crate::kernels::sampling_change::change;
 pub use crate::kernels::sampling_integrate::integrate;
-use crate::quality::quality_report;
+use crate::stage1::neighbour_rows;
+use crate::stage1::quality_report;
 
 /// Stage 1: fills a closed, outward surface (validated by the caller) with
 /// `params.particles` particles and relaxes them to the paper's uniform state.

@@ -5,7 +5,7 @@
 //! by comparing `u` or `v` element by element: they are not unique.
 
 use glam::{DMat3, Mat3, Vec3};
-use tissue_cpu::svd3::{Svd3, best_rotation, rotation_of, svd3};
+use tissue_cpu::model::{Svd3, best_rotation, rotation_of, svd3};
 
 /// Relative reconstruction error allowed: `‖u·diag(sigma)·vᵀ − m‖_F / ‖m‖_F`.
 const RECONSTRUCTION_TOLERANCE: f64 = 1e-5;

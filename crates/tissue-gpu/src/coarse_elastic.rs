@@ -4,7 +4,7 @@
 //! per-particle gradients and the factor `shaders/coarse_elastic.wgsl` reads.
 
 use tissue_solve::coarse::Aggregates;
-use tissue_solve::coarse_elastic::ElasticCoarse;
+use tissue_solve::coarse::ElasticCoarse;
 
 use crate::buffer::Storage;
 use crate::coarse::{factor_of, members_of};

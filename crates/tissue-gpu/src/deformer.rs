@@ -6,11 +6,9 @@ use std::sync::Arc;
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
 use tissue_solve::coarse::{Aggregates, CoarseSpace, SharedLaplacian, coarse_space_shared};
-use tissue_solve::coarse_elastic::{
-    CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
-};
-use tissue_solve::elastic::Elastic;
-use tissue_solve::plan::Plan;
+use tissue_solve::coarse::{CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother};
+use tissue_solve::model::Elastic;
+use tissue_solve::stage2::Plan;
 use tissue_solve::{
     DeformParams, DeformReport, ForceModel, Iteration, PrepareStage, RotationMethod, SolveDevice,
     Tracker,
@@ -203,7 +201,7 @@ impl GpuDeformer {
 
     /// The passes every iteration of the last solve ran, in order (the
     /// CPU path's `CpuSolve::passes`).
-    pub fn passes(&self) -> Vec<tissue_solve::passes::Pass> {
+    pub fn passes(&self) -> Vec<tissue_solve::stage2::Pass> {
         self.state().passes()
     }
 

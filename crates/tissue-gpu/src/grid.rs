@@ -1,6 +1,6 @@
 //! Stage 1's uniform grid and neighbour rows on the GPU: twins of
-//! `tissue_solve::grid::grid_build` (`shaders/grid_build.wgsl`) and
-//! `tissue_solve::grid::neighbour_rows` (`shaders/neighbour_rows.wgsl`).
+//! `tissue_solve::stage1::grid_build` (`shaders/grid_build.wgsl`) and
+//! `tissue_solve::stage1::neighbour_rows` (`shaders/neighbour_rows.wgsl`).
 //!
 //! - [`GridPipelines`]: the compiled kernels, built once from a `&Device`.
 //! - [`GridPipelines::grid_build`]: particles sorted into cells, [`GpuGrid`].
@@ -11,10 +11,10 @@
 //! **The layout never leaves the GPU.** The bounds (and the largest radius)
 //! are reduced by `atomicMax` on order-preserving u32 keys (exact, so the
 //! same as the CPU's fold), and one invocation, `grid_layout`, applies
-//! `tissue_solve::grid::grid_layout`'s rule with the same f32 operations in
+//! `tissue_solve::stage1::grid_layout`'s rule with the same f32 operations in
 //! the same order, writing [`GridLayout`] into a storage buffer that later
 //! kernels read. The cell buffers are sized for the most cells the rule
-//! allows ([`tissue_solve::grid::max_cells`]: 8 per particle, at least 64),
+//! allows ([`tissue_solve::stage1::max_cells`]: 8 per particle, at least 64),
 //! and the prefix sum runs over all of them (cells past the grid's are
 //! empty), so a grid build needs no readback at all. Bit-equal grids rely on
 //! the device rounding `/` correctly, as lavapipe does; WGSL allows 2.5 ULP,
@@ -40,7 +40,7 @@ use std::mem::offset_of;
 
 use bytemuck::{Pod, Zeroable};
 use tissue_core::SamplingError;
-use tissue_solve::grid::Grid;
+use tissue_solve::stage1::Grid;
 use wgpu::util::DeviceExt;
 
 use crate::GpuError;
@@ -242,7 +242,7 @@ impl GridPipelines {
 
     /// Sorts the first `count` particles of `positions` (`vec4`: xyz
     /// position, w unused here) into a grid with cells of at least `cell`:
-    /// `tissue_solve::grid::grid_build`. Submits the work and returns without
+    /// `tissue_solve::stage1::grid_build`. Submits the work and returns without
     /// waiting.
     pub fn grid_build(
         &self,
@@ -280,7 +280,7 @@ impl GridPipelines {
     /// Neighbour rows of the first `count` particles of `positions` (`vec4`:
     /// xyz position, w radius): `j != i` with
     /// `|p_i - p_j| < factor (r_i + r_j) + skin`, each row in grid order or
-    /// ascending when `sorted`; `tissue_solve::grid::neighbour_rows`. Waits
+    /// ascending when `sorted`; `tissue_solve::stage1::neighbour_rows`. Waits
     /// once, for the number of entries; the fill is submitted, not awaited.
     ///
     /// Errors: a non-finite position, radius, factor or skin is
@@ -487,7 +487,7 @@ impl GridPipelines {
                 allowed: limits.max_storage_buffer_binding_size,
             });
         }
-        let capacity = tissue_solve::grid::max_cells(count as usize);
+        let capacity = tissue_solve::stage1::max_cells(count as usize);
         let starts = u32::try_from(capacity + 1).map_err(|_| GpuError::LimitExceeded {
             limit: "u32 cell index",
             what: format!("the grid of {count} particles"),

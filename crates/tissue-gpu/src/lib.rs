@@ -5,7 +5,7 @@
 //! - [`Pipelines`]: the compiled kernels, built once from a `&Device`.
 //! - [`DeformState`]: the buffers of one particle model.
 //! - [`Pipelines::record_iterations`]: the step, each pass of the
-//!   iteration's list (`tissue_solve::passes`: rotations → force →
+//!   iteration's list (`tissue_solve::stage2::passes`: rotations → force →
 //!   integrate → the correction → Chebyshev, the step norms before or after
 //!   it) by its kernels ([`Kernel::of_pass`]), K times into one command
 //!   buffer.
@@ -142,7 +142,7 @@ pub struct Params {
     /// The relaxation of its Jacobi sweeps.
     pub volume_relaxation: f32,
     /// The fraction of the smoothed two-level step taken
-    /// (`tissue_solve::tracker::Iteration::damping`): the residual is
+    /// (`tissue_solve::stage2::Iteration::damping`): the residual is
     /// scaled by it.
     pub volume_damping: f32,
 }
@@ -192,7 +192,7 @@ pub struct ElasticParticle {
 
 impl ElasticParticle {
     /// Particle `i` of `elastic`.
-    pub fn of(elastic: &tissue_solve::elastic::Elastic, i: usize) -> Self {
+    pub fn of(elastic: &tissue_solve::model::Elastic, i: usize) -> Self {
         let c = &elastic.consistency;
         let mut inverse = Rotation::from(elastic.inverse_moments[i]);
         inverse.x_axis[3] = elastic.weights[i];

@@ -3,7 +3,7 @@
 //! `shaders/multilevel.wgsl` reads, and the order of their kernels.
 
 use glam::DMat3;
-use tissue_solve::multilevel::{BlockMultilevel, CYCLES, Multilevel, SWEEPS};
+use tissue_solve::coarse::{BlockMultilevel, CYCLES, Multilevel, SWEEPS};
 
 use crate::buffer::Storage;
 use crate::coarse::{FactorBuffers, members_of};
@@ -514,7 +514,7 @@ mod tests {
         use crate::pipelines::Pipelines;
         use crate::state::DeformState;
         use glam::DVec3;
-        use tissue_solve::coarse_elastic::{CorrectionFor, ElasticCoarse, elastic_aggregates};
+        use tissue_solve::coarse::{CorrectionFor, ElasticCoarse, elastic_aggregates};
         use tissue_solve::{DeformParams, ForceModel, Plan};
 
         let Some((device, queue)) = crate::testing::gpu("block cycles' solve") else {

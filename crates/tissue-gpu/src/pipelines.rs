@@ -1,8 +1,8 @@
 //! The compiled kernels and the step that records them.
 
-use tissue_solve::params::RotationMethod;
-use tissue_solve::passes::{Choices, Pass};
-use tissue_solve::volume_smoother::SWEEPS;
+use tissue_solve::coarse::SMOOTHER_SWEEPS;
+use tissue_solve::stage2::RotationMethod;
+use tissue_solve::stage2::{Choices, Pass};
 
 use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
 use crate::state::DeformState;
@@ -194,7 +194,7 @@ impl Kernel {
                 // further one a `pressure_sweep` after a `pressure_forces`,
                 // and a last `pressure_forces` for the step.
                 out.extend([Kernel::SmootherResidual, Kernel::PressureStart]);
-                for _ in 1..SWEEPS {
+                for _ in 1..SMOOTHER_SWEEPS {
                     out.extend([Kernel::PressureForces, Kernel::PressureSweep]);
                 }
                 out.extend([Kernel::PressureForces, Kernel::SmoothedStep]);
@@ -483,7 +483,7 @@ impl Pipelines {
     /// The step: `iterations` solver iterations (at most [`crate::SLOTS`]),
     /// iteration `k` with the parameters of slot `k`, in one compute pass,
     /// the kernels of [`DeformState::iteration`] (each pass of the
-    /// iteration's [`tissue_solve::passes::Choices::passes`] by its kernels).
+    /// iteration's [`tissue_solve::stage2::Choices::passes`] by its kernels).
     pub fn record_iterations(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -510,8 +510,8 @@ mod tests {
     use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
     use crate::sampler::SamplingKernel;
     use crate::structures::EmbeddingMoved;
-    use tissue_solve::params::RotationMethod;
-    use tissue_solve::passes::{Choices, Correction, Pass};
+    use tissue_solve::stage2::RotationMethod;
+    use tissue_solve::stage2::{Choices, Correction, Pass};
 
     fn kernels(pass: Pass) -> Vec<Kernel> {
         Kernel::of_passes(&[pass])
@@ -525,7 +525,7 @@ mod tests {
     fn the_smoothed_step_sweeps_as_often_as_the_cpu_smoother() {
         let smoothed = kernels(Pass::SmoothedStep { cycled: false });
         let count = |kernel| smoothed.iter().filter(|&&k| k == kernel).count();
-        let sweeps = tissue_solve::volume_smoother::SWEEPS;
+        let sweeps = tissue_solve::coarse::SMOOTHER_SWEEPS;
         assert_eq!(count(Kernel::PressureStart), 1);
         assert_eq!(count(Kernel::PressureSweep), sweeps - 1);
         assert_eq!(count(Kernel::PressureForces), sweeps);

@@ -2,11 +2,11 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
+use tissue_solve::coarse::ElasticCoarse;
+use tissue_solve::coarse::RELAXATION;
 use tissue_solve::coarse::{Aggregates, CoarseSpace};
-use tissue_solve::coarse_elastic::ElasticCoarse;
-use tissue_solve::elastic::Elastic;
-use tissue_solve::passes::{Choices, Correction, Holds, Pass};
-use tissue_solve::volume_smoother::RELAXATION;
+use tissue_solve::model::Elastic;
+use tissue_solve::stage2::{Choices, Correction, Holds, Pass};
 use tissue_solve::{ForceModel, RotationMethod};
 
 use crate::buffer::{Storage, vec4};

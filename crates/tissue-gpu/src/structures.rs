@@ -1,13 +1,13 @@
 //! Structures and landmarks on the GPU: `embedding_moved.wgsl`, the twin of
-//! `tissue_solve::structures::embedding_moved`, run on a [`DeformState`]'s
+//! `tissue_solve::model::embedding_moved`, run on a [`DeformState`]'s
 //! positions and rotations where they are; only the moved points come back.
 //!
-//! A rigid structure (`tissue_solve::structures::RigidBinding`) is its centre
+//! A rigid structure (`tissue_solve::model::RigidBinding`) is its centre
 //! carried like any point plus a 3x3 fit over 16 particles: the centre goes
 //! through [`GpuEmbedding`], the 16 positions are a small read.
 
 use glam::Vec3;
-use tissue_solve::structures::Embedding;
+use tissue_solve::model::Embedding;
 
 use crate::buffer::Storage;
 use crate::pipelines::{KernelId, KernelSet};

@@ -6,7 +6,7 @@
 mod common;
 
 use glam::Vec3;
-use tissue_cpu::grid::{grid_build, neighbour_rows};
+use tissue_cpu::stage1::{grid_build, neighbour_rows};
 use tissue_gpu::{GpuError, GridPipelines};
 use tissue_testkit::cloud;
 use wgpu::util::DeviceExt;

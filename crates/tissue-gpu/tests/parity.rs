@@ -9,7 +9,7 @@ mod common;
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::coarse::Aggregates;
-use tissue_cpu::coarse_elastic::{CorrectionFor, ElasticCoarse};
+use tissue_cpu::coarse::{CorrectionFor, ElasticCoarse};
 use tissue_cpu::deformation::{
     Elastic, ForceModel, Pass, Plan, RotationMethod, deformation_force, elastic_force,
     elastic_residual, elastic_terms, integrate, local_rotations,
@@ -448,7 +448,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
         let cell = 2.0 * model.mean_connection_length();
         let aggregates = Aggregates::new(rest, connections, &free, cell, 1_000)
             .unwrap_or_else(|e| panic!("{e}"));
-        let delta = tissue_solve::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max);
+        let delta = tissue_solve::coarse::SHEAR_STEP * f64::from(plan.lambda_max);
         let made_for = CorrectionFor {
             contraction: 0.01,
             volume_delta: Some(delta),

@@ -1,5 +1,5 @@
 //! Both devices run the same pass list, from the one rule in
-//! `tissue_solve::passes`, for every combination of the iteration's
+//! `tissue_solve::stage2::passes`, for every combination of the iteration's
 //! choices a solve reaches: the force, the rotations, and the correction
 //! (none, the two-level solve factored or cycled, the elastic
 //! one factored or cycled, with the volume smoother or without).
@@ -10,7 +10,7 @@ use std::collections::HashSet;
 
 use tissue_cpu::deformation::{DeformParams, ForceModel, Pass, RotationMethod};
 use tissue_gpu::Kernel;
-use tissue_solve::passes::Choices;
+use tissue_solve::stage2::Choices;
 
 /// A named change to the default parameters.
 type Setting = (&'static str, fn(&mut DeformParams));

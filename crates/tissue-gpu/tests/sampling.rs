@@ -11,11 +11,11 @@ mod common;
 use glam::{Vec3, Vec4};
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{SamplingParams, SamplingReport, SurfaceMesh, SurfaceMode};
-use tissue_cpu::grid::neighbour_rows;
 use tissue_cpu::sampling::{
     ForceOut, Prepared, SKIN_IN_R0, SamplingState, change, imf_force, integrate, needs_rebuild,
     place_surface_particles, prepare, radius_update,
 };
+use tissue_cpu::stage1::neighbour_rows;
 use tissue_gpu::SamplingPipelines;
 use tissue_gpu::sampler::{SamplingBuffers, SamplingKernel, query_field};
 

@@ -1,6 +1,6 @@
 //! `embedding_moved.wgsl` against its CPU twin, on the GPU's own solve of the
 //! sag: the tumour's vertices and landmarks, carried on the GPU, must land
-//! where `tissue_cpu::structures::embedding_moved` puts them for the same
+//! where `tissue_cpu::model::embedding_moved` puts them for the same
 //! positions and rotations; and a rigid motion must move them rigidly.
 
 mod common;
@@ -9,7 +9,7 @@ use glam::Vec3;
 use tissue_core::deform::{Rigid, deform_surface};
 use tissue_core::phantom;
 use tissue_cpu::deformation::DeformParams;
-use tissue_cpu::structures::Embedding;
+use tissue_cpu::model::Embedding;
 use tissue_gpu::{EmbeddingKernel, GpuDeformer, GpuEmbedding, GpuError};
 
 #[test]

@@ -1,17 +1,32 @@
 //! The crate's modules use each other without a loop: the graph of `crate::`
 //! paths in their code (comments and unit tests left out) is a DAG, so each
-//! module can be read and changed knowing only the ones below it.
+//! module can be read and changed knowing only the ones below it. A module
+//! is a file of a folder (`coarse/laplacian.rs`, with its own child
+//! modules in `coarse/laplacian/`); inside the crate, modules name each
+//! other by that path, never through a folder's re-exports, so the graph
+//! sees every use.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// The top-level module a source file belongs to (`coarse/shared.rs` is
-/// `coarse`), `None` for the crate root.
+/// The module a source file belongs to, as `folder/module`
+/// (`coarse/laplacian/shared.rs` is `coarse/laplacian`); `None` for the
+/// crate root and a folder's `mod.rs`, which only declare and re-export.
 fn module_of(src: &Path, file: &Path) -> Option<String> {
     let relative = file.strip_prefix(src).ok()?;
-    let first = relative.components().next()?.as_os_str().to_string_lossy();
-    let name = first.trim_end_matches(".rs").to_owned();
-    (name != "lib").then_some(name)
+    let parts: Vec<String> = relative
+        .components()
+        .map(|c| {
+            c.as_os_str()
+                .to_string_lossy()
+                .trim_end_matches(".rs")
+                .to_owned()
+        })
+        .collect();
+    match parts.as_slice() {
+        [folder, module, ..] if module != "mod" => Some(format!("{folder}/{module}")),
+        _ => None,
+    }
 }
 
 fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
@@ -25,17 +40,29 @@ fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
     }
 }
 
-/// Every `crate::NAME` in `code`.
+/// Every `crate::FOLDER::MODULE` in `code`, as `FOLDER/MODULE`; a path
+/// that stops at a folder (`crate::model::Elastic`, through its
+/// re-exports) as `FOLDER`.
 fn uses(code: &str) -> BTreeSet<String> {
+    let ident = |s: &str| -> String {
+        s.chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect()
+    };
     let mut found = BTreeSet::new();
     let mut rest = code;
     while let Some(at) = rest.find("crate::") {
         rest = &rest[at + "crate::".len()..];
-        let name: String = rest
-            .chars()
-            .take_while(|c| c.is_alphanumeric() || *c == '_')
-            .collect();
-        found.insert(name);
+        let folder = ident(rest);
+        let after = &rest[folder.len()..];
+        match after.strip_prefix("::").map(ident) {
+            Some(module) if module.starts_with(|c: char| c.is_ascii_lowercase()) => {
+                found.insert(format!("{folder}/{module}"));
+            }
+            _ => {
+                found.insert(folder);
+            }
+        }
     }
     found
 }
@@ -61,6 +88,16 @@ fn the_modules_use_each_other_without_a_loop() {
         entry.extend(uses(&code).into_iter().filter(|used| *used != module));
     }
     assert!(graph.len() > 20, "{} modules read", graph.len());
+    for (module, used) in &graph {
+        for name in used {
+            assert!(
+                graph.contains_key(name),
+                "{module} uses `crate::{}`, which is no module of the crate: name \
+                 the module (`crate::folder::module::Item`), not a folder's re-export",
+                name.replace('/', "::")
+            );
+        }
+    }
     // Depth-first search; a module met again while on the path closes a loop.
     fn visit(
         module: &str,

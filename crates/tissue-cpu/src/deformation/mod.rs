@@ -29,22 +29,22 @@ use std::time::Instant;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
-pub use tissue_solve::acceleration::{Chebyshev, StoppingRule};
 pub use tissue_solve::coarse::SharedLaplacian;
-pub use tissue_solve::controls::check_same_topology;
-pub use tissue_solve::elastic::Elastic;
-use tissue_solve::elastic::ElasticTerms;
-pub use tissue_solve::params::{
+pub use tissue_solve::model::Elastic;
+use tissue_solve::model::ElasticTerms;
+pub use tissue_solve::stage2::Pass;
+pub use tissue_solve::stage2::Plan;
+use tissue_solve::stage2::Tracker;
+pub use tissue_solve::stage2::check_same_topology;
+pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
+use tissue_solve::stage2::{Choices, Holds};
+pub use tissue_solve::stage2::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
 };
-pub use tissue_solve::passes::Pass;
-use tissue_solve::passes::{Choices, Holds};
-pub use tissue_solve::plan::Plan;
-pub use tissue_solve::predict::{FrameHistory, affine_fit, predict};
-pub use tissue_solve::report::{DeformReport, PrepareStage, StopReason};
-pub use tissue_solve::spectrum::{laplacian_extremes, laplacian_extremes_with};
-use tissue_solve::tracker::Tracker;
-pub use tissue_solve::tracker::{Iteration, SolveDevice};
+pub use tissue_solve::stage2::{DeformReport, PrepareStage, StopReason};
+pub use tissue_solve::stage2::{FrameHistory, affine_fit, predict};
+pub use tissue_solve::stage2::{Iteration, SolveDevice};
+pub use tissue_solve::stage2::{laplacian_extremes, laplacian_extremes_with};
 
 pub use crate::kernels::deformation_force::deformation_force;
 pub use crate::kernels::elastic_targets::{elastic_force, elastic_terms};
@@ -57,9 +57,7 @@ pub use crate::kernels::step_norms::step_norms;
 pub use crate::kernels::volume_smoother::elastic_residual;
 
 use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space_shared};
-use tissue_solve::coarse_elastic::{
-    CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother,
-};
+use tissue_solve::coarse::{CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother};
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between
@@ -344,7 +342,7 @@ impl CpuSolve {
 
     /// The volume smoother's `delta` and its iteration's contraction at
     /// rest, where the elastic phase smooths with it
-    /// (`tissue_solve::coarse_elastic::volume_smoother`).
+    /// (`tissue_solve::coarse::volume_smoother`).
     pub fn volume_smoother(&self) -> Option<(f64, f32)> {
         self.volume_smoother
     }

@@ -2,7 +2,7 @@
 //! of three unknowns that solve an elastic coarse matrix too large for one
 //! factor, `BlockMultilevel::solve`, written once in `tissue-solve`.
 
-pub use tissue_solve::multilevel::BlockMultilevel;
+pub use tissue_solve::coarse::BlockMultilevel;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "block_multilevel";

@@ -2,7 +2,7 @@
 //! over the elastic aggregates, `ElasticCoarse::correct`, written once in
 //! `tissue-solve`.
 
-pub use tissue_solve::coarse_elastic::ElasticCoarse;
+pub use tissue_solve::coarse::ElasticCoarse;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "coarse_elastic";

@@ -4,7 +4,7 @@
 use glam::{Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
-use tissue_solve::params::ForceModel;
+use tissue_solve::stage2::ForceModel;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "deformation_force";

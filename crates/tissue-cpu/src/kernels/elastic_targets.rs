@@ -5,9 +5,9 @@
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
-use tissue_solve::elastic::{Elastic, ElasticTerms};
-use tissue_solve::params::RotationMethod;
-use tissue_solve::svd3::rotation_of;
+use tissue_solve::model::rotation_of;
+use tissue_solve::model::{Elastic, ElasticTerms};
+use tissue_solve::stage2::RotationMethod;
 
 use super::polar::{LANES, warm_rotations};
 

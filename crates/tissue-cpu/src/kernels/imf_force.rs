@@ -6,7 +6,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{SamplingParams, SurfaceMode};
-use tissue_solve::sampling::{ForceOut, SamplingState};
+use tissue_solve::stage1::{ForceOut, SamplingState};
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "imf_force";

@@ -2,7 +2,7 @@
 //! coarse Laplacian too large for one factor, `Multilevel::solve`, written
 //! once in `tissue-solve`.
 
-pub use tissue_solve::multilevel::Multilevel;
+pub use tissue_solve::coarse::Multilevel;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "multilevel";

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 use rayon::prelude::*;
-use tissue_solve::sampling::SamplingState;
+use tissue_solve::stage1::SamplingState;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "needs_rebuild";

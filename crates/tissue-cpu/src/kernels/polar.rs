@@ -3,7 +3,7 @@
 //! particle's rotation is found.
 
 use glam::{Mat3, Quat};
-use tissue_solve::svd3::rotation_of;
+use tissue_solve::model::rotation_of;
 use wide::f32x8;
 
 /// Iterations of the warm-started polar update per solver iteration; the
@@ -225,7 +225,7 @@ mod tests {
             Mat3::from_axis_angle(Vec3::new(1.0, 1.0, 0.0).normalize(), 1.5),
         ];
         for (k, m) in tissue_testkit::matrices(3_000).into_iter().enumerate() {
-            let svd = crate::svd3::svd3(m);
+            let svd = crate::model::svd3(m);
             // Where the two smallest singular values nearly cancel the
             // maximum is nearly flat and any nearby rotation is as good.
             if (svd.sigma.y + svd.sigma.z).abs() < 0.05 {

@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 use tissue_core::SamplingParams;
-use tissue_solve::sampling::ForceOut;
+use tissue_solve::stage1::ForceOut;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "radius_update";

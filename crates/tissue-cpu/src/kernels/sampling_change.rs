@@ -1,7 +1,7 @@
 //! Twin of `shaders/sampling_change.wgsl`: stage 1's convergence measure.
 
 use glam::{Vec3, Vec4};
-use tissue_solve::sampling::SamplingState;
+use tissue_solve::stage1::SamplingState;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "sampling_change";

@@ -5,7 +5,7 @@ use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::field::{Nearest, Side, SurfaceField};
 use tissue_core::{SamplingParams, SurfaceMode};
-use tissue_solve::sampling::{ForceOut, SamplingState};
+use tissue_solve::stage1::{ForceOut, SamplingState};
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "sampling_integrate";

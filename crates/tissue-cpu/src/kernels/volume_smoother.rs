@@ -1,14 +1,14 @@
 //! Twin of `shaders/volume_smoother.wgsl`: the residual the volume smoother
 //! starts from (`elastic_residual`, `smoother_residual`'s twin); the
 //! smoothed step itself, written once for the host, is
-//! `tissue_solve::coarse_elastic::ElasticCoarse::smoothed_step` (its
-//! pressures' sweeps `tissue_solve::volume_smoother::VolumeSmoother`).
+//! `tissue_solve::coarse::ElasticCoarse::smoothed_step` (its
+//! pressures' sweeps `tissue_solve::coarse::VolumeSmoother`).
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_solve::coarse::OUTSIDE;
 
-pub use tissue_solve::volume_smoother::VolumeSmoother;
+pub use tissue_solve::coarse::VolumeSmoother;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "volume_smoother";

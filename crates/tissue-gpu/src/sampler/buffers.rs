@@ -7,7 +7,7 @@ use glam::{Vec3, Vec4};
 use tissue_core::Attachment;
 use tissue_core::field::SurfaceField;
 use tissue_core::{SamplingParams, SurfaceMode};
-use tissue_solve::sampling::{ForceOut, SKIN_IN_R0, SamplingState};
+use tissue_solve::stage1::{ForceOut, SKIN_IN_R0, SamplingState};
 
 use super::field::FieldBuffers;
 use super::kernels::{SamplingKernel, SamplingPipelines};
@@ -389,7 +389,7 @@ impl SamplingBuffers {
         Ok(())
     }
 
-    /// Uploads neighbour rows (CSR, as `tissue_solve::grid::neighbour_rows` returns them).
+    /// Uploads neighbour rows (CSR, as `tissue_solve::stage1::neighbour_rows` returns them).
     pub fn set_rows(
         &mut self,
         device: &wgpu::Device,
@@ -594,7 +594,7 @@ impl SamplingBuffers {
 
     /// Stage 1's surface placement of the state of `parity` on the GPU
     /// (`shaders/sampling_place.wgsl`, the twin of
-    /// `tissue_solve::sampling::place_surface_particles`), read back; the
+    /// `tissue_solve::stage1::place_surface_particles`), read back; the
     /// placed particles stay on the GPU for the connections as well.
     pub fn placement(
         &self,

@@ -29,16 +29,16 @@ use std::time::Instant;
 
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh};
-use tissue_solve::batches::{Batches, run_batched};
-use tissue_solve::quality::quality_report;
-use tissue_solve::sampling::{
+use tissue_solve::stage1::quality_report;
+use tissue_solve::stage1::{
     Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after, prepare,
 };
+use tissue_solve::stage2::{Batches, run_batched};
 
 use crate::support::Scopes;
 use crate::{GpuError, GridPipelines};
 
-/// The change of one iteration as `tissue_solve::sampling::change` finishes it:
+/// The change of one iteration as `tissue_solve::stage1::change` finishes it:
 /// RMS step of particles not held by the wall (in `r0`), RMS change of `ln r`.
 fn finish_change(sums: [f64; 3], count: usize, r0: f32) -> (f32, f32) {
     let free = sums[1].round().max(1.0);
@@ -82,7 +82,7 @@ pub fn sample(
     stages.iterations += clock.elapsed().as_secs_f64();
     stages.neighbours += neighbour_seconds;
 
-    // `tissue_solve::sampling::finish` on the GPU: the placement, then the
+    // `tissue_solve::stage1::finish` on the GPU: the placement, then the
     // connections (eq. (9)) of the placed particles where they are.
     let clock = Instant::now();
     let placement = buffers.placement(device, queue, parity)?;

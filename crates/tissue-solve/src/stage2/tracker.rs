@@ -8,17 +8,17 @@ use std::time::Instant;
 use glam::Vec3;
 use tissue_core::{Connections, Error, ParamError, ParticleModel, SurfaceMesh};
 
-use crate::acceleration::{Chebyshev, StoppingRule};
-use crate::batches::{Batches, run_batched};
-use crate::coarse::SharedLaplacian;
-use crate::controls::check_same_topology;
-use crate::params::{DeformParams, ForceModel};
-use crate::plan::Plan;
-use crate::predict::{FrameHistory, predict};
-use crate::report::{DeformReport, PrepareStage, SolveStep, StopReason};
-use crate::svd3::rotation_of;
+use crate::coarse::laplacian::SharedLaplacian;
+use crate::model::svd3::rotation_of;
+use crate::stage2::acceleration::{Chebyshev, StoppingRule};
+use crate::stage2::batches::{Batches, run_batched};
+use crate::stage2::controls::check_same_topology;
+use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::plan::Plan;
+use crate::stage2::predict::{FrameHistory, predict};
+use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 
-pub use crate::device::{Iteration, SolveDevice};
+pub use crate::stage2::device::{Iteration, SolveDevice};
 
 /// The shear phase of an elastic solve stops at this many times the
 /// solve's tolerance: it only has to bring every neighbourhood near its
@@ -26,7 +26,7 @@ pub use crate::device::{Iteration, SolveDevice};
 pub const SHEAR_TOLERANCE: f32 = 10.0;
 
 /// The shear phase measures the volumes' misfit
-/// ([`crate::params::SolverTuning::shear_volume_share`]) first where its estimate falls
+/// ([`crate::stage2::params::SolverTuning::shear_volume_share`]) first where its estimate falls
 /// below this many times its tolerance (so [`SHEAR_TOLERANCE`] times this
 /// many times the solve's), then each time it falls below its share of the
 /// last misfit measured.
@@ -53,7 +53,7 @@ pub const DAMPED_RETRIES: usize = 2;
 /// device's correction, where it ran with one, then each time with half
 /// the step before. The correction is linearised where the phase starts
 /// and the step is set from the stiffness at rest
-/// ([`crate::elastic::STIFFENING`] times it); a particle compressed far
+/// ([`crate::model::elastic::STIFFENING`] times it); a particle compressed far
 /// more than the rest of the model (a deep, narrow indentation) can be
 /// stiffer still, and far from that linearisation (docs/METHOD.md,
 /// "Elastic model").
@@ -85,7 +85,7 @@ pub struct Tracker<D> {
     /// (a warm frame runs as it did).
     elastic_correct: bool,
     /// The model's connections, with the elastic force: the shear phase
-    /// measures the volumes' misfit ([`crate::params::SolverTuning::shear_volume_share`]).
+    /// measures the volumes' misfit ([`crate::stage2::params::SolverTuning::shear_volume_share`]).
     connections: Option<Connections>,
 }
 
@@ -118,7 +118,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// connections and free particles prepared ([`SharedLaplacian`]): the
     /// plan takes its spectrum where it matches, and `prepare` is the
     /// device's to take its coarse space
-    /// ([`coarse_space_shared`](crate::coarse::coarse_space_shared)).
+    /// ([`coarse_space_shared`](crate::coarse::laplacian::coarse_space_shared)).
     pub fn new_shared<E: From<Error>>(
         model: &ParticleModel,
         params: DeformParams,
@@ -317,7 +317,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// not converge) has two phases: the symmetric force (with the device's
     /// correction) to [`SHEAR_TOLERANCE`] times the tolerance (or, before a
     /// phase the volume smoother smooths, until its error is below
-    /// [`crate::params::SolverTuning::shear_volume_share`] of the volumes' misfit), then
+    /// [`crate::stage2::params::SolverTuning::shear_volume_share`] of the volumes' misfit), then
     /// the elastic force from there. The volume term's stiffness grows with
     /// `cof(F)`; from rest, particles next to a moved surface are stretched
     /// many times over and no step set at rest is stable for them, while
@@ -597,7 +597,7 @@ impl<D: SolveDevice> Tracker<D> {
     }
 
     /// The volumes' misfit at the device's state
-    /// ([`crate::elastic::Elastic::volume_misfit`]); zero without the
+    /// ([`crate::model::elastic::Elastic::volume_misfit`]); zero without the
     /// elastic model.
     fn volume_misfit(&mut self) -> Result<f32, D::Error> {
         let (Some(elastic), Some(connections)) = (self.plan.elastic.clone(), &self.connections)
@@ -626,7 +626,7 @@ struct PhaseRun {
     relinearise: bool,
     damping: f32,
     /// The shear phase of an elastic solve: it also stops on the volumes'
-    /// misfit ([`crate::params::SolverTuning::shear_volume_share`]).
+    /// misfit ([`crate::stage2::params::SolverTuning::shear_volume_share`]).
     volume_check: bool,
 }
 
@@ -1068,16 +1068,19 @@ mod tests {
         };
         let flat = |_: usize| 0.01 * plan.size;
         let stalled = run(
-            crate::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
+            crate::stage2::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
             &flat,
         );
         assert_eq!(
             stalled,
-            Some((2 * crate::acceleration::STALL_WINDOW, StopReason::Stalled))
+            Some((
+                2 * crate::stage2::acceleration::STALL_WINDOW,
+                StopReason::Stalled
+            ))
         );
         assert_eq!(
             run(
-                crate::acceleration::StoppingRule::with_rho(&plan, &params, 0.9),
+                crate::stage2::acceleration::StoppingRule::with_rho(&plan, &params, 0.9),
                 &flat
             ),
             None
@@ -1086,7 +1089,7 @@ mod tests {
         // never a stall, down to the float floor.
         let falling = |k: usize| 0.01 * plan.size * 0.9f32.powi(k as i32);
         let reason = run(
-            crate::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
+            crate::stage2::acceleration::StoppingRule::accelerated(&plan, &params, 0.9),
             &falling,
         );
         assert!(
@@ -1139,7 +1142,7 @@ mod tests {
             assert_eq!(tracker.device.resets, resets, "{stalls}");
             // The shear phase, each stalled phase cut at two windows, the
             // phase that converged.
-            let shear = report.iterations - stalls * 2 * crate::acceleration::STALL_WINDOW;
+            let shear = report.iterations - stalls * 2 * crate::stage2::acceleration::STALL_WINDOW;
             assert!(shear > 0 && shear < 40, "{report:?}");
         }
     }

@@ -6,11 +6,11 @@
 //! are moved from rest to deformed by its inverse.
 //!
 //! `x` is carried back from the deformed particles as landmarks are carried
-//! forward from the rest ones ([`crate::structures`]): bound to the
+//! forward from the rest ones ([`crate::model::structures`]): bound to the
 //! `CARRIERS` nearest deformed particles with the same weights, `x = sum_k
 //! w_k (p_k + G_k (y - q_k))`, with `p_k` rest, `q_k` deformed and `G_k`
 //! the inverse of the particle's least-squares gradient `F_k = M_k A_k^-1`
-//! ([`crate::elastic`]), so that a stretch is undone as well as a turn; a
+//! ([`crate::model::elastic`]), so that a stretch is undone as well as a turn; a
 //! particle whose neighbourhood is flat, or whose gradient is nearly
 //! singular or turned inside out, uses its rotation's inverse `R_k^T`
 //! instead. Off the organ the field is extrapolated the same way up to
@@ -25,9 +25,9 @@ use tissue_core::displacement::DisplacementField;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{Connections, SurfaceMesh};
 
-use crate::elastic::{is_round, moment, moment_inverse, offsets_product};
-use crate::grid::grid_build;
-use crate::structures::{carriers_of, typical_spacing};
+use crate::model::elastic::{is_round, moment, moment_inverse, offsets_product};
+use crate::model::structures::{carriers_of, typical_spacing};
+use crate::stage1::grid::grid_build;
 
 /// Up to this many grid spacings outside the deformed surface the field is
 /// the particles' (extrapolated) displacement, in full: the eight grid
@@ -230,7 +230,7 @@ mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 
     use super::*;
-    use crate::svd3::rotation_of;
+    use crate::model::svd3::rotation_of;
     use tissue_core::phantom::{TumourPhantom, tumour};
 
     fn sphere(radius: f32, subdivisions: u32) -> SurfaceMesh {

@@ -18,7 +18,7 @@ pub enum ForceModel {
     /// The symmetric variant, the exact gradient of the rotation-aware energy.
     Symmetric,
     /// The symmetric force plus a volume term weighted by
-    /// [`DeformParams::poisson`] (the [`crate::elastic`] model): resists
+    /// [`DeformParams::poisson`] (the [`crate::model::Elastic`] model): resists
     /// volume change as soft tissue does.
     Elastic,
 }
@@ -103,7 +103,7 @@ pub struct SolverTuning {
     /// Tracking: start a new frame from the current state carried by the
     /// least-squares affine map of the surface's move, plus the combination
     /// of the last frames' non-affine changes that best matches the
-    /// surface's own non-affine move (see [`crate::predict::predict`]).
+    /// surface's own non-affine move (see [`crate::stage2::predict::predict`]).
     pub extrapolate: bool,
     /// Tracking: how many of the last frames' changes the prediction fits
     /// the new frame's surface move with (`0`: the affine map alone). Each
@@ -112,7 +112,7 @@ pub struct SolverTuning {
     /// Two-level solve: the edge of the grid cells whose free particles form
     /// one aggregate of the coarse space, in mean connection lengths; every
     /// iteration then removes the error's part in that space exactly
-    /// ([`crate::coarse`]; the GPU's kernels in `shaders/coarse.wgsl`). 0
+    /// ([`crate::coarse::CoarseSpace`]; the GPU's kernels in `shaders/coarse.wgsl`). 0
     /// turns it off. The default and what it saves: docs/METHOD.md,
     /// "Two-level solve".
     pub coarse: f32,
@@ -123,7 +123,7 @@ pub struct SolverTuning {
     /// The coarse space's matrix is factored where it has at most this many
     /// aggregates (its factor takes about `n^(5/3)` numbers and a solve
     /// `n^(4/3)` multiply-adds an iteration); above, it is solved by
-    /// two-grid cycles over groups of aggregates ([`crate::multilevel`]),
+    /// two-grid cycles over groups of aggregates ([`crate::coarse::Multilevel`]),
     /// whose cost grows as the model. The default, 4,096, is the most one
     /// factor the GPU substitutes in one workgroup, so both devices solve
     /// every model's coarse space the same way (at 100,000 particles the
@@ -142,14 +142,14 @@ pub struct SolverTuning {
     /// where it has at most this many aggregates (its factor about
     /// `(3 n)^(5/3)` numbers, made every solve from rest); above, it is
     /// solved by two-grid cycles over groups of aggregates
-    /// ([`crate::multilevel::BlockMultilevel`]), the groups at most this
+    /// ([`crate::coarse::multilevel::BlockMultilevel`]), the groups at most this
     /// many. The default, 1,365, is the most whose 4,095 unknowns the GPU
     /// substitutes in one workgroup, so both devices solve every elastic
     /// correction the same way. What it saves: docs/METHOD.md, "Elastic
     /// model".
     pub elastic_coarse_direct_max_aggregates: usize,
     /// The elastic phase's two-level solve smooths with the volume term
-    /// taken implicitly ([`crate::volume_smoother`]: the shear part stepped
+    /// taken implicitly ([`crate::coarse::volume_smoother`]: the shear part stepped
     /// as the shear phase steps it, the volume part by a few sweeps on one
     /// pressure per particle) instead of the plain step, whose size the
     /// volume term's stiffness limits. Off: the plain step. What it saves:
@@ -158,9 +158,9 @@ pub struct SolverTuning {
     /// With the volume smoother, the shear phase that starts an elastic
     /// solve also stops where its error estimate (a fraction of the
     /// model's size) is below this share of the volumes' misfit at its
-    /// state ([`crate::elastic::Elastic::volume_misfit`]): what is left of
+    /// state ([`crate::model::elastic::Elastic::volume_misfit`]): what is left of
     /// it then is less than what the elastic phase moves anyway. 0: only
-    /// at its tolerance ([`crate::tracker::SHEAR_TOLERANCE`]). Why 0.25:
+    /// at its tolerance ([`crate::stage2::tracker::SHEAR_TOLERANCE`]). Why 0.25:
     /// docs/METHOD.md, "Elastic model", *The shear phase's end*.
     pub shear_volume_share: f32,
 }

@@ -2,9 +2,9 @@
 //! two-grid cycle of its own where it is too large to factor cheaply.
 //!
 //! The two-level solve needs `x = (P^T L P)^-1 b` every iteration for the
-//! aggregates' graph Laplacian `A = P^T L P` ([`crate::coarse`]). Its
+//! aggregates' graph Laplacian `A = P^T L P` ([`crate::coarse::laplacian`]). Its
 //! factor grows as `n^(5/3)` within its envelope, and as `n^2` even
-//! sparsely ([`crate::cholesky`]: the fill of a 3-D graph's factor), so at
+//! sparsely ([`crate::coarse::cholesky`]: the fill of a 3-D graph's factor), so at
 //! a million particles (about 86,000 aggregates of 2 spacings) it is out
 //! of reach, and growing the cells instead would cost the fine
 //! iteration its speed. Here the aggregates themselves are grouped, those
@@ -23,8 +23,8 @@ use std::ops::Range;
 use glam::{DMat3, DVec3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
-use crate::cholesky::Cholesky;
-use crate::envelope::{Envelope, reverse_cuthill_mckee};
+use crate::coarse::cholesky::Cholesky;
+use crate::coarse::envelope::{Envelope, reverse_cuthill_mckee};
 
 /// Symmetric two-grid cycles per coarse solve.
 pub const CYCLES: usize = 3;
@@ -274,7 +274,7 @@ pub const WEIGHT_STEPS: usize = 20;
 pub const WEIGHT_MARGIN: f64 = 1.1;
 
 /// [`Multilevel`]'s twin for the elastic phase's coarse system `P^T K P`
-/// ([`crate::coarse_elastic`]): a 3x3 block per pair of aggregates (three
+/// ([`crate::coarse::ElasticCoarse`]): a 3x3 block per pair of aggregates (three
 /// unknowns, a translation, per aggregate), block Jacobi sweeps, and a
 /// translation per group. The volume term couples an aggregate's axes
 /// and reaches farther than the Laplacian, so `D^-1 A`'s spectrum is not

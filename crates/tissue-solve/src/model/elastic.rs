@@ -7,7 +7,7 @@
 //! and `M_i = sum_j e_ij d_ij^T`:
 //! - the least-squares gradient `Fh_i = M_i A_i^-1`;
 //! - the consistent gradient `F_i = sum_j e_ij c_ij^T` with the vectors of
-//!   [`crate::consistent`], `c_ij = B_i d_ij + a_i (mu_j - mu_i)`:
+//!   [`crate::model::consistent`], `c_ij = B_i d_ij + a_i (mu_j - mu_i)`:
 //!   `F_i = M_i B_i^T + a_i sum_j e_ij (mu_j - mu_i)^T`. Both give any affine
 //!   map's matrix exactly, whatever the neighbourhood's shape;
 //! - `J_i = det F_i`, `R_i` the polar rotation of `F_i`, `a_i = tr(A_i) / 3`.
@@ -36,12 +36,12 @@ use glam::{DMat3, DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::consistent::Consistency;
-pub use crate::consistent::offsets_outer;
-use crate::entries::Entries;
-pub use crate::entries::{NO_MIRROR, VolumeLinearisation};
-use crate::spectrum::lanczos_extremes;
-use crate::svd3::rotation_of;
+use crate::model::consistent::Consistency;
+pub use crate::model::consistent::offsets_outer;
+use crate::model::entries::Entries;
+pub use crate::model::entries::{NO_MIRROR, VolumeLinearisation};
+use crate::model::svd3::rotation_of;
+use crate::stage2::spectrum::lanczos_extremes;
 
 /// A neighbourhood whose moment matrix has `det A / (tr A / 3)^3` below this
 /// is too flat (its particles nearly on a plane or a line) for a volume:
@@ -51,12 +51,10 @@ pub const FLAT_NEIGHBOURHOOD: f32 = 1e-3;
 /// How much stiffer than at rest the elastic operator may become where the
 /// solve goes: the volume term's stiffness grows with `cof(F)`, whose
 /// entries are products of two stretches. After the shear phase that starts
-/// every elastic solve ([`crate::tracker::Tracker::solve`]), both breast
+/// every elastic solve ([`crate::stage2::tracker::Tracker::solve`]), both breast
 /// phantoms at `nu` 0.49 diverge with 1.0 and converge with 1.5
 /// (docs/METHOD.md, "Elastic model"); 2.0 leaves a third more margin.
 pub const STIFFENING: f32 = 2.0;
-
-pub use crate::params::MAX_POISSON;
 
 /// What the elastic model knows of each particle at rest.
 #[derive(Debug, Clone, PartialEq)]
@@ -455,7 +453,7 @@ pub fn cofactor(f: Mat3) -> Mat3 {
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
-    use crate::spectrum::laplacian_extremes;
+    use crate::stage2::spectrum::laplacian_extremes;
 
     /// A 6x6x6 grid of unit spacing jittered by up to 0.2, its pairs closer
     /// than 1.5 connected, the outer layer fixed.

@@ -14,8 +14,8 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::grid::{Grid, grid_build};
-use crate::svd3::rotation_of;
+use crate::model::svd3::rotation_of;
+use crate::stage1::grid::{Grid, grid_build};
 
 /// Particles carrying each point.
 pub const CARRIERS: usize = 8;

@@ -5,7 +5,7 @@
 //! The coarse matrices of this crate (the aggregates' Laplacian, the
 //! elastic operator's `P^T K P`, the multipliers' coarse space, the groups
 //! of the multilevel cycles) were factored within their envelope in reverse
-//! Cuthill-McKee order ([`crate::envelope::Envelope`]), which fills the whole
+//! Cuthill-McKee order ([`crate::coarse::envelope::Envelope`]), which fills the whole
 //! band: at 10,000 particles the elastic matrix's 2,502 unknowns took 220
 //! million multiply-adds, 100-160 ms on the development machine, made again
 //! at every elastic phase's start. This factor takes 12-20 ms on the same
@@ -51,7 +51,7 @@ enum Values {
 impl Cholesky {
     /// Factors the symmetric positive definite matrix given by `rows`
     /// (each sorted by column, both triangles present, as
-    /// [`crate::envelope::Envelope::cholesky`] takes it); `None` when it is
+    /// [`crate::coarse::envelope::Envelope::cholesky`] takes it); `None` when it is
     /// not positive definite (or holds a value that is not finite).
     pub fn new(rows: &[Vec<(u32, f64)>]) -> Option<Self> {
         Self::of_upper(Upper::of_rows(rows)?, None, false)
@@ -76,7 +76,7 @@ impl Cholesky {
 
     /// The factor of the matrix given by block rows, three unknowns a block
     /// row (`3 a + axis`), each sorted by block column: the same factor as
-    /// of their scalar rows ([`crate::multilevel::scalar_rows`]), made
+    /// of their scalar rows ([`crate::coarse::multilevel::scalar_rows`]), made
     /// without them. Only the blocks on and above the diagonal are read,
     /// so the blocks below may be left out. `previous` and `single` as in
     /// [`Cholesky::refactor`] and [`Cholesky::single_of`].
@@ -344,7 +344,7 @@ fn substitute<T: faer::traits::RealField>(
 #[allow(clippy::expect_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
-    use crate::envelope::Envelope;
+    use crate::coarse::envelope::Envelope;
 
     /// The Laplacian of a `side^3` grid, 6-connected, plus `shift` on the
     /// diagonal, as rows sorted by column.
@@ -559,7 +559,7 @@ mod tests {
                     .collect()
             })
             .collect();
-        let rows = crate::multilevel::scalar_rows(&blocks);
+        let rows = crate::coarse::multilevel::scalar_rows(&blocks);
         let b: Vec<f64> = (0..rows.len()).map(|i| (i % 7) as f64 - 3.0).collect();
         let solved = |factor: &Cholesky| {
             let mut x = b.clone();

@@ -6,10 +6,10 @@ use std::sync::Arc;
 use glam::Vec3;
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
-use crate::elastic::Elastic;
-use crate::params::{DeformParams, ForceModel};
-use crate::report::PrepareStage;
-use crate::spectrum::laplacian_extremes;
+use crate::model::elastic::Elastic;
+use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::report::PrepareStage;
+use crate::stage2::spectrum::laplacian_extremes;
 
 /// The largest `|load|` times the model's size [`Plan::for_params`]
 /// accepts (a load moves a model by about `2 |load| size^2`): gravity on

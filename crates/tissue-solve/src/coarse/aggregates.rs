@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use glam::{DVec3, Vec3};
 use tissue_core::{Connections, DeformError, Error};
 
-use crate::envelope::reverse_cuthill_mckee;
+use crate::coarse::envelope::reverse_cuthill_mckee;
 
 /// Marks a particle that belongs to no aggregate (a control point, or a
 /// particle held because nothing connects it to the surface).

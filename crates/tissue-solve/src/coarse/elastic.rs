@@ -1,5 +1,5 @@
 //! The two-level solve of the elastic phase: the coarse correction of
-//! [`crate::coarse`] for the elastic operator linearised where the phase
+//! [`crate::coarse::laplacian`] for the elastic operator linearised where the phase
 //! starts, three unknowns (a translation) per aggregate.
 //!
 //! The elastic force's operator for a small displacement `u` (rotations
@@ -7,7 +7,7 @@
 //! term's Gauss-Newton part: `K = L + 1/2 sum_i W_i g_i g_i^T`, with `g_i`
 //! the gradient of `J_i = det F_i`, whose entries are `cof(F_i) c_ij`
 //! at neighbour `j` and minus their sum at `i`
-//! ([`crate::elastic::VolumeLinearisation`]). Unlike the Laplacian, `K` depends on the
+//! ([`crate::model::elastic::VolumeLinearisation`]). Unlike the Laplacian, `K` depends on the
 //! state through `cof(F_i)`, which turns with the particle's rotation; a
 //! coarse matrix built at rest (`cof F = I`) diverged on the breast phantoms
 //! (docs/METHOD.md, "Elastic model"). So `P^T K P` is assembled at the
@@ -22,18 +22,18 @@ use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 
-use crate::cholesky::Cholesky;
-use crate::coarse::{Aggregates, Envelope, OUTSIDE, centres, power_start};
-use crate::device::Iteration;
-use crate::elastic::{Elastic, VolumeLinearisation, cofactor};
-use crate::multilevel::{BlockMultilevel, scalar_rows};
-use crate::params::ForceModel;
-use crate::volume_smoother::VolumeSmoother;
+use crate::coarse::cholesky::Cholesky;
+use crate::coarse::laplacian::{Aggregates, Envelope, OUTSIDE, centres, power_start};
+use crate::coarse::multilevel::{BlockMultilevel, scalar_rows};
+use crate::coarse::volume_smoother::VolumeSmoother;
+use crate::model::elastic::{Elastic, VolumeLinearisation, cofactor};
+use crate::stage2::device::Iteration;
+use crate::stage2::params::ForceModel;
 
 mod setup;
 
-pub(crate) use crate::entries::Entries;
-use crate::entries::{Parts, own_entries};
+pub(crate) use crate::model::entries::Entries;
+use crate::model::entries::{Parts, own_entries};
 pub use setup::{
     SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
 };
@@ -62,7 +62,7 @@ pub const REST_RATE_STEPS: usize = 40;
 pub struct CorrectionFor {
     /// The plain step's `c alpha`.
     pub contraction: f32,
-    /// The volume smoother's `delta` ([`crate::volume_smoother`]); `None`:
+    /// The volume smoother's `delta` ([`crate::coarse::volume_smoother`]); `None`:
     /// the plain step smooths.
     pub volume_delta: Option<f64>,
     /// The two-level iteration's contraction where it is known (with the
@@ -569,8 +569,8 @@ impl ElasticCoarse {
             kv = kw.iter().map(|x| *x / beta).collect();
         }
         betas.truncate(alphas.len().saturating_sub(1));
-        let lo = crate::spectrum::tridiagonal_eigenvalue(&alphas, &betas, 0);
-        let hi = crate::spectrum::tridiagonal_eigenvalue(&alphas, &betas, alphas.len() - 1);
+        let lo = crate::stage2::spectrum::tridiagonal_eigenvalue(&alphas, &betas, 0);
+        let hi = crate::stage2::spectrum::tridiagonal_eigenvalue(&alphas, &betas, alphas.len() - 1);
         (lo.abs().max(hi.abs()) as f32).clamp(0.0, 0.9999)
     }
 }
@@ -713,7 +713,7 @@ mod tests {
     use glam::Mat3;
 
     use super::*;
-    use crate::volume_smoother::{pressure_forces, volume_changes};
+    use crate::coarse::volume_smoother::{pressure_forces, volume_changes};
 
     /// The elastic force ([`Elastic::force_on`]) with every particle's
     /// rotation held at `rotations` (the devices' kernels compute the same).
@@ -944,10 +944,10 @@ mod tests {
         let current: Vec<Vec3> = rest.iter().map(|&p| current(p)).collect();
         let aggregates = Aggregates::new(&rest, &connections, &free, 2.0, 1_000).unwrap();
         let elastic = Elastic::new(&rest, &connections, 0.49, &free);
-        let (_, lambda_max) = crate::spectrum::laplacian_extremes(&connections, &free);
+        let (_, lambda_max) = crate::stage2::spectrum::laplacian_extremes(&connections, &free);
         let made_for = CorrectionFor {
             contraction: 0.002,
-            volume_delta: Some(crate::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
+            volume_delta: Some(crate::coarse::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
             rho,
             direct_max_aggregates: usize::MAX,
             envelope,
@@ -1147,11 +1147,11 @@ mod tests {
     /// as docs/METHOD.md measured them, and on by default.
     #[test]
     fn the_volume_smoother_defaults_are_the_measured_ones() {
-        use crate::volume_smoother::{RELAXATION, SHEAR_STEP, SWEEPS};
-        assert_eq!((SHEAR_STEP, RELAXATION, SWEEPS), (2.0, 0.5, 2));
+        use crate::coarse::volume_smoother::{RELAXATION, SHEAR_STEP, SMOOTHER_SWEEPS};
+        assert_eq!((SHEAR_STEP, RELAXATION, SMOOTHER_SWEEPS), (2.0, 0.5, 2));
         assert_eq!(REST_RATE_STEPS, 40);
         assert!(
-            crate::params::DeformParams::default()
+            crate::stage2::params::DeformParams::default()
                 .tuning
                 .volume_smoother
         );

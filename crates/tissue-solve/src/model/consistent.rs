@@ -37,8 +37,8 @@ use glam::{DMat3, DVec3, Mat3, Mat3A, Vec3, Vec3A};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::aggregates::{Aggregates, OUTSIDE, centres};
-use crate::cholesky::Cholesky;
+use crate::coarse::aggregates::{Aggregates, OUTSIDE, centres};
+use crate::coarse::cholesky::Cholesky;
 
 /// The multipliers are solved until the constraint's largest residual is
 /// this fraction of the uncorrected one: on the phantom at 5,000 particles
@@ -565,7 +565,7 @@ pub fn offsets_outer(a: &[Vec3], b: &[Vec3], connections: &Connections, i: usize
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
-    use crate::elastic::moment;
+    use crate::model::elastic::moment;
 
     fn block() -> (Vec<Vec3>, Connections, Vec<bool>, Vec<Mat3>) {
         let (rest, pairs, free) = tissue_testkit::jittered_grid(6, 7);

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use tissue_core::field::{Side, SurfaceField};
 use tissue_core::{ConnectionStats, ParticleModel, SamplingReport};
 
-use crate::grid::{Grid, grid_build};
+use crate::stage1::grid::{Grid, grid_build};
 
 /// Surface points per mean spacing along each triangle edge when measuring coverage.
 const COVERAGE_SAMPLES_PER_SPACING: f32 = 3.0;
@@ -211,7 +211,7 @@ pub const MAX_WEAK_PERCENT: f64 = 5.0;
 /// Refuses a model whose particles all lie on the surface (stage 2 would
 /// move nothing), or in which more than [`MAX_WEAK_PERCENT`] of the particles
 /// have fewer than 3 connections or all of them in one plane
-/// (`det A / (tr A / 3)^3` below [`crate::elastic::FLAT_NEIGHBOURHOOD`] for
+/// (`det A / (tr A / 3)^3` below [`crate::model::elastic::FLAT_NEIGHBOURHOOD`] for
 /// the moment matrix `A` of their offsets): such a particle has no
 /// rotation to find, and stage 2 would move it as if it had none. Too few
 /// particles for the shape (`--particles 10`, or a slab one particle
@@ -225,7 +225,7 @@ pub fn check_usable(model: &ParticleModel) -> Result<(), tissue_core::SamplingEr
     let flat: Vec<usize> = (0..model.len())
         .into_par_iter()
         .filter(|&i| {
-            !crate::elastic::is_round(crate::elastic::moment(
+            !crate::model::elastic::is_round(crate::model::elastic::moment(
                 &model.positions,
                 &model.connections,
                 i,

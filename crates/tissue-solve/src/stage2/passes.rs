@@ -8,8 +8,8 @@
 //! devices then add its work and nothing else (`docs/ARCHITECTURE.md`,
 //! "Adding a pass").
 
-use crate::device::Iteration;
-use crate::params::{ForceModel, RotationMethod};
+use crate::stage2::device::Iteration;
+use crate::stage2::params::{ForceModel, RotationMethod};
 
 /// One pass of a stage-2 iteration. Each is the work of one shader file
 /// (several kernels of it on the GPU) and of its CPU twin of the same name.

@@ -2,7 +2,7 @@
 //! (docs/METHOD.md, "Elastic model", "The volume smoother").
 //!
 //! The elastic operator for a small displacement is
-//! `K = L + 1/2 G W G^T` ([`crate::elastic::VolumeLinearisation`]): the
+//! `K = L + 1/2 G W G^T` ([`crate::model::elastic::VolumeLinearisation`]): the
 //! connection Laplacian and, per particle, the volume term's Gauss-Newton
 //! part, `G`'s column `i` being `g_i`, the gradient of `J_i`. At a Poisson
 //! ratio of 0.49 the volume part is 7-12 times stiffer than the Laplacian
@@ -18,7 +18,7 @@
 //! g_i`), `M = delta I + H H^T`, and by the Woodbury identity
 //! `M^-1 r = (r - H z) / delta` with `(delta I + H^T H) z = H^T r`: one
 //! unknown (a pressure) per particle. That system is not diagonally
-//! dominant, so `z` is [`SWEEPS`] Jacobi sweeps relaxed by [`RELAXATION`]
+//! dominant, so `z` is [`SMOOTHER_SWEEPS`] Jacobi sweeps relaxed by [`RELAXATION`]
 //! from zero, which keep `M^-1` symmetric (a fixed polynomial in `D^-1 S`).
 //! Each sweep costs a product with `H` and one with `H^T`, passes over the
 //! connections as the operator's are. The GPU's twin,
@@ -33,7 +33,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::entries::{Entries, slots};
+use crate::model::entries::{Entries, slots};
 
 /// `delta` in units of the connection Laplacian's largest eigenvalue (the
 /// plan's, margin included). 2.0 keeps the iteration's most negative
@@ -50,7 +50,7 @@ pub const RELAXATION: f64 = 0.5;
 /// Jacobi sweeps on the pressures. One diverges at any relaxation that
 /// helps (`S` is not diagonally dominant); three give the same
 /// contraction as two (0.882 against 0.878) at the cost of two more passes.
-pub const SWEEPS: usize = 2;
+pub const SMOOTHER_SWEEPS: usize = 2;
 
 /// The smoother at one linearisation.
 #[derive(Debug, Clone)]
@@ -117,7 +117,7 @@ impl VolumeSmoother {
 
     /// `M^-1 r` for a residual `r` (zero outside): the smoothed step.
     ///
-    /// Four passes over the connections (with [`SWEEPS`] 2), each of which
+    /// Four passes over the connections (with [`SMOOTHER_SWEEPS`] 2), each of which
     /// also makes what the next reads, per particle: `H^T r` with the first
     /// sweep's pressures, their force `H z`, `H^T H z` with the next sweep's
     /// pressures, and their force with the step.
@@ -141,7 +141,7 @@ impl VolumeSmoother {
                 ((t, z), z * roots[i])
             })
             .unzip();
-        for _ in 1..SWEEPS {
+        for _ in 1..SMOOTHER_SWEEPS {
             let forces = pressure_forces(entries, connections, inside, &scaled);
             (sweep, scaled) = (0..residual.len())
                 .into_par_iter()

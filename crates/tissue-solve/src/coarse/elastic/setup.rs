@@ -6,10 +6,10 @@ use glam::Vec3;
 use tissue_core::{Connections, ParticleModel};
 
 use super::{CorrectionFor, ElasticCoarse, Making, REST_RATE_STEPS};
-use crate::coarse::Aggregates;
-use crate::elastic::Elastic;
-use crate::params::DeformParams;
-use crate::plan::Plan;
+use crate::coarse::laplacian::Aggregates;
+use crate::model::elastic::Elastic;
+use crate::stage2::params::DeformParams;
+use crate::stage2::plan::Plan;
 
 /// The contraction of the elastic phase's two-level iteration with the
 /// volume smoother (`delta`), estimated once per model: the operator
@@ -66,7 +66,7 @@ pub const SMOOTHER_MAX_CELL: f32 = 2.0;
 /// hardly faster than the plain step's.
 pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 
-/// The volume smoother's `delta` ([`crate::volume_smoother::SHEAR_STEP`]
+/// The volume smoother's `delta` ([`crate::coarse::volume_smoother::SHEAR_STEP`]
 /// times the plan's largest Laplacian eigenvalue) and its two-level
 /// iteration's contraction at rest ([`rest_rate`]), where the elastic phase
 /// has its two-level solve (`aggregates`), `params` asks for the smoother,
@@ -112,7 +112,7 @@ pub fn volume_smoother(
         );
         return None;
     }
-    let delta = crate::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max);
+    let delta = crate::coarse::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max);
     let rho = rest_rate(
         aggregates,
         &model.positions,

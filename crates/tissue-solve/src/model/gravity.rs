@@ -17,7 +17,7 @@
 use glam::Vec3;
 use tissue_core::{Error, ParamError, SurfaceMesh};
 
-use crate::report::DeformReport;
+use crate::stage2::report::DeformReport;
 
 /// Standard gravity, m/s^2.
 pub const STANDARD_GRAVITY: f32 = 9.806_65;
@@ -115,7 +115,7 @@ pub enum Accuracy {
     /// tolerance times [`ROUND_TOLERANCE`]. Its error is small beside the
     /// miss it measures (0.05 mm beside 0.3-3 mm on the breast phantoms),
     /// and the next round corrects it. The stiffness search's deformed
-    /// postures too ([`crate::stiffness::fit_stiffness`]).
+    /// postures too ([`crate::model::stiffness::fit_stiffness`]).
     Round,
     /// The solve's own tolerance: the round whose miss is reported.
     Full,
@@ -303,7 +303,7 @@ pub fn unloaded_shape_from(
 #[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
     use super::*;
-    use crate::report::StopReason;
+    use crate::stage2::report::StopReason;
 
     fn report(converged: bool) -> DeformReport {
         DeformReport {

@@ -8,9 +8,9 @@ use std::sync::Arc;
 use tissue_core::ParticleModel;
 
 use super::{CoarseSpace, coarse_space};
-use crate::params::DeformParams;
-pub use crate::plan::laplacian_key;
-use crate::plan::{Plan, SharedSpectrum};
+use crate::stage2::params::DeformParams;
+pub use crate::stage2::plan::laplacian_key;
+use crate::stage2::plan::{Plan, SharedSpectrum};
 
 /// What preparing a solver costs that depends only on a model's
 /// connections and which of its particles are free, not on where they are:
@@ -32,7 +32,7 @@ pub struct SharedLaplacian {
 /// particles.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CoarseFor {
-    /// The cell in mean connection lengths, [`crate::params::SolverTuning::coarse`].
+    /// The cell in mean connection lengths, [`crate::stage2::params::SolverTuning::coarse`].
     coarse: f32,
     max_aggregates: usize,
     direct_max: usize,

@@ -1,7 +1,7 @@
 //! A change of posture on any device: the organ's unloaded shape from the
-//! rest scan and its posture's gravity ([`crate::gravity`]'s fixed point),
+//! rest scan and its posture's gravity ([`crate::model::gravity`]'s fixed point),
 //! with the stiffness fitted from the deformed skin where it is not given
-//! ([`crate::stiffness`]), on a coarse model of the same surface where the
+//! ([`crate::model::stiffness`]), on a coarse model of the same surface where the
 //! model is large enough, the model's own unloaded shape then found at the
 //! fitted stiffness. Every solve is a [`Tracker`] the caller's
 //! [`PostureDevice`] prepares, so the search is written once for every
@@ -10,17 +10,17 @@
 use glam::{Mat3, Vec3};
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
-use crate::coarse::SharedLaplacian;
-use crate::device::SolveDevice;
-use crate::gravity::{
+use crate::coarse::laplacian::SharedLaplacian;
+use crate::model::gravity::{
     Accuracy, ROUND_TOLERANCE, UnloadedShape, Unloading, gravity_load, unloaded_shape_from,
 };
-use crate::params::{DeformParams, ForceModel};
-use crate::plan::control_points;
-use crate::report::DeformReport;
-use crate::stiffness::{Postures, StiffnessFit, Trial, fit_stiffness, free_skin_targets};
-use crate::structures::Embedding;
-use crate::tracker::Tracker;
+use crate::model::stiffness::{Postures, StiffnessFit, Trial, fit_stiffness, free_skin_targets};
+use crate::model::structures::Embedding;
+use crate::stage2::device::SolveDevice;
+use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::plan::control_points;
+use crate::stage2::report::DeformReport;
+use crate::stage2::tracker::Tracker;
 
 /// What the posture search asks of a device: a stage-2 tracker for a
 /// model, and a coarse model sampled on a surface (stage 1).
@@ -635,7 +635,7 @@ fn coarse_model(
 
 /// `points` moved as the particles at `rest` moved to `moved`: each by the
 /// weighted displacement of the particles that carry it
-/// ([`crate::structures::carriers_of`]).
+/// ([`crate::model::structures::carriers_of`]).
 fn carried(rest: &[Vec3], moved: &[Vec3], points: &[Vec3]) -> Vec<Vec3> {
     let embedding = Embedding::new(rest, points);
     let still = vec![Mat3::IDENTITY; rest.len()];

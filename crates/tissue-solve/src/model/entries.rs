@@ -1,11 +1,11 @@
 //! The elastic operator's volume part per connection slot, for the CPU's
-//! products with `K` ([`crate::coarse_elastic::ElasticCoarse`], the volume smoother).
+//! products with `K` ([`crate::coarse::elastic::ElasticCoarse`], the volume smoother).
 
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
-use crate::aggregates::OUTSIDE;
+use crate::coarse::aggregates::OUTSIDE;
 
 /// `Elastic::mirrors`' entry for a connection its neighbour does not list.
 pub const NO_MIRROR: u32 = u32::MAX;

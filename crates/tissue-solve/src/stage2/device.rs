@@ -1,13 +1,13 @@
 //! What a device implements for a stage-2 solve ([`SolveDevice`]) and what
 //! every iteration of one runs with ([`Iteration`]): the seam between the
-//! device-neutral [`crate::tracker::Tracker`] and a device's kernels and
+//! device-neutral [`crate::stage2::tracker::Tracker`] and a device's kernels and
 //! buffers.
 
 use glam::{Mat3, Vec3};
 
-use crate::coarse::SharedLaplacian;
-use crate::params::{DeformParams, ForceModel, RotationMethod};
-use crate::plan::Plan;
+use crate::coarse::laplacian::SharedLaplacian;
+use crate::stage2::params::{DeformParams, ForceModel, RotationMethod};
+use crate::stage2::plan::Plan;
 
 /// What every iteration of one solve runs with, from the plan and the
 /// parameters at its start.
@@ -17,9 +17,9 @@ pub struct Iteration {
     pub force: ForceModel,
     /// How the rotations are found.
     pub rotations: RotationMethod,
-    /// The step `alpha = sigma / m` ([`crate::plan::Plan::alpha`]).
+    /// The step `alpha = sigma / m` ([`crate::stage2::plan::Plan::alpha`]).
     pub alpha: f32,
-    /// `c alpha`, what turns an error into the plain step ([`crate::plan::Plan::contraction`]).
+    /// `c alpha`, what turns an error into the plain step ([`crate::stage2::plan::Plan::contraction`]).
     pub contraction: f32,
     /// Whether the device applies its correction: with the symmetric and
     /// the paper's force the Laplacian's coarse space, with the elastic force the elastic operator's, where the
@@ -31,7 +31,7 @@ pub struct Iteration {
     pub relinearise: bool,
     /// The fraction of the volume smoother's two-level step a smoothed
     /// elastic iteration takes (the device scales its residual by it): 1,
-    /// but [`crate::tracker::ELASTIC_DAMPING`] where a smoothed phase that failed is run
+    /// but [`crate::stage2::tracker::ELASTIC_DAMPING`] where a smoothed phase that failed is run
     /// again. The other iterations ignore it.
     pub damping: f32,
 }
@@ -63,7 +63,7 @@ pub trait SolveDevice {
     /// Whether the device's corrected elastic phases smooth with the
     /// volume smoother (known from its preparation): the shear phase
     /// before one then also stops on the volumes' misfit
-    /// ([`crate::params::SolverTuning::shear_volume_share`]). The plain elastic step is
+    /// ([`crate::stage2::params::SolverTuning::shear_volume_share`]). The plain elastic step is
     /// set from the stiffness at rest and needs the shear phase's whole
     /// way: every neighbourhood near its rest volume (on the phantom poked
     /// 40 mm deep at 2,000 particles, the uncorrected phase
@@ -75,7 +75,7 @@ pub trait SolveDevice {
     /// Whether the elastic phase (asked after [`SolveDevice::begin`] of
     /// one) runs the volume smoother, whose contraction
     /// ([`SolveDevice::elastic_rho`]) is measured closely enough for the
-    /// accelerated stopping rule ([`crate::acceleration::StoppingRule::accelerated`]).
+    /// accelerated stopping rule ([`crate::stage2::acceleration::StoppingRule::accelerated`]).
     fn elastic_smoothed(&self) -> bool {
         false
     }

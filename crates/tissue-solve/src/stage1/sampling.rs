@@ -16,7 +16,7 @@ use tissue_core::{
     StageSeconds, SurfaceMesh,
 };
 
-use crate::grid::{grid_build, neighbour_rows};
+use crate::stage1::grid::{grid_build, neighbour_rows};
 
 /// Field cell edge in initial radii `r0`: about 2.4 cells per particle inside.
 /// Smaller cells mean fewer candidate triangles per query (the hot path) and

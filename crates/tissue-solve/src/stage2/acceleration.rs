@@ -1,8 +1,8 @@
 //! Chebyshev acceleration and the stopping rule of a stage-2 solve.
 
-use crate::params::DeformParams;
-use crate::plan::Plan;
-use crate::report::{DeformReport, StopReason};
+use crate::stage2::params::DeformParams;
+use crate::stage2::plan::Plan;
+use crate::stage2::report::{DeformReport, StopReason};
 
 /// The Chebyshev weights of Wang 2015, iteration by iteration:
 /// `omega_2 = 2 / (2 - rho^2)`, `omega_{k+1} = 4 / (4 - rho^2 omega_k)`, and 1

@@ -3,7 +3,7 @@
 //! Gravity's load is `rho g / (2 mu)`: for a given density the one unknown
 //! is the stiffness, and the skin the scanner sees in the second posture
 //! tells it. For a trial Young's modulus `E`: the unloaded shape from the
-//! rest posture ([`crate::gravity::unloaded_shape_from`]), then that shape
+//! rest posture ([`crate::model::gravity::unloaded_shape_from`]), then that shape
 //! loaded with the deformed posture's gravity, the held region fixed and
 //! the rest of the skin free; the fit's residual is the RMS distance of
 //! the free skin's particles from where the observed deformed skin puts
@@ -30,9 +30,9 @@
 use glam::Vec3;
 use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
-use crate::gravity::{Accuracy, UnloadedShape, Unloading, unloaded_shape_from};
-use crate::plan::control_points;
-use crate::report::{DeformReport, StopReason};
+use crate::model::gravity::{Accuracy, UnloadedShape, Unloading, unloaded_shape_from};
+use crate::stage2::plan::control_points;
+use crate::stage2::report::{DeformReport, StopReason};
 
 /// The search stops where the next estimate is within this of the trial
 /// it came from, in `ln E` (2 %: a stiffness that far off moves the
@@ -57,7 +57,7 @@ pub struct Postures<'a> {
     /// free skin's particles (the residual's); `None` for the others.
     pub targets: &'a [Option<Vec3>],
     /// The rest posture's load for a stiffness of 1 kPa
-    /// ([`crate::gravity::gravity_load`]); a stiffness `E` gets this over `E`.
+    /// ([`crate::model::gravity::gravity_load`]); a stiffness `E` gets this over `E`.
     pub rest_load_per_kpa: Vec3,
     /// The deformed posture's, likewise.
     pub deformed_load_per_kpa: Vec3,
@@ -422,7 +422,7 @@ mod tests {
             residual: 0.0,
             residual_history: Vec::new(),
             converged,
-            stopped_by: crate::report::StopReason::Tolerance,
+            stopped_by: crate::stage2::report::StopReason::Tolerance,
             seconds: 0.0,
             elastic_retries: 0,
         };

@@ -2,12 +2,12 @@
 //! is also a plausible one.
 //!
 //! A particle's neighbourhood maps from rest to now by its least-squares
-//! gradient `F_i = M_i A_i^-1` ([`crate::elastic`]); its local volume ratio
+//! gradient `F_i = M_i A_i^-1` ([`crate::model::elastic`]); its local volume ratio
 //! is `J_i = det F_i = det M_i / det A_i`. Tissue is never turned inside
 //! out, so `J_i <= 0` means the solve found an impossible state (a surface
 //! pushed through the organ, a frame with crossed vertices): the particle
 //! is *inverted*. Only neighbourhoods that span three dimensions at rest
-//! ([`crate::elastic::is_round`]) are judged; a flat one has no volume to
+//! ([`crate::model::elastic::is_round`]) are judged; a flat one has no volume to
 //! turn.
 
 use glam::Vec3;
@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tissue_core::Connections;
 
-use crate::elastic::{is_round, moment, moment_unit, offsets_product};
+use crate::model::elastic::{is_round, moment, moment_unit, offsets_product};
 
 /// The local volume ratio at or below which a particle counts as inverted.
 pub const INVERTED_VOLUME_RATIO: f32 = 0.0;

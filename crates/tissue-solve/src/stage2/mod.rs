@@ -1,0 +1,50 @@
+//! Stage 2, the deformation, device-neutral: the parameters (`params`),
+//! what a solve knows before it starts (`plan`, with the Laplacian's
+//! spectrum from `spectrum`), Chebyshev acceleration and the stopping rule
+//! (`acceleration`), the tracking prediction (`predict`), the deformed
+//! surface's checks (`controls`), what one iteration runs (`passes`), the
+//! seam a device implements (`device`), batches and their replay
+//! (`batches`), the one tracker over any device (`tracker`), how a solve
+//! went (`report`), inverted neighbourhoods (`inversion`), and the search
+//! a change of posture makes (`posture`).
+
+pub(crate) mod acceleration;
+pub(crate) mod batches;
+pub(crate) mod controls;
+pub(crate) mod device;
+pub(crate) mod inversion;
+pub(crate) mod params;
+pub(crate) mod passes;
+pub(crate) mod plan;
+pub(crate) mod posture;
+pub(crate) mod predict;
+pub(crate) mod report;
+pub(crate) mod spectrum;
+pub(crate) mod tracker;
+
+pub use acceleration::{
+    CHEBYSHEV_ENVELOPE, Chebyshev, STALL_FACTOR, STALL_WINDOW, StoppingRule, accelerated_rate,
+    error_bound,
+};
+pub use batches::{Batches, run_batched};
+pub use controls::{VOLUME_RATIO, check_same_topology};
+pub use device::{Iteration, SolveDevice};
+pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
+pub use params::{
+    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
+    MAX_ELASTIC_COARSE_AGGREGATES, MAX_ELASTIC_COARSE_DIRECT_AGGREGATES, MAX_HISTORY, MAX_POISSON,
+    MAX_SHEAR_VOLUME_SHARE, RotationMethod, SolverTuning,
+};
+pub use passes::{Choices, Correction, Holds, Pass};
+pub use plan::{MAX_LOAD_SIZE, Plan, SharedSpectrum, control_points, laplacian_key};
+pub use posture::{
+    DENSITY_KG_M3, FIT_BOUNDS_KPA, FIT_PARTICLES, FIT_START_KPA, Fit, Gravity, HELD_SPACINGS,
+    MAX_GRAVITY_G, MIN_FIT_PARTICLES, NO_CHANGE, ORGAN_SIZE_M, PostureDevice, SolveProgress,
+    UNLOADED_TOLERANCE_M, Unloaded, unload,
+};
+pub use predict::{FrameHistory, affine_fit, predict};
+pub use report::{DeformReport, PrepareStage, SolveStep, StopReason};
+pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
+pub use tracker::{
+    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, SHEAR_CHECK, SHEAR_TOLERANCE, Tracker,
+};
