@@ -227,14 +227,31 @@ fn progress_comes_in_order_on_both_devices() {
         }
         assert_eq!(iterations[0], iterations[1], "{force:?}: CPU, GPU");
     }
-    // Without a coarse space, nothing is prepared after the plan.
-    let mut stages = Vec::new();
-    let no_coarse = DeformParams::default().with(|p| p.tuning.coarse = 0.0);
-    Solver::new_with_progress(Device::Cpu, &model, no_coarse, &mut |stage| {
-        stages.push(stage)
-    })
-    .unwrap();
-    assert_eq!(stages, [PrepareStage::Plan], "cpu, no coarse space");
+    // Without the Laplacian's coarse space the symmetric force prepares
+    // nothing after the plan, the elastic force its model and its own
+    // correction.
+    for (force, expected) in [
+        (ForceModel::Symmetric, vec![PrepareStage::Plan]),
+        (
+            ForceModel::Elastic,
+            vec![
+                PrepareStage::Plan,
+                PrepareStage::ElasticModel,
+                PrepareStage::ElasticCoarse,
+            ],
+        ),
+    ] {
+        let mut stages = Vec::new();
+        let no_coarse = DeformParams::default().with(|p| {
+            p.force = force;
+            p.tuning.coarse = 0.0;
+        });
+        Solver::new_with_progress(Device::Cpu, &model, no_coarse, &mut |stage| {
+            stages.push(stage)
+        })
+        .unwrap();
+        assert_eq!(stages, expected, "cpu, no coarse space, {force:?}");
+    }
 }
 
 /// A solve warm-started where a converged solve of the same surface ended

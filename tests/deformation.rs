@@ -1,5 +1,8 @@
 //! Stage 2 against exact answers: rigid motion, an affine map, the torsion of
 //! a circular cylinder; the force's invariants; frame-to-frame tracking.
+//! The solves run the symmetric force (`symmetric()`) unless a test names
+//! another: the elastic force, the default, has the patch tests here and
+//! its own suite in `tests/elastic_solve.rs`.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
 use std::sync::OnceLock;
@@ -12,6 +15,11 @@ use tissue_cpu::deformation::{
     elastic_terms, local_rotations,
 };
 use tissue_cpu::model::{Embedding, RigidBinding};
+
+/// The library's defaults with the symmetric force.
+fn symmetric() -> DeformParams {
+    DeformParams::default().with(|p| p.force = ForceModel::Symmetric)
+}
 
 /// The phantom at 5,000 particles, sampled once for all tests.
 fn breast_model() -> &'static ParticleModel {
@@ -76,11 +84,11 @@ fn rigid_motion_moves_every_particle_and_point_rigidly() {
         Vec3::new(7.0, -3.0, 4.0),
     );
     let deformed = deform_surface(&model.surface, &rigid);
-    let solver_alone = DeformParams::default().with(|p| {
+    let solver_alone = symmetric().with(|p| {
         p.tuning.extrapolate = false;
     });
     let unpredicted = solve(model, &deformed, solver_alone);
-    let deformer = solve(model, &deformed, DeformParams::default());
+    let deformer = solve(model, &deformed, symmetric());
     let size = deformer.size();
     for (how, deformer) in [("solver alone", &unpredicted), ("predicted", &deformer)] {
         let mut worst = 0.0f32;
@@ -131,7 +139,7 @@ fn an_affine_map_is_reproduced_in_the_interior() {
         centre: Vec3::new(0.0, 0.0, 20.0),
     };
     let deformed = deform_surface(&model.surface, &affine);
-    let deformer = solve(model, &deformed, DeformParams::default());
+    let deformer = solve(model, &deformed, symmetric());
     let (rms, max) = errors(model, &deformer, &affine);
     let scale = max_displacement(model, &affine);
     eprintln!(
@@ -160,7 +168,7 @@ fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
         centre: Vec3::new(0.0, 0.0, 20.0),
     };
     let deformed = deform_surface(&model.surface, &affine);
-    let elastic = DeformParams::default().with(|p| {
+    let elastic = symmetric().with(|p| {
         p.force = ForceModel::Elastic;
     });
     let deformer = solve(model, &deformed, elastic);
@@ -181,7 +189,7 @@ fn svd_and_warm_polar_rotations_reach_the_same_solution() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     let solve_with = |rotations| {
-        let params = DeformParams::default().with(|p| {
+        let params = symmetric().with(|p| {
             p.tuning.rotations = rotations;
             p.tolerance = 1e-6;
         });
@@ -189,9 +197,7 @@ fn svd_and_warm_polar_rotations_reach_the_same_solution() {
     };
     let svd = solve_with(RotationMethod::Svd);
     let warm = solve_with(RotationMethod::WarmPolar);
-    let size = Deformer::new(model, DeformParams::default())
-        .unwrap()
-        .size();
+    let size = Deformer::new(model, symmetric()).unwrap().size();
     for (i, (a, b)) in svd.iter().zip(&warm).enumerate() {
         assert!(
             (*a - *b).length() <= 1e-4 * size,
@@ -213,7 +219,7 @@ fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
     };
     let deformed = deform_surface(&model.surface, &twist);
     for force in [ForceModel::Symmetric, ForceModel::Elastic] {
-        let params = DeformParams::default().with(|p| {
+        let params = symmetric().with(|p| {
             p.force = force;
         });
         let deformer = solve(&model, &deformed, params);
@@ -407,7 +413,7 @@ fn the_elastic_force_is_the_energy_gradient() {
 fn a_warm_start_converges_much_faster_than_a_cold_one() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
-    let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+    let mut deformer = Deformer::new(model, symmetric()).unwrap();
     deformer.set_surface(&sagged).unwrap();
     let cold = deformer.solve();
     assert!(cold.converged);
@@ -437,7 +443,7 @@ fn prediction_cuts_tracking_iterations() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
     let run = |extrapolate| {
-        let params = DeformParams::default().with(|p| {
+        let params = symmetric().with(|p| {
             p.tuning.extrapolate = extrapolate;
         });
         let mut deformer = Deformer::new(model, params).unwrap();
@@ -464,7 +470,7 @@ fn prediction_cuts_tracking_iterations() {
 /// Tracks `frames` with `history` and tolerance 1e-6; per frame, the
 /// prediction's worst distance from the answer over the change's largest.
 fn prediction_errors(history: usize, frames: &[SurfaceMesh]) -> Vec<f32> {
-    let params = DeformParams::default().with(|p| {
+    let params = symmetric().with(|p| {
         p.tuning.history = history;
         p.tolerance = 1e-6;
     });
@@ -562,7 +568,7 @@ fn the_first_tracked_frame_fits_the_change_from_rest() {
         interpolate(&model.surface, &sagged, 0.5).unwrap(),
         interpolate(&model.surface, &sagged, 0.52).unwrap(),
     ];
-    let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+    let mut deformer = Deformer::new(model, symmetric()).unwrap();
     for round in ["new", "after reset"] {
         deformer.set_surface(&frames[0]).unwrap();
         assert!(deformer.solve().converged);
@@ -614,10 +620,10 @@ fn mixed(
 /// - a sag and an indentation at two rhythms (up to 2.1 % of the size a
 ///   frame; the frames over 2 % are solved and checked but not counted).
 #[test]
-fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
+fn small_tracking_frames_take_at_most_ten_iterations_with_the_symmetric_force() {
     let model = breast_model();
-    let defaults = DeformParams::default();
-    let tight = DeformParams::default().with(|p| {
+    let defaults = symmetric();
+    let tight = symmetric().with(|p| {
         p.tolerance = 1e-6;
     });
     let mut reference = Deformer::new(model, tight).unwrap();
@@ -646,7 +652,7 @@ fn small_tracking_frames_take_at_most_ten_iterations_by_default() {
     for (name, frames) in sequences {
         let mut plain = Deformer::new(
             model,
-            DeformParams::default().with(|p| {
+            symmetric().with(|p| {
                 p.tuning.coarse = 0.0;
             }),
         )
@@ -706,7 +712,7 @@ fn a_turning_surface_is_tracked_in_a_few_iterations_per_frame() {
     let (lo, hi) = model.surface.bounds().unwrap();
     let axis = Vec3::new(1.0, 0.3, 0.2).normalize();
     for degrees in [1.0f32, 3.0] {
-        let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+        let mut deformer = Deformer::new(model, symmetric()).unwrap();
         let size = deformer.size();
         let mut iterations = Vec::new();
         for k in 1..=8 {
@@ -742,7 +748,7 @@ fn a_turning_surface_is_tracked_in_a_few_iterations_per_frame() {
 #[test]
 fn a_surface_that_is_not_the_rest_surface_is_refused() {
     let model = breast_model();
-    let mut deformer = Deformer::new(model, DeformParams::default()).unwrap();
+    let mut deformer = Deformer::new(model, symmetric()).unwrap();
     let err = deformer
         .set_surface(&phantom::default_tumour())
         .unwrap_err()
@@ -792,7 +798,7 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
     assert_eq!(degenerate.connections.of(lonely as usize).len(), 1);
     assert_eq!(degenerate.connections.of(pair as usize).len(), 2);
 
-    let mut deformer = Deformer::new(&degenerate, DeformParams::default()).unwrap();
+    let mut deformer = Deformer::new(&degenerate, symmetric()).unwrap();
     deformer
         .set_surface(&tissue::deform::sagged_breast())
         .unwrap();
@@ -809,7 +815,7 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
         deformer.positions()[isolated as usize],
         model.positions[isolated as usize]
     );
-    let mut intact = Deformer::new(model, DeformParams::default()).unwrap();
+    let mut intact = Deformer::new(model, symmetric()).unwrap();
     intact
         .set_surface(&tissue::deform::sagged_breast())
         .unwrap();
@@ -830,7 +836,7 @@ fn degenerate_neighbourhoods_do_not_break_the_solve() {
 fn the_cycled_coarse_solve_lands_where_the_factored_one_does() {
     let model = breast_model();
     let sagged = tissue::deform::sagged_breast();
-    let factored = DeformParams::default().with(|p| {
+    let factored = symmetric().with(|p| {
         p.tuning.extrapolate = false;
     });
     let cycled = factored.clone().with(|p| {
@@ -881,7 +887,7 @@ fn the_pipeline_is_the_same_in_any_length_unit() {
         let model = tissue::sample(&scaled(&breast, by), &SamplingParams::with_particles(1_500))
             .unwrap_or_else(|e| panic!("scale {by}: {e}"))
             .model;
-        let params = DeformParams::default().with(|p| p.force = force);
+        let params = symmetric().with(|p| p.force = force);
         let mut deformer = Deformer::new(&model, params).unwrap();
         deformer.set_surface(&scaled(&sagged, by)).unwrap();
         let report = deformer.solve();

@@ -289,7 +289,7 @@ fn an_unloaded_solver_measures_from_the_rest_posture() {
     .unwrap()
     .model;
     let sag = tissue::deform::sagged_breast();
-    let params = DeformParams::default();
+    let params = DeformParams::default().with(|p| p.force = ForceModel::Symmetric);
     let size = common_size(&model);
     let probes: Vec<Vec3> = model.positions.iter().step_by(97).copied().collect();
     let mut devices = vec![Device::Cpu];

@@ -61,8 +61,9 @@ struct Args {
     /// 0 measures the solver without it.
     #[arg(long, default_value_t = DeformParams::default().tuning.coarse)]
     coarse: f32,
-    /// The stage-2 force model (`DeformParams::force`).
-    #[arg(long, value_enum, default_value_t = ForceName::Symmetric)]
+    /// The stage-2 force model (`DeformParams::force`; the library's
+    /// default, elastic).
+    #[arg(long, value_enum, default_value_t = ForceName::Elastic)]
     force: ForceName,
     /// The elastic force's Poisson ratio (`DeformParams::poisson`).
     #[arg(long, default_value_t = DeformParams::default().poisson)]

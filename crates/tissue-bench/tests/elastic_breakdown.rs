@@ -8,29 +8,7 @@
 
 mod common;
 
-use common::{check_breakdown, gpu_ran, run_bench};
-
-/// The GPU kernels of one elastic iteration with the defaults (warm
-/// rotations, the elastic two-level solve with the volume smoother), in
-/// the order of their first dispatch; the pressures' force, dispatched
-/// twice, is one row.
-const SMOOTHED_PASSES: [&str; 15] = [
-    "elastic_targets_warm",
-    "elastic_force",
-    "smoother_residual",
-    "pressure_start",
-    "pressure_forces ×2",
-    "pressure_sweep",
-    "smoothed_step",
-    "elastic_change_of",
-    "elastic_residual_of",
-    "elastic_restrict",
-    "elastic_forward",
-    "elastic_backward",
-    "elastic_apply",
-    "chebyshev",
-    "step_norms (update)",
-];
+use common::{GPU_PASSES, check_breakdown, gpu_ran, run_bench};
 
 #[test]
 fn the_gpu_breakdown_covers_the_smoothed_elastic_iteration() {
@@ -58,7 +36,7 @@ fn the_gpu_breakdown_covers_the_smoothed_elastic_iteration() {
     check_breakdown(
         &b["stage2"]["stages"],
         method,
-        &SMOOTHED_PASSES,
+        &GPU_PASSES,
         "gpu elastic, 1000 particles",
     );
 }

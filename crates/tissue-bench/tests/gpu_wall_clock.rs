@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{GPU_PASSES, check_breakdown, gpu_ran, run_bench};
+use common::{SYMMETRIC_GPU_PASSES, check_breakdown, gpu_ran, run_bench};
 
 #[test]
 fn no_timestamps_times_each_kernel_by_the_wall_clock() {
@@ -17,6 +17,8 @@ fn no_timestamps_times_each_kernel_by_the_wall_clock() {
         "--backends",
         "gpu",
         "--no-timestamps",
+        "--force",
+        "symmetric",
     ]);
     let gpu = &report["gpu"];
     if !gpu_ran(gpu) {
@@ -32,7 +34,7 @@ fn no_timestamps_times_each_kernel_by_the_wall_clock() {
     check_breakdown(
         stages,
         "wall_clock_submit_wait",
-        &GPU_PASSES,
+        &SYMMETRIC_GPU_PASSES,
         "gpu, 1000 particles",
     );
     let note = stages["note"].as_str().expect("a note");

@@ -39,7 +39,7 @@ pub enum Force {
 /// Stage-2 options shared by `deform` and `track`.
 #[derive(Debug, clap::Args)]
 pub struct SolveArgs {
-    /// Force model (default: symmetric; elastic with the gravity options).
+    /// Force model (default: elastic; symmetric is the fastest frame, without a volume term).
     #[arg(long, value_enum)]
     pub force: Option<Force>,
     /// Poisson ratio of the elastic force (0 to 0.499; soft tissue is 0.45 to 0.49).
@@ -72,12 +72,12 @@ impl SolveArgs {
     /// The stage-2 parameters, checked.
     pub fn params(&self) -> Result<DeformParams> {
         let force = match (self.force, self.gravity.given()) {
-            (None, false) | (Some(Force::Symmetric), false) => ForceModel::Symmetric,
-            (None, true) | (Some(Force::Elastic), _) => ForceModel::Elastic,
+            (Some(Force::Symmetric), false) => ForceModel::Symmetric,
+            (None, _) | (Some(Force::Elastic), _) => ForceModel::Elastic,
             (Some(Force::Paper), false) => ForceModel::Paper,
             (Some(other), true) => bail!(
-                "--gravity-rest and --gravity-deformed need the elastic force (the default with \
-                 them), not --force {}: the unloaded shape is that of an elastic body",
+                "--gravity-rest and --gravity-deformed need the elastic force (the default), not \
+                 --force {}: the unloaded shape is that of an elastic body",
                 format!("{other:?}").to_lowercase()
             ),
         };
@@ -525,6 +525,39 @@ mod tests {
         assert!(ran_out_on_gpu(&gpu(tissue::GpuFailure::LimitExceeded)));
         assert!(!ran_out_on_gpu(&gpu(tissue::GpuFailure::DeviceLost)));
         assert!(!ran_out_on_gpu(&anyhow!("out of memory, said in words")));
+    }
+
+    /// Without `--force` both commands solve with the elastic force, the
+    /// library's default, with or without the posture options;
+    /// `--force symmetric` and `--force paper` are refused only with them.
+    #[test]
+    fn the_elastic_force_is_the_default_and_the_others_are_chosen() {
+        let args = |force, gravity: bool| SolveArgs {
+            force,
+            poisson: DeformParams::default().poisson,
+            max_iterations: 100,
+            tolerance: 1e-4,
+            coarse: 2.0,
+            observed: None,
+            gravity: if gravity {
+                GravityArgs {
+                    gravity_rest: Some(Vec3::NEG_Z),
+                    gravity_deformed: Some(Vec3::NEG_Y),
+                    ..GravityArgs::default()
+                }
+            } else {
+                GravityArgs::default()
+            },
+        };
+        let force = |f, g| args(f, g).params().map(|p| p.force).ok();
+        assert_eq!(force(None, false), Some(ForceModel::Elastic));
+        assert_eq!(force(None, true), Some(ForceModel::Elastic));
+        assert_eq!(
+            force(Some(Force::Symmetric), false),
+            Some(ForceModel::Symmetric)
+        );
+        assert_eq!(force(Some(Force::Paper), false), Some(ForceModel::Paper));
+        assert_eq!(force(Some(Force::Symmetric), true), None);
     }
 
     /// Both commands solve two-level with the library's cell unless told

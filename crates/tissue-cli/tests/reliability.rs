@@ -658,9 +658,10 @@ fn a_write_killed_midway_leaves_the_previous_file_whole() {
 
 /// Particles turned inside out by a solve are flagged (issue 15): a poke
 /// 40 mm deep and 15 mm wide into the phantom's tip folds the tissue under
-/// the default force; the report counts the inverted particles, `status`
-/// is `flagged` and the exit code 4. The bundled indentation, a gentle
-/// one, inverts nothing.
+/// the symmetric force (the elastic force, the default, resists it and
+/// folds nothing); the report counts the inverted particles, `status` is
+/// `flagged` and the exit code 4. The bundled indentation, a gentle one,
+/// inverts nothing under either force.
 #[test]
 fn particles_turned_inside_out_are_flagged_and_exit_4() {
     let dir = tempfile::tempdir().unwrap();
@@ -668,7 +669,7 @@ fn particles_turned_inside_out_are_flagged_and_exit_4() {
     let poked = poked(&model.surface, 40.0);
     let poked_path = dir.path().join("poked.obj");
     tissue::save_surface(&poked, &poked_path).unwrap();
-    let deform = |surface: &Path, out: &str| {
+    let deform = |surface: &Path, out: &str, force: &str| {
         let out_dir = dir.path().join(out);
         let result = tissue(&[
             "deform",
@@ -676,12 +677,14 @@ fn particles_turned_inside_out_are_flagged_and_exit_4() {
             s(&model_path),
             "--surface",
             s(surface),
+            "--force",
+            force,
             "-o",
             s(&out_dir),
         ]);
         (result, json(&out_dir.join("report.json")))
     };
-    let (out, report) = deform(&poked_path, "poked");
+    let (out, report) = deform(&poked_path, "poked", "symmetric");
     assert_eq!(out.status.code(), Some(4), "{}", text(&out));
     assert!(text(&out).contains("turned inside out"), "{}", text(&out));
     assert_eq!(report["status"], "flagged", "{report}");
@@ -692,10 +695,16 @@ fn particles_turned_inside_out_are_flagged_and_exit_4() {
     );
     assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() <= 0.0);
 
-    let (out, report) = deform(&assets().join("phantom-indentation.obj"), "gentle");
+    let (out, report) = deform(&poked_path, "poked-elastic", "elastic");
     assert!(out.status.success(), "{}", text(&out));
     assert_eq!(report["inverted"]["count"], 0, "{report}");
-    assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() > 0.2);
+    for force in ["symmetric", "elastic"] {
+        let gentle = format!("gentle-{force}");
+        let (out, report) = deform(&assets().join("phantom-indentation.obj"), &gentle, force);
+        assert!(out.status.success(), "{}", text(&out));
+        assert_eq!(report["inverted"]["count"], 0, "{report}");
+        assert!(report["inverted"]["min_volume_ratio"].as_f64().unwrap() > 0.2);
+    }
 }
 
 /// A frame in which two vertices touch is still the rest mesh (issue 15:

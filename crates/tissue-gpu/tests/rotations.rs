@@ -7,7 +7,7 @@
 mod common;
 
 use glam::Mat3;
-use tissue_cpu::deformation::{DeformParams, RotationMethod, local_rotations};
+use tissue_cpu::deformation::{DeformParams, ForceModel, RotationMethod, local_rotations};
 use tissue_gpu::GpuDeformer;
 
 /// Largest entry difference over all particles, with its particle.
@@ -32,6 +32,7 @@ fn read_rotations_after_one_iteration_matches_local_rotations() {
     };
     let model = common::phantom(2_000);
     let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Symmetric;
         p.tuning.rotations = RotationMethod::Svd;
         p.max_iterations = 1;
     });

@@ -186,8 +186,9 @@ impl Model {
     }
 
     /// Prepares stage 2 on `backend` (`"auto"`, `"gpu"` or `"cpu"`) with the
-    /// force `"symmetric"` (the default), `"elastic"` (with `poisson`, the
-    /// accurate one) or `"paper"`; `max_iterations` caps every solve.
+    /// force `"elastic"` (the default, with `poisson`: the accurate one),
+    /// `"symmetric"` (the fastest frame, without a volume term) or
+    /// `"paper"`; `max_iterations` caps every solve.
     /// `progress`, if given, is called as each stage of the preparation
     /// starts with a dict: `stage` (`plan`, `elastic_model`, `upload`,
     /// `coarse_space`, `elastic_coarse`) and
@@ -195,7 +196,7 @@ impl Model {
     /// surfaces observe (`tissue deform --observed`), as indices or one
     /// flag per vertex; the rest of the skin is free, the mechanics
     /// deciding where it goes. None: all.
-    #[pyo3(signature = (backend = "auto", force = "symmetric", poisson = None, max_iterations = None, progress = None, observed = None))]
+    #[pyo3(signature = (backend = "auto", force = "elastic", poisson = None, max_iterations = None, progress = None, observed = None))]
     #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn deformer(
         &self,

@@ -160,17 +160,19 @@ def test_progress_is_told_every_iteration(model):
 
 def test_the_preparation_tells_its_stages(model):
     symmetric = []
-    model.deformer(backend="cpu", progress=symmetric.append)
+    model.deformer(backend="cpu", force="symmetric", progress=symmetric.append)
     assert [s["stage"] for s in symmetric] == ["plan", "coarse_space"]
     assert all(s["description"] for s in symmetric)
-    elastic = []
-    model.deformer(backend="cpu", force="elastic", progress=elastic.append)
-    assert [s["stage"] for s in elastic] == [
-        "plan",
-        "elastic_model",
-        "coarse_space",
-        "elastic_coarse",
-    ]
+    # The elastic force is the default.
+    for force in [{}, {"force": "elastic"}]:
+        elastic = []
+        model.deformer(backend="cpu", progress=elastic.append, **force)
+        assert [s["stage"] for s in elastic] == [
+            "plan",
+            "elastic_model",
+            "coarse_space",
+            "elastic_coarse",
+        ]
 
 
 def test_a_posture_with_a_given_stiffness_solves_from_the_unloaded_shape(model):

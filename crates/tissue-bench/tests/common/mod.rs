@@ -111,20 +111,41 @@ pub fn check_breakdown(stages: &Value, method: &str, passes: &[&str], context: &
     );
 }
 
-/// The CPU passes of one iteration with the defaults (warm polar
-/// rotations, the two-level solve).
-pub const CPU_PASSES: [&str; 6] = [
-    "local_rotations_warm",
-    "deformation_force",
-    "integrate",
-    "coarse correction (factored)",
+/// The CPU passes of one iteration with the defaults (the elastic force's
+/// smoothed iteration: warm rotations, the elastic two-level solve with
+/// the volume smoother).
+pub const CPU_PASSES: [&str; 5] = [
+    "elastic_targets_warm",
+    "elastic_force",
+    "smoothed step (factored)",
     "chebyshev",
     "step_norms (update)",
 ];
 
-/// The GPU kernels of one iteration with the defaults (warm polar
+/// The GPU kernels of one iteration with the defaults, in the order of
+/// their first dispatch; the pressures' force, dispatched twice, is one
+/// row.
+pub const GPU_PASSES: [&str; 15] = [
+    "elastic_targets_warm",
+    "elastic_force",
+    "smoother_residual",
+    "pressure_start",
+    "pressure_forces ×2",
+    "pressure_sweep",
+    "smoothed_step",
+    "elastic_change_of",
+    "elastic_residual_of",
+    "elastic_restrict",
+    "elastic_forward",
+    "elastic_backward",
+    "elastic_apply",
+    "chebyshev",
+    "step_norms (update)",
+];
+
+/// The GPU kernels of one iteration of the symmetric force (warm polar
 /// rotations, the two-level solve), in dispatch order.
-pub const GPU_PASSES: [&str; 10] = [
+pub const SYMMETRIC_GPU_PASSES: [&str; 10] = [
     "local_rotations_warm",
     "deformation_force",
     "integrate",

@@ -49,7 +49,7 @@ class Model:
     def deformer(
         self,
         backend: str = "auto",
-        force: str = "symmetric",
+        force: str = "elastic",
         poisson: Optional[float] = None,
         max_iterations: Optional[int] = None,
         progress: Optional[Progress] = None,

@@ -168,7 +168,7 @@ pub struct SolverTuning {
 impl Default for DeformParams {
     fn default() -> Self {
         Self {
-            force: ForceModel::Symmetric,
+            force: ForceModel::Elastic,
             tolerance: 3e-5,
             max_iterations: 5_000,
             poisson: 0.49,
@@ -332,6 +332,18 @@ mod tests {
             Err(err) => err.to_string(),
             Ok(()) => panic!("{params:?} was accepted"),
         }
+    }
+
+    /// The elastic force is the default, at a Poisson ratio of 0.49
+    /// (docs/METHOD.md, "Elastic model", *Default*); its shear phase is
+    /// the symmetric force.
+    #[test]
+    fn default_params_pin_the_elastic_force() {
+        let defaults = DeformParams::default();
+        assert_eq!(defaults.force, ForceModel::Elastic);
+        assert_eq!(defaults.poisson, 0.49);
+        assert_eq!(defaults.shear().force, ForceModel::Symmetric);
+        assert!(defaults.validate().is_ok());
     }
 
     #[test]

@@ -113,8 +113,10 @@ pub struct DeformReport {
     /// How many times the elastic phase ran again: once linearised again
     /// where it stalled, and after a divergence or a second stall from the
     /// end of the shear phase without its correction or with half the
-    /// step (`tracker::ELASTIC_RETRIES` of those at most; 0 for the other
-    /// forces).
+    /// step (`tracker::ELASTIC_RETRIES` of those at most), and a tracking
+    /// frame's warm-started phase that failed and was solved again from a
+    /// shear phase; 0 for the other forces. Told here (and in the log at
+    /// `info`), not as warnings: a solve that ends converged is a success.
     #[serde(default)]
     pub elastic_retries: usize,
 }

@@ -345,7 +345,7 @@ impl<D: SolveDevice> Tracker<D> {
             max_iterations: params.max_iterations,
             observe,
         };
-        let mut report = if params.force != ForceModel::Elastic {
+        let report = if params.force != ForceModel::Elastic {
             self.phase(
                 &params,
                 params.max_iterations,
@@ -364,7 +364,7 @@ impl<D: SolveDevice> Tracker<D> {
                 &mut steps,
             )?;
             if warm.stopped_by.failed() {
-                log::warn!(
+                log::info!(
                     "the elastic solve {} from the predicted start after {} iterations; \
                      solving the frame again after a shear phase",
                     if warm.stopped_by == StopReason::Stalled {
@@ -374,18 +374,34 @@ impl<D: SolveDevice> Tracker<D> {
                     },
                     warm.iterations
                 );
+                let budget = params.max_iterations.saturating_sub(warm.iterations);
+                if budget == 0 {
+                    return self.finish(warm, started, &params);
+                }
                 self.device.reset()?;
                 self.device.write_positions(&self.current, None)?;
-                let mut again = self.shear_then_elastic(&params, &mut steps)?;
+                let mut again = self.shear_then_elastic(&params, budget, &mut steps)?;
                 again.iterations += warm.iterations;
+                again.elastic_retries += 1;
                 again.residual_history.splice(0..0, warm.residual_history);
                 again
             } else {
                 warm
             }
         } else {
-            self.shear_then_elastic(&params, &mut steps)?
+            self.shear_then_elastic(&params, params.max_iterations, &mut steps)?
         };
+        self.finish(report, started, &params)
+    }
+
+    /// The end of a solve: its time, the positions read back and recorded,
+    /// and whether the next frame starts warm.
+    fn finish(
+        &mut self,
+        mut report: DeformReport,
+        started: Instant,
+        params: &DeformParams,
+    ) -> Result<DeformReport, D::Error> {
         report.seconds = started.elapsed().as_secs_f64();
         log::debug!(
             "solve: {} iterations in {:.4} s",
@@ -410,10 +426,13 @@ impl<D: SolveDevice> Tracker<D> {
     /// phase: where it smoothed, with half, then a quarter of its step
     /// ([`ELASTIC_DAMPING`], [`DAMPED_RETRIES`]); then without its
     /// correction; then with half the step, up to [`ELASTIC_RETRIES`]
-    /// times in all.
+    /// times in all. Both phases together take at most `budget`
+    /// iterations: a shear phase that takes them all ends the solve, not
+    /// converged.
     fn shear_then_elastic(
         &mut self,
         params: &DeformParams,
+        budget: usize,
         steps: &mut Steps<'_>,
     ) -> Result<DeformReport, D::Error> {
         let shear = DeformParams {
@@ -422,7 +441,7 @@ impl<D: SolveDevice> Tracker<D> {
         };
         let first = self.phase(
             &shear,
-            params.max_iterations,
+            budget,
             PhaseRun {
                 volume_check: self.device.volume_smoother(),
                 ..PhaseRun::corrected(false)
@@ -432,13 +451,22 @@ impl<D: SolveDevice> Tracker<D> {
         if first.stopped_by.failed() {
             return Ok(first);
         }
+        if first.iterations >= budget {
+            // The elastic phase has no iteration left: the solve stops at
+            // the cap, whatever the shear phase's own rule said.
+            return Ok(DeformReport {
+                converged: false,
+                stopped_by: StopReason::IterationCap,
+                ..first
+            });
+        }
         let after_shear = self.device.read_positions()?;
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let mut elastic = params.clone();
         let mut run = PhaseRun::corrected(true);
         let (mut retries, mut damped, mut relinearised) = (0, 0, false);
         loop {
-            let left = params.max_iterations.saturating_sub(used).max(1);
+            let left = budget.saturating_sub(used);
             let mut second = self.phase(&elastic, left, run, steps)?;
             let corrected = run.correct && self.device.elastic_rho().is_some();
             let smoothed = corrected && self.device.elastic_smoothed();
@@ -448,7 +476,7 @@ impl<D: SolveDevice> Tracker<D> {
                 second.stopped_by == StopReason::Stalled && corrected && !relinearised;
             let again = second.stopped_by.failed()
                 && (relinearise || retries < ELASTIC_RETRIES)
-                && used < params.max_iterations;
+                && used < budget;
             if !again {
                 second.iterations = used;
                 second.residual_history = history;
@@ -475,7 +503,7 @@ impl<D: SolveDevice> Tracker<D> {
             if smoothed && damped < DAMPED_RETRIES {
                 damped += 1;
                 run.damping *= ELASTIC_DAMPING;
-                log::warn!(
+                log::info!(
                     "the elastic phase {how} after {} iterations with its two-level solve; \
                      solving it again from the end of the shear phase with {} of its step",
                     second.iterations,
@@ -486,14 +514,14 @@ impl<D: SolveDevice> Tracker<D> {
                     correct: false,
                     ..PhaseRun::corrected(true)
                 };
-                log::warn!(
+                log::info!(
                     "the elastic phase {how} after {} iterations with its two-level solve; \
                      solving it again from the end of the shear phase without it",
                     second.iterations
                 );
             } else {
                 elastic.tuning.step_fraction *= 0.5;
-                log::warn!(
+                log::info!(
                     "the elastic phase {how} after {} iterations; solving it again from the \
                      end of the shear phase with a step {} times the first",
                     second.iterations,
@@ -885,14 +913,50 @@ mod tests {
         }
     }
 
+    /// A one-phase solve (the symmetric force) of the star on a device
+    /// running `batch` iterations at a time.
     fn solved(batch: usize) -> (DeformReport, Halving) {
         let model = star();
-        let mut tracker = Tracker::new(&model, DeformParams::default(), |_, _| {
+        let symmetric = DeformParams::default().with(|p| p.force = ForceModel::Symmetric);
+        let mut tracker = Tracker::new(&model, symmetric, |_, _| {
             Ok::<_, Error>(Halving::new(batch, &model))
         })
         .unwrap();
         let Ok(report) = tracker.solve();
         (report, tracker.device)
+    }
+
+    /// The iteration cap holds for the whole elastic solve: its shear and
+    /// elastic phases together, on devices running one iteration or eight
+    /// at a time; a cap the shear phase takes whole ends the solve there,
+    /// not converged.
+    #[test]
+    fn the_cap_holds_for_both_phases_of_an_elastic_solve() {
+        let model = star();
+        let free = Tracker::new(&model, DeformParams::default(), |_, _| {
+            Ok::<_, Error>(Halving::new(1, &model))
+        })
+        .unwrap()
+        .solve();
+        let Ok(free) = free;
+        assert!(free.converged, "{free:?}");
+        for batch in [1, 8] {
+            for cap in [1, 2, free.iterations - 1] {
+                let capped = DeformParams::default().with(|p| p.max_iterations = cap);
+                let mut tracker = Tracker::new(&model, capped, |_, _| {
+                    Ok::<_, Error>(Halving::new(batch, &model))
+                })
+                .unwrap();
+                let Ok(report) = tracker.solve();
+                assert_eq!(
+                    report.iterations, cap,
+                    "cap {cap}, batch {batch}: {report:?}"
+                );
+                assert!(!report.converged, "cap {cap}, batch {batch}");
+                assert_eq!(report.stopped_by, StopReason::IterationCap);
+                assert_eq!(report.residual_history.len(), cap);
+            }
+        }
     }
 
     #[test]
@@ -1012,7 +1076,8 @@ mod tests {
             .collect();
         assert_eq!(forces, [ForceModel::Symmetric, ForceModel::Elastic]);
         // A warm frame that diverges is solved again from the frame's start,
-        // the shear phase first; the report counts the lost iteration too.
+        // the shear phase first; the report counts the lost iteration too,
+        // and the phase run again.
         tracker.device.diverge_once = true;
         let resets = tracker.device.resets;
         let Ok(again) = tracker.solve();
@@ -1032,6 +1097,9 @@ mod tests {
         );
         assert_eq!(again.residual_history.len(), again.iterations);
         assert!(again.iterations > report.iterations, "{again:?}");
+        // The report tells it (the log at `info` only: the frame converged).
+        assert_eq!(again.elastic_retries, 1, "{again:?}");
+        assert_eq!(next.elastic_retries, 0, "{next:?}");
     }
 
     /// A state gone to NaN reads as a largest step of 0 where the maximum
