@@ -35,9 +35,7 @@ use tissue_cpu::deformation::{CpuSolve, DeformParams, DeformReport, SharedLaplac
 use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
-use tissue_solve::model::offsets_product;
-use tissue_solve::model::rotation_of;
-use tissue_solve::model::{RigidBinding, RigidMotion};
+use tissue_solve::model::{RigidBinding, RigidMotion, offsets_product, rotation_of};
 use tissue_solve::{Iteration, Plan, PrepareStage, SolveDevice, SolveStep, Tracker};
 
 /// Which device to use.

@@ -3,8 +3,7 @@
 //! ([`ElasticCoarse`], the CPU path's, made from positions read back), the
 //! per-particle gradients and the factor `shaders/coarse_elastic.wgsl` reads.
 
-use tissue_solve::coarse::Aggregates;
-use tissue_solve::coarse::ElasticCoarse;
+use tissue_solve::coarse::{Aggregates, ElasticCoarse};
 
 use crate::buffer::Storage;
 use crate::coarse::{factor_of, members_of};

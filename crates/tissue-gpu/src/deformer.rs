@@ -5,8 +5,10 @@ use std::sync::Arc;
 
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
-use tissue_solve::coarse::{Aggregates, CoarseSpace, SharedLaplacian, coarse_space_shared};
-use tissue_solve::coarse::{CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother};
+use tissue_solve::coarse::{
+    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, SharedLaplacian, coarse_space_shared,
+    elastic_aggregates, volume_smoother,
+};
 use tissue_solve::model::Elastic;
 use tissue_solve::stage2::Plan;
 use tissue_solve::{

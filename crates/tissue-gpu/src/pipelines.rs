@@ -1,8 +1,7 @@
 //! The compiled kernels and the step that records them.
 
 use tissue_solve::coarse::SMOOTHER_SWEEPS;
-use tissue_solve::stage2::RotationMethod;
-use tissue_solve::stage2::{Choices, Pass};
+use tissue_solve::stage2::{Choices, Pass, RotationMethod};
 
 use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
 use crate::state::DeformState;

@@ -2,9 +2,7 @@
 
 use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
-use tissue_solve::coarse::ElasticCoarse;
-use tissue_solve::coarse::RELAXATION;
-use tissue_solve::coarse::{Aggregates, CoarseSpace};
+use tissue_solve::coarse::{Aggregates, CoarseSpace, ElasticCoarse, RELAXATION};
 use tissue_solve::model::Elastic;
 use tissue_solve::stage2::{Choices, Correction, Holds, Pass};
 use tissue_solve::{ForceModel, RotationMethod};

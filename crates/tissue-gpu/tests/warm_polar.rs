@@ -13,8 +13,7 @@ use tissue_cpu::deformation::{
     local_rotations_warm, polar_update,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
-use tissue_solve::model::offsets_product;
-use tissue_solve::model::rotation_of;
+use tissue_solve::model::{offsets_product, rotation_of};
 
 /// Largest entry difference of two matrices.
 fn entry_difference(a: Mat3, b: Mat3) -> f32 {

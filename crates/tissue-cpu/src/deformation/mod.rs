@@ -34,10 +34,9 @@ pub use tissue_solve::model::Elastic;
 use tissue_solve::model::ElasticTerms;
 pub use tissue_solve::stage2::Pass;
 pub use tissue_solve::stage2::Plan;
-use tissue_solve::stage2::Tracker;
 pub use tissue_solve::stage2::check_same_topology;
 pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
-use tissue_solve::stage2::{Choices, Holds};
+use tissue_solve::stage2::{Choices, Holds, Tracker};
 pub use tissue_solve::stage2::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
 };
@@ -56,8 +55,10 @@ pub use crate::kernels::polar::{
 pub use crate::kernels::step_norms::step_norms;
 pub use crate::kernels::volume_smoother::elastic_residual;
 
-use tissue_solve::coarse::{Aggregates, CoarseSpace, coarse_space_shared};
-use tissue_solve::coarse::{CorrectionFor, ElasticCoarse, elastic_aggregates, volume_smoother};
+use tissue_solve::coarse::{
+    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, coarse_space_shared, elastic_aggregates,
+    volume_smoother,
+};
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
 /// control points, prediction, history) over [`CpuSolve`], kept between

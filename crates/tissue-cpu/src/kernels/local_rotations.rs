@@ -5,8 +5,7 @@
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
-use tissue_solve::model::offsets_product;
-use tissue_solve::model::rotation_of;
+use tissue_solve::model::{offsets_product, rotation_of};
 
 use super::polar::{LANES, warm_rotations};
 

@@ -29,9 +29,9 @@ use std::time::Instant;
 
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, ParticleModel, SamplingParams, SurfaceMesh};
-use tissue_solve::stage1::quality_report;
 use tissue_solve::stage1::{
     Prepared, Progress, SKIN_IN_R0, Sampled, SamplingState, converged_after, prepare,
+    quality_report,
 };
 use tissue_solve::stage2::{Batches, run_batched};
 
