@@ -12,25 +12,19 @@
 
 use std::convert::Infallible;
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use glam::{Mat3, Vec3};
-use rayon::prelude::*;
+use tissue::advanced::coarse::SharedLaplacian;
 use tissue::advanced::stage2::{Iteration, Plan, SolveDevice, Tracker};
-use tissue::advanced::{coarse::SharedLaplacian, model::Elastic};
 use tissue::deform::{Indentation, Rigid, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, DeformReport, ForceModel};
-use tissue::{Connections, ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::CpuSolve;
 
-/// The CPU's solve, the potential measured after every elastic iteration.
+/// The CPU's solve, the potential ([`SolveDevice::potential`]) measured
+/// after every elastic iteration.
 struct Watched {
     solve: CpuSolve,
-    elastic: Option<Arc<Elastic>>,
-    rest: Vec<Vec3>,
-    connections: Connections,
-    loads: Vec<Vec3>,
-    free: Vec<bool>,
     /// The phase in hand's force.
     force: Option<ForceModel>,
     /// Per elastic phase, the potential where it started and after each
@@ -39,20 +33,9 @@ struct Watched {
 }
 
 impl Watched {
-    fn potential(&self) -> f64 {
-        let Some(elastic) = &self.elastic else {
-            return f64::NAN;
-        };
-        let q = self.solve.positions();
-        let work: f64 = (0..q.len())
-            .into_par_iter()
-            .filter(|&k| self.free[k])
-            .map(|k| {
-                let b = self.loads.get(k).copied().unwrap_or(Vec3::ZERO);
-                f64::from(b.dot(q[k]))
-            })
-            .sum();
-        0.5 * elastic.energy(&self.rest, q, &self.connections) - work
+    fn potential_now(&mut self) -> f64 {
+        let Ok(potential) = self.solve.potential();
+        potential.unwrap_or(f64::NAN)
     }
 }
 
@@ -91,7 +74,7 @@ impl SolveDevice for Watched {
         self.solve.begin(iteration)?;
         self.force = Some(iteration.force);
         if iteration.force == ForceModel::Elastic {
-            let start = self.potential();
+            let start = self.potential_now();
             self.phases.push(vec![start]);
         }
         Ok(())
@@ -100,7 +83,7 @@ impl SolveDevice for Watched {
     fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
         let steps = self.solve.run(omegas)?;
         if self.force == Some(ForceModel::Elastic) {
-            let now = self.potential();
+            let now = self.potential_now();
             if let Some(phase) = self.phases.last_mut() {
                 phase.push(now);
             }
@@ -120,6 +103,10 @@ impl SolveDevice for Watched {
         SolveDevice::reset(&mut self.solve)
     }
 
+    fn potential(&mut self) -> Result<Option<f64>, Infallible> {
+        self.solve.potential()
+    }
+
     fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
         self.solve.shared_laplacian(plan, params)
     }
@@ -134,11 +121,6 @@ fn watched(
     let mut tracker = Tracker::new(model, params, |plan, params| {
         Ok::<_, tissue::Error>(Watched {
             solve: CpuSolve::new(model, plan, params),
-            elastic: plan.elastic.clone(),
-            rest: model.positions.clone(),
-            connections: model.connections.clone(),
-            loads: plan.loads.clone(),
-            free: plan.free.clone(),
             force: None,
             phases: Vec::new(),
         })

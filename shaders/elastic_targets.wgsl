@@ -13,6 +13,13 @@
 //   gathered as Σ_i [T_i d_ik − U_i (μ_k − μ_i) − 2 e_ik] + T_k Σ_i d_ik
 //   − U_k Σ_i (μ_k − μ_i) (k's own terms once, not per connection).
 //   Twin: `tissue_cpu::kernels::elastic_targets::elastic_force` (`Elastic::force_on`).
+// - `elastic_potential`: particle i's part of the potential the force
+//   descends, E_i / 2 − b_i · q_i (b_i its body force, free particles only),
+//   E_i = Σ_j |e_ij − Fh_i d_ij|² + a_i |F_i − R_i|² + W_i (J_i − 1)², Fh_i =
+//   M_i A_i⁻¹, R_i the polar rotation of F_i by the SVD; a flat
+//   neighbourhood keeps Σ_j |e_ij − R_i d_ij|², R_i that of M_i.
+//   Twin: `tissue_cpu::kernels::elastic_targets::elastic_potential`
+//   (`Elastic::particle_energy`).
 
 #import shared/layout
 #import shared/svd3
@@ -29,6 +36,11 @@
 @group(0) @binding(6) var<storage, read> elastic_particles: array<ElasticParticle>;
 @group(0) @binding(7) var<storage, read_write> elastic_terms: array<ElasticTerms>;
 @group(0) @binding(8) var<storage, read_write> force: array<vec4<f32>>;
+// Per particle its part of the potential (`elastic_potential`'s output).
+@group(0) @binding(9) var<storage, read_write> potential: array<f32>;
+@group(0) @binding(10) var<storage, read> free: array<u32>;
+// Per particle its body force; one (zero) entry on a state without loads.
+@group(0) @binding(11) var<storage, read> loads: array<vec4<f32>>;
 
 // M_i and N_i over particle i's connections.
 struct Products {
@@ -139,4 +151,44 @@ fn elastic_force(
         u_sum += u;
     }
     force[k] = vec4<f32>(f + t_k * d_sum - u_k * u_sum, 0.0);
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_potential(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
+        return;
+    }
+    let particle = elastic_particles[i];
+    let a = particle.correction.x_axis.w;
+    let p = products(i);
+    // The pair term's map, and the gradient's terms where there is one.
+    var map = rotation_of(p.offsets);
+    var own = 0.0;
+    if (a != 0.0) {
+        map = p.offsets * matrix_of(particle.inverse);
+        let f = p.offsets * transpose(matrix_of(particle.correction)) + a * p.multipliers;
+        let shear = f - rotation_of(f);
+        let jacobian = determinant(f);
+        let w = particle.inverse.x_axis.w;
+        own = a * (dot(shear[0], shear[0]) + dot(shear[1], shear[1]) + dot(shear[2], shear[2]))
+            + w * (jacobian - 1.0) * (jacobian - 1.0);
+    }
+    var pair = 0.0;
+    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
+        let j = indices[k];
+        let d = rest[j].xyz - rest[i].xyz;
+        let e = current[j].xyz - current[i].xyz;
+        let miss = e - map * d;
+        pair += dot(miss, miss);
+    }
+    var work = 0.0;
+    if (free[i] != 0u && arrayLength(&loads) == params.count) {
+        work = dot(loads[i].xyz, current[i].xyz);
+    }
+    potential[i] = 0.5 * (pair + own) - work;
 }

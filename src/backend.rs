@@ -405,6 +405,13 @@ impl SolveDevice for SolverDevice {
         }
     }
 
+    fn potential(&mut self) -> Result<Option<f64>, Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.potential()),
+            Self::Gpu(gpu) => gpu.on("measuring the potential", GpuSolve::potential),
+        }
+    }
+
     fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
         match self {
             Self::Cpu(cpu) => cpu.shared_laplacian(plan, params),
@@ -624,6 +631,14 @@ impl Solver {
     /// Back to the rest shape.
     pub fn reset(&mut self) -> Result<(), Error> {
         self.tracker.reset()
+    }
+
+    /// The potential the elastic force descends at the current positions,
+    /// `E / 2 - sum b . q` (docs/METHOD.md, "Elastic model"); `None` for the
+    /// other forces. On the GPU, measured there and read back (a frame
+    /// boundary).
+    pub fn potential(&mut self) -> Result<Option<f64>, Error> {
+        self.tracker.potential()
     }
 
     /// Rest particle positions: the shape the solve is stress-free in.

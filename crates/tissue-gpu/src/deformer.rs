@@ -251,6 +251,13 @@ impl GpuDeformer {
         self.tracker.warm_start(positions)
     }
 
+    /// The potential the elastic force descends at the current positions,
+    /// measured on the GPU and read back (`SolveDevice::potential`); `None`
+    /// for the other forces.
+    pub fn potential(&mut self) -> Result<Option<f64>, GpuError> {
+        self.tracker.potential()
+    }
+
     /// Rest particle positions.
     pub fn rest(&self) -> &[Vec3] {
         self.tracker.rest()
@@ -513,6 +520,16 @@ impl SolveDevice for GpuSolve {
                 .elastic_coarse
                 .as_ref()
                 .is_some_and(|c| c.smoother().is_some())
+    }
+
+    /// Each particle's part read back and summed on the host in `f64`.
+    fn potential(&mut self) -> Result<Option<f64>, GpuError> {
+        self.scoped(|gpu| {
+            let parts = gpu
+                .state
+                .read_potential(&gpu.device, &gpu.queue, &gpu.pipelines)?;
+            Ok((!parts.is_empty()).then(|| parts.iter().map(|&p| f64::from(p)).sum()))
+        })
     }
 
     /// The coarse space, made for the CPU twin's parameters of `params`

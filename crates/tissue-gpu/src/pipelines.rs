@@ -32,6 +32,10 @@ pub enum Kernel {
     /// `elastic_targets.wgsl::elastic_force`: the elastic force gathered
     /// over the terms.
     ElasticForce,
+    /// `elastic_targets.wgsl::elastic_potential`: each particle's part of
+    /// the potential the elastic force descends (in no iteration, see
+    /// [`DeformState::potential`]).
+    ElasticPotential,
     /// `deformation_force.wgsl`: the force, paper or symmetric.
     DeformationForce,
     /// `integrate.wgsl::integrate`: `q̂ = q + alpha F` into the plain buffer.
@@ -131,13 +135,14 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 42] = [
+    pub const ALL: [Kernel; 43] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
         Kernel::ElasticTargets,
         Kernel::ElasticTargetsWarm,
         Kernel::ElasticForce,
+        Kernel::ElasticPotential,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
@@ -264,6 +269,7 @@ impl Kernel {
             Kernel::ElasticTargets => ("elastic_targets", "elastic_targets"),
             Kernel::ElasticTargetsWarm => ("elastic_targets", "elastic_targets_warm"),
             Kernel::ElasticForce => ("elastic_targets", "elastic_force"),
+            Kernel::ElasticPotential => ("elastic_targets", "elastic_potential"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
             Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
@@ -631,7 +637,8 @@ mod tests {
     }
 
     /// Each pass starts with a kernel of its own shader, and every stage-2
-    /// kernel but the frame boundary's turn runs in some iteration.
+    /// kernel but the frame boundary's (the turn, the potential's
+    /// measure) runs in some iteration.
     #[test]
     fn every_pass_runs_its_shader_and_every_kernel_runs_in_a_pass() {
         let mut used = std::collections::HashSet::new();
@@ -645,7 +652,7 @@ mod tests {
         for kernel in Kernel::ALL {
             assert_eq!(
                 used.contains(&kernel),
-                kernel != Kernel::TurnRotations,
+                !matches!(kernel, Kernel::TurnRotations | Kernel::ElasticPotential),
                 "{kernel:?}"
             );
         }

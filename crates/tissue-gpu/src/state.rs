@@ -77,6 +77,9 @@ pub struct DeformState {
     pub(crate) elastic_particles: Storage<ElasticParticle>,
     /// Per particle its terms of the elastic force (empty without it).
     pub(crate) elastic_terms: Storage<ElasticTerms>,
+    /// Per particle its part of the potential the elastic force descends
+    /// ([`Kernel::ElasticPotential`]; empty without the elastic model).
+    pub(crate) potential: Storage<f32>,
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
     pub(crate) coarse: CoarseBuffers,
@@ -225,6 +228,7 @@ impl DeformState {
                     &what("elastic_particles"),
                 )?,
                 elastic_terms: Storage::init(device, "elastic_terms", &[], &what("elastic_terms"))?,
+                potential: Storage::init(device, "potential", &[], &what("potential"))?,
                 coarse: CoarseBuffers::empty(device)?,
                 elastic_coarse: ElasticCoarseBuffers::empty(device)?,
                 bind_groups: Vec::new(),
@@ -271,7 +275,7 @@ impl DeformState {
         let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
         let particles: Vec<ElasticParticle> =
             (0..n).map(|i| ElasticParticle::of(elastic, i)).collect();
-        (self.elastic_particles, self.elastic_terms) = scoped(device, || {
+        (self.elastic_particles, self.elastic_terms, self.potential) = scoped(device, || {
             Ok((
                 Storage::init(
                     device,
@@ -280,6 +284,7 @@ impl DeformState {
                     &what("elastic_particles"),
                 )?,
                 Storage::zeroed(device, "elastic_terms", n, &what("elastic_terms"))?,
+                Storage::zeroed(device, "potential", n, &what("potential"))?,
             ))
         })?;
         self.elastic = true;
@@ -521,6 +526,7 @@ impl DeformState {
             ("partials", self.partials.buffer()),
             ("elastic_particles", self.elastic_particles.buffer()),
             ("elastic_terms", self.elastic_terms.buffer()),
+            ("potential", self.potential.buffer()),
         ];
         named.extend(self.coarse.named());
         named.extend(self.elastic_coarse.named());

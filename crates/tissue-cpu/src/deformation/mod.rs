@@ -46,7 +46,7 @@ pub use tissue_solve::stage2::{Iteration, SolveDevice};
 pub use tissue_solve::stage2::{laplacian_extremes, laplacian_extremes_with};
 
 pub use crate::kernels::deformation_force::deformation_force;
-pub use crate::kernels::elastic_targets::{elastic_force, elastic_terms};
+pub use crate::kernels::elastic_targets::{elastic_force, elastic_potential, elastic_terms};
 pub use crate::kernels::integrate::{chebyshev_combine, integrate};
 pub use crate::kernels::local_rotations::{local_rotations, local_rotations_warm};
 pub use crate::kernels::polar::{
@@ -188,6 +188,13 @@ impl Deformer {
     /// The next solve starts from `positions` (`Tracker::warm_start`).
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
         self.tracker.warm_start(positions)
+    }
+
+    /// The potential the elastic force descends at the current positions
+    /// (`SolveDevice::potential`); `None` for the other forces.
+    pub fn potential(&mut self) -> Option<f64> {
+        let Ok(potential) = self.tracker.potential();
+        potential
     }
 
     /// Iterates until the stopping rule holds or the cap is reached.
@@ -692,6 +699,21 @@ impl SolveDevice for CpuSolve {
             self.iterate(it, omega);
         }
         Ok(())
+    }
+
+    fn potential(&mut self) -> Result<Option<f64>, Infallible> {
+        Ok(self.elastic.as_deref().map(|elastic| {
+            elastic_potential(
+                &self.rest,
+                &self.current,
+                &self.connections,
+                elastic,
+                &self.loads,
+                &self.free,
+            )
+            .iter()
+            .sum()
+        }))
     }
 
     /// The coarse space, made for `params`.

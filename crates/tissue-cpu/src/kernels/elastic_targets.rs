@@ -1,6 +1,7 @@
 //! Twin of `shaders/elastic_targets.wgsl`: the elastic model's terms with
-//! each particle's rotation (`elastic_terms`), and the elastic force gathered
-//! over them (`elastic_force`).
+//! each particle's rotation (`elastic_terms`), the elastic force gathered
+//! over them (`elastic_force`), and each particle's part of the potential
+//! the force descends (`elastic_potential`).
 
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
@@ -78,5 +79,30 @@ pub fn elastic_force(
     (0..rest.len())
         .into_par_iter()
         .map(|k| elastic.force_on(k, rest, current, connections, terms))
+        .collect()
+}
+
+/// Per particle its part of the potential the elastic force descends,
+/// `E_i / 2 - b_i . q_i` (`b_i` its body force from `loads`, none where
+/// `loads` is empty; free particles only), `E_i` by
+/// [`Elastic::particle_energy`] in `f64`: the potential is their sum, in
+/// index order.
+pub fn elastic_potential(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    elastic: &Elastic,
+    loads: &[Vec3],
+    free: &[bool],
+) -> Vec<f64> {
+    (0..current.len())
+        .into_par_iter()
+        .map(|i| {
+            let work = match loads.get(i) {
+                Some(b) if free[i] => f64::from(b.dot(current[i])),
+                _ => 0.0,
+            };
+            0.5 * elastic.particle_energy(i, rest, current, connections) - work
+        })
         .collect()
 }

@@ -7,7 +7,7 @@ use glam::{Mat3, Vec3};
 
 use super::{DeformState, SLOTS};
 use crate::buffer::Storage;
-use crate::{GpuError, Rotation};
+use crate::{GpuError, Kernel, Pipelines, Rotation};
 
 impl DeformState {
     pub(super) fn check_len(&self, what: &'static str, got: usize) -> Result<(), GpuError> {
@@ -114,6 +114,27 @@ impl DeformState {
             .into_iter()
             .map(|t| (Mat3::from(t.rest_term), Mat3::from(t.multiplier_term)))
             .collect())
+    }
+
+    /// Each particle's part of the potential the elastic force descends,
+    /// at the current positions (`elastic_targets.wgsl::elastic_potential`,
+    /// dispatched here); empty without [`DeformState::set_elastic`]. Stalls
+    /// until the GPU is done: frame boundaries only.
+    pub fn read_potential(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipelines: &Pipelines,
+    ) -> Result<Vec<f32>, GpuError> {
+        if !self.elastic {
+            return Ok(Vec::new());
+        }
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("potential"),
+        });
+        pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotential, 0);
+        queue.submit([encoder.finish()]);
+        self.potential.read(device, queue, &self.readback)
     }
 
     /// Reads `buffer`'s matrices back.

@@ -111,6 +111,13 @@ pub trait SolveDevice {
     /// Back to the rest shape, rotations included.
     fn reset(&mut self) -> Result<(), Self::Error>;
 
+    /// The potential the elastic force descends at the current positions,
+    /// `E / 2 - sum_k b_k . q_k` over the free particles (docs/METHOD.md,
+    /// "Elastic model"), each particle's part summed in `f64` in index
+    /// order; `None` without the elastic model. A frame boundary's measure:
+    /// a device may read it back.
+    fn potential(&mut self) -> Result<Option<f64>, Self::Error>;
+
     /// What the device prepared that depends only on the connections and
     /// the free particles (its coarse space, if any), with `plan` and
     /// `params` the solve's, for another solve of the model in another

@@ -166,6 +166,12 @@ impl<D: SolveDevice> Tracker<D> {
         self.device.shared_laplacian(&self.plan, &self.params)
     }
 
+    /// The potential the elastic force descends at the current positions
+    /// ([`SolveDevice::potential`]); `None` without the elastic model.
+    pub fn potential(&mut self) -> Result<Option<f64>, D::Error> {
+        self.device.potential()
+    }
+
     /// The device's kernels and buffers.
     pub fn device(&self) -> &D {
         &self.device
@@ -857,6 +863,10 @@ mod tests {
 
         fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
             SharedLaplacian::new(plan.laplacian_key, plan, params, None)
+        }
+
+        fn potential(&mut self) -> Result<Option<f64>, Infallible> {
+            Ok(None)
         }
 
         fn volume_smoother(&self) -> bool {
