@@ -10,7 +10,7 @@
 //! loaded shape misses, `X <- X + (X_rest - forward(X))`. Each round is one
 //! stage-2 solve with the guess as the model's positions; the loop is
 //! written once here and takes the solve as a closure, so that any device
-//! runs it (`tissue::backend::Solver`). Measured on the shared breast
+//! runs it (`crate::stage2::posture` gives it a tracker's solves). Measured on the shared breast
 //! phantoms (docs/METHOD.md, "Gravity and the unloaded shape"), each round
 //! cuts the miss by a factor of 5 to 8.
 
