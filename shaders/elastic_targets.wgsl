@@ -64,6 +64,17 @@ fn products(i: u32) -> Products {
     return Products(m, n);
 }
 
+// The consistent gradient F_i = M_i B_iᵀ + a_i N_i of `particle` with
+// products `p`; M_i itself for a flat neighbourhood (a_i = 0), which has no
+// gradient.
+fn gradient_of(particle: ElasticParticle, p: Products) -> mat3x3<f32> {
+    let a = particle.correction.x_axis.w;
+    if (a == 0.0) {
+        return p.offsets;
+    }
+    return p.offsets * transpose(matrix_of(particle.correction)) + a * p.multipliers;
+}
+
 // Particle i's rotation and terms, the rotation found by `warm` (the warm
 // polar update from the last iteration's) or the SVD.
 fn terms_of(i: u32, warm: bool) {
@@ -72,11 +83,7 @@ fn terms_of(i: u32, warm: bool) {
     let zero = mat3x3<f32>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     let p = products(i);
     let correction = matrix_of(particle.correction);
-    // A flat neighbourhood (a = 0) has no gradient: the rotation of M_i.
-    var f = p.offsets;
-    if (a != 0.0) {
-        f = p.offsets * transpose(correction) + a * p.multipliers;
-    }
+    let f = gradient_of(particle, p);
     var r: mat3x3<f32>;
     if (warm) {
         r = warm_rotation(f, matrix_of(rotations[i]));
@@ -166,12 +173,15 @@ fn elastic_potential(
     let particle = elastic_particles[i];
     let a = particle.correction.x_axis.w;
     let p = products(i);
-    // The pair term's map, and the gradient's terms where there is one.
-    var map = rotation_of(p.offsets);
+    let f = gradient_of(particle, p);
+    // The pair term's map, and the gradient's terms where there is one; a
+    // flat neighbourhood's map is the rotation of M_i (its `f`).
+    var map: mat3x3<f32>;
     var own = 0.0;
-    if (a != 0.0) {
+    if (a == 0.0) {
+        map = rotation_of(f);
+    } else {
         map = p.offsets * matrix_of(particle.inverse);
-        let f = p.offsets * transpose(matrix_of(particle.correction)) + a * p.multipliers;
         let shear = f - rotation_of(f);
         let jacobian = determinant(f);
         let w = particle.inverse.x_axis.w;
