@@ -23,9 +23,15 @@ pub fn instance_and_adapters() -> (wgpu::Instance, Vec<wgpu::Adapter>) {
     })
 }
 
+/// Held while [`hushed`] captures standard error: a process may capture
+/// it once at a time, so captures from threads in parallel wait their
+/// turn.
+#[cfg(unix)]
+static CAPTURE: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// Runs `f` with the process's standard error captured, then logs each
 /// captured line at `info` on [`DRIVER_LOG`]. Where that level is on, or
-/// the capture cannot start (another one is active: tests in parallel),
+/// the capture cannot start (something else in the process holds one),
 /// `f` runs with standard error as it is.
 #[cfg(unix)]
 pub(crate) fn hushed<T>(f: impl FnOnce() -> T) -> T {
@@ -33,6 +39,9 @@ pub(crate) fn hushed<T>(f: impl FnOnce() -> T) -> T {
     if log::log_enabled!(target: DRIVER_LOG, log::Level::Info) {
         return f();
     }
+    let _turn = CAPTURE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let Ok(mut capture) = gag::BufferRedirect::stderr() else {
         return f();
     };
@@ -65,6 +74,10 @@ mod tests {
         // how this test sees the first one was on.
         let inside = hushed(|| gag::BufferRedirect::stderr().is_err());
         assert!(inside, "standard error was not captured inside `hushed`");
+        // Other tests' `hushed` wait while this holds the turn.
+        let _turn = CAPTURE
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let after = gag::BufferRedirect::stderr();
         assert!(after.is_ok(), "the capture outlived `hushed`");
     }
