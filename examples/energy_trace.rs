@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::coarse::SharedLaplacian;
-use tissue::advanced::stage2::{Iteration, Plan, SolveDevice, Tracker};
+use tissue::advanced::stage2::{Iteration, Plan, Potential, SolveDevice, Tracker};
 use tissue::deform::{Indentation, Rigid, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, DeformReport, ForceModel};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
@@ -27,15 +27,16 @@ struct Watched {
     solve: CpuSolve,
     /// The phase in hand's force.
     force: Option<ForceModel>,
-    /// Per elastic phase, the potential where it started and after each
-    /// of its iterations.
+    /// Per start of an elastic phase (its own, or after a step back to
+    /// the state it accepted), the potential there and after each
+    /// iteration.
     phases: Vec<Vec<f64>>,
 }
 
 impl Watched {
     fn potential_now(&mut self) -> f64 {
         let Ok(potential) = self.solve.potential();
-        potential.unwrap_or(f64::NAN)
+        potential.map_or(f64::NAN, |p| p.value)
     }
 }
 
@@ -103,8 +104,16 @@ impl SolveDevice for Watched {
         SolveDevice::reset(&mut self.solve)
     }
 
-    fn potential(&mut self) -> Result<Option<f64>, Infallible> {
+    fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.solve.potential()
+    }
+
+    fn save(&mut self) -> Result<(), Infallible> {
+        self.solve.save()
+    }
+
+    fn restore(&mut self) -> Result<(), Infallible> {
+        self.solve.restore()
     }
 
     fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
@@ -183,11 +192,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         cases.push((name, model, deformed));
     }
     println!(
-        "| case | iterations | retries | elastic phases | elastic iterations | raised the potential | \
-         largest rise / largest fall | rises in the first 5 of a phase | phases run again that \
-         rose in their first 5 |"
+        "| case | converged | iterations | retries | steps back | elastic starts | elastic iterations | \
+         raised the potential | largest rise / largest fall | rises in the first 5 of a start | \
+         starts run again that rose in their first 5 |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (name, model, deformed) in &cases {
         let (report, phases) = watched(model, deformed)?;
         let (mut iterations, mut raised, mut early) = (0usize, 0usize, 0usize);
@@ -218,10 +227,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         println!(
-            "| {name} | {} | {} | {} | {iterations} | {raised} | {:.2e} | {early} | \
+            "| {name} | {} | {} | {} | {} | {} | {iterations} | {raised} | {:.2e} | {early} | \
              {early_in_again} of {again} |",
+            report.converged,
             report.iterations,
             report.elastic_retries,
+            report.backtracks,
             phases.len(),
             if fall > 0.0 { largest / fall } else { f64::NAN },
         );

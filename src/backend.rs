@@ -36,6 +36,7 @@ use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
 use tissue_solve::model::{RigidBinding, RigidMotion, offsets_product, rotation_of};
+use tissue_solve::stage2::Potential;
 use tissue_solve::{Iteration, Plan, PrepareStage, SolveDevice, SolveStep, Tracker};
 
 /// Which device to use.
@@ -405,10 +406,24 @@ impl SolveDevice for SolverDevice {
         }
     }
 
-    fn potential(&mut self) -> Result<Option<f64>, Error> {
+    fn potential(&mut self) -> Result<Option<Potential>, Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.potential()),
             Self::Gpu(gpu) => gpu.on("measuring the potential", GpuSolve::potential),
+        }
+    }
+
+    fn save(&mut self) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.save()),
+            Self::Gpu(gpu) => gpu.on("stage 2", SolveDevice::save),
+        }
+    }
+
+    fn restore(&mut self) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.restore()),
+            Self::Gpu(gpu) => gpu.on("stage 2", SolveDevice::restore),
         }
     }
 

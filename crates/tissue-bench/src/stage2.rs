@@ -101,6 +101,8 @@ pub struct ProbeSolve {
     pub stopped_by: String,
     /// How many times the elastic phase ran again (`DeformReport::elastic_retries`).
     pub retries: usize,
+    /// How many times an elastic phase stepped back (`DeformReport::backtracks`).
+    pub backtracks: usize,
     /// Particles left turned inside out (`tissue::deformation::inversions`).
     pub inverted: usize,
 }
@@ -318,6 +320,7 @@ pub fn measure(
             converged: report.converged,
             stopped_by: format!("{:?}", report.stopped_by),
             retries: report.elastic_retries,
+            backtracks: report.backtracks,
             inverted: judged.count,
         });
     }

@@ -190,19 +190,20 @@ fn probe_table(out: &mut String, report: &Report) {
     let _ = writeln!(out, "\n## Probes from rest\n");
     let _ = writeln!(
         out,
-        "| particles | backend | depth x width mm | iterations | retries | stopped by | seconds | inverted |"
+        "| particles | backend | depth x width mm | iterations | retries | steps back | stopped by | seconds | inverted |"
     );
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|");
     for (particles, backend, stage2) in &ran {
         for p in &stage2.probes {
             let _ = writeln!(
                 out,
-                "| {particles} | {} | {:.0} x {:.0} | {} | {} | {}{} | {:.3} | {} |",
+                "| {particles} | {} | {:.0} x {:.0} | {} | {} | {} | {}{} | {:.3} | {} |",
                 backend_name(*backend),
                 p.depth_mm,
                 p.width_mm,
                 p.iterations,
                 p.retries,
+                p.backtracks,
                 p.stopped_by,
                 if p.converged { "" } else { " (not converged)" },
                 p.seconds,

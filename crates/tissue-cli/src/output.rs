@@ -75,9 +75,12 @@ pub struct SolveReport {
     pub status: Status,
     /// Which rule ended the solve.
     pub stopped_by: StopReason,
-    /// How many times the elastic phase diverged and ran again with half
-    /// the step (0 for the other forces).
+    /// How many times the elastic phase ran again after it diverged or
+    /// stalled (0 for the other forces).
     pub elastic_retries: usize,
+    /// How many times an elastic phase went back to the last state it
+    /// accepted and on with half its step, the potential having risen.
+    pub backtracks: usize,
     /// Largest distance a particle moved from rest.
     pub max_displacement_mm: f32,
     /// Where each structure went.
@@ -552,6 +555,7 @@ pub fn write_solution(
         },
         stopped_by: solve.stopped_by,
         elastic_retries: solve.elastic_retries,
+        backtracks: solve.backtracks,
         max_displacement_mm,
         structures: structures.into_iter().map(|s| s.report).collect(),
         points,
@@ -635,10 +639,26 @@ pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
 impl SolveReport {
     /// The solve in a few lines for the terminal, indented by `indent`.
     pub fn summary(&self, indent: &str) -> Vec<String> {
-        let retried = match self.elastic_retries {
-            0 => String::new(),
-            1 => " (the elastic phase ran again once: `elastic_retries`)".to_owned(),
-            n => format!(" (the elastic phase ran again {n} times: `elastic_retries`)"),
+        let times = |n: usize| match n {
+            1 => "once".to_owned(),
+            n => format!("{n} times"),
+        };
+        let mut again = Vec::new();
+        if self.backtracks > 0 {
+            again.push(format!(
+                "the elastic phase stepped back {}: `backtracks`",
+                times(self.backtracks)
+            ));
+        }
+        if self.elastic_retries > 0 {
+            again.push(format!(
+                "the elastic phase ran again {}: `elastic_retries`",
+                times(self.elastic_retries)
+            ));
+        }
+        let retried = match again.is_empty() {
+            true => String::new(),
+            false => format!(" ({})", again.join("; ")),
         };
         let mut lines = vec![format!(
             "{indent}{} iterations in {:.3} s, {}{retried}; particles moved up to {:.2} mm",

@@ -908,7 +908,7 @@ fn write_box(path: &Path, size: Vec3) {
 /// diverged elastic phase again with half the step, converges after one
 /// such retry (the report says so) and folds nothing.
 #[test]
-fn unusable_models_are_not_written_and_a_deep_poke_converges_after_a_retry() {
+fn unusable_models_are_not_written_and_a_deep_poke_converges_stepping_back() {
     let dir = tempfile::tempdir().unwrap();
     let slab = dir.path().join("slab.obj");
     write_box(&slab, Vec3::new(100.0, 100.0, 1.0));
@@ -958,11 +958,14 @@ fn unusable_models_are_not_written_and_a_deep_poke_converges_after_a_retry() {
     ]);
     assert!(out.status.success(), "{}", text(&out));
     let report = json(&out_dir.join("report.json"));
-    // With half its two-level step (the full one diverges), then
-    // linearised again where that stalled; the summary says so.
-    assert_eq!(report["elastic_retries"], 2, "{report}");
+    // The full two-level step raises the potential: the phase steps back
+    // to the state it accepted and goes on with half of it, with no
+    // retry; the summary says so.
+    assert_eq!(report["elastic_retries"], 0, "{report}");
+    let backtracks = report["backtracks"].as_u64().unwrap();
+    assert!(backtracks >= 1, "{report}");
     assert!(
-        text(&out).contains("the elastic phase ran again 2 times"),
+        text(&out).contains("the elastic phase stepped back"),
         "{}",
         text(&out)
     );

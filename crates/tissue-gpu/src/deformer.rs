@@ -10,7 +10,7 @@ use tissue_solve::coarse::{
     elastic_aggregates, volume_smoother,
 };
 use tissue_solve::model::Elastic;
-use tissue_solve::stage2::Plan;
+use tissue_solve::stage2::{Plan, Potential};
 use tissue_solve::{
     DeformParams, DeformReport, ForceModel, Iteration, PrepareStage, RotationMethod, SolveDevice,
     Tracker,
@@ -71,6 +71,10 @@ pub struct GpuSolve {
     /// `rotations` at a batch's start, likewise: a warm-started replay
     /// starts from them.
     backup_rotations: wgpu::Buffer,
+    /// `current` where [`SolveDevice::save`] kept it, likewise.
+    saved_current: wgpu::Buffer,
+    /// `rotations` where [`SolveDevice::save`] kept them, likewise.
+    saved_rotations: wgpu::Buffer,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Iterations of the last batch, whose weights the slots still hold.
@@ -400,6 +404,11 @@ impl GpuSolve {
                 "backup rotations",
                 std::mem::size_of::<crate::Rotation>() as u64,
             ),
+            saved_current: backup("saved current", 16),
+            saved_rotations: backup(
+                "saved rotations",
+                std::mem::size_of::<crate::Rotation>() as u64,
+            ),
             pipelines,
             state,
             coarse_rho: coarse.as_deref().map(CoarseSpace::rho),
@@ -431,13 +440,16 @@ impl GpuSolve {
         &self.state
     }
 
-    /// Bytes of every GPU buffer the solve holds: the state's, and the
-    /// three backups a batch is replayed from.
+    /// Bytes of every GPU buffer the solve holds: the state's, the three
+    /// backups a batch is replayed from and the two copies of the state an
+    /// elastic phase accepted.
     pub fn buffer_bytes(&self) -> u64 {
         self.state.buffer_bytes()
             + self.backup_current.size()
             + self.backup_previous.size()
             + self.backup_rotations.size()
+            + self.saved_current.size()
+            + self.saved_rotations.size()
     }
 
     /// Reads the current positions back (a frame boundary).
@@ -523,12 +535,54 @@ impl SolveDevice for GpuSolve {
     }
 
     /// Each particle's part read back and summed on the host in `f64`.
-    fn potential(&mut self) -> Result<Option<f64>, GpuError> {
+    fn potential(&mut self) -> Result<Option<Potential>, GpuError> {
         self.scoped(|gpu| {
             let parts = gpu
                 .state
                 .read_potential(&gpu.device, &gpu.queue, &gpu.pipelines)?;
-            Ok((!parts.is_empty()).then(|| parts.iter().map(|&p| f64::from(p)).sum()))
+            Ok((!parts.is_empty()).then(|| Potential::of(parts.iter().map(|&p| f64::from(p)))))
+        })
+    }
+
+    fn save(&mut self) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let state = &gpu.state;
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("save"),
+                });
+            encoder.copy_buffer_to_buffer(state.current.buffer(), 0, &gpu.saved_current, 0, None);
+            encoder.copy_buffer_to_buffer(
+                state.rotations.buffer(),
+                0,
+                &gpu.saved_rotations,
+                0,
+                None,
+            );
+            gpu.queue.submit([encoder.finish()]);
+            Ok(())
+        })
+    }
+
+    fn restore(&mut self) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let state = &gpu.state;
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("restore"),
+                });
+            encoder.copy_buffer_to_buffer(&gpu.saved_current, 0, state.current.buffer(), 0, None);
+            encoder.copy_buffer_to_buffer(
+                &gpu.saved_rotations,
+                0,
+                state.rotations.buffer(),
+                0,
+                None,
+            );
+            gpu.queue.submit([encoder.finish()]);
+            Ok(())
         })
     }
 

@@ -207,16 +207,17 @@ fn the_gpu_elastic_solve_of_the_sag_matches_the_cpu_solve() {
 }
 
 /// A deep, narrow indentation (the tip pushed 40 mm down by a probe 15 mm
-/// wide) with the elastic force: on both devices the elastic phase
-/// diverges and runs again (the tracker's retries, written once):
-/// without the two-level solve, with half the step; two-level (whose shear phase stops on the
-/// volumes' misfit after 4 iterations), with half its smoothed step
-/// (which stalls), then linearised again where it stalled. Both converge
-/// after the same retries and iterations within one per phase run (each ends where a divergence or
-/// a stall is seen, on states that differ by rounding), within 1e-5 of
-/// the size of each other.
+/// wide) with the elastic force, the tracker's rules written once: without
+/// the two-level solve the elastic phase diverges and runs again with half
+/// the step (one retry); two-level, its potential rises in its first
+/// iterations and the phase steps back twice to the state it accepted,
+/// with half its smoothed step each time (no retry). Both devices take
+/// the same retries and steps back, every accepted state lowering the
+/// potential, the same iterations within one per phase run or step back
+/// (each ends where a rise or a divergence is seen, on states that differ
+/// by rounding), within 1e-5 of the size of each other.
 #[test]
-fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
+fn the_gpu_retries_and_steps_back_as_the_cpu_does() {
     let Some((device, queue)) = common::gpu("elastic retry parity") else {
         return;
     };
@@ -224,33 +225,34 @@ fn the_gpu_retries_a_diverged_elastic_phase_as_the_cpu_does() {
     let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 40.0, 15.0)
         .unwrap_or_else(|| panic!("the phantom has vertices"));
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
-    // Without the two-level solve (no elastic correction: one retry, half
-    // the step) and two-level (two retries).
-    for (coarse, retries) in [(0.0, 1), (2.0, 2)] {
+    for (coarse, retries, backtracks) in [(0.0, 1, 0), (2.0, 0, 2)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
             p.tuning.rotations = RotationMethod::Svd;
             p.tuning.coarse = coarse;
         });
         let solved = common::solve_on_both(&device, &queue, model, params, &poked);
-        assert_eq!(solved.1.elastic_retries, retries, "{:?}", solved.1);
+        assert_eq!(
+            (solved.1.elastic_retries, solved.1.backtracks),
+            (retries, backtracks),
+            "{:?}",
+            solved.1
+        );
         let context = format!("poke, coarse {coarse}");
-        common::assert_same_retried_solve(&solved, 1 + retries, &context);
+        common::assert_same_retried_solve(&solved, 1 + retries + backtracks, &context);
     }
 }
 
 /// Probes 15 mm wide at the phantom's tip, the elastic force with the
-/// defaults. 20 mm deep, on both devices the corrected elastic phase
-/// stalls (its steps stop falling, taken away from the state its
-/// correction was linearised at) and goes on from there with the
-/// correction made again where it stalled; 30 mm deep, it diverges and is
-/// run again from the end of the shear phase with half its step
-/// (`ELASTIC_DAMPING`). The tracker's rules, written once: both converge
-/// to the tolerance after one retry, in the same iterations within one,
-/// the same positions within 1e-5 of the size.
+/// defaults, 20 and 30 mm deep: on both devices the corrected elastic
+/// phase's potential rises in its first iterations, and the phase steps
+/// back once to the state it accepted and goes on with half its smoothed
+/// step. The tracker's rules, written once: both converge to the
+/// tolerance with no retry, in the same iterations within one, the same
+/// positions within 1e-5 of the size.
 #[test]
-fn the_gpu_runs_a_failed_smoothed_elastic_phase_again_as_the_cpu_does() {
-    let Some((device, queue)) = common::gpu("failed smoothed phase parity") else {
+fn the_gpu_steps_a_smoothed_elastic_phase_back_as_the_cpu_does() {
+    let Some((device, queue)) = common::gpu("smoothed phase step back parity") else {
         return;
     };
     let model = common::phantom(2_000);
@@ -262,11 +264,12 @@ fn the_gpu_runs_a_failed_smoothed_elastic_phase_again_as_the_cpu_does() {
             p.force = ForceModel::Elastic;
         });
         let solved = common::solve_on_both(&device, &queue, model, params, &poked);
-        // One retry, and it converged to the tolerance with its correction:
-        // without it the phase takes well over a hundred iterations to the
-        // float floor.
         for report in [&solved.1, &solved.3] {
-            assert_eq!(report.elastic_retries, 1, "{depth} mm: {report:?}");
+            assert_eq!(
+                (report.elastic_retries, report.backtracks),
+                (0, 1),
+                "{depth} mm: {report:?}"
+            );
             assert_eq!(
                 report.stopped_by,
                 StopReason::Tolerance,

@@ -36,7 +36,7 @@ pub use tissue_solve::stage2::Pass;
 pub use tissue_solve::stage2::Plan;
 pub use tissue_solve::stage2::check_same_topology;
 pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
-use tissue_solve::stage2::{Choices, Holds, Tracker};
+use tissue_solve::stage2::{Choices, Holds, Potential, Tracker};
 pub use tissue_solve::stage2::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
 };
@@ -250,6 +250,8 @@ pub struct CpuSolve {
     iteration: Option<Iteration>,
     /// Where the last batch of more than one iteration started, for a replay.
     batch_start: Option<BatchStart>,
+    /// The positions and rotations [`SolveDevice::save`] kept.
+    saved: Option<(Vec<Vec3>, Vec<Mat3>)>,
 }
 
 /// The state and the weights a batch started from.
@@ -323,6 +325,7 @@ impl CpuSolve {
             volume_smoother,
             iteration: None,
             batch_start: None,
+            saved: None,
         }
     }
 
@@ -701,19 +704,32 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
-    fn potential(&mut self) -> Result<Option<f64>, Infallible> {
+    fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         Ok(self.elastic.as_deref().map(|elastic| {
-            elastic_potential(
+            Potential::of(elastic_potential(
                 &self.rest,
                 &self.current,
                 &self.connections,
                 elastic,
                 &self.loads,
                 &self.free,
-            )
-            .iter()
-            .sum()
+            ))
         }))
+    }
+
+    fn save(&mut self) -> Result<(), Infallible> {
+        let saved = self.saved.get_or_insert_with(Default::default);
+        saved.0.clone_from(&self.current);
+        saved.1.clone_from(&self.rotations);
+        Ok(())
+    }
+
+    fn restore(&mut self) -> Result<(), Infallible> {
+        if let Some((current, rotations)) = &self.saved {
+            self.current.clone_from(current);
+            self.rotations.clone_from(rotations);
+        }
+        Ok(())
     }
 
     /// The coarse space, made for `params`.

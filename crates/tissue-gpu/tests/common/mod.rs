@@ -149,9 +149,11 @@ pub fn solve_on_both(
 }
 
 /// Tells both devices' reports of a solve the tracker may have run again
-/// (`elastic_retries`), then asserts that both converged after the same
-/// retries, in the same iterations within `within`, their positions
-/// within 1e-5 of the size of each other. `context` names the case.
+/// (`elastic_retries`) or stepped back (`backtracks`), then asserts that
+/// both converged after the same retries and steps back, every state
+/// their elastic phases accepted lowering the potential, in the same
+/// iterations within `within`, their positions within 1e-5 of the size of
+/// each other. `context` names the case.
 pub fn assert_same_retried_solve(
     (cpu, cpu_report, gpu, gpu_report): &(
         tissue_cpu::deformation::Deformer,
@@ -163,17 +165,27 @@ pub fn assert_same_retried_solve(
     context: &str,
 ) {
     eprintln!(
-        "{context}: CPU {} iterations, {} retries, {:?}; GPU {} iterations, {} retries, {:?}",
+        "{context}: CPU {} iterations, {} retries, {} steps back, {:?}; GPU {} iterations, \
+         {} retries, {} steps back, {:?}",
         cpu_report.iterations,
         cpu_report.elastic_retries,
+        cpu_report.backtracks,
         cpu_report.stopped_by,
         gpu_report.iterations,
         gpu_report.elastic_retries,
+        gpu_report.backtracks,
         gpu_report.stopped_by
     );
     assert_eq!(
-        cpu_report.elastic_retries, gpu_report.elastic_retries,
+        (cpu_report.elastic_retries, cpu_report.backtracks),
+        (gpu_report.elastic_retries, gpu_report.backtracks),
         "{context}"
+    );
+    assert!(
+        cpu_report.potentials_fell() && gpu_report.potentials_fell(),
+        "{context}: {:?} {:?}",
+        cpu_report.potentials,
+        gpu_report.potentials
     );
     assert!(cpu_report.converged && gpu_report.converged, "{context}");
     assert!(

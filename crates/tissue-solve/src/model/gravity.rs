@@ -318,6 +318,8 @@ mod tests {
             },
             seconds: 0.0,
             elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
         }
     }
 

@@ -425,6 +425,8 @@ mod tests {
             stopped_by: crate::stage2::report::StopReason::Tolerance,
             seconds: 0.0,
             elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
         };
         // What each solve was asked: its load and its accuracy.
         let mut asked: Vec<(Vec3, Accuracy)> = Vec::new();

@@ -189,6 +189,11 @@ impl StoppingRule {
         self.history.last().copied()
     }
 
+    /// The error estimates recorded so far, one per iteration.
+    pub fn history(&self) -> &[f32] {
+        &self.history
+    }
+
     /// The report of the solve, ended by `stopped_by` after `iterations`.
     pub fn report(self, iterations: usize, stopped_by: StopReason, seconds: f64) -> DeformReport {
         DeformReport {
@@ -202,6 +207,8 @@ impl StoppingRule {
             stopped_by,
             seconds,
             elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
         }
     }
 }

@@ -36,6 +36,32 @@ pub struct Iteration {
     pub damping: f32,
 }
 
+/// The potential at one state ([`SolveDevice::potential`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Potential {
+    /// The sum of the particles' parts.
+    pub value: f64,
+    /// The sum of their magnitudes: the scale of the rounding in `value`,
+    /// whose parts a device may make in `f32`.
+    pub magnitude: f64,
+}
+
+impl Potential {
+    /// The potential of `parts`, summed in index order.
+    pub fn of(parts: impl IntoIterator<Item = f64>) -> Self {
+        parts.into_iter().fold(
+            Self {
+                value: 0.0,
+                magnitude: 0.0,
+            },
+            |sum, part| Self {
+                value: sum.value + part,
+                magnitude: sum.magnitude + part.abs(),
+            },
+        )
+    }
+}
+
 /// What a device does for a stage-2 solve: kernels and buffers, nothing
 /// else. The iteration is the same on every device: rotations, force, the
 /// plain step, the correction (a coarse space, if any), the
@@ -114,9 +140,18 @@ pub trait SolveDevice {
     /// The potential the elastic force descends at the current positions,
     /// `E / 2 - sum_k b_k . q_k` over the free particles (docs/METHOD.md,
     /// "Elastic model"), each particle's part summed in `f64` in index
-    /// order; `None` without the elastic model. A frame boundary's measure:
-    /// a device may read it back.
-    fn potential(&mut self) -> Result<Option<f64>, Self::Error>;
+    /// order; `None` without the elastic model. Measured every
+    /// [`crate::stage2::tracker::ENERGY_WATCH`] iterations of an elastic
+    /// phase: a device may read its parts back.
+    fn potential(&mut self) -> Result<Option<Potential>, Self::Error>;
+
+    /// Keeps the current positions and rotations for
+    /// [`SolveDevice::restore`]: the last state an elastic phase accepted.
+    fn save(&mut self) -> Result<(), Self::Error>;
+
+    /// Puts back the positions and rotations [`SolveDevice::save`] kept;
+    /// the solve goes on from them after a [`SolveDevice::begin`].
+    fn restore(&mut self) -> Result<(), Self::Error>;
 
     /// What the device prepared that depends only on the connections and
     /// the free particles (its coarse space, if any), with `plan` and

@@ -28,7 +28,7 @@ pub use acceleration::{
 };
 pub use batches::{Batches, run_batched};
 pub use controls::{VOLUME_RATIO, check_same_topology};
-pub use device::{Iteration, SolveDevice};
+pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
@@ -46,5 +46,6 @@ pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, PrepareStage, SolveStep, StopReason};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
 pub use tracker::{
-    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, SHEAR_CHECK, SHEAR_TOLERANCE, Tracker,
+    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_ROUNDING, ENERGY_WATCH,
+    MAX_BACKTRACKS, SHEAR_CHECK, SHEAR_TOLERANCE, Tracker,
 };

@@ -119,4 +119,31 @@ pub struct DeformReport {
     /// `info`), not as warnings: a solve that ends converged is a success.
     #[serde(default)]
     pub elastic_retries: usize,
+    /// How many times an elastic phase went back to the last state it
+    /// accepted and went on with half its step, because the potential had
+    /// risen (or the iteration diverged) since
+    /// (`tracker::ENERGY_WATCH`).
+    #[serde(default)]
+    pub backtracks: usize,
+    /// Per elastic phase, the potential the elastic force descends where
+    /// it started and at every state it accepted: each at most the one
+    /// before, within the rounding of its parts (`tracker::ENERGY_ROUNDING`).
+    #[serde(default)]
+    pub potentials: Vec<Vec<f64>>,
+}
+
+impl DeformReport {
+    /// Whether every state an elastic phase accepted has a potential at
+    /// most that of the state before, within
+    /// [`crate::stage2::tracker::ENERGY_ROUNDING`] of the larger potential's size
+    /// (the tracker measures the rounding on its parts' magnitudes, which
+    /// are at least that size: this is the stricter test).
+    pub fn potentials_fell(&self) -> bool {
+        let rounding = crate::stage2::tracker::ENERGY_ROUNDING;
+        self.potentials.iter().all(|phase| {
+            phase
+                .windows(2)
+                .all(|pair| pair[1] <= pair[0] + rounding * pair[0].abs().max(pair[1].abs()))
+        })
+    }
 }

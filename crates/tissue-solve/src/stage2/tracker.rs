@@ -18,7 +18,7 @@ use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
 use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 
-pub use crate::stage2::device::{Iteration, SolveDevice};
+pub use crate::stage2::device::{Iteration, Potential, SolveDevice};
 
 /// The shear phase of an elastic solve stops at this many times the
 /// solve's tolerance: it only has to bring every neighbourhood near its
@@ -58,6 +58,34 @@ pub const DAMPED_RETRIES: usize = 2;
 /// stiffer still, and far from that linearisation (docs/METHOD.md,
 /// "Elastic model").
 pub const ELASTIC_RETRIES: usize = 5;
+
+/// An elastic phase measures the potential its force descends every this
+/// many iterations (the GPU's batch): a phase that fails raises it within
+/// its first five iterations, a healthy one never does (docs/METHOD.md,
+/// "Elastic model", *The energy watch*).
+pub const ENERGY_WATCH: usize = 8;
+
+/// A rise of the potential of at most this many times the magnitude of its
+/// parts ([`crate::stage2::device::Potential::magnitude`]) is rounding, not
+/// a rise: `f32` parts round within about `6e-8` of it, so both devices
+/// take the same states.
+pub const ENERGY_ROUNDING: f64 = 1e-6;
+
+/// How many times one elastic phase goes back to the state it accepted
+/// with half its step before it ends, diverged: the step is then `1 / 64`
+/// of the first.
+pub const MAX_BACKTRACKS: usize = 6;
+
+/// Whether the potential rose from `last` to `now` by more than its
+/// rounding ([`ENERGY_ROUNDING`]); a potential that is not a number rose.
+fn rose(last: Potential, now: Potential) -> bool {
+    let rounding = ENERGY_ROUNDING * last.magnitude.max(now.magnitude);
+    // A potential that is not a number compares as neither: it rose.
+    !matches!(
+        now.value.partial_cmp(&(last.value + rounding)),
+        Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+    )
+}
 
 /// Stage 2 for one particle model on one device: the control points follow
 /// each deformed surface, the free particles start where [`predict`] puts
@@ -169,7 +197,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// The potential the elastic force descends at the current positions
     /// ([`SolveDevice::potential`]); `None` without the elastic model.
     pub fn potential(&mut self) -> Result<Option<f64>, D::Error> {
-        self.device.potential()
+        Ok(self.device.potential()?.map(|p| p.value))
     }
 
     /// The device's kernels and buffers.
@@ -390,6 +418,8 @@ impl<D: SolveDevice> Tracker<D> {
                 again.iterations += warm.iterations;
                 again.elastic_retries += 1;
                 again.residual_history.splice(0..0, warm.residual_history);
+                again.potentials.splice(0..0, warm.potentials);
+                again.backtracks += warm.backtracks;
                 again
             } else {
                 warm
@@ -468,6 +498,7 @@ impl<D: SolveDevice> Tracker<D> {
         }
         let after_shear = self.device.read_positions()?;
         let (mut used, mut history) = (first.iterations, first.residual_history);
+        let (mut potentials, mut backtracks) = (Vec::new(), 0);
         let mut elastic = params.clone();
         let mut run = PhaseRun::corrected(true);
         let (mut retries, mut damped, mut relinearised) = (0, 0, false);
@@ -478,6 +509,8 @@ impl<D: SolveDevice> Tracker<D> {
             let smoothed = corrected && self.device.elastic_smoothed();
             used += second.iterations;
             history.append(&mut second.residual_history);
+            potentials.append(&mut second.potentials);
+            backtracks += second.backtracks;
             let relinearise =
                 second.stopped_by == StopReason::Stalled && corrected && !relinearised;
             let again = second.stopped_by.failed()
@@ -486,6 +519,8 @@ impl<D: SolveDevice> Tracker<D> {
             if !again {
                 second.iterations = used;
                 second.residual_history = history;
+                second.potentials = potentials;
+                second.backtracks = backtracks;
                 second.elastic_retries = retries + usize::from(relinearised);
                 self.elastic_correct = run.correct;
                 return Ok(second);
@@ -542,6 +577,16 @@ impl<D: SolveDevice> Tracker<D> {
     /// One phase of a solve: `p`'s force from the current state until its
     /// stopping rule holds or `cap` iterations; `correct` and `relinearise`
     /// as in [`Iteration`]; every iteration told to `steps`.
+    ///
+    /// An elastic phase watches the potential its force descends
+    /// ([`SolveDevice::potential`]) every [`ENERGY_WATCH`] iterations: a
+    /// state where it did not rise (within [`ENERGY_ROUNDING`]) is kept
+    /// ([`SolveDevice::save`]); where it rose, or the iteration diverged,
+    /// the phase goes back to the state it kept and on from there with half
+    /// its step (the smoothed step's damping, or the plain step's
+    /// fraction), Chebyshev started again, up to [`MAX_BACKTRACKS`] times;
+    /// after those it ends there, diverged (docs/METHOD.md, "Elastic
+    /// model", *The energy watch*).
     fn phase(
         &mut self,
         p: &DeformParams,
@@ -550,59 +595,98 @@ impl<D: SolveDevice> Tracker<D> {
         steps: &mut Steps<'_>,
     ) -> Result<DeformReport, D::Error> {
         let started = Instant::now();
-        let iteration = Iteration {
-            force: p.force,
-            rotations: p.tuning.rotations,
-            alpha: self.plan.alpha(p),
-            contraction: self.plan.contraction(p),
-            correct: run.correct,
-            relinearise: run.relinearise,
-            damping: run.damping,
-        };
-        self.device.begin(iteration)?;
+        let mut damping = run.damping;
+        self.device
+            .begin(self.iteration(p, run.correct, run.relinearise, damping))?;
         let begun = started.elapsed().as_secs_f64();
         let smoothed = p.force == ForceModel::Elastic && self.device.elastic_smoothed();
-        let rho = match (p.force, self.device.elastic_rho()) {
-            // A damped step contracts the error by `1 - d (1 - lambda)`
-            // where the full one does by `lambda`.
-            (ForceModel::Elastic, Some(rho)) if smoothed => 1.0 - run.damping * (1.0 - rho),
-            (ForceModel::Elastic, Some(rho)) => rho,
-            _ => self.plan.solve_rho(p, self.device.coarse_rho()),
-        };
-        let mut rule = if smoothed {
-            StoppingRule::accelerated(&self.plan, p, rho)
-        } else {
-            StoppingRule::with_rho(&self.plan, p, rho)
-        };
+        let mut rho = self.phase_rho(p, damping, smoothed);
+        let mut rule = self.phase_rule(p, rho, smoothed);
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
+        // The state the phase last accepted, where it watches the potential.
+        let mut accepted = if smoothed {
+            self.device.potential()?
+        } else {
+            None
+        };
+        if accepted.is_some() {
+            self.device.save()?;
+        }
+        let mut potentials: Vec<f64> = accepted.iter().map(|a| a.value).collect();
+        let (mut backtracks, mut earlier) = (0, Vec::new());
+        // Where Chebyshev's weights started: the phase's start, or its last
+        // step back.
+        let mut restart = 0;
         // Where the shear phase next measures the volumes' misfit.
         let share = p.tuning.shear_volume_share;
         let mut check = (run.volume_check && share > 0.0 && self.connections.is_some())
             .then_some(p.tolerance * SHEAR_CHECK);
         let mut iterations = 0;
         loop {
+            let limit = match accepted {
+                Some(_) => ENERGY_WATCH.min(cap - iterations),
+                None => cap - iterations,
+            };
             // After a pause, Chebyshev goes on where it was.
             let mut batches = SolveBatches {
                 device: &mut self.device,
-                chebyshev: Chebyshev::with_rho(p, rho).advanced(iterations),
-                done: iterations,
+                chebyshev: Chebyshev::with_rho(p, rho).advanced(iterations - restart),
+                done: iterations - restart,
             };
             let mut paused = false;
-            let (ran, _) =
-                run_batched(&mut batches, cap - iterations, batch, |_, &(step, rms)| {
-                    let reason = rule.after(step, rms);
-                    if let Some(reason) = reason {
-                        stopped_by = reason;
-                    }
-                    let error = rule.last_error().unwrap_or(f32::NAN);
-                    steps.told(error);
-                    paused = reason.is_none() && check.is_some_and(|at| error < at);
-                    Ok(reason.is_some() || paused)
-                })?;
+            let (ran, held) = run_batched(&mut batches, limit, batch, |_, &(step, rms)| {
+                let reason = rule.after(step, rms);
+                if let Some(reason) = reason {
+                    stopped_by = reason;
+                }
+                let error = rule.last_error().unwrap_or(f32::NAN);
+                steps.told(error);
+                paused = reason.is_none() && check.is_some_and(|at| error < at);
+                Ok(reason.is_some() || paused)
+            })?;
             iterations += ran;
-            if !paused || iterations >= cap {
+            let ended = held && !paused;
+            if let Some(last) = accepted
+                && ran > 0
+                && (!ended || stopped_by == StopReason::Diverged)
+            {
+                let now = match stopped_by {
+                    StopReason::Diverged => None,
+                    _ => self.device.potential()?,
+                };
+                if let Some(now) = now.filter(|now| !rose(last, *now)) {
+                    self.device.save()?;
+                    potentials.push(now.value);
+                    accepted = Some(now);
+                } else if backtracks < MAX_BACKTRACKS && iterations < cap {
+                    backtracks += 1;
+                    self.device.restore()?;
+                    damping *= 0.5;
+                    log::debug!(
+                        "the elastic phase's potential rose after {iterations} iterations; back \
+                         to the state it accepted with half its step"
+                    );
+                    self.device
+                        .begin(self.iteration(p, run.correct, false, damping))?;
+                    rho = self.phase_rho(p, damping, smoothed);
+                    earlier.extend_from_slice(rule.history());
+                    rule = self.phase_rule(p, rho, smoothed);
+                    restart = iterations;
+                    stopped_by = StopReason::IterationCap;
+                    continue;
+                } else {
+                    self.device.restore()?;
+                    stopped_by = StopReason::Diverged;
+                    break;
+                }
+            }
+            if ended || iterations >= cap {
                 break;
+            }
+            if !paused {
+                // The watch's interval ended.
+                continue;
             }
             let error = rule.last_error().unwrap_or(f32::NAN);
             let misfit = self.volume_misfit()?;
@@ -627,7 +711,54 @@ impl<D: SolveDevice> Tracker<D> {
             p.force,
             seconds - begun
         );
-        Ok(rule.report(iterations, stopped_by, seconds))
+        let mut report = rule.report(iterations, stopped_by, seconds);
+        report.residual_history.splice(0..0, earlier);
+        report.backtracks = backtracks;
+        if !potentials.is_empty() {
+            report.potentials = vec![potentials];
+        }
+        Ok(report)
+    }
+
+    /// What a phase's iterations run with: `p`'s step and force, corrected
+    /// where `correct`, the smoothed step scaled by `damping`.
+    fn iteration(
+        &self,
+        p: &DeformParams,
+        correct: bool,
+        relinearise: bool,
+        damping: f32,
+    ) -> Iteration {
+        Iteration {
+            force: p.force,
+            rotations: p.tuning.rotations,
+            alpha: self.plan.alpha(p),
+            contraction: self.plan.contraction(p),
+            correct,
+            relinearise,
+            damping,
+        }
+    }
+
+    /// The contraction a phase of `p` runs on (asked after its
+    /// [`SolveDevice::begin`]).
+    fn phase_rho(&self, p: &DeformParams, damping: f32, smoothed: bool) -> f32 {
+        match (p.force, self.device.elastic_rho()) {
+            // A damped step contracts the error by `1 - d (1 - lambda)`
+            // where the full one does by `lambda`.
+            (ForceModel::Elastic, Some(rho)) if smoothed => 1.0 - damping * (1.0 - rho),
+            (ForceModel::Elastic, Some(rho)) => rho,
+            _ => self.plan.solve_rho(p, self.device.coarse_rho()),
+        }
+    }
+
+    /// The stopping rule of a phase of `p` on contraction `rho`.
+    fn phase_rule(&self, p: &DeformParams, rho: f32, smoothed: bool) -> StoppingRule {
+        if smoothed {
+            StoppingRule::accelerated(&self.plan, p, rho)
+        } else {
+            StoppingRule::with_rho(&self.plan, p, rho)
+        }
     }
 
     /// The volumes' misfit at the device's state
@@ -796,6 +927,15 @@ mod tests {
         batch_at: usize,
         /// The contraction of its two-level solve, where it has one.
         coarse: Option<f32>,
+        /// Whether it measures a potential ([`SolveDevice::potential`]):
+        /// halved by every elastic iteration, doubled by those of a full
+        /// step where `rising`.
+        watched: bool,
+        rising: bool,
+        energy: f64,
+        /// The energy and the step [`SolveDevice::save`] kept.
+        saved: (f64, f32),
+        restores: usize,
     }
 
     impl Halving {
@@ -819,6 +959,11 @@ mod tests {
                 executed: Vec::new(),
                 batch_at: 0,
                 coarse: None,
+                watched: false,
+                rising: false,
+                energy: 1.0,
+                saved: (1.0, 1.0),
+                restores: 0,
             }
         }
     }
@@ -865,8 +1010,22 @@ mod tests {
             SharedLaplacian::new(plan.laplacian_key, plan, params, None)
         }
 
-        fn potential(&mut self) -> Result<Option<f64>, Infallible> {
-            Ok(None)
+        fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
+            Ok(self.watched.then_some(Potential {
+                value: self.energy,
+                magnitude: self.energy,
+            }))
+        }
+
+        fn save(&mut self) -> Result<(), Infallible> {
+            self.saved = (self.energy, self.step);
+            Ok(())
+        }
+
+        fn restore(&mut self) -> Result<(), Infallible> {
+            (self.energy, self.step) = self.saved;
+            self.restores += 1;
+            Ok(())
         }
 
         fn volume_smoother(&self) -> bool {
@@ -894,11 +1053,20 @@ mod tests {
                 return Ok(vec![(f32::NAN, f32::NAN)]);
             }
             self.batch_start = self.step;
+            let full = self.begun.last().is_some_and(|it| it.damping >= 1.0);
+            let factor = if elastic && self.rising && full {
+                2.0
+            } else {
+                0.5
+            };
             Ok(omegas
                 .iter()
                 .map(|_| {
                     if !self.stalling {
                         self.step *= 0.5;
+                    }
+                    if elastic {
+                        self.energy *= factor;
                     }
                     (self.step, self.step)
                 })
@@ -1264,6 +1432,63 @@ mod tests {
             let rho = 1.0 - ELASTIC_DAMPING * (1.0 - 0.5);
             let damped = tracker.device.omegas[2][0];
             assert!((damped - 2.0 / (2.0 - rho * rho)).abs() < 1e-6, "{damped}");
+        }
+    }
+
+    /// A smoothed elastic phase whose potential rose over its first
+    /// [`ENERGY_WATCH`] iterations goes back to the state it started from
+    /// and on from there with half its step, not linearised again, its
+    /// Chebyshev weights started again for the damped contraction; it
+    /// converges with no retry, each state it accepted lower than the one
+    /// before. A device without a potential is not watched.
+    #[test]
+    fn a_smoothed_elastic_phase_whose_potential_rose_steps_back_with_half_its_step() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        for (batch, watched) in [(1, true), (8, true), (1, false)] {
+            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
+                let mut device = Halving::new(batch, &model);
+                device.elastic_correction = Some(0.5);
+                device.smoothed = true;
+                device.watched = watched;
+                device.rising = true;
+                Ok::<_, Error>(device)
+            })
+            .unwrap();
+            let Ok(report) = tracker.solve();
+            let device = &tracker.device;
+            assert!(report.converged, "{report:?}");
+            assert_eq!(report.elastic_retries, 0, "{report:?}");
+            let elastic: Vec<(bool, f32)> = device.begun[1..]
+                .iter()
+                .map(|it| (it.relinearise, it.damping))
+                .collect();
+            if !watched {
+                assert_eq!((report.backtracks, device.restores), (0, 0));
+                assert_eq!(elastic, [(true, 1.0)]);
+                assert!(report.potentials.is_empty());
+                continue;
+            }
+            assert_eq!((report.backtracks, device.restores), (1, 1), "{batch}");
+            assert_eq!(elastic, [(true, 1.0), (false, 0.5)], "{batch}");
+            // Eight iterations ran before the step back, all counted.
+            assert_eq!(device.omegas[1].len(), ENERGY_WATCH, "{batch}");
+            assert_eq!(
+                report.residual_history.len(),
+                report.iterations,
+                "{report:?}"
+            );
+            let rho = 1.0 - 0.5 * (1.0 - 0.5);
+            let first = device.omegas[2][0];
+            assert!((first - 2.0 / (2.0 - rho * rho)).abs() < 1e-6, "{first}");
+            assert_eq!(report.potentials.len(), 1, "{report:?}");
+            let potentials = &report.potentials[0];
+            assert_eq!(potentials[0], 1.0);
+            assert!(potentials.len() >= 2, "{potentials:?}");
+            assert!(report.potentials_fell(), "{potentials:?}");
         }
     }
 
