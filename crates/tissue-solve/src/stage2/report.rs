@@ -2,6 +2,12 @@
 
 use serde::{Deserialize, Serialize};
 
+/// A rise of the potential of at most this many times the magnitude of its
+/// parts ([`crate::stage2::device::Potential::magnitude`]) in an elastic phase
+/// watched by the tracker (`tracker::ENERGY_WATCH`) is rounding, not
+/// a rise: `f32` parts round within about `6e-8` of it, so the CPU and the
+/// GPU, on states that agree to rounding, accept the same ones.
+pub const ENERGY_ROUNDING: f64 = 1e-6;
 /// Which rule ended a solve.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -127,7 +133,7 @@ pub struct DeformReport {
     pub backtracks: usize,
     /// Per elastic phase, the potential the elastic force descends where
     /// it started and at every state it accepted: each at most the one
-    /// before, within the rounding of its parts (`tracker::ENERGY_ROUNDING`).
+    /// before, within the rounding of its parts ([`ENERGY_ROUNDING`]).
     #[serde(default)]
     pub potentials: Vec<Vec<f64>>,
 }
@@ -135,11 +141,11 @@ pub struct DeformReport {
 impl DeformReport {
     /// Whether every state an elastic phase accepted has a potential at
     /// most that of the state before, within
-    /// [`crate::stage2::tracker::ENERGY_ROUNDING`] of the larger potential's size
+    /// [`ENERGY_ROUNDING`] of the larger potential's size
     /// (the tracker measures the rounding on its parts' magnitudes, which
     /// are at least that size: this is the stricter test).
     pub fn potentials_fell(&self) -> bool {
-        let rounding = crate::stage2::tracker::ENERGY_ROUNDING;
+        let rounding = ENERGY_ROUNDING;
         self.potentials.iter().all(|phase| {
             phase
                 .windows(2)

@@ -16,7 +16,7 @@ use crate::stage2::controls::check_same_topology;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
-use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
+use crate::stage2::report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
 
 pub use crate::stage2::device::{Iteration, Potential, SolveDevice};
 
@@ -64,12 +64,6 @@ pub const ELASTIC_RETRIES: usize = 5;
 /// its first five iterations, a healthy one never does (docs/METHOD.md,
 /// "Elastic model", *The energy watch*).
 pub const ENERGY_WATCH: usize = 8;
-
-/// A rise of the potential of at most this many times the magnitude of its
-/// parts ([`crate::stage2::device::Potential::magnitude`]) is rounding, not
-/// a rise: `f32` parts round within about `6e-8` of it, so both devices
-/// take the same states.
-pub const ENERGY_ROUNDING: f64 = 1e-6;
 
 /// How many times one elastic phase goes back to the state it accepted
 /// with half its step before it ends, diverged: the step is then `1 / 64`
