@@ -46,6 +46,6 @@ pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
 pub use tracker::{
-    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS, SHEAR_CHECK,
-    SHEAR_TOLERANCE, Tracker,
+    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
+    MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE, Tracker,
 };

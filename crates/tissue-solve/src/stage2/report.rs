@@ -116,9 +116,9 @@ pub struct DeformReport {
     pub stopped_by: StopReason,
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
-    /// How many times the elastic phase ran again: once linearised again
-    /// where it stalled, and after a divergence or a second stall from the
-    /// end of the shear phase without its correction or with half the
+    /// How many times the elastic phase ran again: linearised again where
+    /// it stalled (`tracker::MAX_RELINEARISATIONS` times at most), and
+    /// after a divergence or a fourth stall from the end of the shear phase without its correction or with half the
     /// step (`tracker::ELASTIC_RETRIES` of those at most), and a tracking
     /// frame's warm-started phase that failed and was solved again from a
     /// shear phase; 0 for the other forces. Told here (and in the log at
