@@ -165,7 +165,17 @@ fn kernels(c: &mut Criterion) {
     });
     // The energy watch's measure, made every 8 elastic iterations.
     c.bench_function("elastic_potential 10k", |b| {
-        b.iter(|| elastic_potential(rest, black_box(&current), connections, &elastic, &[], &free))
+        b.iter(|| {
+            elastic_potential(
+                rest,
+                black_box(&current),
+                connections,
+                &elastic,
+                &[],
+                &free,
+                &rotations,
+            )
+        })
     });
     let force = elastic_force(rest, &current, connections, &terms, &elastic);
     let residual = elastic_residual(&force, &[], &aggregates.aggregate);

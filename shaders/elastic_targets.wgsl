@@ -175,14 +175,17 @@ fn elastic_potential(
     let p = products(i);
     let f = gradient_of(particle, p);
     // The pair term's map, and the gradient's terms where there is one; a
-    // flat neighbourhood's map is the rotation of M_i (its `f`).
+    // flat neighbourhood's map is the rotation of M_i (its `f`). The
+    // rotation by the polar update warm-started from the last iteration's
+    // (the energy is stationary in it), which stays as it is.
+    let r = warm_rotation(f, matrix_of(rotations[i]));
     var map: mat3x3<f32>;
     var own = 0.0;
     if (a == 0.0) {
-        map = rotation_of(f);
+        map = r;
     } else {
         map = p.offsets * matrix_of(particle.inverse);
-        let shear = f - rotation_of(f);
+        let shear = f - r;
         let jacobian = determinant(f);
         let w = particle.inverse.x_axis.w;
         own = a * (dot(shear[0], shear[0]) + dot(shear[1], shear[1]) + dot(shear[2], shear[2]))
@@ -196,9 +199,22 @@ fn elastic_potential(
         let miss = e - map * d;
         pair += dot(miss, miss);
     }
-    var work = 0.0;
-    if (free[i] != 0u && arrayLength(&loads) == params.count) {
-        work = dot(loads[i].xyz, current[i].xyz);
+    potential[i] = 0.5 * (pair + own);
+}
+
+// The loads' work taken from each free particle's part of the potential
+// (`elastic_potential` binds all a stage may).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn elastic_potential_work(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(workgroup, groups, local);
+    if (i >= params.count) {
+        return;
     }
-    potential[i] = 0.5 * (pair + own) - work;
+    if (free[i] != 0u && arrayLength(&loads) == params.count) {
+        potential[i] = potential[i] - dot(loads[i].xyz, current[i].xyz);
+    }
 }

@@ -36,6 +36,10 @@ pub enum Kernel {
     /// the potential the elastic force descends (in no iteration, see
     /// [`DeformState::potential`]).
     ElasticPotential,
+    /// `elastic_targets.wgsl::elastic_potential_work`: the loads' work
+    /// taken from each free particle's part (after [`Kernel::ElasticPotential`],
+    /// which has no binding left for the loads).
+    ElasticPotentialWork,
     /// `deformation_force.wgsl`: the force, paper or symmetric.
     DeformationForce,
     /// `integrate.wgsl::integrate`: `q̂ = q + alpha F` into the plain buffer.
@@ -135,7 +139,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 43] = [
+    pub const ALL: [Kernel; 44] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -143,6 +147,7 @@ impl Kernel {
         Kernel::ElasticTargetsWarm,
         Kernel::ElasticForce,
         Kernel::ElasticPotential,
+        Kernel::ElasticPotentialWork,
         Kernel::DeformationForce,
         Kernel::Integrate,
         Kernel::StepNorms,
@@ -270,6 +275,7 @@ impl Kernel {
             Kernel::ElasticTargetsWarm => ("elastic_targets", "elastic_targets_warm"),
             Kernel::ElasticForce => ("elastic_targets", "elastic_force"),
             Kernel::ElasticPotential => ("elastic_targets", "elastic_potential"),
+            Kernel::ElasticPotentialWork => ("elastic_targets", "elastic_potential_work"),
             Kernel::DeformationForce => ("deformation_force", "deformation_force"),
             Kernel::Integrate => ("integrate", "integrate"),
             Kernel::StepNorms | Kernel::UpdateNorms => ("step_norms", "step_norms"),
@@ -652,7 +658,10 @@ mod tests {
         for kernel in Kernel::ALL {
             assert_eq!(
                 used.contains(&kernel),
-                !matches!(kernel, Kernel::TurnRotations | Kernel::ElasticPotential),
+                !matches!(
+                    kernel,
+                    Kernel::TurnRotations | Kernel::ElasticPotential | Kernel::ElasticPotentialWork
+                ),
                 "{kernel:?}"
             );
         }

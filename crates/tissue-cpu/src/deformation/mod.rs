@@ -713,6 +713,7 @@ impl SolveDevice for CpuSolve {
                 elastic,
                 &self.loads,
                 &self.free,
+                &self.rotations,
             ))
         }))
     }

@@ -85,8 +85,10 @@ pub fn elastic_force(
 /// Per particle its part of the potential the elastic force descends,
 /// `E_i / 2 - b_i . q_i` (`b_i` its body force from `loads`, none where
 /// `loads` is empty; free particles only), `E_i` by
-/// [`Elastic::particle_energy`] in `f64`: the potential is their sum, in
-/// index order.
+/// [`Elastic::particle_energy_turned`] in `f64`, its rotation the polar
+/// update of its gradient (of `M_i` where flat) warm-started from
+/// `rotations` (the last iteration's, which stay as they are): the
+/// potential is their sum, in index order.
 pub fn elastic_potential(
     rest: &[Vec3],
     current: &[Vec3],
@@ -94,15 +96,37 @@ pub fn elastic_potential(
     elastic: &Elastic,
     loads: &[Vec3],
     free: &[bool],
+    rotations: &[Mat3],
 ) -> Vec<f64> {
-    (0..current.len())
-        .into_par_iter()
-        .map(|i| {
-            let work = match loads.get(i) {
-                Some(b) if free[i] => f64::from(b.dot(current[i])),
-                _ => 0.0,
-            };
-            0.5 * elastic.particle_energy(i, rest, current, connections) - work
-        })
-        .collect()
+    let mut parts = vec![0.0; current.len()];
+    parts
+        .par_chunks_mut(LANES)
+        .zip(rotations.par_chunks(LANES))
+        .enumerate()
+        .for_each(|(chunk, (parts, previous))| {
+            let (first, count) = (chunk * LANES, parts.len());
+            let mut of = [Mat3::ZERO; LANES];
+            for (l, of) in of.iter_mut().enumerate().take(count) {
+                let i = first + l;
+                let (m, n) = elastic.products(rest, current, connections, i);
+                *of = if elastic.is_flat(i) {
+                    m
+                } else {
+                    elastic.gradient(i, m, n)
+                };
+            }
+            let mut turned = [Mat3::IDENTITY; LANES];
+            warm_rotations(&of[..count], previous, &mut turned);
+            for (l, part) in parts.iter_mut().enumerate() {
+                let i = first + l;
+                let work = match loads.get(i) {
+                    Some(b) if free[i] => f64::from(b.dot(current[i])),
+                    _ => 0.0,
+                };
+                let energy =
+                    elastic.particle_energy_turned(i, rest, current, connections, |_| turned[l]);
+                *part = 0.5 * energy - work;
+            }
+        });
+    parts
 }

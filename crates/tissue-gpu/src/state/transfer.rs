@@ -133,6 +133,7 @@ impl DeformState {
             label: Some("potential"),
         });
         pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotential, 0);
+        pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotentialWork, 0);
         queue.submit([encoder.finish()]);
         self.potential.read(device, queue, &self.readback)
     }

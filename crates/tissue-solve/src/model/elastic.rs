@@ -257,6 +257,21 @@ impl Elastic {
         current: &[Vec3],
         connections: &Connections,
     ) -> f64 {
+        self.particle_energy_turned(i, rest, current, connections, rotation_of)
+    }
+
+    /// [`Elastic::particle_energy`] with the rotation of its gradient (of
+    /// `M_i` where flat) found by `rotate` from that matrix in `f32`: the
+    /// energy is stationary in the rotation, so a polar update warm-started
+    /// from the last iteration's gives it within rounding of the SVD's.
+    pub fn particle_energy_turned(
+        &self,
+        i: usize,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+        rotate: impl FnOnce(Mat3) -> Mat3,
+    ) -> f64 {
         let c = &self.consistency;
         let (mut m, mut n) = (DMat3::ZERO, DMat3::ZERO);
         for &j in connections.of(i) {
@@ -284,11 +299,11 @@ impl Elastic {
                 .sum()
         };
         if self.is_flat(i) {
-            return pair(rotation_of(m.as_mat3()).as_dmat3());
+            return pair(rotate(m.as_mat3()).as_dmat3());
         }
         let a = f64::from(c.scales[i]);
         let f = m * c.corrections[i].as_dmat3().transpose() + a * n;
-        let shear = f - rotation_of(f.as_mat3()).as_dmat3();
+        let shear = f - rotate(f.as_mat3()).as_dmat3();
         let shear = shear.x_axis.length_squared()
             + shear.y_axis.length_squared()
             + shear.z_axis.length_squared();
