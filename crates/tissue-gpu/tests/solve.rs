@@ -282,6 +282,37 @@ fn the_gpu_steps_a_smoothed_elastic_phase_back_as_the_cpu_does() {
     }
 }
 
+/// A probe 30 mm deep and 35 mm wide solved from rest without the
+/// prediction's extrapolation (as the bench solves its probes): the
+/// corrected elastic phase's second interval runs away, and on the GPU
+/// its state's parts overflow `f32`, an infinite potential. That state is
+/// not accepted: both devices step back once to the state before, with no
+/// retry, in the same iterations, every accepted potential finite.
+#[test]
+fn an_infinite_potential_on_the_gpu_is_a_rise() {
+    let Some((device, queue)) = common::gpu("infinite potential parity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, 30.0, 35.0)
+        .unwrap_or_else(|| panic!("the phantom has vertices"));
+    let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
+    let params = DeformParams::default().with(|p| {
+        p.force = ForceModel::Elastic;
+        p.tuning.extrapolate = false;
+    });
+    let solved = common::solve_on_both(&device, &queue, model, params, &poked);
+    for report in [&solved.1, &solved.3] {
+        assert_eq!(
+            (report.elastic_retries, report.backtracks),
+            (0, 1),
+            "{report:?}"
+        );
+        assert_eq!(report.stopped_by, StopReason::Tolerance, "{report:?}");
+    }
+    common::assert_same_retried_solve(&solved, 1, "probe 30 x 35 mm, no extrapolation");
+}
+
 /// The elastic force with the defaults: both devices run the two-level
 /// solve in the shear phase and the elastic phase's own, made at its start
 /// from the same positions (the GPU's read back); the same iterations

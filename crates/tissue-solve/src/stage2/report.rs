@@ -139,17 +139,18 @@ pub struct DeformReport {
 }
 
 impl DeformReport {
-    /// Whether every state an elastic phase accepted has a potential at
-    /// most that of the state before, within
+    /// Whether every state an elastic phase accepted has a finite potential
+    /// at most that of the state before, within
     /// [`ENERGY_ROUNDING`] of the larger potential's size
     /// (the tracker measures the rounding on its parts' magnitudes, which
     /// are at least that size: this is the stricter test).
     pub fn potentials_fell(&self) -> bool {
         let rounding = ENERGY_ROUNDING;
         self.potentials.iter().all(|phase| {
-            phase
-                .windows(2)
-                .all(|pair| pair[1] <= pair[0] + rounding * pair[0].abs().max(pair[1].abs()))
+            phase.iter().all(|p| p.is_finite())
+                && phase
+                    .windows(2)
+                    .all(|pair| pair[1] <= pair[0] + rounding * pair[0].abs().max(pair[1].abs()))
         })
     }
 }

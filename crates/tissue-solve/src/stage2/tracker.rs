@@ -79,14 +79,14 @@ pub const ENERGY_WATCH: usize = 8;
 pub const MAX_BACKTRACKS: usize = 6;
 
 /// Whether the potential rose from `last` to `now` by more than its
-/// rounding ([`ENERGY_ROUNDING`]); a potential that is not a number rose.
+/// rounding ([`ENERGY_ROUNDING`]); a potential that is not finite rose (on
+/// the GPU a diverging state's parts overflow `f32`).
 fn rose(last: Potential, now: Potential) -> bool {
+    if !(now.value.is_finite() && now.magnitude.is_finite()) {
+        return true;
+    }
     let rounding = ENERGY_ROUNDING * last.magnitude.max(now.magnitude);
-    // A potential that is not a number compares as neither: it rose.
-    !matches!(
-        now.value.partial_cmp(&(last.value + rounding)),
-        Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
-    )
+    now.value > last.value + rounding
 }
 
 /// Stage 2 for one particle model on one device: the control points follow
@@ -1491,6 +1491,21 @@ mod tests {
             assert!(potentials.len() >= 2, "{potentials:?}");
             assert!(report.potentials_fell(), "{potentials:?}");
         }
+    }
+
+    /// A potential above the last by more than its rounding rose; one
+    /// within it did not; one that is not finite rose whatever its
+    /// magnitude (an infinite magnitude would make any rounding infinite).
+    #[test]
+    fn a_potential_that_is_not_finite_rose() {
+        let at = |value: f64, magnitude: f64| Potential { value, magnitude };
+        let last = at(100.0, 200.0);
+        assert!(!rose(last, at(99.0, 200.0)));
+        assert!(!rose(last, at(100.0 + 1e-4, 200.0)));
+        assert!(rose(last, at(100.01, 200.0)));
+        assert!(rose(last, at(f64::INFINITY, f64::INFINITY)));
+        assert!(rose(last, at(f64::NAN, 200.0)));
+        assert!(rose(last, at(50.0, f64::INFINITY)));
     }
 
     /// A diverged elastic phase runs again from the end of the shear
