@@ -395,6 +395,7 @@ impl<D: SolveDevice> Tracker<D> {
                 params.max_iterations,
                 PhaseRun {
                     correct,
+                    watch: false,
                     ..PhaseRun::corrected(false)
                 },
                 &mut steps,
@@ -609,7 +610,7 @@ impl<D: SolveDevice> Tracker<D> {
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
         // The state the phase last accepted, where it watches the potential.
-        let mut accepted = if smoothed {
+        let mut accepted = if smoothed && run.watch {
             self.device.potential()?
         } else {
             None
@@ -797,6 +798,12 @@ struct PhaseRun {
     /// The shear phase of an elastic solve: it also stops on the volumes'
     /// misfit ([`crate::stage2::params::SolverTuning::shear_volume_share`]).
     volume_check: bool,
+    /// A smoothed elastic phase watches its potential ([`ENERGY_WATCH`]);
+    /// a tracking frame's warm phase does not (it takes 2-10 iterations,
+    /// the watch's first measure would cost it a third of an iteration's
+    /// time or more, and where it fails the frame is solved again from a
+    /// shear phase, watched).
+    watch: bool,
 }
 
 impl PhaseRun {
@@ -807,6 +814,7 @@ impl PhaseRun {
             relinearise,
             damping: 1.0,
             volume_check: false,
+            watch: true,
         }
     }
 }
@@ -1441,7 +1449,8 @@ mod tests {
     /// and on from there with half its step, not linearised again, its
     /// Chebyshev weights started again for the damped contraction; it
     /// converges with no retry, each state it accepted lower than the one
-    /// before. A device without a potential is not watched.
+    /// before. A device without a potential is not watched, nor is the
+    /// next frame's warm phase.
     #[test]
     fn a_smoothed_elastic_phase_whose_potential_rose_steps_back_with_half_its_step() {
         let model = star();
@@ -1490,6 +1499,11 @@ mod tests {
             assert_eq!(potentials[0], 1.0);
             assert!(potentials.len() >= 2, "{potentials:?}");
             assert!(report.potentials_fell(), "{potentials:?}");
+            // The next frame starts warm: its phase is not watched.
+            let Ok(warm) = tracker.solve();
+            assert!(warm.converged, "{warm:?}");
+            assert!(warm.potentials.is_empty(), "{warm:?}");
+            assert_eq!(tracker.device.restores, 1);
         }
     }
 
