@@ -36,8 +36,9 @@ use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
 use tissue_solve::model::{RigidBinding, RigidMotion, offsets_product, rotation_of};
-use tissue_solve::stage2::Potential;
-use tissue_solve::{Iteration, Plan, PrepareStage, SolveDevice, SolveStep, Tracker};
+use tissue_solve::{Plan, PrepareStage, SolveStep, Tracker};
+
+mod solve_device;
 
 /// Which device to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -326,119 +327,6 @@ impl GpuSolver {
         what: impl FnOnce(&mut GpuSolve) -> Result<T, GpuError>,
     ) -> Result<T, Error> {
         what(&mut self.solve).map_err(|e| gpu_error(format!("{doing} on {}", self.name), e))
-    }
-}
-
-/// Every call forwards to the device's own solve; a GPU failure comes back
-/// as [`Error::Gpu`], saying what was being done on which GPU.
-impl SolveDevice for SolverDevice {
-    type Error = Error;
-
-    fn batch(&self) -> usize {
-        match self {
-            Self::Cpu(cpu) => cpu.batch(),
-            Self::Gpu(gpu) => gpu.solve.batch(),
-        }
-    }
-
-    fn coarse_rho(&self) -> Option<f32> {
-        match self {
-            Self::Cpu(cpu) => cpu.coarse_rho(),
-            Self::Gpu(gpu) => gpu.solve.coarse_rho(),
-        }
-    }
-
-    fn elastic_rho(&self) -> Option<f32> {
-        match self {
-            Self::Cpu(cpu) => cpu.elastic_rho(),
-            Self::Gpu(gpu) => gpu.solve.elastic_rho(),
-        }
-    }
-
-    fn volume_smoother(&self) -> bool {
-        match self {
-            Self::Cpu(cpu) => SolveDevice::volume_smoother(cpu.as_ref()),
-            Self::Gpu(gpu) => gpu.solve.volume_smoother(),
-        }
-    }
-
-    fn elastic_smoothed(&self) -> bool {
-        match self {
-            Self::Cpu(cpu) => cpu.elastic_smoothed(),
-            Self::Gpu(gpu) => gpu.solve.elastic_smoothed(),
-        }
-    }
-
-    fn write_positions(&mut self, positions: &[Vec3], turn: Option<Mat3>) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.write_positions(positions, turn)),
-            Self::Gpu(gpu) => gpu.on("uploading positions", |g| {
-                g.write_positions(positions, turn)
-            }),
-        }
-    }
-
-    fn begin(&mut self, iteration: Iteration) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.begin(iteration)),
-            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.begin(iteration)),
-        }
-    }
-
-    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.run(omegas)),
-            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.run(omegas)),
-        }
-    }
-
-    fn replay(&mut self, count: usize) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.replay(count)),
-            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.replay(count)),
-        }
-    }
-
-    fn read_positions(&mut self) -> Result<Vec<Vec3>, Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.read_positions()),
-            Self::Gpu(gpu) => gpu.on("reading positions", GpuSolve::read_positions),
-        }
-    }
-
-    fn potential(&mut self) -> Result<Option<Potential>, Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.potential()),
-            Self::Gpu(gpu) => gpu.on("measuring the potential", GpuSolve::potential),
-        }
-    }
-
-    fn save(&mut self) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.save()),
-            Self::Gpu(gpu) => gpu.on("stage 2", SolveDevice::save),
-        }
-    }
-
-    fn restore(&mut self) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(cpu.restore()),
-            Self::Gpu(gpu) => gpu.on("stage 2", SolveDevice::restore),
-        }
-    }
-
-    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
-        match self {
-            Self::Cpu(cpu) => cpu.shared_laplacian(plan, params),
-            Self::Gpu(gpu) => gpu.solve.shared_laplacian(plan, params),
-        }
-    }
-
-    fn reset(&mut self) -> Result<(), Error> {
-        match self {
-            Self::Cpu(cpu) => infallible(SolveDevice::reset(cpu.as_mut())),
-            Self::Gpu(gpu) => gpu.on("resetting stage 2", SolveDevice::reset),
-        }
     }
 }
 

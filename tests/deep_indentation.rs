@@ -5,7 +5,7 @@
 //! again: its two-level solve, linearised where the phase starts (the
 //! particles under the probe are far from it), raises the potential its
 //! force descends within its first steps; the phase goes back to the state
-//! it accepted and on with half its step (`tracker::ENERGY_WATCH`), and
+//! it accepted and on with half its step (`phase::ENERGY_WATCH`), and
 //! every state it accepts lowers the potential. Half as deep and 30 mm
 //! deep it does the same.
 #![allow(clippy::unwrap_used, reason = "tests")]

@@ -31,7 +31,7 @@ pub struct Iteration {
     pub relinearise: bool,
     /// The fraction of the volume smoother's two-level step a smoothed
     /// elastic iteration takes (the device scales its residual by it): 1,
-    /// but [`crate::stage2::tracker::ELASTIC_DAMPING`] where a smoothed phase that failed is run
+    /// but [`crate::stage2::phase::ELASTIC_DAMPING`] where a smoothed phase that failed is run
     /// again. The other iterations ignore it.
     pub damping: f32,
 }
@@ -141,7 +141,7 @@ pub trait SolveDevice {
     /// `E / 2 - sum_k b_k . q_k` over the free particles (docs/METHOD.md,
     /// "Elastic model"), each particle's part summed in `f64` in index
     /// order; `None` without the elastic model. Measured every
-    /// [`crate::stage2::tracker::ENERGY_WATCH`] iterations of an elastic
+    /// [`crate::stage2::phase::ENERGY_WATCH`] iterations of an elastic
     /// phase: a device may read its parts back.
     fn potential(&mut self) -> Result<Option<Potential>, Self::Error>;
 

@@ -4,7 +4,8 @@
 //! (`acceleration`), the tracking prediction (`predict`), the deformed
 //! surface's checks (`controls`), what one iteration runs (`passes`), the
 //! seam a device implements (`device`), batches and their replay
-//! (`batches`), the one tracker over any device (`tracker`), how a solve
+//! (`batches`), what a phase runs with and the elastic phase's rules
+//! (`phase`), the one tracker over any device (`tracker`), how a solve
 //! went (`report`), inverted neighbourhoods (`inversion`), and the search
 //! a change of posture makes (`posture`).
 
@@ -15,6 +16,7 @@ pub(crate) mod device;
 pub(crate) mod inversion;
 pub(crate) mod params;
 pub(crate) mod passes;
+pub(crate) mod phase;
 pub(crate) mod plan;
 pub(crate) mod posture;
 pub(crate) mod predict;
@@ -36,6 +38,10 @@ pub use params::{
     MAX_SHEAR_VOLUME_SHARE, RotationMethod, SolverTuning,
 };
 pub use passes::{Choices, Correction, Holds, Pass};
+pub use phase::{
+    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
+    MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE,
+};
 pub use plan::{MAX_LOAD_SIZE, Plan, SharedSpectrum, control_points, laplacian_key};
 pub use posture::{
     DENSITY_KG_M3, FIT_BOUNDS_KPA, FIT_PARTICLES, FIT_START_KPA, Fit, Gravity, HELD_SPACINGS,
@@ -45,7 +51,4 @@ pub use posture::{
 pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
-pub use tracker::{
-    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
-    MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE, Tracker,
-};
+pub use tracker::Tracker;

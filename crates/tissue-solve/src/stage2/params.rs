@@ -160,7 +160,7 @@ pub struct SolverTuning {
     /// model's size) is below this share of the volumes' misfit at its
     /// state ([`crate::model::elastic::Elastic::volume_misfit`]): what is left of
     /// it then is less than what the elastic phase moves anyway. 0: only
-    /// at its tolerance ([`crate::stage2::tracker::SHEAR_TOLERANCE`]). Why 0.25:
+    /// at its tolerance ([`crate::stage2::phase::SHEAR_TOLERANCE`]). Why 0.25:
     /// docs/METHOD.md, "Elastic model", *The shear phase's end*.
     pub shear_volume_share: f32,
 }

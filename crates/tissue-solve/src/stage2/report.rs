@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 /// A rise of the potential of at most this many times the magnitude of its
 /// parts ([`crate::stage2::device::Potential::magnitude`]) in an elastic phase
-/// watched by the tracker (`tracker::ENERGY_WATCH`) is rounding, not
+/// watched by the tracker (`phase::ENERGY_WATCH`) is rounding, not
 /// a rise: `f32` parts round within about `6e-8` of it, so the CPU and the
 /// GPU, on states that agree to rounding, accept the same ones.
 pub const ENERGY_ROUNDING: f64 = 1e-6;
@@ -117,9 +117,9 @@ pub struct DeformReport {
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
     /// How many times the elastic phase ran again: linearised again where
-    /// it stalled (`tracker::MAX_RELINEARISATIONS` times at most), and
+    /// it stalled (`phase::MAX_RELINEARISATIONS` times at most), and
     /// after a divergence or a fourth stall from the end of the shear phase without its correction or with half the
-    /// step (`tracker::ELASTIC_RETRIES` of those at most), and a tracking
+    /// step (`phase::ELASTIC_RETRIES` of those at most), and a tracking
     /// frame's warm-started phase that failed and was solved again from a
     /// shear phase; 0 for the other forces. Told here (and in the log at
     /// `info`), not as warnings: a solve that ends converged is a success.
@@ -128,7 +128,7 @@ pub struct DeformReport {
     /// How many times an elastic phase went back to the last state it
     /// accepted and went on with half its step, because the potential had
     /// risen (or the iteration diverged) since
-    /// (`tracker::ENERGY_WATCH`).
+    /// (`phase::ENERGY_WATCH`).
     #[serde(default)]
     pub backtracks: usize,
     /// Per elastic phase, the potential the elastic force descends where

@@ -11,83 +11,18 @@ use tissue_core::{Connections, Error, ParamError, ParticleModel, SurfaceMesh};
 use crate::coarse::laplacian::SharedLaplacian;
 use crate::model::svd3::rotation_of;
 use crate::stage2::acceleration::{Chebyshev, StoppingRule};
-use crate::stage2::batches::{Batches, run_batched};
+use crate::stage2::batches::run_batched;
 use crate::stage2::controls::check_same_topology;
 use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::phase::{
+    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
+    MAX_RELINEARISATIONS, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches, Steps, rose,
+};
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
-use crate::stage2::report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
+use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 
-pub use crate::stage2::device::{Iteration, Potential, SolveDevice};
-
-/// The shear phase of an elastic solve stops at this many times the
-/// solve's tolerance: it only has to bring every neighbourhood near its
-/// rest volume.
-pub const SHEAR_TOLERANCE: f32 = 10.0;
-
-/// The shear phase measures the volumes' misfit
-/// ([`crate::stage2::params::SolverTuning::shear_volume_share`]) first where its estimate falls
-/// below this many times its tolerance (so [`SHEAR_TOLERANCE`] times this
-/// many times the solve's), then each time it falls below its share of the
-/// last misfit measured.
-pub const SHEAR_CHECK: f32 = 100.0;
-
-/// The fraction of its two-level step a smoothed elastic phase takes when
-/// it is run again from the end of the shear phase after it diverged (or
-/// stalled a second time), before the correction is given up; Chebyshev
-/// and the stopping rule then take the contraction `1 - d (1 - rho)`.
-/// Under a deep probe the first corrected steps are too long for the
-/// linearisation they were made from; damping slows every healthy phase,
-/// so it is taken only after a failure (docs/METHOD.md, "Elastic model").
-pub const ELASTIC_DAMPING: f32 = 0.5;
-
-/// How many times a smoothed elastic phase that fails is run again with
-/// [`ELASTIC_DAMPING`] of the step before (0.5, then 0.25): a quarter step
-/// brings deep probes to the tolerance that half of it does not
-/// (docs/METHOD.md, "Elastic model").
-pub const DAMPED_RETRIES: usize = 2;
-
-/// How many times an elastic phase that diverged is run again from the end
-/// of the shear phase: first with its smoothed correction's step damped
-/// ([`DAMPED_RETRIES`] times) where it smoothed, then without the
-/// device's correction, where it ran with one, then each time with half
-/// the step before. The correction is linearised where the phase starts
-/// and the step is set from the stiffness at rest
-/// ([`crate::model::elastic::STIFFENING`] times it); a particle compressed far
-/// more than the rest of the model (a deep, narrow indentation) can be
-/// stiffer still, and far from that linearisation (docs/METHOD.md,
-/// "Elastic model").
-pub const ELASTIC_RETRIES: usize = 5;
-
-/// How many times in one solve a corrected elastic phase that stalls goes
-/// on from where it stalled with its correction made there, before a stall
-/// runs it again from the end of the shear phase: the deepest of the
-/// bench's probes at 10k (30 mm deep, 15 mm wide) stalls three times and
-/// converges in 168 iterations, where with one it took 522 and six retries
-/// (docs/METHOD.md, "Elastic model", *Preparation and 1M*).
-pub const MAX_RELINEARISATIONS: usize = 3;
-
-/// An elastic phase measures the potential its force descends every this
-/// many iterations (the GPU's batch): a phase that fails raises it within
-/// its first five iterations, a healthy one never does (docs/METHOD.md,
-/// "Elastic model", *The energy watch*).
-pub const ENERGY_WATCH: usize = 8;
-
-/// How many times one elastic phase goes back to the state it accepted
-/// with half its step before it ends, diverged: the step is then `1 / 64`
-/// of the first.
-pub const MAX_BACKTRACKS: usize = 6;
-
-/// Whether the potential rose from `last` to `now` by more than its
-/// rounding ([`ENERGY_ROUNDING`]); a potential that is not finite rose (on
-/// the GPU a diverging state's parts overflow `f32`).
-fn rose(last: Potential, now: Potential) -> bool {
-    if !(now.value.is_finite() && now.magnitude.is_finite()) {
-        return true;
-    }
-    let rounding = ENERGY_ROUNDING * last.magnitude.max(now.magnitude);
-    now.value > last.value + rounding
-}
+pub use crate::stage2::device::{Iteration, SolveDevice};
 
 /// Stage 2 for one particle model on one device: the control points follow
 /// each deformed surface, the free particles start where [`predict`] puts
@@ -788,81 +723,6 @@ impl<D: SolveDevice> Tracker<D> {
     }
 }
 
-/// How a phase runs ([`Iteration`]'s `correct`, `relinearise` and
-/// `damping`).
-#[derive(Debug, Clone, Copy)]
-struct PhaseRun {
-    correct: bool,
-    relinearise: bool,
-    damping: f32,
-    /// The shear phase of an elastic solve: it also stops on the volumes'
-    /// misfit ([`crate::stage2::params::SolverTuning::shear_volume_share`]).
-    volume_check: bool,
-    /// A smoothed elastic phase watches its potential ([`ENERGY_WATCH`]);
-    /// a tracking frame's warm phase does not (it takes 2-10 iterations,
-    /// the watch's first measure would cost it a third of an iteration's
-    /// time or more, and where it fails the frame is solved again from a
-    /// shear phase, watched).
-    watch: bool,
-}
-
-impl PhaseRun {
-    /// Corrected, the full step, linearised where it starts if `relinearise`.
-    fn corrected(relinearise: bool) -> Self {
-        Self {
-            correct: true,
-            relinearise,
-            damping: 1.0,
-            volume_check: false,
-            watch: true,
-        }
-    }
-}
-
-/// A solve's progress callback and the iterations it was told of.
-struct Steps<'a> {
-    done: usize,
-    max_iterations: usize,
-    observe: &'a mut dyn FnMut(&SolveStep),
-}
-
-impl Steps<'_> {
-    /// One more iteration, ending with error estimate `residual`.
-    fn told(&mut self, residual: f32) {
-        self.done += 1;
-        (self.observe)(&SolveStep {
-            iteration: self.done,
-            max_iterations: self.max_iterations,
-            residual,
-        });
-    }
-}
-
-/// A solve's batches on a device: the Chebyshev weights of each batch, which
-/// may run ahead of the stopping rule because a replay repeats them exactly.
-struct SolveBatches<'a, D: SolveDevice> {
-    device: &'a mut D,
-    chebyshev: Chebyshev,
-    /// Iterations of the phase run before these batches.
-    done: usize,
-}
-
-impl<D: SolveDevice> Batches for SolveBatches<'_, D> {
-    type Measure = (f32, f32);
-    type Error = D::Error;
-
-    fn run(&mut self, done: usize, count: usize) -> Result<Vec<(f32, f32)>, D::Error> {
-        let omegas: Vec<f32> = (1..=count)
-            .map(|k| self.chebyshev.omega(self.done + done + k))
-            .collect();
-        self.device.run(&omegas)
-    }
-
-    fn replay(&mut self, count: usize) -> Result<(), D::Error> {
-        self.device.replay(count)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
@@ -872,6 +732,7 @@ mod tests {
     use tissue_core::{Attachment, Connections};
 
     use super::*;
+    use crate::stage2::device::Potential;
 
     /// The octahedron's six vertices as control points and one free
     /// particle at its centre, connected to all six.
@@ -1505,21 +1366,6 @@ mod tests {
             assert!(warm.potentials.is_empty(), "{warm:?}");
             assert_eq!(tracker.device.restores, 1);
         }
-    }
-
-    /// A potential above the last by more than its rounding rose; one
-    /// within it did not; one that is not finite rose whatever its
-    /// magnitude (an infinite magnitude would make any rounding infinite).
-    #[test]
-    fn a_potential_that_is_not_finite_rose() {
-        let at = |value: f64, magnitude: f64| Potential { value, magnitude };
-        let last = at(100.0, 200.0);
-        assert!(!rose(last, at(99.0, 200.0)));
-        assert!(!rose(last, at(100.0 + 1e-4, 200.0)));
-        assert!(rose(last, at(100.01, 200.0)));
-        assert!(rose(last, at(f64::INFINITY, f64::INFINITY)));
-        assert!(rose(last, at(f64::NAN, 200.0)));
-        assert!(rose(last, at(50.0, f64::INFINITY)));
     }
 
     /// A diverged elastic phase runs again from the end of the shear
