@@ -518,15 +518,15 @@ impl<D: SolveDevice> Tracker<D> {
     /// stopping rule holds or `cap` iterations; `correct` and `relinearise`
     /// as in [`Iteration`]; every iteration told to `steps`.
     ///
-    /// An elastic phase watches the potential its force descends
-    /// ([`SolveDevice::potential`]) every [`ENERGY_WATCH`] iterations: a
-    /// state where it did not rise (within [`ENERGY_ROUNDING`]) is kept
+    /// A smoothed elastic phase (but a tracking frame's warm one) watches
+    /// the potential its force descends ([`SolveDevice::potential`]) every
+    /// [`ENERGY_WATCH`] iterations: a state where it did not rise (within
+    /// [`crate::stage2::report::ENERGY_ROUNDING`]) is kept
     /// ([`SolveDevice::save`]); where it rose, or the iteration diverged,
-    /// the phase goes back to the state it kept and on from there with half
-    /// its step (the smoothed step's damping, or the plain step's
-    /// fraction), Chebyshev started again, up to [`MAX_BACKTRACKS`] times;
-    /// after those it ends there, diverged (docs/METHOD.md, "Elastic
-    /// model", *The energy watch*).
+    /// the phase goes back to the state it kept and on from there with
+    /// half its smoothed step, Chebyshev started again, up to
+    /// [`MAX_BACKTRACKS`] times; after those it ends there, diverged
+    /// (docs/METHOD.md, "Elastic model", *The energy watch*).
     fn phase(
         &mut self,
         p: &DeformParams,
