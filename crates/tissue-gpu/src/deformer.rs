@@ -547,20 +547,13 @@ impl SolveDevice for GpuSolve {
     fn save(&mut self) -> Result<(), GpuError> {
         self.scoped(|gpu| {
             let state = &gpu.state;
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("save"),
-                });
-            encoder.copy_buffer_to_buffer(state.current.buffer(), 0, &gpu.saved_current, 0, None);
-            encoder.copy_buffer_to_buffer(
-                state.rotations.buffer(),
-                0,
-                &gpu.saved_rotations,
-                0,
-                None,
+            gpu.copy_all(
+                "save",
+                [
+                    (state.current.buffer(), &gpu.saved_current),
+                    (state.rotations.buffer(), &gpu.saved_rotations),
+                ],
             );
-            gpu.queue.submit([encoder.finish()]);
             Ok(())
         })
     }
@@ -568,20 +561,13 @@ impl SolveDevice for GpuSolve {
     fn restore(&mut self) -> Result<(), GpuError> {
         self.scoped(|gpu| {
             let state = &gpu.state;
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("restore"),
-                });
-            encoder.copy_buffer_to_buffer(&gpu.saved_current, 0, state.current.buffer(), 0, None);
-            encoder.copy_buffer_to_buffer(
-                &gpu.saved_rotations,
-                0,
-                state.rotations.buffer(),
-                0,
-                None,
+            gpu.copy_all(
+                "restore",
+                [
+                    (&gpu.saved_current, state.current.buffer()),
+                    (&gpu.saved_rotations, state.rotations.buffer()),
+                ],
             );
-            gpu.queue.submit([encoder.finish()]);
             Ok(())
         })
     }
@@ -636,6 +622,18 @@ impl GpuSolve {
         let done = work(self);
         scope.pop()?;
         done
+    }
+
+    /// Copies each pair's whole first buffer into its second, in one
+    /// submission labelled `label`.
+    fn copy_all<const N: usize>(&self, label: &str, pairs: [(&wgpu::Buffer, &wgpu::Buffer); N]) {
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        for (from, to) in pairs {
+            encoder.copy_buffer_to_buffer(from, 0, to, 0, None);
+        }
+        self.queue.submit([encoder.finish()]);
     }
 
     fn write_positions_unscoped(
