@@ -54,7 +54,7 @@ pub use tissue_solve::stage2::{
 /// the deformed posture's gravity, the skin free, best gives the skin of
 /// `deformed` (the observed part where `params.observed` says). `params`
 /// must be the elastic force's. `progress` is told of every solve as it
-/// ends (a fit makes 6-10 of them, and the model's own rounds after a
+/// ends (a fit makes 3-8 of them, and the model's own rounds after a
 /// coarse fit 1-3 more).
 ///
 /// # Errors

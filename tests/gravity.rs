@@ -6,7 +6,7 @@
 
 mod common;
 
-use tissue::advanced::model::{Unloading, gravity_load, unloaded_shape};
+use tissue::advanced::model::{Accuracy, Unloading, gravity_load, unloaded_shape};
 use tissue::backend::{Device, Solver};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::{Error, ParticleModel, SamplingParams, SurfaceMesh, Vec3};
@@ -69,6 +69,7 @@ fn the_unloaded_shape_loaded_again_is_the_rest_shape() {
     let unloading = Unloading {
         tolerance: 4e-4,
         max_rounds: 8,
+        measure: Accuracy::Full,
     };
     let surface = surface_flags(&model);
     let shape = unloaded_shape(&model.positions, &surface, unloading, |x, warm, _| {
@@ -136,6 +137,7 @@ fn the_gpu_finds_the_same_unloaded_shape() {
     let unloading = Unloading {
         tolerance: 4e-4,
         max_rounds: 8,
+        measure: Accuracy::Full,
     };
     let surface = surface_flags(&model);
     let shapes: Vec<_> = [Device::Cpu, gpu]
@@ -235,6 +237,7 @@ fn the_stiffness_is_fitted_from_the_skin_on_both_devices() {
     let unloading = Unloading {
         tolerance: 4e-4,
         max_rounds: 8,
+        measure: Accuracy::Full,
     };
     let mut fits = Vec::new();
     // The GPU half needs an adapter (under `CI=true` it must have one).

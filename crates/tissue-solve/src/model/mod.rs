@@ -23,8 +23,9 @@ pub use elastic::{
     moment_inverse, moment_unit, offsets_product,
 };
 pub use gravity::{
-    Accuracy, CONFIRM_WITHIN, ROUND_TOLERANCE, STANDARD_GRAVITY, UnloadedShape, Unloading,
-    gravity_load, held_vertices, unloaded_shape, unloaded_shape_from,
+    Accuracy, CONFIRM_WITHIN, ROUND_CONTRACTION, ROUND_TOLERANCE, STANDARD_GRAVITY, UnloadedShape,
+    Unloading, gravity_load, held_vertices, unloaded_shape, unloaded_shape_from,
+    unloaded_shape_near,
 };
 pub use resampling::{
     FADE_SPACINGS, FULL_SPACINGS, FieldGridError, MAX_GRID_POINTS, MIN_GRID_STEPS,

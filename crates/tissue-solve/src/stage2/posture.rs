@@ -12,7 +12,7 @@ use tissue_core::{Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::coarse::laplacian::SharedLaplacian;
 use crate::model::gravity::{
-    Accuracy, ROUND_TOLERANCE, UnloadedShape, Unloading, gravity_load, unloaded_shape_from,
+    Accuracy, ROUND_TOLERANCE, UnloadedShape, Unloading, gravity_load, unloaded_shape_near,
 };
 use crate::model::stiffness::{Postures, StiffnessFit, Trial, fit_stiffness, free_skin_targets};
 use crate::model::structures::Embedding;
@@ -290,7 +290,7 @@ pub struct Unloaded {
 /// `gravity.fit_particles` asks one ([`Gravity::fit_particles`]), the
 /// model's own unloaded shape then found at the fitted stiffness.
 /// `params` must be the elastic force's. `progress` is told of every
-/// solve as it ends (a fit makes 6-10 of them, each of a few hundred
+/// solve as it ends (a fit makes 3-8 of them, each of a few hundred
 /// iterations over the free skin, and the model's own rounds after a
 /// coarse fit 1-3 more).
 ///
@@ -417,7 +417,7 @@ pub fn unload<P: PostureDevice>(
                     let start = carried(&coarse.positions, &f.unloaded.positions, &model.positions);
                     let shape = solves.unloaded(
                         model,
-                        Some(&start),
+                        Some((&start, None)),
                         rest_per_kpa / f.stiffness_kpa,
                         unloading,
                     )?;
@@ -428,15 +428,22 @@ pub fn unload<P: PostureDevice>(
                     };
                     (f.stiffness_kpa, shape, Some(fit))
                 }
+                // The fit's shape, measured loosely, measured again in full.
                 None => {
                     let f =
                         solves.fit(model, deformed, rest_per_kpa, deformed_per_kpa, unloading)?;
+                    let shape = solves.unloaded(
+                        model,
+                        Some((&f.unloaded.positions, Some(f.unloaded.residual))),
+                        rest_per_kpa / f.stiffness_kpa,
+                        unloading,
+                    )?;
                     let fit = Fit {
                         residual: f.residual,
                         trials: f.trials,
                         particles: model.len(),
                     };
-                    (f.stiffness_kpa, f.unloaded, Some(fit))
+                    (f.stiffness_kpa, shape, Some(fit))
                 }
             }
         }
@@ -544,19 +551,22 @@ impl<P: PostureDevice> Solves<'_, P> {
     }
 
     /// `model`'s unloaded shape under the rest posture's `load`, from the
-    /// guess `start` (the rest shape where there is none).
+    /// guess `start` and its loose miss where known (the rest shape where
+    /// there is none).
     fn unloaded(
         &mut self,
         model: &ParticleModel,
-        start: Option<&[Vec3]>,
+        start: Option<(&[Vec3], Option<f32>)>,
         load: Vec3,
         unloading: Unloading,
     ) -> Result<UnloadedShape, Error> {
         let surface: Vec<bool> = (0..model.len()).map(|i| model.is_surface(i)).collect();
         let rest = &model.positions;
-        unloaded_shape_from(
+        let (start, miss) = start.unwrap_or((rest, None));
+        unloaded_shape_near(
             rest,
-            start.unwrap_or(rest),
+            start,
+            miss,
             &surface,
             unloading,
             |x, warm, accuracy| self.solve(model, x, load, warm, accuracy),
