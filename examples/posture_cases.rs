@@ -70,12 +70,7 @@ fn main() {
     if surfaces.is_empty() {
         surfaces.push(("phantom".into(), tissue::phantom::default_breast()));
     }
-    let tolerance: f32 =
-        std::env::var("TOL").map_or(DeformParams::default().tolerance, |t| t.parse().unwrap());
-    let params = DeformParams::default().with(|p| {
-        p.force = ForceModel::Elastic;
-        p.tolerance = tolerance;
-    });
+    let params = DeformParams::default().with(|p| p.force = ForceModel::Elastic);
     for (name, surface) in &surfaces {
         let unloaded = tissue::sample(surface, &SamplingParams::with_particles(particles))
             .unwrap()
