@@ -201,3 +201,56 @@ fn prone_to_supine_is_recovered_on_both_devices() {
         "{cpu} kPa on the CPU, {on_gpu} on the GPU"
     );
 }
+
+/// Over a free skin the elastic phase steps plainly, corrected; on the
+/// phantom at 2,000 particles hanging towards its feet (`-y`, 2 kPa) the
+/// corrected iteration falls into a cycle that never meets the tolerance
+/// (5,000 iterations, the cap, unwatched). Watched, the potential rises,
+/// the phase goes back to the state it kept with its correction made
+/// there, and converges, every state it kept lower than the one before,
+/// on both devices (the GPU on lavapipe in CI) in the same iterations
+/// within a few.
+#[test]
+fn a_plain_elastic_phase_over_a_free_skin_converges_watched() {
+    let unloaded = tissue::sample(
+        &tissue::phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let held = chest_wall(&unloaded.surface);
+    let load = gravity_load(Vec3::NEG_Y, 1000.0, 2.0, elastic().poisson, 1e-3).unwrap();
+    let params = elastic().with(|p| {
+        p.observed = Some(held.clone());
+        p.load = load;
+    });
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut iterations = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device.clone(), &unloaded, params.clone()).unwrap();
+        solver.set_surface(&unloaded.surface).unwrap();
+        let report = solver.solve().unwrap();
+        let on = solver.backend();
+        assert!(report.converged, "{on}: {report:?}");
+        assert!(report.backtracks >= 1, "{on}: {report:?}");
+        assert_eq!(report.elastic_retries, 0, "{on}: {report:?}");
+        assert!(
+            report.iterations < 500,
+            "{on}: {} iterations",
+            report.iterations
+        );
+        assert!(report.potentials_fell(), "{on}: {:?}", report.potentials);
+        eprintln!(
+            "{on}: {} iterations, {} steps back",
+            report.iterations, report.backtracks
+        );
+        iterations.push(report.iterations);
+    }
+    if let [cpu, gpu] = iterations[..] {
+        assert!(
+            cpu.abs_diff(gpu) <= 10,
+            "{cpu} on the CPU, {gpu} on the GPU"
+        );
+    }
+}

@@ -61,9 +61,10 @@ pub const MAX_RELINEARISATIONS: usize = 3;
 /// "Elastic model", *The energy watch*).
 pub const ENERGY_WATCH: usize = 8;
 
-/// How many times one elastic phase goes back to the state it accepted
-/// with half its step before it ends, diverged: the step is then `1 / 64`
-/// of the first.
+/// How many times one smoothed elastic phase goes back to the state it
+/// accepted with half its step before it ends, diverged: the step is then
+/// `1 / 64` of the first. A plain one goes back once from each state it
+/// accepted, its correction linearised there, at most as many times.
 pub const MAX_BACKTRACKS: usize = 6;
 
 /// Whether the potential rose from `last` to `now` by more than its
@@ -87,7 +88,7 @@ pub(crate) struct PhaseRun {
     /// The shear phase of an elastic solve: it also stops on the volumes'
     /// misfit ([`crate::stage2::params::SolverTuning::shear_volume_share`]).
     pub(crate) volume_check: bool,
-    /// A smoothed elastic phase watches its potential ([`ENERGY_WATCH`]);
+    /// A corrected elastic phase watches its potential ([`ENERGY_WATCH`]);
     /// a tracking frame's warm phase does not (it takes 2-10 iterations,
     /// the watch's first measure would cost it a third of an iteration's
     /// time or more, and where it fails the frame is solved again from a

@@ -518,14 +518,16 @@ impl<D: SolveDevice> Tracker<D> {
     /// stopping rule holds or `cap` iterations; `correct` and `relinearise`
     /// as in [`Iteration`]; every iteration told to `steps`.
     ///
-    /// A smoothed elastic phase (but a tracking frame's warm one) watches
+    /// A corrected elastic phase (but a tracking frame's warm one) watches
     /// the potential its force descends ([`SolveDevice::potential`]) every
     /// [`ENERGY_WATCH`] iterations: a state where it did not rise (within
     /// [`crate::stage2::report::ENERGY_ROUNDING`]) is kept
     /// ([`SolveDevice::save`]); where it rose, or the iteration diverged,
-    /// the phase goes back to the state it kept and on from there with
-    /// half its smoothed step, Chebyshev started again, up to
-    /// [`MAX_BACKTRACKS`] times; after those it ends there, diverged
+    /// the phase goes back to the state it kept ([`SolveDevice::restore`])
+    /// and on from there, Chebyshev started again. A smoothed phase goes on
+    /// with half its smoothed step, up to [`MAX_BACKTRACKS`] times; a plain
+    /// one (over a free skin) with its correction linearised there, once
+    /// from each state it kept. After those the phase ends there, diverged
     /// (docs/METHOD.md, "Elastic model", *The energy watch*).
     fn phase(
         &mut self,
@@ -545,7 +547,12 @@ impl<D: SolveDevice> Tracker<D> {
         let mut stopped_by = StopReason::IterationCap;
         let batch = self.device.batch();
         // The state the phase last accepted, where it watches the potential.
-        let mut accepted = if smoothed && run.watch {
+        // A corrected elastic phase that steps plainly (over a free skin).
+        let plain = !smoothed
+            && p.force == ForceModel::Elastic
+            && run.correct
+            && self.device.elastic_rho().is_some();
+        let mut accepted = if (smoothed || plain) && run.watch {
             self.device.potential()?
         } else {
             None
@@ -555,6 +562,8 @@ impl<D: SolveDevice> Tracker<D> {
         }
         let mut potentials: Vec<f64> = accepted.iter().map(|a| a.value).collect();
         let (mut backtracks, mut earlier) = (0, Vec::new());
+        // Whether the plain phase went back to the state it accepted last.
+        let mut back_there = false;
         // Where Chebyshev's weights started: the phase's start, or its last
         // step back.
         let mut restart = 0;
@@ -599,16 +608,28 @@ impl<D: SolveDevice> Tracker<D> {
                     self.device.save()?;
                     potentials.push(now.value);
                     accepted = Some(now);
-                } else if backtracks < MAX_BACKTRACKS && iterations < cap {
+                    back_there = false;
+                } else if backtracks < MAX_BACKTRACKS
+                    && iterations < cap
+                    && (smoothed || !back_there)
+                {
                     backtracks += 1;
                     self.device.restore()?;
-                    damping *= 0.5;
+                    back_there = true;
+                    if smoothed {
+                        damping *= 0.5;
+                    }
                     log::debug!(
                         "the elastic phase's potential rose after {iterations} iterations; back \
-                         to the state it accepted with half its step"
+                         to the state it accepted {}",
+                        if smoothed {
+                            "with half its step"
+                        } else {
+                            "with its correction made there"
+                        }
                     );
                     self.device
-                        .begin(self.iteration(p, run.correct, false, damping))?;
+                        .begin(self.iteration(p, run.correct, !smoothed, damping))?;
                     rho = self.phase_rho(p, damping, smoothed);
                     earlier.extend_from_slice(rule.history());
                     rule = self.phase_rule(p, rho, smoothed);
@@ -1303,6 +1324,48 @@ mod tests {
             let damped = tracker.device.omegas[2][0];
             assert!((damped - 2.0 / (2.0 - rho * rho)).abs() < 1e-6, "{damped}");
         }
+    }
+
+    /// A corrected elastic phase that steps plainly (over a free skin)
+    /// whose potential rose goes back to the state it kept with its
+    /// correction linearised there and the same step; rising again from
+    /// that state it ends, diverged, and the solve runs it again without
+    /// the correction, which converges.
+    #[test]
+    fn a_plain_elastic_phase_whose_potential_rose_is_linearised_again_once() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        let mut tracker = Tracker::new(&model, params, |_, _| {
+            let mut device = Halving::new(1, &model);
+            device.elastic_correction = Some(0.5);
+            device.watched = true;
+            device.rising = true;
+            Ok::<_, Error>(device)
+        })
+        .unwrap();
+        let Ok(report) = tracker.solve();
+        let device = &tracker.device;
+        assert!(report.converged, "{report:?}");
+        // One step back, then back once more to end there.
+        assert_eq!((report.backtracks, device.restores), (1, 2), "{report:?}");
+        assert_eq!(report.elastic_retries, 1, "{report:?}");
+        let elastic: Vec<(bool, bool, f32)> = device.begun[1..]
+            .iter()
+            .map(|it| (it.correct, it.relinearise, it.damping))
+            .collect();
+        assert_eq!(
+            elastic,
+            [(true, true, 1.0), (true, true, 1.0), (false, true, 1.0)]
+        );
+        // Each watched stretch ran its eight iterations before the rise.
+        assert_eq!(device.omegas[1].len(), ENERGY_WATCH);
+        assert_eq!(device.omegas[2].len(), ENERGY_WATCH);
+        // The phase accepted its start alone; the uncorrected one is not
+        // watched.
+        assert_eq!(report.potentials, [vec![1.0]], "{report:?}");
     }
 
     /// A smoothed elastic phase whose potential rose over its first
