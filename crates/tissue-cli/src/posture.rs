@@ -208,6 +208,11 @@ pub struct PostureReport {
     pub unloaded_converged: bool,
     /// Stage-2 solves the unloaded shape and the fit made.
     pub solves: usize,
+    /// Over those solves, the elastic phases run again (a phase that
+    /// diverged or stalled), in all.
+    pub posture_elastic_retries: usize,
+    /// Over those solves, the energy watch's steps back, in all.
+    pub posture_backtracks: usize,
     /// Seconds the unloaded shape and the fit took, the coarse model's
     /// sampling included (the solve's own are `seconds`).
     pub posture_seconds: f64,
@@ -364,7 +369,7 @@ impl Posture {
             (Some(e), Some(residual)) => {
                 lines.push(format!(
                     "{indent}stiffness {e:.3} kPa ({}); unloaded shape {} (loaded again, {residual:.3} \
-                     mm RMS from the rest surface), {} solves in {:.1} s",
+                     mm RMS from the rest surface), {} solves in {:.1} s{}",
                     match r.fit_residual_mm {
                         Some(fit) => format!(
                             "fitted in {} trials on {} particles, free skin {fit:.3} mm from the \
@@ -380,7 +385,14 @@ impl Posture {
                         "NOT found within 0.1 mm"
                     },
                     r.solves,
-                    r.posture_seconds
+                    r.posture_seconds,
+                    match (r.posture_elastic_retries, r.posture_backtracks) {
+                        (0, 0) => String::new(),
+                        (retries, back) => format!(
+                            " (their elastic phases ran again {retries} times and stepped back \
+                             {back}: `posture_elastic_retries`, `posture_backtracks`)"
+                        ),
+                    }
                 ));
             }
             _ => lines.push(format!(
@@ -487,6 +499,8 @@ pub fn prepare(
                 unloaded_residual_mm: None,
                 unloaded_converged: true,
                 solves: 0,
+                posture_elastic_retries: 0,
+                posture_backtracks: 0,
                 posture_seconds: 0.0,
             },
         }));
@@ -543,6 +557,8 @@ pub fn prepare(
         unloaded_residual_mm: Some(unloaded.shape.residual),
         unloaded_converged: unloaded.shape.converged,
         solves: unloaded.solves,
+        posture_elastic_retries: unloaded.elastic_retries,
+        posture_backtracks: unloaded.backtracks,
         posture_seconds: started.elapsed().as_secs_f64(),
     };
     Ok(Some(Posture {
@@ -601,6 +617,8 @@ mod tests {
             unloaded_residual_mm: Some(0.01),
             unloaded_converged: true,
             solves: 8,
+            posture_elastic_retries: 0,
+            posture_backtracks: 0,
             posture_seconds: 1.0,
         };
         let (low, high) = FIT_BOUNDS_KPA;

@@ -66,6 +66,10 @@ fn the_postures_solve_from_the_unloaded_shape() {
     let unloaded = r["unloaded_residual_mm"].as_f64().unwrap();
     assert!(unloaded <= 0.1, "{unloaded}");
     assert_eq!(r["unloaded_converged"], true);
+    // What happened in the posture's solves, counted.
+    assert!(r["solves"].as_u64().unwrap() >= 1);
+    assert!(r["posture_elastic_retries"].is_u64(), "{r}");
+    assert!(r["posture_backtracks"].is_u64(), "{r}");
     // The load of 1 g along -y on tissue of 3 kPa at 0.49, per mm:
     // rho g / (2 mu) with mu = E / (2 (1 + nu)).
     let load = r["params"]["load"].as_array().unwrap();

@@ -258,8 +258,9 @@ impl Model {
     /// vertex; `None` finds them, those that move less than a thousandth
     /// of a connection length. The elastic force always. `progress`, if
     /// given, is called after each of the search's solves with a dict:
-    /// `solve`, `iterations`, `converged`. The deformer's `posture` says
-    /// what was found. Where gravity does not change and no stiffness is
+    /// `solve`, `iterations`, `converged`, `elastic_retries`, `backtracks`.
+    /// The deformer's `posture` says what was found (its `elastic_retries`
+    /// and `backtracks` over all the solves). Where gravity does not change and no stiffness is
     /// given there is no load to fit: a RuntimeWarning, and the deformer
     /// is the plain elastic one. An unloaded shape not found within 0.1 mm
     /// also warns. `fit_particles`: the stiffness is fitted on a model of
@@ -383,7 +384,9 @@ impl Model {
                             callback.tell(|info| {
                                 info.set_item("solve", p.solve)?;
                                 info.set_item("iterations", p.iterations)?;
-                                info.set_item("converged", p.converged)
+                                info.set_item("converged", p.converged)?;
+                                info.set_item("elastic_retries", p.elastic_retries)?;
+                                info.set_item("backtracks", p.backtracks)
                             });
                         },
                     )?;
@@ -429,6 +432,8 @@ impl Model {
         posture.set_item("unloaded_converged", unloaded.shape.converged)?;
         posture.set_item("held_vertices", held.iter().filter(|&&h| h).count())?;
         posture.set_item("solves", unloaded.solves)?;
+        posture.set_item("elastic_retries", unloaded.elastic_retries)?;
+        posture.set_item("backtracks", unloaded.backtracks)?;
         let load = unloaded.deformed_load;
         posture.set_item("load", (load.x, load.y, load.z))?;
         Ok(Deformer {

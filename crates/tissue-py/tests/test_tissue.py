@@ -190,6 +190,9 @@ def test_a_posture_with_a_given_stiffness_solves_from_the_unloaded_shape(model):
     assert posture["unloaded_converged"] and 0 <= posture["unloaded_residual"] < 0.1
     assert 0 < posture["held_vertices"] < len(sagged)
     assert [s["solve"] for s in steps] == list(range(1, posture["solves"] + 1))
+    # What happened in the solves, told of each and summed in the posture.
+    assert posture["elastic_retries"] == sum(s["elastic_retries"] for s in steps)
+    assert posture["backtracks"] == sum(s["backtracks"] for s in steps)
     # The deformed posture's gravity (towards -y) is the load inside.
     assert posture["load"][1] < 0 and posture["load"][0] == posture["load"][2] == 0
     assert posed.solve(sagged)["converged"]

@@ -263,6 +263,10 @@ pub struct SolveProgress {
     pub iterations: usize,
     /// Whether it converged.
     pub converged: bool,
+    /// Its elastic phases run again ([`DeformReport::elastic_retries`]).
+    pub elastic_retries: usize,
+    /// Its energy watch's steps back ([`DeformReport::backtracks`]).
+    pub backtracks: usize,
 }
 
 /// The organ's unloaded shape and what the deformed posture is solved with.
@@ -278,6 +282,12 @@ pub struct Unloaded {
     pub deformed_load: Vec3,
     /// Every stage-2 solve the search made.
     pub solves: usize,
+    /// Over those solves, the elastic phases run again
+    /// ([`DeformReport::elastic_retries`]).
+    pub elastic_retries: usize,
+    /// Over those solves, the energy watch's steps back
+    /// ([`DeformReport::backtracks`]).
+    pub backtracks: usize,
 }
 
 /// The unloaded shape of `model` (its positions the rest scan) under
@@ -366,6 +376,8 @@ pub fn unload<P: PostureDevice>(
         held,
         progress,
         count: 0,
+        elastic_retries: 0,
+        backtracks: 0,
         last_round: None,
         laplacian: None,
     };
@@ -448,13 +460,14 @@ pub fn unload<P: PostureDevice>(
             }
         }
     };
-    let solves = solves.count;
     Ok(Unloaded {
         shape,
         stiffness_kpa,
         fit,
         deformed_load: deformed_per_kpa / stiffness_kpa,
-        solves,
+        solves: solves.count,
+        elastic_retries: solves.elastic_retries,
+        backtracks: solves.backtracks,
     })
 }
 
@@ -468,6 +481,9 @@ struct Solves<'a, P: PostureDevice> {
     held: &'a [bool],
     progress: &'a mut dyn FnMut(&SolveProgress),
     count: usize,
+    /// The solves' elastic phases run again and steps back, in all.
+    elastic_retries: usize,
+    backtracks: usize,
     /// The last round's solver, which the round's confirmation
     /// ([`Accuracy::Full`] for the same guess and load) solves on from
     /// where it stopped instead of preparing the model again.
@@ -538,10 +554,14 @@ impl<P: PostureDevice> Solves<'_, P> {
             }
         };
         let report = solver.solve()?;
+        self.elastic_retries += report.elastic_retries;
+        self.backtracks += report.backtracks;
         (self.progress)(&SolveProgress {
             solve: self.count,
             iterations: report.iterations,
             converged: report.converged,
+            elastic_retries: report.elastic_retries,
+            backtracks: report.backtracks,
         });
         let loaded = solver.positions().to_vec();
         if accuracy == Accuracy::Round {
