@@ -55,6 +55,16 @@ pub const ELASTIC_RETRIES: usize = 5;
 /// (docs/METHOD.md, "Elastic model", *Preparation and 1M*).
 pub const MAX_RELINEARISATIONS: usize = 3;
 
+/// The most iterations an elastic solve's warm phase (from the predicted
+/// start) runs before it is taken for stalled and the frame is solved
+/// again from a shear phase. A warm phase starts near its answer: the
+/// unloaded shape's warm rounds and the deformed postures take 20-120
+/// iterations at 10k, tracking frames 2-60; one that runs this long
+/// circles a state far from the one its correction was made at, and left
+/// alone it ran to the 5,000-iteration cap (the first round of breast_e's
+/// rest surface taken as an unloaded shape at 1.3 kPa).
+pub const WARM_ITERATIONS: usize = 500;
+
 /// An elastic phase measures the potential its force descends every this
 /// many iterations (the GPU's batch): a phase that fails raises it within
 /// its first five iterations, a healthy one never does (docs/METHOD.md,

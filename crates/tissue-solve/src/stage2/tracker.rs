@@ -16,7 +16,8 @@ use crate::stage2::controls::check_same_topology;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::phase::{
     DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
-    MAX_RELINEARISATIONS, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches, Steps, rose,
+    MAX_RELINEARISATIONS, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches, Steps,
+    WARM_ITERATIONS, rose,
 };
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
@@ -325,9 +326,10 @@ impl<D: SolveDevice> Tracker<D> {
             )?
         } else if self.elastic_warm {
             let correct = self.elastic_correct;
-            let warm = self.phase(
+            let cap = params.max_iterations.min(WARM_ITERATIONS);
+            let mut warm = self.phase(
                 &params,
-                params.max_iterations,
+                cap,
                 PhaseRun {
                     correct,
                     watch: false,
@@ -335,6 +337,11 @@ impl<D: SolveDevice> Tracker<D> {
                 },
                 &mut steps,
             )?;
+            if warm.stopped_by == StopReason::IterationCap && cap < params.max_iterations {
+                // It circles far from its answer: stalled.
+                warm.stopped_by = StopReason::Stalled;
+                warm.converged = false;
+            }
             if warm.stopped_by.failed() {
                 log::info!(
                     "the elastic solve {} from the predicted start after {} iterations; \
@@ -1366,6 +1373,46 @@ mod tests {
         // The phase accepted its start alone; the uncorrected one is not
         // watched.
         assert_eq!(report.potentials, [vec![1.0]], "{report:?}");
+    }
+
+    /// A warm elastic phase (a tracking frame's, from the predicted start)
+    /// that runs [`WARM_ITERATIONS`] without reaching the tolerance is
+    /// taken for stalled: the frame is solved again from a shear phase,
+    /// which converges, the retry counted.
+    #[test]
+    fn a_warm_phase_that_runs_too_long_is_solved_again_after_a_shear_phase() {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        let mut tracker = Tracker::new(&model, params, |_, _| {
+            let mut device = Halving::new(1, &model);
+            device.elastic_correction = Some(0.5);
+            Ok::<_, Error>(device)
+        })
+        .unwrap();
+        let Ok(first) = tracker.solve();
+        assert!(first.converged, "{first:?}");
+        // The next frame's warm phase keeps its step: it never converges.
+        tracker.device.stall_phases = 1;
+        let phases = tracker.device.begun.len();
+        let Ok(report) = tracker.solve();
+        assert!(report.converged, "{report:?}");
+        assert_eq!(report.elastic_retries, 1, "{report:?}");
+        let device = &tracker.device;
+        assert_eq!(device.omegas[phases].len(), WARM_ITERATIONS);
+        assert!(report.iterations > WARM_ITERATIONS, "{report:?}");
+        // Then a shear phase and an elastic one.
+        let forces: Vec<ForceModel> = device.begun[phases..].iter().map(|it| it.force).collect();
+        assert_eq!(
+            forces,
+            [
+                ForceModel::Elastic,
+                ForceModel::Symmetric,
+                ForceModel::Elastic
+            ]
+        );
     }
 
     /// A smoothed elastic phase whose potential rose over its first
