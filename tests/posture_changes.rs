@@ -57,6 +57,11 @@ fn scans(device: &Device, unloaded: &ParticleModel, rest: Vec3, deformed: Vec3) 
         solver.set_surface(&unloaded.surface).unwrap();
         let report = solver.solve().unwrap();
         assert!(report.converged, "the forward solve under {g}: {report:?}");
+        assert!(
+            report.potentials_fell(),
+            "under {g}: {:?}",
+            report.potentials
+        );
         let positions = solver.positions().to_vec();
         let rotations = solver.rotations().unwrap();
         let carried = embedding.moved(&unloaded.positions, &positions, &rotations);
@@ -100,7 +105,8 @@ fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
 /// particles, from `rest` to `deformed` gravity: it finds the stiffness
 /// within 10 %, an unloaded shape that loaded again gives the rest skin
 /// within 0.1 mm (measured in full) and lies within `unloaded_mm` of the
-/// truth's (RMS over the particles), every solve converged, in at most
+/// truth's (RMS over the particles), every solve converged with every
+/// state its watched phases accepted lowering the potential, in at most
 /// [`MAX_SOLVES`] solves; from that shape the deformed posture, the skin
 /// free, lands within `skin_mm` of the truth's. Returns the fitted
 /// stiffness.
@@ -138,6 +144,11 @@ fn recovered(
         found.solves
     );
     assert!(solves.iter().all(|s| s.converged), "{posture}: {solves:?}");
+    // Every state a watched phase accepted lowered the potential.
+    assert!(
+        solves.iter().all(|s| s.potentials_fell),
+        "{posture}: {solves:?}"
+    );
     let off = found.stiffness_kpa / E_KPA - 1.0;
     assert!(off.abs() <= 0.10, "{posture}: {} kPa", found.stiffness_kpa);
     let shape = &found.shape;

@@ -267,6 +267,9 @@ pub struct SolveProgress {
     pub elastic_retries: usize,
     /// Its energy watch's steps back ([`DeformReport::backtracks`]).
     pub backtracks: usize,
+    /// Whether every state its watched phases accepted lowered the
+    /// potential ([`DeformReport::potentials_fell`]).
+    pub potentials_fell: bool,
 }
 
 /// The organ's unloaded shape and what the deformed posture is solved with.
@@ -562,6 +565,7 @@ impl<P: PostureDevice> Solves<'_, P> {
             converged: report.converged,
             elastic_retries: report.elastic_retries,
             backtracks: report.backtracks,
+            potentials_fell: report.potentials_fell(),
         });
         let loaded = solver.positions().to_vec();
         if accuracy == Accuracy::Round {
