@@ -992,6 +992,22 @@ mod tests {
         }
     }
 
+    /// A tracker of [`star`] with the elastic force on a [`Halving`]
+    /// device running `batch` iterations at a time, set up by `setup`.
+    fn elastic_tracker(batch: usize, setup: impl FnOnce(&mut Halving)) -> Tracker<Halving> {
+        let model = star();
+        let params = DeformParams {
+            force: ForceModel::Elastic,
+            ..DeformParams::default()
+        };
+        Tracker::new(&model, params, |_, _| {
+            let mut device = Halving::new(batch, &model);
+            setup(&mut device);
+            Ok::<_, Error>(device)
+        })
+        .unwrap()
+    }
+
     /// A one-phase solve (the symmetric force) of the star on a device
     /// running `batch` iterations at a time.
     fn solved(batch: usize) -> (DeformReport, Halving) {
@@ -1252,21 +1268,13 @@ mod tests {
     /// step, as a divergence does.
     #[test]
     fn a_stalled_smoothed_elastic_phase_is_linearised_again_where_it_stalled() {
-        let model = star();
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
         let most = MAX_RELINEARISATIONS;
         for stalls in [1, most, most + 1] {
-            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
-                let mut device = Halving::new(1, &model);
+            let mut tracker = elastic_tracker(1, |device| {
                 device.elastic_correction = Some(0.5);
                 device.smoothed = true;
                 device.stall_phases = stalls;
-                Ok::<_, Error>(device)
-            })
-            .unwrap();
+            });
             let Ok(report) = tracker.solve();
             assert!(report.converged, "{stalls}: {report:?}");
             assert_eq!(report.elastic_retries, stalls, "{report:?}");
@@ -1298,20 +1306,16 @@ mod tests {
     /// without its correction and the full step.
     #[test]
     fn a_diverged_smoothed_elastic_phase_runs_again_with_half_its_step() {
-        let model = star();
         let params = DeformParams {
             force: ForceModel::Elastic,
             ..DeformParams::default()
         };
         for diverging in [1, 2, 3] {
-            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
-                let mut device = Halving::new(1, &model);
+            let mut tracker = elastic_tracker(1, |device| {
                 device.elastic_correction = Some(0.5);
                 device.smoothed = true;
                 device.diverge_phases = diverging;
-                Ok::<_, Error>(device)
-            })
-            .unwrap();
+            });
             let Ok(report) = tracker.solve();
             assert!(report.converged, "{diverging}: {report:?}");
             assert_eq!(report.elastic_retries, diverging, "{report:?}");
@@ -1340,19 +1344,11 @@ mod tests {
     /// the correction, which converges.
     #[test]
     fn a_plain_elastic_phase_whose_potential_rose_is_linearised_again_once() {
-        let model = star();
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
-        let mut tracker = Tracker::new(&model, params, |_, _| {
-            let mut device = Halving::new(1, &model);
+        let mut tracker = elastic_tracker(1, |device| {
             device.elastic_correction = Some(0.5);
             device.watched = true;
             device.rising = true;
-            Ok::<_, Error>(device)
-        })
-        .unwrap();
+        });
         let Ok(report) = tracker.solve();
         let device = &tracker.device;
         assert!(report.converged, "{report:?}");
@@ -1381,17 +1377,9 @@ mod tests {
     /// which converges, the retry counted.
     #[test]
     fn a_warm_phase_that_runs_too_long_is_solved_again_after_a_shear_phase() {
-        let model = star();
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
-        let mut tracker = Tracker::new(&model, params, |_, _| {
-            let mut device = Halving::new(1, &model);
+        let mut tracker = elastic_tracker(1, |device| {
             device.elastic_correction = Some(0.5);
-            Ok::<_, Error>(device)
-        })
-        .unwrap();
+        });
         let Ok(first) = tracker.solve();
         assert!(first.converged, "{first:?}");
         // The next frame's warm phase keeps its step: it never converges.
@@ -1424,21 +1412,13 @@ mod tests {
     /// next frame's warm phase.
     #[test]
     fn a_smoothed_elastic_phase_whose_potential_rose_steps_back_with_half_its_step() {
-        let model = star();
-        let params = DeformParams {
-            force: ForceModel::Elastic,
-            ..DeformParams::default()
-        };
         for (batch, watched) in [(1, true), (8, true), (1, false)] {
-            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
-                let mut device = Halving::new(batch, &model);
+            let mut tracker = elastic_tracker(batch, |device| {
                 device.elastic_correction = Some(0.5);
                 device.smoothed = true;
                 device.watched = watched;
                 device.rising = true;
-                Ok::<_, Error>(device)
-            })
-            .unwrap();
+            });
             let Ok(report) = tracker.solve();
             let device = &tracker.device;
             assert!(report.converged, "{report:?}");
@@ -1484,19 +1464,15 @@ mod tests {
     /// phase that converged did.
     #[test]
     fn a_diverged_elastic_phase_drops_the_correction_before_the_step() {
-        let model = star();
         let params = DeformParams {
             force: ForceModel::Elastic,
             ..DeformParams::default()
         };
         for correction in [Some(0.5), None] {
-            let mut tracker = Tracker::new(&model, params.clone(), |_, _| {
-                let mut device = Halving::new(1, &model);
+            let mut tracker = elastic_tracker(1, |device| {
                 device.elastic_correction = correction;
                 device.diverge_phases = 2;
-                Ok::<_, Error>(device)
-            })
-            .unwrap();
+            });
             let Ok(report) = tracker.solve();
             assert!(report.converged, "{report:?}");
             assert_eq!(report.elastic_retries, 2);
