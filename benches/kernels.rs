@@ -117,7 +117,10 @@ fn kernels(c: &mut Criterion) {
     let aggregates = Aggregates::new(rest, connections, &free, cell, 1_000).expect("aggregates");
     let made_for = CorrectionFor {
         contraction: 0.01,
-        volume_delta: Some(tissue_solve::coarse::SHEAR_STEP * f64::from(plan.lambda_max)),
+        smoothing: Some(tissue_solve::coarse::Smoothing {
+            delta: tissue_solve::coarse::SHEAR_STEP * f64::from(plan.lambda_max),
+            sweeps: tissue_solve::coarse::SMOOTHER_SWEEPS,
+        }),
         rho: Some(0.9),
         direct_max_aggregates: 10_000,
         envelope: false,

@@ -5,6 +5,8 @@
 //! tracking frames.
 #![allow(clippy::unwrap_used, reason = "tests")]
 
+mod common;
+
 use glam::Vec3;
 use tissue::deform::{Rigid, deform_surface, interpolate};
 use tissue::{SamplingParams, SurfaceMesh, phantom};
@@ -121,6 +123,76 @@ fn the_volume_smoother_needs_small_aggregates() {
     )
     .unwrap();
     assert!(off.device().volume_smoother().is_none());
+}
+
+/// A nearly incompressible model (Poisson ratio 0.499: a volume weight
+/// five times the default's) takes its volume smoother with more Jacobi
+/// sweeps: with the default's two the smoother's iteration diverges, and
+/// the plain step that replaced it ran the sag to the 5,000-iteration cap
+/// at 3,000 particles. With the sweeps it needs, the sag converges from
+/// rest, no retry, on both devices (the GPU on lavapipe in CI) in the same
+/// iterations within a few, to the same positions.
+#[test]
+fn a_nearly_incompressible_model_smooths_with_more_sweeps_and_converges() {
+    use tissue::backend::{Device, Solver};
+    use tissue_cpu::coarse::{MAX_SMOOTHER_SWEEPS, SMOOTHER_MAX_RATE, SMOOTHER_SWEEPS};
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(3_000),
+    )
+    .unwrap()
+    .model;
+    let sweeps = |poisson: f32| {
+        let params = DeformParams::default().with(|p| p.poisson = poisson);
+        let deformer = Deformer::new(&model, params).unwrap();
+        let (smoothing, rho) = deformer
+            .device()
+            .volume_smoother()
+            .unwrap_or_else(|| panic!("at {poisson} the elastic solve smooths"));
+        assert!(rho < SMOOTHER_MAX_RATE, "{poisson}: {rho}");
+        smoothing.sweeps
+    };
+    assert_eq!(sweeps(0.49), SMOOTHER_SWEEPS);
+    let stiff = sweeps(0.499);
+    assert!(
+        stiff > SMOOTHER_SWEEPS && stiff <= MAX_SMOOTHER_SWEEPS,
+        "{stiff} sweeps at 0.499"
+    );
+    let params = DeformParams::default().with(|p| p.poisson = 0.499);
+    let sagged = tissue::deform::sagged_breast();
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
+        solver.set_surface(&sagged).unwrap();
+        let report = solver.solve().unwrap();
+        let on = solver.backend();
+        assert!(report.converged, "{on}: {report:?}");
+        assert_eq!(report.elastic_retries, 0, "{on}: {report:?}");
+        assert!(report.iterations <= 100, "{on}: {report:?}");
+        eprintln!(
+            "{on}: {stiff} sweeps, {} iterations, {} steps back",
+            report.iterations, report.backtracks
+        );
+        solved.push((
+            report.iterations,
+            solver.positions().to_vec(),
+            solver.plan().size,
+        ));
+    }
+    if let [(cpu, on_cpu, size), (gpu, on_gpu, _)] = &solved[..] {
+        assert!(
+            cpu.abs_diff(*gpu) <= 3,
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+        let worst = on_cpu
+            .iter()
+            .zip(on_gpu)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f32, f32::max);
+        assert!(worst <= 1e-3 * size, "{worst} mm apart");
+    }
 }
 
 /// Above `elastic_coarse_direct_max_aggregates` the elastic coarse matrix

@@ -18,9 +18,10 @@ pub(crate) struct ElasticCoarseBuffers {
     pub(crate) aggregates: u32,
     /// Whether a linearisation (gradients and factor) is uploaded.
     pub(crate) linearised: bool,
-    /// The volume smoother's `delta`, where the uploaded linearisation has
-    /// one (its iterations then make the smoothed step, `Pass::SmoothedStep`).
-    pub(crate) smoother: Option<f32>,
+    /// The volume smoother's `delta` and Jacobi sweeps, where the uploaded
+    /// linearisation has one (its iterations then make the smoothed step,
+    /// `Pass::SmoothedStep`).
+    pub(crate) smoother: Option<(f32, usize)>,
     aggregate: Storage<u32>,
     member_starts: Storage<u32>,
     members: Storage<u32>,
@@ -255,7 +256,7 @@ impl ElasticCoarseBuffers {
                         &format!("the pressures buffer ({particles} particles)"),
                     )
                 })?;
-                Some(smoother.delta() as f32)
+                Some((smoother.delta() as f32, smoother.sweeps()))
             }
             None => None,
         };

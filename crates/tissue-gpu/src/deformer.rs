@@ -6,8 +6,8 @@ use std::sync::Arc;
 use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
 use tissue_solve::coarse::{
-    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, SharedLaplacian, coarse_space_shared,
-    elastic_aggregates, volume_smoother,
+    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, SharedLaplacian, Smoothing,
+    coarse_space_shared, elastic_aggregates, volume_smoother,
 };
 use tissue_solve::model::Elastic;
 use tissue_solve::stage2::{Plan, Potential};
@@ -100,9 +100,9 @@ struct ElasticHost {
     connections: Connections,
     elastic: Arc<Elastic>,
     aggregates: Aggregates,
-    /// The volume smoother's `delta` and its iteration's contraction at
+    /// How the volume smoother is made and its iteration's contraction at
     /// rest, where the elastic phase smooths with it (the CPU path's).
-    volume_smoother: Option<(f64, f32)>,
+    volume_smoother: Option<(Smoothing, f32)>,
     /// Up to how many aggregates the correction is factored, cycled above.
     direct_max: usize,
 }
@@ -484,7 +484,7 @@ impl GpuSolve {
             &host.elastic,
             CorrectionFor {
                 contraction: iteration.contraction,
-                volume_delta: host.volume_smoother.map(|(delta, _)| delta),
+                smoothing: host.volume_smoother.map(|(smoothing, _)| smoothing),
                 rho: host.volume_smoother.map(|(_, rho)| rho),
                 direct_max_aggregates: host.direct_max,
                 envelope: true,

@@ -542,7 +542,7 @@ mod tests {
             elastic,
             CorrectionFor {
                 contraction: 0.1,
-                volume_delta: None,
+                smoothing: None,
                 rho: Some(0.5),
                 direct_max_aggregates: 30,
                 envelope: true,

@@ -1,6 +1,5 @@
 //! The compiled kernels and the step that records them.
 
-use tissue_solve::coarse::SMOOTHER_SWEEPS;
 use tissue_solve::stage2::{Choices, Pass, RotationMethod};
 
 use crate::multilevel::{BLOCK_CYCLE_KERNELS, CYCLE_KERNELS};
@@ -198,12 +197,12 @@ impl Kernel {
             Pass::Force => out.push(Kernel::DeformationForce),
             Pass::ElasticForce => out.push(Kernel::ElasticForce),
             Pass::PlainStep => out.push(Kernel::Integrate),
-            Pass::SmoothedStep { cycled } => {
+            Pass::SmoothedStep { cycled, sweeps } => {
                 // The pressures' first Jacobi sweep in `pressure_start`, each
                 // further one a `pressure_sweep` after a `pressure_forces`,
                 // and a last `pressure_forces` for the step.
                 out.extend([Kernel::SmootherResidual, Kernel::PressureStart]);
-                for _ in 1..SMOOTHER_SWEEPS {
+                for _ in 1..sweeps {
                     out.extend([Kernel::PressureForces, Kernel::PressureSweep]);
                 }
                 out.extend([Kernel::PressureForces, Kernel::SmoothedStep]);
@@ -529,17 +528,21 @@ mod tests {
     }
 
     /// The GPU's smoothed step runs as many Jacobi sweeps on the pressures
-    /// as the CPU's smoother: the first in `pressure_start`, each further
-    /// one a `pressure_sweep` after a `pressure_forces`, and a last
-    /// `pressure_forces` for the step.
+    /// as its pass asks (the CPU's smoother, `VolumeSmoother::sweeps`): the
+    /// first in `pressure_start`, each further one a `pressure_sweep` after
+    /// a `pressure_forces`, and a last `pressure_forces` for the step.
     #[test]
-    fn the_smoothed_step_sweeps_as_often_as_the_cpu_smoother() {
-        let smoothed = kernels(Pass::SmoothedStep { cycled: false });
-        let count = |kernel| smoothed.iter().filter(|&&k| k == kernel).count();
-        let sweeps = tissue_solve::coarse::SMOOTHER_SWEEPS;
-        assert_eq!(count(Kernel::PressureStart), 1);
-        assert_eq!(count(Kernel::PressureSweep), sweeps - 1);
-        assert_eq!(count(Kernel::PressureForces), sweeps);
+    fn the_smoothed_step_sweeps_as_often_as_its_pass_asks() {
+        for sweeps in [1, 2, 5, tissue_solve::coarse::MAX_SMOOTHER_SWEEPS] {
+            let smoothed = kernels(Pass::SmoothedStep {
+                cycled: false,
+                sweeps,
+            });
+            let count = |kernel| smoothed.iter().filter(|&&k| k == kernel).count();
+            assert_eq!(count(Kernel::PressureStart), 1);
+            assert_eq!(count(Kernel::PressureSweep), sweeps - 1);
+            assert_eq!(count(Kernel::PressureForces), sweeps);
+        }
     }
 
     /// The default iteration (the symmetric force, the two-level solve
@@ -622,8 +625,14 @@ mod tests {
                 BLOCK_CYCLE_KERNELS,
             ),
             (
-                Pass::SmoothedStep { cycled: false },
-                Pass::SmoothedStep { cycled: true },
+                Pass::SmoothedStep {
+                    cycled: false,
+                    sweeps: 2,
+                },
+                Pass::SmoothedStep {
+                    cycled: true,
+                    sweeps: 2,
+                },
                 Kernel::ElasticForward,
                 Kernel::ElasticBackward,
                 BLOCK_CYCLE_KERNELS,

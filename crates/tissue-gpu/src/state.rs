@@ -444,9 +444,10 @@ impl DeformState {
         Holds {
             elastic: self.elastic,
             coarse: (self.coarse.aggregates > 0).then_some(self.coarse.cycles.groups > 0),
-            elastic_correction: elastic
-                .linearised
-                .then_some((elastic.cycles.groups > 0, elastic.smoother.is_some())),
+            elastic_correction: elastic.linearised.then_some((
+                elastic.cycles.groups > 0,
+                elastic.smoother.map(|(_, sweeps)| sweeps),
+            )),
         }
     }
 
@@ -595,10 +596,13 @@ impl DeformState {
     fn smoothed_delta(&self) -> f32 {
         let smoothed = matches!(
             self.choices().correction,
-            Correction::Elastic { smoothed: true, .. }
+            Correction::Elastic {
+                smoothed: Some(_),
+                ..
+            }
         );
         match self.elastic_coarse.smoother {
-            Some(delta) if smoothed => delta,
+            Some((delta, _)) if smoothed => delta,
             _ => 0.0,
         }
     }

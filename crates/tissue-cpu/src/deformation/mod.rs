@@ -56,8 +56,8 @@ pub use crate::kernels::step_norms::step_norms;
 pub use crate::kernels::volume_smoother::elastic_residual;
 
 use tissue_solve::coarse::{
-    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, coarse_space_shared, elastic_aggregates,
-    volume_smoother,
+    Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, Smoothing, coarse_space_shared,
+    elastic_aggregates, volume_smoother,
 };
 
 /// Stage 2 on the CPU for one particle model: the tracker (rest shape,
@@ -242,10 +242,10 @@ pub struct CpuSolve {
     /// Up to how many aggregates the elastic coarse matrix is factored
     /// (`SolverTuning::elastic_coarse_direct_max_aggregates`).
     elastic_direct_max: usize,
-    /// The volume smoother's `delta` and its two-level iteration's
+    /// How the volume smoother is made and its two-level iteration's
     /// contraction, estimated once at rest, where the elastic phase's
     /// correction smooths with it.
-    volume_smoother: Option<(f64, f32)>,
+    volume_smoother: Option<(Smoothing, f32)>,
     /// What the iterations of the solve in hand run with.
     iteration: Option<Iteration>,
     /// Where the last batch of more than one iteration started, for a replay.
@@ -351,10 +351,10 @@ impl CpuSolve {
         self.elastic_coarse.as_deref()
     }
 
-    /// The volume smoother's `delta` and its iteration's contraction at
+    /// How the volume smoother is made and its iteration's contraction at
     /// rest, where the elastic phase smooths with it
     /// (`tissue_solve::coarse::volume_smoother`).
-    pub fn volume_smoother(&self) -> Option<(f64, f32)> {
+    pub fn volume_smoother(&self) -> Option<(Smoothing, f32)> {
         self.volume_smoother
     }
 
@@ -373,7 +373,7 @@ impl CpuSolve {
         }
         let made_for = CorrectionFor {
             contraction: iteration.contraction,
-            volume_delta: self.volume_smoother.map(|(delta, _)| delta),
+            smoothing: self.volume_smoother.map(|(smoothing, _)| smoothing),
             rho: self.volume_smoother.map(|(_, rho)| rho),
             direct_max_aggregates: self.elastic_direct_max,
             envelope: false,
@@ -415,7 +415,7 @@ impl CpuSolve {
             .elastic_coarse
             .as_deref()
             .filter(|_| self.elastic_aggregates.is_some())
-            .map(|c| (c.multilevel().is_some(), c.smoother().is_some()));
+            .map(|c| (c.multilevel().is_some(), c.smoother().map(|s| s.sweeps())));
         Holds {
             elastic: self.elastic.is_some(),
             coarse: self.coarse.as_deref().map(|c| c.multilevel().is_some()),

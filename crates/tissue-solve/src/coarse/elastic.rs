@@ -25,7 +25,7 @@ use tissue_core::{Connections, DeformError, Error};
 use crate::coarse::cholesky::Cholesky;
 use crate::coarse::laplacian::{Aggregates, Envelope, OUTSIDE, centres, power_start};
 use crate::coarse::multilevel::{BlockMultilevel, scalar_rows};
-use crate::coarse::volume_smoother::VolumeSmoother;
+use crate::coarse::volume_smoother::{Smoothing, VolumeSmoother};
 use crate::model::elastic::{Elastic, VolumeLinearisation, cofactor};
 use crate::stage2::device::Iteration;
 use crate::stage2::params::ForceModel;
@@ -62,9 +62,9 @@ pub const REST_RATE_STEPS: usize = 40;
 pub struct CorrectionFor {
     /// The plain step's `c alpha`.
     pub contraction: f32,
-    /// The volume smoother's `delta` ([`crate::coarse::volume_smoother`]); `None`:
-    /// the plain step smooths.
-    pub volume_delta: Option<f64>,
+    /// How the volume smoother is made ([`crate::coarse::volume_smoother`]);
+    /// `None`: the plain step smooths.
+    pub smoothing: Option<Smoothing>,
     /// The two-level iteration's contraction where it is known (with the
     /// volume smoother, estimated once per model at rest: [`rest_rate`]);
     /// `None`: estimated where the correction is made, in [`RATE_STEPS`]
@@ -187,14 +187,14 @@ impl ElasticCoarse {
             },
             || {
                 let entries = Entries::of_own(own, connections, &elastic.mirrors);
-                let smoother = made_for.volume_delta.map(|delta| {
+                let smoother = made_for.smoothing.map(|smoothing| {
                     let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
                     VolumeSmoother::new(
                         &entries,
                         &linearisation.weights,
                         connections,
                         &inside,
-                        delta,
+                        smoothing,
                     )
                 });
                 (entries, smoother)
@@ -761,7 +761,7 @@ mod tests {
         let elastic = Elastic::new(&rest, &connections, 0.49, &free);
         let plain = CorrectionFor {
             contraction: 0.002,
-            volume_delta: None,
+            smoothing: None,
             rho: None,
             direct_max_aggregates: usize::MAX,
             envelope: false,
@@ -947,7 +947,10 @@ mod tests {
         let (_, lambda_max) = crate::stage2::spectrum::laplacian_extremes(&connections, &free);
         let made_for = CorrectionFor {
             contraction: 0.002,
-            volume_delta: Some(crate::coarse::volume_smoother::SHEAR_STEP * f64::from(lambda_max)),
+            smoothing: Some(Smoothing {
+                delta: crate::coarse::volume_smoother::SHEAR_STEP * f64::from(lambda_max),
+                sweeps: crate::coarse::volume_smoother::SMOOTHER_SWEEPS,
+            }),
             rho,
             direct_max_aggregates: usize::MAX,
             envelope,
@@ -1147,8 +1150,11 @@ mod tests {
     /// as docs/METHOD.md measured them, and on by default.
     #[test]
     fn the_volume_smoother_defaults_are_the_measured_ones() {
-        use crate::coarse::volume_smoother::{RELAXATION, SHEAR_STEP, SMOOTHER_SWEEPS};
+        use crate::coarse::volume_smoother::{
+            MAX_SMOOTHER_SWEEPS, RELAXATION, SHEAR_STEP, SMOOTHER_SWEEPS,
+        };
         assert_eq!((SHEAR_STEP, RELAXATION, SMOOTHER_SWEEPS), (2.0, 0.5, 2));
+        assert_eq!(MAX_SMOOTHER_SWEEPS, 32);
         assert_eq!(REST_RATE_STEPS, 40);
         assert!(
             crate::stage2::params::DeformParams::default()

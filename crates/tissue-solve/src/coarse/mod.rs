@@ -28,4 +28,6 @@ pub use multilevel::{
     BLOCK_GROUP, BlockMultilevel, CYCLES, GROUP, JACOBI_WEIGHT, Multilevel, SWEEPS, WEIGHT_MARGIN,
     WEIGHT_STEPS,
 };
-pub use volume_smoother::{RELAXATION, SHEAR_STEP, SMOOTHER_SWEEPS, VolumeSmoother};
+pub use volume_smoother::{
+    MAX_SMOOTHER_SWEEPS, RELAXATION, SHEAR_STEP, SMOOTHER_SWEEPS, Smoothing, VolumeSmoother,
+};

@@ -18,8 +18,8 @@
 //! g_i`), `M = delta I + H H^T`, and by the Woodbury identity
 //! `M^-1 r = (r - H z) / delta` with `(delta I + H^T H) z = H^T r`: one
 //! unknown (a pressure) per particle. That system is not diagonally
-//! dominant, so `z` is [`SMOOTHER_SWEEPS`] Jacobi sweeps relaxed by [`RELAXATION`]
-//! from zero, which keep `M^-1` symmetric (a fixed polynomial in `D^-1 S`).
+//! dominant, so `z` is a few Jacobi sweeps relaxed by [`RELAXATION`]
+//! from zero (as many as the model's volume term needs: [`Smoothing`]), which keep `M^-1` symmetric (a fixed polynomial in `D^-1 S`).
 //! Each sweep costs a product with `H` and one with `H^T`, passes over the
 //! connections as the operator's are. The GPU's twin,
 //! `shaders/volume_smoother.wgsl`, runs the same passes in `f32`.
@@ -47,16 +47,40 @@ pub const SHEAR_STEP: f64 = 2.0;
 /// the same contraction; 0.5 keeps the margin.
 pub const RELAXATION: f64 = 0.5;
 
-/// Jacobi sweeps on the pressures. One diverges at any relaxation that
-/// helps (`S` is not diagonally dominant); three give the same
-/// contraction as two (0.882 against 0.878) at the cost of two more passes.
+/// Jacobi sweeps on the pressures a model is first tried with. One
+/// diverges at any relaxation that helps (`S` is not diagonally dominant);
+/// three give the same contraction as two at a Poisson ratio of 0.49
+/// (0.882 against 0.878) at the cost of two more passes.
 pub const SMOOTHER_SWEEPS: usize = 2;
+
+/// The most Jacobi sweeps a model's smoother is given. A stiffer volume
+/// term needs more: its weight `W_i` grows as `nu / (1 - 2 nu)`, and
+/// sweeps that reach too few of the pressures under-correct it until the
+/// iteration diverges (the bundled phantom at 10,000 particles takes its
+/// smoother with 2 sweeps at 0.495, 8 at 0.498 and 16 at 0.499:
+/// contractions 0.913, 0.941 and 0.956). A model's sweeps are doubled
+/// from [`SMOOTHER_SWEEPS`] until its contraction at rest is below
+/// [`crate::coarse::SMOOTHER_MAX_RATE`]; past this many the plain step
+/// smooths (docs/METHOD.md, "The volume smoother").
+pub const MAX_SMOOTHER_SWEEPS: usize = 32;
+
+/// How a model's volume smoother is made: `delta` and its Jacobi sweeps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Smoothing {
+    /// `delta`, the shear part's step's inverse ([`SHEAR_STEP`] times the
+    /// Laplacian's largest eigenvalue).
+    pub delta: f64,
+    /// Jacobi sweeps on the pressures, at least 1.
+    pub sweeps: usize,
+}
 
 /// The smoother at one linearisation.
 #[derive(Debug, Clone)]
 pub struct VolumeSmoother {
     /// `delta`, the shear part's step's inverse.
     delta: f64,
+    /// Jacobi sweeps on the pressures.
+    sweeps: usize,
     /// Per particle `sqrt(W_i / 2)` (0 where the neighbourhood is flat).
     roots: Vec<f64>,
     /// Per particle `D_i = delta + |h_i|^2` over the entries at free
@@ -66,15 +90,16 @@ pub struct VolumeSmoother {
 
 impl VolumeSmoother {
     /// The smoother for the volume gradients `entries` with weights
-    /// `weights` over the particles `inside` says are free, stepping the
-    /// shear part by `1 / delta`.
+    /// `weights` over the particles `inside` says are free, made as
+    /// `smoothing` says.
     pub(crate) fn new(
         entries: &Entries,
         weights: &[f64],
         connections: &Connections,
         inside: &(impl Fn(usize) -> bool + Sync),
-        delta: f64,
+        smoothing: Smoothing,
     ) -> Self {
+        let Smoothing { delta, sweeps } = smoothing;
         let roots: Vec<f64> = weights.iter().map(|&w| (0.5 * w).sqrt()).collect();
         let diagonal = (0..weights.len())
             .into_par_iter()
@@ -100,6 +125,7 @@ impl VolumeSmoother {
             .collect();
         Self {
             delta,
+            sweeps: sweeps.max(1),
             roots,
             diagonal,
         }
@@ -110,6 +136,11 @@ impl VolumeSmoother {
         self.delta
     }
 
+    /// The Jacobi sweeps on the pressures.
+    pub fn sweeps(&self) -> usize {
+        self.sweeps
+    }
+
     /// Per particle the pressure system's diagonal `delta + |h_i|^2`.
     pub fn diagonal(&self) -> &[f64] {
         &self.diagonal
@@ -117,8 +148,7 @@ impl VolumeSmoother {
 
     /// `M^-1 r` for a residual `r` (zero outside): the smoothed step.
     ///
-    /// Four passes over the connections (with [`SMOOTHER_SWEEPS`] 2), each of which
-    /// also makes what the next reads, per particle: `H^T r` with the first
+    /// Two passes over the connections a sweep, each of which also makes what the next reads, per particle: `H^T r` with the first
     /// sweep's pressures, their force `H z`, `H^T H z` with the next sweep's
     /// pressures, and their force with the step.
     pub(crate) fn smooth(
@@ -141,7 +171,7 @@ impl VolumeSmoother {
                 ((t, z), z * roots[i])
             })
             .unzip();
-        for _ in 1..SMOOTHER_SWEEPS {
+        for _ in 1..self.sweeps {
             let forces = pressure_forces(entries, connections, inside, &scaled);
             (sweep, scaled) = (0..residual.len())
                 .into_par_iter()

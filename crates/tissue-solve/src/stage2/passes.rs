@@ -8,6 +8,7 @@
 //! devices then add its work and nothing else (`docs/ARCHITECTURE.md`,
 //! "Adding a pass").
 
+use crate::coarse::{MAX_SMOOTHER_SWEEPS, SMOOTHER_SWEEPS};
 use crate::stage2::device::Iteration;
 use crate::stage2::params::{ForceModel, RotationMethod};
 
@@ -35,6 +36,9 @@ pub enum Pass {
         /// The aggregates' system solved by two-grid cycles
         /// (`block_multilevel`), not by its factor.
         cycled: bool,
+        /// The smoother's Jacobi sweeps on the pressures
+        /// ([`crate::coarse::Smoothing`]).
+        sweeps: usize,
     },
     /// `coarse`: the two-level solve's correction of the plain step over
     /// the Laplacian's aggregates.
@@ -87,8 +91,8 @@ impl Pass {
             Pass::Force => "deformation_force",
             Pass::ElasticForce => "elastic_force",
             Pass::PlainStep => "integrate",
-            Pass::SmoothedStep { cycled: false } => "smoothed step (factored)",
-            Pass::SmoothedStep { cycled: true } => "smoothed step (cycled)",
+            Pass::SmoothedStep { cycled: false, .. } => "smoothed step (factored)",
+            Pass::SmoothedStep { cycled: true, .. } => "smoothed step (cycled)",
             Pass::CoarseCorrection { cycled: false } => "coarse correction (factored)",
             Pass::CoarseCorrection { cycled: true } => "coarse correction (cycled)",
             Pass::ElasticCorrection { cycled: false } => "elastic correction (factored)",
@@ -114,8 +118,9 @@ pub enum Correction {
     Elastic {
         /// Its coarse system solved by cycles.
         cycled: bool,
-        /// The step made by the volume smoother ([`Pass::SmoothedStep`]).
-        smoothed: bool,
+        /// The step made by the volume smoother ([`Pass::SmoothedStep`])
+        /// with this many Jacobi sweeps; `None`: the plain step.
+        smoothed: Option<usize>,
     },
 }
 
@@ -128,8 +133,9 @@ pub struct Holds {
     /// The Laplacian's coarse space; `Some(true)` where it is solved by cycles.
     pub coarse: Option<bool>,
     /// The elastic phase's correction, linearised at the state; `Some((cycled,
-    /// smoothed))`.
-    pub elastic_correction: Option<(bool, bool)>,
+    /// smoothed))`, `smoothed` the volume smoother's Jacobi sweeps where it
+    /// smooths.
+    pub elastic_correction: Option<(bool, Option<usize>)>,
 }
 
 /// The choices that make one iteration's pass list.
@@ -201,12 +207,12 @@ impl Choices {
             }
             Correction::Elastic {
                 cycled,
-                smoothed: false,
+                smoothed: None,
             } => passes.extend([Pass::PlainStep, Pass::ElasticCorrection { cycled }]),
             Correction::Elastic {
                 cycled,
-                smoothed: true,
-            } => passes.push(Pass::SmoothedStep { cycled }),
+                smoothed: Some(sweeps),
+            } => passes.push(Pass::SmoothedStep { cycled, sweeps }),
         }
         passes.extend([Pass::Combine, Pass::UpdateNorms]);
         passes
@@ -222,7 +228,7 @@ impl Choices {
         let mut corrections = vec![Correction::None];
         for cycled in [false, true] {
             corrections.push(Correction::Coarse { cycled });
-            for smoothed in [false, true] {
+            for smoothed in [None, Some(SMOOTHER_SWEEPS), Some(MAX_SMOOTHER_SWEEPS)] {
                 corrections.push(Correction::Elastic { cycled, smoothed });
             }
         }
@@ -302,7 +308,7 @@ mod tests {
         assert_eq!(symmetric.correction, Correction::Coarse { cycled: false });
         assert!(!symmetric.elastic);
         let held = Holds {
-            elastic_correction: Some((true, true)),
+            elastic_correction: Some((true, Some(2))),
             ..holds
         };
         let smoothed = Choices::of(ForceModel::Elastic, RotationMethod::WarmPolar, true, held);
@@ -311,7 +317,10 @@ mod tests {
             [
                 Pass::ElasticTerms(RotationMethod::WarmPolar),
                 Pass::ElasticForce,
-                Pass::SmoothedStep { cycled: true },
+                Pass::SmoothedStep {
+                    cycled: true,
+                    sweeps: 2
+                },
                 Pass::Combine,
                 Pass::UpdateNorms,
             ]
@@ -346,8 +355,9 @@ mod tests {
         let unique: std::collections::HashSet<_> = all.iter().collect();
         assert_eq!(unique.len(), all.len());
         // Rotations 2 x (3 without the elastic force: none, coarse
-        // factored or cycled; 5 with it: none, and the elastic correction
-        // factored or cycled, smoothed or not).
-        assert_eq!(all.len(), 2 * 3 + 2 * 5);
+        // factored or cycled; 7 with it: none, and the elastic correction
+        // factored or cycled, plain or smoothed with the fewest or the
+        // most sweeps).
+        assert_eq!(all.len(), 2 * 3 + 2 * 7);
     }
 }

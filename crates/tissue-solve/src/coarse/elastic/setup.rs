@@ -7,12 +7,13 @@ use tissue_core::{Connections, ParticleModel};
 
 use super::{CorrectionFor, ElasticCoarse, Making, REST_RATE_STEPS};
 use crate::coarse::laplacian::Aggregates;
+use crate::coarse::volume_smoother::{MAX_SMOOTHER_SWEEPS, SMOOTHER_SWEEPS, Smoothing};
 use crate::model::elastic::Elastic;
 use crate::stage2::params::DeformParams;
 use crate::stage2::plan::Plan;
 
 /// The contraction of the elastic phase's two-level iteration with the
-/// volume smoother (`delta`), estimated once per model: the operator
+/// volume smoother made as `smoothing` says, estimated once per model: the operator
 /// linearised at rest, [`REST_RATE_STEPS`] Lanczos steps. Where the elastic
 /// phase starts, every neighbourhood is near its rest volume and turned by
 /// its rotation, and the estimate there agrees with this one to 0.004 on
@@ -24,12 +25,12 @@ pub fn rest_rate(
     rest: &[Vec3],
     connections: &Connections,
     elastic: &Elastic,
-    delta: f64,
+    smoothing: Smoothing,
     direct_max_aggregates: usize,
 ) -> Option<f32> {
     let made_for = CorrectionFor {
         contraction: 0.0,
-        volume_delta: Some(delta),
+        smoothing: Some(smoothing),
         rho: None,
         direct_max_aggregates,
         envelope: false,
@@ -66,14 +67,18 @@ pub const SMOOTHER_MAX_CELL: f32 = 2.0;
 /// hardly faster than the plain step's.
 pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 
-/// The volume smoother's `delta` ([`crate::coarse::volume_smoother::SHEAR_STEP`]
-/// times the plan's largest Laplacian eigenvalue) and its two-level
+/// How the volume smoother is made ([`Smoothing`]: `delta`,
+/// [`crate::coarse::volume_smoother::SHEAR_STEP`] times the plan's largest
+/// Laplacian eigenvalue, and its Jacobi sweeps) and its two-level
 /// iteration's contraction at rest ([`rest_rate`]), where the elastic phase
 /// has its two-level solve (`aggregates`), `params` asks for the smoother,
 /// the whole skin is observed (every surface particle a control point), the
 /// aggregates' cells are at most [`SMOOTHER_MAX_CELL`] spacings and the
-/// contraction is below [`SMOOTHER_MAX_RATE`]; `None` otherwise, the plain
-/// step smoothing (said in the log where the smoother was asked for). With
+/// contraction is below [`SMOOTHER_MAX_RATE`] with at most
+/// [`MAX_SMOOTHER_SWEEPS`] sweeps: [`SMOOTHER_SWEEPS`] first, doubled while
+/// the contraction is not below it (a stiffer volume term needs more);
+/// `None` otherwise, the plain step smoothing (said in the log where the
+/// smoother was asked for). With
 /// a free skin the smoother's iteration diverges (a contraction of 1.000
 /// measured on breast_c with half its skin observed, and in every solve of
 /// its unloaded shape, the chest wall alone held): its two sweeps do not
@@ -84,7 +89,7 @@ pub fn volume_smoother(
     params: &DeformParams,
     aggregates: Option<&Aggregates>,
     direct_max_aggregates: usize,
-) -> Option<(f64, f32)> {
+) -> Option<(Smoothing, f32)> {
     let (aggregates, elastic) = (aggregates?, plan.elastic.as_deref()?);
     if !params.tuning.volume_smoother {
         return None;
@@ -112,24 +117,42 @@ pub fn volume_smoother(
         );
         return None;
     }
-    let delta = crate::coarse::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max);
-    let rho = rest_rate(
-        aggregates,
-        &model.positions,
-        &model.connections,
-        elastic,
-        delta,
-        direct_max_aggregates,
-    )?;
-    if rho >= SMOOTHER_MAX_RATE {
-        log::warn!(
-            "the elastic phase smooths with the plain step: the volume smoother's iteration \
-             contracts at {rho:.3} on this model (at most {SMOOTHER_MAX_RATE} to use it)"
+    let mut smoothing = Smoothing {
+        delta: crate::coarse::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max),
+        sweeps: SMOOTHER_SWEEPS,
+    };
+    loop {
+        let rho = rest_rate(
+            aggregates,
+            &model.positions,
+            &model.connections,
+            elastic,
+            smoothing,
+            direct_max_aggregates,
+        )?;
+        if rho < SMOOTHER_MAX_RATE {
+            log::info!(
+                "the volume smoother: {} Jacobi sweeps, contraction {rho:.3} at rest",
+                smoothing.sweeps
+            );
+            return Some((smoothing, rho));
+        }
+        if smoothing.sweeps * 2 > MAX_SMOOTHER_SWEEPS {
+            log::warn!(
+                "the elastic phase smooths with the plain step: the volume smoother's iteration \
+                 contracts at {rho:.3} on this model with {} Jacobi sweeps (below \
+                 {SMOOTHER_MAX_RATE} to use it)",
+                smoothing.sweeps
+            );
+            return None;
+        }
+        log::debug!(
+            "the volume smoother contracts at {rho:.3} with {} Jacobi sweeps; trying {}",
+            smoothing.sweeps,
+            smoothing.sweeps * 2
         );
-        return None;
+        smoothing.sweeps *= 2;
     }
-    log::info!("the volume smoother: contraction {rho:.3} at rest");
-    Some((delta, rho))
 }
 
 /// The aggregates of the elastic phase's two-level solve under `params`:
