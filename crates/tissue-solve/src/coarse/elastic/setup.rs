@@ -78,11 +78,9 @@ pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 /// [`MAX_SMOOTHER_SWEEPS`] sweeps: [`SMOOTHER_SWEEPS`] first, doubled while
 /// the contraction is not below it (a stiffer volume term needs more);
 /// `None` otherwise, the plain step smoothing (said in the log where the
-/// smoother was asked for). Over a free skin its contraction at rest
-/// (0.92-0.95) misses the slow modes of the skin the load moves: the
-/// phantom's forward solves at 10,000 particles, the chest wall alone held,
-/// stopped by it 1.4e-4 to 2.5e-3 of the size from a tight reference
-/// (tolerance 3e-5), where the plain step reaches the tolerance.
+/// smoother was asked for). Over a free skin it is faster where it
+/// converges, but a slender column bent by its weight ran it again 6 times
+/// and ended at a higher potential than the plain step's (docs/DECISIONS.md).
 pub fn volume_smoother(
     model: &ParticleModel,
     plan: &Plan,
