@@ -60,7 +60,7 @@ pub const SMOOTHER_SWEEPS: usize = 2;
 /// smoother with 2 sweeps at 0.495, 8 at 0.498 and 16 at 0.499:
 /// contractions 0.913, 0.941 and 0.956). A model's sweeps are doubled
 /// from [`SMOOTHER_SWEEPS`] until its contraction at rest is below
-/// [`crate::coarse::SMOOTHER_MAX_RATE`]; past this many the plain step
+/// [`crate::coarse::elastic::SMOOTHER_MAX_RATE`]; past this many the plain step
 /// smooths (docs/METHOD.md, "The volume smoother").
 pub const MAX_SMOOTHER_SWEEPS: usize = 32;
 

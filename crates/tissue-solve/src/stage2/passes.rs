@@ -8,7 +8,7 @@
 //! devices then add its work and nothing else (`docs/ARCHITECTURE.md`,
 //! "Adding a pass").
 
-use crate::coarse::{MAX_SMOOTHER_SWEEPS, SMOOTHER_SWEEPS};
+use crate::coarse::volume_smoother::{MAX_SMOOTHER_SWEEPS, SMOOTHER_SWEEPS};
 use crate::stage2::device::Iteration;
 use crate::stage2::params::{ForceModel, RotationMethod};
 
@@ -37,7 +37,7 @@ pub enum Pass {
         /// (`block_multilevel`), not by its factor.
         cycled: bool,
         /// The smoother's Jacobi sweeps on the pressures
-        /// ([`crate::coarse::Smoothing`]).
+        /// ([`crate::coarse::volume_smoother::Smoothing`]).
         sweeps: usize,
     },
     /// `coarse`: the two-level solve's correction of the plain step over
