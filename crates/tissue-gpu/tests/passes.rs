@@ -2,18 +2,20 @@
 //! `tissue_solve::stage2::passes`, for every combination of the iteration's
 //! choices a solve reaches: the force, the rotations, and the correction
 //! (none, the two-level solve factored or cycled, the elastic
-//! one factored or cycled, with the volume smoother or without).
+//! one factored or cycled, with the volume smoother, a whole skin's or a
+//! free skin's, or without).
 
 mod common;
 
 use std::collections::HashSet;
 
+use tissue_core::ParticleModel;
 use tissue_cpu::deformation::{DeformParams, ForceModel, Pass, RotationMethod};
 use tissue_gpu::Kernel;
 use tissue_solve::stage2::Choices;
 
-/// A named change to the default parameters.
-type Setting = (&'static str, fn(&mut DeformParams));
+/// A named change to the default parameters (given the model).
+type Setting = (&'static str, fn(&mut DeformParams, &ParticleModel));
 
 #[test]
 fn both_devices_run_the_same_passes_for_every_combination() {
@@ -21,18 +23,28 @@ fn both_devices_run_the_same_passes_for_every_combination() {
         return;
     };
     let model = common::phantom(2_000);
-    let corrections: [Setting; 7] = [
-        ("two-level", |_| {}),
-        ("two-level cycled", |p| {
+    let corrections: [Setting; 9] = [
+        ("two-level", |_, _| {}),
+        ("two-level cycled", |p, _| {
             p.tuning.coarse_direct_max_aggregates = 1
         }),
-        ("uncorrected", |p| p.tuning.coarse = 0.0),
-        ("elastic smoothed", |_| {}),
-        ("elastic plain step", |p| p.tuning.volume_smoother = false),
-        ("elastic cycled", |p| {
+        ("uncorrected", |p, _| p.tuning.coarse = 0.0),
+        ("elastic smoothed", |_, _| {}),
+        // The front half of the skin observed: a free skin's sweeps.
+        ("elastic smoothed, free skin", |p, model| {
+            p.observed = Some(model.surface.vertices.iter().map(|v| v.y >= 0.0).collect());
+        }),
+        ("elastic cycled, free skin", |p, model| {
+            p.observed = Some(model.surface.vertices.iter().map(|v| v.y >= 0.0).collect());
+            p.tuning.elastic_coarse_direct_max_aggregates = 16;
+        }),
+        ("elastic plain step", |p, _| {
+            p.tuning.volume_smoother = false
+        }),
+        ("elastic cycled", |p, _| {
             p.tuning.elastic_coarse_direct_max_aggregates = 16
         }),
-        ("elastic plain step cycled", |p| {
+        ("elastic plain step cycled", |p, _| {
             p.tuning.volume_smoother = false;
             p.tuning.elastic_coarse_direct_max_aggregates = 16;
         }),
@@ -54,7 +66,7 @@ fn both_devices_run_the_same_passes_for_every_combination() {
                     p.force = force;
                     p.tuning.rotations = rotations;
                     p.max_iterations = 200;
-                    set(p);
+                    set(p, model);
                 });
                 let context = format!("{force:?}, {rotations:?}, {name}");
                 let (cpu, cpu_report, gpu, gpu_report) =

@@ -35,7 +35,8 @@ mod setup;
 pub(crate) use crate::model::entries::Entries;
 use crate::model::entries::{Parts, own_entries};
 pub use setup::{
-    SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
+    FREE_SKIN_SWEEPS, SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate,
+    volume_smoother,
 };
 
 /// Lanczos steps for the two-level iteration's contraction. On both breast

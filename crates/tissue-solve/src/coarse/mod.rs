@@ -16,7 +16,7 @@ pub(crate) mod volume_smoother;
 pub use aggregates::{Aggregates, OUTSIDE, members_of};
 pub use cholesky::Cholesky;
 pub use elastic::{
-    CorrectionFor, ElasticCoarse, RATE_STEPS, REST_RATE_STEPS, SMOOTHER_MAX_CELL,
+    CorrectionFor, ElasticCoarse, FREE_SKIN_SWEEPS, RATE_STEPS, REST_RATE_STEPS, SMOOTHER_MAX_CELL,
     SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate, volume_smoother,
 };
 pub use envelope::Envelope;

@@ -8,7 +8,8 @@
 //! devices then add its work and nothing else (`docs/ARCHITECTURE.md`,
 //! "Adding a pass").
 
-use crate::coarse::volume_smoother::{MAX_SMOOTHER_SWEEPS, SMOOTHER_SWEEPS};
+use crate::coarse::elastic::FREE_SKIN_SWEEPS;
+use crate::coarse::volume_smoother::SMOOTHER_SWEEPS;
 use crate::stage2::device::Iteration;
 use crate::stage2::params::{ForceModel, RotationMethod};
 
@@ -228,7 +229,7 @@ impl Choices {
         let mut corrections = vec![Correction::None];
         for cycled in [false, true] {
             corrections.push(Correction::Coarse { cycled });
-            for smoothed in [None, Some(SMOOTHER_SWEEPS), Some(MAX_SMOOTHER_SWEEPS)] {
+            for smoothed in [None, Some(SMOOTHER_SWEEPS), Some(FREE_SKIN_SWEEPS)] {
                 corrections.push(Correction::Elastic { cycled, smoothed });
             }
         }
@@ -356,8 +357,8 @@ mod tests {
         assert_eq!(unique.len(), all.len());
         // Rotations 2 x (3 without the elastic force: none, coarse
         // factored or cycled; 7 with it: none, and the elastic correction
-        // factored or cycled, plain or smoothed with the fewest or the
-        // most sweeps).
+        // factored or cycled, plain or smoothed with a whole skin's sweeps
+        // or a free skin's).
         assert_eq!(all.len(), 2 * 3 + 2 * 7);
     }
 }
