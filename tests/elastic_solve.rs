@@ -195,6 +195,35 @@ fn a_nearly_incompressible_model_smooths_with_more_sweeps_and_converges() {
     }
 }
 
+/// A solver of the same connections, free particles and parameters in
+/// another rest shape (the posture search's next guess) takes the volume
+/// smoother's making and contraction at rest from the last one instead of
+/// estimating them again; another Poisson ratio estimates its own.
+#[test]
+fn a_solver_of_the_same_connections_takes_the_smoothers_contraction() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let params = DeformParams::default();
+    let first = Deformer::new(&model, params.clone()).unwrap();
+    let made = first.device().volume_smoother().unwrap();
+    let shared = first.shared_laplacian();
+    // The same particles 1 % larger: another rest shape, the same connections.
+    let grown = tissue::ParticleModel {
+        positions: model.positions.iter().map(|&p| 1.01 * p).collect(),
+        ..model.clone()
+    };
+    let next = Deformer::new_shared(&grown, params.clone(), Some(&shared), &mut |_| {}).unwrap();
+    assert_eq!(next.device().volume_smoother(), Some(made));
+    let stiffer = params.clone().with(|p| p.poisson = 0.45);
+    let other = Deformer::new_shared(&grown, stiffer, Some(&shared), &mut |_| {}).unwrap();
+    let (_, rho) = other.device().volume_smoother().unwrap();
+    assert_ne!(rho, made.1, "0.45 estimates its own contraction");
+}
+
 /// Above `elastic_coarse_direct_max_aggregates` the elastic coarse matrix
 /// is solved by two-grid cycles over groups of aggregates instead of its
 /// factor: the solve lands where the factored one does, in a few more

@@ -380,6 +380,7 @@ impl GpuSolve {
                         &twin,
                         Some(&aggregates),
                         twin.tuning.elastic_coarse_direct_max_aggregates,
+                        shared.and_then(|shared| shared.smoother_for(plan.laplacian_key, &twin)),
                     ),
                     direct_max: twin.tuning.elastic_coarse_direct_max_aggregates,
                     aggregates,
@@ -580,6 +581,9 @@ impl SolveDevice for GpuSolve {
             plan,
             &GpuDeformer::cpu_twin(params),
             self.coarse.clone(),
+            self.elastic_host
+                .as_ref()
+                .and_then(|host| host.volume_smoother),
         )
     }
 

@@ -308,6 +308,7 @@ impl CpuSolve {
             params,
             elastic_aggregates.as_deref(),
             direct_max,
+            shared.and_then(|shared| shared.smoother_for(plan.laplacian_key, params)),
         );
         Self {
             rest: model.positions.clone(),
@@ -735,7 +736,13 @@ impl SolveDevice for CpuSolve {
 
     /// The coarse space, made for `params`.
     fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
-        SharedLaplacian::new(plan.laplacian_key, plan, params, self.coarse.clone())
+        SharedLaplacian::new(
+            plan.laplacian_key,
+            plan,
+            params,
+            self.coarse.clone(),
+            self.volume_smoother,
+        )
     }
 
     fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {

@@ -924,7 +924,7 @@ mod tests {
         }
 
         fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
-            SharedLaplacian::new(plan.laplacian_key, plan, params, None)
+            SharedLaplacian::new(plan.laplacian_key, plan, params, None, None)
         }
 
         fn potential(&mut self) -> Result<Option<Potential>, Infallible> {

@@ -86,13 +86,16 @@ pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 /// ([`FREE_SKIN_SWEEPS`] where part of the skin is free), doubled while the
 /// contraction is not below it (a stiffer volume term needs more); `None`
 /// otherwise, the plain step smoothing (said in the log where the
-/// smoother was asked for).
+/// smoother was asked for). `known`, a solver's of the same connections and
+/// parameters ([`crate::coarse::laplacian::SharedLaplacian::smoother_for`]),
+/// stands in for the estimate.
 pub fn volume_smoother(
     model: &ParticleModel,
     plan: &Plan,
     params: &DeformParams,
     aggregates: Option<&Aggregates>,
     direct_max_aggregates: usize,
+    known: Option<(Smoothing, f32)>,
 ) -> Option<(Smoothing, f32)> {
     let (aggregates, elastic) = (aggregates?, plan.elastic.as_deref()?);
     if !params.tuning.volume_smoother {
@@ -113,6 +116,14 @@ pub fn volume_smoother(
             SMOOTHER_MAX_CELL
         );
         return None;
+    }
+    if let Some((smoothing, rho)) = known {
+        log::debug!(
+            "the volume smoother: {} Jacobi sweeps, contraction {rho:.3} at rest (a solver's of \
+             the same connections)",
+            smoothing.sweeps
+        );
+        return Some((smoothing, rho));
     }
     let mut smoothing = Smoothing {
         delta: crate::coarse::volume_smoother::SHEAR_STEP * f64::from(plan.lambda_max),

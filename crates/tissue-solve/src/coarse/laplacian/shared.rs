@@ -1,13 +1,15 @@
 //! What solvers of one model share: the connection Laplacian's spectrum and
 //! two-level coarse space depend only on the connections and the free
 //! particles, not on the positions (docs/METHOD.md, "Gravity and the
-//! unloaded shape", *The Laplacian's preparation shared*).
+//! unloaded shape", *The Laplacian's preparation shared*); the volume
+//! smoother's contraction at rest hardly depends on them.
 
 use std::sync::Arc;
 
 use tissue_core::ParticleModel;
 
 use super::{CoarseSpace, coarse_space};
+use crate::coarse::volume_smoother::Smoothing;
 use crate::stage2::params::DeformParams;
 pub use crate::stage2::plan::laplacian_key;
 use crate::stage2::plan::{Plan, SharedSpectrum};
@@ -26,6 +28,28 @@ pub struct SharedLaplacian {
     /// the connections and free particles they were made for.
     spectrum: SharedSpectrum,
     coarse: Option<(CoarseFor, Arc<CoarseSpace>)>,
+    /// The volume smoother's making and its contraction at rest, and the
+    /// parameters they were made under.
+    smoother: Option<(SmootherFor, (Smoothing, f32))>,
+}
+
+/// What a volume smoother's contraction at rest was estimated for besides
+/// the connections and the free particles.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SmootherFor {
+    poisson: f32,
+    max_aggregates: usize,
+    direct_max: usize,
+}
+
+impl SmootherFor {
+    fn of(params: &DeformParams) -> Self {
+        Self {
+            poisson: params.poisson,
+            max_aggregates: params.tuning.elastic_coarse_max_aggregates,
+            direct_max: params.tuning.elastic_coarse_direct_max_aggregates,
+        }
+    }
 }
 
 /// What a coarse space was made for besides the connections and the free
@@ -53,13 +77,15 @@ impl CoarseFor {
 
 impl SharedLaplacian {
     /// What a solver prepared for the Laplacian of `key`
-    /// ([`laplacian_key`]): its extreme eigenvalues, and the coarse space
-    /// it made for `params` under `plan`, if any.
+    /// ([`laplacian_key`]): its extreme eigenvalues, the coarse space it
+    /// made for `params` under `plan`, if any, and its volume smoother's
+    /// making and contraction at rest, if any.
     pub fn new(
         key: u64,
         plan: &Plan,
         params: &DeformParams,
         coarse: Option<Arc<CoarseSpace>>,
+        smoother: Option<(Smoothing, f32)>,
     ) -> Self {
         Self {
             spectrum: SharedSpectrum {
@@ -68,6 +94,23 @@ impl SharedLaplacian {
                 lambda_max: plan.lambda_max,
             },
             coarse: coarse.map(|space| (CoarseFor::of(plan, params), space)),
+            smoother: smoother.map(|made| (SmootherFor::of(params), made)),
+        }
+    }
+
+    /// The volume smoother's making and contraction at rest, where `key`
+    /// and the parameters they were made under match `params`. Another
+    /// rest shape of the same connections moves the contraction little
+    /// (breast_c's posture search at 10,000 particles: 0.925-0.930 over
+    /// its shapes), and estimating it costs as much as 40 iterations.
+    pub fn smoother_for(&self, key: u64, params: &DeformParams) -> Option<(Smoothing, f32)> {
+        match self.smoother {
+            Some((made_for, made))
+                if self.spectrum.key == key && made_for == SmootherFor::of(params) =>
+            {
+                Some(made)
+            }
+            _ => None,
         }
     }
 
