@@ -64,10 +64,10 @@ pub const SMOOTHER_MAX_CELL: f32 = 2.0;
 
 /// The Jacobi sweeps a model with part of its skin free starts with: its
 /// one-sided neighbourhoods under the skin take more than a whole skin's.
-/// With two the posture searches of breast_c and breast_d at 10,000
-/// particles ran their elastic phases again 3 and 4 times (stepping back 6
-/// and 21 times), with four 0 and 3 times (0 and 19); both contract at rest
-/// at 0.92-0.95.
+/// With two (stopped by the accelerated rule) the posture searches of
+/// breast_c and breast_d at 10,000 particles ran their elastic phases
+/// again 3 and 4 times (stepping back 6 and 21 times), with four 0 and 3
+/// times (0 and 19); both contract at rest at 0.92-0.95.
 pub const FREE_SKIN_SWEEPS: usize = 4;
 
 /// A measured contraction at or above this leaves the plain step in place
