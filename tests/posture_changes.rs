@@ -213,6 +213,25 @@ fn prone_to_supine_is_recovered_on_both_devices() {
     );
 }
 
+/// The phantom at 2,000 particles hanging towards its feet (`-y`, 2 kPa),
+/// the chest wall held and the rest of the skin free: the model and the
+/// elastic force's parameters for it.
+fn hanging_phantom() -> (ParticleModel, DeformParams) {
+    let unloaded = tissue::sample(
+        &tissue::phantom::default_breast(),
+        &SamplingParams::with_particles(2_000),
+    )
+    .unwrap()
+    .model;
+    let held = chest_wall(&unloaded.surface);
+    let load = gravity_load(Vec3::NEG_Y, 1000.0, 2.0, elastic().poisson, 1e-3).unwrap();
+    let params = elastic().with(|p| {
+        p.observed = Some(held);
+        p.load = load;
+    });
+    (unloaded, params)
+}
+
 /// Without the volume smoother (`SolverTuning::volume_smoother` off, or
 /// aggregates too coarse for it) the elastic phase steps plainly,
 /// corrected; on the phantom at 2,000 particles hanging towards its feet
@@ -225,19 +244,8 @@ fn prone_to_supine_is_recovered_on_both_devices() {
 /// within a few.
 #[test]
 fn a_plain_elastic_phase_over_a_free_skin_converges_watched() {
-    let unloaded = tissue::sample(
-        &tissue::phantom::default_breast(),
-        &SamplingParams::with_particles(2_000),
-    )
-    .unwrap()
-    .model;
-    let held = chest_wall(&unloaded.surface);
-    let load = gravity_load(Vec3::NEG_Y, 1000.0, 2.0, elastic().poisson, 1e-3).unwrap();
-    let params = elastic().with(|p| {
-        p.observed = Some(held.clone());
-        p.load = load;
-        p.tuning.volume_smoother = false;
-    });
+    let (unloaded, hanging) = hanging_phantom();
+    let params = hanging.with(|p| p.tuning.volume_smoother = false);
     let mut devices = vec![Device::Cpu];
     devices.extend(common::gpu());
     let mut iterations = Vec::new();
@@ -278,18 +286,7 @@ fn a_plain_elastic_phase_over_a_free_skin_converges_watched() {
 /// lavapipe in CI) take the same iterations within a few.
 #[test]
 fn the_volume_smoother_over_a_free_skin_converges_faster_to_no_higher_potential() {
-    let unloaded = tissue::sample(
-        &tissue::phantom::default_breast(),
-        &SamplingParams::with_particles(2_000),
-    )
-    .unwrap()
-    .model;
-    let held = chest_wall(&unloaded.surface);
-    let load = gravity_load(Vec3::NEG_Y, 1000.0, 2.0, elastic().poisson, 1e-3).unwrap();
-    let smoothed = elastic().with(|p| {
-        p.observed = Some(held.clone());
-        p.load = load;
-    });
+    let (unloaded, smoothed) = hanging_phantom();
     let plain = smoothed.clone().with(|p| p.tuning.volume_smoother = false);
     let solve = |device: Device, params: &DeformParams| {
         let mut solver = Solver::new(device, &unloaded, params.clone()).unwrap();
