@@ -12,14 +12,19 @@ use tissue::deform::{Rigid, deform_surface, interpolate};
 use tissue::{SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::{DeformParams, Deformer, ForceModel};
 
-#[test]
-fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
-    let model = tissue::sample(
+/// The bundled phantom sampled with `particles` particles.
+fn phantom_model(particles: usize) -> tissue::ParticleModel {
+    tissue::sample(
         &phantom::default_breast(),
-        &SamplingParams::with_particles(5_000),
+        &SamplingParams::with_particles(particles),
     )
     .unwrap()
-    .model;
+    .model
+}
+
+#[test]
+fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
+    let model = phantom_model(5_000);
     let corrected = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
     });
@@ -86,12 +91,7 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
 /// converges (with the smoother on coarse cells it would diverge).
 #[test]
 fn the_volume_smoother_needs_small_aggregates() {
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(3_000),
-    )
-    .unwrap()
-    .model;
+    let model = phantom_model(3_000);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
     });
@@ -136,12 +136,7 @@ fn the_volume_smoother_needs_small_aggregates() {
 fn a_nearly_incompressible_model_smooths_with_more_sweeps_and_converges() {
     use tissue::backend::{Device, Solver};
     use tissue_cpu::coarse::{MAX_SMOOTHER_SWEEPS, SMOOTHER_MAX_RATE, SMOOTHER_SWEEPS};
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(3_000),
-    )
-    .unwrap()
-    .model;
+    let model = phantom_model(3_000);
     let sweeps = |poisson: f32| {
         let params = DeformParams::default().with(|p| p.poisson = poisson);
         let deformer = Deformer::new(&model, params).unwrap();
@@ -201,12 +196,7 @@ fn a_nearly_incompressible_model_smooths_with_more_sweeps_and_converges() {
 /// estimating them again; another Poisson ratio estimates its own.
 #[test]
 fn a_solver_of_the_same_connections_takes_the_smoothers_contraction() {
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(2_000),
-    )
-    .unwrap()
-    .model;
+    let model = phantom_model(2_000);
     let params = DeformParams::default();
     let first = Deformer::new(&model, params.clone()).unwrap();
     let made = first.device().volume_smoother().unwrap();
@@ -230,12 +220,7 @@ fn a_solver_of_the_same_connections_takes_the_smoothers_contraction() {
 /// iterations, and keeps its volume smoother.
 #[test]
 fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(5_000),
-    )
-    .unwrap()
-    .model;
+    let model = phantom_model(5_000);
     let factored = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
     });
@@ -285,12 +270,7 @@ fn the_cycled_elastic_coarse_solve_lands_where_the_factored_one_does() {
 /// without the measure (the same iterations and positions).
 #[test]
 fn the_shear_phase_stops_once_its_error_is_below_the_volumes_misfit() {
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(5_000),
-    )
-    .unwrap()
-    .model;
+    let model = phantom_model(5_000);
     let (low, high) = model.surface.bounds().unwrap();
     let turn = Rigid::about_axis(Vec3::X, 30f32.to_radians(), 0.5 * (low + high), Vec3::ZERO);
     let turned = deform_surface(&model.surface, &turn);
