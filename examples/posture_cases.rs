@@ -7,7 +7,7 @@
 //! the stiffness and the unloaded shape; this prints how far each is from
 //! what made the scans, how many solves it took and how long.
 //!
-//! `cargo run --release --example posture_cases -- [PARTICLES] [E_KPA] [SURFACE.obj ...]`
+//! `cargo run --release --example posture_cases -- [--fit-particles N] [PARTICLES] [E_KPA] [SURFACE.obj ...]`
 //!
 //! Without surfaces it runs on the bundled phantom; with them, each is an
 //! unloaded shape whose chest wall is the plane of its smallest `z`. Each
@@ -54,7 +54,17 @@ fn rms(a: &[Vec3], b: &[Vec3], on: impl Fn(usize) -> bool) -> f32 {
 
 fn main() {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    // The model the stiffness is fitted on: `Gravity`'s default, or `N`
+    // particles (0: the model itself).
+    let fit_particles = match args.iter().position(|a| a == "--fit-particles") {
+        Some(at) => {
+            let n: usize = args[at + 1].parse().unwrap();
+            args.drain(at..at + 2);
+            Some((n > 0).then_some(n))
+        }
+        None => None,
+    };
     let particles: usize = args.first().map_or(10_000, |a| a.parse().unwrap());
     let e_true: f32 = args.get(1).map_or(1.5, |a| a.parse().unwrap());
     let mut surfaces: Vec<(String, SurfaceMesh)> = args
@@ -125,7 +135,11 @@ fn main() {
                 &model,
                 &deformed_surface,
                 &held,
-                &Gravity::millimetres(g_rest, g_deformed, None),
+                &Gravity {
+                    fit_particles: fit_particles
+                        .unwrap_or(Gravity::millimetres(g_rest, g_deformed, None).fit_particles),
+                    ..Gravity::millimetres(g_rest, g_deformed, None)
+                },
                 &params,
                 &mut |s| solves.push((s.iterations, s.converged)),
             );

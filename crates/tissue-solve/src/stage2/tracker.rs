@@ -16,8 +16,8 @@ use crate::stage2::controls::check_same_topology;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::phase::{
     DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
-    MAX_RELINEARISATIONS, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches, Steps,
-    WARM_ITERATIONS, rose,
+    MAX_RELINEARISATIONS, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches, Steps, Verdict,
+    WARM_ITERATIONS, WATCH_SETTLED, Watched,
 };
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
@@ -50,6 +50,9 @@ pub struct Tracker<D> {
     /// The state is a converged solve's with the elastic force, so an
     /// elastic solve may start from it without the shear phase.
     elastic_warm: bool,
+    /// The warm start is a caller's guess ([`Tracker::warm_start`]), not
+    /// a converged solve's: its elastic phase is watched.
+    guessed: bool,
     /// Whether that solve's elastic phase ran with the device's correction
     /// (a warm frame runs as it did).
     elastic_correct: bool,
@@ -128,6 +131,7 @@ impl<D: SolveDevice> Tracker<D> {
             rest: model.positions.clone(),
             current: model.positions.clone(),
             elastic_warm: false,
+            guessed: false,
             elastic_correct: true,
             connections,
         })
@@ -269,6 +273,10 @@ impl<D: SolveDevice> Tracker<D> {
     /// force its elastic phase alone, and both phases from `positions` if
     /// that fails, as a tracking frame does. For a solve whose answer is
     /// known roughly: the next of a search over nearby loads or shapes.
+    /// Unlike a tracking frame's, that elastic phase is watched (the
+    /// potential measured, a rise stepped back from with half the step,
+    /// as from rest): a guess is no converged state, and unwatched the
+    /// posture's first round on a model diverged from one.
     pub fn warm_start<E: From<Error> + From<D::Error>>(
         &mut self,
         positions: &[Vec3],
@@ -287,6 +295,7 @@ impl<D: SolveDevice> Tracker<D> {
         }
         self.device.write_positions(&self.current, None)?;
         self.elastic_warm = self.params.force == ForceModel::Elastic;
+        self.guessed = true;
         self.elastic_correct = true;
         Ok(())
     }
@@ -341,7 +350,7 @@ impl<D: SolveDevice> Tracker<D> {
                 cap,
                 PhaseRun {
                     correct,
-                    watch: false,
+                    watch: self.guessed,
                     ..PhaseRun::corrected(false)
                 },
                 &mut steps,
@@ -402,6 +411,7 @@ impl<D: SolveDevice> Tracker<D> {
         self.history
             .record(&self.current, report.converged, self.params.tuning.history);
         self.elastic_warm = params.force == ForceModel::Elastic && report.converged;
+        self.guessed = false;
         Ok(report)
     }
 
@@ -580,6 +590,8 @@ impl<D: SolveDevice> Tracker<D> {
         let (mut backtracks, mut earlier) = (0, Vec::new());
         // Whether the plain phase went back to the state it accepted last.
         let mut back_there = false;
+        // The stopping rule's error estimate where the phase last accepted.
+        let mut accepted_error: Option<f32> = None;
         // Where Chebyshev's weights started: the phase's start, or its last
         // step back.
         let mut restart = 0;
@@ -620,15 +632,26 @@ impl<D: SolveDevice> Tracker<D> {
                     StopReason::Diverged => None,
                     _ => self.device.potential()?,
                 };
-                if let Some(now) = now.filter(|now| !rose(last, *now)) {
+                let error_now = rule.last_error();
+                let may_step_back =
+                    backtracks < MAX_BACKTRACKS && iterations < cap && (smoothed || !back_there);
+                let verdict = Watched {
+                    last,
+                    now,
+                    accepted_error,
+                    error_now,
+                    smoothed,
+                    settling: error_now.is_some_and(|e| e < WATCH_SETTLED * p.tolerance),
+                    may_step_back,
+                }
+                .verdict();
+                if let Verdict::Keep(now) = verdict {
                     self.device.save()?;
                     potentials.push(now.value);
                     accepted = Some(now);
+                    accepted_error = error_now;
                     back_there = false;
-                } else if backtracks < MAX_BACKTRACKS
-                    && iterations < cap
-                    && (smoothed || !back_there)
-                {
+                } else if let Verdict::StepBack(why) = verdict {
                     backtracks += 1;
                     self.device.restore()?;
                     back_there = true;
@@ -636,7 +659,7 @@ impl<D: SolveDevice> Tracker<D> {
                         damping *= 0.5;
                     }
                     log::debug!(
-                        "the elastic phase's potential rose after {iterations} iterations; back \
+                        "the elastic phase's potential {why} after {iterations} iterations; back \
                          to the state it accepted {}",
                         if smoothed {
                             "with half its step"
@@ -652,7 +675,7 @@ impl<D: SolveDevice> Tracker<D> {
                     restart = iterations;
                     stopped_by = StopReason::IterationCap;
                     continue;
-                } else {
+                } else if let Verdict::Diverged = verdict {
                     self.device.restore()?;
                     stopped_by = StopReason::Diverged;
                     break;
@@ -761,6 +784,7 @@ impl<D: SolveDevice> Tracker<D> {
     pub fn reset(&mut self) -> Result<(), D::Error> {
         self.device.reset()?;
         self.elastic_warm = false;
+        self.guessed = false;
         self.current.clone_from(&self.rest);
         self.history = FrameHistory::at_rest(&self.rest, self.params.tuning.history);
         Ok(())
@@ -849,6 +873,10 @@ mod tests {
         /// step where `rising`.
         watched: bool,
         rising: bool,
+        /// Whether the elastic iterations of a full step leave the step
+        /// and the potential as they were (a particle stepping back and
+        /// forth at a flat potential); a damped step still halves both.
+        cycling: bool,
         energy: f64,
         /// The energy and the step [`SolveDevice::save`] kept.
         saved: (f64, f32),
@@ -878,6 +906,7 @@ mod tests {
                 coarse: None,
                 watched: false,
                 rising: false,
+                cycling: false,
                 energy: 1.0,
                 saved: (1.0, 1.0),
                 restores: 0,
@@ -976,13 +1005,14 @@ mod tests {
             } else {
                 0.5
             };
+            let cycling = elastic && self.cycling && full;
             Ok(omegas
                 .iter()
                 .map(|_| {
-                    if !self.stalling {
+                    if !self.stalling && !cycling {
                         self.step *= 0.5;
                     }
-                    if elastic {
+                    if elastic && !cycling {
                         self.energy *= factor;
                     }
                     (self.step, self.step)
@@ -1425,7 +1455,7 @@ mod tests {
     /// Chebyshev weights started again for the damped contraction; it
     /// converges with no retry, each state it accepted lower than the one
     /// before. A device without a potential is not watched, nor is the
-    /// next frame's warm phase.
+    /// next frame's warm phase; a warm start from a caller's guess is.
     #[test]
     fn a_smoothed_elastic_phase_whose_potential_rose_steps_back_with_half_its_step() {
         for (batch, watched) in [(1, true), (8, true), (1, false)] {
@@ -1471,6 +1501,47 @@ mod tests {
             assert!(warm.converged, "{warm:?}");
             assert!(warm.potentials.is_empty(), "{warm:?}");
             assert_eq!(tracker.device.restores, 1);
+            // A caller's guess is watched: the rise is stepped back from
+            // with half the step, and the phase converges without running
+            // again after a shear phase; the frame after it is not watched.
+            let guess = tracker.current.clone();
+            tracker.warm_start::<Error>(&guess).unwrap();
+            let Ok(guessed) = tracker.solve();
+            assert!(guessed.converged, "{guessed:?}");
+            assert_eq!(guessed.elastic_retries, 0, "{guessed:?}");
+            assert_eq!(guessed.backtracks, 1, "{guessed:?}");
+            assert!(guessed.potentials_fell(), "{guessed:?}");
+            let last = tracker.device.begun.last().unwrap();
+            assert_eq!((last.relinearise, last.damping), (false, 0.5));
+            let Ok(after) = tracker.solve();
+            assert!(after.potentials.is_empty(), "{after:?}");
+        }
+    }
+
+    /// A smoothed elastic phase whose potential and error estimate both
+    /// stay where they were over a watch's interval (a particle stepping
+    /// back and forth, the potential flat, the stopping rule never met)
+    /// made no progress: it goes back to the state it accepted with half
+    /// its step, where it converges, with no retry. Where only a rise was
+    /// stepped back from, the stall window caught it: linearised again
+    /// three times, then run again, four retries.
+    #[test]
+    fn a_smoothed_elastic_phase_that_makes_no_progress_steps_back_with_half_its_step() {
+        for batch in [1, 8] {
+            let mut tracker = elastic_tracker(batch, |device| {
+                device.elastic_correction = Some(0.5);
+                device.smoothed = true;
+                device.watched = true;
+                device.cycling = true;
+            });
+            let Ok(report) = tracker.solve();
+            assert!(report.converged, "{batch}: {report:?}");
+            assert_eq!(report.elastic_retries, 0, "{batch}: {report:?}");
+            assert_eq!(report.backtracks, 1, "{batch}: {report:?}");
+            assert!(report.iterations < 100, "{batch}: {report:?}");
+            let last = tracker.device.begun.last().unwrap();
+            assert_eq!((last.relinearise, last.damping), (false, 0.5), "{batch}");
+            assert!(report.potentials_fell(), "{batch}: {report:?}");
         }
     }
 
