@@ -111,7 +111,8 @@ pub(crate) struct Watched {
     pub(crate) last: Potential,
     /// The potential now; `None` where the iteration diverged.
     pub(crate) now: Option<Potential>,
-    /// The stopping rule's error estimate at the state accepted last, and now.
+    /// The stopping rule's error estimate at the state accepted last (none
+    /// since the phase's last step back), and now.
     pub(crate) accepted_error: Option<f32>,
     pub(crate) error_now: Option<f32>,
     /// Whether the phase is smoothed (its step back halves the step).

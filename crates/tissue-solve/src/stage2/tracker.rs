@@ -590,7 +590,8 @@ impl<D: SolveDevice> Tracker<D> {
         let (mut backtracks, mut earlier) = (0, Vec::new());
         // Whether the plain phase went back to the state it accepted last.
         let mut back_there = false;
-        // The stopping rule's error estimate where the phase last accepted.
+        // The stopping rule's error estimate where the phase last accepted
+        // (none since its last step back).
         let mut accepted_error: Option<f32> = None;
         // Where Chebyshev's weights started: the phase's start, or its last
         // step back.
@@ -655,6 +656,9 @@ impl<D: SolveDevice> Tracker<D> {
                     backtracks += 1;
                     self.device.restore()?;
                     back_there = true;
+                    // The next rule's estimates, on another contraction,
+                    // are not this one's.
+                    accepted_error = None;
                     if smoothed {
                         damping *= 0.5;
                     }
