@@ -77,10 +77,12 @@ pub const ENERGY_WATCH: usize = 8;
 /// accepted, its correction linearised there, at most as many times.
 pub const MAX_BACKTRACKS: usize = 6;
 
-/// Below this many tolerances of its error estimate a watched phase keeps
-/// every finite state it reaches: it is then far from the steps with which
-/// a failing phase raises the potential, and on the GPU the potential's
-/// changes there are at its `f32` rounding. Without it the test column
+/// Below this many tolerances of its error estimate a watched smoothed
+/// phase is settling: it neither keeps nor steps back from a finite rise
+/// (it goes on) and makes no verdict of no progress. It is then far
+/// from the steps with which a failing phase raises the potential, and on
+/// lavapipe the potential rises there by about `1e-5` of itself where the
+/// CPU's does not. Without it the test column
 /// lying at 60 kPa went back 24 times on lavapipe in one warm trial, ran
 /// again 3 times and stopped at the float floor short of the minimum (the
 /// fit 65 kPa against 60); the probe sweep's steps back are as they were
