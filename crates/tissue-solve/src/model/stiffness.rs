@@ -14,13 +14,16 @@
 //! 2. the small-strain estimate: the skin's move from the rest shape
 //!    scales as `1 / E`, so the least-squares scale `s` of a trial's move
 //!    onto the observed one gives `E / s`;
-//! 3. that estimate made again from each new trial's move, until it moves
-//!    less than [`SETTLED`] (in `ln E`) from the trial it came from, at
-//!    most [`REFINEMENTS`] trials; a trial whose solves fail is followed
-//!    by one halfway (in `ln E`) back to the last that did not. Where the
-//!    skin's move is `1 / E` exactly the second trial is the answer;
-//!    at the answer the scale is 1, which is where the squared residual
-//!    is least if the move is `1 / E` near it.
+//! 3. from then on the secant through the last two trials' `(ln E, ln s)`:
+//!    a move that scales as `E^-p` has `ln s = p (ln E - ln E*)`, and the
+//!    law's own estimate is the secant with `p = 1`; until the next
+//!    estimate is less than [`SETTLED`] (in `ln E`) from the trial it came
+//!    from, at most [`REFINEMENTS`] trials; a trial whose solves fail is
+//!    followed by one halfway (in `ln E`) back to the last that did not.
+//!    Where the skin's move is `1 / E` exactly the second trial is the
+//!    answer, and where it is `E^-p` the third; at the answer the scale is
+//!    1, which is where the squared residual is least if the move is a
+//!    power of `E` near it.
 //!
 //! The trial with the least residual wins. Each trial's unloaded shape
 //! starts from the best one so far, its displacement scaled by the ratio of
@@ -41,6 +44,12 @@ pub const SETTLED: f32 = 0.02;
 
 /// Trials after the first move, at most.
 pub const REFINEMENTS: usize = 4;
+
+/// The slopes `p` of `ln s` against `ln E` ([`next_estimate`]) the
+/// secant takes: the skin's move under gravity scales as `E^-p` with `p`
+/// between 0.8 and 1.2 on the shared cases and their forward-made
+/// postures; a secant outside this range is taken for noise.
+pub const SECANT_SLOPES: std::ops::RangeInclusive<f32> = 0.5..=2.0;
 
 /// Trials of the first move before the fit gives up on finding a
 /// stiffness whose solves converge (each doubles it).
@@ -256,11 +265,19 @@ pub fn fit_stiffness(
         }));
     };
     // 2 and 3. The small-strain estimate from each trial's move, until it
-    // settles.
+    // settles: each converged trial's `(ln E, ln s)`, the last two making
+    // the secant's slope.
+    let mut scales: Vec<(f32, f32)> = Vec::new();
+    let scaled = |e: f32, moved: &[Vec3], scales: &mut Vec<(f32, f32)>| {
+        if let Some(s) = skin_scale(postures, moved) {
+            scales.push((e.ln(), s.ln()));
+        }
+    };
+    scaled(last.0, &last.1, &mut scales);
     let mut refinements = 0;
     while refinements < REFINEMENTS {
-        let (e, moved) = &last;
-        let estimate = small_strain_estimate(postures, *e, moved).clamp(lo, hi);
+        let e = last.0;
+        let estimate = next_estimate(e, &scales).clamp(lo, hi);
         if (estimate / e).ln().abs() < SETTLED || trials.iter().any(|t| t.stiffness_kpa == estimate)
         {
             break;
@@ -268,6 +285,7 @@ pub fn fit_stiffness(
         refinements += 1;
         let (residual, moved) = run(estimate, &mut trials, &mut best)?;
         if residual.is_finite() {
+            scaled(estimate, &moved, &mut scales);
             last = (estimate, moved);
             continue;
         }
@@ -281,6 +299,7 @@ pub fn fit_stiffness(
         if !residual.is_finite() {
             break;
         }
+        scaled(between, &moved, &mut scales);
         last = (between, moved);
     }
     // The first trial converged, so `best` is at least that one.
@@ -299,11 +318,10 @@ pub fn fit_stiffness(
     })
 }
 
-/// The stiffness the small-strain law gives from a trial at `e` whose free
-/// skin moved to `moved`: the skin's move from the rest shape scales as
-/// `1 / E`, so `e / s` with `s` the least-squares scale of the trial's
-/// move onto the observed one; `e` where there is no move to scale.
-fn small_strain_estimate(postures: &Postures, e: f32, moved: &[Vec3]) -> f32 {
+/// The least-squares scale `s` of a trial's free-skin move (from the rest
+/// shape, to `moved`) onto the observed one; `None` where there is no
+/// move to scale or the scale is not positive.
+fn skin_scale(postures: &Postures, moved: &[Vec3]) -> Option<f32> {
     let (mut along, mut squared) = (0.0f64, 0.0f64);
     for ((r, m), t) in postures.rest.iter().zip(moved).zip(postures.targets) {
         if let Some(t) = t {
@@ -313,11 +331,26 @@ fn small_strain_estimate(postures: &Postures, e: f32, moved: &[Vec3]) -> f32 {
         }
     }
     let scale = (along / squared) as f32;
-    if scale.is_finite() && scale > 0.0 {
-        e / scale
-    } else {
-        e
-    }
+    (scale.is_finite() && scale > 0.0).then_some(scale)
+}
+
+/// The next trial stiffness after the one at `e` (kPa), from `scales`,
+/// each converged trial's `(ln E, ln s)` in order ([`skin_scale`]): where
+/// the skin's move scales as `E^-p`, `ln s = p (ln E - ln E*)`, so the
+/// last two trials' secant gives `p` and `E*`. The slope is taken within
+/// [`SECANT_SLOPES`] (else `p = 1`, the small-strain law's `E / s`); `e`
+/// where its trial has no scale.
+fn next_estimate(e: f32, scales: &[(f32, f32)]) -> f32 {
+    let Some(&(ln_e, ln_s)) = scales.last().filter(|(ln_e, _)| *ln_e == e.ln()) else {
+        return e;
+    };
+    let slope = match scales {
+        [.., (ln_a, ln_sa), _] if (ln_e - ln_a).abs() > f32::EPSILON => {
+            Some((ln_s - ln_sa) / (ln_e - ln_a)).filter(|p| SECANT_SLOPES.contains(p))
+        }
+        _ => None,
+    };
+    (ln_e - ln_s / slope.unwrap_or(1.0)).exp()
 }
 
 /// [`Postures::targets`] for `model`: each surface particle on a triangle
@@ -393,6 +426,89 @@ mod tests {
             "{:?}",
             targets[1]
         );
+    }
+
+    /// The next trial: the law's `E / s` from one trial; from two, the
+    /// secant's `E*` where the move is a power of `E` (here `E^-1.5`, a
+    /// stiffness of 2 kPa), the law's where the slope is out of range; the
+    /// trial itself where it has no scale.
+    #[test]
+    fn the_next_trial_is_the_secants_where_two_trials_give_a_slope() {
+        let truth = 2.0f32;
+        let at = |e: f32, p: f32| (e.ln(), p * (e.ln() - truth.ln()));
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-4 * b;
+        // One trial: `E / s`, with `s = (E / E*)^1.5`.
+        let first = [at(4.0, 1.5)];
+        let law = 4.0 / (4.0f32 / truth).powf(1.5);
+        assert!(close(next_estimate(4.0, &first), law));
+        // Two: the power law's answer, whichever order they came in.
+        let two = [at(4.0, 1.5), at(law, 1.5)];
+        assert!(close(next_estimate(law, &two), truth), "{}", next_estimate(law, &two));
+        let steep = [at(4.0, 3.0), at(3.0, 3.0)];
+        assert!(close(next_estimate(3.0, &steep), 3.0 / (1.5f32).powf(3.0)));
+        // The last scale is another trial's: no estimate.
+        assert_eq!(next_estimate(5.0, &two), 5.0);
+        assert!(SECANT_SLOPES.contains(&1.0));
+        assert_eq!(SECANT_SLOPES, 0.5..=2.0);
+    }
+
+    /// A stand-in whose skin moves as `E^-1.5` from the rest shape: the
+    /// law alone (`p = 1`) overshoots by half each trial and would not have
+    /// settled after [`REFINEMENTS`] (0.84 in `ln E` off, then 0.42, 0.21,
+    /// 0.10, 0.05); the secant lands on its third trial and stops there.
+    #[test]
+    fn the_fit_finds_a_stiffness_whose_move_is_a_power_of_it() {
+        let n = 30;
+        let rest: Vec<Vec3> = (0..n)
+            .map(|i| Vec3::new((i % 5) as f32, (i / 5) as f32, 0.0))
+            .collect();
+        let surface = vec![true; n];
+        let (truth, p) = (1.3f32, 1.5f32);
+        let g = Vec3::new(0.0, 0.0, -2.0);
+        // The unloaded shape is the rest shape (no rest load); the
+        // deformed posture's move is `g (1 / E)^p` at every point.
+        let moved = |x: &[Vec3], k: Vec3| -> Vec<Vec3> {
+            let e = g.length() / k.length();
+            x.iter().map(|&r| r + g * e.powf(-p)).collect()
+        };
+        let targets: Vec<Option<Vec3>> = moved(&rest, g / truth).into_iter().map(Some).collect();
+        let postures = Postures {
+            rest: &rest,
+            surface: &surface,
+            targets: &targets,
+            rest_load_per_kpa: Vec3::ZERO,
+            deformed_load_per_kpa: g,
+        };
+        let unloading = Unloading {
+            tolerance: 1e-5,
+            max_rounds: 30,
+            measure: Accuracy::Full,
+        };
+        let report = DeformReport {
+            iterations: 1,
+            residual: 0.0,
+            residual_history: Vec::new(),
+            converged: true,
+            stopped_by: StopReason::Tolerance,
+            seconds: 0.0,
+            elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
+        };
+        let fit = fit_stiffness(&postures, 3.0, (0.1, 100.0), unloading, |x, k, _, _| {
+            let out = if k == Vec3::ZERO { x.to_vec() } else { moved(x, k) };
+            Ok((out, report.clone()))
+        })
+        .unwrap();
+        let kpa: Vec<f32> = fit.trials.iter().map(|t| t.stiffness_kpa).collect();
+        assert!(
+            (fit.stiffness_kpa / truth).ln().abs() < SETTLED,
+            "{} kPa against {truth}: {kpa:?}",
+            fit.stiffness_kpa
+        );
+        assert_eq!(fit.trials.len(), 3, "{kpa:?}");
+        // The law's second trial: `3 / (3 / 1.3)^1.5`, below the truth.
+        assert!((kpa[1] - 3.0 / (3.0f32 / truth).powf(p)).abs() < 1e-3, "{kpa:?}");
     }
 
     /// A linear stand-in for the solves: a body of springs whose move is
