@@ -443,7 +443,11 @@ mod tests {
         assert!(close(next_estimate(4.0, &first), law));
         // Two: the power law's answer, whichever order they came in.
         let two = [at(4.0, 1.5), at(law, 1.5)];
-        assert!(close(next_estimate(law, &two), truth), "{}", next_estimate(law, &two));
+        assert!(
+            close(next_estimate(law, &two), truth),
+            "{}",
+            next_estimate(law, &two)
+        );
         let steep = [at(4.0, 3.0), at(3.0, 3.0)];
         assert!(close(next_estimate(3.0, &steep), 3.0 / (1.5f32).powf(3.0)));
         // The last scale is another trial's: no estimate.
@@ -496,7 +500,11 @@ mod tests {
             potentials: Vec::new(),
         };
         let fit = fit_stiffness(&postures, 3.0, (0.1, 100.0), unloading, |x, k, _, _| {
-            let out = if k == Vec3::ZERO { x.to_vec() } else { moved(x, k) };
+            let out = if k == Vec3::ZERO {
+                x.to_vec()
+            } else {
+                moved(x, k)
+            };
             Ok((out, report.clone()))
         })
         .unwrap();
@@ -508,7 +516,10 @@ mod tests {
         );
         assert_eq!(fit.trials.len(), 3, "{kpa:?}");
         // The law's second trial: `3 / (3 / 1.3)^1.5`, below the truth.
-        assert!((kpa[1] - 3.0 / (3.0f32 / truth).powf(p)).abs() < 1e-3, "{kpa:?}");
+        assert!(
+            (kpa[1] - 3.0 / (3.0f32 / truth).powf(p)).abs() < 1e-3,
+            "{kpa:?}"
+        );
     }
 
     /// A linear stand-in for the solves: a body of springs whose move is
