@@ -164,6 +164,9 @@ fn main() {
             )
             .unwrap();
             solver.set_surface(&model.surface).unwrap();
+            if let Some(guess) = &found.deformed_guess {
+                solver.warm_start(guess).unwrap();
+            }
             let free = solver.solve().unwrap();
             let skin = |i: usize| model.is_surface(i);
             println!(

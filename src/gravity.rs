@@ -27,6 +27,10 @@
 //! let params = params.with(|p| p.load = unloaded.deformed_load);
 //! let mut solver = Solver::unloaded(Device::Cpu, &model, &unloaded.shape.positions, params)?;
 //! solver.set_surface(&deformed)?;
+//! // Where a fit put the deformed posture, its solve starts there.
+//! if let Some(guess) = &unloaded.deformed_guess {
+//!     solver.warm_start(guess)?;
+//! }
 //! assert!(solver.solve()?.converged);
 //! # Ok::<(), tissue::Error>(())
 //! ```

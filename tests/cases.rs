@@ -290,6 +290,10 @@ impl GravityCase {
         let mut solver =
             Solver::unloaded(Device::Cpu, &self.model, &found.shape.positions, params).unwrap();
         solver.set_surface(&self.deformed).unwrap();
+        // As `tissue deform` does: from where the fit put the posture.
+        solver
+            .warm_start(found.deformed_guess.as_ref().unwrap())
+            .unwrap();
         let report = solver.solve().unwrap();
         assert_eq!(solver.reference(), &self.model.positions[..]);
         let truth = &self.truth;

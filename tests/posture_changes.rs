@@ -164,6 +164,9 @@ fn recovered(
     let mut solver =
         Solver::unloaded(device.clone(), &scans.model, &shape.positions, params).unwrap();
     solver.set_surface(&scans.model.surface).unwrap();
+    solver
+        .warm_start(found.deformed_guess.as_ref().unwrap())
+        .unwrap();
     assert!(solver.solve().unwrap().converged);
     let skin: Vec<usize> = (0..scans.model.len())
         .filter(|&i| scans.model.is_surface(i))

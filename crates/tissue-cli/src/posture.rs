@@ -352,6 +352,22 @@ impl Posture {
         })
     }
 
+    /// Starts `solver`'s next solve from where the fit put the deformed
+    /// posture ([`Unloaded::deformed_guess`]), where it has a guess: called
+    /// after the posture's own deformed surface is set, before its solve.
+    pub fn warm_start(&self, solver: &mut Solver) -> Result<()> {
+        if let Some(guess) = self
+            .unloaded
+            .as_ref()
+            .and_then(|u| u.deformed_guess.as_ref())
+        {
+            solver
+                .warm_start(guess)
+                .map_err(|e| anyhow!("the deformed posture's start: {e}"))?;
+        }
+        Ok(())
+    }
+
     /// Lines for the terminal.
     pub fn summary(&self, indent: &str) -> Vec<String> {
         let r = &self.report;

@@ -428,6 +428,9 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     };
     let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
     set_deformed(&args.surface, &mut solver, &deformed)?;
+    if let Some(posture) = &posture {
+        posture.warm_start(&mut solver)?;
+    }
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let field = match &args.displacement_field {
         Some(path) => Some(field_request(path, args.field_spacing, &model, &deformed)?),

@@ -450,9 +450,12 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     // the last frames) is what the frames before made it: solving them
     // again, as deterministic as the first time, makes the resumed run's
     // frames those of an uninterrupted run, to the bit. Their files stay.
-    for frame in &frames[..done.len()] {
+    for (k, frame) in frames[..done.len()].iter().enumerate() {
         let deformed = read_frame(frame, &model.surface)?;
         set_deformed(frame, &mut solver, &deformed)?;
+        if let (0, Some(posture)) = (k, &posture) {
+            posture.warm_start(&mut solver)?;
+        }
         solver.solve()?;
     }
     let summary = Summary {
@@ -481,6 +484,11 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         // Checked whole before the first solve: read again, not re-checked.
         let deformed = read_frame(frame, &model.surface)?;
         set_deformed(frame, &mut solver, &deformed)?;
+        // The first frame is the posture's deformed scan: solved from where
+        // the fit put it.
+        if let (0, Some(posture)) = (k, &posture) {
+            posture.warm_start(&mut solver)?;
+        }
         let mut bar = SolveBar::new(format!("frame {}/{}", k + 1, frames.len()), args.quiet);
         let solve = solver.solve_with_progress(&mut |step| bar.step(step));
         bar.finish();

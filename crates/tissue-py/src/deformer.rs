@@ -29,6 +29,10 @@ pub(crate) struct Deformer {
     pub(crate) deformed: Option<SurfaceMesh>,
     /// What `Model.deformer_in_posture` found.
     pub(crate) posture: Option<Py<PyAny>>,
+    /// The fit's deformed surface and where it put the particles
+    /// (`Unloaded::deformed_guess`): the first solve of that surface
+    /// starts there.
+    pub(crate) guess: Option<(Vec<Vec3>, Vec<Vec3>)>,
 }
 
 impl Deformer {
@@ -121,11 +125,19 @@ impl Deformer {
         progress: Option<Py<PyAny>>,
     ) -> PyResult<Py<PyAny>> {
         let deformed = deformed_surface(&self.model.surface, surface)?;
+        let guess = self
+            .guess
+            .take()
+            .filter(|(fitted, _)| *fitted == deformed.vertices)
+            .map(|(_, guess)| guess);
         let solver = &mut self.solver;
         let mut callback = Callback::new(progress.as_ref());
         let report = py
             .detach(|| {
                 solver.set_surface(&deformed)?;
+                if let Some(guess) = &guess {
+                    solver.warm_start(guess)?;
+                }
                 solver.solve_with_progress(&mut |step| {
                     callback.tell(|info| {
                         info.set_item("iteration", step.iteration)?;

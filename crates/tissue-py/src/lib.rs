@@ -238,6 +238,7 @@ impl Model {
             spacing: self.model.mean_connection_length(),
             deformed: None,
             posture: None,
+            guess: None,
         })
     }
 
@@ -366,6 +367,7 @@ impl Model {
                 spacing: self.model.mean_connection_length(),
                 deformed: None,
                 posture: Some(posture.unbind().into_any()),
+                guess: None,
             });
         }
         let mut callback = Callback::new(progress.as_ref());
@@ -442,6 +444,9 @@ impl Model {
             spacing: self.model.mean_connection_length(),
             deformed: None,
             posture: Some(posture.unbind().into_any()),
+            guess: unloaded
+                .deformed_guess
+                .map(|guess| (deformed.vertices.clone(), guess)),
         })
     }
 }

@@ -92,6 +92,10 @@ pub struct StiffnessFit {
     /// The unloaded shape at that stiffness, its miss measured at the
     /// rounds' accuracy ([`Accuracy::Round`]).
     pub unloaded: UnloadedShape,
+    /// That shape loaded with the deformed posture's gravity, the skin
+    /// free: where the particles of the deformed posture are, about (a
+    /// warm start for its solve with the observed skin).
+    pub deformed: Vec<Vec3>,
     /// Every trial, in order.
     pub trials: Vec<Trial>,
 }
@@ -158,7 +162,7 @@ pub fn fit_stiffness(
         ..unloading
     };
     let mut trials: Vec<Trial> = Vec::new();
-    let mut best: Option<(Trial, UnloadedShape)> = None;
+    let mut best: Option<(Trial, UnloadedShape, Vec<Vec3>)> = None;
     // The last deformed posture solved: its stiffness, unloaded shape and
     // loaded positions, whose move, scaled by the stiffnesses, warm-starts
     // the next.
@@ -167,12 +171,12 @@ pub fn fit_stiffness(
     // solves failed).
     let mut run = |e: f32,
                    trials: &mut Vec<Trial>,
-                   best: &mut Option<(Trial, UnloadedShape)>|
+                   best: &mut Option<(Trial, UnloadedShape, Vec<Vec3>)>|
      -> Result<(f32, Vec<Vec3>), Error> {
         // Warm start: the best shape's displacement scaled by its stiffness
         // over this one.
         let start: Vec<Vec3> = match best {
-            Some((t, shape)) => {
+            Some((t, shape, _)) => {
                 let scale = t.stiffness_kpa / e;
                 postures
                     .rest
@@ -226,8 +230,8 @@ pub fn fit_stiffness(
             residual,
         };
         trials.push(trial.clone());
-        if residual.is_finite() && best.as_ref().is_none_or(|(b, _)| residual < b.residual) {
-            *best = Some((trial, unloaded));
+        if residual.is_finite() && best.as_ref().is_none_or(|(b, ..)| residual < b.residual) {
+            *best = Some((trial, unloaded, moved.clone()));
         }
         Ok((residual, moved))
     };
@@ -303,7 +307,7 @@ pub fn fit_stiffness(
         last = (between, moved);
     }
     // The first trial converged, so `best` is at least that one.
-    let Some((trial, unloaded)) = best else {
+    let Some((trial, unloaded, deformed)) = best else {
         return Err(Error::Param(ParamError {
             name: "stiffness",
             value: format!("{start} kPa"),
@@ -314,6 +318,7 @@ pub fn fit_stiffness(
         stiffness_kpa: trial.stiffness_kpa,
         residual: trial.residual,
         unloaded,
+        deformed,
         trials,
     })
 }

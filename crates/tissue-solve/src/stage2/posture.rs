@@ -283,6 +283,13 @@ pub struct Unloaded {
     pub fit: Option<Fit>,
     /// The deformed posture's gravity as [`DeformParams::load`].
     pub deformed_load: Vec3,
+    /// Where the deformed posture puts the particles, about: the fit's
+    /// winning trial (its unloaded shape loaded, the skin free), carried to
+    /// the model from a coarse one; `None` where the stiffness was given.
+    /// A warm start for the deformed posture's first solve
+    /// ([`Tracker::warm_start`], after the observed skin is set): its
+    /// elastic phase starts near the answer, linearised there.
+    pub deformed_guess: Option<Vec<Vec3>>,
     /// Every stage-2 solve the search made.
     pub solves: usize,
     /// Over those solves, the elastic phases run again
@@ -384,10 +391,10 @@ pub fn unload<P: PostureDevice>(
         last_round: None,
         laplacian: None,
     };
-    let (stiffness_kpa, shape, fit) = match gravity.stiffness_kpa {
+    let (stiffness_kpa, shape, fit, deformed_guess) = match gravity.stiffness_kpa {
         Some(e) => {
             let shape = solves.unloaded(model, None, rest_per_kpa / e, unloading)?;
-            (e, shape, None)
+            (e, shape, None, None)
         }
         None => {
             let started = std::time::Instant::now();
@@ -436,12 +443,13 @@ pub fn unload<P: PostureDevice>(
                         rest_per_kpa / f.stiffness_kpa,
                         unloading,
                     )?;
+                    let guess = carried(&coarse.positions, &f.deformed, &model.positions);
                     let fit = Fit {
                         residual: f.residual,
                         trials: f.trials,
                         particles: coarse.len(),
                     };
-                    (f.stiffness_kpa, shape, Some(fit))
+                    (f.stiffness_kpa, shape, Some(fit), Some(guess))
                 }
                 // The fit's shape, measured loosely, measured again in full.
                 None => {
@@ -458,7 +466,7 @@ pub fn unload<P: PostureDevice>(
                         trials: f.trials,
                         particles: model.len(),
                     };
-                    (f.stiffness_kpa, shape, Some(fit))
+                    (f.stiffness_kpa, shape, Some(fit), Some(f.deformed))
                 }
             }
         }
@@ -468,6 +476,7 @@ pub fn unload<P: PostureDevice>(
         stiffness_kpa,
         fit,
         deformed_load: deformed_per_kpa / stiffness_kpa,
+        deformed_guess,
         solves: solves.count,
         elastic_retries: solves.elastic_retries,
         backtracks: solves.backtracks,
