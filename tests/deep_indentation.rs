@@ -115,3 +115,50 @@ fn converges_stepping_back(depth_mm: f32) {
     assert!(report.iterations < 100, "{report:?}");
     assert_eq!(folded.count, 0, "{folded:?}");
 }
+
+/// The bench's sixteen probes (`tissue-bench --probes`: 15-30 mm deep, 8-35
+/// mm wide, solved from rest without the prediction's extrapolation) at
+/// 10,000 particles, where the deepest compress their particles far from
+/// where the two-level solve was linearised: each converges, none
+/// diverges, and its elastic phases are one descent whose every accepted
+/// state has a potential at most the one before, the linearisations made
+/// again where a phase stalled included. The GPU's twin of this runs the
+/// same probes at 2,000 particles on lavapipe
+/// (`crates/tissue-gpu/tests/solve.rs::every_probe_descends_the_potential_on_both_devices`).
+#[test]
+fn the_sixteen_probes_at_10k_descend_the_potential_and_converge() {
+    let model = tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(10_000),
+    )
+    .unwrap()
+    .model;
+    let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
+    let mut deformer = Deformer::new(&model, params).unwrap();
+    let mut relinearised = 0;
+    for depth in [15.0, 20.0, 25.0, 30.0] {
+        for width in [8.0, 15.0, 25.0, 35.0] {
+            let probe = Indentation::down_at_top(&model.surface, depth, width).unwrap();
+            deformer.reset();
+            deformer
+                .set_surface(&deform_surface(&model.surface, &probe))
+                .unwrap();
+            let report = deformer.solve();
+            eprintln!(
+                "{depth} x {width} mm: {} iterations, {:?}, {} linearised again, {} steps back",
+                report.iterations, report.stopped_by, report.elastic_retries, report.backtracks
+            );
+            assert!(report.converged, "{depth} x {width}: {report:?}");
+            assert_eq!(report.potentials.len(), 1, "{depth} x {width}");
+            assert!(report.potentials[0].len() > 2, "{depth} x {width}");
+            assert!(
+                report.potentials_fell(),
+                "{depth} x {width}: {:?}",
+                report.potentials
+            );
+            relinearised += report.elastic_retries;
+        }
+    }
+    // The deepest stall and go on from where they stalled.
+    assert!(relinearised > 0);
+}

@@ -181,7 +181,7 @@ positions and rotations of the particle and its k neighbours read, its connectio
 and new position written; p, r = position and rotation size (CPU 12, 36; GPU 16, 48)";
 
 fn main() -> ExitCode {
-    // Warnings (a solve that diverged and was run again, a correction that
+    // Warnings (a solve that did not converge, a correction that
     // could not be made) go to stderr beside the tables; RUST_LOG=info
     // says more.
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();

@@ -99,7 +99,8 @@ pub struct ProbeSolve {
     pub converged: bool,
     /// Which rule ended it.
     pub stopped_by: String,
-    /// How many times the elastic phase ran again (`DeformReport::elastic_retries`).
+    /// How many times the elastic phase went on from where it stopped short
+    /// (`DeformReport::elastic_retries`).
     pub retries: usize,
     /// How many times an elastic phase stepped back (`DeformReport::backtracks`).
     pub backtracks: usize,

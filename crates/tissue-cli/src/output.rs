@@ -75,8 +75,9 @@ pub struct SolveReport {
     pub status: Status,
     /// Which rule ended the solve.
     pub stopped_by: StopReason,
-    /// How many times the elastic phase ran again after it diverged or
-    /// stalled (0 for the other forces).
+    /// How many times the elastic phase went on from the state it accepted
+    /// last after it stalled or ran out of steps back, linearised again
+    /// there or without its correction (0 for the other forces).
     pub elastic_retries: usize,
     /// How many times an elastic phase went back to the last state it
     /// accepted and on with half its step, the potential having risen.
@@ -652,7 +653,7 @@ impl SolveReport {
         }
         if self.elastic_retries > 0 {
             again.push(format!(
-                "the elastic phase ran again {}: `elastic_retries`",
+                "the elastic phase went on from where it stopped short {}: `elastic_retries`",
                 times(self.elastic_retries)
             ));
         }

@@ -208,8 +208,8 @@ pub struct PostureReport {
     pub unloaded_converged: bool,
     /// Stage-2 solves the unloaded shape and the fit made.
     pub solves: usize,
-    /// Over those solves, the elastic phases run again (a phase that
-    /// diverged or stalled), in all.
+    /// Over those solves, the elastic phases gone on from where they
+    /// stopped short (stalled, or out of steps back), in all.
     pub posture_elastic_retries: usize,
     /// Over those solves, the energy watch's steps back, in all.
     pub posture_backtracks: usize,
@@ -405,8 +405,9 @@ impl Posture {
                     match (r.posture_elastic_retries, r.posture_backtracks) {
                         (0, 0) => String::new(),
                         (retries, back) => format!(
-                            " (their elastic phases ran again {retries} times and stepped back \
-                             {back}: `posture_elastic_retries`, `posture_backtracks`)"
+                            " (their elastic phases went on from where they stopped short \
+                             {retries} times and stepped back {back}: \
+                             `posture_elastic_retries`, `posture_backtracks`)"
                         ),
                     }
                 ));

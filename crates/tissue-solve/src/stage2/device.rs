@@ -31,8 +31,9 @@ pub struct Iteration {
     pub relinearise: bool,
     /// The fraction of the volume smoother's two-level step a smoothed
     /// elastic iteration takes (the device scales its residual by it): 1,
-    /// but [`crate::stage2::phase::ELASTIC_DAMPING`] where a smoothed phase that failed is run
-    /// again. The other iterations ignore it.
+    /// halved each time a watched phase steps back
+    /// ([`crate::stage2::phase::MAX_BACKTRACKS`]). The other iterations
+    /// ignore it.
     pub damping: f32,
 }
 

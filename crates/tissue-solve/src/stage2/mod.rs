@@ -39,8 +39,7 @@ pub use params::{
 };
 pub use passes::{Choices, Correction, Holds, Pass};
 pub use phase::{
-    DAMPED_RETRIES, ELASTIC_DAMPING, ELASTIC_RETRIES, ENERGY_WATCH, MAX_BACKTRACKS,
-    MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE, WATCH_SETTLED,
+    ENERGY_WATCH, MAX_BACKTRACKS, MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE, WATCH_SETTLED,
 };
 pub use plan::{MAX_LOAD_SIZE, Plan, SharedSpectrum, control_points, laplacian_key};
 pub use posture::{

@@ -1,12 +1,12 @@
 //! What one phase of a stage-2 solve runs with and the rules of the
 //! elastic phase the tracker ([`crate::stage2::tracker::Tracker`]) follows:
-//! where the shear phase stops, the energy watch, and how a failed elastic
-//! phase runs again.
+//! where the shear phase stops, the energy watch, and how an elastic phase
+//! that stopped short of the tolerance goes on.
 
 use crate::stage2::acceleration::Chebyshev;
 use crate::stage2::batches::Batches;
 use crate::stage2::device::{Potential, SolveDevice};
-use crate::stage2::report::{ENERGY_ROUNDING, SolveStep};
+use crate::stage2::report::{ENERGY_ROUNDING, SolveStep, StopReason};
 
 /// The shear phase of an elastic solve stops at this many times the
 /// solve's tolerance: it only has to bring every neighbourhood near its
@@ -20,40 +20,60 @@ pub const SHEAR_TOLERANCE: f32 = 10.0;
 /// last misfit measured.
 pub const SHEAR_CHECK: f32 = 100.0;
 
-/// The fraction of its two-level step a smoothed elastic phase takes when
-/// it is run again from the end of the shear phase after it diverged (or
-/// stalled a second time), before the correction is given up; Chebyshev
-/// and the stopping rule then take the contraction `1 - d (1 - rho)`.
-/// Under a deep probe the first corrected steps are too long for the
-/// linearisation they were made from; damping slows every healthy phase,
-/// so it is taken only after a failure (docs/METHOD.md, "Elastic model").
-pub const ELASTIC_DAMPING: f32 = 0.5;
+/// How many times in one solve an elastic phase that stopped short of the
+/// tolerance (stalled, or out of steps back) goes on from the state it
+/// accepted last with its correction made there, before the solve goes on
+/// without the correction ([`Next`]). A corrected phase's steps are set
+/// from a linearisation at its start; under a deep probe the particles it
+/// compresses stiffen as the phase moves away from it, and its steps
+/// settle at a size that no longer falls. The deepest of the bench's probes
+/// at 10k (30 mm deep, 15 mm wide) is linearised three times
+/// (docs/METHOD.md, "Elastic model", *The energy watch*).
+pub const MAX_RELINEARISATIONS: usize = 8;
 
-/// How many times a smoothed elastic phase that fails is run again with
-/// [`ELASTIC_DAMPING`] of the step before (0.5, then 0.25): a quarter step
-/// brings deep probes to the tolerance that half of it does not
-/// (docs/METHOD.md, "Elastic model").
-pub const DAMPED_RETRIES: usize = 2;
+/// What an elastic solve does after a phase that stopped short of the
+/// tolerance: the device holds the state the phase accepted last (whose
+/// potential is at most that of every state before it), and the solve goes
+/// on from there; nothing is run again from an earlier state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Next {
+    /// The solve ends there.
+    End,
+    /// The next phase makes its correction at that state and starts with
+    /// the fraction of its step the last one ended with.
+    Relinearise,
+    /// The next phase steps plainly (the device's correction dropped),
+    /// halving its step from each rise ([`MAX_BACKTRACKS`] times).
+    Uncorrected,
+}
 
-/// How many times an elastic phase that diverged is run again from the end
-/// of the shear phase: first with its smoothed correction's step damped
-/// ([`DAMPED_RETRIES`] times) where it smoothed, then without the
-/// device's correction, where it ran with one, then each time with half
-/// the step before. The correction is linearised where the phase starts
-/// and the step is set from the stiffness at rest
-/// ([`crate::model::elastic::STIFFENING`] times it); a particle compressed far
-/// more than the rest of the model (a deep, narrow indentation) can be
-/// stiffer still, and far from that linearisation (docs/METHOD.md,
-/// "Elastic model").
-pub const ELASTIC_RETRIES: usize = 5;
-
-/// How many times in one solve a corrected elastic phase that stalls goes
-/// on from where it stalled with its correction made there, before a stall
-/// runs it again from the end of the shear phase: the deepest of the
-/// bench's probes at 10k (30 mm deep, 15 mm wide) stalls three times and
-/// converges in 168 iterations, where with one it took 522 and six retries
-/// (docs/METHOD.md, "Elastic model", *Preparation and 1M*).
-pub const MAX_RELINEARISATIONS: usize = 3;
+impl Next {
+    /// After a phase that stopped by `stopped_by`, ran `corrected` (with the
+    /// device's correction), `smoothed` (with the volume smoother), after
+    /// `relinearised` linearisations of the solve's, with iterations left
+    /// or not. A smoothed phase out of steps back, or any corrected phase
+    /// that stalled, is linearised again at the state it accepted; a plain
+    /// one out of steps back made its correction at that state already, and
+    /// goes on without it, as every corrected phase does past
+    /// [`MAX_RELINEARISATIONS`].
+    pub(crate) fn after(
+        stopped_by: StopReason,
+        corrected: bool,
+        smoothed: bool,
+        relinearised: usize,
+        left: bool,
+    ) -> Self {
+        if !stopped_by.failed() || !left || !corrected {
+            return Self::End;
+        }
+        let linearise_again = stopped_by == StopReason::Stalled || smoothed;
+        if linearise_again && relinearised < MAX_RELINEARISATIONS {
+            Self::Relinearise
+        } else {
+            Self::Uncorrected
+        }
+    }
+}
 
 /// The most iterations an elastic solve's warm phase (from the predicted
 /// start) runs before it is taken for stalled and the frame is solved
@@ -73,8 +93,9 @@ pub const ENERGY_WATCH: usize = 8;
 
 /// How many times one smoothed elastic phase goes back to the state it
 /// accepted with half its step before it ends, diverged: the step is then
-/// `1 / 64` of the first. A plain one goes back once from each state it
-/// accepted, its correction linearised there, at most as many times.
+/// `1 / 64` of the first; so does an uncorrected one, halving its plain
+/// step. A plain corrected one goes back once from each state it accepted,
+/// its correction linearised there, at most as many times.
 pub const MAX_BACKTRACKS: usize = 6;
 
 /// Below this many tolerances of its error estimate a watched smoothed
@@ -266,6 +287,33 @@ mod tests {
         assert!(rose(last, at(f64::INFINITY, f64::INFINITY)));
         assert!(rose(last, at(f64::NAN, 200.0)));
         assert!(rose(last, at(50.0, f64::INFINITY)));
+    }
+
+    /// After a phase that stopped short of the tolerance: a stall, or a
+    /// smoothed phase out of steps back, is linearised again while
+    /// linearisations are left; a plain corrected phase out of steps back
+    /// (linearised again at that state already), or any past the last
+    /// linearisation, goes on without its correction; an uncorrected one,
+    /// or one with no iteration left, ends; a phase that converged ends.
+    #[test]
+    fn a_phase_short_of_the_tolerance_goes_on_from_where_it_accepted() {
+        use StopReason::{Diverged, FloatPrecision, IterationCap, Stalled, Tolerance};
+        let most = MAX_RELINEARISATIONS;
+        let after = |stopped, corrected, smoothed, relinearised| {
+            Next::after(stopped, corrected, smoothed, relinearised, true)
+        };
+        assert_eq!(after(Stalled, true, true, 0), Next::Relinearise);
+        assert_eq!(after(Stalled, true, false, most - 1), Next::Relinearise);
+        assert_eq!(after(Diverged, true, true, 0), Next::Relinearise);
+        assert_eq!(after(Diverged, true, false, 0), Next::Uncorrected);
+        assert_eq!(after(Stalled, true, true, most), Next::Uncorrected);
+        assert_eq!(after(Diverged, true, true, most), Next::Uncorrected);
+        assert_eq!(after(Stalled, false, false, 0), Next::End);
+        assert_eq!(after(Diverged, false, false, 0), Next::End);
+        for done in [Tolerance, FloatPrecision, IterationCap] {
+            assert_eq!(after(done, true, true, 0), Next::End, "{done:?}");
+        }
+        assert_eq!(Next::after(Stalled, true, true, 0, false), Next::End);
     }
 
     /// The watch's verdicts: a fall is kept; a rise stepped back from, or

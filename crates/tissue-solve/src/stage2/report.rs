@@ -24,14 +24,14 @@ pub enum StopReason {
     /// The error estimate stopped falling in an iteration whose
     /// contraction was measured (the volume smoother's): the iteration no
     /// longer contracts where it runs (`acceleration::STALL_WINDOW`). The
-    /// elastic solve then runs the phase again another way, as after a
-    /// divergence.
+    /// elastic solve then goes on from the state the phase accepted last
+    /// (`phase::Next`).
     Stalled,
 }
 
 impl StopReason {
-    /// Whether the phase it ended is run again another way: the state
-    /// became non-finite, or the iteration stopped contracting.
+    /// Whether the phase it ended stopped short of the tolerance: the
+    /// state became non-finite, or the iteration stopped contracting.
     pub fn failed(self) -> bool {
         matches!(self, StopReason::Diverged | StopReason::Stalled)
     }
@@ -116,13 +116,13 @@ pub struct DeformReport {
     pub stopped_by: StopReason,
     /// Wall-clock seconds of the solve.
     pub seconds: f64,
-    /// How many times the elastic phase ran again: linearised again where
-    /// it stalled (`phase::MAX_RELINEARISATIONS` times at most), and
-    /// after a divergence or a fourth stall from the end of the shear phase without its correction or with half the
-    /// step (`phase::ELASTIC_RETRIES` of those at most), and a tracking
-    /// frame's warm-started phase that failed and was solved again from a
-    /// shear phase; 0 for the other forces. Told here (and in the log at
-    /// `info`), not as warnings: a solve that ends converged is a success.
+    /// How many times the elastic phase went on from the state it accepted
+    /// last after it stopped short of the tolerance: linearised again there
+    /// (`phase::MAX_RELINEARISATIONS` times at most), or without its
+    /// correction after those (`phase::Next`); and a tracking frame's
+    /// warm-started phase that failed and was solved again from a shear
+    /// phase. 0 for the other forces. Told here (and in the log at `info`),
+    /// not as warnings: a solve that ends converged is a success.
     #[serde(default)]
     pub elastic_retries: usize,
     /// How many times an elastic phase went back to the last state it
@@ -131,15 +131,17 @@ pub struct DeformReport {
     /// (`phase::ENERGY_WATCH`).
     #[serde(default)]
     pub backtracks: usize,
-    /// Per elastic phase, the potential the elastic force descends where
-    /// it started and at every state it accepted: each at most the one
-    /// before, within the rounding of its parts ([`ENERGY_ROUNDING`]).
+    /// Per elastic descent (a warm-started phase, or the elastic phases
+    /// after a shear phase, each going on from the state the one before
+    /// accepted last), the potential the elastic force descends where it
+    /// started and at every state it accepted: each at most the one before,
+    /// within the rounding of its parts ([`ENERGY_ROUNDING`]).
     #[serde(default)]
     pub potentials: Vec<Vec<f64>>,
 }
 
 impl DeformReport {
-    /// Whether every state an elastic phase accepted has a finite potential
+    /// Whether every state an elastic descent accepted has a finite potential
     /// at most that of the state before, within
     /// [`ENERGY_ROUNDING`] of the larger potential's size
     /// (the tracker measures the rounding on its parts' magnitudes, which
