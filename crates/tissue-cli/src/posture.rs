@@ -404,9 +404,17 @@ impl Posture {
                     r.posture_seconds,
                     match (r.posture_elastic_retries, r.posture_backtracks) {
                         (0, 0) => String::new(),
+                        (0, back) => format!(
+                            " (their elastic phases stepped back {back} times: \
+                             `posture_backtracks`)"
+                        ),
+                        (retries, 0) => format!(
+                            " (their elastic phases went on from where they stopped short \
+                             {retries} times: `posture_elastic_retries`)"
+                        ),
                         (retries, back) => format!(
                             " (their elastic phases went on from where they stopped short \
-                             {retries} times and stepped back {back}: \
+                             {retries} times and stepped back {back} times: \
                              `posture_elastic_retries`, `posture_backtracks`)"
                         ),
                     }
