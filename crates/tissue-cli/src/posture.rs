@@ -101,7 +101,7 @@ pub struct GravityArgs {
     #[arg(long, value_enum, requires = "gravity_rest")]
     pub unit: Option<Unit>,
     /// Fit the stiffness on a model of this many particles sampled on the
-    /// same surface (default 2000), then find the model's own unloaded
+    /// same surface (default 4000), then find the model's own unloaded
     /// shape at that stiffness: several times faster than fitting on the
     /// model, the same stiffness within a few per cent (docs/METHOD.md).
     /// 0, or a model with fewer than twice as many: fit on the model

@@ -134,7 +134,7 @@ fn the_stiffness_is_fitted_from_the_skin_when_not_given() {
     );
     assert!(text(&output).contains("fitted in"), "{}", text(&output));
     // A model of 2,000 particles is fitted on itself (the coarse model's
-    // default is 2,000, used from twice as many).
+    // default is 4,000, used from twice as many).
     assert_eq!(r["fit_particles"], 2000);
     assert!(r["posture_seconds"].as_f64().unwrap() > 0.0);
     // `--fit-particles 500`: fitted on 500 particles of the same surface,

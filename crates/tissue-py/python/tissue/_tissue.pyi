@@ -68,7 +68,7 @@ class Model:
         poisson: Optional[float] = None,
         max_iterations: Optional[int] = None,
         progress: Optional[Progress] = None,
-        fit_particles: Optional[int] = 2000,
+        fit_particles: Optional[int] = 4000,
     ) -> Deformer: ...
 
 class Deformer:
