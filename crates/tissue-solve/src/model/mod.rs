@@ -32,7 +32,8 @@ pub use resampling::{
     MIN_VOLUME_RATIO, field_grid, resampling_field,
 };
 pub use stiffness::{
-    Postures, REFINEMENTS, SETTLED, StiffnessFit, Trial, fit_stiffness, free_skin_targets,
+    Postures, REFINEMENTS, SETTLED, StiffnessFit, TRIAL_TOLERANCE, Trial, fit_stiffness,
+    free_skin_targets,
 };
 pub use structures::{
     CARRIERS, Embedding, RIGID_NEIGHBOURS, RigidBinding, RigidMotion, carriers_of, embedding_moved,

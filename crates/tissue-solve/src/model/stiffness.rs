@@ -45,6 +45,15 @@ pub const SETTLED: f32 = 0.02;
 /// Trials after the first move, at most.
 pub const REFINEMENTS: usize = 4;
 
+/// A trial's unloaded shape is searched to this many times the unloaded
+/// shape's tolerance: it only sets the trial's skin move (10-20 mm on the
+/// breast cases, so 0.2 mm is 1-2 % of it), and the winner's shape is
+/// searched on to the tolerance afterwards. Against 1: the forward-made
+/// breast_e prone to supine takes 10 solves instead of 15, every
+/// forward-made posture fits within 4.4 % still, and the shared cases are
+/// unchanged (docs/METHOD.md, "Rounds to a looser tolerance").
+pub const TRIAL_TOLERANCE: f32 = 2.0;
+
 /// The slopes `p` of `ln s` against `ln E` ([`next_estimate`]) the
 /// secant takes: the skin's move under gravity scales as `E^-p` with `p`
 /// between 0.8 and 1.2 on the shared cases and their forward-made
@@ -156,9 +165,11 @@ pub fn fit_stiffness(
         Ok::<_, Error>((moved, report))
     };
     // A trial's unloaded shape only sets its skin's move: measured at the
-    // rounds' accuracy (a caller measures the winner's in full).
+    // rounds' accuracy, to `TRIAL_TOLERANCE` times the tolerance (a caller
+    // measures the winner's in full).
     let loose = Unloading {
         measure: Accuracy::Round,
+        tolerance: unloading.tolerance * TRIAL_TOLERANCE,
         ..unloading
     };
     let mut trials: Vec<Trial> = Vec::new();
@@ -437,6 +448,56 @@ mod tests {
     /// secant's `E*` where the move is a power of `E` (here `E^-1.5`, a
     /// stiffness of 2 kPa), the law's where the slope is out of range; the
     /// trial itself where it has no scale.
+    /// A trial's unloaded shape is searched to [`TRIAL_TOLERANCE`] times the
+    /// tolerance: on a body whose load is nonlinear, that search ends in
+    /// fewer rounds, each shape within its own tolerance.
+    #[test]
+    fn the_trials_tolerance_is_pinned_and_takes_fewer_rounds() {
+        assert_eq!(TRIAL_TOLERANCE, 2.0);
+        let report = DeformReport {
+            iterations: 1,
+            residual: 0.0,
+            residual_history: Vec::new(),
+            converged: true,
+            stopped_by: StopReason::Tolerance,
+            seconds: 0.0,
+            elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
+        };
+        // A body whose load moves it by `load / E` (one particle, free):
+        // the shape the trial's rounds end at is within twice the
+        // tolerance, so looser than the rounds of a full search.
+        let rest = [Vec3::ZERO, Vec3::X];
+        let surface = [true, true];
+        let mut tolerances = Vec::new();
+        let unloading = Unloading {
+            tolerance: 0.01,
+            max_rounds: 30,
+            measure: Accuracy::Round,
+        };
+        let trial_unloading = Unloading {
+            tolerance: unloading.tolerance * TRIAL_TOLERANCE,
+            ..unloading
+        };
+        for u in [unloading, trial_unloading] {
+            let shape = unloaded_shape_from(&rest, &rest, &surface, u, |x, _, _| {
+                // Loading moves every particle by 0.3 (in x), times 1 +
+                // its own x: a nonlinear load, so rounds are needed.
+                let moved: Vec<Vec3> = x.iter().map(|p| *p + Vec3::X * 0.3 * (1.0 + p.x)).collect();
+                Ok((moved, report.clone()))
+            })
+            .unwrap();
+            tolerances.push((shape.rounds, shape.residual));
+        }
+        // Fewer rounds at the trials' tolerance, each shape within its own.
+        assert!(tolerances[1].0 < tolerances[0].0, "{tolerances:?}");
+        assert!(
+            tolerances[0].1 <= 0.01 && tolerances[1].1 <= 0.02,
+            "{tolerances:?}"
+        );
+    }
+
     #[test]
     fn the_next_trial_is_the_secants_where_two_trials_give_a_slope() {
         let truth = 2.0f32;
