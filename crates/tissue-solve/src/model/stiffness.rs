@@ -409,6 +409,21 @@ fn skin_residual(postures: &Postures, moved: &[Vec3]) -> f32 {
 mod tests {
     use super::*;
 
+    /// A solve's report that converged in one iteration.
+    fn converged() -> DeformReport {
+        DeformReport {
+            iterations: 1,
+            residual: 0.0,
+            residual_history: Vec::new(),
+            converged: true,
+            stopped_by: StopReason::Tolerance,
+            seconds: 0.0,
+            elastic_retries: 0,
+            backtracks: 0,
+            potentials: Vec::new(),
+        }
+    }
+
     /// Particles on a held triangle, and interior ones, get no target; one on
     /// a free triangle gets its place on the deformed surface.
     #[test]
@@ -454,17 +469,7 @@ mod tests {
     #[test]
     fn the_trials_tolerance_is_pinned_and_takes_fewer_rounds() {
         assert_eq!(TRIAL_TOLERANCE, 2.0);
-        let report = DeformReport {
-            iterations: 1,
-            residual: 0.0,
-            residual_history: Vec::new(),
-            converged: true,
-            stopped_by: StopReason::Tolerance,
-            seconds: 0.0,
-            elastic_retries: 0,
-            backtracks: 0,
-            potentials: Vec::new(),
-        };
+        let report = converged();
         // A body whose load moves it by `load / E` (one particle, free):
         // the shape the trial's rounds end at is within twice the
         // tolerance, so looser than the rounds of a full search.
@@ -554,17 +559,7 @@ mod tests {
             max_rounds: 30,
             measure: Accuracy::Full,
         };
-        let report = DeformReport {
-            iterations: 1,
-            residual: 0.0,
-            residual_history: Vec::new(),
-            converged: true,
-            stopped_by: StopReason::Tolerance,
-            seconds: 0.0,
-            elastic_retries: 0,
-            backtracks: 0,
-            potentials: Vec::new(),
-        };
+        let report = converged();
         let fit = fit_stiffness(&postures, 3.0, (0.1, 100.0), unloading, |x, k, _, _| {
             let out = if k == Vec3::ZERO {
                 x.to_vec()
