@@ -767,9 +767,9 @@ impl<D: SolveDevice> Tracker<D> {
     /// accelerated one (with its stall window) for a smoothed phase over a
     /// whole observed skin, where the smoother's contraction at rest holds.
     /// Over a free skin the smoother's slowest modes (a column bending
-    /// under its weight) lie below that estimate: called stalled there, the
-    /// test column ran its phase again 6 times and ended at a higher
-    /// potential; stopped by the plain rule it converges with no retry
+    /// under its weight) lie below that estimate, and the accelerated rule
+    /// calls a phase that is still converging there stalled; stopped by
+    /// the plain rule the test column converges with no retry
     /// (docs/METHOD.md, "The volume smoother").
     fn phase_rule(&self, p: &DeformParams, rho: f32, smoothed: bool) -> StoppingRule {
         if smoothed && !self.free_skin {
