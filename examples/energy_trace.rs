@@ -193,16 +193,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         cases.push((name, model, deformed));
     }
     println!(
-        "| case | converged | iterations | retries | steps back | elastic starts | elastic iterations | \
-         raised the potential | largest rise / largest fall | rises in the first 5 of a start | \
-         starts run again that rose in their first 5 |"
+        "| case | converged | iterations | went on (retries) | steps back | elastic starts | elastic \
+         iterations | raised the potential | largest rise / largest fall | rises in the first 5 of a \
+         start | starts left that rose in their first 5 |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (name, model, deformed) in &cases {
         let (report, phases) = watched(model, deformed)?;
         let (mut iterations, mut raised, mut early) = (0usize, 0usize, 0usize);
-        // The phases run again (all but the last), and those of them whose
-        // potential rose within their first five iterations.
+        // The starts left (all but the last: stepped back from, or
+        // linearised again), and those of them whose potential rose within
+        // their first five iterations.
         let again = phases.len().saturating_sub(1);
         let early_in_again = phases[..again]
             .iter()
