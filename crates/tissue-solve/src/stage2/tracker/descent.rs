@@ -27,11 +27,10 @@ impl<D: SolveDevice> Tracker<D> {
     /// falls; docs/METHOD.md, "Elastic model", *The energy watch*), with
     /// the fraction of its step the phase ended with; past
     /// [`crate::stage2::phase::MAX_RELINEARISATIONS`], without the
-    /// correction. Nothing is run
-    /// again from an earlier state: every state the elastic phases accept
-    /// has a potential at most that of the one before. Both phases together
-    /// take at most `budget` iterations: a shear phase that takes them all
-    /// ends the solve, not converged.
+    /// correction. Nothing is run again from an earlier state: every state
+    /// the elastic phases accept has a potential at most that of the one
+    /// before. Both phases together take at most `budget` iterations: a
+    /// shear phase that takes them all ends the solve, not converged.
     pub(super) fn shear_then_elastic(
         &mut self,
         params: &DeformParams,
@@ -92,8 +91,11 @@ impl<D: SolveDevice> Tracker<D> {
                 Next::End => {
                     second.iterations = used;
                     second.residual_history = history;
-                    second.potentials = vec![potentials];
-                    second.potentials.retain(|p| !p.is_empty());
+                    second.potentials = if potentials.is_empty() {
+                        Vec::new()
+                    } else {
+                        vec![potentials]
+                    };
                     second.backtracks = backtracks;
                     second.elastic_retries = went_on;
                     self.elastic_correct = run.correct;
