@@ -67,9 +67,10 @@ fn grid_bounds(at: Invocation) {
     }
 }
 
-// Cells of edge `cell` over `extent`: floor(extent / cell) + 1 per axis.
+// Cells of edge `cell` over `extent`: floor(extent reciprocal(cell)) + 1
+// per axis.
 fn dims_for(extent: vec3<f32>, cell: f32) -> vec3<u32> {
-    let d = floor(extent / cell) + 1.0;
+    let d = floor(extent * reciprocal(cell)) + 1.0;
     return vec3<u32>(min(d, vec3<f32>(4294967040.0)));
 }
 
@@ -108,9 +109,12 @@ fn grid_layout() {
         finite = finite && is_finite(lo[k]) && is_finite(hi[k]);
     }
     // f32::MIN_POSITIVE and 1e-6f32 by their bits: a literal would pass
-    // through f64 first and might round differently from Rust's.
-    let extent = max(hi - lo, vec3<f32>(bitcast<f32>(0x00800000u)));
-    cell = max(cell, max(extent.x, max(extent.y, extent.z)) * bitcast<f32>(0x358637bdu));
+    // through f64 first and might round differently from Rust's. The cell
+    // is never below f32::MIN_POSITIVE: a subnormal one (every particle at
+    // one point) is flushed to zero on some devices and would never grow.
+    let smallest = bitcast<f32>(0x00800000u);
+    let extent = max(hi - lo, vec3<f32>(smallest));
+    cell = max(max(cell, max(extent.x, max(extent.y, extent.z)) * bitcast<f32>(0x358637bdu)), smallest);
     // Fewer than 200 growths reach any finite extent; the bound only keeps
     // a bad input from spinning.
     var grown = false;
@@ -127,7 +131,7 @@ fn grid_layout() {
     }
     let d = dims_for(extent, cell);
     grid = GridLayout(
-        vec4<f32>(lo, 0.0),
+        vec4<f32>(lo, reciprocal(cell)),
         vec4<u32>(d, d.x * d.y * d.z),
         cell,
         reach,

@@ -32,7 +32,8 @@ struct GridParams {
 
 // The grid the layout kernel chose, read by every later kernel.
 struct GridLayout {
-    // Corner of cell (0, 0, 0); w unused.
+    // Corner of cell (0, 0, 0); w the reciprocal of the cell edge, rounded
+    // to nearest (`reciprocal`).
     origin: vec4<f32>,
     // Cells along x, y, z; w the number of cells.
     dims: vec4<u32>,
@@ -91,9 +92,46 @@ fn is_finite(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
 }
 
+// 1 / x rounded to nearest, as the CPU's division rounds it, for a positive
+// normal x below 2^126 (cell edges; anything else gets `1.0 / x`). WGSL's
+// division may be off by 2.5 units in the last place (NVIDIA's is), which
+// puts a particle near a cell's face in the next cell over; multiplication
+// and subtraction round exactly everywhere. By long division of 2^48 by
+// the 24-bit significand m: its 25-bit quotient is the result's 24 bits
+// and a rounding bit, the remainder the sticky bit. The quotient is never
+// exactly halfway: 2^48 / m is an integer only for a power of two.
+fn reciprocal(x: f32) -> f32 {
+    let bits = bitcast<u32>(x);
+    let e = (bits >> 23u) & 0xffu;
+    if ((bits >> 31u) != 0u || e == 0u || e > 252u) {
+        return 1.0 / x;
+    }
+    let m = (bits & 0x7fffffu) | 0x800000u;
+    if (m == 0x800000u) {
+        return bitcast<f32>((254u - e) << 23u);
+    }
+    var remainder = 1u;
+    var quotient = 0u;
+    for (var k = 0u; k < 48u; k++) {
+        remainder <<= 1u;
+        quotient <<= 1u;
+        if (remainder >= m) {
+            remainder -= m;
+            quotient |= 1u;
+        }
+    }
+    var significand = quotient >> 1u;
+    if ((quotient & 1u) != 0u && (remainder != 0u || (significand & 1u) != 0u)) {
+        significand += 1u;
+    }
+    // The significand's leading bit adds one to the exponent field (and a
+    // carry out of rounding, another).
+    return bitcast<f32>(((252u - e) << 23u) + significand);
+}
+
 // `Grid::coords`: the cell holding p, clamped into the grid.
 fn cell_coords(grid: GridLayout, p: vec3<f32>) -> vec3<u32> {
-    let g = (p - grid.origin.xyz) / grid.cell;
+    let g = (p - grid.origin.xyz) * grid.origin.w;
     // Clamped before the conversion, which is undefined out of range; the
     // bound is the largest f32 below 2^32.
     let c = vec3<u32>(clamp(g, vec3<f32>(0.0), vec3<f32>(4294967040.0)));

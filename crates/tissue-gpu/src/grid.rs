@@ -95,7 +95,8 @@ pub fn row_split(limits: &wgpu::Limits) -> u32 {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GridLayout {
-    /// Corner of cell `(0, 0, 0)`; w unused.
+    /// Corner of cell `(0, 0, 0)`; w the reciprocal of the cell edge,
+    /// rounded to nearest (the CPU's `1.0 / cell`).
     pub origin: [f32; 4],
     /// Cells along x, y, z; w the number of cells.
     pub dims: [u32; 4],

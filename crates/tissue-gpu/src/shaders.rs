@@ -33,7 +33,8 @@ pub const SHARED: &[(&str, &str)] = &[
 ];
 
 /// Shader files with entry points: `(name, source before #import expansion)`.
-/// `tests/svd3` is the test-only kernel behind the SVD invariant tests.
+/// `tests/svd3` is the test-only kernel behind the SVD invariant tests,
+/// `tests/reciprocal` the one behind the grid's rounding test.
 pub const SHADERS: &[(&str, &str)] = &[
     (
         "local_rotations",
@@ -64,6 +65,10 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../shaders/volume_smoother.wgsl"),
     ),
     ("tests/svd3", include_str!("../shaders/tests/svd3.wgsl")),
+    (
+        "tests/reciprocal",
+        include_str!("../shaders/tests/reciprocal.wgsl"),
+    ),
     ("imf_force", include_str!("../shaders/imf_force.wgsl")),
     (
         "sampling_place",

@@ -133,6 +133,16 @@ fn grid_build_equals_the_cpu_with_all_particles_in_one_cell_and_outliers() {
     let grids = pipelines(&device);
     let mut positions = vec![Vec3::splat(0.5); 300];
     assert_grid_equal("300 equal points", &device, &queue, &grids, &positions, 0.2);
+    // No cell asked for: the layout's floor, f32::MIN_POSITIVE, not a
+    // subnormal that a device flushing subnormals would hold at zero.
+    assert_grid_equal(
+        "300 equal points, no cell",
+        &device,
+        &queue,
+        &grids,
+        &positions,
+        0.0,
+    );
     positions.push(Vec3::splat(1e4));
     positions.push(Vec3::splat(-1e4));
     positions.push(Vec3::new(-0.0, 0.0, -1e-30));
@@ -436,5 +446,96 @@ fn neighbour_rows_longer_than_two_bindings_are_refused() {
             assert!(what.contains("entries past one binding"), "{what}");
         }
         other => panic!("expected LimitExceeded, got {other:?}"),
+    }
+}
+
+/// Positive normal floats below 2^126 (where `reciprocal` divides by
+/// itself): random significands at every exponent, the significands next
+/// to a power of two, and the cells the layout grows through.
+fn reciprocal_inputs() -> Vec<f32> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0x0ce1_1ed6);
+    let mut out = Vec::new();
+    for exponent in 1u32..=252 {
+        for significand in [0u32, 1, 2, 3, 0x7f_fffe, 0x7f_ffff, 0x40_0000, 0x55_5555] {
+            out.push(f32::from_bits(exponent << 23 | significand));
+        }
+        for _ in 0..400 {
+            out.push(f32::from_bits(
+                exponent << 23 | rng.random_range(0..0x80_0000),
+            ));
+        }
+    }
+    let mut cell = 1e-4f32;
+    while cell < 1e4 {
+        out.push(cell);
+        cell *= 1.25;
+    }
+    out.extend([0.1, 0.3, 0.7, 1.0 / 3.0, 2.5, 4.0, 1e-30, 1e30]);
+    out
+}
+
+#[test]
+fn the_cells_reciprocal_rounds_as_the_cpus_division() {
+    let Some((device, queue)) = common::gpu("reciprocal") else {
+        return;
+    };
+    let inputs = reciprocal_inputs();
+    let source = tissue_gpu::shaders::source("tests/reciprocal").unwrap_or_else(|e| panic!("{e}"));
+    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("reciprocal test"),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some("reciprocal test"),
+        layout: None,
+        module: &shader,
+        entry_point: Some("reciprocal_test"),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("inputs"),
+        contents: bytemuck::cast_slice(&inputs),
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    let output = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("outputs"),
+        size: std::mem::size_of_val(inputs.as_slice()) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: input.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: output.as_entire_binding(),
+            },
+        ],
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups((inputs.len() as u32).div_ceil(64), 1, 1);
+    }
+    queue.submit([encoder.finish()]);
+    let got: Vec<f32> = bytemuck::pod_collect_to_vec(&common::read(&device, &queue, &output));
+    assert!(inputs.len() > 100_000, "{} inputs", inputs.len());
+    for (&x, &r) in inputs.iter().zip(&got) {
+        let want = 1.0 / x;
+        assert_eq!(
+            r.to_bits(),
+            want.to_bits(),
+            "reciprocal({x:e} = {:#010x}): GPU {r:e}, CPU {want:e}",
+            x.to_bits()
+        );
     }
 }

@@ -32,8 +32,11 @@ pub fn max_cells(count: usize) -> u64 {
 }
 
 impl Grid {
+    /// By the reciprocal of the cell, as the GPU does: its division may be
+    /// off in the last place, its reciprocal (`reciprocal` in
+    /// `shaders/shared/grid.wgsl`) and its products are not.
     fn coords(&self, p: Vec3) -> [u32; 3] {
-        let g = (p - self.origin) / self.cell;
+        let g = (p - self.origin) * (1.0 / self.cell);
         [0, 1, 2].map(|k| (g[k].max(0.0) as u32).min(self.dims[k] - 1))
     }
 
@@ -96,21 +99,23 @@ impl Grid {
 
 /// The layout of a grid over `count` particles bounded by `lo`, `hi`, with
 /// cells of at least `cell`: `(origin, cell, dims)`. The cell grows by 1.25
-/// while there are more than [`max_cells`]. Twin of `grid_layout` in
+/// while there are more than [`max_cells`], and is never below
+/// `f32::MIN_POSITIVE` (a subnormal cell, from particles all at one point,
+/// is zero on a device that flushes subnormals). Twin of `grid_layout` in
 /// `shaders/grid_build.wgsl` (one invocation), which must pick the same cell.
 pub fn grid_layout(lo: Vec3, hi: Vec3, count: usize, cell: f32) -> (Vec3, f32, [u32; 3]) {
     let extent = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE));
-    let mut cell = cell.max(extent.max_element() * 1e-6);
+    let mut cell = cell.max(extent.max_element() * 1e-6).max(f32::MIN_POSITIVE);
     // Exact: the counts and the product are integers below 2^53.
     let cap = max_cells(count) as f64;
     let cells_for = |cell: f32| {
-        let d = (extent / cell).floor() + 1.0;
+        let d = (extent * (1.0 / cell)).floor() + 1.0;
         f64::from(d.x) * f64::from(d.y) * f64::from(d.z)
     };
     while cells_for(cell) > cap {
         cell *= 1.25;
     }
-    let d = (extent / cell).floor() + 1.0;
+    let d = (extent * (1.0 / cell)).floor() + 1.0;
     (lo, cell, [d.x as u32, d.y as u32, d.z as u32])
 }
 
