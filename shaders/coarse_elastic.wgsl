@@ -17,7 +17,7 @@
 //   entries of `elastic_coarse`;
 // - `elastic_forward` and `elastic_backward`, one workgroup each: the
 //   coarse matrix's Cholesky factor over the 3 n unknowns, forward by
-//   columns, backward by rows;
+//   columns, backward by rows, the vector in workgroup memory;
 // - `elastic_apply`, per particle: q̂_i −= the solution at its aggregate.
 // The CPU computes in f64, here in f32.
 
@@ -158,44 +158,84 @@ fn elastic_unknowns() -> u32 {
     return min(arrayLength(&elastic_coarse), arrayLength(&elastic_row_starts) - 1u);
 }
 
-// L L^T x = b in place in `elastic_coarse`, by one workgroup each way, as
+// L L^T x = b in place in `elastic_coarse`, by one workgroup each way, one
+// unknown after another with a barrier between, as
 // `coarse.wgsl::coarse_forward` and `coarse_backward` do for one coordinate.
+// The vector is held in workgroup memory for the solve, so that a step
+// waits on a workgroup barrier only, not on the device's memory, and each
+// step's diagonal is fetched one step ahead. `HELD_UNKNOWNS` is the
+// deformer's `GPU_COARSE_UNKNOWNS`, which `ElasticCoarseBuffers::linearise`
+// refuses to exceed.
+const HELD_UNKNOWNS: u32 = 4096u;
+
+var<workgroup> held: array<f32, HELD_UNKNOWNS>;
+
+// The diagonal of row j.
+fn elastic_diagonal(j: u32) -> f32 {
+    return elastic_row_values[elastic_row_starts[j + 1u] - 1u];
+}
+
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_forward(@builtin(local_invocation_index) local: u32) {
     let n = select(elastic_unknowns(), 0u, params.count == 0u);
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        held[i] = elastic_coarse[i];
+    }
+    workgroupBarrier();
+    var diagonal = 1.0;
+    if (n > 0u) {
+        diagonal = elastic_diagonal(0u);
+    }
     for (var j = 0u; j < n; j++) {
-        let y = elastic_coarse[j] / elastic_row_values[elastic_row_starts[j + 1u] - 1u];
+        let next = elastic_diagonal(min(j + 1u, n - 1u));
+        let y = held[j] / diagonal;
         let end = elastic_column_starts[j + 1u];
         for (var k = elastic_column_starts[j] + local; k < end; k += WORKGROUP_SIZE) {
             let i = elastic_column_rows[k];
-            elastic_coarse[i] -= elastic_column_values[k] * y;
+            held[i] -= elastic_column_values[k] * y;
         }
-        storageBarrier();
         workgroupBarrier();
         if (local == 0u) {
-            elastic_coarse[j] = y;
+            held[j] = y;
         }
+        diagonal = next;
+    }
+    workgroupBarrier();
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        elastic_coarse[i] = held[i];
     }
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_backward(@builtin(local_invocation_index) local: u32) {
     let n = select(elastic_unknowns(), 0u, params.count == 0u);
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        held[i] = elastic_coarse[i];
+    }
+    workgroupBarrier();
+    var diagonal = 1.0;
+    if (n > 0u) {
+        diagonal = elastic_diagonal(n - 1u);
+    }
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
+        let next = elastic_diagonal(max(i, 1u) - 1u);
         let start = elastic_row_starts[i];
-        let diagonal = elastic_row_starts[i + 1u] - 1u;
-        let x = elastic_coarse[i] / elastic_row_values[diagonal];
-        let first = i + start - diagonal;
-        for (var k = start + local; k < diagonal; k += WORKGROUP_SIZE) {
-            let j = first + (k - start);
-            elastic_coarse[j] -= elastic_row_values[k] * x;
+        let last = elastic_row_starts[i + 1u] - 1u;
+        let x = held[i] / diagonal;
+        let first = i + start - last;
+        for (var k = start + local; k < last; k += WORKGROUP_SIZE) {
+            held[first + (k - start)] -= elastic_row_values[k] * x;
         }
-        storageBarrier();
         workgroupBarrier();
         if (local == 0u) {
-            elastic_coarse[i] = x;
+            held[i] = x;
         }
+        diagonal = next;
+    }
+    workgroupBarrier();
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        elastic_coarse[i] = held[i];
     }
 }
 

@@ -180,6 +180,12 @@ impl ElasticCoarseBuffers {
                 ));
             }
         };
+        if factored > crate::GPU_COARSE_UNKNOWNS {
+            return Err(GpuError::Internal(format!(
+                "{what}: {factored}, more than the {} one workgroup substitutes in its memory",
+                crate::GPU_COARSE_UNKNOWNS
+            )));
+        }
         if factor.len() != factored {
             return Err(GpuError::Length {
                 what,

@@ -460,4 +460,25 @@ mod tests {
             );
         }
     }
+
+    /// The elastic substitutions hold the whole vector in workgroup memory:
+    /// the WGSL's `HELD_UNKNOWNS` must be the most unknowns the deformer
+    /// binds, and fit wgpu's default 16 KiB of workgroup memory.
+    #[test]
+    fn the_elastic_substitutions_hold_every_factor_the_deformer_binds() {
+        let module = module("coarse_elastic").unwrap_or_else(|e| panic!("{e}"));
+        let held = module
+            .constants
+            .iter()
+            .find(|(_, c)| c.name.as_deref() == Some("HELD_UNKNOWNS"))
+            .map(|(_, c)| &module.global_expressions[c.init]);
+        let Some(naga::Expression::Literal(naga::Literal::U32(held))) = held else {
+            panic!("HELD_UNKNOWNS is not a u32 literal: {held:?}");
+        };
+        assert_eq!(*held as usize, crate::GPU_COARSE_UNKNOWNS);
+        assert!(
+            4 * *held <= wgpu::Limits::default().max_compute_workgroup_storage_size,
+            "{held} f32 exceed the default workgroup memory"
+        );
+    }
 }
