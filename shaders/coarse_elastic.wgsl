@@ -161,44 +161,67 @@ fn elastic_unknowns() -> u32 {
 // L L^T x = b in place in `elastic_coarse`, by one workgroup each way, one
 // unknown after another with a barrier between, as
 // `coarse.wgsl::coarse_forward` and `coarse_backward` do for one coordinate.
-// The vector is held in workgroup memory for the solve, so that a step
-// waits on a workgroup barrier only, not on the device's memory, and each
-// step's diagonal is fetched one step ahead. `HELD_UNKNOWNS` is the
-// deformer's `GPU_COARSE_UNKNOWNS`, which `ElasticCoarseBuffers::linearise`
-// refuses to exceed.
+// The vector is held in workgroup memory for the solve, and what a step
+// reads of the factor (its diagonal, its range, each thread's first entry)
+// is fetched during the step before, the range's end two steps before: a
+// step then waits on a workgroup barrier, not on the device's memory. The
+// same operations in the same order as one step after another would do.
+// `HELD_UNKNOWNS` is the deformer's `GPU_COARSE_UNKNOWNS`, which
+// `ElasticCoarseBuffers::linearise` refuses to exceed.
 const HELD_UNKNOWNS: u32 = 4096u;
 
 var<workgroup> held: array<f32, HELD_UNKNOWNS>;
 
-// The diagonal of row j.
-fn elastic_diagonal(j: u32) -> f32 {
-    return elastic_row_values[elastic_row_starts[j + 1u] - 1u];
-}
-
+// Forward, L y = b by columns: y_j = b_j / L_jj, then b_i −= L_ij y_j for
+// the rows below that reach column j.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_forward(@builtin(local_invocation_index) local: u32) {
     let n = select(elastic_unknowns(), 0u, params.count == 0u);
+    if (n == 0u) {
+        return;
+    }
     for (var i = local; i < n; i += WORKGROUP_SIZE) {
         held[i] = elastic_coarse[i];
     }
     workgroupBarrier();
-    var diagonal = 1.0;
-    if (n > 0u) {
-        diagonal = elastic_diagonal(0u);
+    // Column j: entries begin..end; this thread's first (row, value).
+    var diagonal = elastic_row_values[elastic_row_starts[1u] - 1u];
+    var begin = elastic_column_starts[0u];
+    var end = elastic_column_starts[1u];
+    var row = 0u;
+    var value = 0.0;
+    if (begin + local < end) {
+        row = elastic_column_rows[begin + local];
+        value = elastic_column_values[begin + local];
     }
+    var end_next = elastic_column_starts[min(2u, n)];
     for (var j = 0u; j < n; j++) {
-        let next = elastic_diagonal(min(j + 1u, n - 1u));
+        // Column j + 1's, fetched ahead (nothing past the last column).
+        let diagonal_next = elastic_row_values[elastic_row_starts[min(j + 2u, n)] - 1u];
+        var row_next = 0u;
+        var value_next = 0.0;
+        if (end + local < end_next) {
+            row_next = elastic_column_rows[end + local];
+            value_next = elastic_column_values[end + local];
+        }
+        let end_after = elastic_column_starts[min(j + 3u, n)];
         let y = held[j] / diagonal;
-        let end = elastic_column_starts[j + 1u];
-        for (var k = elastic_column_starts[j] + local; k < end; k += WORKGROUP_SIZE) {
-            let i = elastic_column_rows[k];
-            held[i] -= elastic_column_values[k] * y;
+        if (begin + local < end) {
+            held[row] -= value * y;
+        }
+        for (var k = begin + local + WORKGROUP_SIZE; k < end; k += WORKGROUP_SIZE) {
+            held[elastic_column_rows[k]] -= elastic_column_values[k] * y;
         }
         workgroupBarrier();
         if (local == 0u) {
             held[j] = y;
         }
-        diagonal = next;
+        diagonal = diagonal_next;
+        begin = end;
+        end = end_next;
+        end_next = end_after;
+        row = row_next;
+        value = value_next;
     }
     workgroupBarrier();
     for (var i = local; i < n; i += WORKGROUP_SIZE) {
@@ -206,32 +229,55 @@ fn elastic_forward(@builtin(local_invocation_index) local: u32) {
     }
 }
 
+// Backward, L^T x = y by rows: x_i = y_i / L_ii, then y_j −= L_ij x_i for
+// the columns of row i (its envelope: entries start..last, `last` the
+// diagonal's).
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_backward(@builtin(local_invocation_index) local: u32) {
     let n = select(elastic_unknowns(), 0u, params.count == 0u);
+    if (n == 0u) {
+        return;
+    }
     for (var i = local; i < n; i += WORKGROUP_SIZE) {
         held[i] = elastic_coarse[i];
     }
     workgroupBarrier();
-    var diagonal = 1.0;
-    if (n > 0u) {
-        diagonal = elastic_diagonal(n - 1u);
+    var start = elastic_row_starts[n - 1u];
+    var last = elastic_row_starts[n] - 1u;
+    var diagonal = elastic_row_values[last];
+    var value = 0.0;
+    if (start + local < last) {
+        value = elastic_row_values[start + local];
     }
+    var start_next = elastic_row_starts[max(n, 2u) - 2u];
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
-        let next = elastic_diagonal(max(i, 1u) - 1u);
-        let start = elastic_row_starts[i];
-        let last = elastic_row_starts[i + 1u] - 1u;
+        // Row i - 1's, fetched ahead: its diagonal ends where row i starts
+        // (nothing before row 0).
+        let last_next = max(start, 1u) - 1u;
+        let diagonal_next = elastic_row_values[last_next];
+        var value_next = 0.0;
+        if (i > 0u && start_next + local < last_next) {
+            value_next = elastic_row_values[start_next + local];
+        }
+        let start_after = elastic_row_starts[max(i, 2u) - 2u];
         let x = held[i] / diagonal;
         let first = i + start - last;
-        for (var k = start + local; k < last; k += WORKGROUP_SIZE) {
+        if (start + local < last) {
+            held[first + local] -= value * x;
+        }
+        for (var k = start + local + WORKGROUP_SIZE; k < last; k += WORKGROUP_SIZE) {
             held[first + (k - start)] -= elastic_row_values[k] * x;
         }
         workgroupBarrier();
         if (local == 0u) {
             held[i] = x;
         }
-        diagonal = next;
+        diagonal = diagonal_next;
+        last = last_next;
+        start = start_next;
+        start_next = start_after;
+        value = value_next;
     }
     workgroupBarrier();
     for (var i = local; i < n; i += WORKGROUP_SIZE) {
