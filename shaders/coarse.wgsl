@@ -8,7 +8,7 @@
 //   (those in an aggregate; the others read as 0);
 // - `coarse_restrict`, per aggregate: the sum over its particles;
 // - `coarse_forward` and `coarse_backward`, one workgroup each: the coarse
-//   Laplacian's Cholesky factor, forward by columns, backward by rows, in place;
+//   Laplacian's Cholesky factor, forward by columns, backward by rows;
 // - `coarse_apply`, per particle: q̂_i −= the solution at its aggregate.
 // The CPU sums and solves in f64, here in f32: both agree within rounding.
 
@@ -93,13 +93,134 @@ fn coarse_restrict(
 // L L^T x = b in place in `coarse`, by one workgroup each way (two
 // dispatches: one long one stopped short on llvmpipe past about 10,000
 // steps): each step's updates are spread over the threads, a barrier
-// between steps.
+// between steps. Up to `HELD_AGGREGATES` aggregates (wgpu's default 16 KiB
+// of workgroup memory) the vector is held in workgroup memory, and what a
+// step reads of the factor (its diagonal, its range, each thread's first
+// entry) is fetched during the step before, the range's end two steps
+// before, as `coarse_elastic.wgsl` does: a step then waits on a workgroup
+// barrier, not on the device's memory. Above, the vector is substituted
+// where it lies. The same operations in the same order either way.
+const HELD_AGGREGATES: u32 = 1024u;
+
+var<workgroup> held: array<vec3<f32>, HELD_AGGREGATES>;
 
 // Forward, L y = b by columns: y_j = b_j / L_jj, then b_i −= L_ij y_j for
 // the rows below that reach column j.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn coarse_forward(@builtin(local_invocation_index) local: u32) {
     let n = select(arrayLength(&coarse), 0u, params.count == 0u);
+    if (n > HELD_AGGREGATES) {
+        forward_in_place(local, n);
+        return;
+    }
+    if (n == 0u) {
+        return;
+    }
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        held[i] = coarse[i].xyz;
+    }
+    workgroupBarrier();
+    var diagonal = row_values[row_starts[1u] - 1u];
+    var begin = column_starts[0u];
+    var end = column_starts[1u];
+    var row = 0u;
+    var value = 0.0;
+    if (begin + local < end) {
+        row = column_rows[begin + local];
+        value = column_values[begin + local];
+    }
+    var end_next = column_starts[min(2u, n)];
+    for (var j = 0u; j < n; j++) {
+        let diagonal_next = row_values[row_starts[min(j + 2u, n)] - 1u];
+        var row_next = 0u;
+        var value_next = 0.0;
+        if (end + local < end_next) {
+            row_next = column_rows[end + local];
+            value_next = column_values[end + local];
+        }
+        let end_after = column_starts[min(j + 3u, n)];
+        let y = held[j] / diagonal;
+        if (begin + local < end) {
+            held[row] -= value * y;
+        }
+        for (var k = begin + local + WORKGROUP_SIZE; k < end; k += WORKGROUP_SIZE) {
+            held[column_rows[k]] -= column_values[k] * y;
+        }
+        workgroupBarrier();
+        if (local == 0u) {
+            held[j] = y;
+        }
+        diagonal = diagonal_next;
+        begin = end;
+        end = end_next;
+        end_next = end_after;
+        row = row_next;
+        value = value_next;
+    }
+    workgroupBarrier();
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        coarse[i] = vec4<f32>(held[i], 0.0);
+    }
+}
+
+// Backward, L^T x = y by rows: x_i = y_i / L_ii, then y_j −= L_ij x_i for
+// the columns of row i (entries start..last, `last` the diagonal's).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn coarse_backward(@builtin(local_invocation_index) local: u32) {
+    let n = select(arrayLength(&coarse), 0u, params.count == 0u);
+    if (n > HELD_AGGREGATES) {
+        backward_in_place(local, n);
+        return;
+    }
+    if (n == 0u) {
+        return;
+    }
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        held[i] = coarse[i].xyz;
+    }
+    workgroupBarrier();
+    var start = row_starts[n - 1u];
+    var last = row_starts[n] - 1u;
+    var diagonal = row_values[last];
+    var value = 0.0;
+    if (start + local < last) {
+        value = row_values[start + local];
+    }
+    var start_next = row_starts[max(n, 2u) - 2u];
+    for (var step = 0u; step < n; step++) {
+        let i = n - 1u - step;
+        let last_next = max(start, 1u) - 1u;
+        let diagonal_next = row_values[last_next];
+        var value_next = 0.0;
+        if (i > 0u && start_next + local < last_next) {
+            value_next = row_values[start_next + local];
+        }
+        let start_after = row_starts[max(i, 2u) - 2u];
+        let x = held[i] / diagonal;
+        let first = i + start - last;
+        if (start + local < last) {
+            held[first + local] -= value * x;
+        }
+        for (var k = start + local + WORKGROUP_SIZE; k < last; k += WORKGROUP_SIZE) {
+            held[first + (k - start)] -= row_values[k] * x;
+        }
+        workgroupBarrier();
+        if (local == 0u) {
+            held[i] = x;
+        }
+        diagonal = diagonal_next;
+        last = last_next;
+        start = start_next;
+        start_next = start_after;
+        value = value_next;
+    }
+    workgroupBarrier();
+    for (var i = local; i < n; i += WORKGROUP_SIZE) {
+        coarse[i] = vec4<f32>(held[i], 0.0);
+    }
+}
+
+fn forward_in_place(local: u32, n: u32) {
     for (var j = 0u; j < n; j++) {
         let y = coarse[j].xyz / row_values[row_starts[j + 1u] - 1u];
         for (var k = column_starts[j] + local; k < column_starts[j + 1u]; k += WORKGROUP_SIZE) {
@@ -114,11 +235,7 @@ fn coarse_forward(@builtin(local_invocation_index) local: u32) {
     }
 }
 
-// Backward, L^T x = y by rows: x_i = y_i / L_ii, then y_j −= L_ij x_i for
-// the columns of row i.
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn coarse_backward(@builtin(local_invocation_index) local: u32) {
-    let n = select(arrayLength(&coarse), 0u, params.count == 0u);
+fn backward_in_place(local: u32, n: u32) {
     for (var step = 0u; step < n; step++) {
         let i = n - 1u - step;
         let start = row_starts[i];

@@ -461,24 +461,35 @@ mod tests {
         }
     }
 
-    /// The elastic substitutions hold the whole vector in workgroup memory:
-    /// the WGSL's `HELD_UNKNOWNS` must be the most unknowns the deformer
-    /// binds, and fit wgpu's default 16 KiB of workgroup memory.
-    #[test]
-    fn the_elastic_substitutions_hold_every_factor_the_deformer_binds() {
-        let module = module("coarse_elastic").unwrap_or_else(|e| panic!("{e}"));
-        let held = module
+    /// A shader's `const NAME: u32` by naga's reading of it.
+    fn u32_constant(shader: &str, name: &str) -> u32 {
+        let module = module(shader).unwrap_or_else(|e| panic!("{e}"));
+        let value = module
             .constants
             .iter()
-            .find(|(_, c)| c.name.as_deref() == Some("HELD_UNKNOWNS"))
+            .find(|(_, c)| c.name.as_deref() == Some(name))
             .map(|(_, c)| &module.global_expressions[c.init]);
-        let Some(naga::Expression::Literal(naga::Literal::U32(held))) = held else {
-            panic!("HELD_UNKNOWNS is not a u32 literal: {held:?}");
-        };
-        assert_eq!(*held as usize, crate::GPU_COARSE_UNKNOWNS);
+        match value {
+            Some(naga::Expression::Literal(naga::Literal::U32(value))) => *value,
+            other => panic!("{shader}::{name} is not a u32 literal: {other:?}"),
+        }
+    }
+
+    /// The elastic substitutions hold the whole vector in workgroup memory:
+    /// the WGSL's `HELD_UNKNOWNS` must be the most unknowns the deformer
+    /// binds, and fit wgpu's default 16 KiB of workgroup memory. The
+    /// Laplacian's hold what fits there (a `vec3` takes 16 bytes) and
+    /// substitute larger vectors where they lie.
+    #[test]
+    fn the_substitutions_hold_what_fits_in_workgroup_memory() {
+        let memory = wgpu::Limits::default().max_compute_workgroup_storage_size;
+        let held = u32_constant("coarse_elastic", "HELD_UNKNOWNS");
+        assert_eq!(held as usize, crate::GPU_COARSE_UNKNOWNS);
+        assert!(4 * held <= memory, "{held} f32 exceed {memory} bytes");
+        let held = u32_constant("coarse", "HELD_AGGREGATES");
         assert!(
-            4 * *held <= wgpu::Limits::default().max_compute_workgroup_storage_size,
-            "{held} f32 exceed the default workgroup memory"
+            16 * held <= memory && 16 * (held + 1) > memory,
+            "{held} vec3 do not fill {memory} bytes"
         );
     }
 }
