@@ -8,8 +8,8 @@
 // - `block_cycle_start`: the first weighted block Jacobi sweep from zero,
 //   x = W b (W the weight times each diagonal block's inverse);
 // - `block_cycle_sweep`: a further sweep, x' = x + W (b - A x);
-// - `block_cycle_restrict`, one thread a group: the sum of b - A x over the
-//   group's aggregates, three entries a group;
+// - `block_cycle_restrict`, one workgroup a group: the sum of b - A x over
+//   the group's aggregates, three entries a group;
 // - the groups' factor solved by `coarse_elastic.wgsl`'s `elastic_forward`
 //   and `elastic_backward`, bound to the groups' vector (the factor's
 //   buffers hold the groups' factor while the cycles run);
@@ -102,23 +102,41 @@ fn block_cycle_sweep(
     write_to(a, x + matrix_of(block_weights[a]) * block_residual(a));
 }
 
+// A group's partial sums, one a thread.
+var<workgroup> group_sums: array<vec3<f32>, WORKGROUP_SIZE>;
+
+// One workgroup a group: each thread sums the residuals of every
+// WORKGROUP_SIZE-th aggregate of the group, then the workgroup adds the
+// threads' sums in a tree. (One thread a group left most of a large GPU
+// idle: a thousand-odd threads, each through some 60 aggregates' rows.)
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn block_cycle_restrict(
     @builtin(workgroup_id) workgroup: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let g = particle_index(workgroup, groups, local);
+    let g = flat_workgroup(workgroup, groups);
+    // The same for the whole workgroup: all of it returns, or none.
     if (g >= arrayLength(&block_group_coarse) / 3u || params.count == 0u) {
         return;
     }
     var sum = vec3<f32>(0.0);
-    for (var k = block_group_starts[g]; k < block_group_starts[g + 1u]; k++) {
+    for (var k = block_group_starts[g] + local; k < block_group_starts[g + 1u]; k += WORKGROUP_SIZE) {
         sum += block_residual(block_group_members[k]);
     }
-    block_group_coarse[3u * g] = sum.x;
-    block_group_coarse[3u * g + 1u] = sum.y;
-    block_group_coarse[3u * g + 2u] = sum.z;
+    group_sums[local] = sum;
+    workgroupBarrier();
+    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
+        if (local < stride) {
+            group_sums[local] += group_sums[local + stride];
+        }
+        workgroupBarrier();
+    }
+    if (local == 0u) {
+        block_group_coarse[3u * g] = group_sums[0].x;
+        block_group_coarse[3u * g + 1u] = group_sums[0].y;
+        block_group_coarse[3u * g + 2u] = group_sums[0].z;
+    }
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

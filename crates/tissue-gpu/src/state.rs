@@ -397,10 +397,10 @@ impl DeformState {
         coarse: &ElasticCoarse,
     ) -> Result<(), GpuError> {
         self.elastic_coarse.linearise(device, coarse)?;
-        // The cycles' restriction runs per group.
+        // The cycles' restriction runs a workgroup a group.
         self.workgroups[Kernel::BlockCycleRestrict.index()] = workgroups(
             self.elastic_coarse.cycles.groups.max(1),
-            pipelines.workgroup_size(Kernel::BlockCycleRestrict),
+            1,
             device.limits().max_compute_workgroups_per_dimension,
         )?;
         self.bind_groups = self.bind_all(device, pipelines)?;
