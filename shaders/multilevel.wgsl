@@ -5,7 +5,7 @@
 // turn (a sweep reads one and writes the other):
 // - `cycle_start`: the first weighted Jacobi sweep from zero, x = w D^-1 b;
 // - `cycle_sweep`: a further sweep, x' = x + w D^-1 (b - A x);
-// - `cycle_restrict`, one thread a group: the sum of b - A x over the
+// - `cycle_restrict`, one workgroup a group: the sum of b - A x over the
 //   group's aggregates;
 // - the groups' factor solved by `coarse.wgsl`'s `coarse_forward` and
 //   `coarse_backward`, bound to the groups' vector and factor;
@@ -75,21 +75,38 @@ fn cycle_sweep(
     cycle_to[a] = vec4<f32>(cycle_from[a].xyz + level_weights[a] * row_residual(a), 0.0);
 }
 
+// A group's partial sums, one a thread.
+var<workgroup> group_sums: array<vec3<f32>, WORKGROUP_SIZE>;
+
+// One workgroup a group, as `block_multilevel.wgsl`'s restriction: each
+// thread sums every WORKGROUP_SIZE-th aggregate's residual, the workgroup
+// adds the threads' sums in a tree.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn cycle_restrict(
     @builtin(workgroup_id) workgroup: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
-    let g = particle_index(workgroup, groups, local);
+    let g = flat_workgroup(workgroup, groups);
+    // The same for the whole workgroup: all of it returns, or none.
     if (g >= arrayLength(&group_coarse) || params.count == 0u) {
         return;
     }
     var sum = vec3<f32>(0.0);
-    for (var k = group_starts[g]; k < group_starts[g + 1u]; k++) {
+    for (var k = group_starts[g] + local; k < group_starts[g + 1u]; k += WORKGROUP_SIZE) {
         sum += row_residual(group_members[k]);
     }
-    group_coarse[g] = vec4<f32>(sum, 0.0);
+    group_sums[local] = sum;
+    workgroupBarrier();
+    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
+        if (local < stride) {
+            group_sums[local] += group_sums[local + stride];
+        }
+        workgroupBarrier();
+    }
+    if (local == 0u) {
+        group_coarse[g] = vec4<f32>(group_sums[0], 0.0);
+    }
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

@@ -350,11 +350,9 @@ impl DeformState {
             self.workgroups[kernel.index()] =
                 workgroups(coarse.aggregates, pipelines.workgroup_size(kernel), most)?;
         }
-        self.workgroups[Kernel::CycleRestrict.index()] = workgroups(
-            coarse.cycles.groups.max(1),
-            pipelines.workgroup_size(Kernel::CycleRestrict),
-            most,
-        )?;
+        // The restriction runs a workgroup a group.
+        self.workgroups[Kernel::CycleRestrict.index()] =
+            workgroups(coarse.cycles.groups.max(1), 1, most)?;
         self.coarse = coarse;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
