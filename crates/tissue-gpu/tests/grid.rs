@@ -481,53 +481,14 @@ fn the_cells_reciprocal_rounds_as_the_cpus_division() {
         return;
     };
     let inputs = reciprocal_inputs();
-    let source = tissue_gpu::shaders::source("tests/reciprocal").unwrap_or_else(|e| panic!("{e}"));
-    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("reciprocal test"),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("reciprocal test"),
-        layout: None,
-        module: &shader,
-        entry_point: Some("reciprocal_test"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
-    let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("inputs"),
-        contents: bytemuck::cast_slice(&inputs),
-        usage: wgpu::BufferUsages::STORAGE,
-    });
-    let output = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("outputs"),
-        size: std::mem::size_of_val(inputs.as_slice()) as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: input.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: output.as_entire_binding(),
-            },
-        ],
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
-        pass.dispatch_workgroups((inputs.len() as u32).div_ceil(64), 1, 1);
-    }
-    queue.submit([encoder.finish()]);
-    let got: Vec<f32> = bytemuck::pod_collect_to_vec(&common::read(&device, &queue, &output));
+    let bytes = common::run_list_kernel(
+        &device,
+        &queue,
+        ("tests/reciprocal", "reciprocal_test"),
+        &inputs,
+        std::mem::size_of_val(inputs.as_slice()) as u64,
+    );
+    let got: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes);
     assert!(inputs.len() > 100_000, "{} inputs", inputs.len());
     for (&x, &r) in inputs.iter().zip(&got) {
         let want = 1.0 / x;

@@ -7,7 +7,6 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use rand::{Rng, SeedableRng};
-use wgpu::util::DeviceExt;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -105,61 +104,17 @@ fn the_wgsl_svd_satisfies_the_invariants_on_the_adapter() {
     };
     let inputs = matrices();
     assert!(inputs.len() >= 10_000);
-    let source = tissue_gpu::shaders::source("tests/svd3").unwrap_or_else(|e| panic!("{e}"));
-    let module = tissue_gpu::shaders::module_from_source("tests/svd3", &source)
-        .unwrap_or_else(|e| panic!("{e}"));
-    let [size, ..] =
-        tissue_gpu::shaders::workgroup_size(&module, "svd3_test").unwrap_or_else(|e| panic!("{e}"));
-    let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("svd3 test"),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("svd3 test"),
-        layout: None,
-        module: &shader,
-        entry_point: Some("svd3_test"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
     let gpu_inputs: Vec<Matrix> = inputs.iter().map(|&m| to_gpu(m)).collect();
-    let matrices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("matrices"),
-        contents: bytemuck::cast_slice(&gpu_inputs),
-        usage: wgpu::BufferUsages::STORAGE,
-    });
-    let decompositions = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("decompositions"),
-        size: (inputs.len() * std::mem::size_of::<Decomposition>()) as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: matrices.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: decompositions.as_entire_binding(),
-            },
-        ],
-    });
     let started = std::time::Instant::now();
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
-        pass.dispatch_workgroups((inputs.len() as u32).div_ceil(size), 1, 1);
-    }
-    queue.submit([encoder.finish()]);
-    let bytes = common::read(&device, &queue, &decompositions);
+    let bytes = common::run_list_kernel(
+        &device,
+        &queue,
+        ("tests/svd3", "svd3_test"),
+        &gpu_inputs,
+        (inputs.len() * std::mem::size_of::<Decomposition>()) as u64,
+    );
     eprintln!(
-        "{} matrices decomposed and read back in {:.1} ms",
+        "{} matrices decomposed (the kernel compiled) and read back in {:.1} ms",
         inputs.len(),
         started.elapsed().as_secs_f64() * 1e3
     );

@@ -72,6 +72,71 @@ pub fn phantom(n: usize) -> &'static ParticleModel {
     model
 }
 
+/// Runs `entry` of the test-only shader `shader` (one of
+/// `tissue_gpu::shaders::SHADERS`) once over a list: `inputs` at binding 0,
+/// an output of `output_bytes` at binding 1, one thread an input. Returns
+/// the output's bytes.
+pub fn run_list_kernel<T: bytemuck::Pod>(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    (shader, entry): (&str, &str),
+    inputs: &[T],
+    output_bytes: u64,
+) -> Vec<u8> {
+    use wgpu::util::DeviceExt;
+    let source = tissue_gpu::shaders::source(shader).unwrap_or_else(|e| panic!("{e}"));
+    let module =
+        tissue_gpu::shaders::module_from_source(shader, &source).unwrap_or_else(|e| panic!("{e}"));
+    let [size, ..] =
+        tissue_gpu::shaders::workgroup_size(&module, entry).unwrap_or_else(|e| panic!("{e}"));
+    let shader_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(shader),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(shader),
+        layout: None,
+        module: &shader_module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("test inputs"),
+        contents: bytemuck::cast_slice(inputs),
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    let output = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("test outputs"),
+        size: output_bytes,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: input.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: output.as_entire_binding(),
+            },
+        ],
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups((inputs.len() as u32).div_ceil(size), 1, 1);
+    }
+    queue.submit([encoder.finish()]);
+    read(device, queue, &output)
+}
+
 /// Reads a whole buffer back through a staging copy.
 pub fn read(device: &wgpu::Device, queue: &wgpu::Queue, buffer: &wgpu::Buffer) -> Vec<u8> {
     let staging = device.create_buffer(&wgpu::BufferDescriptor {
