@@ -180,6 +180,14 @@ pub enum FieldError {
     /// The triangles cannot be oriented consistently (parry3d's reason).
     #[error("the surface cannot be oriented: {0}")]
     NotOrientable(String),
+    /// A point cloud's normals do not match its points one to one.
+    #[error("{normals} normals for {points} points")]
+    NormalCount {
+        /// Points in the cloud.
+        points: usize,
+        /// Normals given.
+        normals: usize,
+    },
 }
 
 /// Why stage 1 could not produce a model.

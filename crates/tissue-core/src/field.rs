@@ -152,6 +152,82 @@ impl SurfaceField {
     /// be oriented.
     pub fn new(mesh: &SurfaceMesh, cell: f32, margin: f32) -> Result<Self, FieldError> {
         let (lo, hi) = mesh.bounds().ok_or(FieldError::NoVertices)?;
+        let corners: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
+        let mut field = Self::unfilled(lo, hi, cell, margin, corners, pseudo_normals(mesh))?;
+        let binned = field.bin_triangles();
+        let band: Vec<bool> = (0..field.cell_count())
+            .map(|i| binned.start[i] < binned.start[i + 1])
+            .collect();
+        let parry_mesh = TriMesh::with_flags(
+            mesh.vertices.clone(),
+            mesh.triangles.clone(),
+            TriMeshFlags::ORIENTED,
+        )
+        .map_err(|e| FieldError::NotOrientable(format!("{e:?}")))?;
+        let outside = field.sides(&band, &parry_mesh);
+        field.fill(&binned, &band, &outside, |_, centre| {
+            (parry_mesh.project_local_point(centre, false).point - centre).length()
+        });
+        Ok(field)
+    }
+
+    /// The field of a point cloud: each point a triangle whose three
+    /// corners are the point, its seven normals the point's `normals`
+    /// entry. Band cells (those within `margin` of a point, and the cells
+    /// the points lie in) answer the exact nearest point, its distance
+    /// signed by that point's normal; every other cell is
+    /// [`CELL_OUTSIDE`]: no point within `margin`. A cloud has no inside,
+    /// so [`Side::DeepInside`] never comes.
+    ///
+    /// Fails where there are no points, the normals do not match the
+    /// points one to one, the cell or the margin is not a length, or the
+    /// grid would be absurdly large.
+    pub fn of_cloud(
+        points: &[Vec3],
+        normals: &[Vec3],
+        cell: f32,
+        margin: f32,
+    ) -> Result<Self, FieldError> {
+        if normals.len() != points.len() {
+            return Err(FieldError::NormalCount {
+                points: points.len(),
+                normals: normals.len(),
+            });
+        }
+        let lo = points.iter().copied().reduce(Vec3::min);
+        let hi = points.iter().copied().reduce(Vec3::max);
+        let (Some(lo), Some(hi)) = (lo, hi) else {
+            return Err(FieldError::NoVertices);
+        };
+        let corners = points.iter().map(|&p| [p; 3]).collect();
+        let normals = normals.iter().map(|&n| [n; 7]).collect();
+        let mut field = Self::unfilled(lo, hi, cell, margin, corners, normals)?;
+        let binned = field.bin_triangles();
+        let band: Vec<bool> = (0..field.cell_count())
+            .map(|i| binned.start[i] < binned.start[i + 1])
+            .collect();
+        let outside = vec![true; field.cell_count()];
+        // The nearest point to a band cell's centre is at most as far as
+        // the nearest of the points binned in that cell.
+        field.fill(&binned, &band, &outside, |index, centre| {
+            binned.items[binned.start[index] as usize..binned.start[index + 1] as usize]
+                .iter()
+                .map(|&t| (points[t as usize] - centre).length())
+                .fold(f32::INFINITY, f32::min)
+        });
+        Ok(field)
+    }
+
+    /// The grid over `[lo, hi]` padded by two cells and the margin, with
+    /// the triangles but no cells filled yet.
+    fn unfilled(
+        lo: Vec3,
+        hi: Vec3,
+        cell: f32,
+        margin: f32,
+        corners: Vec<[Vec3; 3]>,
+        normals: Vec<[Vec3; 7]>,
+    ) -> Result<Self, FieldError> {
         if !(cell.is_finite() && cell > 0.0) {
             return Err(FieldError::Cell(cell));
         }
@@ -164,45 +240,42 @@ impl SurfaceField {
         let dims_f = (extent / cell).ceil();
         let total = f64::from(dims_f.x) * f64::from(dims_f.y) * f64::from(dims_f.z);
         const MAX_CELLS: f64 = 64.0 * 1024.0 * 1024.0;
-        if total > MAX_CELLS {
+        if !(total <= MAX_CELLS) {
             return Err(FieldError::TooManyCells {
                 cells: total,
                 most: MAX_CELLS,
             });
         }
-        let dims = [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32];
-        let corners: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
-        let normals = pseudo_normals(mesh);
-
-        let mut field = Self {
+        Ok(Self {
             origin,
             cell,
             margin,
-            dims,
+            dims: [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32],
             cell_state: Vec::new(),
             cell_start: Vec::new(),
             candidates: Vec::new(),
             candidate_distance: Vec::new(),
             corners,
             normals,
-        };
-        let binned = field.bin_triangles();
-        let band: Vec<bool> = (0..field.cell_count())
-            .map(|i| binned.start[i] < binned.start[i + 1])
-            .collect();
-        let parry_mesh = TriMesh::with_flags(
-            mesh.vertices.clone(),
-            mesh.triangles.clone(),
-            TriMeshFlags::ORIENTED,
-        )
-        .map_err(|e| FieldError::NotOrientable(format!("{e:?}")))?;
-        let outside = field.sides(&band, &parry_mesh);
+        })
+    }
 
-        let cells = field.cell_count();
+    /// Fills the cells: their states from `band` and `outside`, and per
+    /// band cell its candidates sorted by distance from the centre. Any
+    /// triangle nearest to some point of the cell lies within `|d(centre)|
+    /// + diagonal` of the centre (triangle inequality twice), where
+    /// `nearest(index, centre)` is at least `|d(centre)|`.
+    fn fill(
+        &mut self,
+        binned: &Binned,
+        band: &[bool],
+        outside: &[bool],
+        nearest: impl Fn(usize, Vec3) -> f32 + Sync,
+    ) {
+        let cells = self.cell_count();
+        let cell = self.cell;
         let diagonal = cell * 3f32.sqrt();
-        // Per band cell, its candidates sorted by distance from the centre:
-        // any triangle nearest to some point of the cell lies within
-        // |d(centre)| + diagonal of the centre (triangle inequality twice).
+        let field = &*self;
         let per_cell: Vec<Vec<(f32, u32)>> = (0..cells)
             .into_par_iter()
             .map_init(
@@ -214,10 +287,9 @@ impl SurfaceField {
                         return Vec::new();
                     }
                     let centre = field.cell_centre(index);
-                    let projection = parry_mesh.project_local_point(centre, false);
-                    let reach = (projection.point - centre).length() + diagonal;
+                    let reach = nearest(index, centre) + diagonal;
                     let mut near = Vec::new();
-                    field.for_each_binned_near(&binned, centre, reach, |t| {
+                    field.for_each_binned_near(binned, centre, reach, |t| {
                         if std::mem::replace(&mut seen[t as usize], index) == index {
                             return;
                         }
@@ -233,7 +305,7 @@ impl SurfaceField {
                 },
             )
             .collect();
-        let cell_state: Vec<u32> = (0..cells)
+        self.cell_state = (0..cells)
             .map(|i| match (band[i], outside[i]) {
                 (true, _) => CELL_BAND,
                 (false, true) => CELL_OUTSIDE,
@@ -250,11 +322,9 @@ impl SurfaceField {
             candidate_distance.extend(near.iter().map(|&(d, _)| d));
             cell_start.push(candidates.len() as u32);
         }
-        field.cell_state = cell_state;
-        field.cell_start = cell_start;
-        field.candidate_distance = candidate_distance;
-        field.candidates = candidates;
-        Ok(field)
+        self.cell_start = cell_start;
+        self.candidate_distance = candidate_distance;
+        self.candidates = candidates;
     }
 
     /// Total number of cells.
@@ -817,5 +887,62 @@ mod tests {
         let err = SurfaceField::new(&octahedron(), 1e-4, 0.0).unwrap_err();
         assert!(matches!(err, FieldError::TooManyCells { .. }), "{err}");
         assert!(err.to_string().contains("cells"), "{err}");
+    }
+
+    /// Points on the unit sphere with their outward normals.
+    fn sphere_cloud(n: usize) -> (Vec<Vec3>, Vec<Vec3>) {
+        let directions: Vec<Vec3> = points(4 * n, 1.0)
+            .into_iter()
+            .filter(|p| p.length() > 0.1)
+            .map(Vec3::normalize)
+            .take(n)
+            .collect();
+        (directions.clone(), directions)
+    }
+
+    #[test]
+    fn a_clouds_field_finds_the_nearest_point_within_its_margin() {
+        let (cloud, normals) = sphere_cloud(400);
+        let margin = 0.3;
+        let field = SurfaceField::of_cloud(&cloud, &normals, 0.1, margin).unwrap();
+        assert!(field.cell_state.iter().all(|&s| s != CELL_INSIDE));
+        let (mut near, mut far) = (0, 0);
+        for p in points(3000, 1.6) {
+            let d = cloud
+                .iter()
+                .map(|q| (p - *q).length())
+                .fold(f32::INFINITY, f32::min);
+            match field.query(p) {
+                Side::Near(n) => {
+                    near += 1;
+                    assert!(
+                        (n.distance.abs() - d).abs() <= 1e-5,
+                        "{p}: {n:?} against {d}"
+                    );
+                    assert!((n.point - cloud[n.triangle as usize]).length() == 0.0);
+                    assert_eq!(n.normal, normals[n.triangle as usize]);
+                    let side = (p - n.point).dot(n.normal);
+                    assert!(
+                        side == 0.0 || (side > 0.0) == (n.distance > 0.0),
+                        "{p}: {n:?}"
+                    );
+                }
+                Side::DeepOutside => {
+                    far += 1;
+                    assert!(d >= margin, "{p} is {d} from the cloud, inside the margin");
+                }
+                Side::DeepInside => panic!("a cloud has no inside"),
+            }
+        }
+        assert!(near > 300 && far > 300, "{near} near, {far} far");
+    }
+
+    #[test]
+    fn a_cloud_without_points_or_with_other_normals_is_refused() {
+        let err = SurfaceField::of_cloud(&[], &[], 0.1, 0.1).unwrap_err();
+        assert_eq!(err, FieldError::NoVertices);
+        let (cloud, normals) = sphere_cloud(10);
+        let err = SurfaceField::of_cloud(&cloud, &normals[1..], 0.1, 0.1).unwrap_err();
+        assert_eq!(err.to_string(), "9 normals for 10 points");
     }
 }

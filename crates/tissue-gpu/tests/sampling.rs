@@ -416,50 +416,88 @@ fn field_query_matches_the_cpu_inside_near_and_outside() {
         let field = &prepared.field;
         let points = query_points(&mesh, field);
         let got = query_field(&device, &queue, field, &points).unwrap_or_else(|e| panic!("{e}"));
-        let size = points
-            .iter()
-            .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
-        let tol = 8.0 * f32::EPSILON * size;
-        let mut counts = [0usize; 3];
-        let mut worst = 0.0f32;
-        for (i, (&p, g)) in points.iter().zip(&got).enumerate() {
-            let e = field.query(p);
-            match (g, e) {
-                (Side::DeepInside, Side::DeepInside) => counts[0] += 1,
-                (Side::DeepOutside, Side::DeepOutside) => counts[1] += 1,
-                (Side::Near(g), Side::Near(e)) => {
-                    counts[2] += 1;
-                    let off = (g.distance - e.distance)
-                        .abs()
-                        .max((g.point - e.point).length());
-                    worst = worst.max(off / tol);
-                    assert!(
-                        off <= tol,
-                        "{name}, point {i} at {p}: GPU {g:?} vs CPU {e:?}, difference {off:e} > tolerance {tol:e}"
-                    );
-                    // A tie between triangles may pick another one; the
-                    // normal then may differ, the point and distance may not.
-                    if g.triangle == e.triangle {
-                        let n = (g.normal - e.normal).length();
-                        assert!(
-                            n <= 1e-6,
-                            "{name}, point {i}: GPU normal {} vs CPU {}, difference {n:e} > 1e-6",
-                            g.normal,
-                            e.normal
-                        );
-                    }
-                }
-                (g, e) => panic!("{name}, point {i} at {p}: GPU {g:?} vs CPU {e:?}"),
-            }
-        }
+        let counts = compare_queries(name, field, &points, &got);
         assert!(
             counts.iter().all(|&c| c > 50),
             "{name}: inside / outside / near counts {counts:?} do not cover every case"
         );
-        eprintln!(
-            "field query, {name}: {counts:?} inside/outside/near, worst {worst:.3} of tolerance"
-        );
     }
+}
+
+/// A point cloud's field (the phantom's vertices, each with the mean of
+/// its triangles' normals) answers on the GPU as on the CPU: the nearest
+/// point within the margin, nothing beyond it.
+#[test]
+fn a_clouds_field_query_matches_the_cpu() {
+    let Some((device, queue)) = common::gpu("cloud field query parity") else {
+        return;
+    };
+    let mesh = tissue_core::phantom::default_breast();
+    let mut normals = vec![Vec3::ZERO; mesh.vertices.len()];
+    for (t, triangle) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(t);
+        for &v in triangle {
+            normals[v as usize] += (b - a).cross(c - a);
+        }
+    }
+    let normals: Vec<Vec3> = normals.iter().map(|n| n.normalize_or(Vec3::Z)).collect();
+    let (lo, hi) = mesh.bounds().unwrap_or_else(|| panic!("empty mesh"));
+    let size = (hi - lo).max_element();
+    let field = SurfaceField::of_cloud(&mesh.vertices, &normals, size / 40.0, size / 20.0)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let points = query_points(&mesh, &field);
+    let got = query_field(&device, &queue, &field, &points).unwrap_or_else(|e| panic!("{e}"));
+    let [inside, outside, near] = compare_queries("cloud", &field, &points, &got);
+    assert!(
+        inside == 0 && outside > 50 && near > 50,
+        "cloud: inside / outside / near counts {:?}: a cloud has no inside, and both others must come",
+        [inside, outside, near]
+    );
+}
+
+/// Holds the GPU's answers `got` at `points` to the CPU's field query:
+/// the same side, and near the surface the same nearest point and distance
+/// within 8 ulp of the coordinates. Returns how many points were inside,
+/// outside and near.
+fn compare_queries(name: &str, field: &SurfaceField, points: &[Vec3], got: &[Side]) -> [usize; 3] {
+    let size = points
+        .iter()
+        .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+    let tol = 8.0 * f32::EPSILON * size;
+    let mut counts = [0usize; 3];
+    let mut worst = 0.0f32;
+    for (i, (&p, g)) in points.iter().zip(got).enumerate() {
+        let e = field.query(p);
+        match (g, e) {
+            (Side::DeepInside, Side::DeepInside) => counts[0] += 1,
+            (Side::DeepOutside, Side::DeepOutside) => counts[1] += 1,
+            (Side::Near(g), Side::Near(e)) => {
+                counts[2] += 1;
+                let off = (g.distance - e.distance)
+                    .abs()
+                    .max((g.point - e.point).length());
+                worst = worst.max(off / tol);
+                assert!(
+                    off <= tol,
+                    "{name}, point {i} at {p}: GPU {g:?} vs CPU {e:?}, difference {off:e} > tolerance {tol:e}"
+                );
+                // A tie between triangles may pick another one; the
+                // normal then may differ, the point and distance may not.
+                if g.triangle == e.triangle {
+                    let n = (g.normal - e.normal).length();
+                    assert!(
+                        n <= 1e-6,
+                        "{name}, point {i}: GPU normal {} vs CPU {}, difference {n:e} > 1e-6",
+                        g.normal,
+                        e.normal
+                    );
+                }
+            }
+            (g, e) => panic!("{name}, point {i} at {p}: GPU {g:?} vs CPU {e:?}"),
+        }
+    }
+    eprintln!("field query, {name}: {counts:?} inside/outside/near, worst {worst:.3} of tolerance");
+    counts
 }
 
 /// The quality numbers of a GPU run against the CPU's on the same input.
