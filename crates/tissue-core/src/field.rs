@@ -240,7 +240,7 @@ impl SurfaceField {
         let dims_f = (extent / cell).ceil();
         let total = f64::from(dims_f.x) * f64::from(dims_f.y) * f64::from(dims_f.z);
         const MAX_CELLS: f64 = 64.0 * 1024.0 * 1024.0;
-        if !(total <= MAX_CELLS) {
+        if total.is_nan() || total > MAX_CELLS {
             return Err(FieldError::TooManyCells {
                 cells: total,
                 most: MAX_CELLS,
