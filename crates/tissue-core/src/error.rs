@@ -361,6 +361,36 @@ pub enum DeformError {
     OtherBackend,
 }
 
+/// Why a point cloud cannot serve as an observation.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum ObservationError {
+    /// Too few points to fit a plane through each one's neighbours.
+    #[error(
+        "the point cloud has {count} points; at least {least} are needed to estimate its normals"
+    )]
+    TooFew {
+        /// Points in the cloud.
+        count: usize,
+        /// The fewest accepted.
+        least: usize,
+    },
+    /// A point is NaN or infinite.
+    #[error("point {index} of the cloud is not finite: {value}")]
+    NotFinite {
+        /// The point.
+        index: usize,
+        /// Its coordinates.
+        value: glam::Vec3,
+    },
+    /// The points span no surface.
+    #[error("the point cloud's points all lie on one line or at one point: it shows no surface")]
+    Degenerate,
+    /// The grid over the cloud could not be built.
+    #[error(transparent)]
+    Field(#[from] FieldError),
+}
+
 /// Everything that can go wrong in tissue's core.
 #[derive(Debug, Error)]
 #[non_exhaustive]
@@ -413,6 +443,9 @@ pub enum Error {
     /// control points, parameters out of range.
     #[error(transparent)]
     Deformation(#[from] DeformError),
+    /// An observation (a point cloud) that cannot be used.
+    #[error(transparent)]
+    Observation(#[from] ObservationError),
     /// The GPU path failed: no adapter, a device limit, device loss, out of
     /// memory. `kind` says which, to act on (fall back to the CPU on
     /// [`GpuFailure::OutOfMemory`], say); `source` is the GPU crate's own

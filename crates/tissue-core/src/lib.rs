@@ -15,7 +15,10 @@ pub mod phantom;
 pub mod report;
 pub mod validate;
 
-pub use error::{DeformError, Error, FieldError, GpuFailure, MeshError, ParamError, SamplingError};
+pub use error::{
+    DeformError, Error, FieldError, GpuFailure, MeshError, ObservationError, ParamError,
+    SamplingError,
+};
 pub use mesh::SurfaceMesh;
 pub use model::{Attachment, Connections, ParticleModel};
 pub use params::{SamplingParams, SurfaceMode};

@@ -6,14 +6,16 @@
 //! seam a device implements (`device`), batches and their replay
 //! (`batches`), what a phase runs with and the elastic phase's rules
 //! (`phase`), the one tracker over any device (`tracker`), how a solve
-//! went (`report`), inverted neighbourhoods (`inversion`), and the search
-//! a change of posture makes (`posture`).
+//! went (`report`), inverted neighbourhoods (`inversion`), the search
+//! a change of posture makes (`posture`), and a point cloud observed
+//! without correspondence (`observation`).
 
 pub(crate) mod acceleration;
 pub(crate) mod batches;
 pub(crate) mod controls;
 pub(crate) mod device;
 pub(crate) mod inversion;
+pub(crate) mod observation;
 pub(crate) mod params;
 pub(crate) mod passes;
 pub(crate) mod phase;
@@ -32,6 +34,7 @@ pub use batches::{Batches, run_batched};
 pub use controls::{VOLUME_RATIO, check_same_topology};
 pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
+pub use observation::{Cloud, NORMAL_NEIGHBOURS};
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
     MAX_ELASTIC_COARSE_AGGREGATES, MAX_ELASTIC_COARSE_DIRECT_AGGREGATES, MAX_HISTORY, MAX_POISSON,
