@@ -1,6 +1,7 @@
 //! File formats: surfaces (STL, OBJ, PLY, legacy VTK) in [`surface`],
 //! particle models (VTK XML PolyData) in [`model`], point files (CSV, PLY)
-//! in [`points`], 3D Slicer's markups in [`markups`], ITK transform files
+//! in [`points`], point clouds of an observed surface in [`cloud`], 3D
+//! Slicer's markups in [`markups`], ITK transform files
 //! in [`itk`] and displacement fields in [`nrrd`], in the coordinate
 //! systems of [`space`].
 
@@ -9,6 +10,7 @@ use std::path::Path;
 
 use crate::error::Error;
 
+pub mod cloud;
 pub mod itk;
 pub mod markups;
 pub mod model;

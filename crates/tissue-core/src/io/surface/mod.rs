@@ -203,6 +203,13 @@ pub fn load_surface_as_written(path: &Path) -> Result<SurfaceMesh, Error> {
     Ok(parsed)
 }
 
+/// The points of a legacy VTK (`xml` false) or VTK XML PolyData file,
+/// whatever cells it has: a point cloud's.
+pub(crate) fn read_vtk_points(bytes: &[u8], xml: bool) -> Result<Vec<glam::Vec3>, String> {
+    let read = if xml { vtk::read_vtp } else { vtk::read_vtk };
+    read(bytes).map(|mesh| mesh.vertices)
+}
+
 /// Reads a surface and checks that it bounds one solid: [`load_surface`],
 /// then [`weld`] with [`RELATIVE_WELD_TOLERANCE`], then
 /// [`validate::validate`], which turns an inward-facing surface outward.
