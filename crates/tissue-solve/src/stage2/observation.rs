@@ -51,7 +51,7 @@ impl Cloud {
         let centroid = points.iter().sum::<Vec3>() / points.len() as f32;
         let spread = svd3(covariance(points.iter().copied(), centroid)).sigma;
         // A plane needs two directions of spread.
-        if !(spread.y > 1e-10 * spread.x) {
+        if spread.y <= 1e-10 * spread.x {
             return Err(ObservationError::Degenerate);
         }
         let tree = RTree::bulk_load(
