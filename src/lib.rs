@@ -52,6 +52,15 @@ pub mod resampling {
     pub use tissue_solve::model::{FieldGridError, field_grid, resampling_field};
 }
 
+/// Observations without correspondence: a point cloud of the organ's
+/// surface read from a file, its spacing and fitted normals, and the grid
+/// that finds a point's nearest observed point.
+pub mod observation {
+    pub use tissue_core::ObservationError;
+    pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
+    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS};
+}
+
 pub mod backend;
 pub mod gravity;
 

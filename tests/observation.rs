@@ -1,0 +1,58 @@
+//! The shared cases' scanner clouds (`observed_cloud.csv`: the anterior half
+//! of the deformed skin, 3 mm apart, 0.5 mm of noise, 1 % outliers) read
+//! and fitted: their spacing, and normals that follow the true deformed
+//! skin's.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use tissue::field::{Side, SurfaceField};
+use tissue::io::space::Space;
+use tissue::observation::{Cloud, load_cloud};
+
+#[test]
+fn the_cases_clouds_have_their_spacing_and_the_skins_normals() {
+    for name in ["breast_c", "breast_d", "breast_e"] {
+        let Some(case) = common::shared_case(name) else {
+            return;
+        };
+        let rest = tissue::load_closed_surface(&case.join("rest.obj")).unwrap();
+        let deformed = tissue::load_closed_surface(&case.join("deformed.obj")).unwrap();
+        let points = load_cloud(&case.join("observed_cloud.csv"), Space::Lps).unwrap();
+        let count = points.len();
+        let centre = rest.vertices.iter().sum::<tissue::Vec3>() / rest.vertices.len() as f32;
+        let cloud = Cloud::new(points).unwrap().oriented_from(centre);
+        assert!(
+            (2.2..3.4).contains(&cloud.spacing()),
+            "{name}: spacing {} mm, the scan's is about 3",
+            cloud.spacing()
+        );
+        // Each point's normal against the true skin's at its nearest point.
+        let skin = SurfaceField::new(&deformed, 2.0, 3.0).unwrap();
+        let mut angles: Vec<f32> = cloud
+            .points()
+            .iter()
+            .zip(cloud.normals())
+            .filter_map(|(p, n)| match skin.query(*p) {
+                Side::Near(near) => Some(n.dot(near.normal).clamp(-1.0, 1.0).acos().to_degrees()),
+                _ => None,
+            })
+            .collect();
+        assert!(
+            angles.len() * 100 >= count * 98,
+            "{name}: {} of {count} points near the skin",
+            angles.len()
+        );
+        angles.sort_by(f32::total_cmp);
+        let median = angles[angles.len() / 2];
+        let ninetieth = angles[angles.len() * 9 / 10];
+        eprintln!(
+            "{name}: {count} points, spacing {:.2} mm, normals off the skin's by {median:.1} degrees (median), {ninetieth:.1} (90th percentile)",
+            cloud.spacing()
+        );
+        assert!(
+            median < 8.0 && ninetieth < 20.0,
+            "{name}: normals off by {median:.1} (median) and {ninetieth:.1} degrees (90th percentile)"
+        );
+    }
+}
