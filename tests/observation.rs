@@ -51,7 +51,7 @@ fn the_cases_clouds_have_their_spacing_and_the_skins_normals() {
             cloud.spacing()
         );
         assert!(
-            median < 8.0 && ninetieth < 20.0,
+            median < 6.0 && ninetieth < 12.0,
             "{name}: normals off by {median:.1} (median) and {ninetieth:.1} degrees (90th percentile)"
         );
     }
