@@ -53,12 +53,13 @@ pub mod resampling {
 }
 
 /// Observations without correspondence: a point cloud of the organ's
-/// surface read from a file, its spacing and fitted normals, and the grid
-/// that finds a point's nearest observed point.
+/// surface read from a file, its spacing and fitted normals, the grid
+/// that finds a point's nearest observed point, and the rigid motion that
+/// puts a cloud on a surface.
 pub mod observation {
     pub use tissue_core::ObservationError;
     pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
-    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS};
+    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS, RigidFit, rigid_fit};
 }
 
 pub mod backend;
