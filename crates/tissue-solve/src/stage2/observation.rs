@@ -543,6 +543,15 @@ mod tests {
     }
 
     #[test]
+    fn the_defaults_are_pinned() {
+        // docs/METHOD.md, "Observations without correspondence".
+        assert_eq!(NORMAL_NEIGHBOURS, 12);
+        assert_eq!(RIGID_TRIM, 3.0);
+        assert_eq!(RIGID_SHARE, 1.0 / 64.0);
+        assert_eq!(RIGID_STEPS, 100);
+    }
+
+    #[test]
     fn clouds_that_show_no_surface_are_refused() {
         let few: Vec<Vec3> = (0..5).map(|i| Vec3::splat(i as f32)).collect();
         assert_eq!(
