@@ -19,6 +19,7 @@ use tissue::{Error, ParticleModel, SamplingParams, SamplingReport, Vec3};
 
 mod convert;
 mod deformer;
+mod observation;
 
 use convert::{
     Callback, array_of, as_dict, deformed_surface, held_of, mesh_tuple, raise, surface_of,
@@ -483,6 +484,8 @@ fn _tissue(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(phantom_breast, m)?)?;
     m.add_function(wrap_pyfunction!(phantom_breast_sagged, m)?)?;
     m.add_function(wrap_pyfunction!(save_motion, m)?)?;
+    m.add_function(wrap_pyfunction!(observation::load_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(observation::rigid_fit, m)?)?;
     m.add_class::<Model>()?;
     m.add_class::<Deformer>()?;
     Ok(())

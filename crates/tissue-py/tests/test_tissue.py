@@ -533,3 +533,29 @@ def test_part_of_the_skin_may_be_observed(model):
         model.deformer(backend="cpu", observed=[True, False, True])
     with pytest.raises(tissue.TissueError, match="observed: vertex"):
         model.deformer(backend="cpu", observed=[len(rest) + 5])
+
+
+def test_a_turned_and_shifted_scan_is_fitted_back_onto_the_skin(tmp_path):
+    vertices, triangles = tissue.phantom_breast()
+    seen = vertices[vertices[:, 2] > vertices[:, 2].mean()]
+    angle = np.radians(15.0)
+    turn = np.array(
+        [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]]
+    )
+    axis_turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(0.3), -np.sin(0.3)], [0.0, np.sin(0.3), np.cos(0.3)]])
+    turn = axis_turn @ turn @ axis_turn.T
+    centre = seen.mean(axis=0)
+    moved = (seen - centre) @ turn.T + centre + [12.0, -16.0, 0.0]
+    path = tmp_path / "scan.csv"
+    np.savetxt(path, moved, delimiter=",", header="x,y,z", comments="")
+    scan = tissue.load_cloud(path)
+    assert scan.shape == moved.shape and np.allclose(scan, moved, atol=1e-4)
+
+    fit = tissue.rigid_fit(scan, (vertices, triangles))
+    assert fit["converged"] and abs(fit["angle_degrees"] - 15.0) < 0.1
+    back = scan @ fit["rotation"].T + fit["translation"]
+    assert np.abs(back - seen).max() < 0.05
+    with pytest.raises(tissue.TissueError, match="reach"):
+        tissue.rigid_fit(scan, (vertices, triangles), reach=-1.0)
+    with pytest.raises(tissue.TissueError, match="unsupported file type"):
+        tissue.load_cloud(tmp_path / "scan.xyz")

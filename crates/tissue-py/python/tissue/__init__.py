@@ -28,6 +28,10 @@ line writes them: ``Deformer.save_particles`` (``particles.vtp``),
 ``Deformer.carry_file`` (landmarks of a ``.mrk.json`` or ``.csv``, moved)
 and ``save_motion`` (a rigid structure's ``.tfm``).
 
+A scanner's point cloud of the organ (no correspondence to the model) is
+read by ``load_cloud``; ``rigid_fit`` finds the rigid motion that puts it
+on a surface (for a scan in another frame).
+
 Every computation releases the GIL. Errors are ``tissue.TissueError``,
 with the messages of the command-line tool.
 """
@@ -37,9 +41,11 @@ from ._tissue import (
     Model,
     TissueError,
     __version__,
+    load_cloud,
     load_model,
     phantom_breast,
     phantom_breast_sagged,
+    rigid_fit,
     sample,
     save_motion,
 )
@@ -49,9 +55,11 @@ __all__ = [
     "Model",
     "TissueError",
     "__version__",
+    "load_cloud",
     "load_model",
     "phantom_breast",
     "phantom_breast_sagged",
+    "rigid_fit",
     "sample",
     "save_motion",
 ]

@@ -1,0 +1,78 @@
+//! Observations without correspondence: a point cloud read from a file, and
+//! the rigid motion that puts a cloud on a surface.
+
+use std::path::PathBuf;
+
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use tissue::io::space::Space;
+
+use crate::convert::{array_of, points_from, raise, surface_of};
+
+/// The points of a point-cloud file (`.csv`, `.ply`, `.vtk`, `.vtp`, or a
+/// 3D Slicer markups `.mrk.json`, converted to `space`), `(n, 3)`.
+#[pyfunction]
+#[pyo3(signature = (path, space = "lps"))]
+pub(crate) fn load_cloud<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    space: &str,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let space: Space = space.parse().map_err(raise)?;
+    let points = py
+        .detach(|| tissue::observation::load_cloud(&path, space))
+        .map_err(raise)?;
+    array_of(py, &points)
+}
+
+/// The rigid motion that best puts `points` (`(n, 3)`) on a closed
+/// `surface` (a file path, a `(vertices, triangles)` pair, or a trimesh,
+/// meshio or pyvista mesh): iterative closest points, robust to outliers
+/// (docs/METHOD.md, "Observations without correspondence"). Points farther
+/// than `reach` from the surface (default: a quarter of its bounding
+/// box's diagonal) are set aside. A point `p` goes to `rotation @ p +
+/// translation`. Returns a dict: `rotation` (3x3), `translation` (3,),
+/// `angle_degrees`, `rms`, `set_aside`, `steps`, `converged`.
+#[pyfunction]
+#[pyo3(signature = (points, surface, reach = None))]
+pub(crate) fn rigid_fit<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    surface: &Bound<'py, PyAny>,
+    reach: Option<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let points = points_from(points, "points")?;
+    let surface = surface_of(surface)?;
+    let reach = match reach {
+        Some(reach) if reach.is_finite() && reach > 0.0 => reach as f32,
+        Some(reach) => {
+            return Err(raise(format!("reach {reach} is not a positive length")));
+        }
+        None => surface
+            .bounds()
+            .map_or(0.0, |(lo, hi)| 0.25 * (hi - lo).length()),
+    };
+    let fit = py
+        .detach(|| tissue::observation::rigid_fit_to_surface(&points, &surface, reach))
+        .map_err(raise)?;
+    let rotation: Vec<f64> = (0..3)
+        .flat_map(|r| (0..3).map(move |c| (r, c)))
+        .map(|(r, c)| f64::from(fit.rotation.col(c)[r]))
+        .collect();
+    let dict = PyDict::new(py);
+    dict.set_item(
+        "rotation",
+        PyArray1::from_vec(py, rotation).reshape([3, 3])?,
+    )?;
+    dict.set_item(
+        "translation",
+        PyArray1::from_vec(py, fit.translation.to_array().map(f64::from).to_vec()),
+    )?;
+    dict.set_item("angle_degrees", f64::from(fit.angle_degrees))?;
+    dict.set_item("rms", f64::from(fit.rms))?;
+    dict.set_item("set_aside", fit.set_aside)?;
+    dict.set_item("steps", fit.steps)?;
+    dict.set_item("converged", fit.converged)?;
+    Ok(dict)
+}
