@@ -59,7 +59,7 @@ pub mod resampling {
 pub mod observation {
     pub use tissue_core::ObservationError;
     pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
-    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS, RigidFit, rigid_fit};
+    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, rigid_fit};
 
     use crate::{Error, SurfaceMesh, field::SurfaceField};
 

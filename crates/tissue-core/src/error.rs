@@ -386,6 +386,29 @@ pub enum ObservationError {
     /// The points span no surface.
     #[error("the point cloud's points all lie on one line or at one point: it shows no surface")]
     Degenerate,
+    /// The cloud is far larger or smaller than the organ: another unit.
+    #[error(
+        "the point cloud spans {ratio:.3} times the organ's size; an organ's scan spans from a \
+         fiftieth to five times it{hint}"
+    )]
+    Scale {
+        /// The cloud's bounding-box diagonal over the organ's.
+        ratio: f32,
+        /// The likely cause, when a unit explains the ratio.
+        hint: String,
+    },
+    /// The cloud lies away from the organ: another coordinate frame.
+    #[error(
+        "the point cloud's centre lies {distance:.1} from the organ's bounding box, more than the \
+         organ's size ({size:.1}): it is in another coordinate frame (align it first) or shows \
+         something else"
+    )]
+    Elsewhere {
+        /// Distance from the cloud's centroid to the organ's bounding box.
+        distance: f32,
+        /// The organ's bounding-box diagonal.
+        size: f32,
+    },
     /// The grid over the cloud could not be built.
     #[error(transparent)]
     Field(#[from] FieldError),

@@ -35,7 +35,7 @@ pub use controls::{VOLUME_RATIO, check_same_topology};
 pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{
-    Cloud, NORMAL_NEIGHBOURS, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, rigid_fit,
+    Cloud, NORMAL_NEIGHBOURS, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, SCAN_SCALE, rigid_fit,
 };
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,

@@ -13,6 +13,15 @@ use tissue_core::field::SurfaceField;
 
 use crate::model::svd3;
 
+/// The range of a scan's bounding-box diagonal over the organ's that
+/// [`Cloud::check_against`] accepts: from a stylus's patch of the skin (a
+/// fiftieth of the organ's size) to the whole organ and what lies around it
+/// (five times its size). A scan in metres of an organ in millimetres lies
+/// below, one in micrometres or centimetres against millimetres above; a
+/// whole scan in centimetres against millimetres (a tenth) looks like a
+/// patch, and is left to the solve's residual.
+pub const SCAN_SCALE: (f32, f32) = (0.02, 5.0);
+
 /// How many points (the point itself and its nearest others) each normal
 /// is fitted to: the plane of least squares through them.
 pub const NORMAL_NEIGHBOURS: usize = 12;
@@ -141,14 +150,74 @@ impl Cloud {
         )?)
     }
 
-    /// The largest side of the points' bounding box.
-    pub fn extent(&self) -> f32 {
+    /// Refuses a cloud that cannot be a scan of an organ whose rest surface
+    /// spans the box `[lo, hi]`: one whose bounding-box diagonal is outside
+    /// [`SCAN_SCALE`] times the organ's (another unit; the error names the
+    /// unit a power of ten explains), or whose centroid lies farther than
+    /// the organ's diagonal from its box (another coordinate frame).
+    ///
+    /// # Errors
+    ///
+    /// [`ObservationError::Scale`] and [`ObservationError::Elsewhere`].
+    pub fn check_against(&self, lo: Vec3, hi: Vec3) -> Result<(), ObservationError> {
+        let size = (hi - lo).length();
+        let (cloud_lo, cloud_hi) = self.bounds();
+        let ratio = (cloud_hi - cloud_lo).length() / size;
+        if !(SCAN_SCALE.0..=SCAN_SCALE.1).contains(&ratio) {
+            // Millimetres against centimetres, metres, or micrometres.
+            let hint = [(10.0, "ten"), (1000.0, "a thousand")]
+                .iter()
+                .find_map(|&(factor, words): &(f32, &str)| {
+                    let off = |r: f32| (r.ln() - factor.ln()).abs() < 1.5f32.ln() * 2.0;
+                    if off(ratio) {
+                        Some(format!(
+                            ": {words} times too large, as a scan in smaller units than the \
+                             organ's (millimetres against {})",
+                            if factor == 10.0 {
+                                "centimetres"
+                            } else {
+                                "metres"
+                            }
+                        ))
+                    } else if off(1.0 / ratio) {
+                        Some(format!(
+                            ": {words} times too small, as a scan in larger units than the \
+                             organ's ({} against millimetres)",
+                            if factor == 10.0 {
+                                "centimetres"
+                            } else {
+                                "metres"
+                            }
+                        ))
+                    } else {
+                        None
+                    }
+                })
+                .unwrap_or_default();
+            return Err(ObservationError::Scale { ratio, hint });
+        }
+        let centroid = self.points.iter().sum::<Vec3>() / self.points.len() as f32;
+        let distance = (centroid - centroid.clamp(lo, hi)).length();
+        if distance > size {
+            return Err(ObservationError::Elsewhere { distance, size });
+        }
+        Ok(())
+    }
+
+    /// The points' bounding box.
+    fn bounds(&self) -> (Vec3, Vec3) {
         let lo = self.points.iter().copied().fold(Vec3::INFINITY, Vec3::min);
         let hi = self
             .points
             .iter()
             .copied()
             .fold(Vec3::NEG_INFINITY, Vec3::max);
+        (lo, hi)
+    }
+
+    /// The largest side of the points' bounding box.
+    pub fn extent(&self) -> f32 {
+        let (lo, hi) = self.bounds();
         (hi - lo).max_element()
     }
 }
@@ -543,12 +612,56 @@ mod tests {
     }
 
     #[test]
+    fn a_cloud_in_other_units_or_another_frame_is_refused_with_its_cause() {
+        let points = cap(3.0, 0.5);
+        // The organ: the cap's sphere, radius 50.
+        let (lo, hi) = (Vec3::new(-50.0, -50.0, -50.0), Vec3::splat(50.0));
+        Cloud::new(points.clone())
+            .unwrap()
+            .check_against(lo, hi)
+            .unwrap();
+        let scaled =
+            |factor: f32| Cloud::new(points.iter().map(|p| *p * factor).collect()).unwrap();
+        for (factor, says) in [
+            (1000.0, "a thousand times too large"),
+            (0.001, "a thousand times too small"),
+            (10.0, "ten times too large"),
+        ] {
+            let err = scaled(factor)
+                .check_against(lo, hi)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(says), "scaled by {factor}: {err}");
+        }
+        // Neither a unit nor a plausible scan: no hint.
+        let err = scaled(40.0).check_against(lo, hi).unwrap_err().to_string();
+        assert!(
+            err.contains("times the organ's size") && !err.contains("units"),
+            "{err}"
+        );
+        // A patch of a tenth of the cap is a scan.
+        let patch: Vec<Vec3> = points.iter().copied().filter(|p| p.z > 49.6).collect();
+        Cloud::new(patch).unwrap().check_against(lo, hi).unwrap();
+        let far: Vec<Vec3> = points
+            .iter()
+            .map(|p| *p + Vec3::new(400.0, 0.0, 0.0))
+            .collect();
+        let err = Cloud::new(far).unwrap().check_against(lo, hi).unwrap_err();
+        assert!(matches!(err, ObservationError::Elsewhere { .. }), "{err}");
+        assert!(
+            err.to_string().contains("another coordinate frame"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn the_defaults_are_pinned() {
         // docs/METHOD.md, "Observations without correspondence".
         assert_eq!(NORMAL_NEIGHBOURS, 12);
         assert_eq!(RIGID_TRIM, 3.0);
         assert_eq!(RIGID_SHARE, 1.0 / 64.0);
         assert_eq!(RIGID_STEPS, 100);
+        assert_eq!(SCAN_SCALE, (0.02, 5.0));
     }
 
     #[test]
