@@ -154,10 +154,8 @@ impl SurfaceField {
         let (lo, hi) = mesh.bounds().ok_or(FieldError::NoVertices)?;
         let corners: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
         let mut field = Self::unfilled(lo, hi, cell, margin, corners, pseudo_normals(mesh))?;
-        let binned = field.bin_triangles();
-        let band: Vec<bool> = (0..field.cell_count())
-            .map(|i| binned.start[i] < binned.start[i + 1])
-            .collect();
+        let band = field.band();
+        let binned = field.bin_triangles(0.0);
         let parry_mesh = TriMesh::with_flags(
             mesh.vertices.clone(),
             mesh.triangles.clone(),
@@ -202,18 +200,19 @@ impl SurfaceField {
         let corners = points.iter().map(|&p| [p; 3]).collect();
         let normals = normals.iter().map(|&n| [n; 7]).collect();
         let mut field = Self::unfilled(lo, hi, cell, margin, corners, normals)?;
-        let binned = field.bin_triangles();
-        let band: Vec<bool> = (0..field.cell_count())
-            .map(|i| binned.start[i] < binned.start[i + 1])
-            .collect();
+        let band = field.band();
+        let binned = field.bin_triangles(0.0);
         let outside = vec![true; field.cell_count()];
         // The nearest point to a band cell's centre is at most as far as
-        // the nearest of the points binned in that cell.
+        // the nearest of the points in that cell, and some point lies within
+        // the margin of the cell, so within the margin and half a diagonal
+        // of its centre.
+        let within = margin + 0.5 * cell * 3f32.sqrt();
         field.fill(&binned, &band, &outside, |index, centre| {
             binned.items[binned.start[index] as usize..binned.start[index + 1] as usize]
                 .iter()
                 .map(|&t| (points[t as usize] - centre).length())
-                .fold(f32::INFINITY, f32::min)
+                .fold(within, f32::min)
         });
         Ok(field)
     }
@@ -479,13 +478,25 @@ impl SurfaceField {
         }
     }
 
+    /// The band cells: those a triangle passes through or comes within the
+    /// margin of. A point of any other cell is at least the margin from the
+    /// surface.
+    fn band(&self) -> Vec<bool> {
+        let binned = self.bin_triangles(self.margin);
+        (0..self.cell_count())
+            .map(|i| binned.start[i] < binned.start[i + 1])
+            .collect()
+    }
+
     /// Bins every triangle into the cells whose centre lies within half a cell
-    /// diagonal plus `margin` of it (CSR): every cell the triangle passes
-    /// through or comes within `margin` of, but not the whole bounding box of
-    /// a large triangle. These are the band cells; a point of any other cell
-    /// is at least `margin` from the surface.
-    fn bin_triangles(&self) -> Binned {
-        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
+    /// diagonal plus `reach` of it (CSR): every cell the triangle passes
+    /// through or comes within `reach` of, but not the whole bounding box of
+    /// a large triangle. With no reach, a triangle's nearest point to any
+    /// point lies in a cell it is binned in, which is what the candidates'
+    /// search needs; a wide margin's band binned so would list every
+    /// triangle in a great many cells.
+    fn bin_triangles(&self, reach: f32) -> Binned {
+        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + reach;
         let cells_of = |t: usize| {
             let [a, b, c] = self.corners[t];
             let range = self.cell_range(
