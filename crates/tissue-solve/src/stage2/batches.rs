@@ -29,11 +29,27 @@ pub fn run_batched<B: Batches>(
     device: &mut B,
     max: usize,
     batch: usize,
+    stop: impl FnMut(usize, &B::Measure) -> Result<bool, B::Error>,
+) -> Result<(usize, bool), B::Error> {
+    run_batched_from(device, max, batch, batch, stop)
+}
+
+/// [`run_batched`] with a first batch of `first` iterations, each batch
+/// after it twice the last, up to `batch`: for a run that may stop after
+/// a few iterations (a tracking frame's), which a full first batch would
+/// run past and replay.
+pub fn run_batched_from<B: Batches>(
+    device: &mut B,
+    max: usize,
+    first: usize,
+    batch: usize,
     mut stop: impl FnMut(usize, &B::Measure) -> Result<bool, B::Error>,
 ) -> Result<(usize, bool), B::Error> {
     let mut done = 0;
+    let mut size = first.clamp(1, batch.max(1));
     while done < max {
-        let measured = device.run(done, batch.clamp(1, max - done))?;
+        let measured = device.run(done, size.clamp(1, max - done))?;
+        size = (2 * size).min(batch.max(1));
         if measured.is_empty() {
             // Nothing ran: the device cannot go on, and asking again would not change that.
             break;
@@ -122,6 +138,32 @@ mod tests {
         let mut device = halving(Some(3));
         let Ok(_) = run_batched(&mut device, 100, 8, below);
         assert_eq!(device.replays, [1]);
+    }
+
+    #[test]
+    fn growing_batches_stop_where_full_ones_do_and_replay_less() {
+        let below = |_: usize, v: &f32| Ok::<_, Infallible>(*v < 0.2);
+        // Three iterations: batches of 2 and 4, the second replayed to one.
+        let mut growing = halving(None);
+        let Ok(run) = run_batched_from(&mut growing, 100, 2, 8, below);
+        let mut full = halving(None);
+        let Ok(full_run) = run_batched(&mut full, 100, 8, below);
+        assert_eq!((run, growing.value), (full_run, full.value));
+        assert_eq!(run, (3, true));
+        assert_eq!((growing.replays, full.replays), (vec![1], vec![3]));
+        // Longer runs: 2, 4, 8, 8, ... and the same stop as one at a time.
+        let far = |_: usize, v: &f32| Ok::<_, Infallible>(*v < 1e-6);
+        let mut single = halving(None);
+        let Ok(expected) = run_batched(&mut single, 100, 1, far);
+        for (first, batch) in [(2, 8), (1, 8), (3, 4), (8, 8), (16, 8)] {
+            let mut device = halving(None);
+            let Ok(run) = run_batched_from(&mut device, 100, first, batch, far);
+            assert_eq!(
+                (run, device.value),
+                (expected, single.value),
+                "{first}, {batch}"
+            );
+        }
     }
 
     #[test]

@@ -30,7 +30,7 @@ pub use acceleration::{
     CHEBYSHEV_ENVELOPE, Chebyshev, STALL_FACTOR, STALL_WINDOW, StoppingRule, accelerated_rate,
     error_bound,
 };
-pub use batches::{Batches, run_batched};
+pub use batches::{Batches, run_batched, run_batched_from};
 pub use controls::{VOLUME_RATIO, check_same_topology};
 pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
@@ -44,7 +44,8 @@ pub use params::{
 };
 pub use passes::{Choices, Correction, Holds, Pass};
 pub use phase::{
-    ENERGY_WATCH, MAX_BACKTRACKS, MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE, WATCH_SETTLED,
+    ENERGY_WATCH, FIRST_BATCH, MAX_BACKTRACKS, MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE,
+    WATCH_SETTLED,
 };
 pub use plan::{MAX_LOAD_SIZE, Plan, SharedSpectrum, control_points, laplacian_key};
 pub use posture::{

@@ -91,6 +91,13 @@ pub const WARM_ITERATIONS: usize = 500;
 /// "Elastic model", *The energy watch*).
 pub const ENERGY_WATCH: usize = 8;
 
+/// A phase that does not watch the potential (a tracking frame's warm
+/// phase, a shear phase) runs its first batch of this many iterations on a
+/// device that batches, each next batch twice the last up to the device's:
+/// a tracking frame takes 2-4 iterations, which a first batch of 8 ran past
+/// and replayed (10 iterations for 2).
+pub const FIRST_BATCH: usize = 2;
+
 /// How many times one smoothed elastic phase goes back to the state it
 /// accepted with half its step before it ends, diverged: the step is then
 /// `1 / 64` of the first; so does an uncorrected one, halving its plain

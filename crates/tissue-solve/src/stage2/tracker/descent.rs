@@ -6,12 +6,12 @@
 use std::time::Instant;
 
 use crate::stage2::acceleration::{Chebyshev, StoppingRule};
-use crate::stage2::batches::run_batched;
+use crate::stage2::batches::run_batched_from;
 use crate::stage2::device::{Iteration, SolveDevice};
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::phase::{
-    ENERGY_WATCH, MAX_BACKTRACKS, Next, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE, SolveBatches,
-    Steps, Verdict, WATCH_SETTLED, Watched,
+    ENERGY_WATCH, FIRST_BATCH, MAX_BACKTRACKS, Next, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE,
+    SolveBatches, Steps, Verdict, WATCH_SETTLED, Watched,
 };
 use crate::stage2::report::{DeformReport, StopReason};
 use crate::stage2::tracker::Tracker;
@@ -209,16 +209,24 @@ impl<D: SolveDevice> Tracker<D> {
                 done: iterations - restart,
             };
             let mut paused = false;
-            let (ran, held) = run_batched(&mut batches, limit, batch, |_, &(step, rms)| {
-                let reason = rule.after(step, rms);
-                if let Some(reason) = reason {
-                    stopped_by = reason;
-                }
-                let error = rule.last_error().unwrap_or(f32::NAN);
-                steps.told(error);
-                paused = reason.is_none() && check.is_some_and(|at| error < at);
-                Ok(reason.is_some() || paused)
-            })?;
+            // Unwatched, a phase may stop after a few iterations: its
+            // first batch is short.
+            let first = if accepted.is_none() && iterations == 0 {
+                FIRST_BATCH
+            } else {
+                batch
+            };
+            let (ran, held) =
+                run_batched_from(&mut batches, limit, first, batch, |_, &(step, rms)| {
+                    let reason = rule.after(step, rms);
+                    if let Some(reason) = reason {
+                        stopped_by = reason;
+                    }
+                    let error = rule.last_error().unwrap_or(f32::NAN);
+                    steps.told(error);
+                    paused = reason.is_none() && check.is_some_and(|at| error < at);
+                    Ok(reason.is_some() || paused)
+                })?;
             iterations += ran;
             let ended = held && !paused;
             if let Some(last) = accepted
