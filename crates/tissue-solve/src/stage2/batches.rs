@@ -155,6 +155,8 @@ mod tests {
         let far = |_: usize, v: &f32| Ok::<_, Infallible>(*v < 1e-6);
         let mut single = halving(None);
         let Ok(expected) = run_batched(&mut single, 100, 1, far);
+        // The tracker's first batch (docs/METHOD.md, "Frames and batches").
+        assert_eq!(crate::stage2::FIRST_BATCH, 2);
         for (first, batch) in [(2, 8), (1, 8), (3, 4), (8, 8), (16, 8)] {
             let mut device = halving(None);
             let Ok(run) = run_batched_from(&mut device, 100, first, batch, far);
