@@ -91,8 +91,9 @@ pub const WARM_ITERATIONS: usize = 500;
 /// "Elastic model", *The energy watch*).
 pub const ENERGY_WATCH: usize = 8;
 
-/// A phase that does not watch the potential (a tracking frame's warm
-/// phase, a shear phase) runs its first batch of this many iterations on a
+/// A phase that does not watch the potential, other than an elastic
+/// solve's shear phase (a tracking frame's warm phase, a solve with the
+/// symmetric force), runs its first batch of this many iterations on a
 /// device that batches, each next batch twice the last up to the device's:
 /// a tracking frame takes 2-4 iterations, which a first batch of 8 ran past
 /// and replayed (10 iterations for 2).

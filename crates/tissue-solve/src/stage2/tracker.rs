@@ -436,6 +436,7 @@ mod tests {
     use super::*;
     use crate::stage2::acceleration::StoppingRule;
     use crate::stage2::device::{Iteration, Potential};
+    use crate::stage2::phase::FIRST_BATCH;
     use crate::stage2::phase::{ENERGY_WATCH, MAX_RELINEARISATIONS};
 
     /// The octahedron's six vertices as control points and one free
@@ -759,8 +760,15 @@ mod tests {
                 report.residual_history, one.residual_history,
                 "batch {batch}"
             );
-            let inside = one.iterations % batch;
-            let expected: Vec<usize> = (inside > 0).then_some(inside).into_iter().collect();
+            // The phase's batches: `FIRST_BATCH`, then each twice the last
+            // up to `batch`; the one the rule held inside is replayed.
+            let (mut start, mut size) = (0, FIRST_BATCH.min(batch));
+            while start + size < one.iterations {
+                start += size;
+                size = (2 * size).min(batch);
+            }
+            let inside = one.iterations - start;
+            let expected: Vec<usize> = (inside < size).then_some(inside).into_iter().collect();
             assert_eq!(device.replays, expected, "batch {batch}");
             // The device is left where the rule held, not at the batch's end.
             assert_eq!(device.step, single.step, "batch {batch}");

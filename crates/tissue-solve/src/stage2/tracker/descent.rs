@@ -210,8 +210,9 @@ impl<D: SolveDevice> Tracker<D> {
             };
             let mut paused = false;
             // Unwatched, a phase may stop after a few iterations: its
-            // first batch is short.
-            let first = if accepted.is_none() && iterations == 0 {
+            // first batch is short (not an elastic solve's shear phase,
+            // which runs on to the volumes' misfit).
+            let first = if accepted.is_none() && !run.volume_check && iterations == 0 {
                 FIRST_BATCH
             } else {
                 batch
