@@ -18,6 +18,7 @@
 // in f64 and solves the groups in f32, here all in f32.
 
 #import shared/layout
+#import shared/tree_sum
 
 @group(0) @binding(0) var<uniform> params: Params;
 // Per aggregate the right-hand side b, three entries.
@@ -102,9 +103,6 @@ fn block_cycle_sweep(
     write_to(a, x + matrix_of(block_weights[a]) * block_residual(a));
 }
 
-// A group's partial sums, one a thread.
-var<workgroup> group_sums: array<vec3<f32>, WORKGROUP_SIZE>;
-
 // One workgroup a group: each thread sums the residuals of every
 // WORKGROUP_SIZE-th aggregate of the group, then the workgroup adds the
 // threads' sums in a tree. (One thread a group left most of a large GPU
@@ -124,18 +122,11 @@ fn block_cycle_restrict(
     for (var k = block_group_starts[g] + local; k < block_group_starts[g + 1u]; k += WORKGROUP_SIZE) {
         sum += block_residual(block_group_members[k]);
     }
-    group_sums[local] = sum;
-    workgroupBarrier();
-    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
-        if (local < stride) {
-            group_sums[local] += group_sums[local + stride];
-        }
-        workgroupBarrier();
-    }
+    let total = workgroup_sum(local, sum);
     if (local == 0u) {
-        block_group_coarse[3u * g] = group_sums[0].x;
-        block_group_coarse[3u * g + 1u] = group_sums[0].y;
-        block_group_coarse[3u * g + 2u] = group_sums[0].z;
+        block_group_coarse[3u * g] = total.x;
+        block_group_coarse[3u * g + 1u] = total.y;
+        block_group_coarse[3u * g + 2u] = total.z;
     }
 }
 

@@ -14,6 +14,7 @@
 // in f64 and solves the groups in f32, here all in f32.
 
 #import shared/layout
+#import shared/tree_sum
 
 @group(0) @binding(0) var<uniform> params: Params;
 // Per aggregate the right-hand side b. (Every loop is bounded by a vec4
@@ -75,9 +76,6 @@ fn cycle_sweep(
     cycle_to[a] = vec4<f32>(cycle_from[a].xyz + level_weights[a] * row_residual(a), 0.0);
 }
 
-// A group's partial sums, one a thread.
-var<workgroup> group_sums: array<vec3<f32>, WORKGROUP_SIZE>;
-
 // One workgroup a group, as `block_multilevel.wgsl`'s restriction: each
 // thread sums every WORKGROUP_SIZE-th aggregate's residual, the workgroup
 // adds the threads' sums in a tree.
@@ -96,16 +94,9 @@ fn cycle_restrict(
     for (var k = group_starts[g] + local; k < group_starts[g + 1u]; k += WORKGROUP_SIZE) {
         sum += row_residual(group_members[k]);
     }
-    group_sums[local] = sum;
-    workgroupBarrier();
-    for (var stride = WORKGROUP_SIZE / 2u; stride > 0u; stride >>= 1u) {
-        if (local < stride) {
-            group_sums[local] += group_sums[local + stride];
-        }
-        workgroupBarrier();
-    }
+    let total = workgroup_sum(local, sum);
     if (local == 0u) {
-        group_coarse[g] = vec4<f32>(group_sums[0], 0.0);
+        group_coarse[g] = vec4<f32>(total, 0.0);
     }
 }
 

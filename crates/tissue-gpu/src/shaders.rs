@@ -30,6 +30,10 @@ pub const SHARED: &[(&str, &str)] = &[
         include_str!("../shaders/shared/surface_field.wgsl"),
     ),
     ("shared/grid", include_str!("../shaders/shared/grid.wgsl")),
+    (
+        "shared/tree_sum",
+        include_str!("../shaders/shared/tree_sum.wgsl"),
+    ),
 ];
 
 /// Shader files with entry points: `(name, source before #import expansion)`.
