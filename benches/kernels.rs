@@ -104,7 +104,7 @@ fn kernels(c: &mut Criterion) {
                 &model.connections,
                 ForceModel::Symmetric,
             );
-            integrate(&current, &f, &[], &free, 0.05)
+            integrate(&current, &f, &[], &[], &free, 0.05)
         })
     });
 
@@ -135,6 +135,7 @@ fn kernels(c: &mut Criterion) {
             connections,
             &elastic,
             made_for,
+            &[],
             previous,
         )
         .expect("the correction is made")
@@ -175,13 +176,14 @@ fn kernels(c: &mut Criterion) {
                 connections,
                 &elastic,
                 &[],
+                &[],
                 &free,
                 &rotations,
             )
         })
     });
     let force = elastic_force(rest, &current, connections, &terms, &elastic);
-    let residual = elastic_residual(&force, &[], &aggregates.aggregate);
+    let residual = elastic_residual(&force, &current, &[], &[], &aggregates.aggregate);
     c.bench_function("elastic smoothed step 10k", |b| {
         b.iter(|| coarse.smoothed_step(&aggregates, connections, black_box(&residual)))
     });

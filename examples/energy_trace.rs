@@ -71,6 +71,10 @@ impl SolveDevice for Watched {
         self.solve.write_positions(positions, turn)
     }
 
+    fn set_springs(&mut self, springs: &[glam::Vec4]) -> Result<(), Infallible> {
+        self.solve.set_springs(springs)
+    }
+
     fn begin(&mut self, iteration: Iteration) -> Result<(), Infallible> {
         self.solve.begin(iteration)?;
         self.force = Some(iteration.force);

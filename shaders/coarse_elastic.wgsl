@@ -1,18 +1,21 @@
 // The elastic phase's two-level correction, twin of
 // `tissue_solve::coarse_elastic::ElasticCoarse::correct`, in six passes
 // between `integrate` and `chebyshev`. The elastic operator at the state the
-// phase started from, K = L + 1/2 sum_i W_i g_i g_i^T (g_i the gradient of
+// phase started from, K = L + 1/2 sum_i W_i g_i g_i^T + S (S the springs'
+// s s^T / 2 per particle, shared/loads; g_i the gradient of
 // J_i, its entry at neighbour j cof(F_i) c_ij = C_i d_ij + S_i (mu_j - mu_i)
 // with C_i = cof(F_i) B_i and S_i = a_i cof(F_i) there),
 // gives K e' = −s / (c alpha) + K s for the error after the plain step s;
 // its projection onto the aggregates' translations (three unknowns each) is
 // removed:
-// - `elastic_step`, per particle: s_i, 0 outside the aggregates (w = 1 inside);
+// - `elastic_step`, per particle: s_i, 0 outside the aggregates (w = 1 inside),
+//   and minus its spring's part of K s (shared/loads) into `elastic_residual`;
 // - `elastic_change`, per particle: sqrt(W_i) g_i . s, the uploaded
 //   `elastic_gradients` being sqrt(W_i) C_i and sqrt(W_i) S_i;
 // - `elastic_residual`, per particle: (K s)_j − s_j / (c alpha), or
 //   (K s)_j − r_j after the volume smoother (volume_smoother.wgsl), which
-//   leaves r_j in `elastic_residual` and s in `elastic_step`;
+//   leaves r_j (less the spring's part of K s) in `elastic_residual` and s
+//   in `elastic_step`;
 // - `elastic_restrict`, per aggregate: the sum over its particles, three
 //   entries of `elastic_coarse`;
 // - `elastic_forward` and `elastic_backward`, one workgroup each: the
@@ -22,6 +25,7 @@
 // The CPU computes in f64, here in f32.
 
 #import shared/layout
+#import shared/loads
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> rest: array<vec4<f32>>;
@@ -66,8 +70,13 @@ fn elastic_step_of(
     }
     if (elastic_aggregate[i] == OUTSIDE) {
         elastic_step[i] = vec4<f32>(0.0);
+        elastic_residual[i] = vec4<f32>(0.0);
     } else {
-        elastic_step[i] = vec4<f32>(plain[i].xyz - current[i].xyz, 1.0);
+        let s = plain[i].xyz - current[i].xyz;
+        elastic_step[i] = vec4<f32>(s, 1.0);
+        // Minus the spring's part of K s, which `elastic_residual_of` does
+        // not make (as `smoothed_step` leaves it after the volume smoother).
+        elastic_residual[i] = vec4<f32>(-spring_operator(i, params.count, s), 0.0);
     }
 }
 
@@ -126,9 +135,11 @@ fn elastic_residual_of(
             + 0.5 * ((h_i + h_j) * d + (n_i + n_j) * (mu - elastic_particles[i].multiplier.xyz));
     }
     // After the volume smoother (volume_smoother.wgsl) K e' = K s − r, its
-    // `smoothed_step` having left r here; after the plain step r = s / (c alpha).
-    let r = select(own.xyz / contraction, elastic_residual[j].xyz, params.volume_delta > 0.0);
-    elastic_residual[j] = vec4<f32>(k - r, 0.0);
+    // `smoothed_step` having left r − (S s)_j here; after the plain step
+    // r = s / (c alpha), `elastic_step_of` having left −(S s)_j (S s the
+    // springs' part of K s, shared/loads).
+    let r = select(own.xyz / contraction, vec3<f32>(0.0), params.volume_delta > 0.0);
+    elastic_residual[j] = vec4<f32>(k - r - elastic_residual[j].xyz, 0.0);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)

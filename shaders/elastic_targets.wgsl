@@ -22,6 +22,7 @@
 //   (`Elastic::particle_energy`).
 
 #import shared/layout
+#import shared/loads
 #import shared/svd3
 #import shared/polar
 
@@ -39,8 +40,6 @@
 // Per particle its part of the potential (`elastic_potential`'s output).
 @group(0) @binding(9) var<storage, read_write> potential: array<f32>;
 @group(0) @binding(10) var<storage, read> free: array<u32>;
-// Per particle its body force; one (zero) entry on a state without loads.
-@group(0) @binding(11) var<storage, read> loads: array<vec4<f32>>;
 
 // M_i and N_i over particle i's connections.
 struct Products {
@@ -202,8 +201,8 @@ fn elastic_potential(
     potential[i] = 0.5 * (pair + own);
 }
 
-// The loads' work taken from each free particle's part of the potential
-// (`elastic_potential` binds all a stage may).
+// The loads' work taken from each free particle's part of the potential,
+// and its spring's part added (`elastic_potential` binds all a stage may).
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_potential_work(
     @builtin(workgroup_id) workgroup: vec3<u32>,
@@ -214,7 +213,8 @@ fn elastic_potential_work(
     if (i >= params.count) {
         return;
     }
-    if (free[i] != 0u && arrayLength(&loads) == params.count) {
-        potential[i] = potential[i] - dot(loads[i].xyz, current[i].xyz);
+    if (free[i] != 0u) {
+        let q = current[i].xyz;
+        potential[i] = potential[i] - dot(body_force(i, params.count), q) + spring_potential(i, params.count, q);
     }
 }

@@ -7,8 +7,12 @@
 // `elastic_gradients` hold sqrt(W_i) C_i and sqrt(W_i) S_i, so h_ij is
 // theirs over sqrt(2)), the smoothed step for the residual r is
 // s = (r − H z) / delta, z from two Jacobi sweeps on
-// (delta I + H^T H) z = H^T r relaxed by theta, D_i its diagonal:
-// - `smoother_residual`, per particle: r_i = d (F_i + b_i) / 2 inside the
+// (delta I + H^T H) z = H^T r relaxed by theta, D_i its diagonal; with
+// springs towards observed planes delta I is delta I + s s^T / 2 on each
+// particle, which turns every field H^T reads and the step by
+// Phi = I − s s^T / (2 delta + |s|^2) (`tissue_solve::coarse::VolumeSmoother`):
+// - `smoother_residual`, per particle: r_i = d (F_i + b_i + p_i) / 2 (p_i
+//   the spring's pull, shared/loads) inside the
 //   elastic aggregates (w = 1), 0 outside, into `elastic_step`, with the
 //   damping d (1, but where a failed smoothed phase is run again: the
 //   two-level step is linear in r, so this takes that fraction of it);
@@ -17,12 +21,14 @@
 // - `pressure_sweep`, per particle: z_i += theta (t_i − delta z_i − h_i . (H z)) / D_i;
 // - `pressure_forces` again, then `smoothed_step`, per particle:
 //   s_k = (r_k − (H z)_k) / delta, q̂_k = q_k + s_k, s_k into `elastic_step`
-//   and r_k into `elastic_residual`, where `coarse_elastic.wgsl`'s
-//   correction takes them (K e' = K s − r).
+//   and r_k − (S s)_k into `elastic_residual` (S s the springs' part of
+//   K s), where `coarse_elastic.wgsl`'s correction takes them
+//   (K e' = K s − r).
 // delta, theta and d come in `params` (volume_delta, volume_relaxation,
 // volume_damping).
 
 #import shared/layout
+#import shared/loads
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> rest: array<vec4<f32>>;
@@ -31,8 +37,6 @@
 @group(0) @binding(4) var<storage, read> offsets: array<u32>;
 @group(0) @binding(5) var<storage, read> indices: array<u32>;
 @group(0) @binding(6) var<storage, read> force: array<vec4<f32>>;
-// Per particle its body force; one (zero) entry on a state without loads.
-@group(0) @binding(7) var<storage, read> loads: array<vec4<f32>>;
 // Per particle its elastic aggregate, or OUTSIDE.
 @group(0) @binding(8) var<storage, read> elastic_aggregate: array<u32>;
 // Per particle r_i, then s_i (w: 1 inside an aggregate, 0 outside).
@@ -60,24 +64,32 @@ fn entry(i: u32, j: u32) -> vec3<f32> {
     return SQRT_HALF * (c * d + scale * dmu);
 }
 
-// Which field `change_of` reads: r in `elastic_step`, or H z in `pressure_force`.
-const RESIDUAL: u32 = 0u;
-const FORCE: u32 = 1u;
-
-fn field_at(field: u32, j: u32) -> vec3<f32> {
-    if (field == RESIDUAL) {
-        return elastic_step[j].xyz;
-    }
-    return pressure_force[j].xyz;
+// Phi at particle j applied to x: x − s (s . x) / (2 delta + |s|^2) with
+// its spring (shared/loads), x without: delta M_0^-1, M_0 = delta I + s s^T / 2.
+fn phi(j: u32, x: vec3<f32>) -> vec3<f32> {
+    let s = spring_of(j, params.count).xyz;
+    return x - s * (dot(s, x) / (2.0 * params.volume_delta + dot(s, s)));
 }
 
-// h_i . x for the field x (`RESIDUAL` or `FORCE`).
-fn change_of(i: u32, field: u32) -> f32 {
-    let own = field_at(field, i);
+// h_i . Phi r, r in `elastic_step` (each field its own function: a kernel
+// binds only the buffers it reads).
+fn residual_change(i: u32) -> f32 {
+    let own = phi(i, elastic_step[i].xyz);
     var change = 0.0;
     for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
         let j = indices[k];
-        change += dot(field_at(field, j) - own, entry(i, j));
+        change += dot(phi(j, elastic_step[j].xyz) - own, entry(i, j));
+    }
+    return change;
+}
+
+// h_i . Phi H z, H z in `pressure_force`.
+fn force_change(i: u32) -> f32 {
+    let own = phi(i, pressure_force[i].xyz);
+    var change = 0.0;
+    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
+        let j = indices[k];
+        change += dot(phi(j, pressure_force[j].xyz) - own, entry(i, j));
     }
     return change;
 }
@@ -96,10 +108,7 @@ fn smoother_residual(
         elastic_step[i] = vec4<f32>(0.0);
         return;
     }
-    var f = force[i].xyz;
-    if (arrayLength(&loads) == params.count) {
-        f += loads[i].xyz;
-    }
+    let f = force[i].xyz + body_force(i, params.count) + spring_pull(i, params.count, current[i].xyz);
     elastic_step[i] = vec4<f32>(0.5 * params.volume_damping * f, 1.0);
 }
 
@@ -113,7 +122,7 @@ fn pressure_start(
     if (i >= params.count) {
         return;
     }
-    let t = change_of(i, RESIDUAL);
+    let t = residual_change(i);
     let d = pressures[i].z;
     pressures[i] = vec4<f32>(t, params.volume_relaxation * t / d, d, 0.0);
 }
@@ -152,7 +161,7 @@ fn pressure_sweep(
         return;
     }
     let p = pressures[i];
-    let s_z = params.volume_delta * p.y + change_of(i, FORCE);
+    let s_z = params.volume_delta * p.y + force_change(i);
     let z = p.y + params.volume_relaxation * (p.x - s_z) / p.z;
     pressures[i] = vec4<f32>(p.x, z, p.z, 0.0);
 }
@@ -174,8 +183,9 @@ fn smoothed_step(
         elastic_residual[k] = vec4<f32>(0.0);
         return;
     }
-    let s = (r.xyz - pressure_force[k].xyz) / params.volume_delta;
+    let s = phi(k, r.xyz - pressure_force[k].xyz) / params.volume_delta;
     plain[k] = vec4<f32>(q + s, 0.0);
     elastic_step[k] = vec4<f32>(s, 1.0);
-    elastic_residual[k] = vec4<f32>(r.xyz, 0.0);
+    // The spring's part of K s, which `elastic_residual_of` does not make.
+    elastic_residual[k] = vec4<f32>(r.xyz - spring_operator(k, params.count, s), 0.0);
 }

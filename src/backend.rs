@@ -27,7 +27,7 @@ use std::convert::Infallible;
 use std::fmt;
 use std::str::FromStr;
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use tissue_core::{
     Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
 };
@@ -492,6 +492,21 @@ impl Solver {
     /// Places the control points on `deformed`, the rest surface with moved vertices.
     pub fn set_surface(&mut self, deformed: &SurfaceMesh) -> Result<(), Error> {
         self.tracker.set_surface(deformed)
+    }
+
+    /// Sets every particle's spring towards an observed plane
+    /// ([`tissue_solve::stage2::spring`]: one per particle, zero where none,
+    /// or an empty list to take them away) for the next solves: the
+    /// elastic force's iterations pull each free particle towards its
+    /// plane along the plane's normal and leave it free along the plane.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Deformation`] for a list that is not one per particle or
+    /// holds a value that is not finite; [`Error::Param`] without the
+    /// elastic force; [`Error::Gpu`] where the GPU cannot take them.
+    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+        self.tracker.set_springs(springs)
     }
 
     /// Starts the next solve from `positions` (one per particle; the

@@ -52,44 +52,9 @@ pub mod resampling {
     pub use tissue_solve::model::{FieldGridError, field_grid, resampling_field};
 }
 
-/// Observations without correspondence: a point cloud of the organ's
-/// surface read from a file, its spacing and fitted normals, the grid
-/// that finds a point's nearest observed point, and the rigid motion that
-/// puts a cloud on a surface.
-pub mod observation {
-    pub use tissue_core::ObservationError;
-    pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
-    pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, rigid_fit};
-
-    use crate::{Error, SurfaceMesh, field::SurfaceField};
-
-    /// [`rigid_fit`] of `points` onto a closed surface: its field in cells
-    /// of the surface's mean edge length, exact within two of them.
-    ///
-    /// # Errors
-    ///
-    /// [`Error::Observation`] where the surface has no triangles or too
-    /// small an edge for its size, a point is not finite, or fewer than
-    /// six points are within `reach`.
-    pub fn rigid_fit_to_surface(
-        points: &[crate::Vec3],
-        surface: &SurfaceMesh,
-        reach: f32,
-    ) -> Result<RigidFit, Error> {
-        let edges: f64 = (0..surface.triangles.len())
-            .map(|t| {
-                let [a, b, c] = surface.corners(t);
-                f64::from((b - a).length() + (c - b).length() + (a - c).length())
-            })
-            .sum();
-        let cell = (edges / (3.0 * surface.triangles.len().max(1) as f64)) as f32;
-        let field = SurfaceField::new(surface, cell, 2.0 * cell).map_err(ObservationError::from)?;
-        Ok(rigid_fit(points, &field, reach)?)
-    }
-}
-
 pub mod backend;
 pub mod gravity;
+pub mod observation;
 
 /// Stage 2: the deformer (the CPU path; [`backend::Solver`] runs it on the
 /// chosen device), its parameters and its report.

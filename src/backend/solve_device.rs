@@ -1,7 +1,7 @@
 //! [`SolveDevice`] for [`SolverDevice`]: each call forwarded to the CPU's
 //! or the GPU's solve.
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use tissue_core::Error;
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_gpu::GpuSolve;
@@ -112,6 +112,13 @@ impl SolveDevice for SolverDevice {
         match self {
             Self::Cpu(cpu) => cpu.shared_laplacian(plan, params),
             Self::Gpu(gpu) => gpu.solve.shared_laplacian(plan, params),
+        }
+    }
+
+    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.as_mut().set_springs(springs)),
+            Self::Gpu(gpu) => gpu.on("uploading the springs", |g| g.set_springs(springs)),
         }
     }
 

@@ -359,6 +359,9 @@ pub enum DeformError {
     /// Points bound on one backend were carried by a solver on another.
     #[error("points bound on one backend were carried by another")]
     OtherBackend,
+    /// The springs towards an observation do not fit the model.
+    #[error("the springs towards the observation: {0}")]
+    Springs(String),
 }
 
 /// Why a point cloud cannot serve as an observation.

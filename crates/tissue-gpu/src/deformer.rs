@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
 use tissue_solve::coarse::{
     Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, SharedLaplacian, Smoothing,
@@ -63,6 +63,9 @@ pub struct GpuSolve {
     elastic_host: Option<ElasticHost>,
     /// The elastic phase's correction in hand (its contraction, its step).
     elastic_coarse: Option<ElasticCoarse>,
+    /// Per particle its body force (the plan's loads; empty without), for
+    /// the loads buffer made again with other springs.
+    loads: Vec<Vec3>,
     /// `current` at a batch's start, for a replay (a copy target that no
     /// kernel binds: raw).
     backup_current: wgpu::Buffer,
@@ -105,6 +108,9 @@ struct ElasticHost {
     volume_smoother: Option<(Smoothing, f32)>,
     /// Up to how many aggregates the correction is factored, cycled above.
     direct_max: usize,
+    /// Per particle its spring towards an observed plane, part of the
+    /// correction's operator (empty without: [`Plan::springs`]).
+    springs: Vec<Vec4>,
 }
 
 impl GpuDeformer {
@@ -329,8 +335,8 @@ impl GpuSolve {
         if let Some(elastic) = &plan.elastic {
             state.set_elastic(device, &pipelines, elastic)?;
         }
-        if !plan.loads.is_empty() {
-            state.set_loads(device, &pipelines, &plan.loads)?;
+        if !plan.loads.is_empty() || !plan.springs.is_empty() {
+            state.set_loads(device, &pipelines, &plan.loads, &plan.springs)?;
         }
         // The coarse space corrects the symmetric force, an elastic solve's shear phase included
         // (`Iteration::correct`), as on the CPU path.
@@ -371,6 +377,7 @@ impl GpuSolve {
             (Some(elastic), Some(aggregates)) => {
                 state.set_elastic_aggregates(device, &pipelines, &aggregates)?;
                 Some(ElasticHost {
+                    springs: plan.springs.clone(),
                     rest: model.positions.clone(),
                     connections: model.connections.clone(),
                     elastic: Arc::clone(elastic),
@@ -416,6 +423,7 @@ impl GpuSolve {
             coarse,
             elastic_host,
             elastic_coarse: None,
+            loads: plan.loads.clone(),
             iteration: None,
             slots: 0,
         })
@@ -490,6 +498,7 @@ impl GpuSolve {
                 direct_max_aggregates: host.direct_max,
                 envelope: true,
             },
+            &host.springs,
             None,
         );
         match &self.elastic_coarse {
@@ -589,6 +598,22 @@ impl SolveDevice for GpuSolve {
 
     fn write_positions(&mut self, positions: &[Vec3], turn: Option<Mat3>) -> Result<(), GpuError> {
         self.scoped(|gpu| gpu.write_positions_unscoped(positions, turn))
+    }
+
+    /// Uploads them beside the loads; the correction is made again with
+    /// them at the next elastic phase's start.
+    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            gpu.state
+                .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
+            if let Some(host) = &mut gpu.elastic_host {
+                springs.clone_into(&mut host.springs);
+            }
+            gpu.elastic_coarse = None;
+            gpu.state.forget_elastic_linearisation();
+            Ok(())
+        })
     }
 
     fn begin(&mut self, iteration: Iteration) -> Result<(), GpuError> {

@@ -34,6 +34,7 @@ pub const SHARED: &[(&str, &str)] = &[
         "shared/tree_sum",
         include_str!("../shaders/shared/tree_sum.wgsl"),
     ),
+    ("shared/loads", include_str!("../shaders/shared/loads.wgsl")),
 ];
 
 /// Shader files with entry points: `(name, source before #import expansion)`.

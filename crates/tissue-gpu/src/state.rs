@@ -1,6 +1,6 @@
 //! The buffers of one particle model on the GPU.
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use tissue_core::ParticleModel;
 use tissue_solve::coarse::{Aggregates, CoarseSpace, ElasticCoarse, RELAXATION};
 use tissue_solve::model::Elastic;
@@ -294,21 +294,33 @@ impl DeformState {
     }
 
     /// Uploads every particle's body force (the plan's loads, one per
-    /// particle): from now on the plain step adds it to the force.
+    /// particle, or none) and its spring towards an observed plane (the
+    /// plan's springs, one per particle, or none): from now on the plain
+    /// step adds the body force to the force, and the elastic force's
+    /// iterations the springs' pulls. The buffer holds the body forces
+    /// (zero without loads) and, with springs, the springs after them
+    /// (`shared/loads.wgsl`).
     pub fn set_loads(
         &mut self,
         device: &wgpu::Device,
         pipelines: &Pipelines,
         loads: &[Vec3],
+        springs: &[Vec4],
     ) -> Result<(), GpuError> {
-        self.check_len("loads (one per particle)", loads.len())?;
-        let loads: Vec<[f32; 4]> = loads.iter().map(|&b| vec4(b, 0.0)).collect();
+        if !loads.is_empty() {
+            self.check_len("loads (one per particle)", loads.len())?;
+        }
+        if !springs.is_empty() {
+            self.check_len("springs (one per particle)", springs.len())?;
+        }
         let n = self.len();
+        let body = (0..n).map(|i| loads.get(i).map_or([0.0; 4], |&b| vec4(b, 0.0)));
+        let packed: Vec<[f32; 4]> = body.chain(springs.iter().map(|s| s.to_array())).collect();
         self.loads = scoped(device, || {
             Storage::init(
                 device,
                 "loads",
-                &loads,
+                &packed,
                 &format!("the loads buffer ({n} particles)"),
             )
         })?;

@@ -6,7 +6,7 @@
 
 mod common;
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use tissue_core::ParticleModel;
 use tissue_cpu::coarse::Aggregates;
 use tissue_cpu::coarse::{CorrectionFor, ElasticCoarse};
@@ -15,6 +15,7 @@ use tissue_cpu::deformation::{
     elastic_residual, elastic_terms, integrate, local_rotations,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
+use tissue_solve::stage2::spring;
 
 const SIZES: [usize; 2] = [2_000, 3_001];
 
@@ -440,8 +441,11 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
     };
     // The default Poisson ratio with the first sweeps, and a nearly
     // incompressible one with the sweeps it takes.
-    let settings = [(0.49, tissue_solve::coarse::SMOOTHER_SWEEPS), (0.499, 8)];
-    for (n, (poisson, sweeps)) in SIZES.into_iter().flat_map(|n| settings.map(|s| (n, s))) {
+    // And the default with springs towards planes (the smoother and the
+    // correction take them in).
+    let first = tissue_solve::coarse::SMOOTHER_SWEEPS;
+    let settings = [(0.49, first, false), (0.499, 8, false), (0.49, first, true)];
+    for (n, (poisson, sweeps, pulled)) in SIZES.into_iter().flat_map(|n| settings.map(|s| (n, s))) {
         let model = common::phantom(n);
         let (rest, connections) = (&model.positions, &model.connections);
         let current = deformed(model);
@@ -459,9 +463,38 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             direct_max_aggregates: usize::MAX,
             envelope: true,
         };
-        let coarse =
+        // Springs through planes a little off every third free particle,
+        // tilted from axis to axis, as stiff as the default.
+        let springs: Vec<Vec4> = if pulled {
+            (0..model.len())
+                .map(|i| match free[i] {
+                    true if i % 3 == 0 => {
+                        let normal = Vec3::new(1.0, (i % 3) as f32 - 1.0, 0.5).normalize();
+                        let weight = tissue_solve::stage2::SPRING_WEIGHT * plan.lambda_max;
+                        spring(current[i] + 0.3 * normal, normal, weight)
+                    }
+                    _ => Vec4::ZERO,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let coarse = if pulled {
+            ElasticCoarse::at_phase_start(
+                &aggregates,
+                rest,
+                &current,
+                connections,
+                &elastic,
+                made_for,
+                &springs,
+                None,
+            )
+            .unwrap_or_else(|| panic!("the correction is made"))
+        } else {
             ElasticCoarse::new(&aggregates, rest, &current, connections, &elastic, made_for)
-                .unwrap_or_else(|e| panic!("{e}"));
+                .unwrap_or_else(|e| panic!("{e}"))
+        };
         let rotations = local_rotations(rest, &current, connections);
         let (terms, _) = elastic_terms(
             rest,
@@ -472,7 +505,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             RotationMethod::Svd,
         );
         let force = elastic_force(rest, &current, connections, &terms, &elastic);
-        let residual = elastic_residual(&force, &[], &aggregates.aggregate);
+        let residual = elastic_residual(&force, &current, &[], &springs, &aggregates.aggregate);
         let expected = coarse
             .smoothed_step(&aggregates, connections, &residual)
             .unwrap_or_else(|| panic!("the correction has its smoother"));
@@ -484,6 +517,11 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
         state
             .set_elastic_aggregates(&device, &pipelines, &aggregates)
             .unwrap_or_else(|e| panic!("{e}"));
+        if pulled {
+            state
+                .set_loads(&device, &pipelines, &[], &springs)
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
         state
             .linearise_elastic(&device, &pipelines, &coarse)
             .unwrap_or_else(|e| panic!("{e}"));
@@ -532,7 +570,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             worst = worst.max(off);
             assert!(
                 off <= tolerance,
-                "n = {n}, poisson {poisson}, particle {i}: GPU step {got} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
+                "n = {n}, poisson {poisson}, springs {pulled}, particle {i}: GPU step {got} vs CPU {e}, difference {off:e} > tolerance {tolerance:e}"
             );
         }
         assert!(
@@ -540,7 +578,7 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             "n = {n}: the smoother's volume part ({unsmoothed:e}) is lost in the tolerance {tolerance:e}"
         );
         eprintln!(
-            "smoothed elastic step, n = {n}, poisson {poisson}, {sweeps} sweeps: worst {worst:.2e} of the largest step {largest:.2e} \
+            "smoothed elastic step, n = {n}, poisson {poisson}, {sweeps} sweeps, springs {pulled}: worst {worst:.2e} of the largest step {largest:.2e} \
              ({:.2e} of it; tolerance 5e-4), the volume part {unsmoothed:.2e}",
             worst / largest
         );
@@ -558,7 +596,7 @@ fn integrate_and_step_norms_match_the_cpu_twins() {
         let force = symmetric_force(model, &current);
         let free = free_of(model);
         let alpha = 0.07;
-        let expected = integrate(&current, &force, &[], &free, alpha);
+        let expected = integrate(&current, &force, &[], &[], &free, alpha);
         let (pipelines, state) = setup(&device, &queue, model);
         state
             .write_current(&queue, &current)
@@ -619,7 +657,7 @@ fn chebyshev_matches_the_cpu_combine() {
     let force = symmetric_force(model, &current);
     let free: Vec<bool> = model.attachments.iter().map(Option::is_none).collect();
     let alpha = 0.07;
-    let plain = integrate(&current, &force, &[], &free, alpha);
+    let plain = integrate(&current, &force, &[], &[], &free, alpha);
     let omega = 1.83f32;
     let expected: Vec<Vec3> = plain
         .iter()

@@ -26,7 +26,7 @@ use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
 pub use tissue_solve::coarse::SharedLaplacian;
@@ -185,6 +185,12 @@ impl Deformer {
         self.tracker.set_surface(deformed)
     }
 
+    /// Sets every particle's spring towards an observed plane for the next
+    /// solves (`Tracker::set_springs`: one per particle, or none).
+    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+        self.tracker.set_springs(springs)
+    }
+
     /// The next solve starts from `positions` (`Tracker::warm_start`).
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
         self.tracker.warm_start(positions)
@@ -227,6 +233,9 @@ pub struct CpuSolve {
     free: Vec<bool>,
     /// Per particle its body force (empty without a load).
     loads: Vec<Vec3>,
+    /// Per particle its spring towards an observed plane, applied by the
+    /// elastic force's iterations (empty without: [`Plan::springs`]).
+    springs: Vec<Vec4>,
     current: Vec<Vec3>,
     previous: Vec<Vec3>,
     rotations: Vec<Mat3>,
@@ -315,6 +324,7 @@ impl CpuSolve {
             connections: model.connections.clone(),
             free: plan.free.clone(),
             loads: plan.loads.clone(),
+            springs: plan.springs.clone(),
             current: model.positions.clone(),
             previous: model.positions.clone(),
             rotations: vec![Mat3::IDENTITY; model.len()],
@@ -386,6 +396,7 @@ impl CpuSolve {
             &self.connections,
             elastic,
             made_for,
+            &self.springs,
             self.elastic_coarse.as_deref(),
         )
         .map(Arc::new);
@@ -442,6 +453,17 @@ impl CpuSolve {
         let next = work.next.unwrap_or_else(|| self.current.clone());
         self.previous = std::mem::replace(&mut self.current, next);
         work.measured
+    }
+
+    /// The springs an iteration with `it` applies: the plan's with the
+    /// elastic force, none with the others (whose corrections are made
+    /// for the Laplacian without them).
+    fn springs_for(&self, it: Iteration) -> &[Vec4] {
+        if it.force == ForceModel::Elastic {
+            &self.springs
+        } else {
+            &[]
+        }
     }
 
     /// One pass of an iteration, on what the passes before it left in `work`.
@@ -501,6 +523,7 @@ impl CpuSolve {
                     &self.current,
                     &work.force,
                     &self.loads,
+                    self.springs_for(it),
                     &self.free,
                     it.alpha,
                 );
@@ -508,8 +531,13 @@ impl CpuSolve {
             Pass::SmoothedStep { .. } => {
                 // The corrected elastic step made whole from the residual.
                 let step = elastic_coarse.and_then(|(c, aggregates)| {
-                    let mut residual =
-                        elastic_residual(&work.force, &self.loads, &aggregates.aggregate);
+                    let mut residual = elastic_residual(
+                        &work.force,
+                        &self.current,
+                        &self.loads,
+                        &self.springs,
+                        &aggregates.aggregate,
+                    );
                     // The two-level step is linear in the residual: a
                     // damped step is the step of the residual scaled.
                     if it.damping != 1.0 {
@@ -529,6 +557,7 @@ impl CpuSolve {
                         &self.current,
                         &work.force,
                         &self.loads,
+                        self.springs_for(it),
                         &self.free,
                         it.alpha,
                     ),
@@ -713,6 +742,7 @@ impl SolveDevice for CpuSolve {
                 &self.connections,
                 elastic,
                 &self.loads,
+                &self.springs,
                 &self.free,
                 &self.rotations,
             ))
@@ -747,6 +777,13 @@ impl SolveDevice for CpuSolve {
 
     fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {
         Ok(self.current.clone())
+    }
+
+    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Infallible> {
+        springs.clone_into(&mut self.springs);
+        // Its operator holds the springs it was made with.
+        self.elastic_coarse = None;
+        Ok(())
     }
 
     fn reset(&mut self) -> Result<(), Infallible> {

@@ -3,11 +3,11 @@
 //! over them (`elastic_force`), and each particle's part of the potential
 //! the force descends (`elastic_potential`).
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::Connections;
 use tissue_solve::model::{Elastic, ElasticTerms, rotation_of};
-use tissue_solve::stage2::RotationMethod;
+use tissue_solve::stage2::{RotationMethod, spring_potential};
 
 use super::polar::{LANES, warm_rotations};
 
@@ -83,18 +83,25 @@ pub fn elastic_force(
 }
 
 /// Per particle its part of the potential the elastic force descends,
-/// `E_i / 2 - b_i . q_i` (`b_i` its body force from `loads`, none where
-/// `loads` is empty; free particles only), `E_i` by
+/// `E_i / 2 - b_i . q_i + P_i` (`b_i` its body force from `loads`, none
+/// where `loads` is empty, and `P_i` its spring's part from `springs`,
+/// [`tissue_solve::stage2::spring_potential`], none where `springs` is
+/// empty; free particles only), `E_i` by
 /// [`Elastic::particle_energy_turned`] in `f64`, its rotation the polar
 /// update of its gradient (of `M_i` where flat) warm-started from
 /// `rotations` (the last iteration's, which stay as they are): the
 /// potential is their sum, in index order.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the state and what acts on it, as the shader binds them"
+)]
 pub fn elastic_potential(
     rest: &[Vec3],
     current: &[Vec3],
     connections: &Connections,
     elastic: &Elastic,
     loads: &[Vec3],
+    springs: &[Vec4],
     free: &[bool],
     rotations: &[Mat3],
 ) -> Vec<f64> {
@@ -123,9 +130,13 @@ pub fn elastic_potential(
                     Some(b) if free[i] => f64::from(b.dot(current[i])),
                     _ => 0.0,
                 };
+                let pull = match springs.get(i) {
+                    Some(&spring) if free[i] => spring_potential(spring, current[i]),
+                    _ => 0.0,
+                };
                 let energy =
                     elastic.particle_energy_turned(i, rest, current, connections, |_| turned[l]);
-                *part = 0.5 * energy - work;
+                *part = 0.5 * energy - work + pull;
             }
         });
     parts

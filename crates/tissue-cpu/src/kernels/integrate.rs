@@ -1,20 +1,25 @@
 //! Twin of `shaders/integrate.wgsl`: the plain step (`integrate`) and the
 //! Chebyshev combine (`chebyshev_combine`).
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use rayon::prelude::*;
+use tissue_solve::stage2::spring_force;
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "integrate";
 
-/// `q += alpha (F + b)` for free particles (the stiffness `sigma` and mass
-/// `m` fold into `alpha = sigma / m`), `b` the particle's body force from
-/// `loads` (none where `loads` is empty); control points stay where the
-/// surface put them.
+/// `q += alpha (F + b + p)` for free particles (the stiffness `sigma` and
+/// mass `m` fold into `alpha = sigma / m`), `b` the particle's body force
+/// from `loads` (none where `loads` is empty) and `p` its spring's pull
+/// towards an observed plane from `springs`
+/// ([`tissue_solve::stage2::spring_force`]; none where `springs` is
+/// empty: the elastic force's iterations pass the plan's, the others
+/// none); control points stay where the surface put them.
 pub fn integrate(
     current: &[Vec3],
     force: &[Vec3],
     loads: &[Vec3],
+    springs: &[Vec4],
     free: &[bool],
     alpha: f32,
 ) -> Vec<Vec3> {
@@ -27,12 +32,19 @@ pub fn integrate(
             if !free {
                 return q;
             }
-            match loads.get(i) {
-                Some(&b) => q + alpha * (f + b),
-                None => q + alpha * f,
-            }
+            q + alpha * (f + applied(i, q, loads, springs))
         })
         .collect()
+}
+
+/// What acts on particle `i` at `q` besides the force between particles:
+/// its body force and its spring's pull, where there are any.
+pub fn applied(i: usize, q: Vec3, loads: &[Vec3], springs: &[Vec4]) -> Vec3 {
+    let b = loads.get(i).copied().unwrap_or(Vec3::ZERO);
+    match springs.get(i) {
+        Some(&spring) => b + spring_force(spring, q),
+        None => b,
+    }
 }
 
 /// The Chebyshev step: `omega (q_hat - q_old) + q_old`.

@@ -4,9 +4,11 @@
 //! `tissue_solve::coarse::ElasticCoarse::smoothed_step` (its
 //! pressures' sweeps `tissue_solve::coarse::VolumeSmoother`).
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_solve::coarse::OUTSIDE;
+
+use crate::kernels::integrate::applied;
 
 pub use tissue_solve::coarse::VolumeSmoother;
 
@@ -14,9 +16,16 @@ pub use tissue_solve::coarse::VolumeSmoother;
 pub const SHADER: &str = "volume_smoother";
 
 /// The elastic phase's residual for the volume smoother: half the force,
-/// loads included, at the particles inside an aggregate (`K e = -r` for the
-/// error `e` while the rotations are held), in `f64`; zero elsewhere.
-pub fn elastic_residual(force: &[Vec3], loads: &[Vec3], aggregate: &[u32]) -> Vec<DVec3> {
+/// loads and springs' pulls included ([`crate::kernels::integrate::applied`]),
+/// at the particles inside an aggregate (`K e = -r` for the error `e`
+/// while the rotations are held), in `f64`; zero elsewhere.
+pub fn elastic_residual(
+    force: &[Vec3],
+    current: &[Vec3],
+    loads: &[Vec3],
+    springs: &[Vec4],
+    aggregate: &[u32],
+) -> Vec<DVec3> {
     force
         .par_iter()
         .zip(aggregate)
@@ -25,8 +34,7 @@ pub fn elastic_residual(force: &[Vec3], loads: &[Vec3], aggregate: &[u32]) -> Ve
             if a == OUTSIDE {
                 return DVec3::ZERO;
             }
-            let b = loads.get(i).copied().unwrap_or(Vec3::ZERO);
-            0.5 * (f + b).as_dvec3()
+            0.5 * (f + applied(i, current[i], loads, springs)).as_dvec3()
         })
         .collect()
 }

@@ -18,7 +18,7 @@
 
 use std::time::Instant;
 
-use glam::{DMat3, DVec3, Vec3};
+use glam::{DMat3, DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 
@@ -29,6 +29,7 @@ use crate::coarse::volume_smoother::{Smoothing, VolumeSmoother};
 use crate::model::elastic::{Elastic, VolumeLinearisation, cofactor};
 use crate::stage2::device::Iteration;
 use crate::stage2::params::ForceModel;
+use crate::stage2::springs::{spring_block, spring_operator};
 
 mod setup;
 
@@ -99,6 +100,9 @@ pub struct ElasticCoarse {
     linearisation: VolumeLinearisation,
     /// `K`'s volume part per connection, for the CPU's products.
     entries: Entries,
+    /// Per particle its spring towards an observed plane, whose
+    /// `s s^T / 2` is part of `K` (empty without springs).
+    springs: Vec<Vec4>,
     /// The solve of `P^T K P`.
     solve: CoarseSolve,
     /// The volume smoother, where the iteration smooths with it.
@@ -120,6 +124,9 @@ pub(crate) struct Making<'a> {
     pub(crate) rate_steps: usize,
     pub(crate) previous: Option<&'a ElasticCoarse>,
     pub(crate) single: bool,
+    /// Per particle its spring towards an observed plane
+    /// ([`crate::stage2::plan::Plan::springs`]; empty without).
+    pub(crate) springs: &'a [Vec4],
 }
 
 impl Default for Making<'_> {
@@ -128,6 +135,7 @@ impl Default for Making<'_> {
             rate_steps: RATE_STEPS,
             previous: None,
             single: false,
+            springs: &[],
         }
     }
 }
@@ -183,7 +191,13 @@ impl ElasticCoarse {
                 // diagonal alone; the cycles and a device's envelope both.
                 let factored = aggregates.count() <= made_for.direct_max_aggregates;
                 let upper = factored && !made_for.envelope;
-                let blocks = assemble(aggregates, &parts, &linearisation.weights, upper);
+                let blocks = assemble(
+                    aggregates,
+                    &parts,
+                    &linearisation.weights,
+                    making.springs,
+                    upper,
+                );
                 coarse_solve(aggregates, rest, &blocks, made_for, making)
             },
             || {
@@ -196,6 +210,7 @@ impl ElasticCoarse {
                         connections,
                         &inside,
                         smoothing,
+                        making.springs,
                     )
                 });
                 (entries, smoother)
@@ -209,6 +224,7 @@ impl ElasticCoarse {
         let mut space = Self {
             linearisation,
             entries,
+            springs: making.springs.to_vec(),
             solve,
             smoother,
             contraction: made_for.contraction,
@@ -238,7 +254,11 @@ impl ElasticCoarse {
     /// same aggregates at an earlier phase's start, lends its factor's
     /// order and symbolic analysis ([`Cholesky::refactor`]). Its coarse
     /// solves run in `f32` ([`Cholesky::single`]), after its contraction,
-    /// where not given, is estimated in `f64`.
+    /// where not given, is estimated in `f64`. `springs` (one per particle,
+    /// or none) are part of its operator; with them the contraction given
+    /// for the model at rest does not hold, and it is estimated in
+    /// [`REST_RATE_STEPS`] Lanczos steps.
+    #[allow(clippy::too_many_arguments, reason = "what a phase's start hands over")]
     pub fn at_phase_start(
         aggregates: &Aggregates,
         rest: &[Vec3],
@@ -246,8 +266,20 @@ impl ElasticCoarse {
         connections: &Connections,
         elastic: &Elastic,
         made_for: CorrectionFor,
+        springs: &[Vec4],
         previous: Option<&Self>,
     ) -> Option<Self> {
+        let (made_for, rate_steps) = if springs.is_empty() {
+            (made_for, RATE_STEPS)
+        } else {
+            (
+                CorrectionFor {
+                    rho: None,
+                    ..made_for
+                },
+                REST_RATE_STEPS,
+            )
+        };
         let made = Self::made(
             aggregates,
             rest,
@@ -256,9 +288,10 @@ impl ElasticCoarse {
             elastic,
             made_for,
             Making {
+                rate_steps,
                 previous,
                 single: true,
-                ..Making::default()
+                springs,
             },
         );
         match made {
@@ -369,12 +402,18 @@ impl ElasticCoarse {
         finish: impl Fn(usize, DVec3) -> DVec3 + Sync,
     ) -> Vec<DVec3> {
         let aggregate = &aggregates.aggregate;
+        let springs = &self.springs;
         self.entries.operator_then(
             &self.linearisation.weights,
             connections,
             |i| aggregate[i] != OUTSIDE,
             u,
-            finish,
+            |k, ku| match springs.get(k) {
+                Some(&spring) if aggregate[k] != OUTSIDE => {
+                    finish(k, ku + spring_operator(spring, u[k]))
+                }
+                _ => finish(k, ku),
+            },
         )
     }
 
@@ -649,11 +688,14 @@ fn linearise(
 /// the coarse Laplacian on each axis, and per particle with a volume
 /// weight `1/2 W_i (P^T g_i)(P^T g_i)^T` (`parts`), each sorted by column;
 /// with `upper`, only the blocks on and above the diagonal (half the outer
-/// products: what a host factor reads).
+/// products: what a host factor reads). Each particle's spring (`springs`:
+/// one per particle, or none) adds its `s s^T / 2` to its aggregate's
+/// diagonal block.
 fn assemble(
     aggregates: &Aggregates,
     parts: &Parts,
     weights: &[f64],
+    springs: &[Vec4],
     upper: bool,
 ) -> Vec<Vec<(u32, DMat3)>> {
     // Per aggregate, the particles whose `g_i` reaches it, in order.
@@ -661,6 +703,13 @@ fn assemble(
     for i in 0..weights.len() {
         for &(a, _) in parts.of(i) {
             touching[a as usize].push(i as u32);
+        }
+    }
+    // Per aggregate, its springs' blocks summed in the particles' order.
+    let mut pulled = vec![DMat3::ZERO; aggregates.count()];
+    for (&a, &spring) in aggregates.aggregate.iter().zip(springs) {
+        if a != OUTSIDE && spring != Vec4::ZERO {
+            pulled[a as usize] += spring_block(spring);
         }
     }
     // One block row per aggregate: its 3x3 blocks summed in the particles'
@@ -686,6 +735,9 @@ fn assemble(
                 let kept = |b: u32| !upper || b as usize >= a;
                 for &(b, w) in laplacian.iter().filter(|&&(b, _)| kept(b)) {
                     add(b, DMat3::from_diagonal(DVec3::splat(w)));
+                }
+                if pulled[a] != DMat3::ZERO {
+                    add(a as u32, pulled[a]);
                 }
                 for &i in particles {
                     let parts = parts.of(i as usize);
@@ -1014,8 +1066,8 @@ mod tests {
             Some(&aggregates.aggregate),
         );
         let weights = &linearisation.weights;
-        let full = assemble(&aggregates, &parts, weights, false);
-        let upper = assemble(&aggregates, &parts, weights, true);
+        let full = assemble(&aggregates, &parts, weights, &[], false);
+        let upper = assemble(&aggregates, &parts, weights, &[], true);
         assert!(aggregates.count() > 8);
         for (a, (full, upper)) in full.iter().zip(&upper).enumerate() {
             let above: Vec<(u32, DMat3)> = full

@@ -29,7 +29,7 @@
 //! from 0.97 (the plain step) to 0.88: the linear problem to a thousandth
 //! of the error in 15-16 iterations instead of 33.
 
-use glam::DVec3;
+use glam::{DVec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::Connections;
 
@@ -75,6 +75,17 @@ pub struct Smoothing {
 }
 
 /// The smoother at one linearisation.
+///
+/// With springs towards an observed plane (`s s^T / 2` of `K` at particle
+/// `k`), the shear part's `delta I` becomes `M_0`, `delta I + s_k s_k^T / 2`
+/// on particle `k`: the smoother takes each spring exactly, so `M - K` is
+/// `delta I - L` with springs as without. Woodbury's
+/// `M^-1 r = M_0^-1 (r - H y)` with `(I + H^T M_0^-1 H) y = H^T M_0^-1 r`;
+/// in the pressures `z = delta y` and with `Phi = delta M_0^-1`, per
+/// particle `I - s s^T / (2 delta + |s|^2)` (the identity without a
+/// spring), the system is `(delta I + H^T Phi H) z = H^T Phi r`, `Phi`
+/// applied to each field before `H^T` reads it, and the step
+/// `Phi (r - H z) / delta`.
 #[derive(Debug, Clone)]
 pub struct VolumeSmoother {
     /// `delta`, the shear part's step's inverse.
@@ -83,24 +94,41 @@ pub struct VolumeSmoother {
     sweeps: usize,
     /// Per particle `sqrt(W_i / 2)` (0 where the neighbourhood is flat).
     roots: Vec<f64>,
-    /// Per particle `D_i = delta + |h_i|^2` over the entries at free
-    /// particles, the pressure system's diagonal.
+    /// Per particle `D_i = delta + sum_j h_ij^T Phi_j h_ij` over the
+    /// entries at free particles, the pressure system's diagonal.
     diagonal: Vec<f64>,
+    /// Per particle its spring's `s` and `1 / (2 delta + |s|^2)`, for
+    /// `Phi` (empty without springs: `Phi = I`).
+    springs: Vec<(DVec3, f64)>,
 }
 
 impl VolumeSmoother {
     /// The smoother for the volume gradients `entries` with weights
     /// `weights` over the particles `inside` says are free, made as
     /// `smoothing` says.
+    /// `springs` (one per particle, or none) raise each one's `delta_k`.
     pub(crate) fn new(
         entries: &Entries,
         weights: &[f64],
         connections: &Connections,
         inside: &(impl Fn(usize) -> bool + Sync),
         smoothing: Smoothing,
+        springs: &[Vec4],
     ) -> Self {
         let Smoothing { delta, sweeps } = smoothing;
         let roots: Vec<f64> = weights.iter().map(|&w| (0.5 * w).sqrt()).collect();
+        let springs: Vec<(DVec3, f64)> = springs
+            .iter()
+            .map(|s| {
+                let s = s.truncate().as_dvec3();
+                (s, 1.0 / (2.0 * delta + s.length_squared()))
+            })
+            .collect();
+        // `g^T Phi_j g`.
+        let seen = |j: usize, g: DVec3| match springs.get(j) {
+            Some(&(s, inverse)) => g.length_squared() - s.dot(g).powi(2) * inverse,
+            None => g.length_squared(),
+        };
         let diagonal = (0..weights.len())
             .into_par_iter()
             .map(|i| {
@@ -114,11 +142,11 @@ impl VolumeSmoother {
                     let g = g.as_dvec3();
                     own -= g;
                     if inside(j as usize) {
-                        sum += g.length_squared();
+                        sum += seen(j as usize, g);
                     }
                 }
                 if inside(i) {
-                    sum += own.length_squared();
+                    sum += seen(i, own);
                 }
                 delta + 0.5 * weights[i] * sum
             })
@@ -128,7 +156,30 @@ impl VolumeSmoother {
             sweeps: sweeps.max(1),
             roots,
             diagonal,
+            springs,
         }
+    }
+
+    /// `Phi` at particle `k` applied to `x`: `x - s (s . x) / (2 delta +
+    /// |s|^2)` with its spring, `x` without.
+    fn phi(&self, k: usize, x: DVec3) -> DVec3 {
+        match self.springs.get(k) {
+            Some(&(s, inverse)) => x - s * (s.dot(x) * inverse),
+            None => x,
+        }
+    }
+
+    /// `Phi x` (`x` itself without springs).
+    fn scaled<'a>(&self, x: &'a [DVec3]) -> std::borrow::Cow<'a, [DVec3]> {
+        if self.springs.is_empty() {
+            return std::borrow::Cow::Borrowed(x);
+        }
+        std::borrow::Cow::Owned(
+            x.par_iter()
+                .enumerate()
+                .map(|(k, &x)| self.phi(k, x))
+                .collect(),
+        )
     }
 
     /// `delta`.
@@ -159,6 +210,7 @@ impl VolumeSmoother {
         residual: &[DVec3],
     ) -> Vec<DVec3> {
         let (roots, diagonal) = (&self.roots, &self.diagonal);
+        let scaled_residual = self.scaled(residual);
         // Per particle `(t_i, z_i)`, `t = H^T r` and the pressure `z_i`,
         // and apart (the next pass reads it at the neighbours) `y_i =
         // sqrt(W_i / 2) z_i`, so that `H z = G y`. The first sweep from
@@ -166,13 +218,14 @@ impl VolumeSmoother {
         let (mut sweep, mut scaled): (Vec<(f64, f64)>, Vec<f64>) = (0..residual.len())
             .into_par_iter()
             .map(|i| {
-                let t = change_at(entries, connections, inside, residual, i) * roots[i];
+                let t = change_at(entries, connections, inside, &scaled_residual, i) * roots[i];
                 let z = RELAXATION * t / diagonal[i];
                 ((t, z), z * roots[i])
             })
             .unzip();
         for _ in 1..self.sweeps {
             let forces = pressure_forces(entries, connections, inside, &scaled);
+            let forces = self.scaled(&forces);
             (sweep, scaled) = (0..residual.len())
                 .into_par_iter()
                 .map(|i| {
@@ -189,7 +242,7 @@ impl VolumeSmoother {
             .map(|i| {
                 if inside(i) {
                     let f = pressure_force_at(entries, connections, &scaled, i);
-                    (residual[i] - f) / self.delta
+                    self.phi(i, residual[i] - f) / self.delta
                 } else {
                     DVec3::ZERO
                 }

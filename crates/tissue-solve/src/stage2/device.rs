@@ -3,7 +3,7 @@
 //! device-neutral [`crate::stage2::tracker::Tracker`] and a device's kernels and
 //! buffers.
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec3, Vec4};
 
 use crate::coarse::laplacian::SharedLaplacian;
 use crate::stage2::params::{DeformParams, ForceModel, RotationMethod};
@@ -116,6 +116,13 @@ pub trait SolveDevice {
         positions: &[Vec3],
         turn: Option<Mat3>,
     ) -> Result<(), Self::Error>;
+
+    /// Sets every particle's spring towards an observed plane (the plan's,
+    /// [`crate::stage2::plan::Plan::set_springs`]: one per particle, or none
+    /// to take them away): the elastic force's next iterations pull with
+    /// them, and its correction is made again with them at the next
+    /// elastic phase's start.
+    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Self::Error>;
 
     /// Starts a solve from the current positions (`previous = current`)
     /// whose iterations run with `iteration`.

@@ -7,8 +7,9 @@
 //! (`batches`), what a phase runs with and the elastic phase's rules
 //! (`phase`), the one tracker over any device (`tracker`), how a solve
 //! went (`report`), inverted neighbourhoods (`inversion`), the search
-//! a change of posture makes (`posture`), and a point cloud observed
-//! without correspondence (`observation`).
+//! a change of posture makes (`posture`), a point cloud observed
+//! without correspondence (`observation`), and the springs that pull the
+//! model towards an observation (`springs`).
 
 pub(crate) mod acceleration;
 pub(crate) mod batches;
@@ -24,6 +25,7 @@ pub(crate) mod posture;
 pub(crate) mod predict;
 pub(crate) mod report;
 pub(crate) mod spectrum;
+pub(crate) mod springs;
 pub(crate) mod tracker;
 
 pub use acceleration::{
@@ -56,4 +58,8 @@ pub use posture::{
 pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
+pub use springs::{
+    SPRING_WEIGHT, spring, spring_block, spring_force, spring_operator, spring_potential,
+    springs_stiffness,
+};
 pub use tracker::Tracker;

@@ -3,13 +3,14 @@
 
 use std::sync::Arc;
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
 use crate::model::elastic::Elastic;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::report::PrepareStage;
 use crate::stage2::spectrum::laplacian_extremes;
+use crate::stage2::springs::springs_stiffness;
 
 /// The largest `|load|` times the model's size [`Plan::for_params`]
 /// accepts (a load moves a model by about `2 |load| size^2`): gravity on
@@ -53,6 +54,12 @@ pub struct Plan {
     /// Per particle its body force `a_i` times [`DeformParams::load`]
     /// (empty without a load).
     pub loads: Vec<Vec3>,
+    /// Per particle its spring towards an observed plane
+    /// ([`crate::stage2::springs`]: `s = sqrt(w) n` and `s . c`; zero where
+    /// none), which the elastic force's iterations apply at the free
+    /// particles (empty without an observation's springs:
+    /// [`Plan::set_springs`]).
+    pub springs: Vec<Vec4>,
     /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
     pub lambda_min: f32,
     /// Largest one, with a 2 % margin.
@@ -165,6 +172,7 @@ impl Plan {
             free,
             controls,
             loads: Vec::new(),
+            springs: Vec::new(),
             lambda_min,
             lambda_max,
             laplacian_key,
@@ -255,11 +263,51 @@ impl Plan {
 
     /// The largest eigenvalue the step of `force` is set for: the
     /// Laplacian's, or for the elastic force its operator's.
+    /// With springs, the elastic operator's is raised by the most one adds
+    /// (`max |s|^2 / 2`, a bound: each spring is a particle's own block).
     pub fn lambda_max_for(&self, force: ForceModel) -> f32 {
         match (force, self.elastic_lambda_max) {
-            (ForceModel::Elastic, Some(stiff)) => stiff,
+            (ForceModel::Elastic, Some(stiff)) => stiff + springs_stiffness(&self.springs),
             _ => self.lambda_max,
         }
+    }
+
+    /// Sets every particle's spring towards an observed plane
+    /// ([`crate::stage2::springs::spring`]), one per particle (zero where
+    /// none; a control point's is never applied); an empty list takes them
+    /// away. Only the elastic force applies them.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Deformation`] for a list that is not one per particle, or
+    /// one with a value that is not finite; [`Error::Param`] for springs on
+    /// a plan without the elastic model.
+    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+        if !springs.is_empty() {
+            if springs.len() != self.free.len() {
+                return Err(DeformError::Springs(format!(
+                    "{} springs for {} particles (one per particle)",
+                    springs.len(),
+                    self.free.len()
+                ))
+                .into());
+            }
+            if let Some(i) = springs.iter().position(|s| !s.is_finite()) {
+                return Err(DeformError::Springs(format!(
+                    "particle {i}'s spring is not finite ({})",
+                    springs[i]
+                ))
+                .into());
+            }
+            ParamError::check(
+                self.elastic.is_some(),
+                "force",
+                "springs",
+                "the elastic force: only its iterations pull towards an observation",
+            )?;
+        }
+        self.springs = springs;
+        Ok(())
     }
 
     /// The step `alpha = sigma / m`: `step_fraction` of the largest stable

@@ -163,6 +163,23 @@ impl<D: SolveDevice> Tracker<D> {
         &self.plan
     }
 
+    /// Sets every particle's spring towards an observed plane
+    /// ([`Plan::set_springs`]: one per particle, zero where none, or none
+    /// at all to take them away) for the next solves; the state is kept.
+    ///
+    /// # Errors
+    ///
+    /// As [`Plan::set_springs`]; the device's error where it cannot take
+    /// them.
+    pub fn set_springs<E: From<Error> + From<D::Error>>(
+        &mut self,
+        springs: Vec<glam::Vec4>,
+    ) -> Result<(), E> {
+        self.plan.set_springs(springs)?;
+        self.device.set_springs(&self.plan.springs)?;
+        Ok(())
+    }
+
     /// The parameters of the next solves.
     pub fn params(&self) -> &DeformParams {
         &self.params
@@ -566,6 +583,10 @@ mod tests {
         ) -> Result<(), Infallible> {
             self.positions = positions.to_vec();
             self.turn = turn;
+            Ok(())
+        }
+
+        fn set_springs(&mut self, _springs: &[glam::Vec4]) -> Result<(), Infallible> {
             Ok(())
         }
 

@@ -1,0 +1,203 @@
+//! Springs towards observed planes inside the elastic solve: the free
+//! skin is pulled onto the planes along their normals and slides along
+//! them where the mechanics sends it, on both devices.
+#![allow(clippy::unwrap_used, reason = "tests")]
+
+mod common;
+
+use glam::{Vec3, Vec4};
+use tissue::backend::{Device, Solver};
+use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue_cpu::deformation::DeformParams;
+use tissue_solve::model::held_vertices;
+use tissue_solve::stage2::{SPRING_WEIGHT, spring};
+
+/// The bundled phantom sampled with `particles` particles.
+fn phantom_model(particles: usize) -> ParticleModel {
+    tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(particles),
+    )
+    .unwrap()
+    .model
+}
+
+/// Each surface particle's triangle's unit normal on `surface` (the rest
+/// surface's triangles, moved), zero inside.
+fn particle_normals(model: &ParticleModel, surface: &SurfaceMesh) -> Vec<Vec3> {
+    model
+        .attachments
+        .iter()
+        .map(|a| {
+            a.map_or(Vec3::ZERO, |a| {
+                let [i, j, k] = surface.triangles[a.triangle as usize].map(|v| v as usize);
+                let v = &surface.vertices;
+                (v[j] - v[i]).cross(v[k] - v[i]).normalize_or_zero()
+            })
+        })
+        .collect()
+}
+
+/// The sag solved with every surface vertex observed, then again with
+/// only the chest wall held and each other surface particle pulled towards
+/// the plane through where it went, along the sagged surface's normal: the
+/// skin lands on the planes (it slides along them: the interior lands
+/// where the mechanics sends it, not where the sag's map put it), every
+/// accepted step lowers the potential, and the CPU and the GPU take the
+/// same steps.
+#[test]
+fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
+    let model = phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let params = DeformParams::default();
+    let mut truth = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
+    truth.set_surface(&sagged).unwrap();
+    assert!(truth.solve().unwrap().converged);
+    let truth = truth.positions().to_vec();
+    let size = Solver::new(Device::Cpu, &model, params.clone())
+        .unwrap()
+        .plan()
+        .size;
+
+    let held = held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    assert!(held.contains(&true) && held.contains(&false));
+    let observed = params.clone().with(|p| p.observed = Some(held.clone()));
+    let normals = particle_normals(&model, &sagged);
+
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
+        let on = solver.backend();
+        let plan = solver.plan().clone();
+        // A spring on every free surface particle, of the default weight.
+        let springs: Vec<Vec4> = (0..model.len())
+            .map(|i| {
+                if model.attachments[i].is_some() && plan.free[i] {
+                    spring(truth[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
+                } else {
+                    Vec4::ZERO
+                }
+            })
+            .collect();
+        let pulled = springs.iter().filter(|s| **s != Vec4::ZERO).count();
+        assert!(pulled > 100, "{pulled} springs");
+        solver.set_springs(springs).unwrap();
+        solver.set_surface(&sagged).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged, "{on}: {report:?}");
+        assert!(report.potentials_fell(), "{on}: {:?}", report.potentials);
+        let positions = solver.positions().to_vec();
+        // The skin on its planes.
+        let misses: Vec<f32> = (0..model.len())
+            .filter(|&i| model.attachments[i].is_some() && plan.free[i])
+            .map(|i| normals[i].dot(positions[i] - truth[i]).abs())
+            .collect();
+        let rms_miss = (misses.iter().map(|m| m * m).sum::<f32>() / misses.len() as f32).sqrt();
+        // Near the sag: what the sag moved the particles, against how far
+        // they are from it.
+        let moved = rms(&model.positions, &truth);
+        let off = rms(&positions, &truth);
+        eprintln!(
+            "{on}: {} iterations, {} steps back, {} retries; the skin {rms_miss:.4} from its \
+             planes (RMS), the particles {off:.3} from the truth after moving {moved:.3}",
+            report.iterations, report.backtracks, report.elastic_retries
+        );
+        assert!(rms_miss < 0.01 * moved, "{on}: {rms_miss} off the planes");
+        assert!(off < 0.5 * moved, "{on}: {off} from the sag, {moved} moved");
+        solved.push((report.iterations, positions));
+    }
+    if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
+        assert!(
+            cpu.abs_diff(*gpu) <= 3,
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+        let worst = on_cpu
+            .iter()
+            .zip(on_gpu)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f32, f32::max);
+        assert!(worst <= 1e-3 * size, "{worst} apart");
+    }
+}
+
+/// A model hanging from its held chest wall under a load (the truth: its
+/// free skin sags where the mechanics sends it), solved again from rest
+/// under the same load with each free surface particle pulled towards a
+/// plane through where it went (along its rest normal: any plane through
+/// the answer leaves it an equilibrium): the solve lands on the truth on
+/// both devices, its steps lowering the potential.
+#[test]
+fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
+    let model = phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let size = Solver::new(Device::Cpu, &model, DeformParams::default())
+        .unwrap()
+        .plan()
+        .size;
+    let held = held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let params = DeformParams::default().with(|p| {
+        p.observed = Some(held.clone());
+        p.load = Vec3::new(0.0, 0.3 / size, 0.0);
+    });
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        let mut hanging = Solver::new(device.clone(), &model, params.clone()).unwrap();
+        let on = hanging.backend();
+        hanging.set_surface(&model.surface).unwrap();
+        assert!(hanging.solve().unwrap().converged);
+        let truth = hanging.positions().to_vec();
+        let moved = rms(&model.positions, &truth);
+        assert!(
+            moved > 1e-3 * size,
+            "{on}: the load moved the model {moved}"
+        );
+
+        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
+        let plan = solver.plan().clone();
+        let normals = particle_normals(&model, &model.surface);
+        let springs: Vec<Vec4> = (0..model.len())
+            .map(|i| {
+                if model.attachments[i].is_some() && plan.free[i] {
+                    spring(truth[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
+                } else {
+                    Vec4::ZERO
+                }
+            })
+            .collect();
+        solver.set_springs(springs).unwrap();
+        solver.set_surface(&model.surface).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged, "{on}: {report:?}");
+        assert!(report.potentials_fell(), "{on}: {:?}", report.potentials);
+        let off = rms(solver.positions(), &truth);
+        eprintln!(
+            "{on}: {} iterations, {} steps back; {off:.5} from the truth after it moved {moved:.3}",
+            report.iterations, report.backtracks
+        );
+        assert!(
+            off < 0.01 * moved,
+            "{on}: {off} from the truth, {moved} moved"
+        );
+        solved.push(report.iterations);
+    }
+    if let [cpu, gpu] = solved[..] {
+        assert!(
+            cpu.abs_diff(gpu) <= 3,
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+    }
+}
+
+/// The RMS distance between two sets of positions.
+fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
+    (a.iter()
+        .zip(b)
+        .map(|(a, b)| (*a - *b).length_squared())
+        .sum::<f32>()
+        / a.len() as f32)
+        .sqrt()
+}
