@@ -502,9 +502,9 @@ impl Solver {
     ///
     /// # Errors
     ///
-    /// [`Error::Deformation`] for a list that is not one per particle or
-    /// holds a value that is not finite; [`Error::Param`] without the
-    /// elastic force; [`Error::Gpu`] where the GPU cannot take them.
+    /// [`Error::Deformation`] for a list that is not one per particle,
+    /// holds a value that is not finite, or comes without the elastic
+    /// force; [`Error::Gpu`] where the GPU cannot take them.
     pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
         self.tracker.set_springs(springs)
     }

@@ -192,6 +192,43 @@ fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
     }
 }
 
+/// Springs that do not fit the solve are refused with what is wrong: not
+/// one per particle, not finite, or without the elastic force; an empty
+/// list takes them away.
+#[test]
+fn springs_that_do_not_fit_are_refused_with_the_reason() {
+    let model = phantom_model(2_000);
+    let mut solver = Solver::new(Device::Cpu, &model, DeformParams::default()).unwrap();
+    let short = solver
+        .set_springs(vec![Vec4::ZERO; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        short.contains("springs")
+            && short.contains("3 springs")
+            && short.contains("one per particle"),
+        "{short}"
+    );
+    let mut nan = vec![Vec4::ZERO; model.len()];
+    nan[7] = Vec4::new(f32::NAN, 0.0, 0.0, 0.0);
+    let nan = solver.set_springs(nan).unwrap_err().to_string();
+    assert!(
+        nan.contains("particle 7") && nan.contains("not finite"),
+        "{nan}"
+    );
+    let symmetric =
+        DeformParams::default().with(|p| p.force = tissue_cpu::deformation::ForceModel::Symmetric);
+    let mut other = Solver::new(Device::Cpu, &model, symmetric).unwrap();
+    let refused = other
+        .set_springs(vec![Vec4::ZERO; model.len()])
+        .unwrap_err()
+        .to_string();
+    assert!(refused.contains("elastic force"), "{refused}");
+    // None at all: the springs taken away, the solve as without.
+    assert!(solver.set_springs(Vec::new()).is_ok());
+    assert!(solver.plan().springs.is_empty());
+}
+
 /// The RMS distance between two sets of positions.
 fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
     (a.iter()

@@ -279,9 +279,9 @@ impl Plan {
     ///
     /// # Errors
     ///
-    /// [`Error::Deformation`] for a list that is not one per particle, or
-    /// one with a value that is not finite; [`Error::Param`] for springs on
-    /// a plan without the elastic model.
+    /// [`Error::Deformation`] for a list that is not one per particle, one
+    /// with a value that is not finite, or springs on a plan without the
+    /// elastic model.
     pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
         if !springs.is_empty() {
             if springs.len() != self.free.len() {
@@ -299,12 +299,14 @@ impl Plan {
                 ))
                 .into());
             }
-            ParamError::check(
-                self.elastic.is_some(),
-                "force",
-                "springs",
-                "the elastic force: only its iterations pull towards an observation",
-            )?;
+            if self.elastic.is_none() {
+                return Err(DeformError::Springs(
+                    "only the elastic force pulls towards an observation; this solve was \
+                     prepared for another force"
+                        .into(),
+                )
+                .into());
+            }
         }
         self.springs = springs;
         Ok(())
