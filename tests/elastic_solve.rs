@@ -177,16 +177,7 @@ fn a_nearly_incompressible_model_smooths_with_more_sweeps_and_converges() {
         ));
     }
     if let [(cpu, on_cpu, size), (gpu, on_gpu, _)] = &solved[..] {
-        assert!(
-            cpu.abs_diff(*gpu) <= 3,
-            "{cpu} iterations on the CPU, {gpu} on the GPU"
-        );
-        let worst = on_cpu
-            .iter()
-            .zip(on_gpu)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f32, f32::max);
-        assert!(worst <= 1e-3 * size, "{worst} mm apart");
+        common::assert_same_solve((*cpu, on_cpu), (*gpu, on_gpu), *size);
     }
 }
 

@@ -71,16 +71,7 @@ fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
         let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
         let on = solver.backend();
         let plan = solver.plan().clone();
-        // A spring on every free surface particle, of the default weight.
-        let springs: Vec<Vec4> = (0..model.len())
-            .map(|i| {
-                if model.attachments[i].is_some() && plan.free[i] {
-                    spring(truth[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
-                } else {
-                    Vec4::ZERO
-                }
-            })
-            .collect();
+        let springs = skin_springs(&model, &plan, &truth, &normals);
         let pulled = springs.iter().filter(|s| **s != Vec4::ZERO).count();
         assert!(pulled > 100, "{pulled} springs");
         solver.set_springs(springs).unwrap();
@@ -109,16 +100,7 @@ fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
         solved.push((report.iterations, positions));
     }
     if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
-        assert!(
-            cpu.abs_diff(*gpu) <= 3,
-            "{cpu} iterations on the CPU, {gpu} on the GPU"
-        );
-        let worst = on_cpu
-            .iter()
-            .zip(on_gpu)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f32, f32::max);
-        assert!(worst <= 1e-3 * size, "{worst} apart");
+        common::assert_same_solve((*cpu, on_cpu), (*gpu, on_gpu), size);
     }
 }
 
@@ -159,15 +141,7 @@ fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
         let mut solver = Solver::new(device, &model, params.clone()).unwrap();
         let plan = solver.plan().clone();
         let normals = particle_normals(&model, &model.surface);
-        let springs: Vec<Vec4> = (0..model.len())
-            .map(|i| {
-                if model.attachments[i].is_some() && plan.free[i] {
-                    spring(truth[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
-                } else {
-                    Vec4::ZERO
-                }
-            })
-            .collect();
+        let springs = skin_springs(&model, &plan, &truth, &normals);
         solver.set_springs(springs).unwrap();
         solver.set_surface(&model.surface).unwrap();
         let report = solver.solve().unwrap();
@@ -227,6 +201,25 @@ fn springs_that_do_not_fit_are_refused_with_the_reason() {
     // None at all: the springs taken away, the solve as without.
     assert!(solver.set_springs(Vec::new()).is_ok());
     assert!(solver.plan().springs.is_empty());
+}
+
+/// A spring of the default weight on every free surface particle, towards
+/// the plane through its point in `points` with its normal in `normals`.
+fn skin_springs(
+    model: &ParticleModel,
+    plan: &tissue_solve::Plan,
+    points: &[Vec3],
+    normals: &[Vec3],
+) -> Vec<Vec4> {
+    (0..model.len())
+        .map(|i| {
+            if model.attachments[i].is_some() && plan.free[i] {
+                spring(points[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
+            } else {
+                Vec4::ZERO
+            }
+        })
+        .collect()
 }
 
 /// The RMS distance between two sets of positions.

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use glam::Vec3;
 use tissue::backend::{Backend, Device};
 use tissue::{Error, ParticleModel, SamplingReport};
 
@@ -143,4 +144,21 @@ pub fn column_base(model: &ParticleModel) -> Vec<bool> {
         .iter()
         .map(|v| v.z < 0.1 + 1e-4)
         .collect()
+}
+
+/// The CPU's and the GPU's solves of one problem, each its iterations and
+/// positions, agree: within 3 iterations, and every particle within a
+/// thousandth of the model's size `size`.
+pub fn assert_same_solve(cpu: (usize, &[Vec3]), gpu: (usize, &[Vec3]), size: f32) {
+    let ((cpu, on_cpu), (gpu, on_gpu)) = (cpu, gpu);
+    assert!(
+        cpu.abs_diff(gpu) <= 3,
+        "{cpu} iterations on the CPU, {gpu} on the GPU"
+    );
+    let worst = on_cpu
+        .iter()
+        .zip(on_gpu)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 1e-3 * size, "{worst} apart");
 }
