@@ -75,6 +75,20 @@ impl SolveDevice for Watched {
         self.solve.set_springs(springs)
     }
 
+    fn set_observation(
+        &mut self,
+        field: Option<&tissue::field::SurfaceField>,
+    ) -> Result<(), Infallible> {
+        self.solve.set_observation(field)
+    }
+
+    fn set_pairing(
+        &mut self,
+        pairing: Option<&tissue::advanced::stage2::Pairing>,
+    ) -> Result<(), Infallible> {
+        self.solve.set_pairing(pairing)
+    }
+
     fn begin(&mut self, iteration: Iteration) -> Result<(), Infallible> {
         self.solve.begin(iteration)?;
         self.force = Some(iteration.force);

@@ -70,11 +70,11 @@ fn imf_force(
         moves = false;
     } else {
         // eq. (3): -n while outside, weighted by mu in eq. (2).
-        let q = field_query(p);
+        let q = field_query(field_grid(), p);
         if (q.side == SIDE_NEAR && q.nearest.distance > 0.0) {
             wall = -sampling.mu * q.nearest.normal;
         } else if (q.side == SIDE_DEEP_OUTSIDE) {
-            wall = -sampling.mu * nearest_of_all(p).normal;
+            wall = -sampling.mu * nearest_of_all(field_grid(), p).normal;
         }
     }
     var compression = magnitudes - length(force);

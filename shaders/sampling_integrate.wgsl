@@ -43,9 +43,9 @@ fn integrate(
     let moved = current[i].xyz + step;
     var out = array<vec4<f32>, 2>(vec4<f32>(moved, 0.0), vec4<f32>(0.0));
     if (sampling.surface_mode == 0u) {
-        let q = field_query(moved);
+        let q = field_query(field_grid(), moved);
         if (q.side == SIDE_DEEP_OUTSIDE) {
-            out = held(nearest_of_all(moved));
+            out = held(nearest_of_all(field_grid(), moved));
         } else if (q.side == SIDE_NEAR && q.nearest.distance > 0.0) {
             out = held(q.nearest);
         }

@@ -31,17 +31,17 @@ fn place_surface(
     let p = current[i].xyz;
     let r = current[i].w;
     let band = sampling.surface_band * r;
-    let q = field_query(p);
+    let q = field_query(field_grid(), p);
     var n = q.nearest;
     var attach = false;
     if (q.side == SIDE_DEEP_INSIDE) {
         // A balloon grown beyond the field's margin: ask exactly.
         if (band > sampling.field_margin) {
-            n = nearest_of_all(p);
+            n = nearest_of_all(field_grid(), p);
             attach = n.distance > -band;
         }
     } else if (q.side == SIDE_DEEP_OUTSIDE) {
-        n = nearest_of_all(p);
+        n = nearest_of_all(field_grid(), p);
         attach = true;
     } else {
         attach = n.distance > -band;

@@ -28,6 +28,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use glam::{Mat3, Vec3, Vec4};
+use tissue_core::field::SurfaceField;
 use tissue_core::{
     Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
 };
@@ -36,6 +37,7 @@ use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
 use tissue_solve::model::{RigidBinding, RigidMotion, offsets_product, rotation_of};
+use tissue_solve::stage2::Pairing;
 use tissue_solve::{Plan, PrepareStage, SolveStep, Tracker};
 
 mod solve_device;
@@ -507,6 +509,30 @@ impl Solver {
     /// force; [`Error::Gpu`] where the GPU cannot take them.
     pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
         self.tracker.set_springs(springs)
+    }
+
+    /// Holds the observation the skin is paired with (its nearest points'
+    /// field: a surface's, or a point cloud's), or none; the state is kept.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Gpu`] where the GPU cannot take it.
+    pub fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Error> {
+        self.tracker.set_observation(field)
+    }
+
+    /// Sets how the elastic force's iterations pair the skin with the
+    /// observation held ([`tissue_solve::stage2::pairing`]): each one
+    /// first sets every paired particle's spring towards the observation's
+    /// plane at its nearest point. `None` stops pairing.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Deformation`] for a pairing without the elastic force, of a
+    /// particle that is not free, or with absurd weights or limits;
+    /// [`Error::Gpu`] where the GPU cannot take it.
+    pub fn set_pairing(&mut self, pairing: Option<Pairing>) -> Result<(), Error> {
+        self.tracker.set_pairing(pairing)
     }
 
     /// Starts the next solve from `positions` (one per particle; the

@@ -1,7 +1,17 @@
 //! Observations without correspondence: a point cloud of the organ's
 //! surface read from a file, its spacing and fitted normals, the grid
-//! that finds a point's nearest observed point, and the rigid motion that
-//! puts a cloud on a surface.
+//! that finds a point's nearest observed point, the rigid motion that
+//! puts a cloud on a surface, and the model's skin pulled onto a surface
+//! of any triangulation or a cloud inside the elastic solve
+//! ([`match_observation`]).
+
+mod matching;
+
+pub use matching::{
+    CLOUD_EDGE_SPACINGS, CLOUD_NOISE, FIELD_MARGIN_CELLS, HELD_REACH, MATCH_STAGES, MAX_REACH,
+    MatchParams, MatchReport, Observation, Residual, STAGE_GROWTH, SURFACE_NOISE,
+    match_observation,
+};
 
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
@@ -22,13 +32,7 @@ pub fn rigid_fit_to_surface(
     surface: &SurfaceMesh,
     reach: f32,
 ) -> Result<RigidFit, Error> {
-    let edges: f64 = (0..surface.triangles.len())
-        .map(|t| {
-            let [a, b, c] = surface.corners(t);
-            f64::from((b - a).length() + (c - b).length() + (a - c).length())
-        })
-        .sum();
-    let cell = (edges / (3.0 * surface.triangles.len().max(1) as f64)) as f32;
+    let cell = matching::mean_edge(surface);
     let field = SurfaceField::new(surface, cell, 2.0 * cell).map_err(ObservationError::from)?;
     Ok(rigid_fit(points, &field, reach)?)
 }

@@ -2,6 +2,7 @@
 // `tissue_gpu::sampler::SamplingUniforms` (layout-tested against naga).
 
 #import shared/layout
+#import shared/field_grid
 
 // One iteration's parameters, one slot per iteration of a batch (dynamic
 // offset); derived values are computed once on the host in f32, as the CPU
@@ -58,3 +59,8 @@ struct Sampling {
 }
 
 @group(0) @binding(0) var<uniform> sampling: Sampling;
+
+// The field's grid, for `shared/surface_field`.
+fn field_grid() -> FieldGrid {
+    return FieldGrid(sampling.field_origin, sampling.field_dims, sampling.field_layout);
+}

@@ -4,11 +4,14 @@
 //
 // `field_cells` (u32), one after the other: the cell states (`cells`), the CSR
 // starts of the candidates (`cells + 1`), the candidate triangles, and the
-// candidate distances (f32 bits); `Sampling::field_layout` holds where each begins.
+// candidate distances (f32 bits); `FieldGrid::sections` holds where each begins.
 // `field_triangles` (vec4, w unused): per triangle three corners, then the seven
 // normals (face, edges ab bc ca, vertices a b c).
 
-#import shared/sampling
+// Every query takes the field's grid (stage 1 from its `sampling`
+// parameters, stage 2's pairing from its own).
+
+#import shared/field_grid
 
 @group(0) @binding(8) var<storage, read> field_cells: array<u32>;
 @group(0) @binding(9) var<storage, read> field_triangles: array<vec4<f32>>;
@@ -127,16 +130,17 @@ fn nearest_of_best(p: vec3<f32>, best: Best) -> Nearest {
     return Nearest(sign * distance, best.closest.point, normal, best.triangle, best.closest.barycentric);
 }
 
-fn cell_centre(x: u32, y: u32, z: u32) -> vec3<f32> {
-    return sampling.field_origin.xyz + (vec3<f32>(f32(x), f32(y), f32(z)) + 0.5) * sampling.field_origin.w;
+fn cell_centre(grid: FieldGrid, x: u32, y: u32, z: u32) -> vec3<f32> {
+    return grid.origin.xyz + (vec3<f32>(f32(x), f32(y), f32(z)) + 0.5) * grid.origin.w;
 }
 
 // Exact nearest point in band cell `index`: candidates in order of distance
 // from the cell centre, stopping when none further can be closer.
-fn nearest_in_band(p: vec3<f32>, index: u32, centre: vec3<f32>) -> Nearest {
-    let starts = sampling.field_layout.x;
-    let candidates = sampling.field_layout.y;
-    let distances = sampling.field_layout.z;
+fn nearest_in_band(grid: FieldGrid, p: vec3<f32>, index: u32, centre: vec3<f32>) -> Nearest {
+    let sections = grid.sections;
+    let starts = sections.x;
+    let candidates = sections.y;
+    let distances = sections.z;
     let first = field_cells[starts + index];
     let end = field_cells[starts + index + 1u];
     let offset = length(p - centre);
@@ -152,23 +156,24 @@ fn nearest_in_band(p: vec3<f32>, index: u32, centre: vec3<f32>) -> Nearest {
 }
 
 // All triangles, without bounds (the rare path for points far outside).
-fn nearest_of_all(p: vec3<f32>) -> Nearest {
+fn nearest_of_all(grid: FieldGrid, p: vec3<f32>) -> Nearest {
     var best = Best(false, 0.0, 0u, Closest(p, vec3<f32>(1.0, 0.0, 0.0), 0u));
-    for (var t = 0u; t < sampling.field_dims.w; t++) {
+    let triangles = grid.dims.w;
+    for (var t = 0u; t < triangles; t++) {
         best = consider(p, t, best);
     }
     return nearest_of_best(p, best);
 }
 
 // `SurfaceField::query`.
-fn field_query(p: vec3<f32>) -> Query {
+fn field_query(grid: FieldGrid, p: vec3<f32>) -> Query {
     let none = Nearest(0.0, p, vec3<f32>(0.0, 0.0, 1.0), 0u, vec3<f32>(1.0, 0.0, 0.0));
-    let g = (p - sampling.field_origin.xyz) / sampling.field_origin.w;
+    let g = (p - grid.origin.xyz) / grid.origin.w;
     // NaN compares false: a non-finite point is beyond the grid, as on the CPU.
     if (!(g.x >= 0.0 && g.y >= 0.0 && g.z >= 0.0)) {
         return Query(SIDE_DEEP_OUTSIDE, none);
     }
-    let dims = sampling.field_dims.xyz;
+    let dims = grid.dims.xyz;
     // f32 -> u32 saturates in WGSL as `as u32` does in Rust.
     let x = u32(g.x);
     let y = u32(g.y);
@@ -184,14 +189,14 @@ fn field_query(p: vec3<f32>) -> Query {
     if (state == CELL_OUTSIDE) {
         return Query(SIDE_DEEP_OUTSIDE, none);
     }
-    return Query(SIDE_NEAR, nearest_in_band(p, index, cell_centre(x, y, z)));
+    return Query(SIDE_NEAR, nearest_in_band(grid, p, index, cell_centre(grid, x, y, z)));
 }
 
 // `SurfaceField::nearest`: exact wherever `p` is.
-fn field_nearest(p: vec3<f32>) -> Nearest {
-    let q = field_query(p);
+fn field_nearest(grid: FieldGrid, p: vec3<f32>) -> Nearest {
+    let q = field_query(grid, p);
     if (q.side == SIDE_NEAR) {
         return q.nearest;
     }
-    return nearest_of_all(p);
+    return nearest_of_all(grid, p);
 }

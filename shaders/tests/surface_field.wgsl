@@ -19,7 +19,7 @@ fn field_query_test(
     if (i >= sampling.count) {
         return;
     }
-    let q = field_query(points[i].xyz);
+    let q = field_query(field_grid(), points[i].xyz);
     let n = q.nearest;
     answers[4u * i] = vec4<f32>(bitcast<f32>(q.side), n.distance, bitcast<f32>(n.triangle), 0.0);
     answers[4u * i + 1u] = vec4<f32>(n.point, 0.0);

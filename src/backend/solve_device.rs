@@ -3,9 +3,10 @@
 
 use glam::{Mat3, Vec3, Vec4};
 use tissue_core::Error;
+use tissue_core::field::SurfaceField;
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_gpu::GpuSolve;
-use tissue_solve::stage2::Potential;
+use tissue_solve::stage2::{Pairing, Potential};
 use tissue_solve::{Iteration, Plan, SolveDevice};
 
 use super::{SolverDevice, infallible};
@@ -119,6 +120,20 @@ impl SolveDevice for SolverDevice {
         match self {
             Self::Cpu(cpu) => infallible(cpu.as_mut().set_springs(springs)),
             Self::Gpu(gpu) => gpu.on("uploading the springs", |g| g.set_springs(springs)),
+        }
+    }
+
+    fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.as_mut().set_observation(field)),
+            Self::Gpu(gpu) => gpu.on("uploading the observation", |g| g.set_observation(field)),
+        }
+    }
+
+    fn set_pairing(&mut self, pairing: Option<&Pairing>) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.as_mut().set_pairing(pairing)),
+            Self::Gpu(gpu) => gpu.on("uploading the pairing", |g| g.set_pairing(pairing)),
         }
     }
 

@@ -415,6 +415,28 @@ pub enum ObservationError {
     /// The grid over the cloud could not be built.
     #[error(transparent)]
     Field(#[from] FieldError),
+    /// No skin particle could be paired with the observation.
+    #[error(
+        "none of the model's {skin} free skin particles lies near the observation (all past a \
+         cloud's edge or beyond the trim): it shows another part of the organ, or lies in \
+         another frame"
+    )]
+    Unpaired {
+        /// Free skin particles.
+        skin: usize,
+    },
+    /// The observation lies too far from the model's skin to be of it.
+    #[error(
+        "the observation lies {median:.3} from the model's skin (the median over its free skin \
+         particles), more than {most:.3}, a quarter of the model's size: it is in other units, \
+         in another frame (align it first), or of another organ"
+    )]
+    Unreachable {
+        /// The median distance of the free skin from the observation.
+        median: f32,
+        /// The most that is taken.
+        most: f32,
+    },
 }
 
 /// Everything that can go wrong in tissue's core.

@@ -111,6 +111,10 @@ impl<T: Pod> Storage<T> {
     }
 
     /// The buffer itself, for bind groups and copies.
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
     pub(crate) fn buffer(&self) -> &wgpu::Buffer {
         &self.buffer
     }

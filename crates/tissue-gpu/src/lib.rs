@@ -43,7 +43,7 @@ pub use deformer::{GPU_COARSE_UNKNOWNS, GpuDeformer, GpuSolve};
 pub use grid::{GpuGrid, GpuRows, GridKernel, GridPipelines};
 pub use pipelines::{Kernel, KernelId, KernelSet, Pipelines};
 pub use sampler::SamplingPipelines;
-pub use state::{DeformState, SLOTS};
+pub use state::{DeformState, FieldGridParams, PairingParams, SLOTS};
 pub use structures::{EmbeddingKernel, EmbeddingMoved, GpuEmbedding};
 
 use bytemuck::{Pod, Zeroable};

@@ -134,11 +134,15 @@ pub enum Kernel {
     /// `block_multilevel.wgsl::block_cycle_prolong`: the groups' solution
     /// added to every aggregate of its group.
     BlockCycleProlong,
+    /// `pair.wgsl`: each paired particle's spring towards the
+    /// observation's plane at its nearest point (one thread a paired
+    /// particle, its dispatch set with the pairing).
+    Pair,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 44] = [
+    pub const ALL: [Kernel; 45] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -183,11 +187,13 @@ impl Kernel {
         Kernel::BlockGroupForward,
         Kernel::BlockGroupBackward,
         Kernel::BlockCycleProlong,
+        Kernel::Pair,
     ];
 
     /// The kernels that run `pass`, in order, appended to `out`.
     pub fn of_pass(pass: Pass, out: &mut Vec<Kernel>) {
         match pass {
+            Pass::Pair => out.push(Kernel::Pair),
             Pass::Rotations(RotationMethod::Svd) => out.push(Kernel::LocalRotations),
             Pass::Rotations(RotationMethod::WarmPolar) => out.push(Kernel::LocalRotationsWarm),
             Pass::ElasticTerms(RotationMethod::Svd) => out.push(Kernel::ElasticTargets),
@@ -310,6 +316,7 @@ impl Kernel {
             Kernel::BlockGroupForward => ("coarse_elastic", "elastic_forward"),
             Kernel::BlockGroupBackward => ("coarse_elastic", "elastic_backward"),
             Kernel::BlockCycleProlong => ("block_multilevel", "block_cycle_prolong"),
+            Kernel::Pair => ("pair", "pair"),
         }
     }
 
@@ -327,7 +334,8 @@ impl Kernel {
         }
     }
 
-    /// Whether it runs one thread a particle. Not so: one workgroup sums
+    /// Whether it runs one thread a particle. Not so: the pairing runs one
+    /// a paired particle, one workgroup sums
     /// the projections over all the others, one runs each substitution of
     /// a coarse solve, and the restrictions and the cycles run per
     /// aggregate or per group (their dispatches set with their coarse
@@ -355,6 +363,7 @@ impl Kernel {
                 | Kernel::BlockGroupForward
                 | Kernel::BlockGroupBackward
                 | Kernel::BlockCycleProlong
+                | Kernel::Pair
         )
     }
 
@@ -553,6 +562,7 @@ mod tests {
             elastic: false,
             rotations: RotationMethod::Svd,
             correction: Correction::Coarse { cycled: false },
+            pairs: false,
         };
         assert_eq!(
             Kernel::of_passes(&choices.passes()),

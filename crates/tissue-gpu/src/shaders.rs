@@ -26,6 +26,10 @@ pub const SHARED: &[(&str, &str)] = &[
         include_str!("../shaders/shared/sampling.wgsl"),
     ),
     (
+        "shared/field_grid",
+        include_str!("../shaders/shared/field_grid.wgsl"),
+    ),
+    (
         "shared/surface_field",
         include_str!("../shaders/shared/surface_field.wgsl"),
     ),
@@ -54,6 +58,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../shaders/deformation_force.wgsl"),
     ),
     ("integrate", include_str!("../shaders/integrate.wgsl")),
+    ("pair", include_str!("../shaders/pair.wgsl")),
     ("step_norms", include_str!("../shaders/step_norms.wgsl")),
     ("coarse", include_str!("../shaders/coarse.wgsl")),
     ("multilevel", include_str!("../shaders/multilevel.wgsl")),

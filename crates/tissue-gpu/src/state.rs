@@ -15,7 +15,11 @@ use crate::readback::Readback;
 use crate::support::{Scopes, bind_group, scoped};
 use crate::{ElasticParticle, ElasticTerms, GpuError, Params, Rotation};
 
+mod pairing;
 mod transfer;
+
+use pairing::PairingBuffers;
+pub use pairing::{FieldGridParams, PairingParams};
 
 /// Iterations one command buffer records: one uniform slot and one row of
 /// step-norm partials each; the host reads the partials back once per batch.
@@ -85,6 +89,9 @@ pub struct DeformState {
     pub(crate) coarse: CoarseBuffers,
     /// The elastic phase's (empty until [`DeformState::set_elastic_aggregates`]).
     pub(crate) elastic_coarse: ElasticCoarseBuffers,
+    /// The observation the skin is paired with, and how
+    /// ([`DeformState::set_observation`], [`DeformState::set_pairing`]).
+    pub(crate) pairing: PairingBuffers,
     /// One per kernel, in [`Kernel::ALL`] order.
     bind_groups: Vec<wgpu::BindGroup>,
     /// The particle of each control point, in particle order.
@@ -231,6 +238,7 @@ impl DeformState {
                 potential: Storage::init(device, "potential", &[], &what("potential"))?,
                 coarse: CoarseBuffers::empty(device)?,
                 elastic_coarse: ElasticCoarseBuffers::empty(device)?,
+                pairing: PairingBuffers::empty(device)?,
                 bind_groups: Vec::new(),
                 controls,
                 control_runs,
@@ -458,6 +466,7 @@ impl DeformState {
                 elastic.cycles.groups > 0,
                 elastic.smoother.map(|(_, sweeps)| sweeps),
             )),
+            pairs: self.pairing.pairs(),
         }
     }
 
@@ -541,6 +550,7 @@ impl DeformState {
         ];
         named.extend(self.coarse.named());
         named.extend(self.elastic_coarse.named());
+        named.extend(self.pairing.named());
         named
     }
 

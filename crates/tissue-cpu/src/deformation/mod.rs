@@ -22,12 +22,12 @@
 //! `tissue_solve::Tracker`'s, the same as the GPU path's; [`CpuSolve`] is
 //! this path's [`SolveDevice`]: the kernels and the state they work on.
 
-use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Mat3, Vec3, Vec4};
 use rayon::prelude::*;
+use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
 pub use tissue_solve::coarse::SharedLaplacian;
 pub use tissue_solve::model::Elastic;
@@ -36,7 +36,7 @@ pub use tissue_solve::stage2::Pass;
 pub use tissue_solve::stage2::Plan;
 pub use tissue_solve::stage2::check_same_topology;
 pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
-use tissue_solve::stage2::{Choices, Holds, Potential, Tracker};
+use tissue_solve::stage2::{Choices, Holds, Pairing, Tracker};
 pub use tissue_solve::stage2::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
 };
@@ -45,10 +45,13 @@ pub use tissue_solve::stage2::{FrameHistory, affine_fit, predict};
 pub use tissue_solve::stage2::{Iteration, SolveDevice};
 pub use tissue_solve::stage2::{laplacian_extremes, laplacian_extremes_with};
 
+mod solve_device;
+
 pub use crate::kernels::deformation_force::deformation_force;
 pub use crate::kernels::elastic_targets::{elastic_force, elastic_potential, elastic_terms};
 pub use crate::kernels::integrate::{chebyshev_combine, integrate};
 pub use crate::kernels::local_rotations::{local_rotations, local_rotations_warm};
+pub use crate::kernels::pair::pair;
 pub use crate::kernels::polar::{
     POLAR_ITERATIONS, POLAR_MOST_ITERATIONS, polar_rotation, polar_update, warm_rotation,
 };
@@ -191,6 +194,18 @@ impl Deformer {
         self.tracker.set_springs(springs)
     }
 
+    /// Holds the observation the skin is paired with, or none
+    /// (`Tracker::set_observation`).
+    pub fn set_observation(&mut self, field: Option<&SurfaceField>) {
+        let Ok(()) = self.tracker.set_observation(field);
+    }
+
+    /// Sets how the elastic iterations pair the skin with the observation
+    /// (`Tracker::set_pairing`), or stops pairing.
+    pub fn set_pairing(&mut self, pairing: Option<Pairing>) -> Result<(), Error> {
+        self.tracker.set_pairing(pairing)
+    }
+
     /// The next solve starts from `positions` (`Tracker::warm_start`).
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), Error> {
         self.tracker.warm_start(positions)
@@ -233,9 +248,18 @@ pub struct CpuSolve {
     free: Vec<bool>,
     /// Per particle its body force (empty without a load).
     loads: Vec<Vec3>,
-    /// Per particle its spring towards an observed plane, applied by the
-    /// elastic force's iterations (empty without: [`Plan::springs`]).
+    /// Per particle its spring towards an observed plane as the plan set
+    /// it (empty without: [`Plan::springs`]): what the elastic phase's
+    /// correction is made with.
     springs: Vec<Vec4>,
+    /// The springs the elastic force's iterations apply: the plan's, or
+    /// where the skin is paired with an observation, as the last
+    /// [`Pass::Pair`] set them.
+    pulls: Vec<Vec4>,
+    /// The observation the skin is paired with (its nearest points).
+    observation: Option<Arc<SurfaceField>>,
+    /// How the skin is paired with it ([`Plan::pairing`]).
+    pairing: Option<Pairing>,
     current: Vec<Vec3>,
     previous: Vec<Vec3>,
     rotations: Vec<Mat3>,
@@ -325,6 +349,9 @@ impl CpuSolve {
             free: plan.free.clone(),
             loads: plan.loads.clone(),
             springs: plan.springs.clone(),
+            pulls: plan.springs.clone(),
+            observation: None,
+            pairing: plan.pairing.clone(),
             current: model.positions.clone(),
             previous: model.positions.clone(),
             rotations: vec![Mat3::IDENTITY; model.len()],
@@ -399,7 +426,12 @@ impl CpuSolve {
             &self.springs,
             self.elastic_coarse.as_deref(),
         )
-        .map(Arc::new);
+        .map(|mut coarse| {
+            if self.pairing.is_some() {
+                coarse.set_pulls(&self.pulls);
+            }
+            Arc::new(coarse)
+        });
     }
 
     /// One iteration with Chebyshev weight `omega`: the largest and RMS
@@ -432,6 +464,7 @@ impl CpuSolve {
             elastic: self.elastic.is_some(),
             coarse: self.coarse.as_deref().map(|c| c.multilevel().is_some()),
             elastic_correction,
+            pairs: self.observation.is_some() && self.pairing.is_some(),
         }
     }
 
@@ -455,12 +488,12 @@ impl CpuSolve {
         work.measured
     }
 
-    /// The springs an iteration with `it` applies: the plan's with the
+    /// The springs an iteration with `it` applies: the pulls with the
     /// elastic force, none with the others (whose corrections are made
     /// for the Laplacian without them).
     fn springs_for(&self, it: Iteration) -> &[Vec4] {
         if it.force == ForceModel::Elastic {
-            &self.springs
+            &self.pulls
         } else {
             &[]
         }
@@ -473,6 +506,14 @@ impl CpuSolve {
             .as_deref()
             .zip(self.elastic_aggregates.as_deref());
         match pass {
+            Pass::Pair => {
+                if let (Some(field), Some(pairing)) = (&self.observation, &self.pairing) {
+                    pair(field, pairing, &self.current, &mut self.pulls);
+                    if let Some(coarse) = &mut self.elastic_coarse {
+                        Arc::make_mut(coarse).set_pulls(&self.pulls);
+                    }
+                }
+            }
             Pass::Rotations(RotationMethod::Svd) => {
                 self.rotations = local_rotations(&self.rest, &self.current, &self.connections);
             }
@@ -535,7 +576,7 @@ impl CpuSolve {
                         &work.force,
                         &self.current,
                         &self.loads,
-                        &self.springs,
+                        &self.pulls,
                         &aggregates.aggregate,
                     );
                     // The two-level step is linear in the residual: a
@@ -643,152 +684,5 @@ impl<'a> Laps<'a> {
             clock(pass, since.elapsed().as_secs_f64());
             *since = Instant::now();
         }
-    }
-}
-
-impl SolveDevice for CpuSolve {
-    type Error = Infallible;
-
-    /// One iteration at a time: the stopping rule is checked after each, so
-    /// nothing is ever replayed.
-    fn batch(&self) -> usize {
-        1
-    }
-
-    fn coarse_rho(&self) -> Option<f32> {
-        self.coarse.as_deref().map(CoarseSpace::rho)
-    }
-
-    fn elastic_rho(&self) -> Option<f32> {
-        self.iteration
-            .filter(|it| it.correct && it.force == ForceModel::Elastic)
-            .and(self.elastic_coarse.as_deref())
-            .map(ElasticCoarse::rho)
-    }
-
-    fn volume_smoother(&self) -> bool {
-        self.volume_smoother.is_some() && self.elastic_aggregates.is_some()
-    }
-
-    fn elastic_smoothed(&self) -> bool {
-        self.elastic_rho().is_some()
-            && self
-                .elastic_coarse
-                .as_deref()
-                .is_some_and(|c| c.smoother().is_some())
-    }
-
-    fn write_positions(
-        &mut self,
-        positions: &[Vec3],
-        turn: Option<Mat3>,
-    ) -> Result<(), Infallible> {
-        self.current.copy_from_slice(positions);
-        if let Some(turn) = turn {
-            // The warm-started rotations turn with the surface too.
-            self.rotations.par_iter_mut().for_each(|r| *r = turn * *r);
-        }
-        Ok(())
-    }
-
-    fn begin(&mut self, iteration: Iteration) -> Result<(), Infallible> {
-        self.previous.clone_from(&self.current);
-        self.linearise(iteration);
-        self.iteration = Some(iteration);
-        Ok(())
-    }
-
-    fn run(&mut self, omegas: &[f32]) -> Result<Vec<(f32, f32)>, Infallible> {
-        let Some(it) = self.iteration else {
-            return Ok(Vec::new());
-        };
-        if omegas.len() > 1 {
-            self.batch_start = Some(BatchStart {
-                current: self.current.clone(),
-                previous: self.previous.clone(),
-                rotations: self.rotations.clone(),
-                omegas: omegas.to_vec(),
-            });
-        }
-        // The batch runs on one of the pool's threads, so that each pass's
-        // parallel loop starts there rather than being handed to the pool
-        // from outside and waited for (the elastic solves from rest at
-        // 10,000 particles 1-5 % faster on two cores).
-        Ok(rayon::scope(|_| {
-            omegas
-                .iter()
-                .map(|&omega| self.iterate(it, omega))
-                .collect()
-        }))
-    }
-
-    fn replay(&mut self, count: usize) -> Result<(), Infallible> {
-        let (Some(it), Some(start)) = (self.iteration, self.batch_start.take()) else {
-            return Ok(());
-        };
-        (self.current, self.previous, self.rotations) =
-            (start.current, start.previous, start.rotations);
-        for &omega in start.omegas.iter().take(count) {
-            self.iterate(it, omega);
-        }
-        Ok(())
-    }
-
-    fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
-        Ok(self.elastic.as_deref().map(|elastic| {
-            Potential::of(elastic_potential(
-                &self.rest,
-                &self.current,
-                &self.connections,
-                elastic,
-                &self.loads,
-                &self.springs,
-                &self.free,
-                &self.rotations,
-            ))
-        }))
-    }
-
-    fn save(&mut self) -> Result<(), Infallible> {
-        let saved = self.saved.get_or_insert_with(Default::default);
-        saved.0.clone_from(&self.current);
-        saved.1.clone_from(&self.rotations);
-        Ok(())
-    }
-
-    fn restore(&mut self) -> Result<(), Infallible> {
-        if let Some((current, rotations)) = &self.saved {
-            self.current.clone_from(current);
-            self.rotations.clone_from(rotations);
-        }
-        Ok(())
-    }
-
-    /// The coarse space, made for `params`.
-    fn shared_laplacian(&self, plan: &Plan, params: &DeformParams) -> SharedLaplacian {
-        SharedLaplacian::new(
-            plan.laplacian_key,
-            plan,
-            params,
-            self.coarse.clone(),
-            self.volume_smoother,
-        )
-    }
-
-    fn read_positions(&mut self) -> Result<Vec<Vec3>, Infallible> {
-        Ok(self.current.clone())
-    }
-
-    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Infallible> {
-        springs.clone_into(&mut self.springs);
-        // Its operator holds the springs it was made with.
-        self.elastic_coarse = None;
-        Ok(())
-    }
-
-    fn reset(&mut self) -> Result<(), Infallible> {
-        self.current.clone_from(&self.rest);
-        self.rotations.fill(Mat3::IDENTITY);
-        Ok(())
     }
 }

@@ -20,6 +20,7 @@ pub mod local_rotations;
 pub mod multilevel;
 pub mod needs_rebuild;
 pub mod neighbour_rows;
+pub mod pair;
 pub mod polar;
 pub mod radius_update;
 pub mod sampling_change;
@@ -43,6 +44,7 @@ pub const TWINS: &[&str] = &[
     multilevel::SHADER,
     needs_rebuild::SHADER,
     neighbour_rows::SHADER,
+    pair::SHADER,
     radius_update::SHADER,
     sampling_change::SHADER,
     sampling_integrate::SHADER,

@@ -2,8 +2,9 @@
 //! scopes of its own, and what those calls run.
 
 use glam::{Mat3, Vec3, Vec4};
+use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{ElasticCoarse, SharedLaplacian};
-use tissue_solve::stage2::{Plan, Potential};
+use tissue_solve::stage2::{Pairing, Plan, Potential};
 use tissue_solve::{DeformParams, ForceModel, Iteration, RotationMethod, SolveDevice};
 
 use super::{GpuDeformer, GpuSolve};
@@ -113,6 +114,27 @@ impl SolveDevice for GpuSolve {
             gpu.elastic_coarse = None;
             gpu.state.forget_elastic_linearisation();
             Ok(())
+        })
+    }
+
+    fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            gpu.state.set_observation(&device, &gpu.pipelines, field)
+        })
+    }
+
+    /// A pairing on a state without springs gives it zero springs first:
+    /// the pairing writes them.
+    fn set_pairing(&mut self, pairing: Option<&Pairing>) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            if pairing.is_some() && !gpu.state.holds_springs() {
+                let zero = vec![Vec4::ZERO; gpu.state.len()];
+                gpu.state
+                    .set_loads(&device, &gpu.pipelines, &gpu.loads, &zero)?;
+            }
+            gpu.state.set_pairing(&device, &gpu.pipelines, pairing)
         })
     }
 

@@ -24,11 +24,11 @@ pub struct FieldBuffers {
     /// Per triangle: three corners and seven normals, `vec4` each.
     pub(crate) triangles: Storage<[f32; 4]>,
     /// The field grid's corner (xyz) and cell edge (w).
-    pub(super) origin: [f32; 4],
+    pub(crate) origin: [f32; 4],
     /// Cells along x, y, z; w the triangle count.
-    pub(super) dims: [u32; 4],
+    pub(crate) dims: [u32; 4],
     /// Where `cells` holds the CSR starts, candidates and candidate distances.
-    pub(super) layout: [u32; 4],
+    pub(crate) layout: [u32; 4],
     /// `SurfaceField::margin`.
     pub(super) margin: f32,
 }

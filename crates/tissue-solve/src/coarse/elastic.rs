@@ -327,6 +327,20 @@ impl ElasticCoarse {
         self.contraction
     }
 
+    /// Takes `springs` (one per particle, or none) as the springs of the
+    /// iterations that follow, where a pairing sets them anew each
+    /// iteration: the per-particle parts (the operator's `s s^T / 2` in
+    /// its products, the smoother's `Phi`) take them, while the coarse
+    /// matrix and the smoother's diagonal stay as made, a preconditioner
+    /// for springs that change little. A device's kernels read the
+    /// iteration's springs the same way.
+    pub fn set_pulls(&mut self, springs: &[Vec4]) {
+        springs.clone_into(&mut self.springs);
+        if let Some(smoother) = &mut self.smoother {
+            smoother.set_springs(springs);
+        }
+    }
+
     /// The volume smoother, where the iteration smooths with it.
     pub fn smoother(&self) -> Option<&VolumeSmoother> {
         self.smoother.as_ref()

@@ -117,13 +117,7 @@ impl VolumeSmoother {
     ) -> Self {
         let Smoothing { delta, sweeps } = smoothing;
         let roots: Vec<f64> = weights.iter().map(|&w| (0.5 * w).sqrt()).collect();
-        let springs: Vec<(DVec3, f64)> = springs
-            .iter()
-            .map(|s| {
-                let s = s.truncate().as_dvec3();
-                (s, 1.0 / (2.0 * delta + s.length_squared()))
-            })
-            .collect();
+        let springs = phi_springs(springs, delta);
         // `g^T Phi_j g`.
         let seen = |j: usize, g: DVec3| match springs.get(j) {
             Some(&(s, inverse)) => g.length_squared() - s.dot(g).powi(2) * inverse,
@@ -158,6 +152,12 @@ impl VolumeSmoother {
             diagonal,
             springs,
         }
+    }
+
+    /// Takes `springs` (one per particle, or none) for `Phi`; the
+    /// pressures' diagonal stays as made (`ElasticCoarse::set_pulls`).
+    pub(crate) fn set_springs(&mut self, springs: &[Vec4]) {
+        self.springs = phi_springs(springs, self.delta);
     }
 
     /// `Phi` at particle `k` applied to `x`: `x - s (s . x) / (2 delta +
@@ -249,6 +249,17 @@ impl VolumeSmoother {
             })
             .collect()
     }
+}
+
+/// Per spring its `s` and `1 / (2 delta + |s|^2)`, what `Phi` reads.
+fn phi_springs(springs: &[Vec4], delta: f64) -> Vec<(DVec3, f64)> {
+    springs
+        .iter()
+        .map(|s| {
+            let s = s.truncate().as_dvec3();
+            (s, 1.0 / (2.0 * delta + s.length_squared()))
+        })
+        .collect()
 }
 
 /// `G^T x`: per particle the change of its `J_i` under the displacement

@@ -4,8 +4,10 @@
 //! buffers.
 
 use glam::{Mat3, Vec3, Vec4};
+use tissue_core::field::SurfaceField;
 
 use crate::coarse::laplacian::SharedLaplacian;
+use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel, RotationMethod};
 use crate::stage2::plan::Plan;
 
@@ -123,6 +125,17 @@ pub trait SolveDevice {
     /// them, and its correction is made again with them at the next
     /// elastic phase's start.
     fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Self::Error>;
+
+    /// Holds the observation the skin is paired with (its nearest points'
+    /// field: a surface's, or a point cloud's), or none.
+    fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Self::Error>;
+
+    /// Sets how the elastic force's iterations pair the skin with the
+    /// observation held ([`crate::stage2::plan::Plan::set_pairing`]), or
+    /// none: with both, each such iteration runs [`crate::stage2::Pass::Pair`]
+    /// first, and the springs it writes act in that iteration and stay
+    /// until the next one writes them.
+    fn set_pairing(&mut self, pairing: Option<&Pairing>) -> Result<(), Self::Error>;
 
     /// Starts a solve from the current positions (`previous = current`)
     /// whose iterations run with `iteration`.

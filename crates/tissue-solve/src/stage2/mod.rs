@@ -8,8 +8,9 @@
 //! (`phase`), the one tracker over any device (`tracker`), how a solve
 //! went (`report`), inverted neighbourhoods (`inversion`), the search
 //! a change of posture makes (`posture`), a point cloud observed
-//! without correspondence (`observation`), and the springs that pull the
-//! model towards an observation (`springs`).
+//! without correspondence (`observation`), the springs that pull the
+//! model towards an observation (`springs`), and the pairing that sets
+//! them from the observation at each iteration (`pairing`).
 
 pub(crate) mod acceleration;
 pub(crate) mod batches;
@@ -17,6 +18,7 @@ pub(crate) mod controls;
 pub(crate) mod device;
 pub(crate) mod inversion;
 pub(crate) mod observation;
+pub(crate) mod pairing;
 pub(crate) mod params;
 pub(crate) mod passes;
 pub(crate) mod phase;
@@ -39,6 +41,7 @@ pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{
     Cloud, NORMAL_NEIGHBOURS, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, SCAN_SCALE, rigid_fit,
 };
+pub use pairing::{NO_LIMIT, Pairing, PairingRule, pair_plane, paired_spring};
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
     MAX_ELASTIC_COARSE_AGGREGATES, MAX_ELASTIC_COARSE_DIRECT_AGGREGATES, MAX_HISTORY, MAX_POISSON,

@@ -17,6 +17,11 @@ use crate::stage2::params::{ForceModel, RotationMethod};
 /// (several kernels of it on the GPU) and of its CPU twin of the same name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Pass {
+    /// `pair`: each paired particle's spring set towards the observation's
+    /// plane at its nearest point ([`crate::stage2::pairing`]), first in
+    /// the elastic force's iterations where the device holds an
+    /// observation and a pairing.
+    Pair,
     /// `local_rotations`: each particle's rotation from its `M_i`, by the
     /// SVD or warm-started from its stored rotation.
     Rotations(RotationMethod),
@@ -71,6 +76,7 @@ impl Pass {
     /// The shader file the pass runs (its CPU twin's module is named the same).
     pub fn shader(self) -> &'static str {
         match self {
+            Pass::Pair => "pair",
             Pass::Rotations(_) => "local_rotations",
             Pass::ElasticTerms(_) | Pass::ElasticForce => "elastic_targets",
             Pass::Force => "deformation_force",
@@ -85,6 +91,7 @@ impl Pass {
     /// A name for reports and the benchmark's breakdown.
     pub fn name(self) -> &'static str {
         match self {
+            Pass::Pair => "pair",
             Pass::Rotations(RotationMethod::Svd) => "local_rotations",
             Pass::Rotations(RotationMethod::WarmPolar) => "local_rotations_warm",
             Pass::ElasticTerms(RotationMethod::Svd) => "elastic_targets",
@@ -137,6 +144,9 @@ pub struct Holds {
     /// smoothed))`, `smoothed` the volume smoother's Jacobi sweeps where it
     /// smooths.
     pub elastic_correction: Option<(bool, Option<usize>)>,
+    /// An observation and a pairing of the skin with it
+    /// ([`crate::stage2::pairing`]).
+    pub pairs: bool,
 }
 
 /// The choices that make one iteration's pass list.
@@ -148,6 +158,8 @@ pub struct Choices {
     pub rotations: RotationMethod,
     /// How the plain step is corrected.
     pub correction: Correction,
+    /// The skin paired with the observation first ([`Pass::Pair`]).
+    pub pairs: bool,
 }
 
 impl Choices {
@@ -156,7 +168,9 @@ impl Choices {
     /// runs where the device has the elastic data; its correction is the
     /// elastic one (the Laplacian's corrections assume the Laplacian's
     /// modes, not the elastic operator's). The other forces take the
-    /// Laplacian's coarse space where there is one.
+    /// Laplacian's coarse space where there is one. The elastic force's
+    /// iterations pair the skin with the observation where the device
+    /// holds one (its springs act in those iterations only).
     pub fn of(force: ForceModel, rotations: RotationMethod, correct: bool, holds: Holds) -> Self {
         let elastic_force = force == ForceModel::Elastic;
         let correction = match (correct, elastic_force) {
@@ -174,6 +188,7 @@ impl Choices {
             elastic: elastic_force && holds.elastic,
             rotations,
             correction,
+            pairs: elastic_force && holds.elastic && holds.pairs,
         }
     }
 
@@ -187,17 +202,22 @@ impl Choices {
         )
     }
 
-    /// The passes of one iteration, in order: the rotations (with the
-    /// elastic terms in the elastic phase), the force, the step and its
+    /// The passes of one iteration, in order: the pairing where it pairs,
+    /// the rotations (with the elastic terms in the elastic phase), the force, the step and its
     /// correction, then the combine. An uncorrected iteration measures its
     /// plain step before the combine; a corrected one, the update the
     /// combine made.
     pub fn passes(&self) -> Vec<Pass> {
-        let mut passes = if self.elastic {
-            vec![Pass::ElasticTerms(self.rotations), Pass::ElasticForce]
+        let mut passes = if self.pairs {
+            vec![Pass::Pair]
         } else {
-            vec![Pass::Rotations(self.rotations), Pass::Force]
+            Vec::new()
         };
+        if self.elastic {
+            passes.extend([Pass::ElasticTerms(self.rotations), Pass::ElasticForce]);
+        } else {
+            passes.extend([Pass::Rotations(self.rotations), Pass::Force]);
+        }
         match self.correction {
             Correction::None => {
                 passes.extend([Pass::PlainStep, Pass::StepNorms, Pass::Combine]);
@@ -241,11 +261,15 @@ impl Choices {
                     // An elastic correction comes with the elastic force
                     // only, the Laplacian's without it.
                     if correction == Correction::None || elastic == elastic_correction {
-                        all.push(Choices {
-                            elastic,
-                            rotations,
-                            correction,
-                        });
+                        // Only the elastic force's iterations pair.
+                        for pairs in [false, true].into_iter().take(1 + usize::from(elastic)) {
+                            all.push(Choices {
+                                elastic,
+                                rotations,
+                                correction,
+                                pairs,
+                            });
+                        }
                     }
                 }
             }
@@ -278,7 +302,10 @@ mod tests {
                 count(|p| matches!(p, Pass::StepNorms | Pass::UpdateNorms)),
                 1
             );
-            // The rotations first, then the force that uses them.
+            // The pairing first where it pairs, then the rotations, then
+            // the force that uses them.
+            assert_eq!(count(|p| *p == Pass::Pair), usize::from(choices.pairs));
+            let passes = &passes[usize::from(choices.pairs)..];
             assert!(matches!(
                 passes[..2],
                 [Pass::Rotations(_), Pass::Force] | [Pass::ElasticTerms(_), Pass::ElasticForce]
@@ -301,6 +328,7 @@ mod tests {
             elastic: true,
             coarse: Some(false),
             elastic_correction: None,
+            pairs: false,
         };
         let elastic = Choices::of(ForceModel::Elastic, RotationMethod::Svd, true, holds);
         assert_eq!(elastic.correction, Correction::None);
@@ -336,6 +364,7 @@ mod tests {
             elastic: false,
             coarse: Some(true),
             elastic_correction: None,
+            pairs: false,
         };
         let choices = Choices::of(ForceModel::Paper, RotationMethod::Svd, true, holds);
         assert_eq!(choices.correction, Correction::Coarse { cycled: true });
@@ -356,9 +385,29 @@ mod tests {
         let unique: std::collections::HashSet<_> = all.iter().collect();
         assert_eq!(unique.len(), all.len());
         // Rotations 2 x (3 without the elastic force: none, coarse
-        // factored or cycled; 7 with it: none, and the elastic correction
-        // factored or cycled, plain or smoothed with a whole skin's sweeps
-        // or a free skin's).
-        assert_eq!(all.len(), 2 * 3 + 2 * 7);
+        // factored or cycled; 7 with it, each paired or not: none, and the
+        // elastic correction factored or cycled, plain or smoothed with a
+        // whole skin's sweeps or a free skin's).
+        assert_eq!(all.len(), 2 * 3 + 2 * 7 * 2);
+    }
+
+    #[test]
+    fn only_the_elastic_force_pairs_and_only_with_an_observation() {
+        let holds = Holds {
+            elastic: true,
+            coarse: Some(false),
+            elastic_correction: Some((false, Some(2))),
+            pairs: true,
+        };
+        let elastic = Choices::of(ForceModel::Elastic, RotationMethod::Svd, true, holds);
+        assert_eq!(elastic.passes()[0], Pass::Pair);
+        let shear = Choices::of(ForceModel::Symmetric, RotationMethod::Svd, true, holds);
+        assert!(!shear.pairs && !shear.passes().contains(&Pass::Pair));
+        let unobserved = Holds {
+            pairs: false,
+            ..holds
+        };
+        let elastic = Choices::of(ForceModel::Elastic, RotationMethod::Svd, true, unobserved);
+        assert!(!elastic.passes().contains(&Pass::Pair));
     }
 }

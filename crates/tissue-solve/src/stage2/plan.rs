@@ -7,6 +7,7 @@ use glam::{Vec3, Vec4};
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
 use crate::model::elastic::Elastic;
+use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::report::PrepareStage;
 use crate::stage2::spectrum::laplacian_extremes;
@@ -60,6 +61,10 @@ pub struct Plan {
     /// particles (empty without an observation's springs:
     /// [`Plan::set_springs`]).
     pub springs: Vec<Vec4>,
+    /// How each elastic iteration pairs the skin with the observation the
+    /// device holds and sets its springs anew (`None`: the springs stay as
+    /// set; [`Plan::set_pairing`]).
+    pub pairing: Option<Pairing>,
     /// Smallest eigenvalue of the connection-graph Laplacian over free particles.
     pub lambda_min: f32,
     /// Largest one, with a 2 % margin.
@@ -173,6 +178,7 @@ impl Plan {
             controls,
             loads: Vec::new(),
             springs: Vec::new(),
+            pairing: None,
             lambda_min,
             lambda_max,
             laplacian_key,
@@ -264,12 +270,67 @@ impl Plan {
     /// The largest eigenvalue the step of `force` is set for: the
     /// Laplacian's, or for the elastic force its operator's.
     /// With springs, the elastic operator's is raised by the most one adds
-    /// (`max |s|^2 / 2`, a bound: each spring is a particle's own block).
+    /// (`max |s|^2 / 2`, a bound: each spring is a particle's own block),
+    /// with a pairing by the most its springs add (half their weight).
     pub fn lambda_max_for(&self, force: ForceModel) -> f32 {
         match (force, self.elastic_lambda_max) {
-            (ForceModel::Elastic, Some(stiff)) => stiff + springs_stiffness(&self.springs),
+            (ForceModel::Elastic, Some(stiff)) => {
+                let paired = self.pairing.as_ref().map_or(0.0, |p| 0.5 * p.rule.weight);
+                stiff + springs_stiffness(&self.springs).max(paired)
+            }
             _ => self.lambda_max,
         }
+    }
+
+    /// Sets how each of the elastic force's iterations pairs the skin with
+    /// the observation and sets its springs ([`crate::stage2::pairing`]),
+    /// or (`None`) stops pairing: the springs then stay as the last
+    /// iteration set them.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Deformation`] for a pairing on a plan without the elastic
+    /// model, of a particle that is not free or not in the model, or with a
+    /// weight that is not a positive number or limits that are not positive
+    /// lengths.
+    pub fn set_pairing(&mut self, pairing: Option<Pairing>) -> Result<(), Error> {
+        if let Some(pairing) = &pairing {
+            let refuse = |why: String| Err(DeformError::Springs(why).into());
+            if self.elastic.is_none() {
+                return refuse(
+                    "only the elastic force pulls towards an observation; this solve was \
+                     prepared for another force"
+                        .into(),
+                );
+            }
+            let n = self.free.len();
+            if let Some(&i) = pairing
+                .skin
+                .iter()
+                .find(|&&i| !self.free.get(i as usize).copied().unwrap_or(false))
+            {
+                return refuse(format!(
+                    "particle {i} is paired with the observation but is not a free particle of \
+                     the model's {n}"
+                ));
+            }
+            let rule = &pairing.rule;
+            if !(rule.weight.is_finite() && rule.weight > 0.0) {
+                return refuse(format!(
+                    "the pairing's weight {} is not a positive number",
+                    rule.weight
+                ));
+            }
+            for (what, limit) in [("edge", rule.edge), ("trim", rule.trim)] {
+                if !(limit.is_finite() && limit > 0.0) {
+                    return refuse(format!(
+                        "the pairing's {what} {limit} is not a positive length"
+                    ));
+                }
+            }
+        }
+        self.pairing = pairing;
+        Ok(())
     }
 
     /// Sets every particle's spring towards an observed plane

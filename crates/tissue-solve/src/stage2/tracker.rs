@@ -6,11 +6,13 @@
 use std::time::Instant;
 
 use glam::Vec3;
+use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, Error, ParamError, ParticleModel, SurfaceMesh};
 
 use crate::coarse::laplacian::SharedLaplacian;
 use crate::model::svd3::rotation_of;
 use crate::stage2::controls::check_same_topology;
+use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::phase::{PhaseRun, Steps, WARM_ITERATIONS};
 use crate::stage2::plan::Plan;
@@ -177,6 +179,34 @@ impl<D: SolveDevice> Tracker<D> {
     ) -> Result<(), E> {
         self.plan.set_springs(springs)?;
         self.device.set_springs(&self.plan.springs)?;
+        Ok(())
+    }
+
+    /// Holds the observation the skin is paired with (its nearest points'
+    /// field), or none ([`SolveDevice::set_observation`]); the state is
+    /// kept.
+    ///
+    /// # Errors
+    ///
+    /// The device's error where it cannot take it.
+    pub fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), D::Error> {
+        self.device.set_observation(field)
+    }
+
+    /// Sets how the elastic force's iterations pair the skin with the
+    /// observation held ([`Plan::set_pairing`]), or stops pairing; the
+    /// state is kept.
+    ///
+    /// # Errors
+    ///
+    /// As [`Plan::set_pairing`]; the device's error where it cannot take
+    /// it.
+    pub fn set_pairing<E: From<Error> + From<D::Error>>(
+        &mut self,
+        pairing: Option<Pairing>,
+    ) -> Result<(), E> {
+        self.plan.set_pairing(pairing)?;
+        self.device.set_pairing(self.plan.pairing.as_ref())?;
         Ok(())
     }
 
@@ -587,6 +617,14 @@ mod tests {
         }
 
         fn set_springs(&mut self, _springs: &[glam::Vec4]) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        fn set_observation(&mut self, _field: Option<&SurfaceField>) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        fn set_pairing(&mut self, _pairing: Option<&Pairing>) -> Result<(), Infallible> {
             Ok(())
         }
 

@@ -1,0 +1,245 @@
+//! The observation a [`DeformState`] pairs the skin with: its field's
+//! buffers, the pairing's parameters and paired particles
+//! (`shaders/pair.wgsl`, [`Pass::Pair`](tissue_solve::stage2::Pass::Pair)).
+
+use bytemuck::{Pod, Zeroable};
+use tissue_core::field::SurfaceField;
+use tissue_solve::stage2::Pairing;
+
+use super::{DeformState, workgroups};
+use crate::buffer::Storage;
+use crate::sampler::FieldBuffers;
+use crate::support::scoped;
+use crate::{GpuError, Kernel, Pipelines};
+
+/// `FieldGrid` of `shaders/shared/field_grid.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct FieldGridParams {
+    /// The corner of cell (0, 0, 0) (xyz) and the cell edge (w).
+    pub origin: [f32; 4],
+    /// Cells along x, y, z; w the number of triangles.
+    pub dims: [u32; 4],
+    /// Where the field's cells buffer holds its CSR starts, candidates and
+    /// candidate distances.
+    pub sections: [u32; 4],
+}
+
+/// `Pairing` of `shaders/pair.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct PairingParams {
+    /// The observation's field.
+    pub grid: FieldGridParams,
+    /// Particles paired.
+    pub skin_count: u32,
+    /// 1 for a point cloud.
+    pub cloud: u32,
+    /// The springs' weight.
+    pub weight: f32,
+    /// A cloud's edge.
+    pub edge: f32,
+    /// The trim.
+    pub trim: f32,
+    /// Padding to the WGSL struct's size.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+/// What a state holds for the pairing: the observation's field (or
+/// one-entry placeholders), the pairing's parameters and particles.
+#[derive(Debug)]
+pub(crate) struct PairingBuffers {
+    /// The observation's field cells (`field_cells`).
+    pub(crate) field_cells: Storage<u32>,
+    /// Its triangles (`field_triangles`).
+    pub(crate) field_triangles: Storage<[f32; 4]>,
+    /// Its grid, where an observation is held.
+    pub(crate) grid: Option<FieldGridParams>,
+    /// The pairing's parameters (`pairing`, one struct).
+    pub(crate) params: Storage<PairingParams>,
+    /// What `params` holds.
+    pub(crate) host: PairingParams,
+    /// The paired particles (`skin`).
+    pub(crate) skin: Storage<u32>,
+    /// Whether a pairing is set.
+    pub(crate) pairing: bool,
+}
+
+impl PairingBuffers {
+    /// No observation and no pairing.
+    pub(crate) fn empty(device: &wgpu::Device) -> Result<Self, GpuError> {
+        let none = "(no observation)";
+        Ok(Self {
+            field_cells: Storage::zeroed(device, "field_cells", 1, none)?,
+            field_triangles: Storage::zeroed(device, "field_triangles", 1, none)?,
+            grid: None,
+            params: Storage::zeroed(device, "pairing", 1, none)?,
+            host: PairingParams::default(),
+            skin: Storage::zeroed(device, "skin", 1, none)?,
+            pairing: false,
+        })
+    }
+
+    /// Whether the iterations pair ([`Pass::Pair`](tissue_solve::stage2::Pass::Pair)).
+    pub(crate) fn pairs(&self) -> bool {
+        self.grid.is_some() && self.pairing
+    }
+
+    /// Every buffer, by the WGSL variable's name.
+    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 4] {
+        [
+            ("field_cells", self.field_cells.buffer()),
+            ("field_triangles", self.field_triangles.buffer()),
+            ("pairing", self.params.buffer()),
+            ("skin", self.skin.buffer()),
+        ]
+    }
+}
+
+impl DeformState {
+    /// Uploads the observation the skin is paired with (its nearest
+    /// points' field), or with `None` lets it go.
+    pub fn set_observation(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        field: Option<&SurfaceField>,
+    ) -> Result<(), GpuError> {
+        let held = &mut self.pairing;
+        match field {
+            Some(field) => {
+                let buffers = FieldBuffers::new(device, field)?;
+                held.grid = Some(FieldGridParams {
+                    origin: buffers.origin,
+                    dims: buffers.dims,
+                    sections: buffers.layout,
+                });
+                held.field_cells = buffers.cells;
+                held.field_triangles = buffers.triangles;
+            }
+            None => {
+                let empty = PairingBuffers::empty(device)?;
+                (held.field_cells, held.field_triangles, held.grid) =
+                    (empty.field_cells, empty.field_triangles, None);
+            }
+        }
+        self.refresh_pairing(device, pipelines, None)
+    }
+
+    /// Sets how the elastic iterations pair the skin with the observation
+    /// held, or with `None` stops pairing. The loads buffer must hold
+    /// springs ([`DeformState::set_loads`]): the pairing writes them.
+    pub fn set_pairing(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        pairing: Option<&Pairing>,
+    ) -> Result<(), GpuError> {
+        if pairing.is_some() && !self.holds_springs() {
+            return Err(GpuError::Length {
+                what: "springs (one per particle) before a pairing",
+                expected: self.len(),
+                got: 0,
+            });
+        }
+        self.pairing.pairing = pairing.is_some();
+        self.refresh_pairing(device, pipelines, pairing)
+    }
+
+    /// Whether the loads buffer holds a spring per particle.
+    pub(crate) fn holds_springs(&self) -> bool {
+        self.loads.len() == 2 * self.len()
+    }
+
+    /// Uploads the pairing's parameters and particles (`pairing` where it
+    /// changes, else the grid alone) and binds them.
+    fn refresh_pairing(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+        pairing: Option<&Pairing>,
+    ) -> Result<(), GpuError> {
+        let held = &mut self.pairing;
+        let mut params = held.host;
+        params.grid = held.grid.unwrap_or_default();
+        if let Some(pairing) = pairing {
+            let count = pairing.skin.len();
+            params.skin_count = u32::try_from(count).map_err(|_| GpuError::Length {
+                what: "paired particles",
+                expected: u32::MAX as usize,
+                got: count,
+            })?;
+            params.cloud = u32::from(pairing.rule.cloud);
+            params.weight = pairing.rule.weight;
+            params.edge = pairing.rule.edge;
+            params.trim = pairing.rule.trim;
+            let skin: &[u32] = if pairing.skin.is_empty() {
+                &[0]
+            } else {
+                &pairing.skin
+            };
+            held.skin = scoped(device, || {
+                Storage::init(
+                    device,
+                    "skin",
+                    skin,
+                    &format!("the skin buffer ({count} paired)"),
+                )
+            })?;
+            self.workgroups[Kernel::Pair.index()] = workgroups(
+                params.skin_count.max(1),
+                pipelines.workgroup_size(Kernel::Pair),
+                device.limits().max_compute_workgroups_per_dimension,
+            )?;
+        }
+        held.params = scoped(device, || {
+            Storage::init(
+                device,
+                "pairing",
+                &[params],
+                "the pairing buffer (one struct)",
+            )
+        })?;
+        held.host = params;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::support::assert_mirror;
+
+    #[test]
+    fn pairing_params_match_the_wgsl_layout() {
+        assert_mirror!(
+            "pair",
+            "Pairing",
+            PairingParams {
+                grid,
+                skin_count,
+                cloud,
+                weight,
+                edge,
+                trim,
+                pad0,
+                pad1,
+                pad2,
+            }
+        );
+        assert_mirror!(
+            "pair",
+            "FieldGrid",
+            FieldGridParams {
+                origin,
+                dims,
+                sections
+            }
+        );
+    }
+}

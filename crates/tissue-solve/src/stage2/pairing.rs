@@ -1,0 +1,121 @@
+//! The observation's pairing inside the solve, written once for every
+//! device: at the start of each of the elastic force's iterations every
+//! free skin particle is paired with its nearest point of the observation
+//! (a surface's, or a point cloud's, on a `SurfaceField` the device holds)
+//! and its spring ([`crate::stage2::springs`]) set towards the plane
+//! there ([`Pass::Pair`](crate::stage2::Pass::Pair)). The planes follow the
+//! skin as it slides, so the solve ends where the skin lies on the
+//! observation and the mechanics decides where along it
+//! (docs/METHOD.md, "Observations without correspondence").
+
+use glam::{Vec3, Vec4};
+
+use crate::stage2::springs::spring;
+
+/// A pairing limit that sets nothing aside (`f32::MAX`: a device's
+/// buffers hold it as it is).
+pub const NO_LIMIT: f32 = f32::MAX;
+
+/// How a particle is paired with its nearest observed point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairingRule {
+    /// The springs' weight, in the connection Laplacian's units (as
+    /// [`spring`]'s).
+    pub weight: f32,
+    /// For a point cloud: a particle farther than this along the cloud's
+    /// plane from its nearest point is past the cloud's edge (or over a
+    /// hole in it) and is not pulled. [`NO_LIMIT`] for a surface.
+    pub edge: f32,
+    /// A particle farther than this from the observation (for a cloud,
+    /// across its plane) is set aside as an outlier's pair. [`NO_LIMIT`]:
+    /// none is.
+    pub trim: f32,
+    /// Whether the observation is a point cloud: its points' fitted
+    /// normals give the planes. A surface's plane is the one across the
+    /// direction to the nearest point (the distance's gradient).
+    pub cloud: bool,
+}
+
+/// The free skin particles paired at each iteration, and how.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pairing {
+    /// The particles paired, in increasing order (the others keep no
+    /// spring).
+    pub skin: Vec<u32>,
+    /// How each is paired.
+    pub rule: PairingRule,
+}
+
+/// The plane a particle at `x` is pulled to, from its nearest observed
+/// point `point` with the observation's unit `normal` there: the plane's
+/// unit normal and the particle's distance from the observation (for a
+/// cloud, across its plane); `None` past a cloud's edge.
+pub fn pair_plane(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Option<(Vec3, f32)> {
+    let offset = x - point;
+    if rule.cloud {
+        let along = normal.dot(offset);
+        let across = (offset - along * normal).length();
+        return (across <= rule.edge).then_some((normal, along.abs()));
+    }
+    let length = offset.length();
+    // On the surface (to rounding) the direction is lost: its own normal.
+    let n = if length > 1e-6 * (1.0 + x.abs().max_element()) {
+        offset / length
+    } else {
+        normal
+    };
+    Some((n, length))
+}
+
+/// The spring of a particle at `x` paired with its nearest observed point
+/// `point` (the observation's unit `normal` there): towards the plane of
+/// [`pair_plane`] with the rule's weight, zero past a cloud's edge or
+/// beyond the trim. What [`Pass::Pair`](crate::stage2::Pass::Pair) writes
+/// for each paired particle on every device.
+pub fn paired_spring(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Vec4 {
+    match pair_plane(x, point, normal, rule) {
+        Some((n, distance)) if distance <= rule.trim => spring(point, n, rule.weight),
+        _ => Vec4::ZERO,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rule(cloud: bool) -> PairingRule {
+        PairingRule {
+            weight: 4.0,
+            edge: 1.0,
+            trim: 2.0,
+            cloud,
+        }
+    }
+
+    #[test]
+    fn a_surface_pulls_along_the_direction_to_its_nearest_point() {
+        // Off a corner: the plane is across the direction to the corner,
+        // not the face's.
+        let x = Vec3::new(1.0, 1.0, 0.0);
+        let s = paired_spring(x, Vec3::ZERO, Vec3::Z, &rule(false));
+        let n = Vec3::new(1.0, 1.0, 0.0).normalize();
+        assert!((s.truncate() - 2.0 * n).length() < 1e-6, "{s}");
+        assert!(s.w.abs() < 1e-6);
+        // On the surface, its normal.
+        let on = paired_spring(Vec3::ZERO, Vec3::ZERO, Vec3::Z, &rule(false));
+        assert_eq!(on, Vec4::new(0.0, 0.0, 2.0, 0.0));
+        // Beyond the trim, nothing.
+        let far = paired_spring(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Z, &rule(false));
+        assert_eq!(far, Vec4::ZERO);
+    }
+
+    #[test]
+    fn a_cloud_pulls_along_its_normal_and_not_past_its_edge() {
+        let near = paired_spring(Vec3::new(0.5, 0.0, 1.5), Vec3::ZERO, Vec3::Z, &rule(true));
+        assert_eq!(near, Vec4::new(0.0, 0.0, 2.0, 0.0));
+        let past = paired_spring(Vec3::new(1.5, 0.0, 0.1), Vec3::ZERO, Vec3::Z, &rule(true));
+        assert_eq!(past, Vec4::ZERO);
+        let trimmed = paired_spring(Vec3::new(0.0, 0.0, -2.5), Vec3::ZERO, Vec3::Z, &rule(true));
+        assert_eq!(trimmed, Vec4::ZERO);
+    }
+}

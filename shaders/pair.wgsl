@@ -1,0 +1,81 @@
+// Stage 2: `pair`, each paired particle's spring set towards the
+// observation's plane at its nearest point, first in the elastic force's
+// iterations where the state holds an observation and a pairing. Twin of
+// `tissue_cpu::kernels::pair` with `tissue_solve::stage2::paired_spring`:
+// for a surface the plane across the direction to the nearest point (its
+// normal there on the surface), for a point cloud the cloud's fitted
+// plane; no spring past a cloud's edge or beyond the trim.
+
+#import shared/layout
+#import shared/surface_field
+
+// Rust mirror: `tissue_gpu::state::PairingParams` (layout-tested against naga).
+struct Pairing {
+    // The observation's field.
+    grid: FieldGrid,
+    // Particles paired (the length of `skin` that is read).
+    skin_count: u32,
+    // 1 for a point cloud, 0 for a surface.
+    cloud: u32,
+    // The springs' weight.
+    weight: f32,
+    // A cloud's edge: no spring farther than this along its plane.
+    edge: f32,
+    // No spring farther than this from the observation.
+    trim: f32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> current: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> pairing: Pairing;
+// The paired particles' indices.
+@group(0) @binding(3) var<storage, read> skin: array<u32>;
+// Body forces (`count`), then springs (`count`): shared/loads.
+@group(0) @binding(24) var<storage, read_write> loads: array<vec4<f32>>;
+
+// `paired_spring`: x's spring from its nearest observed point and the
+// observation's normal there.
+fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32> {
+    let offset = x - point;
+    var n = normal;
+    var distance = 0.0;
+    if (pairing.cloud != 0u) {
+        let along = dot(normal, offset);
+        let across = length(offset - along * normal);
+        if (across > pairing.edge) {
+            return vec4<f32>(0.0);
+        }
+        distance = abs(along);
+    } else {
+        let gap = length(offset);
+        let extent = max(max(abs(x.x), abs(x.y)), abs(x.z));
+        if (gap > 1e-6 * (1.0 + extent)) {
+            n = offset / gap;
+        }
+        distance = gap;
+    }
+    if (distance > pairing.trim) {
+        return vec4<f32>(0.0);
+    }
+    let s = sqrt(max(pairing.weight, 0.0)) * n;
+    return vec4<f32>(s, dot(s, point));
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn pair(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let k = particle_index(workgroup, groups, local);
+    if (k >= pairing.skin_count) {
+        return;
+    }
+    let i = skin[k];
+    let x = current[i].xyz;
+    let near = field_nearest(pairing.grid, x);
+    loads[params.count + i] = paired_spring(x, near.point, near.normal);
+}

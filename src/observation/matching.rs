@@ -1,0 +1,473 @@
+//! The model's skin pulled onto an observation without correspondence
+//! inside the elastic solve ([`match_observation`]).
+
+use std::collections::BTreeSet;
+
+use glam::Vec4;
+use rayon::prelude::*;
+use tissue_core::ParamError;
+use tissue_solve::stage2::{
+    NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane, paired_spring,
+};
+
+use super::{Cloud, ObservationError};
+use crate::backend::Solver;
+use crate::deformation::DeformReport;
+use crate::field::SurfaceField;
+use crate::{Error, ParticleModel, SurfaceMesh, Vec3};
+
+/// The springs' weight grows over this many solves, each from where the
+/// last one ended, by [`STAGE_GROWTH`] each to [`MatchParams::weight`]:
+/// a weak pull first lets the skin slide to where the mechanics sends it
+/// before a stiff one holds it on the observation. On the shared cases'
+/// remeshed surfaces at 10,000 particles the skin then lies 0.06-0.08 mm
+/// from the observation (docs/METHOD.md, "Observations without
+/// correspondence").
+pub const MATCH_STAGES: usize = 3;
+
+/// The factor between one stage's weight and the next's.
+pub const STAGE_GROWTH: f32 = 4.0;
+
+/// A particle farther than this many cloud spacings along the cloud's
+/// plane from its nearest point is past the cloud's edge (or over a hole
+/// in it): nothing is seen there, and it is not pulled.
+pub const CLOUD_EDGE_SPACINGS: f32 = 2.0;
+
+/// A surface's triangles within this many mean connection lengths of the
+/// model's held region at every corner show that region: no free skin
+/// particle is paired on them.
+pub const HELD_REACH: f32 = 0.5;
+
+/// The noise scale where none is given, for a surface in mean connection
+/// lengths of the model (another segmentation's corners and facets).
+pub const SURFACE_NOISE: f32 = 0.1;
+
+/// [`SURFACE_NOISE`]'s twin for a point cloud, in the cloud's spacings
+/// (the shared cases' scans: 0.5 mm of noise on points 2.6 mm apart).
+pub const CLOUD_NOISE: f32 = 0.2;
+
+/// The skin's median distance from the observation at a stage's start may
+/// be at most this share of the model's size (its bounding-box diagonal):
+/// beyond it the observation cannot be of this organ in this frame and
+/// unit, and it is refused.
+pub const MAX_REACH: f32 = 0.25;
+
+/// The observation's field is exact within this many of its cells of the
+/// observation (a cell is its mean edge, or its spacing): a particle
+/// farther off is answered by a search over every triangle or point.
+pub const FIELD_MARGIN_CELLS: f32 = 4.0;
+
+/// What the model's skin is matched to without correspondence: a closed
+/// surface of any triangulation, or a point cloud with its normals.
+#[derive(Debug, Clone)]
+pub struct Observation {
+    /// The observed points the residual is measured from: the surface's
+    /// vertices, or the cloud's points.
+    points: Vec<Vec3>,
+    kind: Kind,
+}
+
+#[derive(Debug, Clone)]
+enum Kind {
+    Surface(SurfaceMesh),
+    Cloud { field: SurfaceField, spacing: f32 },
+}
+
+impl Observation {
+    /// A closed surface of the organ, of any triangulation.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Observation`] where the surface has no triangles.
+    pub fn surface(mesh: &SurfaceMesh) -> Result<Self, Error> {
+        if mesh.triangles.is_empty() {
+            return Err(ObservationError::Field(tissue_core::FieldError::NoVertices).into());
+        }
+        Ok(Self {
+            points: mesh.vertices.clone(),
+            kind: Kind::Surface(mesh.clone()),
+        })
+    }
+
+    /// A scanned point cloud with its fitted normals ([`Cloud`]).
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Observation`] where its grid cannot be made.
+    pub fn cloud(cloud: &Cloud) -> Result<Self, Error> {
+        let spacing = cloud.spacing();
+        Ok(Self {
+            points: cloud.points().to_vec(),
+            kind: Kind::Cloud {
+                field: cloud.field(FIELD_MARGIN_CELLS * spacing)?,
+                spacing,
+            },
+        })
+    }
+
+    /// The observed points: the surface's vertices or the cloud's points.
+    pub fn points(&self) -> &[Vec3] {
+        &self.points
+    }
+
+    /// Whether it is a point cloud.
+    pub fn is_cloud(&self) -> bool {
+        matches!(self.kind, Kind::Cloud { .. })
+    }
+
+    /// A cloud's spacing (the median distance to a point's nearest other
+    /// point); `None` for a surface.
+    pub fn cloud_spacing(&self) -> Option<f32> {
+        match self.kind {
+            Kind::Cloud { spacing, .. } => Some(spacing),
+            Kind::Surface(_) => None,
+        }
+    }
+
+    /// The field the skin is paired on: a surface's without its triangles
+    /// that show the held region (`held`, within `reach` of it at each
+    /// corner), where no free particle belongs; a cloud's as it is.
+    fn pairing_field(
+        &self,
+        held: Option<&SurfaceField>,
+        reach: f32,
+    ) -> Result<SurfaceField, Error> {
+        let mesh = match &self.kind {
+            Kind::Cloud { field, .. } => return Ok(field.clone()),
+            Kind::Surface(mesh) => mesh,
+        };
+        let on_held = |t: usize| {
+            held.is_some_and(|held| {
+                mesh.corners(t)
+                    .iter()
+                    .all(|&c| held.nearest(c).distance.abs() <= reach)
+            })
+        };
+        let kept: Vec<[u32; 3]> = (0..mesh.triangles.len())
+            .filter(|&t| !on_held(t))
+            .map(|t| mesh.triangles[t])
+            .collect();
+        let free = SurfaceMesh {
+            vertices: mesh.vertices.clone(),
+            triangles: if kept.is_empty() {
+                mesh.triangles.clone()
+            } else {
+                kept
+            },
+        };
+        let cell = mean_edge(&free);
+        Ok(SurfaceField::new(&free, cell, FIELD_MARGIN_CELLS * cell)
+            .map_err(ObservationError::from)?)
+    }
+}
+
+/// How [`match_observation`] pulls the skin.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MatchParams {
+    /// The springs' last weight in units of the Laplacian's largest
+    /// eigenvalue ([`SPRING_WEIGHT`]).
+    pub weight: f32,
+    /// The observation's noise scale (model units): pairs farther than
+    /// [`RIGID_TRIM`] times the larger of it and the pairs' robust
+    /// deviation at a stage's start are set aside. `None`:
+    /// [`SURFACE_NOISE`] mean connection lengths for a surface,
+    /// [`CLOUD_NOISE`] spacings for a cloud.
+    pub noise: Option<f32>,
+    /// Solves over which the weight grows ([`MATCH_STAGES`]).
+    pub stages: usize,
+}
+
+impl Default for MatchParams {
+    fn default() -> Self {
+        Self {
+            weight: SPRING_WEIGHT,
+            noise: None,
+            stages: MATCH_STAGES,
+        }
+    }
+}
+
+/// Distances from the observed points to the deformed model's surface.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Residual {
+    /// Root mean square.
+    pub rms: f32,
+    /// 95th percentile.
+    pub p95: f32,
+    /// Largest.
+    pub max: f32,
+}
+
+/// How a [`match_observation`] went.
+#[derive(Debug, Clone)]
+pub struct MatchReport {
+    /// Solves run (one a stage).
+    pub stages: usize,
+    /// Whether the last stage's solve converged.
+    pub converged: bool,
+    /// Iterations over all stages.
+    pub iterations: usize,
+    /// Free skin particles (surface particles the solve moves).
+    pub skin: usize,
+    /// Of them, those pulled towards the observation at the end.
+    pub pulled: usize,
+    /// Of them, those set aside at the end: beyond the trim, or for a
+    /// cloud past its edge.
+    pub set_aside: usize,
+    /// The last stage's trim (model units).
+    pub trim: f32,
+    /// Distances from the observed points to the deformed model's surface.
+    pub residual: Residual,
+    /// The model's surface carried by the solve.
+    pub surface: SurfaceMesh,
+    /// The last stage's solve.
+    pub last: DeformReport,
+}
+
+impl MatchReport {
+    /// The share of the free skin pulled towards the observation.
+    pub fn observed_fraction(&self) -> f32 {
+        self.pulled as f32 / self.skin.max(1) as f32
+    }
+}
+
+/// Deforms the model held by `solver` (its control points placed: the
+/// held region, the chest wall, by [`Solver::set_surface`]) so that its
+/// free skin lies on `observation`, which has no correspondence with it.
+///
+/// Every elastic iteration pairs each free skin particle with its nearest
+/// observed point and pulls it towards the plane there (the surface's, or
+/// the cloud's fitted one) with a spring ([`Solver::set_pairing`], on the
+/// solver's device): along the plane the skin slides where the mechanics
+/// sends it. The springs' weight grows over [`MatchParams::stages`]
+/// solves; at each stage's start the pairs farther off than the robust
+/// trim, and for a cloud those past its edge, are set aside. Needs the
+/// elastic force. The solver is left without springs or pairing.
+///
+/// # Errors
+///
+/// [`Error::Param`] for absurd parameters; [`Error::Deformation`] without
+/// the elastic force; [`Error::Observation`] where no free skin particle
+/// can be paired; the solver's errors.
+pub fn match_observation(
+    solver: &mut Solver,
+    model: &ParticleModel,
+    observation: &Observation,
+    params: &MatchParams,
+) -> Result<MatchReport, Error> {
+    ParamError::check(
+        params.weight.is_finite() && params.weight > 0.0,
+        "weight",
+        params.weight,
+        "a positive number",
+    )?;
+    ParamError::check(
+        params.noise.is_none_or(|n| n.is_finite() && n >= 0.0),
+        "noise",
+        format!("{:?}", params.noise),
+        "a distance of at least zero",
+    )?;
+    ParamError::check(
+        (1..=8).contains(&params.stages),
+        "stages",
+        params.stages,
+        "1 to 8",
+    )?;
+    let plan = solver.plan().clone();
+    let spacing = model.mean_connection_length();
+    let skin: Vec<u32> = (0..model.len())
+        .filter(|&i| model.attachments[i].is_some() && plan.free[i])
+        .map(|i| i as u32)
+        .collect();
+    let (cloud, edge, noise) = match &observation.kind {
+        Kind::Cloud { spacing: cloud, .. } => (
+            true,
+            CLOUD_EDGE_SPACINGS * cloud,
+            params.noise.unwrap_or(CLOUD_NOISE * cloud),
+        ),
+        Kind::Surface(_) => (
+            false,
+            NO_LIMIT,
+            params.noise.unwrap_or(SURFACE_NOISE * spacing),
+        ),
+    };
+    let held = held_field(model, &plan.controls)?;
+    let field = observation.pairing_field(held.as_ref(), HELD_REACH * spacing)?;
+    solver.set_observation(Some(&field))?;
+    let mut iterations = 0;
+    let mut last = None;
+    let mut rule = PairingRule {
+        weight: 0.0,
+        edge,
+        trim: NO_LIMIT,
+        cloud,
+    };
+    for stage in 0..params.stages {
+        let start = solver.positions().to_vec();
+        let growth = STAGE_GROWTH.powi((params.stages - 1 - stage) as i32);
+        rule.weight = params.weight * plan.lambda_max / growth;
+        let median = median_distance(&field, &skin, &start, &rule);
+        let most = MAX_REACH * plan.size;
+        if median.is_some_and(|median| median > most) {
+            clear(solver)?;
+            let median = median.unwrap_or_default();
+            return Err(ObservationError::Unreachable { median, most }.into());
+        }
+        rule.trim = median.map_or(NO_LIMIT, |median| {
+            RIGID_TRIM as f32 * (1.4826_f32 * median).max(noise)
+        });
+        let springs = springs(&field, &skin, &start, &rule, model.len());
+        if !springs.iter().any(|s| *s != Vec4::ZERO) {
+            clear(solver)?;
+            return Err(ObservationError::Unpaired { skin: skin.len() }.into());
+        }
+        solver.set_springs(springs)?;
+        solver.set_pairing(Some(Pairing {
+            skin: skin.clone(),
+            rule,
+        }))?;
+        if stage > 0 {
+            solver.warm_start(&start)?;
+        }
+        let report = solver.solve()?;
+        iterations += report.iterations;
+        last = Some(report);
+    }
+    let end = solver.positions().to_vec();
+    let pulled = springs(&field, &skin, &end, &rule, model.len())
+        .iter()
+        .filter(|s| **s != Vec4::ZERO)
+        .count();
+    clear(solver)?;
+    let bound = solver.bind(&model.surface.vertices)?;
+    let surface = SurfaceMesh {
+        vertices: solver.carry(&bound)?,
+        ..model.surface.clone()
+    };
+    let residual = residual(observation.points(), &surface)?;
+    let last = last.ok_or_else(|| Error::from(ObservationError::Unpaired { skin: skin.len() }))?;
+    Ok(MatchReport {
+        stages: params.stages,
+        converged: last.converged,
+        iterations,
+        skin: skin.len(),
+        pulled,
+        set_aside: skin.len() - pulled,
+        trim: rule.trim,
+        residual,
+        surface,
+        last,
+    })
+}
+
+/// Takes the springs, the pairing and the observation away.
+fn clear(solver: &mut Solver) -> Result<(), Error> {
+    solver.set_pairing(None)?;
+    solver.set_springs(Vec::new())?;
+    solver.set_observation(None)
+}
+
+/// The field of the model's held region at rest (the surface triangles of
+/// its control points), or `None` where nothing is held.
+fn held_field(model: &ParticleModel, controls: &[bool]) -> Result<Option<SurfaceField>, Error> {
+    let triangles: BTreeSet<[u32; 3]> = (0..model.len())
+        .filter(|&i| controls[i])
+        .filter_map(|i| model.attachments[i].map(|a| model.surface.triangles[a.triangle as usize]))
+        .collect();
+    if triangles.is_empty() {
+        return Ok(None);
+    }
+    let held = SurfaceMesh {
+        vertices: model.surface.vertices.clone(),
+        triangles: triangles.into_iter().collect(),
+    };
+    let cell = mean_edge(&held);
+    Ok(Some(
+        SurfaceField::new(&held, cell, 2.0 * cell).map_err(ObservationError::from)?,
+    ))
+}
+
+/// The median of the skin's distances from the observation at
+/// `positions`, those past a cloud's edge left out (`None`: all are). The
+/// trim is [`RIGID_TRIM`] times the larger of the noise and the robust
+/// deviation, 1.4826 times it.
+fn median_distance(
+    field: &SurfaceField,
+    skin: &[u32],
+    positions: &[Vec3],
+    rule: &PairingRule,
+) -> Option<f32> {
+    let mut distances: Vec<f32> = skin
+        .par_iter()
+        .filter_map(|&i| {
+            let x = positions[i as usize];
+            let near = field.nearest(x);
+            pair_plane(x, near.point, near.normal, rule).map(|(_, d)| d)
+        })
+        .collect();
+    if distances.is_empty() {
+        return None;
+    }
+    let middle = distances.len() / 2;
+    Some(*distances.select_nth_unstable_by(middle, f32::total_cmp).1)
+}
+
+/// Per particle its spring at `positions` ([`paired_spring`]), zero for
+/// the particles not in `skin`: what the pairing pass writes.
+fn springs(
+    field: &SurfaceField,
+    skin: &[u32],
+    positions: &[Vec3],
+    rule: &PairingRule,
+    count: usize,
+) -> Vec<Vec4> {
+    let paired: Vec<Vec4> = skin
+        .par_iter()
+        .map(|&i| {
+            let x = positions[i as usize];
+            let near = field.nearest(x);
+            paired_spring(x, near.point, near.normal, rule)
+        })
+        .collect();
+    let mut springs = vec![Vec4::ZERO; count];
+    for (&i, spring) in skin.iter().zip(paired) {
+        springs[i as usize] = spring;
+    }
+    springs
+}
+
+/// The distances from `points` to `surface`: RMS, 95th percentile, largest.
+fn residual(points: &[Vec3], surface: &SurfaceMesh) -> Result<Residual, Error> {
+    let cell = mean_edge(surface);
+    let field = SurfaceField::new(surface, cell, 2.0 * cell).map_err(ObservationError::from)?;
+    let mut distances: Vec<f32> = points
+        .par_iter()
+        .map(|&p| field.nearest(p).distance.abs())
+        .collect();
+    if distances.is_empty() {
+        return Ok(Residual {
+            rms: 0.0,
+            p95: 0.0,
+            max: 0.0,
+        });
+    }
+    distances.sort_unstable_by(f32::total_cmp);
+    let rms = (distances.iter().map(|d| d * d).sum::<f32>() / distances.len() as f32).sqrt();
+    let p95 = distances[((distances.len() - 1) as f32 * 0.95).round() as usize];
+    Ok(Residual {
+        rms,
+        p95,
+        max: distances[distances.len() - 1],
+    })
+}
+
+/// A surface's mean edge length: the cell of its nearest points' grid.
+pub fn mean_edge(surface: &SurfaceMesh) -> f32 {
+    let edges: f64 = (0..surface.triangles.len())
+        .map(|t| {
+            let [a, b, c] = surface.corners(t);
+            f64::from((b - a).length() + (c - b).length() + (a - c).length())
+        })
+        .sum();
+    (edges / (3.0 * surface.triangles.len().max(1) as f64)) as f32
+}

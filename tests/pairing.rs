@@ -1,0 +1,230 @@
+//! The skin matched to an observation without correspondence inside the
+//! elastic solve: each elastic iteration pairs it with its nearest points
+//! of the observation (the pairing pass, on both devices) and pulls it
+//! onto the planes there.
+#![allow(clippy::unwrap_used, reason = "tests")]
+
+mod common;
+
+use glam::Vec3;
+use tissue::backend::{Device, Solver};
+use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue_cpu::deformation::{DeformParams, ForceModel};
+use tissue_solve::model::held_vertices;
+use tissue_solve::stage2::{NO_LIMIT, Pairing, PairingRule};
+
+/// The bundled phantom sampled with `particles` particles.
+fn phantom_model(particles: usize) -> ParticleModel {
+    tissue::sample(
+        &phantom::default_breast(),
+        &SamplingParams::with_particles(particles),
+    )
+    .unwrap()
+    .model
+}
+
+/// `mesh` with every triangle cut into four at its edges' midpoints:
+/// the same surface in another triangulation (other vertices, other
+/// triangles, none of them the model's).
+fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
+    let mut vertices = mesh.vertices.clone();
+    let mut middles = std::collections::HashMap::new();
+    let mut middle = |a: u32, b: u32, vertices: &mut Vec<Vec3>| {
+        *middles.entry((a.min(b), a.max(b))).or_insert_with(|| {
+            vertices.push(0.5 * (vertices[a as usize] + vertices[b as usize]));
+            (vertices.len() - 1) as u32
+        })
+    };
+    let mut triangles = Vec::new();
+    for &[a, b, c] in &mesh.triangles {
+        let (ab, bc, ca) = (
+            middle(a, b, &mut vertices),
+            middle(b, c, &mut vertices),
+            middle(c, a, &mut vertices),
+        );
+        triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+    }
+    SurfaceMesh {
+        vertices,
+        triangles,
+    }
+}
+
+/// The sag solved with every surface vertex observed (the truth), then
+/// again with only the chest wall held and the skin matched to the sagged
+/// surface in another triangulation: the skin lands on it, the interior
+/// near the truth (the skin slides where the mechanics sends it, not where
+/// the sag's map put it), and the CPU and the GPU take the same steps.
+#[test]
+fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
+    let model = phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let params = DeformParams::default();
+    let mut truth = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
+    truth.set_surface(&sagged).unwrap();
+    assert!(truth.solve().unwrap().converged);
+    let truth = truth.positions().to_vec();
+    let size = truth_size(&model);
+    let held = held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let observed = params.with(|p| p.observed = Some(held));
+    let observation = Observation::surface(&subdivided(&sagged)).unwrap();
+    let moved = rms(&model.positions, &truth);
+
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
+        let on = solver.backend();
+        solver.set_surface(&model.surface).unwrap();
+        let report =
+            match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
+        let positions = solver.positions().to_vec();
+        let off = rms(&positions, &truth);
+        eprintln!(
+            "{on}: {} iterations over {} stages, {}/{} pulled, residual {:?}; the particles \
+             {off:.3} from the truth after moving {moved:.3}",
+            report.iterations, report.stages, report.pulled, report.skin, report.residual
+        );
+        assert!(report.converged, "{on}: {:?}", report.last);
+        assert_eq!(
+            report.pulled, report.skin,
+            "{on}: every free skin particle pulled"
+        );
+        // The skin on the sag: the observed points on the model's surface.
+        assert!(
+            report.residual.rms < 0.01 * moved,
+            "{on}: residual {:?}, {moved} moved",
+            report.residual
+        );
+        assert!(off < 0.5 * moved, "{on}: {off} from the sag, {moved} moved");
+        // Nothing is left pulling: a solve after it has no springs.
+        assert!(solver.plan().springs.is_empty() && solver.plan().pairing.is_none());
+        solved.push((report.iterations, positions));
+    }
+    // Near ties of the nearest points round apart on the two devices, and
+    // the stages' solves stop a few iterations apart; the skin and the
+    // interior land in the same place.
+    if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
+        assert!(
+            cpu.abs_diff(*gpu) <= 3.max(cpu / 10),
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+        let worst = on_cpu
+            .iter()
+            .zip(on_gpu)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f32, f32::max);
+        eprintln!("the devices' particles at most {worst:.2e} apart");
+        assert!(worst <= 1e-3 * size, "{worst} apart");
+    }
+}
+
+/// A pairing that does not fit the solve is refused with what is wrong:
+/// without the elastic force, of a particle the solve does not move, with
+/// a weight or a limit that is not a positive number.
+#[test]
+fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
+    let model = phantom_model(2_000);
+    let held = chest_wall(&model);
+    let params = DeformParams::default().with(|p| p.observed = Some(held));
+    let mut solver = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
+    let plan = solver.plan().clone();
+    let free = (0..model.len()).find(|&i| plan.free[i]).unwrap() as u32;
+    let fixed = (0..model.len()).find(|&i| !plan.free[i]).unwrap() as u32;
+    let rule = PairingRule {
+        weight: plan.lambda_max,
+        edge: NO_LIMIT,
+        trim: NO_LIMIT,
+        cloud: false,
+    };
+    let pairing = |skin: Vec<u32>, rule: PairingRule| Some(Pairing { skin, rule });
+    let error = |solver: &mut Solver, pairing| solver.set_pairing(pairing).unwrap_err().to_string();
+    let not_free = error(&mut solver, pairing(vec![free, fixed], rule));
+    assert!(
+        not_free.contains(&format!("particle {fixed}")) && not_free.contains("not a free"),
+        "{not_free}"
+    );
+    let weightless = error(
+        &mut solver,
+        pairing(
+            vec![free],
+            PairingRule {
+                weight: f32::NAN,
+                ..rule
+            },
+        ),
+    );
+    assert!(weightless.contains("weight"), "{weightless}");
+    let trimmed = error(
+        &mut solver,
+        pairing(vec![free], PairingRule { trim: -1.0, ..rule }),
+    );
+    assert!(trimmed.contains("trim"), "{trimmed}");
+    assert!(solver.set_pairing(pairing(vec![free], rule)).is_ok());
+    assert!(solver.set_pairing(None).is_ok());
+
+    let symmetric = params.with(|p| p.force = ForceModel::Symmetric);
+    let mut other = Solver::new(Device::Cpu, &model, symmetric).unwrap();
+    let refused = error(&mut other, pairing(vec![free], rule));
+    assert!(refused.contains("elastic force"), "{refused}");
+}
+
+/// An observation that cannot be of the model's skin is refused, saying
+/// why: a cloud a metre off (another frame or unit), and one whose every
+/// point lies past its edge for every particle.
+#[test]
+fn a_cloud_nowhere_near_the_skin_is_refused() {
+    let model = phantom_model(2_000);
+    let held = chest_wall(&model);
+    let params = DeformParams::default().with(|p| p.observed = Some(held));
+    let mut solver = Solver::new(Device::Cpu, &model, params).unwrap();
+    solver.set_surface(&model.surface).unwrap();
+    // A small patch of a plane, a metre away.
+    let points: Vec<Vec3> = (0..100)
+        .map(|k| Vec3::new((k % 10) as f32, (k / 10) as f32, 1000.0))
+        .collect();
+    let cloud = tissue::observation::Cloud::new(points).unwrap();
+    let observation = Observation::cloud(&cloud).unwrap();
+    let error = match_observation(&mut solver, &model, &observation, &MatchParams::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("a quarter of the model's size") && error.contains("another frame"),
+        "{error}"
+    );
+    assert!(solver.plan().pairing.is_none() && solver.plan().springs.is_empty());
+    // The patch beside the model: nothing of the skin is over it.
+    let beside: Vec<Vec3> = (0..100)
+        .map(|k| Vec3::new(500.0 + (k % 10) as f32, (k / 10) as f32, 0.0))
+        .collect();
+    let cloud = tissue::observation::Cloud::new(beside).unwrap();
+    let observation = Observation::cloud(&cloud).unwrap();
+    let error = match_observation(&mut solver, &model, &observation, &MatchParams::default())
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("lies near the observation"), "{error}");
+}
+
+/// The phantom's chest wall: the surface vertices the sag does not move.
+fn chest_wall(model: &ParticleModel) -> Vec<bool> {
+    let sagged = tissue::deform::sagged_breast();
+    held_vertices(&model.surface, &sagged, 1e-3 * truth_size(model)).unwrap()
+}
+
+fn truth_size(model: &ParticleModel) -> f32 {
+    Solver::new(Device::Cpu, model, DeformParams::default())
+        .unwrap()
+        .plan()
+        .size
+}
+
+fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
+    (a.iter()
+        .zip(b)
+        .map(|(a, b)| (*a - *b).length_squared())
+        .sum::<f32>()
+        / a.len() as f32)
+        .sqrt()
+}
