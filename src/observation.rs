@@ -10,7 +10,7 @@ mod matching;
 pub use matching::{
     CLOUD_EDGE_SPACINGS, CLOUD_NOISE, FIELD_MARGIN_CELLS, HELD_REACH, MATCH_STAGES, MAX_REACH,
     MatchParams, MatchReport, Observation, Residual, STAGE_GROWTH, SURFACE_NOISE,
-    match_observation,
+    match_observation, mean_edge,
 };
 
 pub use tissue_core::ObservationError;

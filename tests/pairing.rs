@@ -103,12 +103,13 @@ fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
         assert!(solver.plan().springs.is_empty() && solver.plan().pairing.is_none());
         solved.push((report.iterations, positions));
     }
-    // Near ties of the nearest points round apart on the two devices, and
-    // the stages' solves stop a few iterations apart; the skin and the
-    // interior land in the same place.
+    // Near ties of the nearest points round apart on the two devices, the
+    // energy watch then steps back at other iterations, and the stages'
+    // solves stop up to a fifth of their iterations apart; the skin and
+    // the interior land in the same place.
     if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
         assert!(
-            cpu.abs_diff(*gpu) <= 3.max(cpu / 10),
+            cpu.abs_diff(*gpu) <= 3.max(cpu / 5),
             "{cpu} iterations on the CPU, {gpu} on the GPU"
         );
         let worst = on_cpu

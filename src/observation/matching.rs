@@ -18,12 +18,14 @@ use crate::{Error, ParticleModel, SurfaceMesh, Vec3};
 
 /// The springs' weight grows over this many solves, each from where the
 /// last one ended, by [`STAGE_GROWTH`] each to [`MatchParams::weight`]:
-/// a weak pull first lets the skin slide to where the mechanics sends it
-/// before a stiff one holds it on the observation. On the shared cases'
-/// remeshed surfaces at 10,000 particles the skin then lies 0.06-0.08 mm
-/// from the observation (docs/METHOD.md, "Observations without
+/// a weak pull first moves the skin most of the way without the large
+/// steps that overshoot while the pairs change quickly, then a stiff one
+/// holds it on the observation. On the shared cases' remeshed surfaces at
+/// 10,000 particles 1 to 5 stages land the same millimetres; with 4 none
+/// of the three needed more than 513 iterations, while 1 and 3 stages each
+/// took 2,800-3,000 on one case (docs/METHOD.md, "Observations without
 /// correspondence").
-pub const MATCH_STAGES: usize = 3;
+pub const MATCH_STAGES: usize = 4;
 
 /// The factor between one stage's weight and the next's.
 pub const STAGE_GROWTH: f32 = 4.0;
@@ -167,9 +169,10 @@ pub struct MatchParams {
     /// The springs' last weight in units of the Laplacian's largest
     /// eigenvalue ([`SPRING_WEIGHT`]).
     pub weight: f32,
-    /// The observation's noise scale (model units): pairs farther than
-    /// [`RIGID_TRIM`] times the larger of it and the pairs' robust
-    /// deviation at a stage's start are set aside. `None`:
+    /// The observation's noise scale (model units): a cloud's pairs
+    /// farther than [`RIGID_TRIM`] times the larger of it and the pairs'
+    /// robust deviation at a stage's start are set aside (a surface's are
+    /// all kept: every part of the skin is on it somewhere). `None`:
     /// [`SURFACE_NOISE`] mean connection lengths for a surface,
     /// [`CLOUD_NOISE`] spacings for a cloud.
     pub noise: Option<f32>,
@@ -218,6 +221,11 @@ pub struct MatchReport {
     pub trim: f32,
     /// Distances from the observed points to the deformed model's surface.
     pub residual: Residual,
+    /// The deformed model surface's volume over the rest surface's, less
+    /// one: soft tissue keeps its volume, so a large change says the
+    /// observation asked the impossible (another unit, or a frame shifted
+    /// away from the held region).
+    pub volume_change: f32,
     /// The model's surface carried by the solve.
     pub surface: SurfaceMesh,
     /// The last stage's solve.
@@ -240,8 +248,8 @@ impl MatchReport {
 /// the cloud's fitted one) with a spring ([`Solver::set_pairing`], on the
 /// solver's device): along the plane the skin slides where the mechanics
 /// sends it. The springs' weight grows over [`MatchParams::stages`]
-/// solves; at each stage's start the pairs farther off than the robust
-/// trim, and for a cloud those past its edge, are set aside. Needs the
+/// solves; for a cloud, at each stage's start the pairs farther off than
+/// the robust trim are set aside, and those past its edge. Needs the
 /// elastic force. The solver is left without springs or pairing.
 ///
 /// # Errors
@@ -304,8 +312,7 @@ pub fn match_observation(
     };
     for stage in 0..params.stages {
         let start = solver.positions().to_vec();
-        let growth = STAGE_GROWTH.powi((params.stages - 1 - stage) as i32);
-        rule.weight = params.weight * plan.lambda_max / growth;
+        rule.weight = stage_weight(params.weight, params.stages, stage) * plan.lambda_max;
         let median = median_distance(&field, &skin, &start, &rule);
         let most = MAX_REACH * plan.size;
         if median.is_some_and(|median| median > most) {
@@ -313,9 +320,10 @@ pub fn match_observation(
             let median = median.unwrap_or_default();
             return Err(ObservationError::Unreachable { median, most }.into());
         }
-        rule.trim = median.map_or(NO_LIMIT, |median| {
-            RIGID_TRIM as f32 * (1.4826_f32 * median).max(noise)
-        });
+        rule.trim = match median {
+            Some(median) if cloud => RIGID_TRIM as f32 * (1.4826_f32 * median).max(noise),
+            _ => NO_LIMIT,
+        };
         let springs = springs(&field, &skin, &start, &rule, model.len());
         if !springs.iter().any(|s| *s != Vec4::ZERO) {
             clear(solver)?;
@@ -345,6 +353,7 @@ pub fn match_observation(
         ..model.surface.clone()
     };
     let residual = residual(observation.points(), &surface)?;
+    let volume_change = surface.signed_volume() / model.surface.signed_volume() - 1.0;
     let last = last.ok_or_else(|| Error::from(ObservationError::Unpaired { skin: skin.len() }))?;
     Ok(MatchReport {
         stages: params.stages,
@@ -355,9 +364,18 @@ pub fn match_observation(
         set_aside: skin.len() - pulled,
         trim: rule.trim,
         residual,
+        volume_change: volume_change as f32,
         surface,
         last,
     })
+}
+
+/// The springs' weight of stage `stage` of `stages` (in the Laplacian's
+/// largest eigenvalue): `weight` at the last, [`STAGE_GROWTH`] times less
+/// at each one before.
+fn stage_weight(weight: f32, stages: usize, stage: usize) -> f32 {
+    let before_last = stages.saturating_sub(stage + 1);
+    weight / STAGE_GROWTH.powi(before_last as i32)
 }
 
 /// Takes the springs, the pairing and the observation away.
@@ -470,4 +488,23 @@ pub fn mean_edge(surface: &SurfaceMesh) -> f32 {
         })
         .sum();
     (edges / (3.0 * surface.triangles.len().max(1) as f64)) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The defaults: the springs' weight of the solve, four stages, the
+    /// noise from the observation; the weight grows by four a stage to the
+    /// last one's.
+    #[test]
+    fn the_weight_grows_by_four_a_stage_to_the_springs_weight() {
+        let params = MatchParams::default();
+        assert_eq!(params.weight, SPRING_WEIGHT);
+        assert_eq!(params.stages, 4);
+        assert_eq!(params.noise, None);
+        let weights: Vec<f32> = (0..4).map(|k| stage_weight(16.0, 4, k)).collect();
+        assert_eq!(weights, [0.25, 1.0, 4.0, 16.0]);
+        assert_eq!(stage_weight(16.0, 1, 0), 16.0);
+    }
 }

@@ -202,6 +202,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
                 params: &deform_params,
                 solve,
                 posture: None,
+                observation: None,
             },
         )?;
         say(format!("{}: {}", case.name, case.description));

@@ -5,6 +5,7 @@ mod carry;
 mod demo;
 mod folder;
 mod frames;
+mod observe;
 mod output;
 mod picture;
 mod posture;

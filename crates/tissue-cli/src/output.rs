@@ -12,6 +12,7 @@ use tissue::{ParticleModel, SurfaceMesh};
 use crate::backend::Solver;
 use crate::carry::{Carried, StructureReport};
 use crate::folder::{Staging, remove_staged};
+use crate::observe::ObservationReport;
 use crate::picture;
 use crate::posture::PostureReport;
 
@@ -63,6 +64,10 @@ pub struct SolveReport {
     /// (the mask itself is not written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub observed: Option<ObservedReport>,
+    /// With an observation without correspondence (another triangulation,
+    /// or `--cloud`): how the skin was matched to it, and its residual.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub observation: Option<ObservationReport>,
     /// Iterations run.
     pub iterations: usize,
     /// The error estimate at the end, as a fraction of the model's size.
@@ -375,6 +380,8 @@ pub struct Solved<'a> {
     pub solve: DeformReport,
     /// With the posture options, what they gave.
     pub posture: Option<&'a PostureReport>,
+    /// With an observation without correspondence, how it was matched.
+    pub observation: Option<ObservationReport>,
 }
 
 /// Carries everything along with the solved particles and writes the results.
@@ -390,6 +397,7 @@ pub fn write_solution(
         params,
         solve,
         posture,
+        observation,
     } = solved;
     let current = solver.positions();
     if let Some(i) = current.iter().position(|p| !p.is_finite()) {
@@ -526,6 +534,7 @@ pub fn write_solution(
         .map(|(q, p)| q.distance(*p))
         .fold(0.0, f32::max);
     let inverted = inversions(solver.reference(), current, &model.connections);
+    let observation_flagged = observation.as_ref().is_some_and(|o| !o.flags().is_empty());
     let report = SolveReport {
         model: to.model.to_owned(),
         surface: to.surface.to_owned(),
@@ -536,6 +545,7 @@ pub fn write_solution(
             vertices: mask.iter().filter(|&&o| o).count(),
             of: mask.len(),
         }),
+        observation,
         iterations: solve.iterations,
         residual: solve.residual,
         seconds: solve.seconds,
@@ -548,7 +558,8 @@ pub fn write_solution(
             Status::Converged
                 if carried.flagged()
                     || inverted.count > 0
-                    || posture.is_some_and(|p| !p.flags().is_empty()) =>
+                    || posture.is_some_and(|p| !p.flags().is_empty())
+                    || observation_flagged =>
             {
                 Status::Flagged
             }
@@ -668,6 +679,9 @@ impl SolveReport {
             convergence(self.stopped_by, self.residual),
             self.max_displacement_mm
         )];
+        if let Some(observation) = &self.observation {
+            lines.push(format!("{indent}{}", observation.line()));
+        }
         for s in &self.structures {
             lines.push(format!("{indent}{}", s.line()));
         }
@@ -703,6 +717,9 @@ impl SolveReport {
         }
         if let Some(posture) = &self.posture {
             flags.extend(posture.flags());
+        }
+        if let Some(observation) = &self.observation {
+            flags.extend(observation.flags());
         }
         if self.inverted.count > 0 {
             flags.push(format!(

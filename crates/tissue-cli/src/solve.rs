@@ -9,10 +9,12 @@ use clap::ValueEnum;
 use glam::{IVec3, Vec3};
 use tissue::backend::with_cpu_fallback;
 use tissue::deformation::{DeformParams, ForceModel};
+use tissue::observation::{MatchParams, Observation, match_observation};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
 use crate::carry::{Carried, CarryArgs};
+use crate::observe;
 use crate::output::{
     Destination, FieldRequest, Solved, Status, Unfinished, planned_outputs, prepare_outputs,
     refuse_overwriting, remove_earlier_outputs, write_solution,
@@ -100,9 +102,29 @@ pub struct DeformArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// The deformed surface: the model's rest surface with moved vertices
-    /// (same vertices in the same order, same triangles).
-    #[arg(long)]
-    pub surface: PathBuf,
+    /// (same vertices in the same order, same triangles: the skin follows
+    /// it vertex by vertex), or any closed surface of the organ (another
+    /// segmentation's: the skin is matched to it without correspondence,
+    /// docs/METHOD.md, "Observations without correspondence").
+    #[arg(long, required_unless_present = "cloud", conflicts_with = "cloud")]
+    pub surface: Option<PathBuf>,
+    /// A scan of part of the skin as points (.csv, .ply, .vtk, .vtp,
+    /// .mrk.json; docs/FORMATS.md), matched without correspondence; needs
+    /// --fixed-region.
+    #[arg(long, value_name = "FILE")]
+    pub cloud: Option<PathBuf>,
+    /// The observation's noise scale, in the model's units (default: a
+    /// tenth of the model's mean connection length for a surface, a fifth
+    /// of a cloud's spacing): pairs farther off than 3 times it and the
+    /// pairs' robust spread are set aside.
+    #[arg(long, value_name = "MM")]
+    pub noise: Option<f32>,
+    /// With an observation without correspondence: the region held at rest
+    /// (the chest wall), its patch of the rest surface as a surface file or
+    /// its vertices as points (as --observed). Default for a surface: the
+    /// rest surface's vertices that lie on it.
+    #[arg(long, value_name = "FILE")]
+    pub fixed_region: Option<PathBuf>,
     #[command(flatten)]
     pub carry: CarryArgs,
     /// Folder for the results (created if missing).
@@ -371,10 +393,10 @@ pub fn set_deformed(path: &Path, solver: &mut Solver, deformed: &SurfaceMesh) ->
 impl DeformArgs {
     /// Every file the command reads, as `(what, path)`.
     fn inputs(&self) -> Vec<(&'static str, &Path)> {
-        let mut inputs: Vec<(&'static str, &Path)> = vec![
-            ("model", self.model.as_path()),
-            ("deformed surface", self.surface.as_path()),
-        ];
+        let mut inputs: Vec<(&'static str, &Path)> = vec![("model", self.model.as_path())];
+        inputs.extend(self.surface.as_deref().map(|p| ("deformed surface", p)));
+        inputs.extend(self.cloud.as_deref().map(|p| ("cloud", p)));
+        inputs.extend(self.fixed_region.as_deref().map(|p| ("fixed region", p)));
         inputs.extend(self.carry.inputs());
         inputs
     }
@@ -409,6 +431,92 @@ fn field_request<'a>(
     Ok(FieldRequest { path, spacing })
 }
 
+/// What `deform` solves for.
+enum Target {
+    /// The rest surface's frame: the skin follows it vertex by vertex.
+    Frame(SurfaceMesh),
+    /// An observation without correspondence, with the held region's
+    /// vertices of the rest surface.
+    Match {
+        observation: Observation,
+        held: Vec<bool>,
+    },
+}
+
+impl DeformArgs {
+    /// The observation's file: `--surface` or `--cloud`.
+    fn observed_file(&self) -> Result<&Path> {
+        match (&self.surface, &self.cloud) {
+            (Some(path), None) | (None, Some(path)) => Ok(path),
+            _ => bail!("give the deformed surface (--surface) or a scan of the skin (--cloud)"),
+        }
+    }
+
+    /// What to solve for, read and checked against `model`.
+    fn target(&self, model: &ParticleModel) -> Result<Target> {
+        let held = |path: &Path| read_observed(path, &model.surface);
+        let target = match (&self.surface, &self.cloud) {
+            (Some(path), None) => match observe::read_surface(path, &model.surface)? {
+                observe::Surface::Frame(deformed) => {
+                    if self.fixed_region.is_some() || self.noise.is_some() {
+                        bail!(
+                            "{}: the surface is the model's rest surface with moved vertices, \
+                             which the skin follows vertex by vertex; --fixed-region and \
+                             --noise are for an observation without correspondence (use \
+                             --observed for the vertices that were seen)",
+                            path.display()
+                        );
+                    }
+                    return Ok(Target::Frame(deformed));
+                }
+                observe::Surface::Other(mesh) => Target::Match {
+                    held: match &self.fixed_region {
+                        Some(region) => held(region)?,
+                        None => observe::held_on(&mesh, model)
+                            .map_err(|e| anyhow!("{}: {e}", path.display()))?,
+                    },
+                    observation: Observation::surface(&mesh)?,
+                },
+            },
+            (None, Some(path)) => {
+                let Some(region) = &self.fixed_region else {
+                    bail!(
+                        "{}: a scan of part of the skin needs the region held at rest (the \
+                         chest wall) as --fixed-region",
+                        path.display()
+                    );
+                };
+                Target::Match {
+                    observation: observe::read_cloud(path, model)?,
+                    held: held(region)?,
+                }
+            }
+            _ => bail!("give the deformed surface (--surface) or a scan of the skin (--cloud)"),
+        };
+        if self.solve.observed.is_some() {
+            bail!(
+                "--observed names the seen vertices of a deformed surface with the rest \
+                 surface's vertices; an observation without correspondence is matched where it \
+                 is seen (give the held region as --fixed-region)"
+            );
+        }
+        if self.solve.gravity.given() {
+            bail!(
+                "the posture options (--gravity-rest, --gravity-deformed) need the deformed \
+                 surface with the rest surface's vertices: the stiffness fit against an \
+                 observation without correspondence is not built"
+            );
+        }
+        if self.noise.is_some_and(|n| !(n.is_finite() && n >= 0.0)) {
+            bail!(
+                "--noise is {}: a distance of at least zero is needed",
+                self.noise.unwrap_or_default()
+            );
+        }
+        Ok(target)
+    }
+}
+
 /// `tissue deform`.
 pub fn deform(args: &DeformArgs) -> Result<()> {
     let mut params = args.solve.params()?;
@@ -417,30 +525,59 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     }
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
-    crate::carry::check_space_tag(&args.surface, args.carry.space)?;
-    let deformed = read_deformed(&args.surface, &model.surface)?;
+    let observed_file = args.observed_file()?;
+    crate::carry::check_space_tag(observed_file, args.carry.space)?;
+    let target = args.target(&model)?;
+    if let Target::Match { held, observation } = &target {
+        if !params.force.eq(&ForceModel::Elastic) {
+            bail!("an observation without correspondence is matched by the elastic force alone");
+        }
+        params.observed = Some(held.clone());
+        if !args.quiet {
+            println!(
+                "{}: no correspondence with the model's rest surface; the skin is matched to the \
+                 {} ({} points) inside the elastic solve, {} of {} rest vertices held",
+                observed_file.display(),
+                if observation.is_cloud() {
+                    "scan"
+                } else {
+                    "surface"
+                },
+                observation.points().len(),
+                held.iter().filter(|&&h| h).count(),
+                held.len()
+            );
+        }
+    }
+    // The frame, or for a match the rest surface: the held region stays
+    // where it is.
+    let placed = match &target {
+        Target::Frame(deformed) => deformed,
+        Target::Match { .. } => &model.surface,
+    };
     let stage2 = Stage2 {
         path: &args.model,
         model: &model,
-        deformed: &deformed,
+        deformed: placed,
         gravity: &args.solve.gravity,
         quiet: args.quiet,
     };
     let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
-    set_deformed(&args.surface, &mut solver, &deformed)?;
+    set_deformed(observed_file, &mut solver, placed)?;
     if let Some(posture) = &posture {
         posture.warm_start(&mut solver)?;
     }
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let field = match &args.displacement_field {
-        Some(path) => Some(field_request(path, args.field_spacing, &model, &deformed)?),
+        Some(path) => Some(field_request(path, args.field_spacing, &model, placed)?),
         None => None,
     };
+    let surface_name = observed_file.display().to_string();
     let destination = Destination {
         dir: &args.output_dir,
         report: args.report.as_deref(),
         model: &args.model.display().to_string(),
-        surface: &args.surface.display().to_string(),
+        surface: &surface_name,
         field,
         picture: args.picture.as_deref(),
     };
@@ -449,20 +586,43 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     prepare_outputs(&planned)?;
     let _lock = crate::folder::OutputLock::take(&args.output_dir)?;
     remove_earlier_outputs(&destination, &planned, &args.inputs())?;
-    let mut bar = SolveBar::new("solving", args.quiet);
-    let solve = solver.solve_with_progress(&mut |step| bar.step(step));
-    bar.finish();
-    let solve = solve?;
+    let (solve, matched, observation) = match &target {
+        Target::Frame(_) => {
+            let mut bar = SolveBar::new("solving", args.quiet);
+            let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+            bar.finish();
+            (solve?, None, None)
+        }
+        Target::Match { observation, .. } => {
+            let started = std::time::Instant::now();
+            let matching = MatchParams {
+                noise: args.noise,
+                ..MatchParams::default()
+            };
+            let report =
+                progress::busy(args.quiet, "matching the skin to the observation", |_| {
+                    match_observation(&mut solver, &model, observation, &matching)
+                })?;
+            let mut solve = report.last.clone();
+            solve.iterations = report.iterations;
+            solve.seconds = started.elapsed().as_secs_f64();
+            let described =
+                observe::ObservationReport::of(observation, &report, args.noise, &model);
+            (solve, Some(report.surface), Some(described))
+        }
+    };
+    let deformed = matched.as_ref().unwrap_or(placed);
     let report = write_solution(
         destination,
         &model,
         &solver,
-        &deformed,
+        deformed,
         &carried,
         Solved {
             params: &params,
             solve,
             posture: posture.as_ref().map(|p| &p.report),
+            observation,
         },
     )?;
     if !args.quiet {

@@ -522,6 +522,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 params: &params,
                 solve,
                 posture: posture_report,
+                observation: None,
             },
         ) {
             Ok(report) => report,

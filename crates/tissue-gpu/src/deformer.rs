@@ -253,6 +253,24 @@ impl GpuDeformer {
         self.tracker.set_surface(deformed)
     }
 
+    /// Holds the observation the skin is paired with, or none
+    /// (`Tracker::set_observation`).
+    pub fn set_observation(
+        &mut self,
+        field: Option<&tissue_core::field::SurfaceField>,
+    ) -> Result<(), GpuError> {
+        self.tracker.set_observation(field)
+    }
+
+    /// Sets how the elastic iterations pair the skin with the observation
+    /// (`Tracker::set_pairing`), or stops pairing.
+    pub fn set_pairing(
+        &mut self,
+        pairing: Option<tissue_solve::stage2::Pairing>,
+    ) -> Result<(), GpuError> {
+        self.tracker.set_pairing(pairing)
+    }
+
     /// The next solve starts from `positions` (`Tracker::warm_start`).
     pub fn warm_start(&mut self, positions: &[Vec3]) -> Result<(), GpuError> {
         self.tracker.warm_start(positions)

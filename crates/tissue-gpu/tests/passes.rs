@@ -3,16 +3,18 @@
 //! choices a solve reaches: the force, the rotations, and the correction
 //! (none, the two-level solve factored or cycled, the elastic
 //! one factored or cycled, with the volume smoother, a whole skin's or a
-//! free skin's, or without).
+//! free skin's, or without), and for the elastic force the skin paired
+//! with an observation or not.
 
 mod common;
 
 use std::collections::HashSet;
 
 use tissue_core::ParticleModel;
+use tissue_core::field::SurfaceField;
 use tissue_cpu::deformation::{DeformParams, ForceModel, Pass, RotationMethod};
 use tissue_gpu::Kernel;
-use tissue_solve::stage2::Choices;
+use tissue_solve::stage2::{Choices, NO_LIMIT, Pairing, PairingRule};
 
 /// A named change to the default parameters (given the model).
 type Setting = (&'static str, fn(&mut DeformParams, &ParticleModel));
@@ -89,6 +91,43 @@ fn both_devices_run_the_same_passes_for_every_combination() {
                     "{context}"
                 );
                 seen.insert(passes);
+                if force == ForceModel::Elastic {
+                    // The skin paired with an observation: the pairing
+                    // comes first in the same iterations.
+                    let field = SurfaceField::new(&model.surface, 4.0, 8.0)
+                        .unwrap_or_else(|e| panic!("{e}"));
+                    let plan = cpu.plan().clone();
+                    let skin: Vec<u32> = (0..model.len())
+                        .filter(|&i| model.attachments[i].is_some() && plan.free[i])
+                        .map(|i| i as u32)
+                        .collect();
+                    let pairing = Pairing {
+                        skin,
+                        rule: PairingRule {
+                            weight: plan.lambda_max,
+                            edge: NO_LIMIT,
+                            trim: NO_LIMIT,
+                            cloud: false,
+                        },
+                    };
+                    let (mut cpu, mut gpu) = (cpu, gpu);
+                    cpu.set_observation(Some(&field));
+                    cpu.set_pairing(Some(pairing.clone()))
+                        .unwrap_or_else(|e| panic!("{e}"));
+                    gpu.set_observation(Some(&field))
+                        .unwrap_or_else(|e| panic!("{e}"));
+                    gpu.set_pairing(Some(pairing))
+                        .unwrap_or_else(|e| panic!("{e}"));
+                    let paired = cpu.passes();
+                    assert_eq!(paired.first(), Some(&Pass::Pair), "{context}, paired");
+                    assert_eq!(gpu.passes(), paired, "{context}, paired");
+                    assert_eq!(
+                        gpu.state().iteration(),
+                        Kernel::of_passes(&paired),
+                        "{context}, paired"
+                    );
+                    seen.insert(paired);
+                }
             }
         }
     }

@@ -499,6 +499,17 @@ impl CpuSolve {
         }
     }
 
+    /// [`Pass::Pair`]: the pulls paired at the current positions, where an
+    /// observation and a pairing are held.
+    fn pair_at_current(&mut self) {
+        if let (Some(field), Some(pairing)) = (&self.observation, &self.pairing) {
+            pair(field, pairing, &self.current, &mut self.pulls);
+            if let Some(coarse) = &mut self.elastic_coarse {
+                Arc::make_mut(coarse).set_pulls(&self.pulls);
+            }
+        }
+    }
+
     /// One pass of an iteration, on what the passes before it left in `work`.
     fn run_pass(&mut self, pass: Pass, it: Iteration, omega: f32, work: &mut Work) {
         let elastic_coarse = self
@@ -506,14 +517,7 @@ impl CpuSolve {
             .as_deref()
             .zip(self.elastic_aggregates.as_deref());
         match pass {
-            Pass::Pair => {
-                if let (Some(field), Some(pairing)) = (&self.observation, &self.pairing) {
-                    pair(field, pairing, &self.current, &mut self.pulls);
-                    if let Some(coarse) = &mut self.elastic_coarse {
-                        Arc::make_mut(coarse).set_pulls(&self.pulls);
-                    }
-                }
-            }
+            Pass::Pair => self.pair_at_current(),
             Pass::Rotations(RotationMethod::Svd) => {
                 self.rotations = local_rotations(&self.rest, &self.current, &self.connections);
             }

@@ -100,7 +100,11 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
+    /// Paired at the positions measured where the skin is paired with an
+    /// observation: the potential is then a function of the positions
+    /// alone, whatever pairing the last iteration had.
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
+        self.pair_at_current();
         Ok(self.elastic.as_deref().map(|elastic| {
             Potential::of(elastic_potential(
                 &self.rest,

@@ -132,6 +132,12 @@ impl DeformState {
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("potential"),
         });
+        // Paired at the positions measured: the potential is then a
+        // function of the positions alone, whatever pairing the last
+        // iteration had.
+        if self.pairing.pairs() {
+            pipelines.dispatch(&mut encoder, self, Kernel::Pair, 0);
+        }
         pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotential, 0);
         pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotentialWork, 0);
         queue.submit([encoder.finish()]);

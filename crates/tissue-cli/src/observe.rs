@@ -1,0 +1,203 @@
+//! `tissue deform` with an observation without correspondence: a surface
+//! of another triangulation, or a point cloud (`--cloud`), matched by the
+//! skin inside the elastic solve (`tissue::observation::match_observation`).
+
+use std::path::Path;
+
+use anyhow::{Result, bail};
+use serde::Serialize;
+use tissue::field::SurfaceField;
+use tissue::observation::{
+    CLOUD_NOISE, Cloud, MatchReport, Observation, SURFACE_NOISE, load_cloud,
+};
+use tissue::{ParticleModel, SurfaceMesh};
+
+/// A rest vertex within this many mean connection lengths of an observed
+/// surface is taken as held there where no `--fixed-region` is given: the
+/// region that did not move (the chest wall).
+pub const HELD_TOLERANCE: f32 = 0.02;
+
+/// A residual RMS above this many noise scales flags the result: the
+/// model does not reach the observation.
+pub const RESIDUAL_FLAG: f32 = 3.0;
+
+/// A change of the organ's volume by more than this share flags the
+/// result: soft tissue keeps its volume.
+pub const VOLUME_FLAG: f32 = 0.1;
+
+/// What the deformed surface file is to the model.
+pub enum Surface {
+    /// The rest surface with moved vertices: the correspondence.
+    Frame(SurfaceMesh),
+    /// Another closed surface of the organ.
+    Other(SurfaceMesh),
+}
+
+/// Reads `path` as the rest surface's frame where its vertices and
+/// triangles are the rest surface's (checked as `read_deformed` does), or
+/// else as another closed surface of the organ.
+pub fn read_surface(path: &Path, rest: &SurfaceMesh) -> Result<Surface> {
+    let written = tissue::load_surface_as_written(path)?;
+    let stl = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
+    let frame = written.as_frame_of(rest, stl);
+    if frame.vertices.len() == rest.vertices.len() && frame.triangles == rest.triangles {
+        return Ok(Surface::Frame(crate::solve::read_deformed(path, rest)?));
+    }
+    let other = tissue::load_closed_surface(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(Surface::Other(other))
+}
+
+/// The observation of `--cloud`: its points read, its normals fitted and
+/// turned away from the model's inside, the cloud checked against the
+/// organ's size and place (another unit or frame is refused).
+pub fn read_cloud(path: &Path, model: &ParticleModel) -> Result<Observation> {
+    let points = load_cloud(path, Default::default())?;
+    let cloud = Cloud::new(points).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let (lo, hi) = model.positions.iter().fold(
+        (glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    cloud
+        .check_against(lo, hi)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
+    Ok(Observation::cloud(&cloud.oriented_from(centre))?)
+}
+
+/// The rest surface's vertices that lie on `observed` (within
+/// [`HELD_TOLERANCE`] mean connection lengths): the region that did not
+/// move, held where the user gives no `--fixed-region`.
+pub fn held_on(observed: &SurfaceMesh, model: &ParticleModel) -> Result<Vec<bool>> {
+    let spacing = model.mean_connection_length();
+    let cell = tissue::observation::mean_edge(observed);
+    let field = SurfaceField::new(observed, cell, 2.0 * cell)
+        .map_err(|e| anyhow::anyhow!("the observed surface: {e}"))?;
+    let tolerance = HELD_TOLERANCE * spacing;
+    let held: Vec<bool> = model
+        .surface
+        .vertices
+        .iter()
+        .map(|&v| field.nearest(v).distance.abs() <= tolerance)
+        .collect();
+    let triangles = model
+        .surface
+        .triangles
+        .iter()
+        .filter(|t| t.iter().all(|&v| held[v as usize]))
+        .count();
+    if triangles == 0 {
+        bail!(
+            "no part of the model's rest surface lies on the observed surface (within {tolerance:.3}): \
+             nothing is known to be held; give the held region (the chest wall) as --fixed-region"
+        );
+    }
+    Ok(held)
+}
+
+/// The observation in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ObservationReport {
+    /// `surface` (another triangulation) or `cloud`.
+    pub kind: &'static str,
+    /// Observed points (the surface's vertices, or the cloud's points).
+    pub points: usize,
+    /// The noise scale the trim used, in the model's units.
+    pub noise_mm: f32,
+    /// The last stage's trim.
+    pub trim_mm: f32,
+    /// Free skin particles.
+    pub skin: usize,
+    /// Of them, those pulled towards the observation at the end.
+    pub pulled: usize,
+    /// Of them, those set aside (beyond the trim, or past a cloud's edge).
+    pub set_aside: usize,
+    /// `pulled / skin`.
+    pub observed_fraction: f32,
+    /// The observed points' distances to the deformed model's surface.
+    pub residual_rms_mm: f32,
+    /// Their 95th percentile.
+    pub residual_p95_mm: f32,
+    /// Their largest.
+    pub residual_max_mm: f32,
+    /// Solves over which the springs' weight grew.
+    pub stages: usize,
+    /// The deformed organ's volume over the rest one's, less one.
+    pub volume_change: f32,
+}
+
+impl ObservationReport {
+    /// What `match_observation` reported of `observation` with `noise`
+    /// (`None`: the default scale).
+    pub fn of(
+        observation: &Observation,
+        report: &MatchReport,
+        noise: Option<f32>,
+        model: &ParticleModel,
+    ) -> Self {
+        let noise_mm = noise.unwrap_or_else(|| match observation.cloud_spacing() {
+            Some(spacing) => CLOUD_NOISE * spacing,
+            None => SURFACE_NOISE * model.mean_connection_length(),
+        });
+        Self {
+            kind: if observation.is_cloud() {
+                "cloud"
+            } else {
+                "surface"
+            },
+            points: observation.points().len(),
+            noise_mm,
+            trim_mm: report.trim,
+            skin: report.skin,
+            pulled: report.pulled,
+            set_aside: report.set_aside,
+            observed_fraction: report.observed_fraction(),
+            residual_rms_mm: report.residual.rms,
+            residual_p95_mm: report.residual.p95,
+            residual_max_mm: report.residual.max,
+            stages: report.stages,
+            volume_change: report.volume_change,
+        }
+    }
+
+    /// What flags the result: a residual far above the noise.
+    pub fn flags(&self) -> Vec<String> {
+        let mut flags = Vec::new();
+        if self.residual_rms_mm > RESIDUAL_FLAG * self.noise_mm {
+            flags.push(format!(
+                "the model does not reach the observation: its points lie {:.3} from the \
+                 deformed skin (RMS), more than {RESIDUAL_FLAG} times the noise ({:.3}); it may \
+                 show another organ, lie in another frame, or ask more than the mechanics allows",
+                self.residual_rms_mm, self.noise_mm
+            ));
+        }
+        if self.volume_change.abs() > VOLUME_FLAG {
+            flags.push(format!(
+                "the organ's volume changed by {:+.1} % to meet the observation (soft tissue \
+                 keeps its volume): the observation is likely in another unit, or in a frame \
+                 shifted from the held region",
+                100.0 * self.volume_change
+            ));
+        }
+        flags
+    }
+
+    /// A line for the screen.
+    pub fn line(&self) -> String {
+        format!(
+            "matched without correspondence to a {} of {} points: {} of {} free skin particles \
+             pulled ({} set aside); the observed points {:.3} from the deformed skin (RMS; 95th \
+             percentile {:.3}, largest {:.3})",
+            self.kind,
+            self.points,
+            self.pulled,
+            self.skin,
+            self.set_aside,
+            self.residual_rms_mm,
+            self.residual_p95_mm,
+            self.residual_max_mm
+        )
+    }
+}
