@@ -4,7 +4,8 @@
 // `tissue_cpu::kernels::pair` with `tissue_solve::stage2::paired_spring`:
 // for a surface the plane across the direction to the nearest point (its
 // normal there on the surface), for a point cloud the cloud's fitted
-// plane; no spring past a cloud's edge or beyond the trim.
+// plane; the weight faded from half the way to a cloud's edge or the trim,
+// no spring beyond.
 
 #import shared/layout
 #import shared/surface_field
@@ -36,19 +37,26 @@ struct Pairing {
 // Body forces (`count`), then springs (`count`): shared/loads.
 @group(0) @binding(24) var<storage, read_write> loads: array<vec4<f32>>;
 
+// `taper`: the share of a spring's weight kept `ratio` of the way to a limit.
+fn taper(ratio: f32) -> f32 {
+    return clamp(2.0 * (1.0 - ratio), 0.0, 1.0);
+}
+
 // `paired_spring`: x's spring from its nearest observed point and the
-// observation's normal there.
+// observation's normal there, faded towards a cloud's edge and the trim.
 fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32> {
     let offset = x - point;
     var n = normal;
     var distance = 0.0;
+    var across = 0.0;
     if (pairing.cloud != 0u) {
         let along = dot(normal, offset);
-        let across = length(offset - along * normal);
-        if (across > pairing.edge) {
+        let beside = length(offset - along * normal);
+        if (beside > pairing.edge) {
             return vec4<f32>(0.0);
         }
         distance = abs(along);
+        across = beside / pairing.edge;
     } else {
         let gap = length(offset);
         let extent = max(max(abs(x.x), abs(x.y)), abs(x.z));
@@ -57,10 +65,11 @@ fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32>
         }
         distance = gap;
     }
-    if (distance > pairing.trim) {
+    let share = taper(across) * taper(distance / pairing.trim);
+    if (share <= 0.0) {
         return vec4<f32>(0.0);
     }
-    let s = sqrt(max(pairing.weight, 0.0)) * n;
+    let s = sqrt(max(pairing.weight * share, 0.0)) * n;
     return vec4<f32>(s, dot(s, point));
 }
 

@@ -122,6 +122,76 @@ fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
     }
 }
 
+/// The sag's front half as a scan (the sagged surface's vertices above
+/// the middle height, cut into four first, noiseless): the seen skin lands
+/// on the scan, the skin past its edge goes where the mechanics sends it,
+/// and the CPU and the GPU agree.
+#[test]
+fn the_seen_skin_lands_on_a_scan_of_the_sag_on_both_devices() {
+    let model = phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let size = truth_size(&model);
+    let held = chest_wall(&model);
+    let observed = DeformParams::default().with(|p| p.observed = Some(held));
+    let dense = subdivided(&sagged);
+    let mut heights: Vec<f32> = dense.vertices.iter().map(|v| v.z).collect();
+    heights.sort_by(f32::total_cmp);
+    let middle = heights[heights.len() / 2];
+    let seen: Vec<Vec3> = dense
+        .vertices
+        .iter()
+        .copied()
+        .filter(|v| v.z > middle)
+        .collect();
+    let cloud = tissue::observation::Cloud::new(seen).unwrap();
+    let centre = model.positions.iter().copied().sum::<Vec3>() / model.len() as f32;
+    let observation = Observation::cloud(&cloud, None, centre).unwrap();
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
+        let on = solver.backend();
+        solver.set_surface(&model.surface).unwrap();
+        let report =
+            match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
+        eprintln!(
+            "{on}: {} iterations, {}/{} pulled, {} outliers, residual {:?}",
+            report.iterations,
+            report.pulled,
+            report.skin,
+            observation.outliers(),
+            report.residual
+        );
+        assert!(report.converged, "{on}: {:?}", report.last);
+        assert!(
+            report.pulled > report.skin / 4 && report.pulled < report.skin,
+            "{on}: {} of {} pulled",
+            report.pulled,
+            report.skin
+        );
+        assert!(
+            report.residual.rms < 2e-3 * size,
+            "{on}: {:?}",
+            report.residual
+        );
+        solved.push((report.iterations, solver.positions().to_vec()));
+    }
+    if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
+        assert!(
+            cpu.abs_diff(*gpu) <= 3.max(cpu / 5),
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+        let worst = on_cpu
+            .iter()
+            .zip(on_gpu)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0f32, f32::max);
+        eprintln!("the devices' particles at most {worst:.2e} apart");
+        assert!(worst <= 1e-3 * size, "{worst} apart");
+    }
+}
+
 /// A pairing that does not fit the solve is refused with what is wrong:
 /// without the elastic force, of a particle the solve does not move, with
 /// a weight or a limit that is not a positive number.
@@ -187,7 +257,7 @@ fn a_cloud_nowhere_near_the_skin_is_refused() {
         .map(|k| Vec3::new((k % 10) as f32, (k / 10) as f32, 1000.0))
         .collect();
     let cloud = tissue::observation::Cloud::new(points).unwrap();
-    let observation = Observation::cloud(&cloud).unwrap();
+    let observation = Observation::cloud(&cloud, None, Vec3::ZERO).unwrap();
     let error = match_observation(&mut solver, &model, &observation, &MatchParams::default())
         .unwrap_err()
         .to_string();
@@ -201,7 +271,7 @@ fn a_cloud_nowhere_near_the_skin_is_refused() {
         .map(|k| Vec3::new(500.0 + (k % 10) as f32, (k / 10) as f32, 0.0))
         .collect();
     let cloud = tissue::observation::Cloud::new(beside).unwrap();
-    let observation = Observation::cloud(&cloud).unwrap();
+    let observation = Observation::cloud(&cloud, None, Vec3::ZERO).unwrap();
     let error = match_observation(&mut solver, &model, &observation, &MatchParams::default())
         .unwrap_err()
         .to_string();

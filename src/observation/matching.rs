@@ -64,8 +64,10 @@ pub const FIELD_MARGIN_CELLS: f32 = 4.0;
 #[derive(Debug, Clone)]
 pub struct Observation {
     /// The observed points the residual is measured from: the surface's
-    /// vertices, or the cloud's points.
+    /// vertices, or the cloud's points kept.
     points: Vec<Vec3>,
+    /// A cloud's points set aside as outliers.
+    outliers: usize,
     kind: Kind,
 }
 
@@ -87,24 +89,40 @@ impl Observation {
         }
         Ok(Self {
             points: mesh.vertices.clone(),
+            outliers: 0,
             kind: Kind::Surface(mesh.clone()),
         })
     }
 
-    /// A scanned point cloud with its fitted normals ([`Cloud`]).
+    /// A scanned point cloud ([`Cloud`]) without its outliers and with its
+    /// noise across the skin averaged out ([`Cloud::cleaned`] with `noise`,
+    /// or [`CLOUD_NOISE`] spacings; the points set aside are counted,
+    /// [`Observation::outliers`]), its normals turned away from `inside`
+    /// (a point inside the organ: [`Cloud::oriented_from`]).
     ///
     /// # Errors
     ///
-    /// [`Error::Observation`] where its grid cannot be made.
-    pub fn cloud(cloud: &Cloud) -> Result<Self, Error> {
-        let spacing = cloud.spacing();
+    /// [`Error::Observation`] where too few points are kept or its grid
+    /// cannot be made.
+    pub fn cloud(cloud: &Cloud, noise: Option<f32>, inside: Vec3) -> Result<Self, Error> {
+        let noise = noise.unwrap_or(CLOUD_NOISE * cloud.spacing());
+        let (cleaned, outliers) = cloud.cleaned(noise)?;
+        let cleaned = cleaned.oriented_from(inside);
+        let spacing = cleaned.spacing();
         Ok(Self {
-            points: cloud.points().to_vec(),
+            points: cleaned.points().to_vec(),
+            outliers,
             kind: Kind::Cloud {
-                field: cloud.field(FIELD_MARGIN_CELLS * spacing)?,
+                field: cleaned.field(FIELD_MARGIN_CELLS * spacing)?,
                 spacing,
             },
         })
+    }
+
+    /// The observed points set aside as outliers (a cloud's; none of a
+    /// surface's).
+    pub fn outliers(&self) -> usize {
+        self.outliers
     }
 
     /// The observed points: the surface's vertices or the cloud's points.

@@ -41,19 +41,31 @@ pub fn read_surface(path: &Path, rest: &SurfaceMesh) -> Result<Surface> {
     let stl = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("stl"));
+    let (vertices, triangles) = (written.vertices.len(), written.triangles.len());
     let frame = written.as_frame_of(rest, stl);
     if frame.vertices.len() == rest.vertices.len() && frame.triangles == rest.triangles {
         return Ok(Surface::Frame(crate::solve::read_deformed(path, rest)?));
     }
-    let other = tissue::load_closed_surface(path)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let other = tissue::load_closed_surface(path).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: not the same mesh with moved vertices as the model's rest surface ({} vertices \
+             and {} triangles, against {} and {}), and not a closed surface of the organ to match \
+             without correspondence: {e}",
+            path.display(),
+            vertices,
+            triangles,
+            rest.vertices.len(),
+            rest.triangles.len()
+        )
+    })?;
     Ok(Surface::Other(other))
 }
 
-/// The observation of `--cloud`: its points read, its normals fitted and
-/// turned away from the model's inside, the cloud checked against the
-/// organ's size and place (another unit or frame is refused).
-pub fn read_cloud(path: &Path, model: &ParticleModel) -> Result<Observation> {
+/// The observation of `--cloud`: its points read, checked against the
+/// organ's size and place (another unit or frame is refused), its
+/// outliers set aside and its noise averaged out (`noise`, or the
+/// default), its normals fitted and turned away from the model's inside.
+pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<Observation> {
     let points = load_cloud(path, Default::default())?;
     let cloud = Cloud::new(points).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let (lo, hi) = model.positions.iter().fold(
@@ -64,7 +76,8 @@ pub fn read_cloud(path: &Path, model: &ParticleModel) -> Result<Observation> {
         .check_against(lo, hi)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
-    Ok(Observation::cloud(&cloud.oriented_from(centre))?)
+    Observation::cloud(&cloud, noise, centre)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// The rest surface's vertices that lie on `observed` (within
@@ -90,8 +103,8 @@ pub fn held_on(observed: &SurfaceMesh, model: &ParticleModel) -> Result<Vec<bool
         .count();
     if triangles == 0 {
         bail!(
-            "no part of the model's rest surface lies on the observed surface (within {tolerance:.3}): \
-             nothing is known to be held; give the held region (the chest wall) as --fixed-region"
+            "no part of the model's rest surface lies on it (within {tolerance:.3}): nothing is \
+             known to be held; give the held region (the chest wall) as --fixed-region"
         );
     }
     Ok(held)
@@ -102,8 +115,11 @@ pub fn held_on(observed: &SurfaceMesh, model: &ParticleModel) -> Result<Vec<bool
 pub struct ObservationReport {
     /// `surface` (another triangulation) or `cloud`.
     pub kind: &'static str,
-    /// Observed points (the surface's vertices, or the cloud's points).
+    /// Observed points kept (the surface's vertices, or the cloud's points
+    /// but its outliers).
     pub points: usize,
+    /// A cloud's points set aside as outliers.
+    pub outliers: usize,
     /// The noise scale the trim used, in the model's units.
     pub noise_mm: f32,
     /// The last stage's trim.
@@ -148,6 +164,7 @@ impl ObservationReport {
                 "surface"
             },
             points: observation.points().len(),
+            outliers: observation.outliers(),
             noise_mm,
             trim_mm: report.trim,
             skin: report.skin,
@@ -187,11 +204,12 @@ impl ObservationReport {
     /// A line for the screen.
     pub fn line(&self) -> String {
         format!(
-            "matched without correspondence to a {} of {} points: {} of {} free skin particles \
-             pulled ({} set aside); the observed points {:.3} from the deformed skin (RMS; 95th \
-             percentile {:.3}, largest {:.3})",
+            "matched without correspondence to a {} of {} points ({} set aside as outliers): {} \
+             of {} free skin particles pulled ({} set aside); the observed points {:.3} from the \
+             deformed skin (RMS; 95th percentile {:.3}, largest {:.3})",
             self.kind,
             self.points,
+            self.outliers,
             self.pulled,
             self.skin,
             self.set_aside,

@@ -90,11 +90,14 @@ pub struct GravityArgs {
     )]
     pub stiffness: Option<f32>,
     /// The surface's held region, which does not move between the scans
-    /// (the chest wall): `auto` (default) takes the vertices that move less
+    /// (the chest wall), with the posture options or an observation without
+    /// correspondence: `auto` (default) takes the vertices that move less
     /// than a thousandth of a particle spacing between the rest and the
-    /// deformed surface; or a file, as --observed takes one (a surface
-    /// file of the patch, or its vertices as points).
-    #[arg(long, value_name = "auto|FILE", requires = "gravity_rest")]
+    /// deformed surface (for another segmentation's surface, those within
+    /// 0.02 spacings of it); or a file, as --observed takes one (a surface
+    /// file of the patch, or its vertices as points). A scan (--cloud)
+    /// needs the file.
+    #[arg(long, value_name = "auto|FILE")]
     pub fixed_region: Option<String>,
     /// The length unit of the model and the surfaces, for gravity's load
     /// (default mm).

@@ -110,7 +110,7 @@ pub struct DeformArgs {
     pub surface: Option<PathBuf>,
     /// A scan of part of the skin as points (.csv, .ply, .vtk, .vtp,
     /// .mrk.json; docs/FORMATS.md), matched without correspondence; needs
-    /// --fixed-region.
+    /// --fixed-region FILE.
     #[arg(long, value_name = "FILE")]
     pub cloud: Option<PathBuf>,
     /// The observation's noise scale, in the model's units (default: a
@@ -119,12 +119,7 @@ pub struct DeformArgs {
     /// pairs' robust spread are set aside.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
-    /// With an observation without correspondence: the region held at rest
-    /// (the chest wall), its patch of the rest surface as a surface file or
-    /// its vertices as points (as --observed). Default for a surface: the
-    /// rest surface's vertices that lie on it.
-    #[arg(long, value_name = "FILE")]
-    pub fixed_region: Option<PathBuf>,
+
     #[command(flatten)]
     pub carry: CarryArgs,
     /// Folder for the results (created if missing).
@@ -396,7 +391,7 @@ impl DeformArgs {
         let mut inputs: Vec<(&'static str, &Path)> = vec![("model", self.model.as_path())];
         inputs.extend(self.surface.as_deref().map(|p| ("deformed surface", p)));
         inputs.extend(self.cloud.as_deref().map(|p| ("cloud", p)));
-        inputs.extend(self.fixed_region.as_deref().map(|p| ("fixed region", p)));
+        inputs.extend(self.fixed_region().map(|p| ("fixed region", p)));
         inputs.extend(self.carry.inputs());
         inputs
     }
@@ -452,34 +447,55 @@ impl DeformArgs {
         }
     }
 
+    /// The `--fixed-region` file, if one is given (not `auto`).
+    fn fixed_region(&self) -> Option<&Path> {
+        match self.solve.gravity.fixed_region.as_deref() {
+            None | Some("auto") => None,
+            Some(file) => Some(Path::new(file)),
+        }
+    }
+
     /// What to solve for, read and checked against `model`.
     fn target(&self, model: &ParticleModel) -> Result<Target> {
         let held = |path: &Path| read_observed(path, &model.surface);
         let target = match (&self.surface, &self.cloud) {
             (Some(path), None) => match observe::read_surface(path, &model.surface)? {
                 observe::Surface::Frame(deformed) => {
-                    if self.fixed_region.is_some() || self.noise.is_some() {
+                    let held_without_posture =
+                        self.solve.gravity.fixed_region.is_some() && !self.solve.gravity.given();
+                    if held_without_posture || self.noise.is_some() {
                         bail!(
                             "{}: the surface is the model's rest surface with moved vertices, \
-                             which the skin follows vertex by vertex; --fixed-region and \
-                             --noise are for an observation without correspondence (use \
-                             --observed for the vertices that were seen)",
+                             which the skin follows vertex by vertex; --noise, and \
+                             --fixed-region without the posture options, are for an \
+                             observation without correspondence (use --observed for the \
+                             vertices that were seen)",
                             path.display()
                         );
                     }
                     return Ok(Target::Frame(deformed));
                 }
                 observe::Surface::Other(mesh) => Target::Match {
-                    held: match &self.fixed_region {
+                    held: match self.fixed_region() {
                         Some(region) => held(region)?,
-                        None => observe::held_on(&mesh, model)
-                            .map_err(|e| anyhow!("{}: {e}", path.display()))?,
+                        None => observe::held_on(&mesh, model).map_err(|e| {
+                            anyhow!(
+                                "{}: not the same mesh with moved vertices as the model's rest \
+                                 surface ({} vertices and {} triangles, against {} and {}), so \
+                                 it is matched without correspondence, but {e}",
+                                path.display(),
+                                mesh.vertices.len(),
+                                mesh.triangles.len(),
+                                model.surface.vertices.len(),
+                                model.surface.triangles.len()
+                            )
+                        })?,
                     },
                     observation: Observation::surface(&mesh)?,
                 },
             },
             (None, Some(path)) => {
-                let Some(region) = &self.fixed_region else {
+                let Some(region) = self.fixed_region() else {
                     bail!(
                         "{}: a scan of part of the skin needs the region held at rest (the \
                          chest wall) as --fixed-region",
@@ -487,7 +503,7 @@ impl DeformArgs {
                     );
                 };
                 Target::Match {
-                    observation: observe::read_cloud(path, model)?,
+                    observation: observe::read_cloud(path, model, self.noise)?,
                     held: held(region)?,
                 }
             }

@@ -370,6 +370,12 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         p.tuning.history = args.history;
     });
     params.validate()?;
+    if args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given() {
+        anyhow::bail!(
+            "--fixed-region is the held region of the posture options (--gravity-rest, \
+             --gravity-deformed): give them too"
+        );
+    }
     if let Some(path) = &args.picture {
         picture::check_name(path)?;
     }

@@ -126,6 +126,13 @@ fn deform_refuses_what_a_match_cannot_take() {
         &["moved vertices", "without correspondence"],
     );
     refused(
+        &["--surface", s(&frame), "--fixed-region", s(&fixed)],
+        &[
+            "moved vertices",
+            "--fixed-region without the posture options",
+        ],
+    );
+    refused(
         &[
             "--surface",
             s(&other),

@@ -99,6 +99,45 @@ impl Cloud {
         })
     }
 
+    /// The cloud without its outliers and with its noise across the
+    /// surface averaged out, and how many points were set aside. Each
+    /// point's plane is the least-squares plane of its
+    /// [`NORMAL_NEIGHBOURS`]` - 1` nearest others; a point farther from its
+    /// plane than [`RIGID_TRIM`] times the larger of `noise` and the robust
+    /// deviation of all points' distances (1.4826 times their median) is
+    /// set aside. Each kept point then moves onto the plane of its kept
+    /// nearest others, and the normals are fitted again (turned away from
+    /// the kept points' centroid).
+    ///
+    /// # Errors
+    ///
+    /// As [`Cloud::new`] for what is kept.
+    pub fn cleaned(&self, noise: f32) -> Result<(Self, usize), ObservationError> {
+        let planes = neighbour_planes(&self.points);
+        let deviation = 1.4826 * median(planes.iter().map(|(offset, _)| offset.abs()).collect());
+        let limit = RIGID_TRIM as f32 * deviation.max(noise);
+        let kept: Vec<Vec3> = self
+            .points
+            .iter()
+            .zip(&planes)
+            .filter(|(_, (offset, _))| offset.abs() <= limit)
+            .map(|(&p, _)| p)
+            .collect();
+        let set_aside = self.points.len() - kept.len();
+        if kept.len() < NORMAL_NEIGHBOURS {
+            return Err(ObservationError::TooFew {
+                count: kept.len(),
+                least: NORMAL_NEIGHBOURS,
+            });
+        }
+        let projected = neighbour_planes(&kept)
+            .iter()
+            .zip(&kept)
+            .map(|(&(offset, normal), &p)| p - offset * normal)
+            .collect();
+        Ok((Self::new(projected)?, set_aside))
+    }
+
     /// The same cloud with every normal turned to point away from `centre`
     /// (the organ's inside, say): outward where the cloud is the skin.
     #[must_use]
@@ -452,6 +491,34 @@ fn covariance(points: impl Iterator<Item = Vec3>, mean: Vec3) -> Mat3 {
     })
 }
 
+/// Per point, its signed distance from the least-squares plane of its
+/// [`NORMAL_NEIGHBOURS`]` - 1` nearest other points, and that plane's unit
+/// normal.
+fn neighbour_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
+    let tree = RTree::bulk_load(
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| GeomWithData::new(p.to_array(), i))
+            .collect(),
+    );
+    (0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let p = points[i];
+            let near: Vec<Vec3> = tree
+                .nearest_neighbor_iter(p.to_array())
+                .filter(|n| n.data != i)
+                .take(NORMAL_NEIGHBOURS - 1)
+                .map(|n| points[n.data])
+                .collect();
+            let mean = near.iter().sum::<Vec3>() / near.len().max(1) as f32;
+            let normal = svd3(covariance(near.iter().copied(), mean)).u.z_axis;
+            (normal.dot(p - mean), normal)
+        })
+        .collect()
+}
+
 /// The median (the upper one of an even count).
 fn median(mut values: Vec<f32>) -> f32 {
     let middle = values.len() / 2;
@@ -492,6 +559,44 @@ mod tests {
             }
         }
         points
+    }
+
+    /// A noisy cap with a few points pushed 5 mm off: the cleaning sets
+    /// those aside, and of the others only the noise's far tail (beyond
+    /// three deviations: a few in a thousand), and brings the kept points
+    /// closer to the sphere than the noise put them (0.49 to 0.26 RMS).
+    #[test]
+    fn cleaning_sets_the_outliers_aside_and_averages_the_noise_out() {
+        let mut points = cap(3.0, 0.5);
+        let outliers: Vec<usize> = (0..points.len()).step_by(97).collect();
+        for &k in &outliers {
+            points[k] *= 1.0 + 5.0 / 50.0;
+        }
+        let cloud = Cloud::new(points.clone()).unwrap();
+        let (cleaned, set_aside) = cloud.cleaned(0.5).unwrap();
+        let tail = set_aside - outliers.len().min(set_aside);
+        assert!(
+            set_aside >= outliers.len() && tail <= points.len() / 200,
+            "{set_aside} set aside of {} points, {} pushed off",
+            points.len(),
+            outliers.len()
+        );
+        assert_eq!(cleaned.points().len(), points.len() - set_aside);
+        let farthest = cleaned
+            .points()
+            .iter()
+            .map(|p| (p.length() - 50.0).abs())
+            .fold(0.0f32, f32::max);
+        assert!(farthest < 2.5, "a kept point {farthest} off the sphere");
+        let rms = |p: &[Vec3]| {
+            (p.iter().map(|p| (p.length() - 50.0).powi(2)).sum::<f32>() / p.len() as f32).sqrt()
+        };
+        let kept: Vec<Vec3> = (0..points.len())
+            .filter(|k| !outliers.contains(k))
+            .map(|k| points[k])
+            .collect();
+        let (before, after) = (rms(&kept), rms(cleaned.points()));
+        assert!(after < 0.6 * before, "{before} -> {after} off the sphere");
     }
 
     #[test]

@@ -69,14 +69,33 @@ pub fn pair_plane(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Opt
 
 /// The spring of a particle at `x` paired with its nearest observed point
 /// `point` (the observation's unit `normal` there): towards the plane of
-/// [`pair_plane`] with the rule's weight, zero past a cloud's edge or
-/// beyond the trim. What [`Pass::Pair`](crate::stage2::Pass::Pair) writes
+/// [`pair_plane`] with the rule's weight, faded ([`taper`]) from half the
+/// way to a cloud's edge or to the trim, and zero beyond either. What [`Pass::Pair`](crate::stage2::Pass::Pair) writes
 /// for each paired particle on every device.
 pub fn paired_spring(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Vec4 {
-    match pair_plane(x, point, normal, rule) {
-        Some((n, distance)) if distance <= rule.trim => spring(point, n, rule.weight),
-        _ => Vec4::ZERO,
+    let offset = x - point;
+    let Some((n, distance)) = pair_plane(x, point, normal, rule) else {
+        return Vec4::ZERO;
+    };
+    // How far across a cloud's plane the particle is, in its edges.
+    let across = if rule.cloud {
+        (offset - normal.dot(offset) * normal).length() / rule.edge
+    } else {
+        0.0
+    };
+    let share = taper(across) * taper(distance / rule.trim);
+    if share <= 0.0 {
+        return Vec4::ZERO;
     }
+    spring(point, n, rule.weight * share)
+}
+
+/// The share of a spring's weight a particle `ratio` of the way to a
+/// limit keeps: all of it to half the limit, then less in proportion to
+/// none at the limit, so that the pull and its potential fade rather than
+/// jump as a particle crosses a cloud's edge or the trim.
+pub fn taper(ratio: f32) -> f32 {
+    (2.0 * (1.0 - ratio)).clamp(0.0, 1.0)
 }
 
 #[cfg(test)]
@@ -96,7 +115,7 @@ mod tests {
     fn a_surface_pulls_along_the_direction_to_its_nearest_point() {
         // Off a corner: the plane is across the direction to the corner,
         // not the face's.
-        let x = Vec3::new(1.0, 1.0, 0.0);
+        let x = Vec3::new(0.5, 0.5, 0.0);
         let s = paired_spring(x, Vec3::ZERO, Vec3::Z, &rule(false));
         let n = Vec3::new(1.0, 1.0, 0.0).normalize();
         assert!((s.truncate() - 2.0 * n).length() < 1e-6, "{s}");
@@ -104,15 +123,27 @@ mod tests {
         // On the surface, its normal.
         let on = paired_spring(Vec3::ZERO, Vec3::ZERO, Vec3::Z, &rule(false));
         assert_eq!(on, Vec4::new(0.0, 0.0, 2.0, 0.0));
-        // Beyond the trim, nothing.
+        // Beyond the trim, nothing; three quarters of the way, half the
+        // weight.
         let far = paired_spring(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Z, &rule(false));
         assert_eq!(far, Vec4::ZERO);
+        let fading = paired_spring(Vec3::new(0.0, 0.0, 1.5), Vec3::ZERO, Vec3::Z, &rule(false));
+        assert!(
+            (fading.truncate().length_squared() - 2.0).abs() < 1e-5,
+            "{fading}"
+        );
     }
 
     #[test]
     fn a_cloud_pulls_along_its_normal_and_not_past_its_edge() {
-        let near = paired_spring(Vec3::new(0.5, 0.0, 1.5), Vec3::ZERO, Vec3::Z, &rule(true));
+        let near = paired_spring(Vec3::new(0.25, 0.0, 0.5), Vec3::ZERO, Vec3::Z, &rule(true));
         assert_eq!(near, Vec4::new(0.0, 0.0, 2.0, 0.0));
+        // Three quarters of the way to the edge: half the weight.
+        let edge = paired_spring(Vec3::new(0.75, 0.0, 0.5), Vec3::ZERO, Vec3::Z, &rule(true));
+        assert!(
+            (edge.truncate().length_squared() - 2.0).abs() < 1e-5,
+            "{edge}"
+        );
         let past = paired_spring(Vec3::new(1.5, 0.0, 0.1), Vec3::ZERO, Vec3::Z, &rule(true));
         assert_eq!(past, Vec4::ZERO);
         let trimmed = paired_spring(Vec3::new(0.0, 0.0, -2.5), Vec3::ZERO, Vec3::Z, &rule(true));
