@@ -119,6 +119,19 @@ impl Observation {
         })
     }
 
+    /// Per point of `points`, whether the observation sees it: every one
+    /// for a surface; for a cloud, those within [`CLOUD_EDGE_SPACINGS`]
+    /// of its nearest point (the skin past the cloud's edge is not seen).
+    pub fn sees(&self, points: &[Vec3]) -> Vec<bool> {
+        match &self.kind {
+            Kind::Surface(_) => vec![true; points.len()],
+            Kind::Cloud { field, spacing } => points
+                .par_iter()
+                .map(|&p| (p - field.nearest(p).point).length() <= CLOUD_EDGE_SPACINGS * spacing)
+                .collect(),
+        }
+    }
+
     /// The observed points set aside as outliers (a cloud's; none of a
     /// surface's).
     pub fn outliers(&self) -> usize {
@@ -244,7 +257,8 @@ pub struct MatchReport {
     /// observation asked the impossible (another unit, or a frame shifted
     /// away from the held region).
     pub volume_change: f32,
-    /// The model's surface carried by the solve.
+    /// The model's surface carried by the solve, its held region where it
+    /// is (a frame of the rest surface).
     pub surface: SurfaceMesh,
     /// The last stage's solve.
     pub last: DeformReport,
@@ -366,10 +380,17 @@ pub fn match_observation(
         .count();
     clear(solver)?;
     let bound = solver.bind(&model.surface.vertices)?;
-    let surface = SurfaceMesh {
+    let mut surface = SurfaceMesh {
         vertices: solver.carry(&bound)?,
         ..model.surface.clone()
     };
+    // The held region stays where it is: its vertices exactly, not as the
+    // particles around them carry them.
+    if let Some(held) = &solver.params().observed {
+        for (v, _) in held.iter().enumerate().filter(|(_, h)| **h) {
+            surface.vertices[v] = model.surface.vertices[v];
+        }
+    }
     let residual = residual(observation.points(), &surface)?;
     let volume_change = surface.signed_volume() / model.surface.signed_volume() - 1.0;
     let last = last.ok_or_else(|| Error::from(ObservationError::Unpaired { skin: skin.len() }))?;

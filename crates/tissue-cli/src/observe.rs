@@ -8,7 +8,8 @@ use anyhow::{Result, bail};
 use serde::Serialize;
 use tissue::field::SurfaceField;
 use tissue::observation::{
-    CLOUD_NOISE, Cloud, MatchReport, Observation, SURFACE_NOISE, load_cloud,
+    CLOUD_NOISE, Cloud, MatchParams, MatchReport, Observation, SURFACE_NOISE, load_cloud,
+    match_observation,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -78,6 +79,38 @@ pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Res
     let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
     Observation::cloud(&cloud, noise, centre)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// The match without gravity that the posture options start from: `model`
+/// under `params` (its held region observed, no load) matched to
+/// `observation` on `device`; the rest surface carried by it (a frame of
+/// the rest surface) and which of its vertices the observation saw.
+pub fn first_match(
+    device: crate::backend::Device,
+    model: &ParticleModel,
+    params: &tissue::deformation::DeformParams,
+    observation: &Observation,
+    noise: Option<f32>,
+    quiet: bool,
+) -> Result<(SurfaceMesh, Vec<bool>)> {
+    let report = crate::progress::busy(quiet, "matching the skin without gravity first", |_| {
+        let mut solver = crate::backend::Solver::new(device, model, params.clone())?;
+        solver.set_surface(&model.surface)?;
+        let matching = MatchParams {
+            noise,
+            ..MatchParams::default()
+        };
+        match_observation(&mut solver, model, observation, &matching)
+    })?;
+    if !report.converged {
+        bail!(
+            "it did not converge ({} iterations, stopped by {:?})",
+            report.iterations,
+            report.last.stopped_by
+        );
+    }
+    let seen = observation.sees(&report.surface.vertices);
+    Ok((report.surface, seen))
 }
 
 /// The rest surface's vertices that lie on `observed` (within

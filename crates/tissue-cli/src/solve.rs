@@ -183,6 +183,10 @@ pub struct Stage2<'a> {
     pub model: &'a ParticleModel,
     pub deformed: &'a SurfaceMesh,
     pub gravity: &'a GravityArgs,
+    /// With an observation without correspondence, the surface vertices
+    /// it saw: the skin the posture options fit the stiffness to (`None`:
+    /// `params.observed`'s).
+    pub seen: Option<&'a [bool]>,
     pub quiet: bool,
 }
 
@@ -224,10 +228,16 @@ impl Stage2<'_> {
             model,
             deformed,
             gravity,
+            seen,
             quiet,
         } = *self;
         let context = || format!("{}: cannot deform this model", path.display());
-        let Some(posture) = posture::prepare(gravity, &device, model, deformed, params, quiet)?
+        let fit_params = match seen {
+            Some(seen) => params.clone().with(|p| p.observed = Some(seen.to_vec())),
+            None => params.clone(),
+        };
+        let Some(posture) =
+            posture::prepare(gravity, &device, model, deformed, &fit_params, quiet)?
         else {
             let solver = progress::busy(quiet, PREPARING, |busy| {
                 Solver::new_with_progress(device, model, params.clone(), &mut |stage| {
@@ -516,13 +526,6 @@ impl DeformArgs {
                  is seen (give the held region as --fixed-region)"
             );
         }
-        if self.solve.gravity.given() {
-            bail!(
-                "the posture options (--gravity-rest, --gravity-deformed) need the deformed \
-                 surface with the rest surface's vertices: the stiffness fit against an \
-                 observation without correspondence is not built"
-            );
-        }
         if self.noise.is_some_and(|n| !(n.is_finite() && n >= 0.0)) {
             bail!(
                 "--noise is {}: a distance of at least zero is needed",
@@ -565,17 +568,36 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             );
         }
     }
-    // The frame, or for a match the rest surface: the held region stays
-    // where it is.
-    let placed = match &target {
-        Target::Frame(deformed) => deformed,
-        Target::Match { .. } => &model.surface,
+    // With the posture options, a match without gravity first says where
+    // the skin went: a frame of the rest surface that the stiffness is
+    // fitted to, over the skin the observation saw.
+    let first = match &target {
+        Target::Match { observation, .. } if args.solve.gravity.given() => Some(
+            observe::first_match(
+                device.clone(),
+                &model,
+                &params,
+                observation,
+                args.noise,
+                args.quiet,
+            )
+            .with_context(|| format!("{}: the match without gravity", observed_file.display()))?,
+        ),
+        _ => None,
+    };
+    // The frame, or for a match the rest surface (the held region stays
+    // where it is) or the first match's.
+    let placed = match (&target, &first) {
+        (Target::Frame(deformed), _) => deformed,
+        (Target::Match { .. }, Some((frame, _))) => frame,
+        (Target::Match { .. }, None) => &model.surface,
     };
     let stage2 = Stage2 {
         path: &args.model,
         model: &model,
         deformed: placed,
         gravity: &args.solve.gravity,
+        seen: first.as_ref().map(|(_, seen)| seen.as_slice()),
         quiet: args.quiet,
     };
     let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;

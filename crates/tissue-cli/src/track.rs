@@ -398,6 +398,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         model: &model,
         deformed: first_frame.as_ref().unwrap_or(&model.surface),
         gravity: &args.solve.gravity,
+        seen: None,
         quiet: args.quiet,
     };
     let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
