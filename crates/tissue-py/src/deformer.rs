@@ -9,10 +9,11 @@ use numpy::{
 use pyo3::prelude::*;
 use tissue::backend::Solver;
 use tissue::io::space::Space;
+use tissue::observation::{Cloud, MatchParams, Observation, match_observation};
 use tissue::{ParticleModel, SurfaceMesh, Vec3};
 
 use crate::convert::{
-    Callback, Points, array_of, as_dict, deformed_surface, points_from, raise, warn,
+    Callback, Points, array_of, as_dict, deformed_surface, points_from, raise, surface_of, warn,
 };
 
 /// Stage 2 of one model: the surface particles follow a deformed surface
@@ -157,6 +158,106 @@ impl Deformer {
             warn(py, &message)?;
         }
         as_dict(py, &report)
+    }
+
+    /// Matches the skin to an observation without correspondence and
+    /// returns the report as a dict (`tissue deform --surface` of another
+    /// triangulation, or `--cloud`): `surface`, a closed surface of the
+    /// organ of any triangulation (a file path, a `(vertices, triangles)`
+    /// pair, or a trimesh, meshio or pyvista mesh), or `cloud`, a scan of
+    /// part of the skin (a file path or an `(n, 3)` array of points), one
+    /// of the two. The deformer's `observed` vertices are the region held
+    /// at rest (the chest wall: `model.deformer(observed=...)`); the rest
+    /// of the skin is pulled onto the observation inside the elastic
+    /// solve and slides along it where the mechanics sends it. `noise`:
+    /// the observation's noise scale in the model's units (default: a
+    /// tenth of a connection length for a surface, a fifth of a cloud's
+    /// spacing). The report: `iterations`, `converged`, `skin`, `pulled`,
+    /// `set_aside`, `outliers` (a cloud's points set aside),
+    /// `residual_rms`, `residual_p95`, `residual_max` (the observed
+    /// points' distances to the deformed skin), `volume_change`, `stages`.
+    /// A match that did not converge, or whose residual is above three
+    /// times the noise, warns (RuntimeWarning).
+    #[pyo3(signature = (surface = None, cloud = None, noise = None))]
+    fn match_observation(
+        &mut self,
+        py: Python<'_>,
+        surface: Option<&Bound<'_, PyAny>>,
+        cloud: Option<&Bound<'_, PyAny>>,
+        noise: Option<f32>,
+    ) -> PyResult<Py<PyAny>> {
+        let centre = self.model.positions.iter().copied().sum::<Vec3>() / self.model.len() as f32;
+        let observation = match (surface, cloud) {
+            (Some(surface), None) => {
+                let mut mesh = surface_of(surface)?;
+                let _checked = tissue::validate(&mut mesh).map_err(raise)?;
+                Observation::surface(&mesh).map_err(raise)?
+            }
+            (None, Some(cloud)) => {
+                let points = match cloud.extract::<PathBuf>() {
+                    Ok(path) => {
+                        tissue::observation::load_cloud(&path, Space::Lps).map_err(raise)?
+                    }
+                    Err(_) => points_from(cloud, "cloud")?,
+                };
+                let cloud = Cloud::new(points).map_err(raise)?;
+                Observation::cloud(&cloud, noise, centre).map_err(raise)?
+            }
+            _ => {
+                return Err(raise(
+                    "give the observation as surface= or as cloud=, one of the two",
+                ));
+            }
+        };
+        let (solver, model) = (&mut self.solver, &self.model);
+        let params = MatchParams {
+            noise,
+            ..MatchParams::default()
+        };
+        let report = py
+            .detach(|| {
+                solver.set_surface(&model.surface)?;
+                match_observation(solver, model, &observation, &params)
+            })
+            .map_err(raise)?;
+        let scale = noise.unwrap_or_else(|| match observation.cloud_spacing() {
+            Some(spacing) => tissue::observation::CLOUD_NOISE * spacing,
+            None => tissue::observation::SURFACE_NOISE * self.spacing,
+        });
+        if !report.converged {
+            warn(
+                py,
+                &format!(
+                    "the match did not converge: {} iterations, stopped by {:?}",
+                    report.iterations, report.last.stopped_by
+                ),
+            )?;
+        }
+        if report.residual.rms > 3.0 * scale {
+            warn(
+                py,
+                &format!(
+                    "the model does not reach the observation: its points lie {:.3} from the \
+                     deformed skin (RMS), more than three times the noise ({scale:.3})",
+                    report.residual.rms
+                ),
+            )?;
+        }
+        let summary = serde_json::json!({
+            "iterations": report.iterations,
+            "converged": report.converged,
+            "skin": report.skin,
+            "pulled": report.pulled,
+            "set_aside": report.set_aside,
+            "outliers": observation.outliers(),
+            "residual_rms": report.residual.rms,
+            "residual_p95": report.residual.p95,
+            "residual_max": report.residual.max,
+            "volume_change": report.volume_change,
+            "stages": report.stages,
+        });
+        self.deformed = Some(report.surface);
+        as_dict(py, &summary)
     }
 
     /// The particles after the last solve, `(n, 3)`.

@@ -30,7 +30,9 @@ and ``save_motion`` (a rigid structure's ``.tfm``).
 
 A scanner's point cloud of the organ (no correspondence to the model) is
 read by ``load_cloud``; ``rigid_fit`` finds the rigid motion that puts it
-on a surface (for a scan in another frame).
+on a surface (for a scan in another frame). ``Deformer.match_observation``
+pulls the skin onto another segmentation's surface or onto a scan without
+correspondence (the deformer's ``observed`` vertices held at rest).
 
 Every computation releases the GIL. Errors are ``tissue.TissueError``,
 with the messages of the command-line tool.

@@ -98,4 +98,10 @@ class Deformer:
     def carry_file(
         self, points: Path, output: Path, space: str = "lps"
     ) -> npt.NDArray[np.float64]: ...
+    def match_observation(
+        self,
+        surface: Optional[Any] = None,
+        cloud: Optional[Any] = None,
+        noise: Optional[float] = None,
+    ) -> dict[str, Any]: ...
     def reset(self) -> None: ...
