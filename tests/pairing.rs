@@ -9,46 +9,16 @@ mod common;
 use glam::Vec3;
 use tissue::backend::{Device, Solver};
 use tissue::observation::{MatchParams, Observation, match_observation};
-use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::{DeformParams, ForceModel};
 use tissue_solve::model::held_vertices;
 use tissue_solve::stage2::{NO_LIMIT, Pairing, PairingRule};
 
-/// The bundled phantom sampled with `particles` particles.
-fn phantom_model(particles: usize) -> ParticleModel {
-    tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(particles),
-    )
-    .unwrap()
-    .model
-}
-
-/// `mesh` with every triangle cut into four at its edges' midpoints:
-/// the same surface in another triangulation (other vertices, other
-/// triangles, none of them the model's).
+/// `mesh` with every triangle cut into four: the same surface in another
+/// triangulation (other vertices, other triangles).
 fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
-    let mut vertices = mesh.vertices.clone();
-    let mut middles = std::collections::HashMap::new();
-    let mut middle = |a: u32, b: u32, vertices: &mut Vec<Vec3>| {
-        *middles.entry((a.min(b), a.max(b))).or_insert_with(|| {
-            vertices.push(0.5 * (vertices[a as usize] + vertices[b as usize]));
-            (vertices.len() - 1) as u32
-        })
-    };
-    let mut triangles = Vec::new();
-    for &[a, b, c] in &mesh.triangles {
-        let (ab, bc, ca) = (
-            middle(a, b, &mut vertices),
-            middle(b, c, &mut vertices),
-            middle(c, a, &mut vertices),
-        );
-        triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-    }
-    SurfaceMesh {
-        vertices,
-        triangles,
-    }
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&mesh.vertices, &mesh.triangles);
+    SurfaceMesh::new(vertices, triangles)
 }
 
 /// The sag solved with every surface vertex observed (the truth), then
@@ -58,7 +28,7 @@ fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
 /// the sag's map put it), and the CPU and the GPU take the same steps.
 #[test]
 fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
-    let model = phantom_model(3_000);
+    let model = common::phantom_model(3_000);
     let sagged = tissue::deform::sagged_breast();
     let params = DeformParams::default();
     let mut truth = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
@@ -107,19 +77,7 @@ fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
     // energy watch then steps back at other iterations, and the stages'
     // solves stop up to a fifth of their iterations apart; the skin and
     // the interior land in the same place.
-    if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
-        assert!(
-            cpu.abs_diff(*gpu) <= 3.max(cpu / 5),
-            "{cpu} iterations on the CPU, {gpu} on the GPU"
-        );
-        let worst = on_cpu
-            .iter()
-            .zip(on_gpu)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f32, f32::max);
-        eprintln!("the devices' particles at most {worst:.2e} apart");
-        assert!(worst <= 1e-3 * size, "{worst} apart");
-    }
+    assert_same_match(&solved, size);
 }
 
 /// The sag's front half as a scan (the sagged surface's vertices above
@@ -128,7 +86,7 @@ fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
 /// and the CPU and the GPU agree.
 #[test]
 fn the_seen_skin_lands_on_a_scan_of_the_sag_on_both_devices() {
-    let model = phantom_model(3_000);
+    let model = common::phantom_model(3_000);
     let sagged = tissue::deform::sagged_breast();
     let size = truth_size(&model);
     let held = chest_wall(&model);
@@ -177,19 +135,7 @@ fn the_seen_skin_lands_on_a_scan_of_the_sag_on_both_devices() {
         );
         solved.push((report.iterations, solver.positions().to_vec()));
     }
-    if let [(cpu, on_cpu), (gpu, on_gpu)] = &solved[..] {
-        assert!(
-            cpu.abs_diff(*gpu) <= 3.max(cpu / 5),
-            "{cpu} iterations on the CPU, {gpu} on the GPU"
-        );
-        let worst = on_cpu
-            .iter()
-            .zip(on_gpu)
-            .map(|(a, b)| (*a - *b).length())
-            .fold(0.0f32, f32::max);
-        eprintln!("the devices' particles at most {worst:.2e} apart");
-        assert!(worst <= 1e-3 * size, "{worst} apart");
-    }
+    assert_same_match(&solved, size);
 }
 
 /// A pairing that does not fit the solve is refused with what is wrong:
@@ -197,7 +143,7 @@ fn the_seen_skin_lands_on_a_scan_of_the_sag_on_both_devices() {
 /// a weight or a limit that is not a positive number.
 #[test]
 fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
-    let model = phantom_model(2_000);
+    let model = common::phantom_model(2_000);
     let held = chest_wall(&model);
     let params = DeformParams::default().with(|p| p.observed = Some(held));
     let mut solver = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
@@ -247,7 +193,7 @@ fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
 /// point lies past its edge for every particle.
 #[test]
 fn a_cloud_nowhere_near_the_skin_is_refused() {
-    let model = phantom_model(2_000);
+    let model = common::phantom_model(2_000);
     let held = chest_wall(&model);
     let params = DeformParams::default().with(|p| p.observed = Some(held));
     let mut solver = Solver::new(Device::Cpu, &model, params).unwrap();
@@ -282,6 +228,20 @@ fn a_cloud_nowhere_near_the_skin_is_refused() {
 fn chest_wall(model: &ParticleModel) -> Vec<bool> {
     let sagged = tissue::deform::sagged_breast();
     held_vertices(&model.surface, &sagged, 1e-3 * truth_size(model)).unwrap()
+}
+
+/// The CPU's and the GPU's matches (iterations, positions), where both ran:
+/// within a fifth of the iterations, every particle within a thousandth of
+/// the size.
+fn assert_same_match(solved: &[(usize, Vec<Vec3>)], size: f32) {
+    if let [(cpu, on_cpu), (gpu, on_gpu)] = solved {
+        let within = 3.max(cpu / 5);
+        assert!(
+            cpu.abs_diff(*gpu) <= within,
+            "{cpu} iterations on the CPU, {gpu} on the GPU"
+        );
+        common::assert_same_positions(on_cpu, on_gpu, size);
+    }
 }
 
 fn truth_size(model: &ParticleModel) -> f32 {

@@ -7,20 +7,10 @@ mod common;
 
 use glam::{Vec3, Vec4};
 use tissue::backend::{Device, Solver};
-use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
+use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::DeformParams;
 use tissue_solve::model::held_vertices;
 use tissue_solve::stage2::{SPRING_WEIGHT, spring};
-
-/// The bundled phantom sampled with `particles` particles.
-fn phantom_model(particles: usize) -> ParticleModel {
-    tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(particles),
-    )
-    .unwrap()
-    .model
-}
 
 /// Each surface particle's triangle's unit normal on `surface` (the rest
 /// surface's triangles, moved), zero inside.
@@ -47,7 +37,7 @@ fn particle_normals(model: &ParticleModel, surface: &SurfaceMesh) -> Vec<Vec3> {
 /// same steps.
 #[test]
 fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
-    let model = phantom_model(3_000);
+    let model = common::phantom_model(3_000);
     let sagged = tissue::deform::sagged_breast();
     let params = DeformParams::default();
     let mut truth = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
@@ -112,7 +102,7 @@ fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
 /// both devices, its steps lowering the potential.
 #[test]
 fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
-    let model = phantom_model(3_000);
+    let model = common::phantom_model(3_000);
     let sagged = tissue::deform::sagged_breast();
     let size = Solver::new(Device::Cpu, &model, DeformParams::default())
         .unwrap()
@@ -171,7 +161,7 @@ fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
 /// list takes them away.
 #[test]
 fn springs_that_do_not_fit_are_refused_with_the_reason() {
-    let model = phantom_model(2_000);
+    let model = common::phantom_model(2_000);
     let mut solver = Solver::new(Device::Cpu, &model, DeformParams::default()).unwrap();
     let short = solver
         .set_springs(vec![Vec4::ZERO; 3])

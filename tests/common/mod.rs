@@ -146,6 +146,16 @@ pub fn column_base(model: &ParticleModel) -> Vec<bool> {
         .collect()
 }
 
+/// The bundled phantom sampled with `particles` particles.
+pub fn phantom_model(particles: usize) -> ParticleModel {
+    tissue::sample(
+        &tissue::phantom::default_breast(),
+        &tissue::SamplingParams::with_particles(particles),
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+    .model
+}
+
 /// The CPU's and the GPU's solves of one problem, each its iterations and
 /// positions, agree: within 3 iterations, and every particle within a
 /// thousandth of the model's size `size`.
@@ -155,10 +165,17 @@ pub fn assert_same_solve(cpu: (usize, &[Vec3]), gpu: (usize, &[Vec3]), size: f32
         cpu.abs_diff(gpu) <= 3,
         "{cpu} iterations on the CPU, {gpu} on the GPU"
     );
+    assert_same_positions(on_cpu, on_gpu, size);
+}
+
+/// Every particle of the CPU's solve within a thousandth of the model's
+/// size `size` of the GPU's.
+pub fn assert_same_positions(on_cpu: &[Vec3], on_gpu: &[Vec3], size: f32) {
     let worst = on_cpu
         .iter()
         .zip(on_gpu)
         .map(|(a, b)| (*a - *b).length())
         .fold(0.0f32, f32::max);
+    eprintln!("the devices' particles at most {worst:.2e} apart");
     assert!(worst <= 1e-3 * size, "{worst} apart");
 }

@@ -4,31 +4,13 @@
 
 mod common;
 
-use std::collections::HashMap;
-
 use common::{json, s, sampled_model, text, tissue};
 use tissue::{SurfaceMesh, Vec3};
 
-/// `mesh` with every triangle cut into four at its edges' midpoints: the
-/// same surface in another triangulation.
+/// `mesh` with every triangle cut into four: the same surface in another
+/// triangulation.
 fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
-    let mut vertices = mesh.vertices.clone();
-    let mut middles = HashMap::new();
-    let mut middle = |a: u32, b: u32, vertices: &mut Vec<Vec3>| {
-        *middles.entry((a.min(b), a.max(b))).or_insert_with(|| {
-            vertices.push(0.5 * (vertices[a as usize] + vertices[b as usize]));
-            (vertices.len() - 1) as u32
-        })
-    };
-    let mut triangles = Vec::new();
-    for &[a, b, c] in &mesh.triangles {
-        let (ab, bc, ca) = (
-            middle(a, b, &mut vertices),
-            middle(b, c, &mut vertices),
-            middle(c, a, &mut vertices),
-        );
-        triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-    }
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&mesh.vertices, &mesh.triangles);
     SurfaceMesh::new(vertices, triangles)
 }
 

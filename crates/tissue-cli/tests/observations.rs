@@ -14,24 +14,6 @@ use common::{s, text, tissue};
 use serde_json::Value;
 use tissue::Vec3;
 
-/// A case of `../shared/cases/`, or `None` (printing why) when absent; a
-/// failure under `CI=true`.
-fn shared_case(name: &str) -> Option<PathBuf> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/cases")
-        .join(name);
-    if path.join("truth.json").exists() {
-        return Some(path);
-    }
-    assert!(
-        std::env::var("CI").as_deref() != Ok("true"),
-        "CI=true but the shared case {} is missing",
-        path.display()
-    );
-    eprintln!("SKIPPED: {} not found", path.display());
-    None
-}
-
 fn vec3(v: &Value) -> Vec3 {
     common::vec3(v)
 }
@@ -159,7 +141,7 @@ impl Case {
 #[test]
 fn observations_without_correspondence_with_the_postures() {
     for name in ["breast_c", "breast_d", "breast_e"] {
-        let Some(dir) = shared_case(name) else {
+        let Some(dir) = common::shared_case(name) else {
             continue;
         };
         let work = tempfile::tempdir().unwrap();

@@ -249,3 +249,27 @@ pub const VTK_LEGACY_FIXTURES: [&str; 4] = [
 /// 3D Slicer's saves of the same surface, tagged: `slicer-ras.vtp` in
 /// `ascii.vtp`'s coordinates, the LPS ones mirrored in x and y.
 pub const VTK_SLICER_FIXTURES: [&str; 3] = ["slicer-ras.vtp", "slicer-lps.vtp", "slicer-lps.vtk"];
+
+/// The surface of `vertices` and `triangles` with every triangle cut into
+/// four at its edges' midpoints: the same surface in another triangulation
+/// (the original vertices, then one new vertex per edge).
+pub fn cut_in_four(vertices: &[Vec3], triangles: &[[u32; 3]]) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut vertices = vertices.to_vec();
+    let mut middles = std::collections::HashMap::new();
+    let mut middle = |a: u32, b: u32, vertices: &mut Vec<Vec3>| {
+        *middles.entry((a.min(b), a.max(b))).or_insert_with(|| {
+            vertices.push(0.5 * (vertices[a as usize] + vertices[b as usize]));
+            (vertices.len() - 1) as u32
+        })
+    };
+    let mut cut = Vec::with_capacity(4 * triangles.len());
+    for &[a, b, c] in triangles {
+        let (ab, bc, ca) = (
+            middle(a, b, &mut vertices),
+            middle(b, c, &mut vertices),
+            middle(c, a, &mut vertices),
+        );
+        cut.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+    }
+    (vertices, cut)
+}

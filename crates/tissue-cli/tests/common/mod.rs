@@ -69,6 +69,24 @@ pub fn gpu(test: &str) -> bool {
     }
 }
 
+/// A case of `../shared/cases/` (its folder), or `None` (printing why)
+/// when it is absent; under `CI=true` its absence is a failure.
+pub fn shared_case(name: &str) -> Option<PathBuf> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/cases")
+        .join(name);
+    if path.join("truth.json").exists() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI=true but the shared case {} is missing",
+        path.display()
+    );
+    eprintln!("SKIPPED: {} not found", path.display());
+    None
+}
+
 /// The bundled phantom sampled by `tissue sample` at 2,000 particles, read back.
 pub fn sampled_model(dir: &Path) -> (PathBuf, tissue::ParticleModel) {
     let path = dir.join("model.vtp");
