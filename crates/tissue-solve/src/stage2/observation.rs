@@ -63,13 +63,7 @@ impl Cloud {
         if spread.y <= 1e-10 * spread.x {
             return Err(ObservationError::Degenerate);
         }
-        let tree = RTree::bulk_load(
-            points
-                .iter()
-                .enumerate()
-                .map(|(i, p)| GeomWithData::new(p.to_array(), i))
-                .collect(),
-        );
+        let tree = indexed_tree(&points);
         let (normals, nearest): (Vec<Vec3>, Vec<f32>) = points
             .par_iter()
             .map(|&p| {
@@ -491,17 +485,23 @@ fn covariance(points: impl Iterator<Item = Vec3>, mean: Vec3) -> Mat3 {
     })
 }
 
-/// Per point, its signed distance from the least-squares plane of its
-/// [`NORMAL_NEIGHBOURS`]` - 1` nearest other points, and that plane's unit
-/// normal.
-fn neighbour_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
-    let tree = RTree::bulk_load(
+/// The points in an R*-tree, each with its index: their nearest
+/// neighbours.
+fn indexed_tree(points: &[Vec3]) -> RTree<GeomWithData<[f32; 3], usize>> {
+    RTree::bulk_load(
         points
             .iter()
             .enumerate()
             .map(|(i, p)| GeomWithData::new(p.to_array(), i))
             .collect(),
-    );
+    )
+}
+
+/// Per point, its signed distance from the least-squares plane of its
+/// [`NORMAL_NEIGHBOURS`]` - 1` nearest other points, and that plane's unit
+/// normal.
+fn neighbour_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
+    let tree = indexed_tree(points);
     (0..points.len())
         .into_par_iter()
         .map(|i| {
