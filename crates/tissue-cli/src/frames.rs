@@ -5,21 +5,22 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
-/// The files `pattern` matches (directories skipped), in name order with
-/// runs of digits compared as numbers, so `frame-2` comes before `frame-10`.
-pub fn expand(pattern: &str) -> Result<Vec<PathBuf>> {
+/// The files `pattern` (the value of the option `option`, for the errors)
+/// matches (directories skipped), in name order with runs of digits
+/// compared as numbers, so `frame-2` comes before `frame-10`.
+pub fn expand(option: &str, pattern: &str) -> Result<Vec<PathBuf>> {
     let paths = glob::glob(pattern)
-        .with_context(|| format!("--frames '{pattern}' is not a valid pattern"))?;
+        .with_context(|| format!("{option} '{pattern}' is not a valid pattern"))?;
     let mut files = Vec::new();
     for entry in paths {
-        let path = entry.with_context(|| format!("--frames '{pattern}'"))?;
+        let path = entry.with_context(|| format!("{option} '{pattern}'"))?;
         if path.is_file() {
             files.push(path);
         }
     }
-    refuse_unreadable_names(pattern)?;
+    refuse_unreadable_names(option, pattern)?;
     if files.is_empty() {
-        bail!("--frames '{pattern}' matches no file");
+        bail!("{option} '{pattern}' matches no file");
     }
     files.sort_by(|a, b| natural_order(&a.to_string_lossy(), &b.to_string_lossy()));
     Ok(files)
@@ -30,7 +31,7 @@ pub fn expand(pattern: &str) -> Result<Vec<PathBuf>> {
 /// sequence with a frame left out is a wrong result. (Checked in the
 /// pattern's folder when that folder has no wildcard, as in
 /// `frames/*.obj`.)
-fn refuse_unreadable_names(pattern: &str) -> Result<()> {
+fn refuse_unreadable_names(option: &str, pattern: &str) -> Result<()> {
     let path = Path::new(pattern);
     let (Some(folder), Some(name)) = (path.parent(), path.file_name().and_then(|n| n.to_str()))
     else {
@@ -55,7 +56,7 @@ fn refuse_unreadable_names(pattern: &str) -> Result<()> {
         let name = entry.file_name();
         if name.to_str().is_none() && matcher.matches(&name.to_string_lossy()) {
             bail!(
-                "--frames '{pattern}': {} has a name that is not valid UTF-8, which the pattern \
+                "{option} '{pattern}': {} has a name that is not valid UTF-8, which the pattern \
                  cannot match; rename it (or move it away) so that no frame is left out",
                 entry.path().to_string_lossy()
             );

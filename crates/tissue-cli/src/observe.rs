@@ -24,7 +24,7 @@ pub const RESIDUAL_FLAG: f32 = 3.0;
 
 /// A change of the organ's volume by more than this share flags the
 /// result: soft tissue keeps its volume.
-pub const VOLUME_FLAG: f32 = 0.1;
+pub const VOLUME_FLAG: f32 = tissue::observation::MAX_VOLUME_CHANGE;
 
 /// What the deformed surface file is to the model.
 pub enum Surface {

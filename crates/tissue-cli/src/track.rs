@@ -12,13 +12,15 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::Value;
-use tissue::SurfaceMesh;
-use tissue::deformation::DeformParams;
+use tissue::deformation::{DeformParams, DeformReport, ForceModel};
 use tissue::io::space::Space;
+use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
 use crate::frames::expand;
+use crate::observe::{self, ObservationReport};
 use crate::output::{
     Destination, Drawn, PARTICLES_FILE, REPORT_FILE, Solved, Status, Unfinished, convergence, draw,
     file_name, planned_outputs, prepare_outputs, refuse_overwriting, remove_earlier_outputs,
@@ -26,8 +28,8 @@ use crate::output::{
 };
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
-use crate::progress::SolveBar;
-use crate::solve::{SolveArgs, Stage2, read_deformed, read_frame, read_model, set_deformed};
+use crate::progress::{self, SolveBar};
+use crate::solve::{SolveArgs, Stage2, read_frame, read_model, read_observed, set_deformed};
 
 /// The summary of a tracking run.
 pub const TRACK_FILE: &str = "track.json";
@@ -42,9 +44,22 @@ pub struct TrackArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// The deformed surfaces, as a pattern (quote it: 'frames/*.obj'); solved
-    /// in name order, numbers compared as numbers.
-    #[arg(long)]
-    pub frames: String,
+    /// in name order, numbers compared as numbers. Either each the model's
+    /// rest surface with moved vertices, or each any closed surface of the
+    /// organ (another segmentation's), matched without correspondence as
+    /// `deform --surface` does (the held region: --fixed-region, or the rest
+    /// vertices that lie on every frame).
+    #[arg(long, required_unless_present = "clouds", conflicts_with = "clouds")]
+    pub frames: Option<String>,
+    /// Scans of part of the skin as points, as a pattern ('scans/*.ply';
+    /// the formats of `deform --cloud`), each matched without
+    /// correspondence; needs --fixed-region FILE.
+    #[arg(long, value_name = "PATTERN")]
+    pub clouds: Option<String>,
+    /// The observations' noise scale, in the model's units (as `deform
+    /// --noise`); only with observations without correspondence.
+    #[arg(long, value_name = "MM")]
+    pub noise: Option<f32>,
     #[command(flatten)]
     pub carry: CarryArgs,
     /// Folder for the results: `frame-0001/`, ... and `track.json`.
@@ -90,6 +105,10 @@ struct FrameReport {
     /// Particles the solve turned inside out.
     inverted: usize,
     structures: Vec<StructureReport>,
+    /// With observations without correspondence, how this one was matched
+    /// (as in `report.json`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    observation: Option<ObservationReport>,
 }
 
 /// Totals over the frames done.
@@ -135,6 +154,13 @@ struct Plan<'a> {
     /// The posture options, where given (a resume must give the same).
     #[serde(skip_serializing_if = "Option::is_none")]
     gravity: Option<&'a GravityArgs>,
+    /// The held region of observations without correspondence given
+    /// without the posture options.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fixed_region: Option<&'a str>,
+    /// `--noise`, where given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    noise: Option<f32>,
     /// Each input file's contents as a hash ([`input_hashes`]), by path: a
     /// resume must read the same files, not only the same names.
     inputs: BTreeMap<String, String>,
@@ -370,27 +396,62 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         p.tuning.history = args.history;
     });
     params.validate()?;
-    if args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given() {
-        anyhow::bail!(
-            "--fixed-region is the held region of the posture options (--gravity-rest, \
-             --gravity-deformed): give them too"
-        );
-    }
     if let Some(path) = &args.picture {
         picture::check_name(path)?;
     }
-    let frames = expand(&args.frames)?;
+    let frames = match (&args.frames, &args.clouds) {
+        (Some(pattern), None) => expand("--frames", pattern)?,
+        (None, Some(pattern)) => expand("--clouds", pattern)?,
+        _ => bail!("give the deformed surfaces (--frames) or scans of the skin (--clouds)"),
+    };
     let device = backend::pick(args.backend.backend, args.quiet)?;
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     // Every frame read and checked before the first solve: a bad frame
     // stops the run before anything is written.
     for frame in &frames {
         crate::carry::check_space_tag(frame, args.carry.space)?;
-        read_deformed(frame, &model.surface)?;
     }
-    // The postures' unloaded shape and stiffness, once, from the first frame.
-    let first_frame = match (args.solve.gravity.given(), frames.first()) {
-        (true, Some(first)) => Some(read_frame(first, &model.surface)?),
+    let sequence = Sequence::read(args, &frames, &model)?;
+    if let Sequence::Matched { held, observations } = &sequence {
+        if !params.force.eq(&ForceModel::Elastic) {
+            bail!("observations without correspondence are matched by the elastic force alone");
+        }
+        params.observed = Some(held.clone());
+        if !args.quiet {
+            println!(
+                "{} {} without correspondence with the model's rest surface: each matched \
+                 inside the elastic solve, {} of {} rest vertices held",
+                observations.len(),
+                if args.clouds.is_some() {
+                    "scans"
+                } else {
+                    "surfaces"
+                },
+                held.iter().filter(|&&h| h).count(),
+                held.len()
+            );
+        }
+    }
+    // The postures' unloaded shape and stiffness, once, from the first
+    // frame; for an observation, from its match without gravity over the
+    // skin it saw.
+    let first_match = match (&sequence, args.solve.gravity.given()) {
+        (Sequence::Matched { observations, .. }, true) => Some(
+            observe::first_match(
+                device.clone(),
+                &model,
+                &params,
+                &observations[0],
+                args.noise,
+                args.quiet,
+            )
+            .with_context(|| format!("{}: the match without gravity", frames[0].display()))?,
+        ),
+        _ => None,
+    };
+    let first_frame = match (&sequence, args.solve.gravity.given()) {
+        (Sequence::Frames, true) => Some(read_frame(&frames[0], &model.surface)?),
+        (Sequence::Matched { .. }, true) => first_match.as_ref().map(|(frame, _)| frame.clone()),
         _ => None,
     };
     let stage2 = Stage2 {
@@ -398,7 +459,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         model: &model,
         deformed: first_frame.as_ref().unwrap_or(&model.surface),
         gravity: &args.solve.gravity,
-        seen: None,
+        seen: first_match.as_ref().map(|(_, seen)| seen.as_slice()),
         quiet: args.quiet,
     };
     let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
@@ -408,6 +469,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     // Every frame's files and the summary, against every input, before any work.
     let mut inputs: Vec<(&str, &Path)> = vec![("model", args.model.as_path())];
     inputs.extend(frames.iter().map(|f| ("frame", f.as_path())));
+    let fixed_region = fixed_region_file(args);
+    inputs.extend(fixed_region.map(|p| ("fixed region", p)));
     inputs.extend(args.carry.inputs());
     let path = args.output_dir.join(TRACK_FILE);
     let mut outputs = vec![path.clone(), args.output_dir.join(COLLECTION_FILE)];
@@ -434,6 +497,10 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         space: args.carry.space,
         params: &params,
         gravity: args.solve.gravity.given().then_some(&args.solve.gravity),
+        fixed_region: (!args.solve.gravity.given())
+            .then_some(args.solve.gravity.fixed_region.as_deref())
+            .flatten(),
+        noise: args.noise,
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;
     prepare_outputs(std::slice::from_ref(&path))?;
@@ -457,13 +524,16 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     // the last frames) is what the frames before made it: solving them
     // again, as deterministic as the first time, makes the resumed run's
     // frames those of an uninterrupted run, to the bit. Their files stay.
-    for (k, frame) in frames[..done.len()].iter().enumerate() {
-        let deformed = read_frame(frame, &model.surface)?;
-        set_deformed(frame, &mut solver, &deformed)?;
-        if let (0, Some(posture)) = (k, &posture) {
-            posture.warm_start(&mut solver)?;
-        }
-        solver.solve()?;
+    let framing = Framing {
+        model: &model,
+        frames: &frames,
+        sequence: &sequence,
+        first_frame: first_frame.as_ref(),
+        posture: posture.as_ref(),
+        noise: args.noise,
+    };
+    for k in 0..done.len() {
+        framing.solve(k, &mut solver, true)?;
     }
     let summary = Summary {
         path: &path,
@@ -488,18 +558,11 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     let mut frame_starts: Vec<usize> = Vec::new();
     let mut last_frame: Option<(SurfaceMesh, String)> = None;
     for (k, frame) in frames.iter().enumerate().skip(first) {
-        // Checked whole before the first solve: read again, not re-checked.
-        let deformed = read_frame(frame, &model.surface)?;
-        set_deformed(frame, &mut solver, &deformed)?;
-        // The first frame is the posture's deformed scan: solved from where
-        // the fit put it.
-        if let (0, Some(posture)) = (k, &posture) {
-            posture.warm_start(&mut solver)?;
-        }
-        let mut bar = SolveBar::new(format!("frame {}/{}", k + 1, frames.len()), args.quiet);
-        let solve = solver.solve_with_progress(&mut |step| bar.step(step));
-        bar.finish();
-        let solve = solve?;
+        let Framed {
+            solve,
+            deformed,
+            observation,
+        } = framing.solve(k, &mut solver, args.quiet)?;
         if k > first {
             frame_starts.push(residuals.len());
         }
@@ -529,7 +592,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 params: &params,
                 solve,
                 posture: posture_report,
-                observation: None,
+                observation: observation.clone(),
             },
         ) {
             Ok(report) => report,
@@ -572,6 +635,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             status: report.status,
             inverted: report.inverted.count,
             structures: report.structures,
+            observation,
         })?);
         let last = k + 1 == frames.len();
         if !last {
@@ -666,6 +730,208 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         ),
     };
     Err(Unfinished { status, message }.into())
+}
+
+/// What the frames are.
+enum Sequence {
+    /// Frames of the model's rest surface: the skin follows each vertex by
+    /// vertex.
+    Frames,
+    /// Observations without correspondence (closed surfaces of any
+    /// triangulation, or scans), with the held region's rest vertices.
+    Matched {
+        observations: Vec<Observation>,
+        held: Vec<bool>,
+    },
+}
+
+impl Sequence {
+    /// Every one of `frames` read and checked against `model`: all frames of
+    /// the rest surface, or all observations without correspondence.
+    fn read(args: &TrackArgs, frames: &[PathBuf], model: &ParticleModel) -> Result<Self> {
+        let rest = &model.surface;
+        let held_file = fixed_region_file(args);
+        if args.clouds.is_some() {
+            let Some(region) = held_file else {
+                bail!(
+                    "--clouds: scans of part of the skin need the region held at rest (the chest \
+                     wall) as --fixed-region FILE"
+                );
+            };
+            let held = read_observed(region, rest)?;
+            let observations = frames
+                .iter()
+                .map(|path| observe::read_cloud(path, model, args.noise))
+                .collect::<Result<Vec<_>>>()?;
+            return Self::matched(args, observations, held);
+        }
+        let mut others = Vec::new();
+        let mut framed = Vec::new();
+        for path in frames {
+            match observe::read_surface(path, rest)? {
+                observe::Surface::Frame(_) => framed.push(path),
+                observe::Surface::Other(mesh) => others.push((path, mesh)),
+            }
+        }
+        if others.is_empty() {
+            if args.noise.is_some()
+                || (args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given())
+            {
+                bail!(
+                    "--frames are the model's rest surface with moved vertices, which the skin \
+                     follows vertex by vertex; --noise, and --fixed-region without the posture \
+                     options (--gravity-rest, --gravity-deformed), are for observations \
+                     without correspondence"
+                );
+            }
+            return Ok(Self::Frames);
+        }
+        if let (Some(frame), Some((other, _))) = (framed.first(), others.first()) {
+            bail!(
+                "--frames mixes the model's rest surface with moved vertices ({}) and other \
+                 surfaces ({}): a sequence is either all frames of the rest surface or all \
+                 observations without correspondence",
+                frame.display(),
+                other.display()
+            );
+        }
+        // Without the file: the rest vertices that lie on every frame
+        // (what did not move in any).
+        let held = match held_file {
+            Some(region) => read_observed(region, rest)?,
+            None => {
+                let mut held = vec![true; rest.vertices.len()];
+                for (path, mesh) in &others {
+                    let on = observe::held_on(mesh, model)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+                    held.iter_mut().zip(on).for_each(|(h, on)| *h &= on);
+                }
+                if !held.contains(&true) {
+                    bail!(
+                        "--frames: no rest vertex lies on every frame, so nothing is known to be \
+                         held; give the held region (the chest wall) as --fixed-region"
+                    );
+                }
+                held
+            }
+        };
+        let observations = others
+            .iter()
+            .map(|(_, mesh)| Observation::surface(mesh))
+            .collect::<Result<Vec<_>, _>>()?;
+        Self::matched(args, observations, held)
+    }
+
+    /// Observations without correspondence, once the options are checked.
+    fn matched(args: &TrackArgs, observations: Vec<Observation>, held: Vec<bool>) -> Result<Self> {
+        if args.solve.observed.is_some() {
+            bail!(
+                "--observed names the seen vertices of frames with the rest surface's vertices; \
+                 observations without correspondence are matched where they are seen (give the \
+                 held region as --fixed-region)"
+            );
+        }
+        if args.noise.is_some_and(|n| !(n.is_finite() && n >= 0.0)) {
+            bail!(
+                "--noise is {}: a distance of at least zero is needed",
+                args.noise.unwrap_or_default()
+            );
+        }
+        Ok(Self::Matched { observations, held })
+    }
+}
+
+/// The `--fixed-region` file, if one is given (not `auto`).
+fn fixed_region_file(args: &TrackArgs) -> Option<&Path> {
+    match args.solve.gravity.fixed_region.as_deref() {
+        None | Some("auto") => None,
+        Some(file) => Some(Path::new(file)),
+    }
+}
+
+/// How each frame is solved.
+struct Framing<'a> {
+    model: &'a ParticleModel,
+    frames: &'a [PathBuf],
+    sequence: &'a Sequence,
+    /// With the posture options, the first frame the posture was made
+    /// from (for observations: their first match without gravity).
+    first_frame: Option<&'a SurfaceMesh>,
+    posture: Option<&'a crate::posture::Posture>,
+    noise: Option<f32>,
+}
+
+/// A frame solved.
+struct Framed {
+    solve: DeformReport,
+    /// The deformed surface: the frame, or the model's surface matched.
+    deformed: SurfaceMesh,
+    observation: Option<ObservationReport>,
+}
+
+impl Framing<'_> {
+    /// Solves frame `k` from where the frames before left `solver` (the
+    /// first with the posture, from where its fit put it); `quiet` shows no
+    /// progress.
+    fn solve(&self, k: usize, solver: &mut crate::backend::Solver, quiet: bool) -> Result<Framed> {
+        let path = &self.frames[k];
+        let posture_frame = self
+            .first_frame
+            .filter(|_| k == 0 && self.posture.is_some());
+        let placed = match self.sequence {
+            // Checked whole before the first solve: read again, not
+            // re-checked.
+            Sequence::Frames => read_frame(path, &self.model.surface)?,
+            // The held region where it is (or the first match's frame).
+            Sequence::Matched { .. } => posture_frame.unwrap_or(&self.model.surface).clone(),
+        };
+        set_deformed(path, solver, &placed)?;
+        // The first frame is the posture's deformed scan: solved from where
+        // the fit put it.
+        if let (0, Some(posture)) = (k, self.posture) {
+            posture.warm_start(solver)?;
+        }
+        let label = format!("frame {}/{}", k + 1, self.frames.len());
+        match self.sequence {
+            Sequence::Frames => {
+                let mut bar = SolveBar::new(label, quiet);
+                let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+                bar.finish();
+                Ok(Framed {
+                    solve: solve?,
+                    deformed: placed,
+                    observation: None,
+                })
+            }
+            Sequence::Matched { observations, .. } => {
+                let started = Instant::now();
+                // A frame after the first starts from the last one's
+                // answer.
+                let matching = if k == 0 {
+                    MatchParams {
+                        noise: self.noise,
+                        ..MatchParams::default()
+                    }
+                } else {
+                    MatchParams::next_frame(self.noise)
+                };
+                let report = progress::busy(quiet, &format!("{label}: matching"), |_| {
+                    match_observation(solver, self.model, &observations[k], &matching)
+                })
+                .with_context(|| format!("{}", path.display()))?;
+                let mut solve = report.last.clone();
+                solve.iterations = report.iterations;
+                solve.seconds = started.elapsed().as_secs_f64();
+                let observation =
+                    ObservationReport::of(&observations[k], &report, self.noise, self.model);
+                Ok(Framed {
+                    solve,
+                    deformed: report.surface,
+                    observation: Some(observation),
+                })
+            }
+        }
+    }
 }
 
 /// What `track.json` says besides the frames: written after every frame.

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{json, s, sampled_model, text, tissue};
+use common::{json, s, sampled_model, text, tissue, vtp_array};
 use tissue::{SurfaceMesh, Vec3};
 
 /// `mesh` with every triangle cut into four: the same surface in another
@@ -54,8 +54,10 @@ fn deform_matches_a_surface_of_another_triangulation() {
 
 /// What an observation without correspondence cannot come with is refused
 /// with the reason: a cloud without the held region, the held region or
-/// a noise with the rest surface's own frame, a cloud in metres of an
-/// organ in millimetres.
+/// a noise with the rest surface's own frame, a cloud in metres or
+/// micrometres of an organ in millimetres, a cloud 20 mm away from the
+/// chest wall or into the organ (the organ would have to grow or shrink
+/// by a third), a surface 20 mm off the chest wall it holds.
 #[test]
 fn deform_refuses_what_a_match_cannot_take() {
     let dir = tempfile::tempdir().unwrap();
@@ -75,6 +77,22 @@ fn deform_refuses_what_a_match_cannot_take() {
     let metres: Vec<Vec3> = points.iter().map(|&p| p * 1e-3).collect();
     let cloud_m = dir.path().join("metres.csv");
     tissue::save_points(&metres, &cloud_m).unwrap();
+    let microns: Vec<Vec3> = points.iter().map(|&p| p * 1e3).collect();
+    let cloud_um = dir.path().join("microns.csv");
+    tissue::save_points(&microns, &cloud_um).unwrap();
+    // 20 mm away from the chest wall (z = 0), 20 mm into the organ.
+    let lifted = |mesh: &SurfaceMesh, by: f32| SurfaceMesh {
+        vertices: mesh.vertices.iter().map(|&v| v + Vec3::Z * by).collect(),
+        ..mesh.clone()
+    };
+    let away: Vec<Vec3> = points.iter().map(|&p| p + Vec3::Z * 20.0).collect();
+    let cloud_away = dir.path().join("away.csv");
+    tissue::save_points(&away, &cloud_away).unwrap();
+    let into: Vec<Vec3> = points.iter().map(|&p| p - Vec3::Z * 20.0).collect();
+    let cloud_into = dir.path().join("into.csv");
+    tissue::save_points(&into, &cloud_into).unwrap();
+    let surface_away = dir.path().join("away.obj");
+    tissue::save_surface(&lifted(&subdivided(&sagged), 20.0), &surface_away).unwrap();
     let wall: Vec<Vec3> = model
         .surface
         .vertices
@@ -117,6 +135,29 @@ fn deform_refuses_what_a_match_cannot_take() {
     refused(
         &["--cloud", s(&cloud_m), "--fixed-region", s(&fixed)],
         &["metres"],
+    );
+    refused(
+        &["--cloud", s(&cloud_um), "--fixed-region", s(&fixed)],
+        &["a thousand times too large"],
+    );
+    refused(
+        &["--cloud", s(&cloud_away), "--fixed-region", s(&fixed)],
+        &[
+            "grow by about",
+            "shifted away from the held region",
+            "units",
+        ],
+    );
+    refused(
+        &["--cloud", s(&cloud_into), "--fixed-region", s(&fixed)],
+        &["shrink by about", "shifted into the organ"],
+    );
+    refused(
+        &["--surface", s(&surface_away), "--fixed-region", s(&fixed)],
+        &[
+            "the held region (the chest wall) lies 20.0",
+            "another coordinate frame",
+        ],
     );
 }
 
@@ -174,4 +215,181 @@ fn deform_matches_with_the_postures() {
     );
     let rms = matched["observation"]["residual_rms_mm"].as_f64().unwrap();
     assert!(rms < 2e-3 * common::size(&model) as f64, "residual {rms}");
+}
+
+/// `track` of observations without correspondence: the phantom's sag in
+/// three steps of 4 mm, as surfaces of another triangulation and as scans
+/// of the upper skin. Every frame is matched (its report in `track.json`),
+/// each after the first from the last one's answer, and the last lands
+/// where `deform` puts it from rest, and where a run resumed at it puts it;
+/// the held region found without `--fixed-region` is what lies on every
+/// frame. A sequence mixing frames
+/// of the rest surface with other surfaces, and scans without the held
+/// region, are refused.
+#[test]
+fn track_matches_sequences_without_correspondence() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let size = common::size(&model);
+    for folder in ["surfaces", "scans", "mixed"] {
+        std::fs::create_dir(dir.path().join(folder)).unwrap();
+    }
+    for k in 1..=3 {
+        let sag = tissue::deform::Sag {
+            magnitude_mm: 4.0 * k as f32,
+            ..Default::default()
+        };
+        let sagged = tissue::deform::deform_surface(&model.surface, &sag);
+        let other = subdivided(&sagged);
+        let surfaces = dir.path().join(format!("surfaces/s-{k}.obj"));
+        tissue::save_surface(&other, &surfaces).unwrap();
+        let upper: Vec<Vec3> = sagged
+            .vertices
+            .iter()
+            .filter(|v| v.z > 0.0)
+            .copied()
+            .collect();
+        tissue::save_points(&upper, &dir.path().join(format!("scans/c-{k}.csv"))).unwrap();
+        let mixed = dir.path().join(format!("mixed/m-{k}.obj"));
+        if k == 1 {
+            tissue::save_surface(&sagged, &mixed).unwrap();
+        } else {
+            tissue::save_surface(&other, &mixed).unwrap();
+        }
+    }
+    let wall: Vec<Vec3> = model
+        .surface
+        .vertices
+        .iter()
+        .filter(|v| v.z <= 1e-4)
+        .copied()
+        .collect();
+    let fixed = dir.path().join("wall.csv");
+    tissue::save_points(&wall, &fixed).unwrap();
+    // The subcommand, then the model and its options.
+    let run = |args: &[&str]| {
+        let mut all = vec![
+            args[0],
+            "--model",
+            s(&model_path),
+            "--backend",
+            "cpu",
+            "--quiet",
+        ];
+        all.extend(&args[1..]);
+        tissue(&all)
+    };
+    let points =
+        |path: &std::path::Path| vtp_array(&std::fs::read_to_string(path).unwrap(), "Points");
+    let farthest = |a: &[f32], b: &[f32]| {
+        assert_eq!(a.len(), b.len());
+        a.chunks(3)
+            .zip(b.chunks(3))
+            .map(|(p, q)| Vec3::from_slice(p).distance(Vec3::from_slice(q)))
+            .fold(0.0f32, f32::max)
+    };
+    let pattern = |p: &str| dir.path().join(p).display().to_string();
+    for (kind, option, files, fixed_region) in [
+        ("surface", "--frames", pattern("surfaces/*.obj"), None),
+        (
+            "surface",
+            "--frames",
+            pattern("surfaces/*.obj"),
+            Some(&fixed),
+        ),
+        ("cloud", "--clouds", pattern("scans/*.csv"), Some(&fixed)),
+    ] {
+        let out_dir = dir
+            .path()
+            .join(format!("track-{kind}-{}", fixed_region.is_some()));
+        let mut args = vec!["track", option, &files, "--output-dir", s(&out_dir)];
+        if let Some(region) = fixed_region {
+            args.extend(["--fixed-region", s(region)]);
+        }
+        let out = run(&args);
+        assert!(out.status.success(), "{kind}: {}", text(&out));
+        let summary = json(&out_dir.join("track.json"));
+        let frames = summary["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 3);
+        for frame in frames {
+            let observation = &frame["observation"];
+            assert_eq!(observation["kind"], kind, "{frame}");
+            let pulled = observation["pulled"].as_u64().unwrap() as f64;
+            let skin = observation["skin"].as_u64().unwrap() as f64;
+            assert!(pulled >= 0.95 * skin, "{frame}");
+            let rms = observation["residual_rms_mm"].as_f64().unwrap();
+            assert!(rms < 2e-3 * f64::from(size), "{kind}: residual {rms}");
+        }
+        let Some(region) = fixed_region else {
+            // The held region lies on every frame: at most what the
+            // first frame alone holds.
+            let first = dir.path().join("first");
+            let out = run(&[
+                "deform",
+                "--surface",
+                &pattern("surfaces/s-1.obj"),
+                "--output-dir",
+                s(&first),
+            ]);
+            assert!(out.status.success(), "{}", text(&out));
+            let alone = json(&first.join("report.json"))["observed"]["vertices"]
+                .as_u64()
+                .unwrap();
+            let held = json(&out_dir.join("frame-0001/report.json"))["observed"]["vertices"]
+                .as_u64()
+                .unwrap();
+            assert!(
+                held > 0 && held <= alone,
+                "{held} held, {alone} by the first"
+            );
+            continue;
+        };
+        let last = if kind == "surface" {
+            pattern("surfaces/s-3.obj")
+        } else {
+            pattern("scans/c-3.csv")
+        };
+        let alone = dir.path().join(format!("deform-{kind}"));
+        let out = run(&[
+            "deform",
+            if kind == "surface" {
+                "--surface"
+            } else {
+                "--cloud"
+            },
+            &last,
+            "--fixed-region",
+            s(region),
+            "--output-dir",
+            s(&alone),
+        ]);
+        assert!(out.status.success(), "{}", text(&out));
+        let tracked = points(&out_dir.join("frame-0003/particles.vtp"));
+        let from_rest = points(&alone.join("particles.vtp"));
+        let off = farthest(&tracked, &from_rest);
+        assert!(off < 1e-3 * size, "{kind}: {off} from deform's answer");
+        // Resumed at the last frame (its folder gone, as after a kill):
+        // the matches before are replayed, the last frame is the same.
+        let last_particles = out_dir.join("frame-0003/particles.vtp");
+        let written = std::fs::read(&last_particles).unwrap();
+        std::fs::remove_dir_all(out_dir.join("frame-0003")).unwrap();
+        args.push("--resume");
+        let out = run(&args);
+        assert!(out.status.success(), "{kind} resumed: {}", text(&out));
+        assert_eq!(std::fs::read(&last_particles).unwrap(), written, "{kind}");
+    }
+    let refused = |args: &[&str], says: &str| {
+        let out_dir = dir.path().join("refused");
+        let mut all = args.to_vec();
+        all.extend(["--output-dir", s(&out_dir)]);
+        let out = run(&all);
+        let said = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {said}");
+        assert!(said.contains(says), "{args:?}: {said}");
+    };
+    refused(&["track", "--frames", &pattern("mixed/*.obj")], "mixes");
+    refused(
+        &["track", "--clouds", &pattern("scans/*.csv")],
+        "--fixed-region FILE",
+    );
 }

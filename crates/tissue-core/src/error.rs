@@ -425,6 +425,31 @@ pub enum ObservationError {
         /// Free skin particles.
         skin: usize,
     },
+    /// Meeting the observation would change the organ's volume by more
+    /// than soft tissue does.
+    #[error("{}", volume_change_message(*change, *mean, *most))]
+    VolumeChange {
+        /// The implied volume over the rest volume, less one.
+        change: f32,
+        /// The observed points' mean signed distance from the rest skin
+        /// (positive outside).
+        mean: f32,
+        /// The largest change taken.
+        most: f32,
+    },
+    /// The held region does not lie on an observed closed surface.
+    #[error(
+        "the held region (the chest wall) lies {distance:.3} from the observed surface (the median \
+         over its rest vertices), more than {most:.3}, though it does not move: the surface is in \
+         another coordinate frame (put it in the model's first) or the held region is not where \
+         the organ is fixed"
+    )]
+    HeldOff {
+        /// The median distance of the held rest vertices from the surface.
+        distance: f32,
+        /// The most that is taken.
+        most: f32,
+    },
     /// The observation lies too far from the model's skin to be of it.
     #[error(
         "the observation lies {median:.3} from the model's skin (the median over its free skin \
@@ -553,4 +578,32 @@ impl From<std::convert::Infallible> for Error {
     fn from(never: std::convert::Infallible) -> Self {
         match never {}
     }
+}
+
+/// The words of [`ObservationError::VolumeChange`]: which way the organ
+/// would have to change, and what usually explains it.
+fn volume_change_message(change: f32, mean: f32, most: f32) -> String {
+    let (way, side, cause) = if change > 0.0 {
+        (
+            "grow",
+            "outside",
+            "shifted away from the held region (in another coordinate frame: put it in the \
+             model's first) or in smaller units than the organ's",
+        )
+    } else {
+        (
+            "shrink",
+            "inside",
+            "shifted into the organ (in another coordinate frame: put it in the model's first) \
+             or in larger units than the organ's",
+        )
+    };
+    format!(
+        "the observed points lie {:.1} {side} the model's rest skin on average: the organ would \
+         have to {way} by about {:.0} % to meet them, where soft tissue keeps its volume (at most \
+         {:.0} % is taken); the observation is likely {cause}",
+        mean.abs(),
+        100.0 * change.abs(),
+        100.0 * most
+    )
 }

@@ -177,14 +177,18 @@ impl Deformer {
     /// `residual_rms`, `residual_p95`, `residual_max` (the observed
     /// points' distances to the deformed skin), `volume_change`, `stages`.
     /// A match that did not converge, or whose residual is above three
-    /// times the noise, warns (RuntimeWarning).
-    #[pyo3(signature = (surface = None, cloud = None, noise = None))]
+    /// times the noise, warns (RuntimeWarning). `from_last=True` starts
+    /// from where the deformer is (the last match's answer: a sequence's
+    /// next frame, as `tissue track` matches it) in one solve at full
+    /// weight, rather than from the start in four growing ones.
+    #[pyo3(signature = (surface = None, cloud = None, noise = None, from_last = false))]
     fn match_observation(
         &mut self,
         py: Python<'_>,
         surface: Option<&Bound<'_, PyAny>>,
         cloud: Option<&Bound<'_, PyAny>>,
         noise: Option<f32>,
+        from_last: bool,
     ) -> PyResult<Py<PyAny>> {
         let centre = self.model.positions.iter().copied().sum::<Vec3>() / self.model.len() as f32;
         let observation = match (surface, cloud) {
@@ -210,9 +214,13 @@ impl Deformer {
             }
         };
         let (solver, model) = (&mut self.solver, &self.model);
-        let params = MatchParams {
-            noise,
-            ..MatchParams::default()
+        let params = if from_last {
+            MatchParams::next_frame(noise)
+        } else {
+            MatchParams {
+                noise,
+                ..MatchParams::default()
+            }
         };
         let report = py
             .detach(|| {

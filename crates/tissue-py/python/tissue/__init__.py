@@ -32,7 +32,8 @@ A scanner's point cloud of the organ (no correspondence to the model) is
 read by ``load_cloud``; ``rigid_fit`` finds the rigid motion that puts it
 on a surface (for a scan in another frame). ``Deformer.match_observation``
 pulls the skin onto another segmentation's surface or onto a scan without
-correspondence (the deformer's ``observed`` vertices held at rest).
+correspondence (the deformer's ``observed`` vertices held at rest);
+``from_last=True`` matches a sequence's next frame from the last answer.
 
 Every computation releases the GIL. Errors are ``tissue.TissueError``,
 with the messages of the command-line tool.

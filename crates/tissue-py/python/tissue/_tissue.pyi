@@ -103,5 +103,6 @@ class Deformer:
         surface: Optional[Any] = None,
         cloud: Optional[Any] = None,
         noise: Optional[float] = None,
+        from_last: bool = False,
     ) -> dict[str, Any]: ...
     def reset(self) -> None: ...
