@@ -41,6 +41,7 @@ use tissue_solve::Tracker;
 use tissue_solve::stage2::PostureDevice;
 
 use crate::backend::{Device, Solver, SolverDevice};
+use crate::observation::{MatchParams, MatchReport, Observation, match_observation};
 
 pub use tissue_solve::model::{STANDARD_GRAVITY, held_vertices};
 pub use tissue_solve::stage2::{
@@ -85,6 +86,53 @@ pub fn unload(
         params,
         progress,
     )
+}
+
+/// Where an observation without correspondence puts the skin before
+/// gravity is known: the stiffness fit's frame.
+#[derive(Debug, Clone)]
+pub struct ObservedFrame {
+    /// The rest surface carried by the match without gravity, its held
+    /// region where it is: a frame of the rest surface, the `deformed`
+    /// that [`unload`] fits the stiffness to.
+    pub frame: SurfaceMesh,
+    /// Per vertex of `frame`, whether the observation saw it
+    /// ([`Observation::sees`]): the skin the fit may use, given to
+    /// [`unload`] as its `params.observed`.
+    pub seen: Vec<bool>,
+    /// The match's report.
+    pub report: MatchReport,
+}
+
+/// The skin of `model` matched to `observation` without gravity on
+/// `device` (`params.observed` the held region, the rest of the skin free;
+/// `matching` as for [`match_observation`]), the first step of a posture
+/// with an observation without correspondence: the stiffness is then
+/// fitted to the frame this gives over the skin the observation saw
+/// (`unload(device, model, &observed.frame, held, gravity,
+/// &params.with(|p| p.observed = Some(observed.seen.clone())), ..)`), and
+/// the deformed posture matched again with its gravity inside, from the
+/// fit's guess (docs/METHOD.md, "Observations without correspondence").
+/// The caller judges `report.converged`.
+///
+/// # Errors
+///
+/// What [`Solver::new`] and [`match_observation`] refuse.
+pub fn observed_frame(
+    device: &Device,
+    model: &ParticleModel,
+    observation: &Observation,
+    params: &DeformParams,
+    matching: &MatchParams,
+) -> Result<ObservedFrame, Error> {
+    let mut solver = Solver::new(device.clone(), model, params.clone())?;
+    solver.set_surface(&model.surface)?;
+    let report = match_observation(&mut solver, model, observation, matching)?;
+    Ok(ObservedFrame {
+        frame: report.surface.clone(),
+        seen: observation.sees(&report.surface.vertices),
+        report,
+    })
 }
 
 /// The posture search's solves on a [`Device`].

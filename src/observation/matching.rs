@@ -71,6 +71,11 @@ pub const MAX_REACH: f32 = 0.25;
 /// 20 mm away from the chest wall +15 % to +33 %.
 pub const MAX_VOLUME_CHANGE: f32 = 0.1;
 
+/// A rest vertex within this many mean connection lengths of an observed
+/// closed surface lies on it ([`held_on`]): held where no held region is
+/// given.
+pub const HELD_TOLERANCE: f32 = 0.02;
+
 /// The held region's rest vertices may lie this many mean connection
 /// lengths from an observed closed surface (their median) at most: it does
 /// not move, so farther off the surface is in another frame.
@@ -640,6 +645,38 @@ fn residual(points: &[Vec3], surface: &SurfaceMesh) -> Result<Residual, Error> {
         p95,
         max: distances[distances.len() - 1],
     })
+}
+
+/// The rest vertices of `rest` within `tolerance` of `observed` (a closed
+/// surface of the organ without correspondence): the region that did not
+/// move, to hold where the caller gives none ([`HELD_TOLERANCE`] mean
+/// connection lengths is `tissue deform`'s).
+///
+/// # Errors
+///
+/// [`Error::Observation`] where `observed` has no triangles, or no
+/// triangle of `rest` lies on it (nothing is known to be held).
+pub fn held_on(
+    observed: &SurfaceMesh,
+    rest: &SurfaceMesh,
+    tolerance: f32,
+) -> Result<Vec<bool>, Error> {
+    let cell = mean_edge(observed);
+    let field = SurfaceField::new(observed, cell, 2.0 * cell).map_err(ObservationError::from)?;
+    let held: Vec<bool> = rest
+        .vertices
+        .par_iter()
+        .map(|&v| field.nearest(v).distance.abs() <= tolerance)
+        .collect();
+    let triangles = rest
+        .triangles
+        .iter()
+        .filter(|t| t.iter().all(|&v| held[v as usize]))
+        .count();
+    if triangles == 0 {
+        return Err(ObservationError::NothingHeld { tolerance }.into());
+    }
+    Ok(held)
 }
 
 /// A surface's mean edge length: the cell of its nearest points' grid.

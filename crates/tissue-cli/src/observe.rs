@@ -6,17 +6,11 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use serde::Serialize;
-use tissue::field::SurfaceField;
 use tissue::observation::{
-    CLOUD_NOISE, Cloud, MatchParams, MatchReport, Observation, SURFACE_NOISE, load_cloud,
-    match_observation,
+    CLOUD_NOISE, Cloud, HELD_TOLERANCE, MatchParams, MatchReport, Observation, SURFACE_NOISE,
+    load_cloud,
 };
 use tissue::{ParticleModel, SurfaceMesh};
-
-/// A rest vertex within this many mean connection lengths of an observed
-/// surface is taken as held there where no `--fixed-region` is given: the
-/// region that did not move (the chest wall).
-pub const HELD_TOLERANCE: f32 = 0.02;
 
 /// A residual RMS above this many noise scales flags the result: the
 /// model does not reach the observation.
@@ -93,54 +87,30 @@ pub fn first_match(
     noise: Option<f32>,
     quiet: bool,
 ) -> Result<(SurfaceMesh, Vec<bool>)> {
-    let report = crate::progress::busy(quiet, "matching the skin without gravity first", |_| {
-        let mut solver = crate::backend::Solver::new(device, model, params.clone())?;
-        solver.set_surface(&model.surface)?;
-        let matching = MatchParams {
-            noise,
-            ..MatchParams::default()
-        };
-        match_observation(&mut solver, model, observation, &matching)
+    let matching = MatchParams {
+        noise,
+        ..MatchParams::default()
+    };
+    let observed = crate::progress::busy(quiet, "matching the skin without gravity first", |_| {
+        tissue::gravity::observed_frame(&device, model, observation, params, &matching)
     })?;
-    if !report.converged {
+    if !observed.report.converged {
         bail!(
             "it did not converge ({} iterations, stopped by {:?})",
-            report.iterations,
-            report.last.stopped_by
+            observed.report.iterations,
+            observed.report.last.stopped_by
         );
     }
-    let seen = observation.sees(&report.surface.vertices);
-    Ok((report.surface, seen))
+    Ok((observed.frame, observed.seen))
 }
 
 /// The rest surface's vertices that lie on `observed` (within
 /// [`HELD_TOLERANCE`] mean connection lengths): the region that did not
 /// move, held where the user gives no `--fixed-region`.
 pub fn held_on(observed: &SurfaceMesh, model: &ParticleModel) -> Result<Vec<bool>> {
-    let spacing = model.mean_connection_length();
-    let cell = tissue::observation::mean_edge(observed);
-    let field = SurfaceField::new(observed, cell, 2.0 * cell)
-        .map_err(|e| anyhow::anyhow!("the observed surface: {e}"))?;
-    let tolerance = HELD_TOLERANCE * spacing;
-    let held: Vec<bool> = model
-        .surface
-        .vertices
-        .iter()
-        .map(|&v| field.nearest(v).distance.abs() <= tolerance)
-        .collect();
-    let triangles = model
-        .surface
-        .triangles
-        .iter()
-        .filter(|t| t.iter().all(|&v| held[v as usize]))
-        .count();
-    if triangles == 0 {
-        bail!(
-            "no part of the model's rest surface lies on it (within {tolerance:.3}): nothing is \
-             known to be held; give the held region (the chest wall) as --fixed-region"
-        );
-    }
-    Ok(held)
+    let tolerance = HELD_TOLERANCE * model.mean_connection_length();
+    tissue::observation::held_on(observed, &model.surface, tolerance)
+        .map_err(|e| anyhow::anyhow!("{e} as --fixed-region"))
 }
 
 /// The observation in the report.

@@ -437,6 +437,15 @@ pub enum ObservationError {
         /// The largest change taken.
         most: f32,
     },
+    /// No part of the rest surface lies on an observed closed surface.
+    #[error(
+        "no part of the model's rest surface lies on it (within {tolerance:.3}): nothing is known \
+         to be held; give the held region (the chest wall)"
+    )]
+    NothingHeld {
+        /// How near a rest vertex must be.
+        tolerance: f32,
+    },
     /// The held region does not lie on an observed closed surface.
     #[error(
         "the held region (the chest wall) lies {distance:.3} from the observed surface (the median \

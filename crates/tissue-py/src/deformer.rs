@@ -9,11 +9,11 @@ use numpy::{
 use pyo3::prelude::*;
 use tissue::backend::Solver;
 use tissue::io::space::Space;
-use tissue::observation::{Cloud, MatchParams, Observation, match_observation};
+use tissue::observation::{MatchParams, match_observation};
 use tissue::{ParticleModel, SurfaceMesh, Vec3};
 
 use crate::convert::{
-    Callback, Points, array_of, as_dict, deformed_surface, points_from, raise, surface_of, warn,
+    Callback, Points, array_of, as_dict, deformed_surface, points_from, raise, warn,
 };
 
 /// Stage 2 of one model: the surface particles follow a deformed surface
@@ -190,28 +190,21 @@ impl Deformer {
         noise: Option<f32>,
         from_last: bool,
     ) -> PyResult<Py<PyAny>> {
-        let centre = self.model.positions.iter().copied().sum::<Vec3>() / self.model.len() as f32;
         let observation = match (surface, cloud) {
-            (Some(surface), None) => {
-                let mut mesh = surface_of(surface)?;
-                let _checked = tissue::validate(&mut mesh).map_err(raise)?;
-                Observation::surface(&mesh).map_err(raise)?
-            }
-            (None, Some(cloud)) => {
-                let points = match cloud.extract::<PathBuf>() {
-                    Ok(path) => {
-                        tissue::observation::load_cloud(&path, Space::Lps).map_err(raise)?
-                    }
-                    Err(_) => points_from(cloud, "cloud")?,
-                };
-                let cloud = Cloud::new(points).map_err(raise)?;
-                Observation::cloud(&cloud, noise, centre).map_err(raise)?
-            }
+            (Some(surface), None) => crate::observation::other_surface_of(surface)?.1,
+            (None, Some(cloud)) => crate::observation::scan_of(&self.model, cloud, noise)?,
             _ => {
                 return Err(raise(
                     "give the observation as surface= or as cloud=, one of the two",
                 ));
             }
+        };
+        // The first match after `Model.deformer_in_posture` starts where
+        // its fit put the deformed posture.
+        let guess = if from_last {
+            None
+        } else {
+            self.guess.take().map(|(_, guess)| guess)
         };
         let (solver, model) = (&mut self.solver, &self.model);
         let params = if from_last {
@@ -225,6 +218,9 @@ impl Deformer {
         let report = py
             .detach(|| {
                 solver.set_surface(&model.surface)?;
+                if let Some(guess) = &guess {
+                    solver.warm_start(guess)?;
+                }
                 match_observation(solver, model, &observation, &params)
             })
             .map_err(raise)?;

@@ -14,7 +14,10 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 use tissue::backend::{Backend, Device, Solver, with_cpu_fallback};
 use tissue::deformation::{DeformParams, ForceModel};
-use tissue::gravity::{FIT_PARTICLES, Gravity, HELD_SPACINGS, held_vertices, unload};
+use tissue::gravity::{
+    FIT_PARTICLES, Gravity, HELD_SPACINGS, held_vertices, observed_frame, unload,
+};
+use tissue::observation::{HELD_TOLERANCE, MatchParams, Observation};
 use tissue::{Error, ParticleModel, SamplingParams, SamplingReport, Vec3};
 
 mod convert;
@@ -26,6 +29,53 @@ use convert::{
     vertex_mask, warn,
 };
 use deformer::{Deformer, save_motion};
+
+/// What `Model.deformer_in_posture` is given as the deformed posture's
+/// skin.
+enum Target {
+    /// The rest surface with moved vertices.
+    Frame(tissue::SurfaceMesh),
+    /// Another closed surface of the organ, and it as an observation.
+    Other(tissue::SurfaceMesh, Observation),
+    /// A scan of part of the skin.
+    Scan(Observation),
+}
+
+impl Target {
+    /// `deformed` for `model`: with `scan`, a scan's points (a path or an
+    /// `(n, 3)` array); else a frame of the rest surface where it is one,
+    /// or else another closed surface of the organ.
+    fn of(
+        model: &ParticleModel,
+        deformed: &Bound<'_, PyAny>,
+        scan: bool,
+        noise: Option<f32>,
+    ) -> PyResult<Self> {
+        if scan {
+            return Ok(Self::Scan(observation::scan_of(model, deformed, noise)?));
+        }
+        match deformed_surface(&model.surface, deformed) {
+            Ok(frame) if noise.is_none() => Ok(Self::Frame(frame)),
+            Ok(_) => Err(raise(
+                "noise= is for an observation without correspondence; the deformed surface is \
+                 the model's rest surface with moved vertices, which the skin follows vertex by \
+                 vertex",
+            )),
+            Err(not_a_frame) => match observation::other_surface_of(deformed) {
+                Ok((mesh, observation)) => Ok(Self::Other(mesh, observation)),
+                Err(_) => Err(not_a_frame),
+            },
+        }
+    }
+
+    /// The observation without correspondence, where it is one.
+    fn observation(&self) -> Option<&Observation> {
+        match self {
+            Self::Frame(_) => None,
+            Self::Other(_, observation) | Self::Scan(observation) => Some(observation),
+        }
+    }
+}
 
 create_exception!(
     _tissue,
@@ -270,6 +320,17 @@ impl Model {
     /// at least twice as many, this model's unloaded shape then found at
     /// the fitted stiffness (several times faster; docs/METHOD.md);
     /// `None` fits on this model.
+    ///
+    /// `deformed` may also be an observation without correspondence
+    /// (`tissue deform --surface` of another triangulation, or `--cloud`
+    /// with `scan=True`): another closed surface of the organ, or with
+    /// `scan=True` a scan of part of the skin (a file path or an `(n, 3)`
+    /// array of points; it needs `held`), with its noise scale `noise`.
+    /// The skin is then matched to it without gravity first, the stiffness
+    /// fitted to where that put the skin it saw; match the deformer to the
+    /// same observation (`Deformer.match_observation`), which starts from
+    /// the fit's guess with the deformed posture's gravity inside. `held`
+    /// found for another surface: the rest vertices on it.
     #[pyo3(signature = (
         deformed,
         gravity_rest,
@@ -282,7 +343,9 @@ impl Model {
         poisson = None,
         max_iterations = None,
         progress = None,
-        fit_particles = Some(FIT_PARTICLES)
+        fit_particles = Some(FIT_PARTICLES),
+        scan = false,
+        noise = None
     ))]
     #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn deformer_in_posture(
@@ -300,6 +363,8 @@ impl Model {
         max_iterations: Option<usize>,
         progress: Option<Py<PyAny>>,
         fit_particles: Option<usize>,
+        scan: bool,
+        noise: Option<f32>,
     ) -> PyResult<Deformer> {
         let params = params_of("elastic", poisson, max_iterations)?;
         let metres_per_unit = match unit {
@@ -322,15 +387,30 @@ impl Model {
         };
         gravity.validate().map_err(raise)?;
         let surface = &self.model.surface;
-        let deformed = deformed_surface(surface, deformed)?;
-        let held = match held {
-            Some(held) => held_of(held, surface.vertices.len())?,
-            None => held_vertices(
-                surface,
-                &deformed,
-                HELD_SPACINGS * self.model.mean_connection_length(),
-            )
-            .ok_or_else(|| raise("the deformed surface has other vertices than the model's"))?,
+        let spacing = self.model.mean_connection_length();
+        let target = Target::of(&self.model, deformed, scan, noise)?;
+        let held = match (held, &target) {
+            (Some(held), _) => held_of(held, surface.vertices.len())?,
+            (None, Target::Frame(deformed)) => {
+                held_vertices(surface, deformed, HELD_SPACINGS * spacing).ok_or_else(|| {
+                    raise("the deformed surface has other vertices than the model's")
+                })?
+            }
+            (None, Target::Other(mesh, _)) => {
+                tissue::observation::held_on(mesh, surface, HELD_TOLERANCE * spacing)
+                    .map_err(|e| raise(format!("{e} with held=")))?
+            }
+            (None, Target::Scan(_)) => {
+                return Err(raise(
+                    "a scan of part of the skin needs the region held at rest (the chest wall) \
+                     as held=",
+                ));
+            }
+        };
+        // An observation is matched to the model held where `held` says.
+        let params = match target.observation() {
+            Some(_) => params.with(|p| p.observed = Some(held.clone())),
+            None => params,
         };
         if !held.contains(&true) {
             return Err(raise(
@@ -373,16 +453,34 @@ impl Model {
         }
         let mut callback = Callback::new(progress.as_ref());
         // `auto` runs the posture on the CPU where the GPU it picked has no room.
-        let ((unloaded, solver), fell_back) = py
+        let ((unloaded, solver, deformed), fell_back) = py
             .detach(|| {
                 with_cpu_fallback(backend, device, Error::is_gpu_capacity, |device| {
+                    // An observation's frame: where it puts the skin
+                    // without gravity, the fit's targets the skin it saw.
+                    let (deformed, fit_params) = match &target {
+                        Target::Frame(deformed) => (deformed.clone(), params.clone()),
+                        Target::Other(_, observation) | Target::Scan(observation) => {
+                            let matching = MatchParams {
+                                noise,
+                                ..MatchParams::default()
+                            };
+                            let observed =
+                                observed_frame(&device, model, observation, &params, &matching)?;
+                            let seen = observed.seen;
+                            (
+                                observed.frame,
+                                params.clone().with(|p| p.observed = Some(seen)),
+                            )
+                        }
+                    };
                     let unloaded = unload(
                         &device,
                         model,
                         &deformed,
                         &held,
                         &gravity,
-                        &params,
+                        &fit_params,
                         &mut |p| {
                             callback.tell(|info| {
                                 info.set_item("solve", p.solve)?;
@@ -396,7 +494,7 @@ impl Model {
                     let params = params.clone().with(|p| p.load = unloaded.deformed_load);
                     let solver =
                         Solver::unloaded(device, model, &unloaded.shape.positions, params)?;
-                    Ok::<_, tissue::Error>((unloaded, solver))
+                    Ok::<_, tissue::Error>((unloaded, solver, deformed))
                 })
             })
             .map_err(raise)?;

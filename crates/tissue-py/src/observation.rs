@@ -76,3 +76,33 @@ pub(crate) fn rigid_fit<'py>(
     dict.set_item("converged", fit.converged)?;
     Ok(dict)
 }
+
+/// A scan of part of the skin as an observation of `model`: a file path
+/// (`load_cloud`'s formats) or an `(n, 3)` array of points, cleaned with
+/// the noise scale `noise` (or the default), its normals turned away from
+/// the model's inside.
+pub(crate) fn scan_of(
+    model: &tissue::ParticleModel,
+    cloud: &Bound<'_, PyAny>,
+    noise: Option<f32>,
+) -> PyResult<tissue::observation::Observation> {
+    let points = match cloud.extract::<PathBuf>() {
+        Ok(path) => tissue::observation::load_cloud(&path, Space::Lps).map_err(raise)?,
+        Err(_) => points_from(cloud, "cloud")?,
+    };
+    let centre = model.positions.iter().copied().sum::<tissue::Vec3>() / model.len() as f32;
+    let cloud = tissue::observation::Cloud::new(points).map_err(raise)?;
+    tissue::observation::Observation::cloud(&cloud, noise, centre).map_err(raise)
+}
+
+/// A closed surface of the organ of any triangulation as an observation
+/// (a file path, a `(vertices, triangles)` pair, or a trimesh, meshio or
+/// pyvista mesh), checked as `sample` checks a surface; the mesh too.
+pub(crate) fn other_surface_of(
+    surface: &Bound<'_, PyAny>,
+) -> PyResult<(tissue::SurfaceMesh, tissue::observation::Observation)> {
+    let mut mesh = surface_of(surface)?;
+    let _checked = tissue::validate(&mut mesh).map_err(raise)?;
+    let observation = tissue::observation::Observation::surface(&mesh).map_err(raise)?;
+    Ok((mesh, observation))
+}

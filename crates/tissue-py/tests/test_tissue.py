@@ -609,3 +609,42 @@ def test_the_skin_is_matched_to_a_surface_and_a_scan_without_correspondence():
         deformer.match_observation()
     with pytest.raises(tissue.TissueError, match="would have to grow"):
         deformer.match_observation(cloud=front + [0.0, 0.0, 1000.0])
+
+
+def test_a_posture_is_fitted_to_an_observation_without_correspondence():
+    # The phantom's sag (made by a map, not by gravity) in another
+    # triangulation, and its front half as a scan: the skin matched without
+    # gravity, the stiffness fitted to that, then matched with the deformed
+    # posture's gravity inside, from the fit's guess.
+    model = tissue.sample(tissue.phantom_breast(), particles=3000, seed=3)
+    rest, triangles = model.surface
+    sagged, _ = tissue.phantom_breast_sagged()
+    wall = np.abs(sagged - rest).max(axis=1) < 1e-4
+    other = _cut_in_four(sagged, triangles)
+    size = np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))
+    framed = model.deformer_in_posture(
+        (sagged, triangles), (0, 0, -1), (0, -1, 0), held=wall, backend="cpu"
+    )
+    matched = model.deformer_in_posture(
+        other, (0, 0, -1), (0, -1, 0), held=wall, backend="cpu"
+    )
+    a = framed.posture["stiffness_kpa"]
+    b = matched.posture["stiffness_kpa"]
+    assert matched.posture["stiffness_fitted"] and abs(np.log(a / b)) < np.log(2), (a, b)
+    report = matched.match_observation(surface=other)
+    assert report["converged"] and report["pulled"] == report["skin"] > 0
+    assert report["residual_rms"] < 2e-3 * size
+    front = other[0][other[0][:, 2] > np.median(other[0][:, 2])]
+    scanned = model.deformer_in_posture(
+        front, (0, 0, -1), (0, -1, 0), held=wall, backend="cpu", scan=True
+    )
+    assert scanned.posture["stiffness_fitted"]
+    scan = scanned.match_observation(cloud=front)
+    assert scan["converged"] and 0 < scan["pulled"] < scan["skin"]
+    assert scan["residual_rms"] < 2e-3 * size
+    with pytest.raises(tissue.TissueError, match="held="):
+        model.deformer_in_posture(front, (0, 0, -1), (0, -1, 0), scan=True, backend="cpu")
+    with pytest.raises(tissue.TissueError, match="noise= is for an observation"):
+        model.deformer_in_posture(
+            (sagged, triangles), (0, 0, -1), (0, -1, 0), held=wall, noise=0.5, backend="cpu"
+        )

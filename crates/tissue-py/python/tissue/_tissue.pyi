@@ -73,6 +73,8 @@ class Model:
         max_iterations: Optional[int] = None,
         progress: Optional[Progress] = None,
         fit_particles: Optional[int] = 4000,
+        scan: bool = False,
+        noise: Optional[float] = None,
     ) -> Deformer: ...
 
 class Deformer:
