@@ -189,8 +189,9 @@ fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
 }
 
 /// An observation that cannot be of the model's skin is refused, saying
-/// why: a cloud a metre off (another frame or unit), and one whose every
-/// point lies past its edge for every particle.
+/// why: a cloud a metre off (another frame or unit), one half a metre
+/// beside it, and one near it whose every point lies past its edge for
+/// every particle.
 #[test]
 fn a_cloud_nowhere_near_the_skin_is_refused() {
     let model = common::phantom_model(2_000);
@@ -212,9 +213,10 @@ fn a_cloud_nowhere_near_the_skin_is_refused() {
         "{error}"
     );
     assert!(solver.plan().pairing.is_none() && solver.plan().springs.is_empty());
-    // The patch beside the model: nothing of the skin is over it.
+    // A patch beside the model, under the chest wall's plane: nothing of
+    // the skin is over it.
     let beside: Vec<Vec3> = (0..100)
-        .map(|k| Vec3::new(500.0 + (k % 10) as f32, (k / 10) as f32, 0.0))
+        .map(|k| Vec3::new(75.0 + (k % 10) as f32, (k / 10) as f32, -5.0))
         .collect();
     let cloud = tissue::observation::Cloud::new(beside).unwrap();
     let observation = Observation::cloud(&cloud, None, Vec3::ZERO).unwrap();
@@ -222,6 +224,15 @@ fn a_cloud_nowhere_near_the_skin_is_refused() {
         .unwrap_err()
         .to_string();
     assert!(error.contains("lies near the observation"), "{error}");
+    let far: Vec<Vec3> = (0..100)
+        .map(|k| Vec3::new(500.0 + (k % 10) as f32, (k / 10) as f32, 0.0))
+        .collect();
+    let cloud = tissue::observation::Cloud::new(far).unwrap();
+    let observation = Observation::cloud(&cloud, None, Vec3::ZERO).unwrap();
+    let error = match_observation(&mut solver, &model, &observation, &MatchParams::default())
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("a quarter of the model's size"), "{error}");
 }
 
 /// The phantom's chest wall: the surface vertices the sag does not move.

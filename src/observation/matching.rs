@@ -196,18 +196,36 @@ impl Observation {
     ///
     /// [`Error::Observation`] where `rest` has no triangles or no volume.
     pub fn implied_volume_change(&self, rest: &SurfaceMesh) -> Result<(f32, f32), Error> {
+        let (change, mean, _) = self.against_rest(rest)?;
+        Ok((change, mean))
+    }
+
+    /// [`Observation::implied_volume_change`] and the median of the
+    /// observed points' distances from `rest`.
+    fn against_rest(&self, rest: &SurfaceMesh) -> Result<(f32, f32, f32), Error> {
         let volume = rest.signed_volume();
         if !(volume.is_finite() && volume > 0.0) {
             return Err(ObservationError::Field(tissue_core::FieldError::NoVertices).into());
         }
         let cell = mean_edge(rest);
         let field = SurfaceField::new(rest, cell, 2.0 * cell).map_err(ObservationError::from)?;
-        let mean = self
+        let mut distances: Vec<f32> = self
             .points
             .par_iter()
-            .map(|&p| f64::from(field.nearest(p).distance))
-            .sum::<f64>()
-            / self.points.len().max(1) as f64;
+            .map(|&p| field.nearest(p).distance)
+            .collect();
+        let mean =
+            distances.iter().map(|&d| f64::from(d)).sum::<f64>() / distances.len().max(1) as f64;
+        let median = match distances.len() {
+            0 => 0.0,
+            n => {
+                let middle = n / 2;
+                distances
+                    .select_nth_unstable_by(middle, |a, b| a.abs().total_cmp(&b.abs()))
+                    .1
+                    .abs()
+            }
+        };
         let change = match &self.kind {
             Kind::Surface(mesh) => mesh.signed_volume() / volume - 1.0,
             Kind::Cloud { spacing, .. } => {
@@ -215,25 +233,34 @@ impl Observation {
                 mean * area / volume
             }
         };
-        Ok((change as f32, mean as f32))
+        Ok((change as f32, mean as f32, median))
     }
 
     /// Refuses an observation that cannot be of the model in its frame and
-    /// unit: one that would change the organ's volume by more than
-    /// [`MAX_VOLUME_CHANGE`], or a closed surface away from the model's
-    /// held region (`held`: per rest vertex; its median distance above
-    /// [`HELD_OFF`] mean connection lengths, `spacing`).
+    /// unit: one whose points' median distance from the rest surface is
+    /// above [`MAX_REACH`] of its size (nowhere near it), a closed surface
+    /// away from the model's held region (`held`: per rest vertex; its
+    /// median distance above [`HELD_OFF`] mean connection lengths,
+    /// `spacing`), or one that would change the organ's volume by more than
+    /// [`MAX_VOLUME_CHANGE`].
     ///
     /// # Errors
     ///
-    /// [`ObservationError::VolumeChange`], [`ObservationError::HeldOff`]
-    /// (in [`Error::Observation`]), or where `rest` has no volume.
+    /// [`ObservationError::Unreachable`], [`ObservationError::HeldOff`],
+    /// [`ObservationError::VolumeChange`] (in [`Error::Observation`]), or
+    /// where `rest` has no volume.
     pub fn check_against(
         &self,
         rest: &SurfaceMesh,
         held: Option<&[bool]>,
         spacing: f32,
     ) -> Result<(), Error> {
+        let (change, mean, median) = self.against_rest(rest)?;
+        let size = rest.bounds().map_or(0.0, |(lo, hi)| (hi - lo).length());
+        let most = MAX_REACH * size;
+        if median > most {
+            return Err(ObservationError::Unreachable { median, most }.into());
+        }
         if let (Kind::Surface(mesh), Some(held)) = (&self.kind, held) {
             let cell = mean_edge(mesh);
             let field =
@@ -254,7 +281,6 @@ impl Observation {
                 }
             }
         }
-        let (change, mean) = self.implied_volume_change(rest)?;
         if change.abs() > MAX_VOLUME_CHANGE {
             return Err(ObservationError::VolumeChange {
                 change,

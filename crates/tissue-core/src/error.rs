@@ -461,9 +461,9 @@ pub enum ObservationError {
     },
     /// The observation lies too far from the model's skin to be of it.
     #[error(
-        "the observation lies {median:.3} from the model's skin (the median over its free skin \
-         particles), more than {most:.3}, a quarter of the model's size: it is in other units, \
-         in another frame (align it first), or of another organ"
+        "the observation lies {median:.3} from the model's skin (a median distance), more than \
+         {most:.3}, a quarter of the model's size: it is in other units, in another frame (align \
+         it first), or of another organ"
     )]
     Unreachable {
         /// The median distance of the free skin from the observation.
