@@ -13,7 +13,7 @@ use tissue_solve::stage2::{
 use super::{Cloud, ObservationError};
 use crate::backend::Solver;
 use crate::deformation::DeformReport;
-use crate::field::SurfaceField;
+use crate::field::{SurfaceField, signed_distances};
 use crate::{Error, ParticleModel, SurfaceMesh, Vec3};
 
 /// The springs' weight grows over this many solves, each from where the
@@ -216,13 +216,7 @@ impl Observation {
         if !(volume.is_finite() && volume > 0.0) {
             return Err(ObservationError::Field(tissue_core::FieldError::NoVertices).into());
         }
-        let cell = mean_edge(rest);
-        let field = SurfaceField::new(rest, cell, 2.0 * cell).map_err(ObservationError::from)?;
-        let mut distances: Vec<f32> = self
-            .points
-            .par_iter()
-            .map(|&p| field.nearest(p).distance)
-            .collect();
+        let mut distances = signed_distances(rest, &self.points).map_err(ObservationError::from)?;
         let mean =
             distances.iter().map(|&d| f64::from(d)).sum::<f64>() / distances.len().max(1) as f64;
         let median = match distances.len() {
@@ -271,15 +265,17 @@ impl Observation {
             return Err(ObservationError::Unreachable { median, most }.into());
         }
         if let (Kind::Surface(mesh), Some(held)) = (&self.kind, held) {
-            let cell = mean_edge(mesh);
-            let field =
-                SurfaceField::new(mesh, cell, 2.0 * cell).map_err(ObservationError::from)?;
-            let mut distances: Vec<f32> = rest
+            let held: Vec<Vec3> = rest
                 .vertices
                 .iter()
                 .zip(held)
                 .filter(|(_, h)| **h)
-                .map(|(&v, _)| field.nearest(v).distance.abs())
+                .map(|(&v, _)| v)
+                .collect();
+            let mut distances: Vec<f32> = signed_distances(mesh, &held)
+                .map_err(ObservationError::from)?
+                .into_iter()
+                .map(f32::abs)
                 .collect();
             if !distances.is_empty() {
                 let middle = distances.len() / 2;
@@ -689,11 +685,10 @@ fn springs(
 
 /// The distances from `points` to `surface`: RMS, 95th percentile, largest.
 fn residual(points: &[Vec3], surface: &SurfaceMesh) -> Result<Residual, Error> {
-    let cell = mean_edge(surface);
-    let field = SurfaceField::new(surface, cell, 2.0 * cell).map_err(ObservationError::from)?;
-    let mut distances: Vec<f32> = points
-        .par_iter()
-        .map(|&p| field.nearest(p).distance.abs())
+    let mut distances: Vec<f32> = signed_distances(surface, points)
+        .map_err(ObservationError::from)?
+        .into_iter()
+        .map(f32::abs)
         .collect();
     if distances.is_empty() {
         return Ok(Residual {
@@ -726,12 +721,10 @@ pub fn held_on(
     rest: &SurfaceMesh,
     tolerance: f32,
 ) -> Result<Vec<bool>, Error> {
-    let cell = mean_edge(observed);
-    let field = SurfaceField::new(observed, cell, 2.0 * cell).map_err(ObservationError::from)?;
-    let held: Vec<bool> = rest
-        .vertices
-        .par_iter()
-        .map(|&v| field.nearest(v).distance.abs() <= tolerance)
+    let held: Vec<bool> = signed_distances(observed, &rest.vertices)
+        .map_err(ObservationError::from)?
+        .into_iter()
+        .map(|d| d.abs() <= tolerance)
         .collect();
     let triangles = rest
         .triangles
@@ -772,7 +765,10 @@ mod tests {
         assert_eq!(params.early_tolerance, 100.0);
         assert!(!params.warm);
         let frame = MatchParams::next_frame(Some(0.5));
-        assert_eq!((frame.stages, frame.warm, frame.noise), (1, true, Some(0.5)));
+        assert_eq!(
+            (frame.stages, frame.warm, frame.noise),
+            (1, true, Some(0.5))
+        );
         let weights: Vec<f32> = (0..4).map(|k| stage_weight(16.0, 4, k)).collect();
         assert_eq!(weights, [0.25, 1.0, 4.0, 16.0]);
         assert_eq!(stage_weight(16.0, 1, 0), 16.0);
