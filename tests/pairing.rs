@@ -155,6 +155,7 @@ fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
         edge: NO_LIMIT,
         trim: NO_LIMIT,
         cloud: false,
+        smooth: 0.0,
     };
     let pairing = |skin: Vec<u32>, rule: PairingRule| Some(Pairing { skin, rule });
     let error = |solver: &mut Solver, pairing| solver.set_pairing(pairing).unwrap_err().to_string();
@@ -179,6 +180,17 @@ fn a_pairing_that_does_not_fit_is_refused_with_the_reason() {
         pairing(vec![free], PairingRule { trim: -1.0, ..rule }),
     );
     assert!(trimmed.contains("trim"), "{trimmed}");
+    let rough = error(
+        &mut solver,
+        pairing(
+            vec![free],
+            PairingRule {
+                smooth: -1.0,
+                ..rule
+            },
+        ),
+    );
+    assert!(rough.contains("smoothing radius"), "{rough}");
     assert!(solver.set_pairing(pairing(vec![free], rule)).is_ok());
     assert!(solver.set_pairing(None).is_ok());
 

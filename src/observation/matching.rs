@@ -7,7 +7,8 @@ use glam::Vec4;
 use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_solve::stage2::{
-    NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane, paired_spring,
+    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane,
+    paired_spring, pairing_plane,
 };
 
 use super::{Cloud, ObservationError};
@@ -493,16 +494,18 @@ pub fn match_observation(
         .filter(|&i| model.attachments[i].is_some() && plan.free[i])
         .map(|i| i as u32)
         .collect();
-    let (cloud, edge, noise) = match &observation.kind {
+    let (cloud, edge, noise, smooth) = match &observation.kind {
         Kind::Cloud { spacing: cloud, .. } => (
             true,
             CLOUD_EDGE_SPACINGS * cloud,
             params.noise.unwrap_or(CLOUD_NOISE * cloud),
+            CLOUD_SMOOTHING * cloud,
         ),
         Kind::Surface(_) => (
             false,
             NO_LIMIT,
             params.noise.unwrap_or(SURFACE_NOISE * spacing),
+            0.0,
         ),
     };
     observation.check_against(&model.surface, solver.params().observed.as_deref(), spacing)?;
@@ -516,6 +519,7 @@ pub fn match_observation(
         edge,
         trim: NO_LIMIT,
         cloud,
+        smooth,
     };
     for stage in 0..params.stages {
         let start = solver.positions().to_vec();
@@ -648,8 +652,8 @@ fn median_distance(
         .par_iter()
         .filter_map(|&i| {
             let x = positions[i as usize];
-            let near = field.nearest(x);
-            pair_plane(x, near.point, near.normal, rule).map(|(_, d)| d)
+            let (point, normal) = pairing_plane(field, x, rule);
+            pair_plane(x, point, normal, rule).map(|(_, d)| d)
         })
         .collect();
     if distances.is_empty() {
@@ -672,8 +676,8 @@ fn springs(
         .par_iter()
         .map(|&i| {
             let x = positions[i as usize];
-            let near = field.nearest(x);
-            paired_spring(x, near.point, near.normal, rule)
+            let (point, normal) = pairing_plane(field, x, rule);
+            paired_spring(x, point, normal, rule)
         })
         .collect();
     let mut springs = vec![Vec4::ZERO; count];

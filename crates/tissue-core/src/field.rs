@@ -186,6 +186,27 @@ impl SurfaceField {
         cell: f32,
         margin: f32,
     ) -> Result<Self, FieldError> {
+        Self::of_cloud_within(points, normals, cell, margin, 0.0)
+    }
+
+    /// [`SurfaceField::of_cloud`] whose band cells also list every point
+    /// within `reach` of any point of the cell: what
+    /// [`SurfaceField::smooth_plane`] with a radius of `reach` reads.
+    ///
+    /// # Errors
+    ///
+    /// As [`SurfaceField::of_cloud`]; [`FieldError::Margin`] for a
+    /// `reach` that is not a length.
+    pub fn of_cloud_within(
+        points: &[Vec3],
+        normals: &[Vec3],
+        cell: f32,
+        margin: f32,
+        reach: f32,
+    ) -> Result<Self, FieldError> {
+        if !(reach.is_finite() && reach >= 0.0) {
+            return Err(FieldError::Margin(reach));
+        }
         if normals.len() != points.len() {
             return Err(FieldError::NormalCount {
                 points: points.len(),
@@ -208,11 +229,16 @@ impl SurfaceField {
         // the margin of the cell, so within the margin and half a diagonal
         // of its centre.
         let within = margin + 0.5 * cell * 3f32.sqrt();
+        // A cell's candidates reach `nearest + diagonal` from its centre;
+        // every point within `reach` of the cell's points is within
+        // `reach + diagonal / 2` of it.
+        let smooth = reach - 0.5 * cell * 3f32.sqrt();
         field.fill(&binned, &band, &outside, |index, centre| {
             binned.items[binned.start[index] as usize..binned.start[index + 1] as usize]
                 .iter()
                 .map(|&t| (points[t as usize] - centre).length())
                 .fold(within, f32::min)
+                .max(smooth)
         });
         Ok(field)
     }
@@ -324,6 +350,35 @@ impl SurfaceField {
         self.cell_start = cell_start;
         self.candidate_distance = candidate_distance;
         self.candidates = candidates;
+    }
+
+    /// The plane of a point cloud's field smoothed around `p` (a moving
+    /// least-squares plane): the mean of the points within `3 h` of `p`
+    /// and of their normals, each weighted by `exp(-r^2 / h^2)` at its
+    /// distance `r`, in the order the cell lists them. It moves with `p`
+    /// without the jumps of the nearest point's own plane, where the field
+    /// lists every point within `3 h` of its cells
+    /// ([`SurfaceField::of_cloud_within`]). `None` outside the band, or
+    /// where no point is within `3 h`.
+    pub fn smooth_plane(&self, p: Vec3, h: f32) -> Option<(Vec3, Vec3)> {
+        let index = self.cell_of(p)?;
+        if self.cell_state[index] != CELL_BAND {
+            return None;
+        }
+        let (mut weight, mut point, mut normal) = (0.0f32, Vec3::ZERO, Vec3::ZERO);
+        let reach2 = SMOOTH_REACH * SMOOTH_REACH;
+        for &t in self.candidates_of(index) {
+            let q = self.corners[t as usize][0];
+            let r2 = (p - q).length_squared() / (h * h);
+            if r2 < reach2 {
+                let w = (-r2).exp();
+                weight += w;
+                point += w * q;
+                normal += w * self.normals[t as usize][0];
+            }
+        }
+        (weight > 0.0 && normal.length_squared() > 0.0)
+            .then(|| (point / weight, normal.normalize()))
     }
 
     /// Total number of cells.
@@ -675,6 +730,10 @@ pub fn signed_distances(mesh: &SurfaceMesh, points: &[Vec3]) -> Result<Vec<f32>,
         .collect())
 }
 
+/// [`SurfaceField::smooth_plane`] reads the points within this many of its
+/// radii.
+pub const SMOOTH_REACH: f32 = 3.0;
+
 /// Face, edge and angle-weighted vertex pseudo-normals of every triangle.
 fn pseudo_normals(mesh: &SurfaceMesh) -> Vec<[Vec3; 7]> {
     let faces: Vec<Vec3> = (0..mesh.triangles.len())
@@ -979,6 +1038,37 @@ mod tests {
             }
         }
         assert!(near > 300 && far > 300, "{near} near, {far} far");
+    }
+
+    /// A flat cloud's smoothed plane is the plane itself, and it moves
+    /// with the query point without jumps: across a cell's border, and as
+    /// the nearest point changes, a small step moves it a little.
+    #[test]
+    fn a_clouds_smoothed_plane_is_its_plane_and_moves_smoothly() {
+        let mut points = Vec::new();
+        for i in -10..=10 {
+            for j in -10..=10 {
+                // A slightly irregular grid, 1 apart.
+                let jitter = 0.1 * ((i * 7 + j * 3) % 5) as f32 / 5.0;
+                points.push(Vec3::new(i as f32 + jitter, j as f32 - jitter, 0.0));
+            }
+        }
+        let normals = vec![Vec3::Z; points.len()];
+        let field = SurfaceField::of_cloud_within(&points, &normals, 1.0, 4.0, 3.0).unwrap();
+        let (point, normal) = field.smooth_plane(Vec3::new(0.3, 0.2, 0.7), 1.0).unwrap();
+        assert!(point.z.abs() < 1e-6 && (normal - Vec3::Z).length() < 1e-6);
+        let mut last = field
+            .smooth_plane(Vec3::new(-3.0, 0.4, 0.5), 1.0)
+            .unwrap()
+            .0;
+        for k in 1..=600 {
+            let p = Vec3::new(-3.0 + 0.01 * k as f32, 0.4, 0.5);
+            let here = field.smooth_plane(p, 1.0).unwrap().0;
+            assert!((here - last).length() < 0.05, "{p}: {last} -> {here}");
+            last = here;
+        }
+        // Outside the band: none.
+        assert!(field.smooth_plane(Vec3::new(0.0, 0.0, 50.0), 1.0).is_none());
     }
 
     #[test]

@@ -108,6 +108,7 @@ fn both_devices_run_the_same_passes_for_every_combination() {
                             edge: NO_LIMIT,
                             trim: NO_LIMIT,
                             cloud: false,
+                            smooth: 0.0,
                         },
                     };
                     let (mut cpu, mut gpu) = (cpu, gpu);

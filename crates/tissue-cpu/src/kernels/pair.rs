@@ -5,7 +5,7 @@
 use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
-use tissue_solve::stage2::{Pairing, paired_spring};
+use tissue_solve::stage2::{Pairing, paired_spring, pairing_plane};
 
 /// The shader this module is the twin of.
 pub const SHADER: &str = "pair";
@@ -19,8 +19,8 @@ pub fn pair(field: &SurfaceField, pairing: &Pairing, current: &[Vec3], springs: 
         .par_iter()
         .map(|&i| {
             let x = current[i as usize];
-            let near = field.nearest(x);
-            paired_spring(x, near.point, near.normal, &pairing.rule)
+            let (point, normal) = pairing_plane(field, x, &pairing.rule);
+            paired_spring(x, point, normal, &pairing.rule)
         })
         .collect();
     for (&i, spring) in pairing.skin.iter().zip(paired) {

@@ -41,9 +41,9 @@ pub struct PairingParams {
     pub edge: f32,
     /// The trim.
     pub trim: f32,
+    /// A cloud's smoothing radius (0: the nearest point's plane).
+    pub smoothing: f32,
     /// Padding to the WGSL struct's size.
-    pub pad0: u32,
-    /// Padding.
     pub pad1: u32,
     /// Padding.
     pub pad2: u32,
@@ -177,6 +177,7 @@ impl DeformState {
             params.weight = pairing.rule.weight;
             params.edge = pairing.rule.edge;
             params.trim = pairing.rule.trim;
+            params.smoothing = pairing.rule.smooth;
             let skin: &[u32] = if pairing.skin.is_empty() {
                 &[0]
             } else {
@@ -227,7 +228,7 @@ mod tests {
                 weight,
                 edge,
                 trim,
-                pad0,
+                smoothing,
                 pad1,
                 pad2,
             }

@@ -41,7 +41,10 @@ pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{
     Cloud, NORMAL_NEIGHBOURS, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, SCAN_SCALE, rigid_fit,
 };
-pub use pairing::{NO_LIMIT, Pairing, PairingRule, pair_plane, paired_spring, taper};
+pub use pairing::{
+    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, pair_plane, paired_spring, pairing_plane,
+    taper,
+};
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
     MAX_ELASTIC_COARSE_AGGREGATES, MAX_ELASTIC_COARSE_DIRECT_AGGREGATES, MAX_HISTORY, MAX_POISSON,

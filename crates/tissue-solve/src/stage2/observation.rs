@@ -9,7 +9,9 @@ use rayon::prelude::*;
 use rstar::RTree;
 use rstar::primitives::GeomWithData;
 use tissue_core::ObservationError;
-use tissue_core::field::SurfaceField;
+use tissue_core::field::{SMOOTH_REACH, SurfaceField};
+
+use crate::stage2::pairing::CLOUD_SMOOTHING;
 
 use crate::model::svd3;
 
@@ -162,7 +164,9 @@ impl Cloud {
     /// The grid that finds a query point's nearest observed point, exactly,
     /// wherever one lies within `margin` of it (and nothing beyond): cells
     /// of one spacing, queried on either device as the surface field is
-    /// ([`SurfaceField::of_cloud`]).
+    /// ([`SurfaceField::of_cloud`]); its cells also list every point within
+    /// [`SMOOTH_REACH`] times [`CLOUD_SMOOTHING`] spacings, for the
+    /// smoothed plane ([`SurfaceField::smooth_plane`]).
     ///
     /// # Errors
     ///
@@ -175,11 +179,12 @@ impl Cloud {
         } else {
             self.extent() * 1e-3
         };
-        Ok(SurfaceField::of_cloud(
+        Ok(SurfaceField::of_cloud_within(
             &self.points,
             &self.normals,
             cell,
             margin,
+            SMOOTH_REACH * CLOUD_SMOOTHING * cell,
         )?)
     }
 

@@ -328,6 +328,12 @@ impl Plan {
                     ));
                 }
             }
+            if !(rule.smooth.is_finite() && rule.smooth >= 0.0) {
+                return refuse(format!(
+                    "the pairing's smoothing radius {} is not a length of at least zero",
+                    rule.smooth
+                ));
+            }
         }
         self.pairing = pairing;
         Ok(())
