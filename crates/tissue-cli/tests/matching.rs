@@ -14,6 +14,21 @@ fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
     SurfaceMesh::new(vertices, triangles)
 }
 
+/// The phantom's chest wall (its rest vertices on the plane z = 0) as
+/// points in `dir/wall.csv`: the `--fixed-region` file.
+fn chest_wall_file(dir: &std::path::Path, model: &tissue::ParticleModel) -> std::path::PathBuf {
+    let wall: Vec<Vec3> = model
+        .surface
+        .vertices
+        .iter()
+        .filter(|v| v.z <= 1e-4)
+        .copied()
+        .collect();
+    let path = dir.join("wall.csv");
+    tissue::save_points(&wall, &path).unwrap();
+    path
+}
+
 /// The phantom's sag in another triangulation: `deform` says it has no
 /// correspondence, holds the rest vertices that lie on it (the chest
 /// wall), matches the skin to it, and reports the match; the skin lands
@@ -93,15 +108,7 @@ fn deform_refuses_what_a_match_cannot_take() {
     tissue::save_points(&into, &cloud_into).unwrap();
     let surface_away = dir.path().join("away.obj");
     tissue::save_surface(&lifted(&subdivided(&sagged), 20.0), &surface_away).unwrap();
-    let wall: Vec<Vec3> = model
-        .surface
-        .vertices
-        .iter()
-        .filter(|v| v.z <= 1e-4)
-        .copied()
-        .collect();
-    let fixed = dir.path().join("wall.csv");
-    tissue::save_points(&wall, &fixed).unwrap();
+    let fixed = chest_wall_file(dir.path(), &model);
     let out_dir = dir.path().join("out");
     let refused = |extra: &[&str], says: &[&str]| {
         let mut args = vec![
@@ -258,15 +265,7 @@ fn track_matches_sequences_without_correspondence() {
             tissue::save_surface(&other, &mixed).unwrap();
         }
     }
-    let wall: Vec<Vec3> = model
-        .surface
-        .vertices
-        .iter()
-        .filter(|v| v.z <= 1e-4)
-        .copied()
-        .collect();
-    let fixed = dir.path().join("wall.csv");
-    tissue::save_points(&wall, &fixed).unwrap();
+    let fixed = chest_wall_file(dir.path(), &model);
     // The subcommand, then the model and its options.
     let run = |args: &[&str]| {
         let mut all = vec![
