@@ -61,6 +61,15 @@ pub fn read_surface(path: &Path, rest: &SurfaceMesh) -> Result<Surface> {
 /// outliers set aside and its noise averaged out (`noise`, or the
 /// default), its normals fitted and turned away from the model's inside.
 pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<Observation> {
+    let cloud = checked_cloud(path, model)?;
+    let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
+    Observation::cloud(&cloud, noise, centre)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// The points of `--cloud` read and checked against the organ's size and
+/// place (another unit or frame is refused), not yet cleaned.
+pub fn checked_cloud(path: &Path, model: &ParticleModel) -> Result<Cloud> {
     let points = load_cloud(path, Default::default())?;
     let cloud = Cloud::new(points).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let (lo, hi) = model.positions.iter().fold(
@@ -70,9 +79,7 @@ pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Res
     cloud
         .check_against(lo, hi)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
-    Observation::cloud(&cloud, noise, centre)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    Ok(cloud)
 }
 
 /// The match without gravity that the posture options start from: `model`

@@ -435,13 +435,16 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     // The postures' unloaded shape and stiffness, once, from the first
     // frame; for an observation, from its match without gravity over the
     // skin it saw.
-    let first_match = match (&sequence, args.solve.gravity.given()) {
-        (Sequence::Matched { observations, .. }, true) => Some(
+    let first_match = match (
+        sequence.observation(0, &frames[0], &model, args.noise)?,
+        args.solve.gravity.given(),
+    ) {
+        (Some(observation), true) => Some(
             observe::first_match(
                 device.clone(),
                 &model,
                 &params,
-                &observations[0],
+                &observation,
                 args.noise,
                 args.quiet,
             )
@@ -739,8 +742,11 @@ enum Sequence {
     Frames,
     /// Observations without correspondence (closed surfaces of any
     /// triangulation, or scans), with the held region's rest vertices.
+    /// A scan is `None`: read and checked whole before the first solve,
+    /// then read again when its frame comes, so that a long sequence does
+    /// not hold every scan's grid at once.
     Matched {
-        observations: Vec<Observation>,
+        observations: Vec<Option<Observation>>,
         held: Vec<bool>,
     },
 }
@@ -759,11 +765,10 @@ impl Sequence {
                 );
             };
             let held = read_observed(region, rest)?;
-            let observations = frames
-                .iter()
-                .map(|path| observe::read_cloud(path, model, args.noise))
-                .collect::<Result<Vec<_>>>()?;
-            return Self::matched(args, observations, held);
+            for path in frames {
+                observe::read_cloud(path, model, args.noise)?;
+            }
+            return Self::matched(args, vec![None; frames.len()], held);
         }
         let mut others = Vec::new();
         let mut framed = Vec::new();
@@ -817,13 +822,17 @@ impl Sequence {
         };
         let observations = others
             .iter()
-            .map(|(_, mesh)| Observation::surface(mesh))
+            .map(|(_, mesh)| Observation::surface(mesh).map(Some))
             .collect::<Result<Vec<_>, _>>()?;
         Self::matched(args, observations, held)
     }
 
     /// Observations without correspondence, once the options are checked.
-    fn matched(args: &TrackArgs, observations: Vec<Observation>, held: Vec<bool>) -> Result<Self> {
+    fn matched(
+        args: &TrackArgs,
+        observations: Vec<Option<Observation>>,
+        held: Vec<bool>,
+    ) -> Result<Self> {
         if args.solve.observed.is_some() {
             bail!(
                 "--observed names the seen vertices of frames with the rest surface's vertices; \
@@ -838,6 +847,25 @@ impl Sequence {
             );
         }
         Ok(Self::Matched { observations, held })
+    }
+
+    /// Frame `k`'s observation (`path`): a surface's as read, a scan read
+    /// again; `None` for a frame of the rest surface.
+    fn observation(
+        &self,
+        k: usize,
+        path: &Path,
+        model: &ParticleModel,
+        noise: Option<f32>,
+    ) -> Result<Option<std::borrow::Cow<'_, Observation>>> {
+        use std::borrow::Cow;
+        match self {
+            Self::Frames => Ok(None),
+            Self::Matched { observations, .. } => Ok(Some(match &observations[k] {
+                Some(observation) => Cow::Borrowed(observation),
+                None => Cow::Owned(observe::read_cloud(path, model, noise)?),
+            })),
+        }
     }
 }
 
@@ -903,7 +931,11 @@ impl Framing<'_> {
                     observation: None,
                 })
             }
-            Sequence::Matched { observations, .. } => {
+            Sequence::Matched { .. } => {
+                let observation = self
+                    .sequence
+                    .observation(k, path, self.model, self.noise)?
+                    .ok_or_else(|| anyhow::anyhow!("{}: no observation", path.display()))?;
                 let started = Instant::now();
                 // A frame after the first starts from the last one's
                 // answer.
@@ -916,18 +948,18 @@ impl Framing<'_> {
                     MatchParams::next_frame(self.noise)
                 };
                 let report = progress::busy(quiet, &format!("{label}: matching"), |_| {
-                    match_observation(solver, self.model, &observations[k], &matching)
+                    match_observation(solver, self.model, &observation, &matching)
                 })
                 .with_context(|| format!("{}", path.display()))?;
                 let mut solve = report.last.clone();
                 solve.iterations = report.iterations;
                 solve.seconds = started.elapsed().as_secs_f64();
-                let observation =
-                    ObservationReport::of(&observations[k], &report, self.noise, self.model);
+                let described =
+                    ObservationReport::of(&observation, &report, self.noise, self.model);
                 Ok(Framed {
                     solve,
                     deformed: report.surface,
-                    observation: Some(observation),
+                    observation: Some(described),
                 })
             }
         }
