@@ -1,0 +1,256 @@
+//! What a `tissue track` sequence is (frames of the rest surface, or
+//! observations without correspondence) and how each of its frames is
+//! solved.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tissue::deformation::DeformReport;
+use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::{ParticleModel, SurfaceMesh};
+
+use super::TrackArgs;
+use crate::observe::{self, ObservationReport};
+use crate::progress::{self, SolveBar};
+use crate::solve::{read_frame, read_observed, set_deformed};
+
+/// What the frames are.
+pub(super) enum Sequence {
+    /// Frames of the model's rest surface: the skin follows each vertex by
+    /// vertex.
+    Frames,
+    /// Observations without correspondence (closed surfaces of any
+    /// triangulation, or scans), with the held region's rest vertices.
+    /// A scan is `None`: read and checked whole before the first solve,
+    /// then read again when its frame comes, so that a long sequence does
+    /// not hold every scan's grid at once.
+    Matched {
+        observations: Vec<Option<Observation>>,
+        held: Vec<bool>,
+    },
+}
+
+impl Sequence {
+    /// Every one of `frames` read and checked against `model`: all frames of
+    /// the rest surface, or all observations without correspondence.
+    pub(super) fn read(
+        args: &TrackArgs,
+        frames: &[PathBuf],
+        model: &ParticleModel,
+    ) -> Result<Self> {
+        let rest = &model.surface;
+        let held_file = fixed_region_file(args);
+        if args.clouds.is_some() {
+            let Some(region) = held_file else {
+                bail!(
+                    "--clouds: scans of part of the skin need the region held at rest (the chest \
+                     wall) as --fixed-region FILE"
+                );
+            };
+            let held = read_observed(region, rest)?;
+            for path in frames {
+                observe::read_cloud(path, model, args.noise)?;
+            }
+            return Self::matched(args, vec![None; frames.len()], held);
+        }
+        let mut others = Vec::new();
+        let mut framed = Vec::new();
+        for path in frames {
+            match observe::read_surface(path, rest)? {
+                observe::Surface::Frame(_) => framed.push(path),
+                observe::Surface::Other(mesh) => others.push((path, mesh)),
+            }
+        }
+        if others.is_empty() {
+            if args.noise.is_some()
+                || (args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given())
+            {
+                bail!(
+                    "--frames are the model's rest surface with moved vertices, which the skin \
+                     follows vertex by vertex; --noise, and --fixed-region without the posture \
+                     options (--gravity-rest, --gravity-deformed), are for observations \
+                     without correspondence"
+                );
+            }
+            return Ok(Self::Frames);
+        }
+        if let (Some(frame), Some((other, _))) = (framed.first(), others.first()) {
+            bail!(
+                "--frames mixes the model's rest surface with moved vertices ({}) and other \
+                 surfaces ({}): a sequence is either all frames of the rest surface or all \
+                 observations without correspondence",
+                frame.display(),
+                other.display()
+            );
+        }
+        // Without the file: the rest vertices that lie on every frame
+        // (what did not move in any).
+        let held = match held_file {
+            Some(region) => read_observed(region, rest)?,
+            None => {
+                let mut held = vec![true; rest.vertices.len()];
+                for (path, mesh) in &others {
+                    let on = observe::held_on(mesh, model)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+                    held.iter_mut().zip(on).for_each(|(h, on)| *h &= on);
+                }
+                if !held.contains(&true) {
+                    bail!(
+                        "--frames: no rest vertex lies on every frame, so nothing is known to be \
+                         held; give the held region (the chest wall) as --fixed-region"
+                    );
+                }
+                held
+            }
+        };
+        let observations = others
+            .iter()
+            .map(|(_, mesh)| Observation::surface(mesh).map(Some))
+            .collect::<Result<Vec<_>, _>>()?;
+        Self::matched(args, observations, held)
+    }
+
+    /// Observations without correspondence, once the options are checked.
+    fn matched(
+        args: &TrackArgs,
+        observations: Vec<Option<Observation>>,
+        held: Vec<bool>,
+    ) -> Result<Self> {
+        if args.solve.observed.is_some() {
+            bail!(
+                "--observed names the seen vertices of frames with the rest surface's vertices; \
+                 observations without correspondence are matched where they are seen (give the \
+                 held region as --fixed-region)"
+            );
+        }
+        if args.noise.is_some_and(|n| !(n.is_finite() && n >= 0.0)) {
+            bail!(
+                "--noise is {}: a distance of at least zero is needed",
+                args.noise.unwrap_or_default()
+            );
+        }
+        Ok(Self::Matched { observations, held })
+    }
+
+    /// Frame `k`'s observation (`path`): a surface's as read, a scan read
+    /// again; `None` for a frame of the rest surface.
+    pub(super) fn observation(
+        &self,
+        k: usize,
+        path: &Path,
+        model: &ParticleModel,
+        noise: Option<f32>,
+    ) -> Result<Option<std::borrow::Cow<'_, Observation>>> {
+        use std::borrow::Cow;
+        match self {
+            Self::Frames => Ok(None),
+            Self::Matched { observations, .. } => Ok(Some(match &observations[k] {
+                Some(observation) => Cow::Borrowed(observation),
+                None => Cow::Owned(observe::read_cloud(path, model, noise)?),
+            })),
+        }
+    }
+}
+
+/// The `--fixed-region` file, if one is given (not `auto`).
+pub(super) fn fixed_region_file(args: &TrackArgs) -> Option<&Path> {
+    match args.solve.gravity.fixed_region.as_deref() {
+        None | Some("auto") => None,
+        Some(file) => Some(Path::new(file)),
+    }
+}
+
+/// How each frame is solved.
+pub(super) struct Framing<'a> {
+    pub(super) model: &'a ParticleModel,
+    pub(super) frames: &'a [PathBuf],
+    pub(super) sequence: &'a Sequence,
+    /// With the posture options, the first frame the posture was made
+    /// from (for observations: their first match without gravity).
+    pub(super) first_frame: Option<&'a SurfaceMesh>,
+    pub(super) posture: Option<&'a crate::posture::Posture>,
+    pub(super) noise: Option<f32>,
+}
+
+/// A frame solved.
+pub(super) struct Framed {
+    pub(super) solve: DeformReport,
+    /// The deformed surface: the frame, or the model's surface matched.
+    pub(super) deformed: SurfaceMesh,
+    pub(super) observation: Option<ObservationReport>,
+}
+
+impl Framing<'_> {
+    /// Solves frame `k` from where the frames before left `solver` (the
+    /// first with the posture, from where its fit put it); `quiet` shows no
+    /// progress.
+    pub(super) fn solve(
+        &self,
+        k: usize,
+        solver: &mut crate::backend::Solver,
+        quiet: bool,
+    ) -> Result<Framed> {
+        let path = &self.frames[k];
+        let posture_frame = self
+            .first_frame
+            .filter(|_| k == 0 && self.posture.is_some());
+        let placed = match self.sequence {
+            // Checked whole before the first solve: read again, not
+            // re-checked.
+            Sequence::Frames => read_frame(path, &self.model.surface)?,
+            // The held region where it is (or the first match's frame).
+            Sequence::Matched { .. } => posture_frame.unwrap_or(&self.model.surface).clone(),
+        };
+        set_deformed(path, solver, &placed)?;
+        // The first frame is the posture's deformed scan: solved from where
+        // the fit put it.
+        if let (0, Some(posture)) = (k, self.posture) {
+            posture.warm_start(solver)?;
+        }
+        let label = format!("frame {}/{}", k + 1, self.frames.len());
+        match self.sequence {
+            Sequence::Frames => {
+                let mut bar = SolveBar::new(label, quiet);
+                let solve = solver.solve_with_progress(&mut |step| bar.step(step));
+                bar.finish();
+                Ok(Framed {
+                    solve: solve?,
+                    deformed: placed,
+                    observation: None,
+                })
+            }
+            Sequence::Matched { .. } => {
+                let observation = self
+                    .sequence
+                    .observation(k, path, self.model, self.noise)?
+                    .ok_or_else(|| anyhow::anyhow!("{}: no observation", path.display()))?;
+                let started = Instant::now();
+                // A frame after the first starts from the last one's
+                // answer.
+                let matching = if k == 0 {
+                    MatchParams {
+                        noise: self.noise,
+                        ..MatchParams::default()
+                    }
+                } else {
+                    MatchParams::next_frame(self.noise)
+                };
+                let report = progress::busy(quiet, &format!("{label}: matching"), |_| {
+                    match_observation(solver, self.model, &observation, &matching)
+                })
+                .with_context(|| format!("{}", path.display()))?;
+                let mut solve = report.last.clone();
+                solve.iterations = report.iterations;
+                solve.seconds = started.elapsed().as_secs_f64();
+                let described =
+                    ObservationReport::of(&observation, &report, self.noise, self.model);
+                Ok(Framed {
+                    solve,
+                    deformed: report.surface,
+                    observation: Some(described),
+                })
+            }
+        }
+    }
+}
