@@ -75,6 +75,10 @@ impl SolveDevice for Watched {
         self.solve.set_springs(springs)
     }
 
+    fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Infallible> {
+        self.solve.set_loads(loads)
+    }
+
     fn set_observation(
         &mut self,
         field: Option<&tissue::field::SurfaceField>,

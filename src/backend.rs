@@ -349,6 +349,12 @@ impl BoundPoints {
     pub fn rest(&self) -> &[Vec3] {
         &self.embedding.points
     }
+
+    /// Per point, the particles that carry it and their weights (summing
+    /// to one).
+    pub fn carriers(&self) -> &[Vec<(u32, f32)>] {
+        &self.embedding.carriers
+    }
 }
 
 impl Solver {
@@ -460,6 +466,24 @@ impl Solver {
             connections: model.connections.clone(),
         });
         Ok(solver)
+    }
+
+    /// The device the solver runs on (another solver made there shares
+    /// its GPU).
+    pub fn on_device(&self) -> Device {
+        match self.tracker.device() {
+            SolverDevice::Cpu(_) => Device::Cpu,
+            SolverDevice::Gpu(gpu) => Device::Gpu {
+                name: gpu.name.clone(),
+                device: gpu.solve.device().clone(),
+                queue: gpu.solve.queue().clone(),
+            },
+        }
+    }
+
+    /// The tracker over the device, in place.
+    pub(crate) fn tracker_mut(&mut self) -> &mut Tracker<SolverDevice> {
+        &mut self.tracker
     }
 
     /// The tracker over the device (a solver with a reference of its own,
@@ -715,6 +739,11 @@ impl BoundRigid {
     /// The structure's rest centroid.
     pub fn rest_centre(&self) -> Vec3 {
         self.binding.centre().points[0]
+    }
+
+    /// Its centroid, bound as a landmark.
+    pub fn centre(&self) -> &BoundPoints {
+        &self.centre
     }
 }
 

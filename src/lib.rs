@@ -55,6 +55,7 @@ pub mod resampling {
 pub mod backend;
 pub mod gravity;
 pub mod observation;
+pub mod uncertainty;
 
 /// Stage 2: the deformer (the CPU path; [`backend::Solver`] runs it on the
 /// chosen device), its parameters and its report.

@@ -123,6 +123,13 @@ impl SolveDevice for SolverDevice {
         }
     }
 
+    fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.as_mut().set_loads(loads)),
+            Self::Gpu(gpu) => gpu.on("uploading the loads", |g| g.set_loads(loads)),
+        }
+    }
+
     fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.as_mut().set_observation(field)),

@@ -342,6 +342,39 @@ impl Carried {
     }
 }
 
+/// The particles that carry a target and their weights (summing to one).
+pub type Carriers = Vec<(u32, f32)>;
+
+impl Carried {
+    /// Per landmark point, and per structure (by name) for its centroid,
+    /// the particles that carry it and their weights: the targets of the
+    /// uncertainty's regions. A deformable structure's centroid is the
+    /// mean of its vertices, a rigid one's carried as a landmark.
+    pub fn target_carriers(&self) -> (Option<Vec<Carriers>>, Vec<(String, Carriers)>) {
+        let points = self.points.as_ref().map(|p| p.carrier.carriers().to_vec());
+        let structures = self
+            .structures
+            .iter()
+            .map(|s| {
+                let carriers = match &s.binding {
+                    Binding::Deformable(bound) => {
+                        let share = 1.0 / bound.carriers().len().max(1) as f32;
+                        bound
+                            .carriers()
+                            .iter()
+                            .flatten()
+                            .map(|&(j, w)| (j, w * share))
+                            .collect()
+                    }
+                    Binding::Rigid(rigid) => rigid.centre().carriers().concat(),
+                };
+                (s.name.clone(), carriers)
+            })
+            .collect();
+        (points, structures)
+    }
+}
+
 impl Points {
     /// The file name the moved points are written under: `points.mrk.json`
     /// for markups, else `points.csv`.

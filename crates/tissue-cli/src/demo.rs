@@ -203,6 +203,7 @@ pub fn demo(args: &DemoArgs) -> Result<()> {
                 solve,
                 posture: None,
                 observation: None,
+                uncertainty: None,
             },
         )?;
         say(format!("{}: {}", case.name, case.description));

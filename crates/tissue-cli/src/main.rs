@@ -13,6 +13,7 @@ mod progress;
 mod sample;
 mod solve;
 mod track;
+mod uncertain;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

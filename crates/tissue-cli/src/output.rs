@@ -15,6 +15,7 @@ use crate::folder::{Staging, remove_staged};
 use crate::observe::ObservationReport;
 use crate::picture;
 use crate::posture::PostureReport;
+use crate::uncertain::{RADIUS_NAME, Uncertainty, UncertaintyReport};
 
 /// The moved particles and the deformed surface.
 pub const PARTICLES_FILE: &str = "particles.vtp";
@@ -107,6 +108,9 @@ pub struct SolveReport {
     /// `stiffness_fitted`, `fit_residual_mm`, `unloaded_residual_mm`, ...).
     #[serde(flatten)]
     pub posture: Option<PostureReport>,
+    /// With `--uncertainty`, each target's 95 % region.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<UncertaintyReport>,
     /// The error estimate after every iteration.
     pub residual_history: Vec<f32>,
 }
@@ -382,6 +386,8 @@ pub struct Solved<'a> {
     pub posture: Option<&'a PostureReport>,
     /// With an observation without correspondence, how it was matched.
     pub observation: Option<ObservationReport>,
+    /// With `--uncertainty`, the regions.
+    pub uncertainty: Option<&'a Uncertainty>,
 }
 
 /// Carries everything along with the solved particles and writes the results.
@@ -398,6 +404,7 @@ pub fn write_solution(
         solve,
         posture,
         observation,
+        uncertainty,
     } = solved;
     let current = solver.positions();
     if let Some(i) = current.iter().position(|p| !p.is_finite()) {
@@ -420,11 +427,13 @@ pub fn write_solution(
     let mut files: Vec<PathBuf> = Vec::new();
 
     let particles = to.dir.join(PARTICLES_FILE);
-    tissue::io::model::save_moved_particles_in(
+    let radii = uncertainty.map(|u| (RADIUS_NAME, u.particle_radii.as_slice()));
+    tissue::io::model::save_moved_particles_with(
         model,
         current,
         deformed,
         carried.space,
+        radii.as_slice(),
         &staging.stage(&particles),
     )?;
     files.push(particles);
@@ -434,9 +443,13 @@ pub fn write_solution(
         (Some(moved), Some(source)) => {
             let path = to.dir.join(source.output_name());
             let staged = staging.stage(&path);
-            match &source.markups {
-                Some(markups) => tissue::io::markups::save_markups(markups, &moved, &staged)?,
-                None => tissue::save_points(&moved, &staged)?,
+            let radii = uncertainty.and_then(|u| u.point_radii.as_deref());
+            match (&source.markups, radii) {
+                (Some(markups), _) => tissue::io::markups::save_markups(markups, &moved, &staged)?,
+                (None, Some(radii)) => {
+                    tissue::io::points::save_points_with(&moved, RADIUS_NAME, radii, &staged)?;
+                }
+                (None, None) => tissue::save_points(&moved, &staged)?,
             }
             files.push(path);
             Some(PointsReport {
@@ -535,6 +548,8 @@ pub fn write_solution(
         .fold(0.0, f32::max);
     let inverted = inversions(solver.reference(), current, &model.connections);
     let observation_flagged = observation.as_ref().is_some_and(|o| !o.flags().is_empty());
+    let uncertainty = uncertainty.map(|u| u.report.clone());
+    let uncertainty_flagged = uncertainty.as_ref().is_some_and(|u| !u.flags().is_empty());
     let report = SolveReport {
         model: to.model.to_owned(),
         surface: to.surface.to_owned(),
@@ -559,7 +574,8 @@ pub fn write_solution(
                 if carried.flagged()
                     || inverted.count > 0
                     || posture.is_some_and(|p| !p.flags().is_empty())
-                    || observation_flagged =>
+                    || observation_flagged
+                    || uncertainty_flagged =>
             {
                 Status::Flagged
             }
@@ -575,6 +591,7 @@ pub fn write_solution(
         inverted,
         files: files.iter().map(|p| p.display().to_string()).collect(),
         posture: posture.cloned(),
+        uncertainty,
         residual_history: solve.residual_history,
     };
     // The report last: it names the files, so it appears after them.
@@ -691,6 +708,9 @@ impl SolveReport {
                 p.count, p.source, p.max_displacement_mm
             ));
         }
+        if let Some(uncertainty) = &self.uncertainty {
+            lines.extend(uncertainty.summary(indent));
+        }
         lines.extend(
             self.flags()
                 .into_iter()
@@ -720,6 +740,9 @@ impl SolveReport {
         }
         if let Some(observation) = &self.observation {
             flags.extend(observation.flags());
+        }
+        if let Some(uncertainty) = &self.uncertainty {
+            flags.extend(uncertainty.flags());
         }
         if self.inverted.count > 0 {
             flags.push(format!(

@@ -22,6 +22,7 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
 use crate::progress::{self, SolveBar};
+use crate::uncertain::{self, Uncertainty, UncertaintyArgs};
 
 /// What the spinner says while a solver is prepared (the plan, the coarse
 /// levels' factors, the device's buffers).
@@ -145,6 +146,8 @@ pub struct DeformArgs {
     pub picture: Option<PathBuf>,
     #[command(flatten)]
     pub solve: SolveArgs,
+    #[command(flatten)]
+    pub uncertainty: UncertaintyArgs,
     #[command(flatten)]
     pub backend: BackendArgs,
     /// Print nothing but errors.
@@ -547,6 +550,8 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let observed_file = args.observed_file()?;
     crate::carry::check_space_tag(observed_file, args.carry.space)?;
     let target = args.target(&model)?;
+    let priors = args.uncertainty.priors()?;
+    uncertain::refuse_for_matches(priors.is_some() && matches!(target, Target::Match { .. }))?;
     if let Target::Match { held, observation } = &target {
         if !params.force.eq(&ForceModel::Elastic) {
             bail!("an observation without correspondence is matched by the elastic force alone");
@@ -650,6 +655,21 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         }
     };
     let deformed = matched.as_ref().unwrap_or(placed);
+    let uncertainty = match &priors {
+        Some(priors) if solve.converged => {
+            let spread = progress::busy(args.quiet, "the uncertainty's solves", |_| {
+                uncertain::spread(
+                    &mut solver,
+                    &model,
+                    deformed,
+                    posture.as_ref().and_then(|p| p.unloaded.as_ref()),
+                    priors,
+                )
+            })?;
+            Some(Uncertainty::of(&spread, priors, &carried))
+        }
+        _ => None,
+    };
     let report = write_solution(
         destination,
         &model,
@@ -661,6 +681,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             solve,
             posture: posture.as_ref().map(|p| &p.report),
             observation,
+            uncertainty: uncertainty.as_ref(),
         },
     )?;
     if !args.quiet {

@@ -597,6 +597,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 solve,
                 posture: posture_report,
                 observation: observation.clone(),
+                uncertainty: None,
             },
         ) {
             Ok(report) => report,

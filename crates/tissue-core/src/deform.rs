@@ -357,7 +357,7 @@ impl PointMap for Indentation {
 
 /// Area-weighted vertex normals (sums of the incident triangles' cross
 /// products), not normalised; zero for unused vertices.
-fn vertex_normals(mesh: &SurfaceMesh) -> Vec<Vec3> {
+pub fn vertex_normals(mesh: &SurfaceMesh) -> Vec<Vec3> {
     let mut normals = vec![DVec3::ZERO; mesh.vertices.len()];
     for (t, triangle) in mesh.triangles.iter().enumerate() {
         if triangle.iter().any(|&i| i as usize >= normals.len()) {

@@ -336,6 +336,30 @@ impl DeformState {
         Ok(())
     }
 
+    /// Sets every particle's body force (one per particle, or none for
+    /// zero), the springs kept: written into the loads buffer where it
+    /// holds a body force per particle, a buffer of body forces alone made
+    /// where it holds none (no loads and no springs before).
+    pub fn write_loads(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipelines: &Pipelines,
+        loads: &[Vec3],
+    ) -> Result<(), GpuError> {
+        let n = self.len();
+        if !loads.is_empty() {
+            self.check_len("loads (one per particle)", loads.len())?;
+        }
+        if self.loads.len() < n {
+            return self.set_loads(device, pipelines, loads, &[]);
+        }
+        let body: Vec<[f32; 4]> = (0..n)
+            .map(|i| loads.get(i).map_or([0.0; 4], |&b| vec4(b, 0.0)))
+            .collect();
+        self.loads.write(queue, 0, &body)
+    }
+
     /// Sets what the next iterations run: the elastic force (an elastic
     /// state's targets after the rotations, the force gathered over them)
     /// or the state's symmetric or paper force; `correct`, whether the

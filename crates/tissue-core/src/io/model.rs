@@ -254,7 +254,7 @@ pub fn save_moved_particles(
     deformed: &SurfaceMesh,
     path: &Path,
 ) -> Result<(), Error> {
-    moved_particles(model, current, deformed, None, path)
+    moved_particles(model, current, deformed, None, &[], path)
 }
 
 /// [`save_moved_particles`], with the file tagged as 3D Slicer tags its
@@ -271,16 +271,52 @@ pub fn save_moved_particles_in(
     space: Space,
     path: &Path,
 ) -> Result<(), Error> {
-    moved_particles(model, current, deformed, Some(space), path)
+    moved_particles(model, current, deformed, Some(space), &[], path)
 }
+
+/// [`save_moved_particles_in`], with more point data: each `(name,
+/// values)` of `arrays` one `Float32` value per particle (a particle's
+/// uncertainty, say), zero on the surface vertices after them.
+///
+/// # Errors
+///
+/// Those of [`save_moved_particles`]; an array of other than one value
+/// per particle, or named as one the file already has.
+pub fn save_moved_particles_with(
+    model: &ParticleModel,
+    current: &[Vec3],
+    deformed: &SurfaceMesh,
+    space: Space,
+    arrays: &[(&str, &[f32])],
+    path: &Path,
+) -> Result<(), Error> {
+    moved_particles(model, current, deformed, Some(space), arrays, path)
+}
+
+/// The point-data arrays every moved-particles file has.
+const MOVED_ARRAYS: [&str; 4] = ["displacement", "radius", "surface", "triangle"];
 
 fn moved_particles(
     model: &ParticleModel,
     current: &[Vec3],
     deformed: &SurfaceMesh,
     tag: Option<Space>,
+    arrays: &[(&str, &[f32])],
     path: &Path,
 ) -> Result<(), Error> {
+    for (name, values) in arrays {
+        if values.len() != model.len() || MOVED_ARRAYS.contains(name) {
+            return Err(format_error(
+                path,
+                format!(
+                    "point data {name:?}: {} values for {} particles (one each, under a name of \
+                     its own)",
+                    values.len(),
+                    model.len()
+                ),
+            ));
+        }
+    }
     if current.len() != model.len() || deformed.vertices.len() != model.surface.vertices.len() {
         return Err(format_error(
             path,
@@ -312,7 +348,7 @@ fn moved_particles(
         .map(|(now, rest)| *now - *rest)
         .collect();
     write_file(path, |w| {
-        write_poly_data(&moved, Some(&displacement), tag, w)
+        write_poly_data(&moved, Some(&displacement), arrays, tag, w)
     })
 }
 
@@ -359,7 +395,7 @@ const REST_SURFACE_FLAG: u8 = 2;
 /// appears in a later piece without offsetting its point ids, so ParaView
 /// would draw the surface's triangles between particles.
 fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
-    write_poly_data(model, None, None, w)
+    write_poly_data(model, None, &[], None, w)
 }
 
 /// The model file's layout; with `displacement` (one per particle, then one
@@ -369,6 +405,7 @@ fn write_model(model: &ParticleModel, w: &mut dyn Write) -> io::Result<()> {
 fn write_poly_data(
     model: &ParticleModel,
     displacement: Option<&[Vec3]>,
+    arrays: &[(&str, &[f32])],
     tag: Option<Space>,
     w: &mut dyn Write,
 ) -> io::Result<()> {
@@ -437,6 +474,13 @@ fn write_poly_data(
     if let Some(displacement) = displacement {
         let values = displacement.iter().flat_map(|d| d.to_array());
         write_array(w, encoding, "Float32", "displacement", 3, values)?;
+    }
+    for (name, values) in arrays {
+        let values = values
+            .iter()
+            .copied()
+            .chain(std::iter::repeat_n(0.0_f32, v));
+        write_array(w, encoding, "Float32", name, 1, values)?;
     }
     let radius = model.radii.iter().copied();
     write_array(

@@ -43,10 +43,69 @@ pub fn save_points(points: &[Vec3], path: &Path) -> Result<(), Error> {
     }
 }
 
+/// [`save_points`], with one more value per point after its coordinates:
+/// a column `name` of the CSV file (header `x,y,z,name`), a `float`
+/// property of the PLY file's vertices. [`load_points`] reads the
+/// coordinates back and leaves the column.
+///
+/// # Errors
+///
+/// Those of [`save_points`]; a column of other than one finite value per
+/// point, or a name that is not a plain word.
+pub fn save_points_with(
+    points: &[Vec3],
+    name: &str,
+    column: &[f32],
+    path: &Path,
+) -> Result<(), Error> {
+    let kind = PointFormat::of(path)?;
+    check_points(points)
+        .map_err(|message| format_error(path, format!("cannot write the points: {message}")))?;
+    let word = !name.is_empty()
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        && !["x", "y", "z"].contains(&name);
+    if column.len() != points.len() || column.iter().any(|v| !v.is_finite()) || !word {
+        return Err(format_error(
+            path,
+            format!(
+                "cannot write the column {name:?}: {} values for {} points (one finite value \
+                 each, under a plain name)",
+                column.len(),
+                points.len()
+            ),
+        ));
+    }
+    match kind {
+        PointFormat::Csv => write_file(path, |w| {
+            writeln!(w, "x,y,z,{name}")?;
+            for (p, v) in points.iter().zip(column) {
+                writeln!(w, "{},{},{},{v}", p.x, p.y, p.z)?;
+            }
+            Ok(())
+        }),
+        PointFormat::Ply => write_file(path, |w| {
+            writeln!(w, "ply")?;
+            writeln!(w, "format ascii 1.0")?;
+            writeln!(w, "comment written by tissue")?;
+            writeln!(w, "element vertex {}", points.len())?;
+            for axis in ["x", "y", "z", name] {
+                writeln!(w, "property float {axis}")?;
+            }
+            writeln!(w, "end_header")?;
+            for (p, v) in points.iter().zip(column) {
+                writeln!(w, "{} {} {} {v}", p.x, p.y, p.z)?;
+            }
+            Ok(())
+        }),
+    }
+}
+
 /// Reads points from a `.csv` or `.ply` file (by extension).
 ///
 /// CSV: three comma-separated numbers per line, optionally after a header
-/// line `x,y,z`; blank lines are skipped. A row with the wrong number of
+/// line `x,y,z` (more columns after those three, named in the header, are
+/// read past, as [`save_points_with`] writes them); blank lines are
+/// skipped. A row with the wrong number of
 /// columns, a value that is not a number, or a non-finite value is an
 /// [`Error::Format`] naming the line. PLY (ASCII or binary): the `x`, `y`, `z`
 /// properties of the `vertex` element; other elements are ignored. A file with
@@ -133,14 +192,25 @@ fn write_ply(points: &[Vec3], w: &mut dyn Write) -> io::Result<()> {
     Ok(())
 }
 
-/// Three numbers from one CSV line, or why not.
-fn csv_row(line: &str) -> Result<Vec3, String> {
+/// Three numbers from one CSV line of `columns` values (the first three
+/// the coordinates), or why not.
+fn csv_row(line: &str, columns: usize) -> Result<Vec3, String> {
     let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-    if fields.len() != 3 {
-        return Err(format!(
-            "expected 3 comma-separated values (x,y,z), found {}",
-            fields.len()
-        ));
+    if fields.len() != columns {
+        return Err(if columns == 3 {
+            format!(
+                "expected 3 comma-separated values (x,y,z), found {}",
+                fields.len()
+            )
+        } else {
+            format!(
+                "expected {columns} comma-separated values (as the header names), found {}",
+                fields.len()
+            )
+        });
+    }
+    if let Some(field) = fields[3..].iter().find(|f| f.parse::<f32>().is_err()) {
+        return Err(format!("`{field}` is not a number"));
     }
     let mut xyz = [0.0_f32; 3];
     for (slot, field) in xyz.iter_mut().zip(&fields) {
@@ -159,6 +229,7 @@ fn parse_csv(text: &str) -> Result<Vec<Vec3>, String> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut points = Vec::new();
     let mut seen_row = false;
+    let mut columns = 3;
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() {
@@ -166,9 +237,11 @@ fn parse_csv(text: &str) -> Result<Vec<Vec3>, String> {
         }
         let first = !seen_row;
         seen_row = true;
-        match csv_row(line) {
+        match csv_row(line, columns) {
             Ok(p) => points.push(p),
-            Err(_) if first && is_csv_header(line) => {}
+            Err(_) if first && csv_header(line).is_some() => {
+                columns = csv_header(line).unwrap_or(3);
+            }
             Err(message) => return Err(format!("line {}: {message}", k + 1)),
         }
     }
@@ -178,12 +251,17 @@ fn parse_csv(text: &str) -> Result<Vec<Vec3>, String> {
     Ok(points)
 }
 
-fn is_csv_header(line: &str) -> bool {
+/// The column count of a header line `x,y,z` or `x,y,z,name,...` (named
+/// columns after the coordinates), `None` for any other line.
+fn csv_header(line: &str) -> Option<usize> {
     let fields: Vec<String> = line
         .split(',')
         .map(|f| f.trim().trim_matches('"').to_ascii_lowercase())
         .collect();
-    fields == ["x", "y", "z"]
+    let named = fields[3.min(fields.len())..]
+        .iter()
+        .all(|f| !f.is_empty() && f.parse::<f64>().is_err());
+    (fields.len() >= 3 && fields[..3] == ["x", "y", "z"] && named).then_some(fields.len())
 }
 
 fn ply_scalar(property: &Property) -> Option<f32> {
@@ -235,6 +313,33 @@ mod tests {
     #![allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 
     use super::*;
+
+    /// A column after the coordinates is written under its name and read
+    /// past on both formats; a row short of the header's columns, or a
+    /// column of the wrong length, is refused.
+    #[test]
+    fn a_named_column_after_the_coordinates_round_trips() {
+        let points = vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(-4.0, 0.5, 6.0)];
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["p.csv", "p.ply"] {
+            let path = dir.path().join(name);
+            save_points_with(&points, "uncertainty_95", &[0.5, 1.25], &path).unwrap();
+            assert_eq!(load_points(&path).unwrap(), points);
+            assert!(
+                std::fs::read_to_string(&path)
+                    .unwrap()
+                    .contains("uncertainty_95")
+            );
+            assert!(save_points_with(&points, "uncertainty_95", &[0.5], &path).is_err());
+        }
+        assert_eq!(
+            parse_csv("x,y,z,r\n1,2,3,0.5\n-4,0.5,6,1\n").unwrap(),
+            points
+        );
+        let short = parse_csv("x,y,z,r\n1,2,3\n").unwrap_err();
+        assert!(short.contains("expected 4"), "{short}");
+        assert!(parse_csv("x,y,z,r\n1,2,3,a\n").is_err());
+    }
 
     #[test]
     fn csv_header_is_optional_and_blank_lines_are_skipped() {

@@ -157,6 +157,11 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
+    fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Infallible> {
+        loads.clone_into(&mut self.loads);
+        Ok(())
+    }
+
     fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Infallible> {
         self.observation = field.map(|f| Arc::new(f.clone()));
         Ok(())

@@ -117,6 +117,18 @@ impl SolveDevice for GpuSolve {
         })
     }
 
+    /// Written over the body forces' part of the loads buffer where it
+    /// holds one per particle (the springs after them kept), the buffer
+    /// made again where it does not.
+    fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            loads.clone_into(&mut gpu.loads);
+            gpu.state
+                .write_loads(&device, &gpu.queue, &gpu.pipelines, loads)
+        })
+    }
+
     fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), GpuError> {
         self.scoped(|gpu| {
             let device = gpu.device.clone();

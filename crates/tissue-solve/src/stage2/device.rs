@@ -126,6 +126,12 @@ pub trait SolveDevice {
     /// elastic phase's start.
     fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Self::Error>;
 
+    /// Sets every particle's body force (the plan's loads,
+    /// [`crate::stage2::plan::Plan::set_load`]: one per particle, or none):
+    /// the next iterations' plain steps and potentials take them; the
+    /// state is kept.
+    fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Self::Error>;
+
     /// Holds the observation the skin is paired with (its nearest points'
     /// field: a surface's, or a point cloud's), or none.
     fn set_observation(&mut self, field: Option<&SurfaceField>) -> Result<(), Self::Error>;

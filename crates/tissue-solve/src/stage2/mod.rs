@@ -10,7 +10,8 @@
 //! a change of posture makes (`posture`), a point cloud observed
 //! without correspondence (`observation`), the springs that pull the
 //! model towards an observation (`springs`), and the pairing that sets
-//! them from the observation at each iteration (`pairing`).
+//! them from the observation at each iteration (`pairing`), and how sure
+//! an answer is (`uncertainty`).
 
 pub(crate) mod acceleration;
 pub(crate) mod batches;
@@ -29,6 +30,7 @@ pub(crate) mod report;
 pub(crate) mod spectrum;
 pub(crate) mod springs;
 pub(crate) mod tracker;
+pub mod uncertainty;
 
 pub use acceleration::{
     CHEBYSHEV_ENVELOPE, Chebyshev, STALL_FACTOR, STALL_WINDOW, StoppingRule, accelerated_rate,

@@ -219,30 +219,7 @@ impl Plan {
     ) -> Result<Self, Error> {
         observe(PrepareStage::Plan);
         let mut plan = Self::observed_shared(model, params.observed.as_deref(), shared)?;
-        if params.load != Vec3::ZERO {
-            ParamError::check(
-                params.load.length() * plan.size <= MAX_LOAD_SIZE,
-                "load",
-                params.load,
-                format!(
-                    "at most {MAX_LOAD_SIZE} over the model's size ({}) in length",
-                    plan.size
-                ),
-            )?;
-            plan.loads = (0..model.len())
-                .map(|i| {
-                    let trace: f32 = model
-                        .connections
-                        .of(i)
-                        .iter()
-                        .map(|&j| {
-                            (model.positions[j as usize] - model.positions[i]).length_squared()
-                        })
-                        .sum();
-                    params.load * (trace / 3.0)
-                })
-                .collect();
-        }
+        plan.set_load(&model.positions, &model.connections, params.load)?;
         if params.force == ForceModel::Elastic {
             observe(PrepareStage::ElasticModel);
             // The integration constraint holds inside; a surface particle's
@@ -265,6 +242,46 @@ impl Plan {
             plan.elastic = Some(Arc::new(elastic));
         }
         Ok(plan)
+    }
+
+    /// Sets every particle's body force for `load` ([`DeformParams::load`]):
+    /// `load` times its stiffness weight `a_i = tr(A_i) / 3` at `positions`
+    /// (the rest shape the solve is prepared in), none for a zero load.
+    ///
+    /// # Errors
+    ///
+    /// [`ParamError`] for a load longer than [`MAX_LOAD_SIZE`] over the
+    /// model's size.
+    pub fn set_load(
+        &mut self,
+        positions: &[Vec3],
+        connections: &Connections,
+        load: Vec3,
+    ) -> Result<(), Error> {
+        if load == Vec3::ZERO {
+            self.loads.clear();
+            return Ok(());
+        }
+        ParamError::check(
+            load.is_finite() && load.length() * self.size <= MAX_LOAD_SIZE,
+            "load",
+            load,
+            format!(
+                "at most {MAX_LOAD_SIZE} over the model's size ({}) in length",
+                self.size
+            ),
+        )?;
+        self.loads = (0..positions.len())
+            .map(|i| {
+                let trace: f32 = connections
+                    .of(i)
+                    .iter()
+                    .map(|&j| (positions[j as usize] - positions[i]).length_squared())
+                    .sum();
+                load * (trace / 3.0)
+            })
+            .collect();
+        Ok(())
     }
 
     /// The largest eigenvalue the step of `force` is set for: the

@@ -284,6 +284,9 @@ pub struct Unloaded {
     pub fit: Option<Fit>,
     /// The deformed posture's gravity as [`DeformParams::load`].
     pub deformed_load: Vec3,
+    /// The rest posture's gravity as [`DeformParams::load`] (what the
+    /// unloaded shape was found under).
+    pub rest_load: Vec3,
     /// Where the deformed posture puts the particles, about: the fit's
     /// winning trial (its unloaded shape loaded, the skin free), carried to
     /// the model from a coarse one; `None` where the stiffness was given.
@@ -477,6 +480,7 @@ pub fn unload<P: PostureDevice>(
         stiffness_kpa,
         fit,
         deformed_load: deformed_per_kpa / stiffness_kpa,
+        rest_load: rest_per_kpa / stiffness_kpa,
         deformed_guess,
         solves: solves.count,
         elastic_retries: solves.elastic_retries,

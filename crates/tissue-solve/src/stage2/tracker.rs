@@ -59,6 +59,17 @@ pub struct Tracker<D> {
     connections: Option<Connections>,
 }
 
+/// A tracker's state at a frame boundary ([`Tracker::checkpoint`]).
+#[derive(Debug, Clone)]
+pub(crate) struct Checkpoint {
+    current: Vec<Vec3>,
+    history: FrameHistory,
+    load: Vec3,
+    elastic_warm: bool,
+    guessed: bool,
+    elastic_correct: bool,
+}
+
 impl<D: SolveDevice> Tracker<D> {
     /// Checks `params` and `model`, works out the plan, and prepares the
     /// device by `prepare` from them.
@@ -179,6 +190,34 @@ impl<D: SolveDevice> Tracker<D> {
     ) -> Result<(), E> {
         self.plan.set_springs(springs)?;
         self.device.set_springs(&self.plan.springs)?;
+        Ok(())
+    }
+
+    /// Changes the body force of the next solves ([`DeformParams::load`]):
+    /// each particle's load made again at the rest shape
+    /// ([`Plan::set_load`]) and given to the device; the state is kept.
+    /// For solves near this one under a nearby load (the uncertainty's
+    /// gravity columns).
+    ///
+    /// # Errors
+    ///
+    /// [`ParamError`] for a solve without the elastic force (its
+    /// connections are not kept) or a load [`Plan::set_load`] refuses; the
+    /// device's error where it cannot take it.
+    pub fn set_load<E: From<Error> + From<D::Error>>(&mut self, load: Vec3) -> Result<(), E> {
+        let Some(connections) = &self.connections else {
+            ParamError::check(
+                false,
+                "load",
+                load,
+                "unchanged on a prepared solve without the elastic force",
+            )
+            .map_err(Error::from)?;
+            return Ok(());
+        };
+        self.plan.set_load(&self.rest, connections, load)?;
+        self.device.set_loads(&self.plan.loads)?;
+        self.params.load = load;
         Ok(())
     }
 
@@ -461,6 +500,40 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(report)
     }
 
+    /// What [`Tracker::back_to`] puts back: the positions at the frame
+    /// boundary, the history, the load and whether the next solve starts
+    /// warm. For solves near the answer that must leave no trace on the
+    /// next frames (the uncertainty's columns).
+    pub(crate) fn checkpoint(&self) -> Checkpoint {
+        Checkpoint {
+            current: self.current.clone(),
+            history: self.history.clone(),
+            load: self.params.load,
+            elastic_warm: self.elastic_warm,
+            guessed: self.guessed,
+            elastic_correct: self.elastic_correct,
+        }
+    }
+
+    /// Back to `kept` ([`Tracker::checkpoint`]): its positions written to
+    /// the device (the control points with them), its history, load and
+    /// warm start.
+    pub(crate) fn back_to<E: From<Error> + From<D::Error>>(
+        &mut self,
+        kept: Checkpoint,
+    ) -> Result<(), E> {
+        if self.params.load != kept.load {
+            self.set_load::<E>(kept.load)?;
+        }
+        self.current = kept.current;
+        self.history = kept.history;
+        self.elastic_warm = kept.elastic_warm;
+        self.guessed = kept.guessed;
+        self.elastic_correct = kept.elastic_correct;
+        self.device.write_positions(&self.current, None)?;
+        Ok(())
+    }
+
     /// Back to the rest shape (no warm start, no history but the rest).
     pub fn reset(&mut self) -> Result<(), D::Error> {
         self.device.reset()?;
@@ -617,6 +690,10 @@ mod tests {
         }
 
         fn set_springs(&mut self, _springs: &[glam::Vec4]) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        fn set_loads(&mut self, _loads: &[Vec3]) -> Result<(), Infallible> {
             Ok(())
         }
 

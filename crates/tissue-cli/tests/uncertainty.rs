@@ -1,0 +1,138 @@
+//! `tissue deform --uncertainty`: every output says how sure it is, the
+//! landmark on the held chest wall is sure, and what the estimate cannot
+//! take is refused.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use common::{assets, json, s, sampled_model, text, tissue, vtp_array};
+
+/// The sagged phantom with landmarks (one deep inside, one on the chest
+/// wall) and the tumour: the report holds each landmark's and the
+/// tumour's 95 % region, `points.csv` its radius as a fourth column,
+/// `particles.vtp` each particle's; the chest-wall landmark's region is
+/// smaller than the deep one's, and the spread's solves all converged.
+#[test]
+fn deform_writes_each_target_region() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let low = model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z)
+        .fold(f32::INFINITY, f32::min);
+    let wall = model
+        .surface
+        .vertices
+        .iter()
+        .find(|v| v.z < low + 1e-3)
+        .copied()
+        .unwrap();
+    let points = dir.path().join("targets.csv");
+    std::fs::write(
+        &points,
+        format!("x,y,z\n0,0,25\n{},{},{}\n", wall.x, wall.y, wall.z),
+    )
+    .unwrap();
+    let out_dir = dir.path().join("out");
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model_path),
+        "--surface",
+        s(&assets().join("phantom-sag.obj")),
+        "--points",
+        s(&points),
+        "--structure",
+        s(&assets().join("phantom-tumour.obj")),
+        "--uncertainty",
+        "4",
+        "--backend",
+        "cpu",
+        "-o",
+        s(&out_dir),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("uncertainty:"), "{}", text(&out));
+    let report = json(&out_dir.join("report.json"));
+    let uncertainty = &report["uncertainty"];
+    assert_eq!(uncertainty["converged"], true);
+    assert_eq!(uncertainty["priors"]["samples"], 4);
+    let radius = |k: usize| uncertainty["points"][k]["radius_mm"].as_f64().unwrap();
+    assert!(radius(0) > 0.05, "the deep landmark: {}", radius(0));
+    assert!(
+        radius(1) < 0.5 * radius(0),
+        "the chest wall's: {}",
+        radius(1)
+    );
+    let tumour = &uncertainty["structures"][0];
+    assert_eq!(tumour["name"], "phantom-tumour.obj");
+    assert!(tumour["centroid"]["radius_mm"].as_f64().unwrap() > 0.0);
+    assert!(tumour["centroid"]["dominant"].is_string());
+
+    let csv = std::fs::read_to_string(out_dir.join("points.csv")).unwrap();
+    assert!(csv.starts_with("x,y,z,uncertainty_95\n"), "{csv}");
+    let first: Vec<f64> = csv
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert!((first[3] - radius(0)).abs() < 1e-4, "{first:?}");
+    // The moved points read back as points.
+    assert_eq!(
+        tissue::load_points(&out_dir.join("points.csv"))
+            .unwrap()
+            .len(),
+        2
+    );
+    let vtp = std::fs::read_to_string(out_dir.join("particles.vtp")).unwrap();
+    let radii = vtp_array(&vtp, "uncertainty_95");
+    assert_eq!(radii.len(), model.len() + model.surface.vertices.len());
+    let largest = radii.iter().copied().fold(0.0, f32::max);
+    let median = uncertainty["particles"]["median_radius_mm"]
+        .as_f64()
+        .unwrap();
+    assert!(median > 0.0 && f64::from(largest) >= median);
+}
+
+/// An observation without correspondence and priors out of range are
+/// refused before anything is solved, each naming what is wrong.
+#[test]
+fn deform_refuses_what_the_uncertainty_cannot_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let run = |extra: &[&str]| {
+        let out_dir = dir.path().join("out");
+        let mut args = vec![
+            "deform",
+            "--model",
+            s(&model_path),
+            "--backend",
+            "cpu",
+            "-o",
+            s(&out_dir),
+            "--uncertainty",
+        ];
+        args.extend_from_slice(extra);
+        let out = tissue(&args);
+        assert!(!out.status.success());
+        assert!(!out_dir.join("report.json").exists());
+        text(&out)
+    };
+    let sag = assets().join("phantom-sag.obj");
+    let bad = run(&["--surface", s(&sag), "--poisson-range", "0.4,0.6"]);
+    assert!(bad.contains("poisson"), "{bad}");
+    let bad = run(&["--surface", s(&sag), "--surface-noise=-1"]);
+    assert!(bad.contains("surface_noise"), "{bad}");
+    // Another triangulation of the sagged skin: matched without
+    // correspondence, which the estimate does not sample.
+    let remeshed = dir.path().join("remeshed.obj");
+    let sagged = tissue::load_surface(&sag).unwrap();
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
+    tissue::save_surface(&tissue::SurfaceMesh::new(vertices, triangles), &remeshed).unwrap();
+    let bad = run(&["--surface", s(&remeshed)]);
+    assert!(bad.contains("--uncertainty"), "{bad}");
+}

@@ -1,0 +1,577 @@
+//! How sure an answer is: the solve repeated over what the program does
+//! not know, each repeat started from the answer (docs/METHOD.md,
+//! "Uncertainty").
+//!
+//! The unknowns ([`Unknown`]) and their priors ([`Priors`]):
+//! - **the Poisson ratio**, uniform over a range: solved again at the
+//!   range's ends on trackers of their own (the ratio is prepared into a
+//!   solve), the answer's positions taken as quadratic in `(1 - 2 nu) /
+//!   (2 nu)` (the shear over the volume stiffness) through the three, and
+//!   their spread integrated over the range by three-point Gauss-Legendre.
+//!   With a load, each ratio's response is to the change of load between
+//!   the postures, what the unloaded shape's search turns into the
+//!   deformed posture's move;
+//! - **the observed surface**, in error along its normals by a smooth
+//!   random field ([`SurfaceNoise`]): a Monte Carlo ensemble, each sample a
+//!   re-solve on the answer's tracker;
+//! - with a load (a posture's gravity): **the load's scale** (density and
+//!   stiffness, relative), the change of load between the postures scaled
+//!   (the unloaded shape is found from the rest scan, so to first order the
+//!   deformed posture moves by the response to that change), and **the
+//!   gravity's directions**, each posture's tilted about two axes: one
+//!   linearised re-solve per column;
+//! - without one, **the unmodelled posture**: a change of gravity between
+//!   the scans that the answer left out, of an RMS size in g on tissue of
+//!   a given stiffness, one linearised re-solve along each axis.
+//!
+//! Every column is a re-solve's positions less the answer's with a weight;
+//! a target's covariance is the weighted sum of its offsets' outer
+//! products ([`Region::of`]). Written once for every device: the columns
+//! are solves of a [`Tracker`].
+
+pub mod noise;
+pub mod region;
+
+use std::time::Instant;
+
+use glam::{Quat, Vec3};
+use serde::Serialize;
+use tissue_core::{Error, ParamError, SurfaceMesh};
+
+use crate::model::gravity::gravity_load;
+use crate::stage2::params::DeformParams;
+use crate::stage2::posture::MAX_GRAVITY_G;
+use crate::stage2::tracker::{SolveDevice, Tracker};
+
+pub use noise::SurfaceNoise;
+pub use region::{CHI2_3_95, FLAT_FLOOR, Region, radius_95, symmetric_eigen};
+
+/// The Poisson ratio's range for soft tissue, uniform.
+pub const POISSON_RANGE: (f32, f32) = (0.45, 0.495);
+/// The observed surface's error along its normals, standard deviation, mm:
+/// a segmentation or a surface scan to about half a millimetre.
+pub const SURFACE_NOISE_MM: f32 = 0.5;
+/// The surface error's correlation length, mm.
+pub const SURFACE_CORRELATION_MM: f32 = 10.0;
+/// The surface error's samples.
+pub const SURFACE_SAMPLES: usize = 16;
+/// The load's relative standard deviation: the density's (10 %) and the
+/// fitted stiffness's (10 %) together.
+pub const LOAD_SPREAD: f32 = 0.14;
+/// Each posture's gravity direction, standard deviation about each axis
+/// across it, degrees.
+pub const GRAVITY_DEGREES: f32 = 3.0;
+/// Without a posture's gravity: the RMS change of gravity between the
+/// scans the answer did not model, in g.
+pub const POSTURE_G: f32 = 1.0;
+/// The Young's modulus that unmodelled change acts on, kPa.
+pub const POSTURE_KPA: f32 = 2.0;
+/// The tissue density the unmodelled change acts on, kg/m^3.
+pub const TISSUE_DENSITY_KG_M3: f32 = 1000.0;
+/// The samples' seed.
+pub const SEED: u64 = 0x5eed;
+
+/// What the program does not know, each with its spread; lengths in the
+/// model's units (millimetres by default).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct Priors {
+    /// The Poisson ratio's range (uniform); a point range at the solve's
+    /// own ratio is no unknown.
+    pub poisson: (f32, f32),
+    /// The surface error's standard deviation along the normals; zero:
+    /// the surface is exact.
+    pub surface_noise: f32,
+    /// The surface error's correlation length.
+    pub surface_correlation: f32,
+    /// The surface error's samples.
+    pub samples: usize,
+    /// The load's relative standard deviation (with a load only).
+    pub load_spread: f32,
+    /// Each posture's gravity direction's standard deviation, degrees
+    /// (with a load only).
+    pub gravity_degrees: f32,
+    /// Without a load: the RMS change of gravity between the scans that
+    /// the answer did not model, in g (0: the posture did not change).
+    pub posture_g: f32,
+    /// The Young's modulus that change acts on, kPa.
+    pub posture_kpa: f32,
+    /// The surface samples' seed.
+    pub seed: u64,
+}
+
+impl Default for Priors {
+    fn default() -> Self {
+        Self {
+            poisson: POISSON_RANGE,
+            surface_noise: SURFACE_NOISE_MM,
+            surface_correlation: SURFACE_CORRELATION_MM,
+            samples: SURFACE_SAMPLES,
+            load_spread: LOAD_SPREAD,
+            gravity_degrees: GRAVITY_DEGREES,
+            posture_g: POSTURE_G,
+            posture_kpa: POSTURE_KPA,
+            seed: SEED,
+        }
+    }
+}
+
+impl Priors {
+    /// Changes fields in a closure: `Priors::default().with(|p| p.samples = 32)`.
+    pub fn with(mut self, change: impl FnOnce(&mut Self)) -> Self {
+        change(&mut self);
+        self
+    }
+
+    /// The defaults for a model in units of `mm_per_unit` millimetres.
+    pub fn in_units(mm_per_unit: f32) -> Self {
+        Self::default().with(|p| {
+            p.surface_noise /= mm_per_unit;
+            p.surface_correlation /= mm_per_unit;
+        })
+    }
+
+    /// Checks every field's range.
+    ///
+    /// # Errors
+    ///
+    /// [`ParamError`] naming the first field out of range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let (lo, hi) = self.poisson;
+        ParamError::check(
+            lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi && hi < 0.5,
+            "uncertainty poisson",
+            format!("{lo} to {hi}"),
+            "a range inside (0, 0.5), its low end first",
+        )?;
+        ParamError::check(
+            self.surface_noise.is_finite() && self.surface_noise >= 0.0,
+            "uncertainty surface_noise",
+            self.surface_noise,
+            "a length of at least zero",
+        )?;
+        ParamError::check(
+            self.surface_correlation.is_finite() && self.surface_correlation > 0.0,
+            "uncertainty surface_correlation",
+            self.surface_correlation,
+            "a positive length",
+        )?;
+        ParamError::check(
+            (2..=1024).contains(&self.samples) || self.surface_noise == 0.0,
+            "uncertainty samples",
+            self.samples,
+            "2 to 1024 surface samples",
+        )?;
+        ParamError::check(
+            self.load_spread.is_finite() && (0.0..1.0).contains(&self.load_spread),
+            "uncertainty load_spread",
+            self.load_spread,
+            "a relative spread from 0 to under 1",
+        )?;
+        ParamError::check(
+            self.gravity_degrees.is_finite() && (0.0..=30.0).contains(&self.gravity_degrees),
+            "uncertainty gravity_degrees",
+            self.gravity_degrees,
+            "0 to 30 degrees",
+        )?;
+        ParamError::check(
+            self.posture_g.is_finite() && (0.0..=MAX_GRAVITY_G).contains(&self.posture_g),
+            "uncertainty posture_g",
+            self.posture_g,
+            format!("0 to {MAX_GRAVITY_G} g"),
+        )?;
+        ParamError::check(
+            self.posture_kpa.is_finite() && self.posture_kpa > 0.0,
+            "uncertainty posture_kpa",
+            self.posture_kpa,
+            "a positive Young's modulus in kPa",
+        )
+    }
+}
+
+/// What the spread is owed to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Unknown {
+    /// The Poisson ratio.
+    Poisson,
+    /// The observed surface's error.
+    Surface,
+    /// The load's scale: density and stiffness.
+    Load,
+    /// The postures' gravity directions.
+    Gravity,
+    /// Without a posture's gravity: the change of gravity between the
+    /// scans that the answer did not model.
+    Posture,
+}
+
+impl Unknown {
+    /// Every unknown, in the order of [`Region::shares`].
+    pub const ALL: [Unknown; 5] = [
+        Unknown::Poisson,
+        Unknown::Surface,
+        Unknown::Load,
+        Unknown::Gravity,
+        Unknown::Posture,
+    ];
+
+    /// Its place in [`Unknown::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Unknown::Poisson => "poisson",
+            Unknown::Surface => "surface",
+            Unknown::Load => "load",
+            Unknown::Gravity => "gravity",
+            Unknown::Posture => "posture",
+        }
+    }
+}
+
+/// One column of the spread: the positions of a re-solve, with its
+/// unknown and its weight in the covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Column {
+    /// What was changed.
+    pub unknown: Unknown,
+    /// Its weight: `sum w (x - x0)(x - x0)^T` is the covariance.
+    pub weight: f64,
+    /// Every particle's position in the re-solve.
+    pub positions: Vec<Vec3>,
+}
+
+/// The answer and its re-solves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Spread {
+    /// The answer's positions, one per particle.
+    pub answer: Vec<Vec3>,
+    /// The re-solves.
+    pub columns: Vec<Column>,
+    /// Stage-2 solves made (one per column, and one per other Poisson
+    /// ratio).
+    pub solves: usize,
+    /// Their iterations.
+    pub iterations: usize,
+    /// Whether every re-solve converged.
+    pub converged: bool,
+    /// Wall-clock seconds, the trackers' preparation included.
+    pub seconds: f64,
+}
+
+impl Spread {
+    /// The region of each target, where `targets` maps particle positions
+    /// to the targets' (carried points, say: called once on the answer and
+    /// once per column).
+    pub fn regions(&self, targets: &dyn Fn(&[Vec3]) -> Vec<Vec3>) -> Vec<Region> {
+        let answer = targets(&self.answer);
+        let moved: Vec<Vec<Vec3>> = self.columns.iter().map(|c| targets(&c.positions)).collect();
+        (0..answer.len())
+            .map(|k| {
+                Region::of(
+                    self.columns
+                        .iter()
+                        .zip(&moved)
+                        .map(|(c, m)| (c.unknown, c.weight, m[k] - answer[k])),
+                )
+            })
+            .collect()
+    }
+
+    /// Each particle's region.
+    pub fn particle_regions(&self) -> Vec<Region> {
+        self.regions(&|positions| positions.to_vec())
+    }
+}
+
+/// What the answer was solved for.
+#[derive(Debug, Clone, Copy)]
+pub struct Answered<'a> {
+    /// The deformed surface the skin followed.
+    pub surface: &'a SurfaceMesh,
+    /// Per surface vertex, whether it is exact (the held region: no
+    /// surface error there).
+    pub exact: &'a [bool],
+    /// The rest posture's load, where the answer has a load (the deformed
+    /// posture's is the tracker's).
+    pub rest_load: Option<Vec3>,
+    /// The model's length unit in metres (0.001 for millimetres), for the
+    /// unmodelled posture's load.
+    pub metres_per_unit: f32,
+}
+
+/// The spread of the answer `tracker` holds (its last solve's, converged,
+/// on `answered.surface`) under `priors`: every column solved from the
+/// answer, the Poisson ratio's on trackers `other` prepares for the
+/// tracker's parameters with another ratio. The tracker is left at the
+/// answer, its history as it was.
+///
+/// # Errors
+///
+/// [`ParamError`] for priors out of range or an `exact` mask of the wrong
+/// length; what the solves and `other` return.
+pub fn explore<D, E>(
+    tracker: &mut Tracker<D>,
+    answered: Answered<'_>,
+    priors: &Priors,
+    other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+) -> Result<Spread, E>
+where
+    D: SolveDevice,
+    E: From<Error> + From<D::Error>,
+{
+    let started = Instant::now();
+    priors.validate().map_err(Error::from)?;
+    ParamError::check(
+        answered.exact.len() == answered.surface.vertices.len(),
+        "uncertainty exact",
+        answered.exact.len(),
+        format!(
+            "one flag per surface vertex ({})",
+            answered.surface.vertices.len()
+        ),
+    )
+    .map_err(Error::from)?;
+    let kept = tracker.checkpoint();
+    let answer = tracker.positions().to_vec();
+    let mut spread = Spread {
+        answer: answer.clone(),
+        columns: Vec::new(),
+        solves: 0,
+        iterations: 0,
+        converged: true,
+        seconds: 0.0,
+    };
+    let solve =
+        |t: &mut Tracker<D>, surface: &SurfaceMesh, spread: &mut Spread| -> Result<Vec<Vec3>, E> {
+            t.set_surface::<E>(surface)?;
+            t.warm_start::<E>(&answer)?;
+            let report = t.solve()?;
+            spread.solves += 1;
+            spread.iterations += report.iterations;
+            spread.converged &= report.converged;
+            Ok(t.positions().to_vec())
+        };
+
+    // The Poisson ratio: quadratic in the stiffness ratio through the
+    // answer and the range's ends, integrated over the range. With a
+    // load, each ratio's response to the change of load between the
+    // postures (what the unloaded shape's search turns into the deformed
+    // posture's move), from the answer's tracker under that change.
+    let params = tracker.params().clone();
+    let load = params.load;
+    let change = answered
+        .rest_load
+        .filter(|_| load != Vec3::ZERO)
+        .map(|r| load - r);
+    let nu0 = params.poisson;
+    let (lo, hi) = priors.poisson;
+    if !(lo == hi && lo == nu0) {
+        let base = match change {
+            Some(change) => {
+                tracker.set_load::<E>(change)?;
+                let base = solve(tracker, answered.surface, &mut spread)?;
+                tracker.set_load::<E>(load)?;
+                base
+            }
+            None => answer.clone(),
+        };
+        let mut others = vec![lo, hi];
+        if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
+            // The solve's own ratio at an end: the middle is the third.
+            others = vec![lo, 0.5 * (lo + hi), hi];
+        }
+        others.retain(|nu| (nu - nu0).abs() > 1e-6);
+        others.dedup();
+        let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
+        for nu in others {
+            let mut t = other(params.clone().with(|p| {
+                p.poisson = nu;
+                p.load = change.unwrap_or(load);
+            }))?;
+            let positions = solve(&mut t, answered.surface, &mut spread)?;
+            let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
+            points.push((nu, offsets));
+        }
+        let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
+        for (node, weight) in gauss_legendre(lo, hi) {
+            let basis = lagrange(&ratios, ratio(node));
+            let positions = answer
+                .iter()
+                .enumerate()
+                .map(|(i, &x0)| {
+                    x0 + points
+                        .iter()
+                        .zip(&basis)
+                        .map(|((_, offsets), &b)| b as f32 * offsets[i])
+                        .sum::<Vec3>()
+                })
+                .collect();
+            spread.columns.push(Column {
+                unknown: Unknown::Poisson,
+                weight,
+                positions,
+            });
+        }
+    }
+
+    // The surface's error: a Monte Carlo ensemble.
+    if priors.surface_noise > 0.0 {
+        let mut noise = SurfaceNoise::new(
+            answered.surface,
+            answered.exact,
+            priors.surface_noise,
+            priors.surface_correlation,
+            priors.seed,
+        );
+        for _ in 0..priors.samples {
+            let sample = noise.sample();
+            let positions = solve(tracker, &sample, &mut spread)?;
+            spread.columns.push(Column {
+                unknown: Unknown::Surface,
+                weight: 1.0 / priors.samples as f64,
+                positions,
+            });
+        }
+    }
+
+    // The load's scale and the gravity's directions, linearised; without
+    // a load, the change of gravity the answer did not model, along each
+    // axis.
+    let mut changes = Vec::new();
+    if let (Some(rest_load), Some(change)) = (answered.rest_load, change) {
+        if priors.load_spread > 0.0 {
+            changes.push((Unknown::Load, priors.load_spread * change));
+        }
+        if priors.gravity_degrees > 0.0 {
+            let angle = priors.gravity_degrees.to_radians();
+            for (posture, sign) in [(load, 1.0), (rest_load, -1.0)] {
+                let (a, b) = posture.normalize_or_zero().any_orthonormal_pair();
+                for axis in [a, b] {
+                    let tilted = Quat::from_axis_angle(axis, angle) * posture;
+                    changes.push((Unknown::Gravity, sign * (tilted - posture)));
+                }
+            }
+        }
+    } else if load == Vec3::ZERO && priors.posture_g > 0.0 {
+        let unit = gravity_load(
+            Vec3::Z,
+            TISSUE_DENSITY_KG_M3,
+            priors.posture_kpa,
+            nu0,
+            answered.metres_per_unit,
+        )
+        .map_err(Error::from)?
+        .length();
+        let each = priors.posture_g * unit / 3f32.sqrt();
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            changes.push((Unknown::Posture, each * axis));
+        }
+    }
+    for (unknown, change) in changes {
+        tracker.set_load::<E>(load + change)?;
+        let positions = solve(tracker, answered.surface, &mut spread)?;
+        spread.columns.push(Column {
+            unknown,
+            weight: 1.0,
+            positions,
+        });
+    }
+    if tracker.params().load != load {
+        tracker.set_load::<E>(load)?;
+    }
+    tracker.back_to::<E>(kept)?;
+    spread.seconds = started.elapsed().as_secs_f64();
+    Ok(spread)
+}
+
+/// The stiffness ratio `mu / lambda = (1 - 2 nu) / (2 nu)` the answer is
+/// taken as quadratic in.
+fn ratio(nu: f32) -> f64 {
+    let nu = f64::from(nu);
+    (1.0 - 2.0 * nu) / (2.0 * nu)
+}
+
+/// The three-point Gauss-Legendre nodes and weights of the uniform
+/// distribution on `[lo, hi]` (the weights sum to one); one node of
+/// weight one for a point range.
+fn gauss_legendre(lo: f32, hi: f32) -> Vec<(f32, f64)> {
+    if lo == hi {
+        return vec![(lo, 1.0)];
+    }
+    let (mid, half) = (
+        0.5 * (f64::from(lo) + f64::from(hi)),
+        0.5 * f64::from(hi - lo),
+    );
+    let node = (0.6_f64).sqrt() * half;
+    vec![
+        ((mid - node) as f32, 5.0 / 18.0),
+        (mid as f32, 8.0 / 18.0),
+        ((mid + node) as f32, 5.0 / 18.0),
+    ]
+}
+
+/// The Lagrange basis of the distinct points `xs` at `x`.
+fn lagrange(xs: &[f64], x: f64) -> Vec<f64> {
+    (0..xs.len())
+        .map(|j| {
+            (0..xs.len())
+                .filter(|&m| m != j)
+                .map(|m| (x - xs[m]) / (xs[j] - xs[m]))
+                .product()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The quadrature integrates a quartic in the ratio's neighbourhood
+    /// exactly over the uniform range, and its weights sum to one.
+    #[test]
+    fn gauss_legendre_integrates_the_uniform_range() {
+        let nodes = gauss_legendre(0.45, 0.495);
+        let sum: f64 = nodes.iter().map(|n| n.1).sum();
+        assert!((sum - 1.0).abs() < 1e-12);
+        let mean: f64 = nodes.iter().map(|&(x, w)| w * f64::from(x)).sum();
+        assert!((mean - 0.4725).abs() < 1e-6, "{mean}");
+        let second: f64 = nodes
+            .iter()
+            .map(|&(x, w)| w * (f64::from(x) - 0.4725).powi(2))
+            .sum();
+        assert!((second - 0.045f64.powi(2) / 12.0).abs() < 1e-8, "{second}");
+    }
+
+    /// The Lagrange basis is one at its own point, zero at the others.
+    #[test]
+    fn lagrange_basis_interpolates() {
+        let xs = [0.1, 0.02, 0.01];
+        for (j, &x) in xs.iter().enumerate() {
+            let basis = lagrange(&xs, x);
+            for (m, b) in basis.iter().enumerate() {
+                assert!((b - f64::from(u8::from(m == j))).abs() < 1e-12);
+            }
+        }
+    }
+
+    /// The defaults are in range, and a priors' field out of range is
+    /// refused by name.
+    #[test]
+    fn priors_are_checked() {
+        assert!(Priors::default().validate().is_ok());
+        let bad = Priors::default().with(|p| p.poisson = (0.49, 0.45));
+        let err = bad.validate().err().map(|e| e.to_string());
+        assert!(err.is_some_and(|e| e.contains("poisson")));
+        let bad = Priors::default().with(|p| p.samples = 1);
+        assert!(bad.validate().is_err());
+        assert_eq!(
+            Priors::in_units(10.0).surface_noise,
+            SURFACE_NOISE_MM / 10.0
+        );
+    }
+}

@@ -1,0 +1,146 @@
+//! The observed surface's error as a smooth random field: each sample a
+//! Gaussian process along the vertex normals with a squared-exponential
+//! correlation, made of random Fourier features (Rahimi and Recht 2007),
+//! zero on the exact (held) vertices and rising to full strength over one
+//! correlation length away from them.
+
+use std::f64::consts::TAU;
+
+use glam::{DVec3, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rstar::RTree;
+use tissue_core::SurfaceMesh;
+use tissue_core::deform::vertex_normals;
+
+/// Fourier features per sample: the field's variance is one in
+/// expectation, its correlation the squared exponential's within a few
+/// percent.
+pub const FEATURES: usize = 64;
+
+/// The surface error's samples: each a copy of `surface` whose vertices
+/// moved along their normals by a field of standard deviation `sigma` and
+/// correlation length `length`, scaled down to zero on the `exact`
+/// vertices (one flag per vertex) by `min(1, d / length)` for a vertex `d`
+/// from the nearest exact one. The same `seed` gives the same samples.
+pub struct SurfaceNoise<'a> {
+    surface: &'a SurfaceMesh,
+    normals: Vec<DVec3>,
+    strength: Vec<f64>,
+    sigma: f64,
+    length: f64,
+    random: Pcg64,
+}
+
+impl<'a> SurfaceNoise<'a> {
+    /// The field's setting on `surface`.
+    pub fn new(
+        surface: &'a SurfaceMesh,
+        exact: &[bool],
+        sigma: f32,
+        length: f32,
+        seed: u64,
+    ) -> Self {
+        let normals = vertex_normals(surface)
+            .into_iter()
+            .map(|n| n.as_dvec3().normalize_or_zero())
+            .collect();
+        let held: Vec<[f32; 3]> = surface
+            .vertices
+            .iter()
+            .zip(exact.iter().chain(std::iter::repeat(&false)))
+            .filter(|(_, e)| **e)
+            .map(|(v, _)| v.to_array())
+            .collect();
+        let tree = RTree::bulk_load(held);
+        let length = f64::from(length);
+        let strength = surface
+            .vertices
+            .iter()
+            .map(|v| match tree.nearest_neighbor(v.to_array()) {
+                None => 1.0,
+                Some(h) => (f64::from(Vec3::from(*h).distance(*v)) / length).min(1.0),
+            })
+            .collect();
+        Self {
+            surface,
+            normals,
+            strength,
+            sigma: f64::from(sigma),
+            length,
+            random: Pcg64::seed_from_u64(seed),
+        }
+    }
+
+    /// The next sample.
+    pub fn sample(&mut self) -> SurfaceMesh {
+        let features: Vec<(DVec3, f64)> = (0..FEATURES)
+            .map(|_| {
+                let w = DVec3::new(
+                    normal(&mut self.random),
+                    normal(&mut self.random),
+                    normal(&mut self.random),
+                ) / self.length;
+                (w, self.random.random::<f64>() * TAU)
+            })
+            .collect();
+        let amplitude = self.sigma * (2.0 / FEATURES as f64).sqrt();
+        let mut moved = self.surface.clone();
+        for (i, v) in moved.vertices.iter_mut().enumerate() {
+            let x = v.as_dvec3();
+            let field: f64 = features.iter().map(|(w, b)| (w.dot(x) + b).cos()).sum();
+            let offset = self.normals[i] * (amplitude * field * self.strength[i]);
+            *v = (x + offset).as_vec3();
+        }
+        moved
+    }
+}
+
+/// A standard normal number (Box and Muller).
+fn normal(random: &mut Pcg64) -> f64 {
+    let u: f64 = 1.0 - random.random::<f64>();
+    let v: f64 = random.random();
+    (-2.0 * u.ln()).sqrt() * (TAU * v).cos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tissue_core::phantom;
+
+    /// Over many samples a free vertex moves with about the asked standard
+    /// deviation along its normal, an exact one not at all, and the same
+    /// seed gives the same samples.
+    #[test]
+    fn the_field_has_its_spread_and_spares_the_exact_vertices() {
+        let surface = phantom::default_breast();
+        let low = surface
+            .vertices
+            .iter()
+            .map(|v| v.z)
+            .fold(f32::INFINITY, f32::min);
+        let exact: Vec<bool> = surface.vertices.iter().map(|v| v.z < low + 1e-3).collect();
+        assert!(exact.iter().any(|&e| e));
+        let mut noise = SurfaceNoise::new(&surface, &exact, 0.5, 10.0, 7);
+        let samples: Vec<SurfaceMesh> = (0..200).map(|_| noise.sample()).collect();
+        let top = surface
+            .vertices
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.z.total_cmp(&b.1.z))
+            .map(|(i, _)| i)
+            .unwrap_or(0);
+        let spread = (samples
+            .iter()
+            .map(|s| s.vertices[top].distance_squared(surface.vertices[top]))
+            .sum::<f32>()
+            / samples.len() as f32)
+            .sqrt();
+        assert!((0.4..0.6).contains(&spread), "{spread}");
+        for (i, _) in exact.iter().enumerate().filter(|(_, e)| **e) {
+            assert!(samples.iter().all(|s| s.vertices[i] == surface.vertices[i]));
+        }
+        let again = SurfaceNoise::new(&surface, &exact, 0.5, 10.0, 7).sample();
+        assert_eq!(again.vertices, samples[0].vertices);
+    }
+}

@@ -1,0 +1,132 @@
+//! How sure an answer is (`tissue::uncertainty`): the spread is made of
+//! the unknowns asked for and nothing else, a held target has none, and
+//! the same seed gives the same regions on the CPU and on the GPU
+//! (lavapipe in CI).
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use tissue::backend::{Device, Solver};
+use tissue::deformation::DeformParams;
+use tissue::uncertainty::{Answered, Priors, Spread, Unknown, exact_vertices, explore};
+use tissue::{ParticleModel, SurfaceMesh};
+
+/// The phantom at `particles` sagged on `device`, and the spread of that
+/// answer under `priors`.
+fn sagged_spread(
+    device: &Device,
+    model: &ParticleModel,
+    priors: &Priors,
+) -> (Spread, Vec<bool>, SurfaceMesh) {
+    let deformed = tissue::deform::sagged_breast();
+    let mut solver = Solver::new(device.clone(), model, DeformParams::default()).unwrap();
+    solver.set_surface(&deformed).unwrap();
+    assert!(solver.solve().unwrap().converged);
+    let answer = solver.positions().to_vec();
+    let exact = exact_vertices(&model.surface, &deformed);
+    let answered = Answered {
+        surface: &deformed,
+        exact: &exact,
+        rest_load: None,
+        metres_per_unit: 1e-3,
+    };
+    let spread = explore(&mut solver, model, answered, priors).unwrap();
+    assert!(spread.converged, "every re-solve converges");
+    assert_eq!(solver.positions(), answer.as_slice(), "left at the answer");
+    (spread, exact, deformed)
+}
+
+/// Nothing unknown but the Poisson ratio, its range a point at the
+/// solve's own ratio: no column, no spread anywhere. Its range widened,
+/// every particle's spread is the Poisson ratio's.
+#[test]
+fn the_poisson_ratio_alone_spreads_only_when_its_range_does() {
+    let model = common::phantom_model(1_000);
+    let nu = DeformParams::default().poisson;
+    let none = Priors::default().with(|p| {
+        p.poisson = (nu, nu);
+        p.surface_noise = 0.0;
+        p.posture_g = 0.0;
+    });
+    let (spread, _, _) = sagged_spread(&Device::Cpu, &model, &none);
+    assert!(spread.columns.is_empty());
+    assert_eq!(spread.solves, 0);
+    assert!(
+        spread
+            .particle_regions()
+            .iter()
+            .all(|r| r.radius == 0.0 && r.dominant.is_none())
+    );
+
+    let poisson = none.with(|p| p.poisson = (0.45, 0.495));
+    let (spread, _, _) = sagged_spread(&Device::Cpu, &model, &poisson);
+    let regions = spread.particle_regions();
+    let largest = regions.iter().map(|r| r.radius).fold(0.0, f32::max);
+    eprintln!(
+        "Poisson ratio alone: {} solves, largest radius {largest:.3} mm",
+        spread.solves
+    );
+    assert!(largest > 0.05, "the ratio moves the interior: {largest}");
+    assert!(
+        regions
+            .iter()
+            .all(|r| r.dominant.is_none_or(|u| u == Unknown::Poisson))
+    );
+}
+
+/// With every default unknown, the particles held on the chest wall
+/// (control points on triangles that did not move) have no spread at
+/// all; the free interior has.
+#[test]
+fn a_target_on_the_held_chest_wall_has_no_spread() {
+    let model = common::phantom_model(1_000);
+    let priors = Priors::default().with(|p| p.samples = 4);
+    let (spread, exact, _) = sagged_spread(&Device::Cpu, &model, &priors);
+    assert!(
+        exact.iter().filter(|&&e| e).count() > 10,
+        "the phantom has a chest wall"
+    );
+    let regions = spread.particle_regions();
+    let held: Vec<usize> = (0..model.len())
+        .filter(|&i| {
+            model.attachments[i].is_some_and(|a| {
+                model.surface.triangles[a.triangle as usize]
+                    .iter()
+                    .all(|&v| exact[v as usize])
+            })
+        })
+        .collect();
+    assert!(held.len() > 5, "{} particles on the chest wall", held.len());
+    for &i in &held {
+        assert_eq!(regions[i].radius, 0.0, "held particle {i}");
+    }
+    let inside = (0..model.len()).filter(|&i| !model.is_surface(i));
+    assert!(inside.map(|i| regions[i].radius).fold(0.0, f32::max) > 0.1);
+}
+
+/// The same seed gives the same regions on the CPU and on the GPU: each
+/// particle's 95 % radius within a thousandth of the model's size.
+#[test]
+fn the_same_seed_gives_the_same_regions_on_cpu_and_gpu() {
+    let Some(gpu) = common::gpu() else {
+        return;
+    };
+    let model = common::phantom_model(1_000);
+    let priors = Priors::default().with(|p| p.samples = 4);
+    let (on_cpu, _, deformed) = sagged_spread(&Device::Cpu, &model, &priors);
+    let (on_gpu, _, _) = sagged_spread(&gpu, &model, &priors);
+    assert_eq!(on_cpu.columns.len(), on_gpu.columns.len());
+    let (lo, hi) = deformed.bounds().unwrap();
+    let size = (hi - lo).length();
+    let (cpu, gpu) = (on_cpu.particle_regions(), on_gpu.particle_regions());
+    let worst = cpu
+        .iter()
+        .zip(&gpu)
+        .map(|(a, b)| (a.radius - b.radius).abs())
+        .fold(0.0, f32::max);
+    eprintln!(
+        "{} and {} iterations; radii at most {worst:.2e} apart",
+        on_cpu.iterations, on_gpu.iterations
+    );
+    assert!(worst <= 1e-3 * size, "{worst}");
+}
