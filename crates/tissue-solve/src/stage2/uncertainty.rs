@@ -559,6 +559,18 @@ mod tests {
         }
     }
 
+    /// The defaults are those docs/METHOD.md ("Uncertainty") gives and
+    /// argues for.
+    #[test]
+    fn the_defaults_are_the_documented_ones() {
+        let p = Priors::default();
+        assert_eq!(p.poisson, (0.45, 0.495));
+        assert_eq!((p.surface_noise, p.surface_correlation), (0.5, 10.0));
+        assert_eq!(p.samples, 16);
+        assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
+        assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
+    }
+
     /// The defaults are in range, and a priors' field out of range is
     /// refused by name.
     #[test]
