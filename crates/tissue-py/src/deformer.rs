@@ -34,6 +34,11 @@ pub(crate) struct Deformer {
     /// (`Unloaded::deformed_guess`): the first solve of that surface
     /// starts there.
     pub(crate) guess: Option<(Vec<Vec3>, Vec<Vec3>)>,
+    /// The rest posture's load, where the deformer solves a posture with
+    /// gravity (`Unloaded::rest_load`).
+    pub(crate) rest_load: Option<Vec3>,
+    /// Whether the last answer was a match without correspondence.
+    pub(crate) matched: bool,
 }
 
 impl Deformer {
@@ -150,6 +155,7 @@ impl Deformer {
             .map_err(raise)?;
         callback.result()?;
         self.deformed = Some(deformed);
+        self.matched = false;
         if !report.converged {
             let message = format!(
                 "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
@@ -261,7 +267,123 @@ impl Deformer {
             "stages": report.stages,
         });
         self.deformed = Some(report.surface);
+        self.matched = true;
         as_dict(py, &summary)
+    }
+
+    /// How sure the last solve's answer is (`tissue deform
+    /// --uncertainty`; docs/METHOD.md, "Uncertainty"): the answer solved
+    /// again from itself over the Poisson ratio's range
+    /// (`poisson_range`), the observed surface's error along its normals
+    /// (`surface_noise` standard deviation and `surface_correlation`
+    /// length in the model's units, `samples` samples from `seed`), and
+    /// in a posture the load's relative spread (`load_spread`) and each
+    /// posture's gravity direction (`gravity_spread`, degrees), without
+    /// one an unmodelled change of posture (`posture_spread`, g). Returns
+    /// a dict: `radius` (`(n,)`: each particle's 95 % radius),
+    /// `covariance` (`(n, 6)`: xx, yy, zz, xy, xz, yz), `dominant` (each
+    /// particle's unknown: `"poisson"`, `"surface"`, `"load"`,
+    /// `"gravity"`, `"posture"`, or `None`), with `points` (`(k, 3)` at
+    /// rest) `points_radius` and `points_covariance` likewise, and
+    /// `solves`, `iterations`, `seconds`, `converged`. Warns
+    /// (RuntimeWarning) where a re-solve did not converge. Not for a
+    /// match without correspondence.
+    #[pyo3(signature = (points = None, samples = 16, surface_noise = 0.5,
+                        surface_correlation = 10.0, poisson_range = (0.45, 0.495),
+                        load_spread = 0.14, gravity_spread = 3.0, posture_spread = 1.0,
+                        seed = tissue::uncertainty::SEED))]
+    #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
+    fn uncertainty(
+        &mut self,
+        py: Python<'_>,
+        points: Option<&Bound<'_, PyAny>>,
+        samples: usize,
+        surface_noise: f32,
+        surface_correlation: f32,
+        poisson_range: (f32, f32),
+        load_spread: f32,
+        gravity_spread: f32,
+        posture_spread: f32,
+        seed: u64,
+    ) -> PyResult<Py<PyAny>> {
+        use pyo3::types::PyDict;
+        use tissue::uncertainty::{Answered, Priors, Region, exact_vertices, explore};
+        if self.matched {
+            return Err(raise(
+                "the uncertainty needs the last answer solved for a surface with the model's \
+                 vertices (solve); for a match without correspondence the surface's error is \
+                 the match's, which it does not sample",
+            ));
+        }
+        let deformed = self.solved()?.clone();
+        let priors = Priors::default().with(|p| {
+            p.samples = samples;
+            p.surface_noise = surface_noise;
+            p.surface_correlation = surface_correlation;
+            p.poisson = poisson_range;
+            p.load_spread = load_spread;
+            p.gravity_degrees = gravity_spread;
+            p.posture_g = posture_spread;
+            p.seed = seed;
+        });
+        priors.validate().map_err(raise)?;
+        let points = points.map(|p| points_from(p, "points")).transpose()?;
+        if let Some(points) = &points {
+            self.check_inside(py, points, "points")?;
+        }
+        let (solver, model, rest_load) = (&mut self.solver, &self.model, self.rest_load);
+        let (spread, carriers) = py
+            .detach(|| {
+                let carriers = match &points {
+                    Some(points) => Some(solver.bind(points)?.carriers().to_vec()),
+                    None => None,
+                };
+                let exact = exact_vertices(&model.surface, &deformed);
+                let answered = Answered {
+                    surface: &deformed,
+                    exact: &exact,
+                    rest_load,
+                    metres_per_unit: 1e-3,
+                };
+                explore(solver, model, answered, &priors).map(|s| (s, carriers))
+            })
+            .map_err(raise)?;
+        if !spread.converged {
+            warn(
+                py,
+                "not every solve of the uncertainty converged: its regions are not to be trusted",
+            )?;
+        }
+        let out = PyDict::new(py);
+        let fill = |regions: &[Region], prefix: &str| -> PyResult<()> {
+            let radius: Vec<f64> = regions.iter().map(|r| f64::from(r.radius)).collect();
+            let covariance: Vec<f64> = regions.iter().flat_map(|r| r.covariance).collect();
+            out.set_item(format!("{prefix}radius"), PyArray1::from_vec(py, radius))?;
+            out.set_item(
+                format!("{prefix}covariance"),
+                PyArray1::from_vec(py, covariance).reshape([regions.len(), 6])?,
+            )?;
+            let dominant: Vec<Option<&str>> = regions
+                .iter()
+                .map(|r| r.dominant.map(|u| u.name()))
+                .collect();
+            out.set_item(format!("{prefix}dominant"), dominant)
+        };
+        fill(&spread.particle_regions(), "")?;
+        if let Some(carriers) = &carriers {
+            let regions = spread.regions(&|positions: &[Vec3]| {
+                carriers
+                    .iter()
+                    .map(|c| c.iter().map(|&(j, w)| w * positions[j as usize]).sum())
+                    .collect()
+            });
+            fill(&regions, "points_")?;
+        }
+        out.set_item("solves", spread.solves)?;
+        out.set_item("iterations", spread.iterations)?;
+        out.set_item("seconds", spread.seconds)?;
+        out.set_item("converged", spread.converged)?;
+        Ok(out.unbind().into_any())
     }
 
     /// The particles after the last solve, `(n, 3)`.

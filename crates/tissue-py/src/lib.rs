@@ -290,6 +290,8 @@ impl Model {
             deformed: None,
             posture: None,
             guess: None,
+            rest_load: None,
+            matched: false,
         })
     }
 
@@ -449,6 +451,8 @@ impl Model {
                 deformed: None,
                 posture: Some(posture.unbind().into_any()),
                 guess: None,
+                rest_load: None,
+                matched: false,
             });
         }
         let mut callback = Callback::new(progress.as_ref());
@@ -546,6 +550,8 @@ impl Model {
             guess: unloaded
                 .deformed_guess
                 .map(|guess| (deformed.vertices.clone(), guess)),
+            rest_load: Some(unloaded.rest_load),
+            matched: false,
         })
     }
 }

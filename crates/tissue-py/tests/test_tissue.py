@@ -646,3 +646,32 @@ def test_a_posture_is_fitted_to_an_observation_without_correspondence():
         model.deformer_in_posture(
             (sagged, triangles), (0, 0, -1), (0, -1, 0), held=wall, noise=0.5, backend="cpu"
         )
+
+
+def test_the_uncertainty_gives_every_particle_and_point_a_region(model):
+    deformer = model.deformer(backend="cpu")
+    with pytest.raises(tissue.TissueError, match="nothing solved"):
+        deformer.uncertainty()
+    sagged, _ = tissue.phantom_breast_sagged()
+    assert deformer.solve(sagged)["converged"]
+    answer = deformer.positions.copy()
+    inside = model.positions[~model.on_surface][:5]
+    spread = deformer.uncertainty(points=inside, samples=4)
+    n = len(model)
+    assert spread["converged"] and spread["solves"] > 4
+    assert spread["radius"].shape == (n,) and spread["covariance"].shape == (n, 6)
+    assert len(spread["dominant"]) == n
+    assert spread["radius"].max() > 0.05
+    # The chest wall did not move: the particles held on it are sure.
+    assert spread["radius"].min() == 0.0
+    assert spread["points_radius"].shape == (5,) and (spread["points_radius"] > 0).all()
+    assert set(spread["dominant"]) <= {None, "poisson", "surface", "posture"}
+    # The deformer is left at its answer.
+    np.testing.assert_array_equal(deformer.positions, answer)
+    # Nothing unknown: no spread.
+    none = deformer.uncertainty(
+        samples=4, surface_noise=0.0, poisson_range=(0.49, 0.49), posture_spread=0.0
+    )
+    assert none["solves"] == 0 and none["radius"].max() == 0.0
+    with pytest.raises(tissue.TissueError, match="poisson"):
+        deformer.uncertainty(poisson_range=(0.49, 0.45))

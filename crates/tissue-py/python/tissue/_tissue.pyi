@@ -90,6 +90,18 @@ class Deformer:
         progress: Optional[Progress] = None,
     ) -> dict[str, Any]: ...
     def carry(self, points: ArrayLike) -> npt.NDArray[np.float64]: ...
+    def uncertainty(
+        self,
+        points: Optional[ArrayLike] = None,
+        samples: int = 16,
+        surface_noise: float = 0.5,
+        surface_correlation: float = 10.0,
+        poisson_range: tuple[float, float] = (0.45, 0.495),
+        load_spread: float = 0.14,
+        gravity_spread: float = 3.0,
+        posture_spread: float = 1.0,
+        seed: int = ...,
+    ) -> dict[str, Any]: ...
     def carry_rigid(
         self, vertices: ArrayLike
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...

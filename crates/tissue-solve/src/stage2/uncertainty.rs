@@ -24,6 +24,9 @@
 //!   the scans that the answer left out, of an RMS size in g on tissue of
 //!   a given stiffness, one linearised re-solve along each axis.
 //!
+//! The Poisson ratio and the loads are the elastic force's: with another
+//! force only the surface's error is sampled.
+//!
 //! Every column is a re-solve's positions less the answer's with a weight;
 //! a target's covariance is the weighted sum of its offsets' outer
 //! products ([`Region::of`]). Written once for every device: the columns
@@ -39,7 +42,7 @@ use serde::Serialize;
 use tissue_core::{Error, ParamError, SurfaceMesh};
 
 use crate::model::gravity::gravity_load;
-use crate::stage2::params::DeformParams;
+use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::posture::MAX_GRAVITY_G;
 use crate::stage2::tracker::{SolveDevice, Tracker};
 
@@ -370,7 +373,9 @@ where
         .map(|r| load - r);
     let nu0 = params.poisson;
     let (lo, hi) = priors.poisson;
-    if !(lo == hi && lo == nu0) {
+    // The Poisson ratio and the loads are the elastic force's.
+    let elastic = params.force == ForceModel::Elastic;
+    if elastic && !(lo == hi && lo == nu0) {
         let base = match change {
             Some(change) => {
                 tracker.set_load::<E>(change)?;
@@ -457,7 +462,7 @@ where
                 }
             }
         }
-    } else if load == Vec3::ZERO && priors.posture_g > 0.0 {
+    } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
         let unit = gravity_load(
             Vec3::Z,
             TISSUE_DENSITY_KG_M3,
