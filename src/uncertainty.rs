@@ -34,9 +34,9 @@ use tissue_core::{Error, ParticleModel, SurfaceMesh};
 use crate::backend::Solver;
 
 pub use tissue_solve::stage2::uncertainty::{
-    Answered, CHI2_3_95, Column, FLAT_FLOOR, GRAVITY_DEGREES, LOAD_SPREAD, POISSON_RANGE,
-    POSTURE_G, POSTURE_KPA, Priors, Region, SEED, SURFACE_CORRELATION_MM, SURFACE_NOISE_MM,
-    SURFACE_SAMPLES, Spread, SurfaceNoise, Unknown, radius_95,
+    Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, LOAD_SPREAD,
+    POISSON_RANGE, POSTURE_G, POSTURE_KPA, Priors, Region, SEED, SURFACE_CORRELATION_MM,
+    SURFACE_NOISE_MM, SURFACE_SAMPLES, Spread, SurfaceNoise, Unknown, radius_95,
 };
 
 /// The tolerance, in model units, within which a deformed vertex that

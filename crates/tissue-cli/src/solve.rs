@@ -22,7 +22,7 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
 use crate::progress::{self, SolveBar};
-use crate::uncertain::{self, Uncertainty, UncertaintyArgs};
+use crate::uncertain::{self, UncertaintyArgs};
 
 /// What the spinner says while a solver is prepared (the plan, the coarse
 /// levels' factors, the device's buffers).
@@ -655,21 +655,18 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         }
     };
     let deformed = matched.as_ref().unwrap_or(placed);
-    let uncertainty = match &priors {
-        Some(priors) if solve.converged => {
-            let spread = progress::busy(args.quiet, "the uncertainty's solves", |_| {
-                uncertain::spread(
-                    &mut solver,
-                    &model,
-                    deformed,
-                    posture.as_ref().and_then(|p| p.unloaded.as_ref()),
-                    priors,
-                )
-            })?;
-            Some(Uncertainty::of(&spread, priors, &carried))
-        }
-        _ => None,
+    let answer = uncertain::Answer {
+        converged: solve.converged,
+        deformed,
+        unloaded: posture.as_ref().and_then(|p| p.unloaded.as_ref()),
     };
+    let uncertainty = uncertain::regions_after(
+        priors.as_ref(),
+        answer,
+        (&mut solver, &model),
+        &carried,
+        args.quiet,
+    )?;
     let report = write_solution(
         destination,
         &model,

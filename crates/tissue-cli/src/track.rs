@@ -15,6 +15,7 @@ use serde_json::Value;
 use tissue::SurfaceMesh;
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::io::space::Space;
+use tissue::uncertainty::Priors;
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
@@ -31,6 +32,7 @@ use crate::output::{
 use crate::picture;
 use crate::posture::{GravityArgs, PostureReport};
 use crate::solve::{SolveArgs, Stage2, read_frame, read_model};
+use crate::uncertain::{self, Answer, UncertaintyArgs};
 use resume::{remove_stale, resumed};
 use sequence::{Framed, Framing, Sequence, fixed_region_file};
 
@@ -70,6 +72,8 @@ pub struct TrackArgs {
     pub output_dir: PathBuf,
     #[command(flatten)]
     pub solve: SolveArgs,
+    #[command(flatten)]
+    pub uncertainty: UncertaintyArgs,
     /// Start each frame from the fit of its surface move by this many of the
     /// last frames' changes (0: by the affine part of the move alone).
     #[arg(long, default_value_t = DeformParams::default().tuning.history)]
@@ -164,6 +168,9 @@ struct Plan<'a> {
     /// `--noise`, where given.
     #[serde(skip_serializing_if = "Option::is_none")]
     noise: Option<f32>,
+    /// The uncertainty's priors, with `--uncertainty`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    uncertainty: Option<&'a Priors>,
     /// Each input file's contents as a hash ([`input_hashes`]), by path: a
     /// resume must read the same files, not only the same names.
     inputs: BTreeMap<String, String>,
@@ -269,6 +276,10 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         crate::carry::check_space_tag(frame, args.carry.space)?;
     }
     let sequence = Sequence::read(args, &frames, &model)?;
+    let priors = args.uncertainty.priors()?;
+    uncertain::refuse_for_matches(
+        priors.is_some() && matches!(sequence, Sequence::Matched { .. }),
+    )?;
     if let Sequence::Matched { held, observations } = &sequence {
         if !params.force.eq(&ForceModel::Elastic) {
             bail!("observations without correspondence are matched by the elastic force alone");
@@ -361,6 +372,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             .then_some(args.solve.gravity.fixed_region.as_deref())
             .flatten(),
         noise: args.noise,
+        uncertainty: priors.as_ref(),
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;
     prepare_outputs(std::slice::from_ref(&path))?;
@@ -392,8 +404,16 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         posture: posture.as_ref(),
         noise: args.noise,
     };
+    let unloaded = posture.as_ref().and_then(|p| p.unloaded.as_ref());
     for k in 0..done.len() {
-        framing.solve(k, &mut solver, true)?;
+        // With its spread, which leaves the device as the first run had it.
+        let framed = framing.solve(k, &mut solver, true)?;
+        let answer = Answer {
+            converged: framed.solve.converged,
+            deformed: &framed.deformed,
+            unloaded,
+        };
+        uncertain::spread_after(priors.as_ref(), answer, &mut solver, &model, true)?;
     }
     let summary = Summary {
         path: &path,
@@ -423,6 +443,18 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             deformed,
             observation,
         } = framing.solve(k, &mut solver, args.quiet)?;
+        let answer = Answer {
+            converged: solve.converged,
+            deformed: &deformed,
+            unloaded,
+        };
+        let uncertainty = uncertain::regions_after(
+            priors.as_ref(),
+            answer,
+            (&mut solver, &model),
+            &carried,
+            args.quiet,
+        )?;
         if k > first {
             frame_starts.push(residuals.len());
         }
@@ -453,7 +485,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 solve,
                 posture: posture_report,
                 observation: observation.clone(),
-                uncertainty: None,
+                uncertainty: uncertainty.as_ref(),
             },
         ) {
             Ok(report) => report,

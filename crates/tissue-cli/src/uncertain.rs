@@ -16,6 +16,7 @@ use tissue::{ParticleModel, gravity::Unloaded};
 
 use crate::backend::Solver;
 use crate::carry::{Carried, Carriers};
+use crate::progress;
 
 /// The particle array and the points' column the radius is written under.
 pub const RADIUS_NAME: &str = "uncertainty_95";
@@ -100,24 +101,58 @@ impl UncertaintyArgs {
     }
 }
 
-/// The spread of the answer `solver` holds for `deformed` (the rest
-/// surface with moved vertices), with the posture's loads where it has
-/// them.
-pub fn spread(
+/// A solve's answer, for its spread.
+#[derive(Clone, Copy)]
+pub struct Answer<'a> {
+    /// Whether the solve converged (no spread is made of one that did not).
+    pub converged: bool,
+    /// The deformed surface it followed: the rest surface with moved
+    /// vertices.
+    pub deformed: &'a SurfaceMesh,
+    /// With the posture options, the unloaded shape and the loads.
+    pub unloaded: Option<&'a Unloaded>,
+}
+
+/// With `priors` (`--uncertainty`), the spread of the converged answer
+/// `solver` holds; `None` without them or where the solve did not
+/// converge. The solver is left at its answer.
+pub fn spread_after(
+    priors: Option<&Priors>,
+    answer: Answer<'_>,
     solver: &mut Solver,
     model: &ParticleModel,
-    deformed: &SurfaceMesh,
-    unloaded: Option<&Unloaded>,
-    priors: &Priors,
-) -> Result<Spread> {
-    let exact = exact_vertices(&model.surface, deformed);
+    quiet: bool,
+) -> Result<Option<Spread>> {
+    let Some(priors) = priors.filter(|_| answer.converged) else {
+        return Ok(None);
+    };
+    let exact = exact_vertices(&model.surface, answer.deformed);
     let answered = Answered {
-        surface: deformed,
+        surface: answer.deformed,
         exact: &exact,
-        rest_load: unloaded.map(|u| u.rest_load),
+        rest_load: answer.unloaded.map(|u| u.rest_load),
         metres_per_unit: MILLIMETRE,
     };
-    explore(solver, model, answered, priors).context("the uncertainty's solves")
+    progress::busy(quiet, "the uncertainty's solves", |_| {
+        explore(solver, model, answered, priors)
+    })
+    .context("the uncertainty's solves")
+    .map(Some)
+}
+
+/// [`spread_after`], and the regions of its particles and of `carried`'s
+/// targets.
+pub fn regions_after(
+    priors: Option<&Priors>,
+    answer: Answer<'_>,
+    (solver, model): (&mut Solver, &ParticleModel),
+    carried: &Carried,
+    quiet: bool,
+) -> Result<Option<Uncertainty>> {
+    let spread = spread_after(priors, answer, solver, model, quiet)?;
+    Ok(spread
+        .zip(priors)
+        .map(|(spread, priors)| Uncertainty::of(&spread, priors, carried)))
 }
 
 /// One target's region as the report holds it (model units).

@@ -136,3 +136,77 @@ fn deform_refuses_what_the_uncertainty_cannot_take() {
     let bad = run(&["--surface", s(&remeshed)]);
     assert!(bad.contains("--uncertainty"), "{bad}");
 }
+
+/// `tissue track --uncertainty`: every frame's report and points carry
+/// their regions, the regions grow with the sag, and a sequence matched
+/// without correspondence is refused.
+#[test]
+fn track_writes_each_frame_regions() {
+    use tissue::deform::{Sag, deform_surface, interpolate};
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sagged = deform_surface(&model.surface, &Sag::default());
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    for k in 1..=2 {
+        let frame = interpolate(&model.surface, &sagged, k as f32 / 2.0).unwrap();
+        tissue::save_surface(&frame, &frames.join(format!("skin-{k}.obj"))).unwrap();
+    }
+    let points = dir.path().join("targets.csv");
+    std::fs::write(&points, "x,y,z\n0,0,25\n").unwrap();
+    let out_dir = dir.path().join("out");
+    let pattern = frames.join("*.obj");
+    let out = tissue(&[
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        s(&pattern),
+        "--points",
+        s(&points),
+        "--uncertainty",
+        "2",
+        "--backend",
+        "cpu",
+        "-o",
+        s(&out_dir),
+        "--quiet",
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let radius = |k: usize| {
+        let report = json(&out_dir.join(format!("frame-{k:04}")).join("report.json"));
+        assert_eq!(report["uncertainty"]["converged"], true);
+        let csv = std::fs::read_to_string(out_dir.join(format!("frame-{k:04}/points.csv")));
+        assert!(csv.unwrap().starts_with("x,y,z,uncertainty_95"));
+        report["uncertainty"]["points"][0]["radius_mm"]
+            .as_f64()
+            .unwrap()
+    };
+    let (half, whole) = (radius(1), radius(2));
+    assert!(0.0 < half && half < whole, "{half} then {whole}");
+
+    // The same skins cut in four: matched without correspondence.
+    let other = dir.path().join("other");
+    std::fs::create_dir(&other).unwrap();
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
+    let cut = tissue::SurfaceMesh::new(vertices, triangles);
+    tissue::save_surface(&cut, &other.join("skin-1.obj")).unwrap();
+    let refused = tissue(&[
+        "track",
+        "--model",
+        s(&model_path),
+        "--frames",
+        s(&other.join("*.obj")),
+        "--uncertainty",
+        "--backend",
+        "cpu",
+        "-o",
+        s(&dir.path().join("matched")),
+    ]);
+    assert!(!refused.status.success());
+    assert!(
+        text(&refused).contains("--uncertainty"),
+        "{}",
+        text(&refused)
+    );
+}

@@ -71,6 +71,10 @@ pub const POSTURE_G: f32 = 1.0;
 pub const POSTURE_KPA: f32 = 2.0;
 /// The tissue density the unmodelled change acts on, kg/m^3.
 pub const TISSUE_DENSITY_KG_M3: f32 = 1000.0;
+/// The re-solves' tolerance, a multiple of the answer's: measured on the
+/// shared cases at 10,000 particles, 3 moves the radii by under 0.5 %
+/// and takes a fifth fewer iterations, 10 by up to 4 % and a third fewer.
+pub const COLUMN_TOLERANCE: f32 = 3.0;
 /// The samples' seed.
 pub const SEED: u64 = 0x5eed;
 
@@ -99,6 +103,10 @@ pub struct Priors {
     pub posture_g: f32,
     /// The Young's modulus that change acts on, kPa.
     pub posture_kpa: f32,
+    /// The re-solves' tolerance as a multiple of the answer's (at least
+    /// 1): each column needs to be accurate against the spread, not the
+    /// organ's size.
+    pub column_tolerance: f32,
     /// The surface samples' seed.
     pub seed: u64,
 }
@@ -114,6 +122,7 @@ impl Default for Priors {
             gravity_degrees: GRAVITY_DEGREES,
             posture_g: POSTURE_G,
             posture_kpa: POSTURE_KPA,
+            column_tolerance: COLUMN_TOLERANCE,
             seed: SEED,
         }
     }
@@ -188,6 +197,12 @@ impl Priors {
             "uncertainty posture_kpa",
             self.posture_kpa,
             "a positive Young's modulus in kPa",
+        )?;
+        ParamError::check(
+            self.column_tolerance.is_finite() && (1.0..=100.0).contains(&self.column_tolerance),
+            "uncertainty column_tolerance",
+            self.column_tolerance,
+            "1 to 100 times the answer's tolerance",
         )
     }
 }
@@ -341,6 +356,9 @@ where
     .map_err(Error::from)?;
     let kept = tracker.checkpoint();
     let answer = tracker.positions().to_vec();
+    let asked = tracker.params().clone();
+    let loose = priors.column_tolerance;
+    tracker.set_params(asked.clone().with(|p| p.tolerance *= loose))?;
     let mut spread = Spread {
         answer: answer.clone(),
         columns: Vec::new(),
@@ -395,6 +413,7 @@ where
         let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
         for nu in others {
             let mut t = other(params.clone().with(|p| {
+                p.tolerance *= loose;
                 p.poisson = nu;
                 p.load = change.unwrap_or(load);
             }))?;
@@ -489,6 +508,7 @@ where
     if tracker.params().load != load {
         tracker.set_load::<E>(load)?;
     }
+    tracker.set_params(asked)?;
     tracker.back_to::<E>(kept)?;
     spread.seconds = started.elapsed().as_secs_f64();
     Ok(spread)
@@ -574,6 +594,7 @@ mod tests {
         assert_eq!(p.samples, 16);
         assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
         assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
+        assert_eq!(p.column_tolerance, 3.0);
     }
 
     /// The defaults are in range, and a priors' field out of range is
