@@ -532,6 +532,7 @@ pub fn write_solution(
                 residuals: &solve.residual_history,
                 frame_starts: Vec::new(),
                 tolerance: params.tolerance,
+                uncertainty,
             },
         )?;
         files.push(path.to_path_buf());
@@ -622,6 +623,8 @@ pub struct Drawn<'a> {
     pub frame_starts: Vec<usize>,
     /// The stopping tolerance.
     pub tolerance: f32,
+    /// With `--uncertainty`, the regions.
+    pub uncertainty: Option<&'a Uncertainty>,
 }
 
 /// Draws `what` into the PNG file `path` (`--picture`).
@@ -643,6 +646,10 @@ pub fn draw(path: &Path, title: String, what: Drawn<'_>) -> Result<()> {
         residuals: what.residuals,
         frame_starts: what.frame_starts,
         tolerance: what.tolerance,
+        spread: what.uncertainty.map(|u| picture::Spread {
+            radii: &u.particle_radii,
+            centroids: u.centroids.clone(),
+        }),
     };
     picture::save(&scene, path)
 }

@@ -10,7 +10,10 @@
 //! through the organ's middle), each coloured by how far it moved, and each
 //! structure at rest (black outline) and moved (red), with an arrow between
 //! their centres. The right panel plots the error estimate of every
-//! iteration against the tolerance, on a log scale.
+//! iteration against the tolerance, on a log scale. With `--uncertainty`
+//! a lower half shows the same cut coloured by each particle's 95 %
+//! radius, and each structure's centroid region as the shadow of its
+//! 95 % ellipsoid.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -23,6 +26,10 @@ use tiny_skia::{
     StrokeDash, Transform,
 };
 use tissue::SurfaceMesh;
+
+mod spread;
+
+pub use spread::Spread;
 
 /// The picture's size in pixels.
 pub const WIDTH: u32 = 1400;
@@ -59,6 +66,9 @@ pub struct Scene<'a> {
     pub frame_starts: Vec<usize>,
     /// The stopping tolerance, as a fraction of the size.
     pub tolerance: f32,
+    /// With `--uncertainty`, what the lower half shows: the cut coloured
+    /// by each particle's 95 % radius, the structures' centroid regions.
+    pub spread: Option<Spread<'a>>,
 }
 
 /// How the cut is looked at: which axes are across, up and towards the
@@ -277,9 +287,12 @@ pub fn render(scene: &Scene<'_>) -> Result<Pixmap> {
         opaque(INK),
     );
     canvas.legend(VIEW[0], VIEW[3] + 50.0, !scene.structures.is_empty());
-    canvas.colour_bar(largest);
+    canvas.colour_bar(largest, "moved");
     canvas.convergence(scene);
-    Ok(canvas.pixmap)
+    match &scene.spread {
+        Some(spread) => spread::stacked(&canvas.pixmap, scene, spread),
+        None => Ok(canvas.pixmap),
+    }
 }
 
 /// Draws `scene` into the PNG file `path`, through a temporary file.
@@ -518,8 +531,9 @@ impl Canvas {
         }
     }
 
-    /// The colour bar, 0 at the bottom to `largest` at the top.
-    fn colour_bar(&mut self, largest: f32) {
+    /// The colour bar, 0 at the bottom to `largest` at the top, headed
+    /// `label`.
+    fn colour_bar(&mut self, largest: f32, label: &str) {
         let [left, top, right, bottom] = BAR;
         let rows = (bottom - top).round() as usize;
         for row in 0..rows {
@@ -538,7 +552,7 @@ impl Canvas {
                 path.push_rect(rect);
             }
         });
-        self.text(left - 10.0, top - 40.0, 1.5, "moved", opaque(INK));
+        self.text(left - 10.0, top - 40.0, 1.5, label, opaque(INK));
         for k in 0..=4 {
             let t = k as f32 / 4.0;
             let y = bottom - t * (bottom - top);
@@ -723,7 +737,7 @@ fn tick_step(iterations: usize) -> usize {
 }
 
 /// A label for a value: three significant figures at most.
-fn number(value: f32) -> String {
+pub fn number(value: f32) -> String {
     let size = value.abs();
     if size == 0.0 {
         "0".into()
@@ -795,11 +809,11 @@ fn silhouette(mesh: &SurfaceMesh, view: &View) -> Vec<(Vec3, Vec3)> {
 
 #[cfg(test)]
 #[allow(clippy::expect_used, reason = "tests")]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// The closed box from `lo` to `hi`, faces wound outward.
-    fn cuboid(lo: Vec3, hi: Vec3) -> SurfaceMesh {
+    pub(super) fn cuboid(lo: Vec3, hi: Vec3) -> SurfaceMesh {
         let corner = |k: u32| {
             Vec3::new(
                 if k & 1 == 0 { lo.x } else { hi.x },
@@ -826,7 +840,7 @@ mod tests {
 
     /// `render`, kept as `name.png` in `$TISSUE_TEST_PICTURES` when that
     /// is set, to be looked at.
-    fn drawn(scene: &Scene<'_>, name: &str) -> Pixmap {
+    pub(super) fn drawn(scene: &Scene<'_>, name: &str) -> Pixmap {
         let picture = render(scene).expect("drawn");
         if let Some(dir) = std::env::var_os("TISSUE_TEST_PICTURES") {
             let path = Path::new(&dir).join(format!("{name}.png"));
@@ -835,7 +849,7 @@ mod tests {
         picture
     }
 
-    fn pixel(picture: &Pixmap, at: Vec2) -> [u8; 3] {
+    pub(super) fn pixel(picture: &Pixmap, at: Vec2) -> [u8; 3] {
         picture
             .pixel(at.x.round() as u32, at.y.round() as u32)
             .map(|p| p.demultiply())
@@ -882,6 +896,7 @@ mod tests {
             residuals: &history,
             frame_starts: Vec::new(),
             tolerance: 1e-4,
+            spread: None,
         };
         let view = View::of(&scene);
         assert_eq!((view.across, view.up, view.depth), (0, 2, 1));
@@ -943,6 +958,7 @@ mod tests {
             residuals: &[],
             frame_starts: Vec::new(),
             tolerance: 1e-4,
+            spread: None,
         };
         let view = View::of(&scene);
         assert_eq!(view.depth, 1, "y: the axis nothing moved along");
@@ -983,6 +999,7 @@ mod tests {
             residuals: &history,
             frame_starts: vec![4],
             tolerance: 1e-4,
+            spread: None,
         };
         let picture = drawn(&scene, "convergence");
         let [left, top, right, bottom] = PLOT;

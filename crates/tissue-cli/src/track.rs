@@ -571,6 +571,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 residuals: &residuals,
                 frame_starts,
                 tolerance: params.tolerance,
+                uncertainty: None,
             },
         )?;
         if !args.quiet {

@@ -239,6 +239,9 @@ pub struct Uncertainty {
     pub particle_radii: Vec<f32>,
     /// Each landmark point's 95 % radius.
     pub point_radii: Option<Vec<f32>>,
+    /// Each structure's centroid in the answer, its covariance and a line
+    /// that says it, for the picture.
+    pub centroids: Vec<(Vec3, [f64; 6], String)>,
     /// The report's section.
     pub report: UncertaintyReport,
 }
@@ -266,14 +269,32 @@ impl Uncertainty {
             })
         };
         let point_regions = points.as_deref().map(carried_by);
+        let centre = |carriers: &Carriers| -> Vec3 {
+            carriers
+                .iter()
+                .map(|&(j, w)| w * spread.answer[j as usize])
+                .sum()
+        };
+        let mut centroids = Vec::new();
         let structure_regions = structures
             .iter()
-            .map(|(name, carriers)| StructureRegion {
-                name: name.clone(),
-                centroid: carried_by(std::slice::from_ref(carriers))
-                    .first()
-                    .map(TargetRegion::from)
-                    .unwrap_or_else(|| TargetRegion::from(&Region::of([]))),
+            .map(|(name, carriers)| {
+                let region = carried_by(std::slice::from_ref(carriers))
+                    .pop()
+                    .unwrap_or_else(|| Region::of([]));
+                centroids.push((
+                    centre(carriers),
+                    region.covariance,
+                    format!(
+                        "{name}\nwithin {} (95 %), mostly {}",
+                        crate::picture::number(region.radius),
+                        region.dominant.map_or("nothing", Unknown::name)
+                    ),
+                ));
+                StructureRegion {
+                    name: name.clone(),
+                    centroid: TargetRegion::from(&region),
+                }
             })
             .collect();
         Self {
@@ -281,6 +302,7 @@ impl Uncertainty {
             point_radii: point_regions
                 .as_ref()
                 .map(|r| r.iter().map(|r| r.radius).collect()),
+            centroids,
             report: UncertaintyReport {
                 priors: priors.clone(),
                 solves: spread.solves,

@@ -52,9 +52,16 @@ fn deform_writes_each_target_region() {
         "cpu",
         "-o",
         s(&out_dir),
+        "--picture",
+        s(&dir.path().join("sure.png")),
     ]);
     assert!(out.status.success(), "{}", text(&out));
     assert!(text(&out).contains("uncertainty:"), "{}", text(&out));
+    // The picture gains its lower half: 1400 x 1400 (the PNG header's
+    // width and height, big-endian, after the signature and IHDR's tag).
+    let png = std::fs::read(dir.path().join("sure.png")).unwrap();
+    let word = |at: usize| u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]]);
+    assert_eq!((word(16), word(20)), (1400, 1400));
     let report = json(&out_dir.join("report.json"));
     let uncertainty = &report["uncertainty"];
     assert_eq!(uncertainty["converged"], true);
