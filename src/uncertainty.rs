@@ -31,7 +31,7 @@
 
 use tissue_core::{Error, ParticleModel, SurfaceMesh};
 
-use crate::backend::Solver;
+use crate::backend::{Solver, SolverDevice};
 
 pub use tissue_solve::stage2::uncertainty::{
     Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, LOAD_SPREAD,
@@ -69,21 +69,59 @@ pub fn explore(
     answered: Answered<'_>,
     priors: &Priors,
 ) -> Result<Spread, Error> {
-    let stress_free = ParticleModel {
-        positions: solver.rest().to_vec(),
-        ..model.clone()
-    };
-    let shared = solver.shared_laplacian();
-    let device = solver.on_device();
-    let mut other = |params| {
-        Solver::new_shared(
-            device.clone(),
-            &stress_free,
-            params,
-            Some(&shared),
-            &mut |_| {},
-        )
-        .map(Solver::into_tracker)
-    };
-    tissue_solve::stage2::uncertainty::explore(solver.tracker_mut(), answered, priors, &mut other)
+    Explorer::new(priors.clone()).explore(solver, model, answered)
+}
+
+/// [`explore`] over a sequence of answers of one solver (a tracking run's
+/// frames): the other Poisson ratios' solvers prepared once, each re-solve
+/// started from where the same re-solve of the last answer ended, moved
+/// with the answer.
+pub struct Explorer {
+    inner: tissue_solve::stage2::uncertainty::Explorer<SolverDevice>,
+}
+
+impl Explorer {
+    /// An explorer of `priors` with nothing prepared.
+    pub fn new(priors: Priors) -> Self {
+        Self {
+            inner: tissue_solve::stage2::uncertainty::Explorer::new(priors),
+        }
+    }
+
+    /// The priors it samples.
+    pub fn priors(&self) -> &Priors {
+        self.inner.priors()
+    }
+
+    /// The spread of the answer `solver` holds, as [`explore`] makes it,
+    /// from what this explorer kept of the last answer.
+    ///
+    /// # Errors
+    ///
+    /// As [`explore`].
+    pub fn explore(
+        &mut self,
+        solver: &mut Solver,
+        model: &ParticleModel,
+        answered: Answered<'_>,
+    ) -> Result<Spread, Error> {
+        let stress_free = ParticleModel {
+            positions: solver.rest().to_vec(),
+            ..model.clone()
+        };
+        let shared = solver.shared_laplacian();
+        let device = solver.on_device();
+        let mut other = |params| {
+            Solver::new_shared(
+                device.clone(),
+                &stress_free,
+                params,
+                Some(&shared),
+                &mut |_| {},
+            )
+            .map(Solver::into_tracker)
+        };
+        self.inner
+            .explore(solver.tracker_mut(), answered, &mut other)
+    }
 }

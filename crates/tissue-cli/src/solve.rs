@@ -23,6 +23,7 @@ use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
 use crate::progress::{self, SolveBar};
 use crate::uncertain::{self, UncertaintyArgs};
+use tissue::uncertainty::Explorer;
 
 /// What the spinner says while a solver is prepared (the plan, the coarse
 /// levels' factors, the device's buffers).
@@ -660,8 +661,9 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         deformed,
         unloaded: posture.as_ref().and_then(|p| p.unloaded.as_ref()),
     };
+    let mut explorer = priors.map(Explorer::new);
     let uncertainty = uncertain::regions_after(
-        priors.as_ref(),
+        explorer.as_mut(),
         answer,
         (&mut solver, &model),
         &carried,

@@ -15,7 +15,7 @@ use serde_json::Value;
 use tissue::SurfaceMesh;
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::io::space::Space;
-use tissue::uncertainty::Priors;
+use tissue::uncertainty::{Explorer, Priors};
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
@@ -405,6 +405,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         noise: args.noise,
     };
     let unloaded = posture.as_ref().and_then(|p| p.unloaded.as_ref());
+    // One explorer for the run: each frame's spread from the last one's.
+    let mut explorer = priors.clone().map(Explorer::new);
     for k in 0..done.len() {
         // With its spread, which leaves the device as the first run had it.
         let framed = framing.solve(k, &mut solver, true)?;
@@ -413,7 +415,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             deformed: &framed.deformed,
             unloaded,
         };
-        uncertain::spread_after(priors.as_ref(), answer, &mut solver, &model, true)?;
+        uncertain::spread_after(explorer.as_mut(), answer, &mut solver, &model, true)?;
     }
     let summary = Summary {
         path: &path,
@@ -449,7 +451,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             unloaded,
         };
         let uncertainty = uncertain::regions_after(
-            priors.as_ref(),
+            explorer.as_mut(),
             answer,
             (&mut solver, &model),
             &carried,

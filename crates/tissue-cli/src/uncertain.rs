@@ -9,8 +9,8 @@ use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
 use tissue::uncertainty::{
-    Answered, GRAVITY_DEGREES, LOAD_SPREAD, POSTURE_G, Priors, Region, SURFACE_CORRELATION_MM,
-    SURFACE_NOISE_MM, Spread, Unknown, exact_vertices, explore,
+    Answered, Explorer, GRAVITY_DEGREES, LOAD_SPREAD, POSTURE_G, Priors, Region,
+    SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, Spread, Unknown, exact_vertices,
 };
 use tissue::{ParticleModel, gravity::Unloaded};
 
@@ -113,17 +113,17 @@ pub struct Answer<'a> {
     pub unloaded: Option<&'a Unloaded>,
 }
 
-/// With `priors` (`--uncertainty`), the spread of the converged answer
-/// `solver` holds; `None` without them or where the solve did not
+/// With an explorer (`--uncertainty`), the spread of the converged answer
+/// `solver` holds; `None` without one or where the solve did not
 /// converge. The solver is left at its answer.
 pub fn spread_after(
-    priors: Option<&Priors>,
+    explorer: Option<&mut Explorer>,
     answer: Answer<'_>,
     solver: &mut Solver,
     model: &ParticleModel,
     quiet: bool,
 ) -> Result<Option<Spread>> {
-    let Some(priors) = priors.filter(|_| answer.converged) else {
+    let Some(explorer) = explorer.filter(|_| answer.converged) else {
         return Ok(None);
     };
     let exact = exact_vertices(&model.surface, answer.deformed);
@@ -134,7 +134,7 @@ pub fn spread_after(
         metres_per_unit: MILLIMETRE,
     };
     progress::busy(quiet, "the uncertainty's solves", |_| {
-        explore(solver, model, answered, priors)
+        explorer.explore(solver, model, answered)
     })
     .context("the uncertainty's solves")
     .map(Some)
@@ -143,16 +143,16 @@ pub fn spread_after(
 /// [`spread_after`], and the regions of its particles and of `carried`'s
 /// targets.
 pub fn regions_after(
-    priors: Option<&Priors>,
+    mut explorer: Option<&mut Explorer>,
     answer: Answer<'_>,
     (solver, model): (&mut Solver, &ParticleModel),
     carried: &Carried,
     quiet: bool,
 ) -> Result<Option<Uncertainty>> {
-    let spread = spread_after(priors, answer, solver, model, quiet)?;
+    let spread = spread_after(explorer.as_deref_mut(), answer, solver, model, quiet)?;
     Ok(spread
-        .zip(priors)
-        .map(|(spread, priors)| Uncertainty::of(&spread, priors, carried)))
+        .zip(explorer)
+        .map(|(spread, explorer)| Uncertainty::of(&spread, explorer.priors(), carried)))
 }
 
 /// One target's region as the report holds it (model units).

@@ -326,7 +326,8 @@ pub struct Answered<'a> {
 /// on `answered.surface`) under `priors`: every column solved from the
 /// answer, the Poisson ratio's on trackers `other` prepares for the
 /// tracker's parameters with another ratio. The tracker is left at the
-/// answer, its history as it was.
+/// answer, its history as it was. [`Explorer`] does the same for a
+/// sequence of answers, each from the last one's columns.
 ///
 /// # Errors
 ///
@@ -342,176 +343,275 @@ where
     D: SolveDevice,
     E: From<Error> + From<D::Error>,
 {
-    let started = Instant::now();
-    priors.validate().map_err(Error::from)?;
-    ParamError::check(
-        answered.exact.len() == answered.surface.vertices.len(),
-        "uncertainty exact",
-        answered.exact.len(),
-        format!(
-            "one flag per surface vertex ({})",
-            answered.surface.vertices.len()
-        ),
-    )
-    .map_err(Error::from)?;
-    let kept = tracker.checkpoint();
-    let answer = tracker.positions().to_vec();
-    let asked = tracker.params().clone();
-    let loose = priors.column_tolerance;
-    tracker.set_params(asked.clone().with(|p| p.tolerance *= loose))?;
-    let mut spread = Spread {
-        answer: answer.clone(),
-        columns: Vec::new(),
-        solves: 0,
-        iterations: 0,
-        converged: true,
-        seconds: 0.0,
-    };
-    let solve =
-        |t: &mut Tracker<D>, surface: &SurfaceMesh, spread: &mut Spread| -> Result<Vec<Vec3>, E> {
+    Explorer::new(priors.clone()).explore(tracker, answered, other)
+}
+
+/// [`explore`] over a sequence of answers (a tracking run's frames): the
+/// other Poisson ratios' trackers are prepared once and kept, and each
+/// re-solve starts from the answer moved by what the same re-solve moved
+/// the last answer by (the columns change little from frame to frame).
+pub struct Explorer<D> {
+    priors: Priors,
+    /// The other Poisson ratios' trackers, by ratio.
+    others: Vec<(f32, Tracker<D>)>,
+    /// The last spread's re-solves, each its positions less its answer's,
+    /// in the order they are made.
+    last: Vec<Vec<Vec3>>,
+}
+
+impl<D: SolveDevice> Explorer<D> {
+    /// An explorer with nothing prepared.
+    pub fn new(priors: Priors) -> Self {
+        Self {
+            priors,
+            others: Vec::new(),
+            last: Vec::new(),
+        }
+    }
+
+    /// The priors it samples.
+    pub fn priors(&self) -> &Priors {
+        &self.priors
+    }
+
+    /// [`explore`] of the answer `tracker` holds, from what this explorer
+    /// kept of the last one; `other` is asked only for a ratio it has no
+    /// tracker of yet.
+    ///
+    /// # Errors
+    ///
+    /// As [`explore`].
+    pub fn explore<E>(
+        &mut self,
+        tracker: &mut Tracker<D>,
+        answered: Answered<'_>,
+        other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+    ) -> Result<Spread, E>
+    where
+        E: From<Error> + From<D::Error>,
+    {
+        let priors = self.priors.clone();
+        let last = std::mem::take(&mut self.last);
+        let mut made: Vec<Vec<Vec3>> = Vec::new();
+        let spread = self.columns(tracker, answered, &priors, other, &last, &mut made);
+        self.last = made;
+        spread
+    }
+
+    /// The columns of the answer `tracker` holds; each re-solve `i` starts
+    /// from the answer plus `last[i]` where the last answer had one, its
+    /// offset pushed onto `made`.
+    fn columns<E>(
+        &mut self,
+        tracker: &mut Tracker<D>,
+        answered: Answered<'_>,
+        priors: &Priors,
+        other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+        last: &[Vec<Vec3>],
+        made: &mut Vec<Vec<Vec3>>,
+    ) -> Result<Spread, E>
+    where
+        E: From<Error> + From<D::Error>,
+    {
+        let started = Instant::now();
+        priors.validate().map_err(Error::from)?;
+        ParamError::check(
+            answered.exact.len() == answered.surface.vertices.len(),
+            "uncertainty exact",
+            answered.exact.len(),
+            format!(
+                "one flag per surface vertex ({})",
+                answered.surface.vertices.len()
+            ),
+        )
+        .map_err(Error::from)?;
+        let kept = tracker.checkpoint();
+        let answer = tracker.positions().to_vec();
+        let asked = tracker.params().clone();
+        let loose = priors.column_tolerance;
+        tracker.set_params(asked.clone().with(|p| p.tolerance *= loose))?;
+        let mut spread = Spread {
+            answer: answer.clone(),
+            columns: Vec::new(),
+            solves: 0,
+            iterations: 0,
+            converged: true,
+            seconds: 0.0,
+        };
+        let mut solve = |t: &mut Tracker<D>,
+                         surface: &SurfaceMesh,
+                         spread: &mut Spread|
+         -> Result<Vec<Vec3>, E> {
+            let start: Vec<Vec3> = match last.get(made.len()) {
+                Some(offsets) if offsets.len() == answer.len() => {
+                    answer.iter().zip(offsets).map(|(a, o)| *a + *o).collect()
+                }
+                _ => answer.clone(),
+            };
             t.set_surface::<E>(surface)?;
-            t.warm_start::<E>(&answer)?;
+            t.warm_start::<E>(&start)?;
             let report = t.solve()?;
             spread.solves += 1;
             spread.iterations += report.iterations;
             spread.converged &= report.converged;
-            Ok(t.positions().to_vec())
+            let positions = t.positions().to_vec();
+            made.push(
+                positions
+                    .iter()
+                    .zip(&answer)
+                    .map(|(p, a)| *p - *a)
+                    .collect(),
+            );
+            Ok(positions)
         };
 
-    // The Poisson ratio: quadratic in the stiffness ratio through the
-    // answer and the range's ends, integrated over the range. With a
-    // load, each ratio's response to the change of load between the
-    // postures (what the unloaded shape's search turns into the deformed
-    // posture's move), from the answer's tracker under that change.
-    let params = tracker.params().clone();
-    let load = params.load;
-    let change = answered
-        .rest_load
-        .filter(|_| load != Vec3::ZERO)
-        .map(|r| load - r);
-    let nu0 = params.poisson;
-    let (lo, hi) = priors.poisson;
-    // The Poisson ratio and the loads are the elastic force's.
-    let elastic = params.force == ForceModel::Elastic;
-    if elastic && !(lo == hi && lo == nu0) {
-        let base = match change {
-            Some(change) => {
-                tracker.set_load::<E>(change)?;
-                let base = solve(tracker, answered.surface, &mut spread)?;
-                tracker.set_load::<E>(load)?;
-                base
+        // The Poisson ratio: quadratic in the stiffness ratio through the
+        // answer and the range's ends, integrated over the range. With a
+        // load, each ratio's response to the change of load between the
+        // postures (what the unloaded shape's search turns into the deformed
+        // posture's move), from the answer's tracker under that change.
+        let params = tracker.params().clone();
+        let load = params.load;
+        let change = answered
+            .rest_load
+            .filter(|_| load != Vec3::ZERO)
+            .map(|r| load - r);
+        let nu0 = params.poisson;
+        let (lo, hi) = priors.poisson;
+        // The Poisson ratio and the loads are the elastic force's.
+        let elastic = params.force == ForceModel::Elastic;
+        if elastic && !(lo == hi && lo == nu0) {
+            let base = match change {
+                Some(change) => {
+                    tracker.set_load::<E>(change)?;
+                    let base = solve(tracker, answered.surface, &mut spread)?;
+                    tracker.set_load::<E>(load)?;
+                    base
+                }
+                None => answer.clone(),
+            };
+            let mut others = vec![lo, hi];
+            if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
+                // The solve's own ratio at an end: the middle is the third.
+                others = vec![lo, 0.5 * (lo + hi), hi];
             }
-            None => answer.clone(),
-        };
-        let mut others = vec![lo, hi];
-        if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
-            // The solve's own ratio at an end: the middle is the third.
-            others = vec![lo, 0.5 * (lo + hi), hi];
+            others.retain(|nu| (nu - nu0).abs() > 1e-6);
+            others.dedup();
+            let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
+            for nu in others {
+                let wanted = params.clone().with(|p| {
+                    p.tolerance *= loose;
+                    p.poisson = nu;
+                    p.load = change.unwrap_or(load);
+                });
+                let kept = self
+                    .others
+                    .iter()
+                    .position(|(ratio, t)| *ratio == nu && *t.params() == wanted);
+                let k = match kept {
+                    Some(k) => k,
+                    None => {
+                        self.others.retain(|(ratio, _)| *ratio != nu);
+                        self.others.push((nu, other(wanted)?));
+                        self.others.len() - 1
+                    }
+                };
+                let positions = solve(&mut self.others[k].1, answered.surface, &mut spread)?;
+                let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
+                points.push((nu, offsets));
+            }
+            let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
+            for (node, weight) in gauss_legendre(lo, hi) {
+                let basis = lagrange(&ratios, ratio(node));
+                let positions = answer
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &x0)| {
+                        x0 + points
+                            .iter()
+                            .zip(&basis)
+                            .map(|((_, offsets), &b)| b as f32 * offsets[i])
+                            .sum::<Vec3>()
+                    })
+                    .collect();
+                spread.columns.push(Column {
+                    unknown: Unknown::Poisson,
+                    weight,
+                    positions,
+                });
+            }
         }
-        others.retain(|nu| (nu - nu0).abs() > 1e-6);
-        others.dedup();
-        let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
-        for nu in others {
-            let mut t = other(params.clone().with(|p| {
-                p.tolerance *= loose;
-                p.poisson = nu;
-                p.load = change.unwrap_or(load);
-            }))?;
-            let positions = solve(&mut t, answered.surface, &mut spread)?;
-            let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
-            points.push((nu, offsets));
-        }
-        let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
-        for (node, weight) in gauss_legendre(lo, hi) {
-            let basis = lagrange(&ratios, ratio(node));
-            let positions = answer
-                .iter()
-                .enumerate()
-                .map(|(i, &x0)| {
-                    x0 + points
-                        .iter()
-                        .zip(&basis)
-                        .map(|((_, offsets), &b)| b as f32 * offsets[i])
-                        .sum::<Vec3>()
-                })
-                .collect();
-            spread.columns.push(Column {
-                unknown: Unknown::Poisson,
-                weight,
-                positions,
-            });
-        }
-    }
 
-    // The surface's error: a Monte Carlo ensemble.
-    if priors.surface_noise > 0.0 {
-        let mut noise = SurfaceNoise::new(
-            answered.surface,
-            answered.exact,
-            priors.surface_noise,
-            priors.surface_correlation,
-            priors.seed,
-        );
-        for _ in 0..priors.samples {
-            let sample = noise.sample();
-            let positions = solve(tracker, &sample, &mut spread)?;
-            spread.columns.push(Column {
-                unknown: Unknown::Surface,
-                weight: 1.0 / priors.samples as f64,
-                positions,
-            });
+        // The surface's error: a Monte Carlo ensemble.
+        if priors.surface_noise > 0.0 {
+            let mut noise = SurfaceNoise::new(
+                answered.surface,
+                answered.exact,
+                priors.surface_noise,
+                priors.surface_correlation,
+                priors.seed,
+            );
+            for _ in 0..priors.samples {
+                let sample = noise.sample();
+                let positions = solve(tracker, &sample, &mut spread)?;
+                spread.columns.push(Column {
+                    unknown: Unknown::Surface,
+                    weight: 1.0 / priors.samples as f64,
+                    positions,
+                });
+            }
         }
-    }
 
-    // The load's scale and the gravity's directions, linearised; without
-    // a load, the change of gravity the answer did not model, along each
-    // axis.
-    let mut changes = Vec::new();
-    if let (Some(rest_load), Some(change)) = (answered.rest_load, change) {
-        if priors.load_spread > 0.0 {
-            changes.push((Unknown::Load, priors.load_spread * change));
-        }
-        if priors.gravity_degrees > 0.0 {
-            let angle = priors.gravity_degrees.to_radians();
-            for (posture, sign) in [(load, 1.0), (rest_load, -1.0)] {
-                let (a, b) = posture.normalize_or_zero().any_orthonormal_pair();
-                for axis in [a, b] {
-                    let tilted = Quat::from_axis_angle(axis, angle) * posture;
-                    changes.push((Unknown::Gravity, sign * (tilted - posture)));
+        // The load's scale and the gravity's directions, linearised; without
+        // a load, the change of gravity the answer did not model, along each
+        // axis.
+        let mut changes = Vec::new();
+        if let (Some(rest_load), Some(change)) = (answered.rest_load, change) {
+            if priors.load_spread > 0.0 {
+                changes.push((Unknown::Load, priors.load_spread * change));
+            }
+            if priors.gravity_degrees > 0.0 {
+                let angle = priors.gravity_degrees.to_radians();
+                for (posture, sign) in [(load, 1.0), (rest_load, -1.0)] {
+                    let (a, b) = posture.normalize_or_zero().any_orthonormal_pair();
+                    for axis in [a, b] {
+                        let tilted = Quat::from_axis_angle(axis, angle) * posture;
+                        changes.push((Unknown::Gravity, sign * (tilted - posture)));
+                    }
                 }
             }
+        } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
+            let unit = gravity_load(
+                Vec3::Z,
+                TISSUE_DENSITY_KG_M3,
+                priors.posture_kpa,
+                nu0,
+                answered.metres_per_unit,
+            )
+            .map_err(Error::from)?
+            .length();
+            let each = priors.posture_g * unit / 3f32.sqrt();
+            for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+                changes.push((Unknown::Posture, each * axis));
+            }
         }
-    } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
-        let unit = gravity_load(
-            Vec3::Z,
-            TISSUE_DENSITY_KG_M3,
-            priors.posture_kpa,
-            nu0,
-            answered.metres_per_unit,
-        )
-        .map_err(Error::from)?
-        .length();
-        let each = priors.posture_g * unit / 3f32.sqrt();
-        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
-            changes.push((Unknown::Posture, each * axis));
+        for (unknown, change) in changes {
+            tracker.set_load::<E>(load + change)?;
+            let positions = solve(tracker, answered.surface, &mut spread)?;
+            spread.columns.push(Column {
+                unknown,
+                weight: 1.0,
+                positions,
+            });
         }
+        if tracker.params().load != load {
+            tracker.set_load::<E>(load)?;
+        }
+        tracker.set_params(asked)?;
+        tracker.back_to::<E>(kept)?;
+        spread.seconds = started.elapsed().as_secs_f64();
+        Ok(spread)
     }
-    for (unknown, change) in changes {
-        tracker.set_load::<E>(load + change)?;
-        let positions = solve(tracker, answered.surface, &mut spread)?;
-        spread.columns.push(Column {
-            unknown,
-            weight: 1.0,
-            positions,
-        });
-    }
-    if tracker.params().load != load {
-        tracker.set_load::<E>(load)?;
-    }
-    tracker.set_params(asked)?;
-    tracker.back_to::<E>(kept)?;
-    spread.seconds = started.elapsed().as_secs_f64();
-    Ok(spread)
 }
 
 /// The stiffness ratio `mu / lambda = (1 - 2 nu) / (2 nu)` the answer is
