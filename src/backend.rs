@@ -581,6 +581,17 @@ impl Solver {
         self.tracker.set_params(params)
     }
 
+    /// Changes the body force of the next solves (`DeformParams::load`),
+    /// the state kept (`Tracker::set_load`): a nearby posture's gravity.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Param`] for a solver without the elastic force or a load
+    /// out of range; the GPU's error where it cannot take it.
+    pub fn set_load(&mut self, load: Vec3) -> Result<(), Error> {
+        self.tracker.set_load(load)
+    }
+
     /// Solves, and on the GPU reads the positions back.
     pub fn solve(&mut self) -> Result<DeformReport, Error> {
         self.solve_with_progress(&mut |_| {})
