@@ -145,8 +145,9 @@ fn deform_refuses_what_the_uncertainty_cannot_take() {
 }
 
 /// `tissue track --uncertainty`: every frame's report and points carry
-/// their regions, the regions grow with the sag, and a sequence matched
-/// without correspondence is refused.
+/// their regions, the regions grow with the sag, a resumed run gives the
+/// last frame to the bit, and a sequence matched without correspondence
+/// is refused.
 #[test]
 fn track_writes_each_frame_regions() {
     use tissue::deform::{Sag, deform_surface, interpolate};
@@ -191,6 +192,41 @@ fn track_writes_each_frame_regions() {
     };
     let (half, whole) = (radius(1), radius(2));
     assert!(0.0 < half && half < whole, "{half} then {whole}");
+
+    // Resumed at the last frame (its folder gone, as after a kill): the
+    // first frame and its spread replayed, the last the same to the bit;
+    // a resume with other priors is refused.
+    let last = out_dir.join("frame-0002");
+    let written = |name: &str| std::fs::read(last.join(name)).unwrap();
+    let (particles, points_csv) = (written("particles.vtp"), written("points.csv"));
+    std::fs::remove_dir_all(&last).unwrap();
+    let resume = |extra: &[&str]| {
+        let mut args = vec![
+            "track",
+            "--model",
+            s(&model_path),
+            "--frames",
+            s(&pattern),
+            "--points",
+            s(&points),
+            "--uncertainty",
+            "2",
+            "--backend",
+            "cpu",
+            "-o",
+            s(&out_dir),
+            "--quiet",
+            "--resume",
+        ];
+        args.extend_from_slice(extra);
+        tissue(&args)
+    };
+    let other = resume(&["--surface-noise", "0.25"]);
+    assert!(!other.status.success(), "{}", text(&other));
+    let again = resume(&[]);
+    assert!(again.status.success(), "{}", text(&again));
+    assert_eq!(written("particles.vtp"), particles);
+    assert_eq!(written("points.csv"), points_csv);
 
     // The same skins cut in four: matched without correspondence.
     let other = dir.path().join("other");
