@@ -39,6 +39,9 @@ pub(crate) struct Deformer {
     pub(crate) rest_load: Option<Vec3>,
     /// Whether the last answer was a match without correspondence.
     pub(crate) matched: bool,
+    /// The last `uncertainty` call's explorer: a call with the same priors
+    /// starts from it (a sequence's next frame).
+    pub(crate) explorer: Option<tissue::uncertainty::Explorer>,
 }
 
 impl Deformer {
@@ -287,7 +290,10 @@ impl Deformer {
     /// rest) `points_radius` and `points_covariance` likewise, and
     /// `solves`, `iterations`, `seconds`, `converged`. Warns
     /// (RuntimeWarning) where a re-solve did not converge. Not for a
-    /// match without correspondence.
+    /// match without correspondence. A call with the priors of the last
+    /// starts each re-solve from where the last call's ended (a tracked
+    /// sequence's next frame: fewer iterations, the same regions within
+    /// the solves' tolerance).
     #[pyo3(signature = (points = None, samples = 16, surface_noise = 0.5,
                         surface_correlation = 10.0, poisson_range = (0.45, 0.495),
                         load_spread = 0.14, gravity_spread = 3.0, posture_spread = 1.0,
@@ -307,7 +313,7 @@ impl Deformer {
         seed: u64,
     ) -> PyResult<Py<PyAny>> {
         use pyo3::types::PyDict;
-        use tissue::uncertainty::{Answered, Priors, Region, exact_vertices, explore};
+        use tissue::uncertainty::{Answered, Explorer, Priors, Region, exact_vertices};
         if self.matched {
             return Err(raise(
                 "the uncertainty needs the last answer solved for a surface with the model's \
@@ -331,9 +337,15 @@ impl Deformer {
         if let Some(points) = &points {
             self.check_inside(py, points, "points")?;
         }
+        // The last call's explorer where the priors are the same: its
+        // re-solves start from the last answer's.
+        let mut explorer = match self.explorer.take() {
+            Some(explorer) if *explorer.priors() == priors => explorer,
+            _ => Explorer::new(priors),
+        };
         let (solver, model, rest_load) = (&mut self.solver, &self.model, self.rest_load);
-        let (spread, carriers) = py
-            .detach(|| {
+        let (spread, carriers, explorer) = py
+            .detach(move || {
                 let carriers = match &points {
                     Some(points) => Some(solver.bind(points)?.carriers().to_vec()),
                     None => None,
@@ -345,9 +357,11 @@ impl Deformer {
                     rest_load,
                     metres_per_unit: 1e-3,
                 };
-                explore(solver, model, answered, &priors).map(|s| (s, carriers))
+                let spread = explorer.explore(solver, model, answered)?;
+                Ok::<_, tissue::Error>((spread, carriers, explorer))
             })
             .map_err(raise)?;
+        self.explorer = Some(explorer);
         if !spread.converged {
             warn(
                 py,

@@ -292,6 +292,7 @@ impl Model {
             guess: None,
             rest_load: None,
             matched: false,
+            explorer: None,
         })
     }
 
@@ -453,6 +454,7 @@ impl Model {
                 guess: None,
                 rest_load: None,
                 matched: false,
+                explorer: None,
             });
         }
         let mut callback = Callback::new(progress.as_ref());
@@ -552,6 +554,7 @@ impl Model {
                 .map(|guess| (deformed.vertices.clone(), guess)),
             rest_load: Some(unloaded.rest_load),
             matched: false,
+            explorer: None,
         })
     }
 }

@@ -668,6 +668,12 @@ def test_the_uncertainty_gives_every_particle_and_point_a_region(model):
     assert set(spread["dominant"]) <= {None, "poisson", "surface", "posture"}
     # The deformer is left at its answer.
     np.testing.assert_array_equal(deformer.positions, answer)
+    # The same priors again start from the last call's re-solves: fewer
+    # iterations, the same radii within the solves' tolerance.
+    again = deformer.uncertainty(points=inside, samples=4)
+    assert again["iterations"] < spread["iterations"]
+    size = np.linalg.norm(answer.max(axis=0) - answer.min(axis=0))
+    assert np.abs(again["radius"] - spread["radius"]).max() < 1e-3 * size
     # Nothing unknown: no spread.
     none = deformer.uncertainty(
         samples=4, surface_noise=0.0, poisson_range=(0.49, 0.49), posture_spread=0.0
