@@ -27,6 +27,7 @@ use tiny_skia::{
 };
 use tissue::SurfaceMesh;
 
+mod cut;
 mod spread;
 
 pub use spread::Spread;
@@ -231,36 +232,11 @@ pub fn render(scene: &Scene<'_>) -> Result<Pixmap> {
         .zip(scene.current)
         .map(|(p, q)| p.distance(*q))
         .collect();
-    let largest = displacement
-        .iter()
-        .copied()
-        .filter(|d| d.is_finite())
-        .fold(0.0, f32::max);
 
     canvas.text(VIEW[0], 20.0, 2.0, &scene.title, opaque(INK));
     // The deformed skin filled; its outline and the rest skin's over the cut.
     canvas.fill_mesh(scene.surface, &view, rgba(120, 150, 190, 60));
-    // The cut, farthest particles first, inside the deformed skin only.
-    let inside = mesh_path(scene.surface, &view).and_then(|skin| {
-        let mut mask = Mask::new(WIDTH, HEIGHT)?;
-        mask.fill_path(&skin, FillRule::Winding, true, Transform::identity());
-        Some(mask)
-    });
-    let mut slab: Vec<usize> = (0..scene.current.len())
-        .filter(|&i| (scene.current[i][view.depth] - view.cut).abs() <= view.half)
-        .collect();
-    slab.sort_by(|&a, &b| {
-        view.nearness(scene.current[a])
-            .total_cmp(&view.nearness(scene.current[b]))
-    });
-    for &i in &slab {
-        let at = view.to_screen(scene.current[i]);
-        let radius = (scene.radii[i] * view.scale).max(1.0);
-        let [r, g, b] = colour_map(displacement[i] / largest.max(f32::MIN_POSITIVE));
-        canvas.fill_masked(rgba(r, g, b, 255), inside.as_ref(), |path| {
-            path.push_circle(at.x, at.y, radius);
-        });
-    }
+    let largest = canvas.cut(scene, &view, &displacement);
     canvas.outline(scene.rest_surface, &view, rgba(150, 150, 150, 255), 1.5);
     canvas.outline(scene.surface, &view, rgba(40, 60, 90, 255), 2.0);
     // The structures: at rest, moved, and the arrow between.

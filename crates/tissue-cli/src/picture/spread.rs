@@ -4,12 +4,9 @@
 
 use anyhow::{Result, anyhow};
 use glam::{Vec2, Vec3};
-use tiny_skia::{Color, FillRule, Mask, Pixmap, PixmapPaint, Transform};
+use tiny_skia::{Color, Pixmap, PixmapPaint, Transform};
 
-use super::{
-    AXES, Canvas, HEIGHT, INK, PLOT, Scene, VIEW, View, WIDTH, colour_map, mesh_path, number,
-    opaque, rgba,
-};
+use super::{AXES, Canvas, HEIGHT, INK, PLOT, Scene, VIEW, View, WIDTH, number, opaque, rgba};
 
 /// The chi-square's 95 % point with three degrees of freedom: the shadow
 /// of the 95 % ellipsoid `e^T C^-1 e <= CHI2` on a plane is the ellipse of
@@ -51,12 +48,6 @@ pub(super) fn stacked(top: &Pixmap, scene: &Scene<'_>, spread: &Spread<'_>) -> R
 fn panel(scene: &Scene<'_>, spread: &Spread<'_>) -> Result<Pixmap> {
     let mut canvas = Canvas::new()?;
     let view = View::of(scene);
-    let largest = spread
-        .radii
-        .iter()
-        .copied()
-        .filter(|r| r.is_finite())
-        .fold(0.0, f32::max);
     canvas.text(
         VIEW[0],
         20.0,
@@ -65,27 +56,7 @@ fn panel(scene: &Scene<'_>, spread: &Spread<'_>) -> Result<Pixmap> {
         opaque(INK),
     );
     canvas.fill_mesh(scene.surface, &view, rgba(120, 150, 190, 60));
-    let inside = mesh_path(scene.surface, &view).and_then(|skin| {
-        let mut mask = Mask::new(WIDTH, HEIGHT)?;
-        mask.fill_path(&skin, FillRule::Winding, true, Transform::identity());
-        Some(mask)
-    });
-    let mut slab: Vec<usize> = (0..scene.current.len())
-        .filter(|&i| (scene.current[i][view.depth] - view.cut).abs() <= view.half)
-        .collect();
-    slab.sort_by(|&a, &b| {
-        view.nearness(scene.current[a])
-            .total_cmp(&view.nearness(scene.current[b]))
-    });
-    for &i in &slab {
-        let at = view.to_screen(scene.current[i]);
-        let radius = (scene.radii[i] * view.scale).max(1.0);
-        let r = spread.radii.get(i).copied().unwrap_or(0.0);
-        let [red, green, blue] = colour_map(r / largest.max(f32::MIN_POSITIVE));
-        canvas.fill_masked(rgba(red, green, blue, 255), inside.as_ref(), |path| {
-            path.push_circle(at.x, at.y, radius);
-        });
-    }
+    let largest = canvas.cut(scene, &view, spread.radii);
     canvas.outline(scene.surface, &view, rgba(40, 60, 90, 255), 2.0);
     for (_, moved) in &scene.structures {
         canvas.outline(moved, &view, rgba(200, 0, 0, 255), 2.0);
@@ -153,6 +124,7 @@ fn shadow(centre: Vec3, covariance: [f64; 6], view: &View) -> Vec<Vec2> {
 #[cfg(test)]
 #[allow(clippy::expect_used, reason = "tests")]
 mod tests {
+    use super::super::colour_map;
     use super::super::tests::{cuboid, drawn, pixel};
     use super::*;
 
