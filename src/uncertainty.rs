@@ -31,7 +31,8 @@
 
 use tissue_core::{Error, ParticleModel, SurfaceMesh};
 
-use crate::backend::{Solver, SolverDevice};
+use crate::backend::{Device, Solver, SolverDevice};
+use crate::deformation::SharedLaplacian;
 
 pub use tissue_solve::stage2::uncertainty::{
     Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, LOAD_SPREAD,
@@ -73,11 +74,16 @@ pub fn explore(
 }
 
 /// [`explore`] over a sequence of answers of one solver (a tracking run's
-/// frames): the other Poisson ratios' solvers prepared once, each re-solve
+/// frames; the solver and model of its first answer): the other Poisson
+/// ratios' solvers prepared once, each re-solve
 /// started from where the same re-solve of the last answer ended, moved
 /// with the answer.
 pub struct Explorer {
     inner: tissue_solve::stage2::uncertainty::Explorer<SolverDevice>,
+    /// What the other Poisson ratios' solvers are prepared from (the
+    /// model in the solver's rest shape, what the solver prepared that
+    /// they share, its device), made at the first answer.
+    setup: Option<(ParticleModel, SharedLaplacian, Device)>,
 }
 
 impl Explorer {
@@ -85,6 +91,7 @@ impl Explorer {
     pub fn new(priors: Priors) -> Self {
         Self {
             inner: tissue_solve::stage2::uncertainty::Explorer::new(priors),
+            setup: None,
         }
     }
 
@@ -105,18 +112,19 @@ impl Explorer {
         model: &ParticleModel,
         answered: Answered<'_>,
     ) -> Result<Spread, Error> {
-        let stress_free = ParticleModel {
-            positions: solver.rest().to_vec(),
-            ..model.clone()
-        };
-        let shared = solver.shared_laplacian();
-        let device = solver.on_device();
+        let (stress_free, shared, device) = self.setup.get_or_insert_with(|| {
+            let stress_free = ParticleModel {
+                positions: solver.rest().to_vec(),
+                ..model.clone()
+            };
+            (stress_free, solver.shared_laplacian(), solver.on_device())
+        });
         let mut other = |params| {
             Solver::new_shared(
                 device.clone(),
-                &stress_free,
+                stress_free,
                 params,
-                Some(&shared),
+                Some(shared),
                 &mut |_| {},
             )
             .map(Solver::into_tracker)

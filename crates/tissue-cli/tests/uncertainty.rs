@@ -164,22 +164,28 @@ fn track_writes_each_frame_regions() {
     std::fs::write(&points, "x,y,z\n0,0,25\n").unwrap();
     let out_dir = dir.path().join("out");
     let pattern = frames.join("*.obj");
-    let out = tissue(&[
-        "track",
-        "--model",
-        s(&model_path),
-        "--frames",
-        s(&pattern),
-        "--points",
-        s(&points),
-        "--uncertainty",
-        "2",
-        "--backend",
-        "cpu",
-        "-o",
-        s(&out_dir),
-        "--quiet",
-    ]);
+    // The run, with `extra` options after its own.
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "track",
+            "--model",
+            s(&model_path),
+            "--frames",
+            s(&pattern),
+            "--points",
+            s(&points),
+            "--uncertainty",
+            "2",
+            "--backend",
+            "cpu",
+            "-o",
+            s(&out_dir),
+            "--quiet",
+        ];
+        args.extend_from_slice(extra);
+        tissue(&args)
+    };
+    let out = run(&[]);
     assert!(out.status.success(), "{}", text(&out));
     let radius = |k: usize| {
         let report = json(&out_dir.join(format!("frame-{k:04}")).join("report.json"));
@@ -200,30 +206,9 @@ fn track_writes_each_frame_regions() {
     let written = |name: &str| std::fs::read(last.join(name)).unwrap();
     let (particles, points_csv) = (written("particles.vtp"), written("points.csv"));
     std::fs::remove_dir_all(&last).unwrap();
-    let resume = |extra: &[&str]| {
-        let mut args = vec![
-            "track",
-            "--model",
-            s(&model_path),
-            "--frames",
-            s(&pattern),
-            "--points",
-            s(&points),
-            "--uncertainty",
-            "2",
-            "--backend",
-            "cpu",
-            "-o",
-            s(&out_dir),
-            "--quiet",
-            "--resume",
-        ];
-        args.extend_from_slice(extra);
-        tissue(&args)
-    };
-    let other = resume(&["--surface-noise", "0.25"]);
+    let other = run(&["--resume", "--surface-noise", "0.25"]);
     assert!(!other.status.success(), "{}", text(&other));
-    let again = resume(&[]);
+    let again = run(&["--resume"]);
     assert!(again.status.success(), "{}", text(&again));
     assert_eq!(written("particles.vtp"), particles);
     assert_eq!(written("points.csv"), points_csv);
