@@ -182,6 +182,21 @@ impl VolumeSmoother {
         )
     }
 
+    /// `Phi x` with `x` read as zero at particles `inside` says are not
+    /// free: what the passes over the connections read unchecked.
+    fn scaled_inside(&self, inside: &(impl Fn(usize) -> bool + Sync), x: &[DVec3]) -> Vec<DVec3> {
+        x.par_iter()
+            .enumerate()
+            .map(|(k, &x)| {
+                if inside(k) {
+                    self.phi(k, x)
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect()
+    }
+
     /// `delta`.
     pub fn delta(&self) -> f64 {
         self.delta
@@ -210,7 +225,7 @@ impl VolumeSmoother {
         residual: &[DVec3],
     ) -> Vec<DVec3> {
         let (roots, diagonal) = (&self.roots, &self.diagonal);
-        let scaled_residual = self.scaled(residual);
+        let scaled_residual = self.scaled_inside(inside, residual);
         // Per particle `(t_i, z_i)`, `t = H^T r` and the pressure `z_i`,
         // and apart (the next pass reads it at the neighbours) `y_i =
         // sqrt(W_i / 2) z_i`, so that `H z = G y`. The first sweep from
@@ -218,19 +233,20 @@ impl VolumeSmoother {
         let (mut sweep, mut scaled): (Vec<(f64, f64)>, Vec<f64>) = (0..residual.len())
             .into_par_iter()
             .map(|i| {
-                let t = change_at(entries, connections, inside, &scaled_residual, i) * roots[i];
+                let t = change_at(entries, connections, &scaled_residual, i) * roots[i];
                 let z = RELAXATION * t / diagonal[i];
                 ((t, z), z * roots[i])
             })
             .unzip();
         for _ in 1..self.sweeps {
+            // Zero outside, as `change_at` reads it.
             let forces = pressure_forces(entries, connections, inside, &scaled);
             let forces = self.scaled(&forces);
             (sweep, scaled) = (0..residual.len())
                 .into_par_iter()
                 .map(|i| {
                     let (t, z) = sweep[i];
-                    let back = change_at(entries, connections, inside, &forces, i) * roots[i];
+                    let back = change_at(entries, connections, &forces, i) * roots[i];
                     let s_z = self.delta * z + back;
                     let z = z + RELAXATION * (t - s_z) / diagonal[i];
                     ((t, z), z * roots[i])
@@ -271,27 +287,24 @@ pub(crate) fn volume_changes(
     inside: &(impl Fn(usize) -> bool + Sync),
     x: &[DVec3],
 ) -> Vec<f64> {
+    let x: Vec<DVec3> = (0..x.len())
+        .map(|i| if inside(i) { x[i] } else { DVec3::ZERO })
+        .collect();
     (0..x.len())
         .into_par_iter()
-        .map(|i| change_at(entries, connections, inside, x, i))
+        .map(|i| change_at(entries, connections, &x, i))
         .collect()
 }
 
-/// `g_i . x` at particle `i` (`x` read as zero at particles `inside` says
-/// are not free): one particle's row of `G^T x`.
-fn change_at(
-    entries: &Entries,
-    connections: &Connections,
-    inside: &impl Fn(usize) -> bool,
-    x: &[DVec3],
-    i: usize,
-) -> f64 {
-    let at = |i: usize| if inside(i) { x[i] } else { DVec3::ZERO };
-    let (xi, range) = (at(i), slots(connections, i));
+/// `g_i . x` at particle `i` for a field `x` that is zero at the particles
+/// that are not free: one particle's row of `G^T x`. The field comes
+/// masked (once a pass, not at each of the connections' reads).
+fn change_at(entries: &Entries, connections: &Connections, x: &[DVec3], i: usize) -> f64 {
+    let (xi, range) = (x[i], slots(connections, i));
     connections.indices[range.clone()]
         .iter()
         .zip(&entries.own[range])
-        .map(|(&j, g)| (at(j as usize) - xi).dot(g.as_dvec3()))
+        .map(|(&j, g)| (x[j as usize] - xi).dot(g.as_dvec3()))
         .sum()
 }
 

@@ -169,7 +169,14 @@ impl Entries {
         u: &[DVec3],
         finish: impl Fn(usize, DVec3) -> DVec3 + Sync,
     ) -> Vec<DVec3> {
-        let at = |i: usize| if inside(i) { u[i] } else { DVec3::ZERO };
+        // `u` read as zero outside, masked once rather than at each of the
+        // connections' reads.
+        let u: Vec<DVec3> = u
+            .par_iter()
+            .enumerate()
+            .map(|(i, &u)| if inside(i) { u } else { DVec3::ZERO })
+            .collect();
+        let at = |i: usize| u[i];
         let slots = |i: usize| slots(connections, i);
         let Self {
             own,
