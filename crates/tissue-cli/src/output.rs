@@ -187,6 +187,31 @@ impl std::fmt::Display for Unfinished {
 
 impl std::error::Error for Unfinished {}
 
+/// Why a solve's results are not written, where it diverged: its state
+/// turned non-finite, or it stopped by [`StopReason::Diverged`] (its energy
+/// rose with no smaller step left; the state it kept is finite but not an
+/// answer). `None` for any other end.
+pub fn diverged(current: &[Vec3], iterations: usize, stopped_by: StopReason) -> Option<Unfinished> {
+    let message = if let Some(i) = current.iter().position(|p| !p.is_finite()) {
+        format!(
+            "the solve diverged: particle {i} is at {} after {iterations} iterations; nothing was \
+             written (try --force symmetric)",
+            current[i]
+        )
+    } else if stopped_by == StopReason::Diverged {
+        format!(
+            "the solve diverged after {iterations} iterations: its energy rose and no smaller step \
+             was left; nothing was written (try --force symmetric)"
+        )
+    } else {
+        return None;
+    };
+    Some(Unfinished {
+        status: Status::Diverged,
+        message,
+    })
+}
+
 /// A displacement field to write (`deform --displacement-field`).
 #[derive(Debug, Clone, Copy)]
 pub struct FieldRequest<'a> {
@@ -407,16 +432,8 @@ pub fn write_solution(
         uncertainty,
     } = solved;
     let current = solver.positions();
-    if let Some(i) = current.iter().position(|p| !p.is_finite()) {
-        return Err(Unfinished {
-            status: Status::Diverged,
-            message: format!(
-                "the solve diverged: particle {i} is at {} after {} iterations; nothing was written \
-                 (try the default --force symmetric)",
-                current[i], solve.iterations
-            ),
-        }
-        .into());
+    if let Some(unfinished) = diverged(current, solve.iterations, solve.stopped_by) {
+        return Err(unfinished.into());
     }
     std::fs::create_dir_all(to.dir).with_context(|| format!("creating {}", to.dir.display()))?;
     // Every output is written under a staged name and renamed into place
@@ -776,7 +793,10 @@ pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
         StopReason::IterationCap => format!(
             "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
         ),
-        StopReason::Diverged => "DIVERGED: the state became non-finite".into(),
+        StopReason::Diverged => {
+            "DIVERGED: the state became non-finite, or its energy rose with no smaller step left"
+                .into()
+        }
         StopReason::Stalled => format!(
             "NOT converged (error estimate {residual:.1e} of the size): the iteration stalled"
         ),
@@ -804,5 +824,41 @@ mod status_tests {
             serde_json::to_value(Status::NotConverged).ok(),
             Some(serde_json::json!("not_converged"))
         );
+    }
+
+    /// A diverged solve writes nothing, whether its state turned
+    /// non-finite or it kept a finite state when its energy rose with no
+    /// step back left; every other end writes its results.
+    #[test]
+    fn a_diverged_solve_is_not_written_even_with_a_finite_state() {
+        let finite = [Vec3::ZERO, Vec3::ONE];
+        let unfinished = diverged(&finite, 40, StopReason::Diverged);
+        assert!(
+            unfinished
+                .as_ref()
+                .is_some_and(|u| u.status == Status::Diverged
+                    && u.message.contains("energy rose")
+                    && u.message.contains("40 iterations")),
+            "{unfinished:?}"
+        );
+        let blown = [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0)];
+        let unfinished = diverged(&blown, 7, StopReason::Tolerance);
+        assert!(
+            unfinished
+                .as_ref()
+                .is_some_and(|u| u.status == Status::Diverged && u.message.contains("particle 1")),
+            "{unfinished:?}"
+        );
+        for stopped_by in [
+            StopReason::Tolerance,
+            StopReason::FloatPrecision,
+            StopReason::IterationCap,
+            StopReason::Stalled,
+        ] {
+            assert!(
+                diverged(&finite, 40, stopped_by).is_none(),
+                "{stopped_by:?}"
+            );
+        }
     }
 }

@@ -19,7 +19,8 @@ pub enum StopReason {
     FloatPrecision,
     /// The iteration cap.
     IterationCap,
-    /// The state became non-finite.
+    /// The state became non-finite, or an elastic phase's energy rose with
+    /// no smaller step left (the state it kept is finite, not an answer).
     Diverged,
     /// The error estimate stopped falling in an iteration whose
     /// contraction was measured (the volume smoother's): the iteration no
