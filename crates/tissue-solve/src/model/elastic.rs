@@ -90,18 +90,7 @@ impl Elastic {
     /// `free` particles (the interior ones that move: a surface particle's
     /// vectors integrate to its share of the boundary).
     pub fn new(rest: &[Vec3], connections: &Connections, poisson: f32, free: &[bool]) -> Self {
-        let ratio = poisson / (1.0 - 2.0 * poisson);
-        let (inverse_moments, weights): (Vec<Mat3>, Vec<f32>) = (0..rest.len())
-            .into_par_iter()
-            .map(|i| {
-                let a = moment(rest, connections, i);
-                if !is_round(a) {
-                    return (Mat3::ZERO, 0.0);
-                }
-                // lambda / 2 = nu / (1 - 2 nu) mu with mu = a_i = tr(A_i) / 3.
-                (moment_inverse(a), ratio * a.diagonal().element_sum() / 3.0)
-            })
-            .unzip();
+        let (inverse_moments, weights) = moments_and_weights(rest, connections, poisson);
         let consistency = Consistency::new(rest, connections, &inverse_moments, free);
         Self {
             inverse_moments,
@@ -109,6 +98,22 @@ impl Elastic {
             poisson,
             consistency,
             mirrors: mirrors(connections),
+        }
+    }
+
+    /// This model with the volume weights of Poisson ratio `poisson`
+    /// (`rest` and `connections` the ones it was made in): what
+    /// [`Elastic::new`] makes for that ratio, to the bit, without solving
+    /// for the consistent gradients again (they do not depend on the
+    /// ratio, and are most of the making).
+    pub fn with_poisson(&self, rest: &[Vec3], connections: &Connections, poisson: f32) -> Self {
+        let (inverse_moments, weights) = moments_and_weights(rest, connections, poisson);
+        Self {
+            inverse_moments,
+            weights,
+            poisson,
+            consistency: self.consistency.clone(),
+            mirrors: self.mirrors.clone(),
         }
     }
 
@@ -413,6 +418,28 @@ pub fn moment_inverse(a: Mat3) -> Mat3 {
         Some(unit) => (a / unit).inverse() / unit,
         None => Mat3::ZERO,
     }
+}
+
+/// Per particle `A_i^-1` and the volume weight `W_i = nu / (1 - 2 nu)
+/// tr(A_i) / 3` for Poisson ratio `poisson` (both zero for a flat
+/// neighbourhood).
+fn moments_and_weights(
+    rest: &[Vec3],
+    connections: &Connections,
+    poisson: f32,
+) -> (Vec<Mat3>, Vec<f32>) {
+    let ratio = poisson / (1.0 - 2.0 * poisson);
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| {
+            let a = moment(rest, connections, i);
+            if !is_round(a) {
+                return (Mat3::ZERO, 0.0);
+            }
+            // lambda / 2 = nu / (1 - 2 nu) mu with mu = a_i = tr(A_i) / 3.
+            (moment_inverse(a), ratio * a.diagonal().element_sum() / 3.0)
+        })
+        .unzip()
 }
 
 /// `A_i = sum_j d_ij d_ij^T` over particle `i`'s connections at rest.
@@ -725,6 +752,22 @@ mod tests {
         let a = moment(&rest, &connections, 100);
         let mu = (a.x_axis.x + a.y_axis.y + a.z_axis.z) / 3.0;
         assert!((elastic.weights[100] / mu - 24.5).abs() < 1e-3);
+    }
+
+    /// Another Poisson ratio from a made model is the model made for that
+    /// ratio, to the bit: only the weights depend on it.
+    #[test]
+    fn another_poisson_ratio_is_the_model_made_for_it() {
+        let (rest, connections, free) = jittered_block();
+        let made = Elastic::new(&rest, &connections, 0.49, &free);
+        for poisson in [0.45, 0.495, 0.49, 0.0] {
+            let fresh = Elastic::new(&rest, &connections, poisson, &free);
+            assert_eq!(made.with_poisson(&rest, &connections, poisson), fresh);
+        }
+        assert_ne!(
+            made.with_poisson(&rest, &connections, 0.45).weights,
+            made.weights
+        );
     }
 
     #[test]

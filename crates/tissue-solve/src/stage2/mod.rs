@@ -57,7 +57,9 @@ pub use phase::{
     ENERGY_WATCH, FIRST_BATCH, MAX_BACKTRACKS, MAX_RELINEARISATIONS, SHEAR_CHECK, SHEAR_TOLERANCE,
     WATCH_SETTLED,
 };
-pub use plan::{MAX_LOAD_SIZE, Plan, SharedSpectrum, control_points, laplacian_key};
+pub use plan::{
+    MAX_LOAD_SIZE, Plan, SharedElastic, SharedSpectrum, control_points, elastic_key, laplacian_key,
+};
 pub use posture::{
     DENSITY_KG_M3, FIT_BOUNDS_KPA, FIT_PARTICLES, FIT_START_KPA, Fit, Gravity, HELD_SPACINGS,
     MAX_GRAVITY_G, MIN_FIT_PARTICLES, NO_CHANGE, ORGAN_SIZE_M, PostureDevice, SolveProgress,

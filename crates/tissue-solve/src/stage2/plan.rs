@@ -81,6 +81,10 @@ pub struct Plan {
     /// The largest eigenvalue the elastic force's step is set for
     /// ([`Elastic::lambda_max`], in the Laplacian's units), with it.
     pub elastic_lambda_max: Option<f32>,
+    /// [`elastic_key`] of the rest shape and the particles the elastic
+    /// model holds its integration constraint at, with it: which solvers'
+    /// elastic model this one may share (`SharedLaplacian`).
+    pub elastic_key: Option<u64>,
 }
 
 impl Plan {
@@ -186,6 +190,7 @@ impl Plan {
             floor: FLOOR_ULPS * f32::EPSILON * largest,
             elastic: None,
             elastic_lambda_max: None,
+            elastic_key: None,
         })
     }
 
@@ -205,16 +210,20 @@ impl Plan {
         params: &DeformParams,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
-        Self::for_params_shared(model, params, None, observe)
+        Self::for_params_shared(model, params, None, None, observe)
     }
 
     /// [`Plan::for_params_observed`], the Laplacian's extreme eigenvalues
     /// taken from `shared` where it was made for the same connections and
-    /// free particles ([`SharedSpectrum`], a `SharedLaplacian`'s).
+    /// free particles ([`SharedSpectrum`]), and the elastic model where it
+    /// was made in the same rest shape with the constraint held at the
+    /// same particles (for another Poisson ratio only its weights made
+    /// again, [`Elastic::with_poisson`]).
     pub fn for_params_shared(
         model: &ParticleModel,
         params: &DeformParams,
         shared: Option<&SharedSpectrum>,
+        shared_elastic: Option<&SharedElastic>,
         observe: &mut dyn FnMut(PrepareStage),
     ) -> Result<Self, Error> {
         observe(PrepareStage::Plan);
@@ -231,15 +240,29 @@ impl Plan {
                 .zip(&plan.free)
                 .map(|(a, &free)| a.is_none() && free)
                 .collect();
-            let elastic = Elastic::new(
-                &model.positions,
-                &model.connections,
-                params.poisson,
-                &inside,
-            );
-            let stiff = elastic.lambda_max(&model.positions, &model.connections, &plan.free);
-            plan.elastic_lambda_max = Some(stiff.max(plan.lambda_max));
-            plan.elastic = Some(Arc::new(elastic));
+            let key = elastic_key(&model.positions, &inside, plan.laplacian_key);
+            let known = shared_elastic.and_then(|shared| {
+                shared.for_ratio(key, params.poisson, &model.positions, &model.connections)
+            });
+            let (elastic, lambda_max) = match known {
+                Some(known) => known,
+                None => (
+                    Arc::new(Elastic::new(
+                        &model.positions,
+                        &model.connections,
+                        params.poisson,
+                        &inside,
+                    )),
+                    None,
+                ),
+            };
+            let lambda_max = lambda_max.unwrap_or_else(|| {
+                let stiff = elastic.lambda_max(&model.positions, &model.connections, &plan.free);
+                stiff.max(plan.lambda_max)
+            });
+            plan.elastic_lambda_max = Some(lambda_max);
+            plan.elastic = Some(elastic);
+            plan.elastic_key = Some(key);
         }
         Ok(plan)
     }
@@ -449,6 +472,68 @@ pub fn laplacian_key(connections: &Connections, free: &[bool]) -> u64 {
     connections.indices.hash(&mut hasher);
     free.hash(&mut hasher);
     hasher.finish()
+}
+
+/// Which elastic models a solver may share: a hash of the rest positions
+/// (their bits), the particles the integration constraint holds at
+/// (`inside`) and the [`laplacian_key`] of the connections and free
+/// particles.
+pub fn elastic_key(positions: &[Vec3], inside: &[bool], laplacian_key: u64) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    laplacian_key.hash(&mut hasher);
+    for p in positions {
+        p.to_array().map(f32::to_bits).hash(&mut hasher);
+    }
+    inside.hash(&mut hasher);
+    hasher.finish()
+}
+
+/// The elastic model another solver's plan made, its [`elastic_key`] and
+/// the plan's largest eigenvalue with it ([`Plan::elastic_lambda_max`]):
+/// a plan for the same key takes it (`SharedLaplacian` carries it).
+#[derive(Debug, Clone)]
+pub struct SharedElastic {
+    key: u64,
+    model: Arc<Elastic>,
+    lambda_max: f32,
+}
+
+impl SharedElastic {
+    /// The elastic model `plan` made, if any.
+    pub fn of(plan: &Plan) -> Option<Self> {
+        Some(Self {
+            key: plan.elastic_key?,
+            model: Arc::clone(plan.elastic.as_ref()?),
+            lambda_max: plan.elastic_lambda_max?,
+        })
+    }
+
+    /// The elastic model for Poisson ratio `poisson`, where it was made for
+    /// `key` ([`elastic_key`]; `rest` and `connections` its rest shape and
+    /// connections): the same one with the plan's largest eigenvalue for
+    /// the same ratio, otherwise its weights made again for `poisson`
+    /// ([`Elastic::with_poisson`]; the eigenvalue is then the caller's to
+    /// estimate). The consistent gradients, most of the model's making, do
+    /// not depend on the ratio.
+    pub fn for_ratio(
+        &self,
+        key: u64,
+        poisson: f32,
+        rest: &[Vec3],
+        connections: &Connections,
+    ) -> Option<(Arc<Elastic>, Option<f32>)> {
+        if self.key != key {
+            return None;
+        }
+        if self.model.poisson == poisson {
+            return Some((Arc::clone(&self.model), Some(self.lambda_max)));
+        }
+        Some((
+            Arc::new(self.model.with_poisson(rest, connections, poisson)),
+            None,
+        ))
+    }
 }
 
 /// The connection Laplacian's extreme eigenvalues that another solver

@@ -112,6 +112,7 @@ impl<D: SolveDevice> Tracker<D> {
             model,
             &params,
             shared.map(SharedLaplacian::spectrum),
+            shared.and_then(SharedLaplacian::elastic),
             observe,
         )?;
         let device = prepare(&plan, &params, observe)?;
@@ -146,12 +147,15 @@ impl<D: SolveDevice> Tracker<D> {
         })
     }
 
-    /// What the solve prepared that depends only on the connections and
-    /// the free particles: the Laplacian's spectrum and the device's
-    /// coarse space, for another tracker of the same model in another rest
-    /// shape ([`Tracker::new_shared`]).
+    /// What the solve prepared that another tracker of the same model may
+    /// take ([`Tracker::new_shared`]): what depends only on the connections
+    /// and the free particles (the Laplacian's spectrum and the device's
+    /// coarse space), for any rest shape, and the elastic model, for the
+    /// same rest shape at any Poisson ratio.
     pub fn shared_laplacian(&self) -> SharedLaplacian {
-        self.device.shared_laplacian(&self.plan, &self.params)
+        self.device
+            .shared_laplacian(&self.plan, &self.params)
+            .with_elastic(&self.plan)
     }
 
     /// The potential the elastic force descends at the current positions

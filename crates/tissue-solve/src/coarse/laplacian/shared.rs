@@ -12,7 +12,7 @@ use super::{CoarseSpace, coarse_space};
 use crate::coarse::volume_smoother::Smoothing;
 use crate::stage2::params::DeformParams;
 pub use crate::stage2::plan::laplacian_key;
-use crate::stage2::plan::{Plan, SharedSpectrum};
+use crate::stage2::plan::{Plan, SharedElastic, SharedSpectrum};
 
 /// What preparing a solver costs that depends only on a model's
 /// connections and which of its particles are free, not on where they are:
@@ -31,6 +31,8 @@ pub struct SharedLaplacian {
     /// The volume smoother's making and its contraction at rest, and the
     /// parameters they were made under.
     smoother: Option<(SmootherFor, (Smoothing, f32))>,
+    /// The elastic model a solver's plan made, for the same rest shape.
+    elastic: Option<SharedElastic>,
 }
 
 /// What a volume smoother's contraction at rest was estimated for besides
@@ -95,7 +97,21 @@ impl SharedLaplacian {
             },
             coarse: coarse.map(|space| (CoarseFor::of(plan, params), space)),
             smoother: smoother.map(|made| (SmootherFor::of(params), made)),
+            elastic: None,
         }
+    }
+
+    /// With the elastic model `plan` made (if any), for solvers of the same
+    /// rest shape ([`SharedLaplacian::elastic`]).
+    pub fn with_elastic(mut self, plan: &Plan) -> Self {
+        self.elastic = SharedElastic::of(plan);
+        self
+    }
+
+    /// The elastic model it holds, if any ([`SharedElastic::for_ratio`]
+    /// gives it to a plan of the same rest shape at any Poisson ratio).
+    pub fn elastic(&self) -> Option<&SharedElastic> {
+        self.elastic.as_ref()
     }
 
     /// The volume smoother's making and contraction at rest, where `key`
