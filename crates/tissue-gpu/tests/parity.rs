@@ -296,12 +296,12 @@ fn elastic_targets_matches_the_cpu_twin() {
                 }
                 let a = elastic.consistency.scales[i];
                 let (off_target, off_stress) = (
-                    entry_difference(*target, e.target),
-                    entry_difference(*stress, e.stress) / (a * a),
+                    entry_difference(*target, Mat3::from(e.target)),
+                    entry_difference(*stress, Mat3::from(e.stress)) / (a * a),
                 );
                 worst_target = worst_target.max(off_target);
                 worst_stress = worst_stress.max(off_stress);
-                largest_stress = largest_stress.max(largest_entry(e.stress) / (a * a));
+                largest_stress = largest_stress.max(largest_entry(Mat3::from(e.stress)) / (a * a));
                 assert!(
                     off_target <= 2e-4 && off_stress <= 2e-4,
                     "n = {n}, {method:?}, particle {i}: GPU target {target} vs CPU {}, \

@@ -48,7 +48,9 @@ pub use tissue_solve::stage2::{laplacian_extremes, laplacian_extremes_with};
 mod solve_device;
 
 pub use crate::kernels::deformation_force::deformation_force;
-pub use crate::kernels::elastic_targets::{elastic_force, elastic_potential, elastic_terms};
+pub use crate::kernels::elastic_targets::{
+    elastic_force, elastic_potential, elastic_terms, elastic_terms_into,
+};
 pub use crate::kernels::integrate::{chebyshev_combine, integrate};
 pub use crate::kernels::local_rotations::{local_rotations, local_rotations_warm};
 pub use crate::kernels::pair::pair;
@@ -285,6 +287,11 @@ pub struct CpuSolve {
     batch_start: Option<BatchStart>,
     /// The positions and rotations [`SolveDevice::save`] kept.
     saved: Option<(Vec<Vec3>, Vec<Mat3>)>,
+    /// The elastic terms of the last iteration ([`Pass::ElasticTerms`]),
+    /// and the buffer its rotations are made in before they replace
+    /// `rotations`: kept from iteration to iteration.
+    terms: Vec<ElasticTerms>,
+    turned: Vec<Mat3>,
 }
 
 /// The state and the weights a batch started from.
@@ -364,6 +371,8 @@ impl CpuSolve {
             iteration: None,
             batch_start: None,
             saved: None,
+            terms: Vec::new(),
+            turned: Vec::new(),
         }
     }
 
@@ -531,16 +540,16 @@ impl CpuSolve {
             }
             Pass::ElasticTerms(method) => {
                 if let Some(elastic) = self.elastic.as_deref() {
-                    let (terms, rotations) = elastic_terms(
+                    elastic_terms_into(
                         &self.rest,
                         &self.current,
                         &self.connections,
                         &self.rotations,
                         elastic,
                         method,
+                        (&mut self.terms, &mut self.turned),
                     );
-                    self.rotations = rotations;
-                    work.terms = terms;
+                    std::mem::swap(&mut self.rotations, &mut self.turned);
                 }
             }
             Pass::Force => {
@@ -558,7 +567,7 @@ impl CpuSolve {
                         &self.rest,
                         &self.current,
                         &self.connections,
-                        &work.terms,
+                        &self.terms,
                         elastic,
                     );
                 }
@@ -649,8 +658,6 @@ impl CpuSolve {
 /// What one iteration's passes hand on to the next ones.
 #[derive(Default)]
 struct Work {
-    /// The elastic terms ([`Pass::ElasticTerms`]).
-    terms: Vec<ElasticTerms>,
     /// The force on each particle.
     force: Vec<Vec3>,
     /// The step's positions, plain or corrected.

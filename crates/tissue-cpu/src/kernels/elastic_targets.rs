@@ -3,7 +3,7 @@
 //! over them (`elastic_force`), and each particle's part of the potential
 //! the force descends (`elastic_potential`).
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Mat3A, Vec3, Vec4};
 use rayon::prelude::*;
 use tissue_core::Connections;
 use tissue_solve::model::{Elastic, ElasticTerms, rotation_of};
@@ -27,12 +27,38 @@ pub fn elastic_terms(
     elastic: &Elastic,
     method: RotationMethod,
 ) -> (Vec<ElasticTerms>, Vec<Mat3>) {
+    let (mut terms, mut turned) = (Vec::new(), Vec::new());
+    elastic_terms_into(
+        rest,
+        current,
+        connections,
+        rotations,
+        elastic,
+        method,
+        (&mut terms, &mut turned),
+    );
+    (terms, turned)
+}
+
+/// [`elastic_terms`] into `into` (the terms, the rotations), each
+/// overwritten: the solver's iterations keep the two buffers rather than
+/// make and fill new ones each time.
+pub fn elastic_terms_into(
+    rest: &[Vec3],
+    current: &[Vec3],
+    connections: &Connections,
+    rotations: &[Mat3],
+    elastic: &Elastic,
+    method: RotationMethod,
+    into: (&mut Vec<ElasticTerms>, &mut Vec<Mat3>),
+) {
     let blank = ElasticTerms {
-        target: Mat3::ZERO,
-        stress: Mat3::ZERO,
+        target: Mat3A::ZERO,
+        stress: Mat3A::ZERO,
     };
-    let mut terms = vec![blank; rest.len()];
-    let mut turned = vec![Mat3::IDENTITY; rest.len()];
+    let (terms, turned) = into;
+    terms.resize(rest.len(), blank);
+    turned.resize(rest.len(), Mat3::IDENTITY);
     terms
         .par_chunks_mut(LANES)
         .zip(turned.par_chunks_mut(LANES))
@@ -40,12 +66,12 @@ pub fn elastic_terms(
         .enumerate()
         .for_each(|(chunk, ((terms, turned), previous))| {
             let (first, count) = (chunk * LANES, terms.len());
-            let mut products = [(Mat3::ZERO, Mat3::ZERO); LANES];
+            let mut products = [Mat3::ZERO; LANES];
             let mut of = [Mat3::ZERO; LANES];
             for l in 0..count {
                 let i = first + l;
                 let (m, n) = elastic.products(rest, current, connections, i);
-                products[l] = (m, n);
+                products[l] = m;
                 of[l] = if elastic.is_flat(i) {
                     m
                 } else {
@@ -60,11 +86,19 @@ pub fn elastic_terms(
                 }
                 RotationMethod::WarmPolar => warm_rotations(&of[..count], previous, turned),
             }
-            for (l, ((m, n), &rotation)) in products.iter().zip(turned.iter()).enumerate() {
-                terms[l] = elastic.terms(first + l, *m, *n, rotation);
+            for (l, terms) in terms.iter_mut().enumerate() {
+                let (i, rotation) = (first + l, turned[l]);
+                // The gradient the rotation was found for, not made again.
+                *terms = if elastic.is_flat(i) {
+                    ElasticTerms {
+                        target: Mat3A::from(rotation),
+                        stress: Mat3A::ZERO,
+                    }
+                } else {
+                    elastic.terms_of_gradient(i, products[l], of[l], rotation)
+                };
             }
         });
-    (terms, turned)
 }
 
 /// The elastic force on every particle ([`Elastic::force_on`]), gathered

@@ -182,21 +182,6 @@ impl VolumeSmoother {
         )
     }
 
-    /// `Phi x` with `x` read as zero at particles `inside` says are not
-    /// free: what the passes over the connections read unchecked.
-    fn scaled_inside(&self, inside: &(impl Fn(usize) -> bool + Sync), x: &[DVec3]) -> Vec<DVec3> {
-        x.par_iter()
-            .enumerate()
-            .map(|(k, &x)| {
-                if inside(k) {
-                    self.phi(k, x)
-                } else {
-                    DVec3::ZERO
-                }
-            })
-            .collect()
-    }
-
     /// `delta`.
     pub fn delta(&self) -> f64 {
         self.delta
@@ -225,7 +210,11 @@ impl VolumeSmoother {
         residual: &[DVec3],
     ) -> Vec<DVec3> {
         let (roots, diagonal) = (&self.roots, &self.diagonal);
-        let scaled_residual = self.scaled_inside(inside, residual);
+        debug_assert!(
+            (0..residual.len()).all(|i| inside(i) || residual[i] == DVec3::ZERO),
+            "the smoother's residual is zero outside"
+        );
+        let scaled_residual = self.scaled(residual);
         // Per particle `(t_i, z_i)`, `t = H^T r` and the pressure `z_i`,
         // and apart (the next pass reads it at the neighbours) `y_i =
         // sqrt(W_i / 2) z_i`, so that `H z = G y`. The first sweep from

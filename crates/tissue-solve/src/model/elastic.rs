@@ -78,9 +78,9 @@ pub struct Elastic {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ElasticTerms {
     /// `T_i = Fh_i - Q_i B_i`, gathered against the rest offsets.
-    pub target: Mat3,
+    pub target: Mat3A,
     /// `U_i = a_i Q_i`, gathered against the multipliers' offsets.
-    pub stress: Mat3,
+    pub stress: Mat3A,
 }
 
 impl Elastic {
@@ -175,17 +175,32 @@ impl Elastic {
     ) -> ElasticTerms {
         if self.is_flat(i) {
             return ElasticTerms {
-                target: rotation,
-                stress: Mat3::ZERO,
+                target: Mat3A::from(rotation),
+                stress: Mat3A::ZERO,
             };
         }
-        let a = self.consistency.scales[i];
         let f = self.gradient(i, offsets_product, multipliers_product);
+        self.terms_of_gradient(i, offsets_product, f, rotation)
+    }
+
+    /// [`Elastic::terms`] of a particle that is not flat, from its offsets
+    /// product and its gradient `f` ([`Elastic::gradient`]) as already
+    /// made for its rotation.
+    pub fn terms_of_gradient(
+        &self,
+        i: usize,
+        offsets_product: Mat3,
+        f: Mat3,
+        rotation: Mat3,
+    ) -> ElasticTerms {
+        let a = self.consistency.scales[i];
         let q = a * (f - rotation) + (self.weights[i] * (f.determinant() - 1.0)) * cofactor(f);
         ElasticTerms {
-            target: self.least_squares_gradient(i, offsets_product)
-                - q * self.consistency.corrections[i],
-            stress: a * q,
+            target: Mat3A::from(
+                self.least_squares_gradient(i, offsets_product)
+                    - q * self.consistency.corrections[i],
+            ),
+            stress: Mat3A::from(a * q),
         }
     }
 
@@ -236,12 +251,12 @@ impl Elastic {
         for &i in connections.of(k) {
             let i = i as usize;
             let (d, e, u) = (rk - at(rest, i), ck - at(current, i), uk - at(mu, i));
-            let (target, stress) = (Mat3A::from(terms[i].target), Mat3A::from(terms[i].stress));
+            let ElasticTerms { target, stress } = terms[i];
             f += target * d - stress * u - 2.0 * e;
             d_sum += d;
             u_sum += u;
         }
-        let (target, stress) = (Mat3A::from(terms[k].target), Mat3A::from(terms[k].stress));
+        let ElasticTerms { target, stress } = terms[k];
         Vec3::from(f + target * d_sum - stress * u_sum)
     }
 
@@ -792,8 +807,8 @@ mod tests {
             .consistency
             .multipliers_product(&squashed, &connections, 0);
         let terms = elastic.terms(0, m, n, Mat3::IDENTITY);
-        assert_eq!(terms.target, Mat3::IDENTITY);
-        assert_eq!(terms.stress, Mat3::ZERO);
+        assert_eq!(terms.target, Mat3A::IDENTITY);
+        assert_eq!(terms.stress, Mat3A::ZERO);
     }
 
     #[test]
