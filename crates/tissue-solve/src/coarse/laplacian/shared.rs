@@ -115,14 +115,24 @@ impl SharedLaplacian {
     }
 
     /// The volume smoother's making and contraction at rest, where `key`
-    /// and the parameters they were made under match `params`. Another
-    /// rest shape of the same connections moves the contraction little
-    /// (breast_c's posture search at 10,000 particles: 0.925-0.930 over
-    /// its shapes), and estimating it costs as much as 40 iterations.
+    /// and the parameters they were made under match `params`, the Poisson
+    /// ratio at most theirs. Another rest shape of the same connections
+    /// moves the contraction little (breast_c's posture search at 10,000
+    /// particles: 0.925-0.930 over its shapes), and estimating it costs as
+    /// much as 40 iterations. A lower ratio's volume term is softer: its
+    /// smoother needs no more sweeps and contracts at least as fast
+    /// (breast_c at 10,000 particles: 0.889 at 0.45, 0.900 at 0.49, 0.912
+    /// at 0.495), so the contraction made for a higher ratio bounds it (the
+    /// acceleration then takes the slower rate, safely); a higher ratio
+    /// estimates its own.
     pub fn smoother_for(&self, key: u64, params: &DeformParams) -> Option<(Smoothing, f32)> {
+        let asked = SmootherFor::of(params);
         match self.smoother {
             Some((made_for, made))
-                if self.spectrum.key == key && made_for == SmootherFor::of(params) =>
+                if self.spectrum.key == key
+                    && made_for.max_aggregates == asked.max_aggregates
+                    && made_for.direct_max == asked.direct_max
+                    && asked.poisson <= made_for.poisson =>
             {
                 Some(made)
             }
