@@ -2,7 +2,8 @@
 //! two-level coarse space depend only on the connections and the free
 //! particles, not on the positions (docs/METHOD.md, "Gravity and the
 //! unloaded shape", *The Laplacian's preparation shared*); the volume
-//! smoother's contraction at rest hardly depends on them.
+//! smoother's contraction at rest hardly depends on them. The elastic
+//! model does, and is shared only within one rest shape.
 
 use std::sync::Arc;
 
@@ -21,7 +22,10 @@ use crate::stage2::plan::{Plan, SharedElastic, SharedSpectrum};
 /// model in other rest shapes with the same region held (the unloaded
 /// shape's rounds, the stiffness search's trials) take it from the last
 /// one instead of making it again ([`SharedLaplacian::spectrum_for`],
-/// [`coarse_space_shared`]); anything else makes its own.
+/// [`coarse_space_shared`]); anything else makes its own. It may also
+/// carry the elastic model, for solvers in the same rest shape at any
+/// Poisson ratio ([`SharedLaplacian::elastic`]: the uncertainty's other
+/// ratios).
 #[derive(Debug, Clone)]
 pub struct SharedLaplacian {
     /// The Laplacian's extreme eigenvalues, and the [`laplacian_key`] of
