@@ -72,11 +72,7 @@ pub fn elastic_terms_into(
                 let i = first + l;
                 let (m, n) = elastic.products(rest, current, connections, i);
                 products[l] = m;
-                of[l] = if elastic.is_flat(i) {
-                    m
-                } else {
-                    elastic.gradient(i, m, n)
-                };
+                of[l] = elastic.turned_of(i, m, n);
             }
             match method {
                 RotationMethod::Svd => {
@@ -87,16 +83,8 @@ pub fn elastic_terms_into(
                 RotationMethod::WarmPolar => warm_rotations(&of[..count], previous, turned),
             }
             for (l, terms) in terms.iter_mut().enumerate() {
-                let (i, rotation) = (first + l, turned[l]);
                 // The gradient the rotation was found for, not made again.
-                *terms = if elastic.is_flat(i) {
-                    ElasticTerms {
-                        target: Mat3A::from(rotation),
-                        stress: Mat3A::ZERO,
-                    }
-                } else {
-                    elastic.terms_of_gradient(i, products[l], of[l], rotation)
-                };
+                *terms = elastic.terms_of_gradient(first + l, products[l], of[l], turned[l]);
             }
         });
 }
@@ -150,11 +138,7 @@ pub fn elastic_potential(
             for (l, of) in of.iter_mut().enumerate().take(count) {
                 let i = first + l;
                 let (m, n) = elastic.products(rest, current, connections, i);
-                *of = if elastic.is_flat(i) {
-                    m
-                } else {
-                    elastic.gradient(i, m, n)
-                };
+                *of = elastic.turned_of(i, m, n);
             }
             let mut turned = [Mat3::IDENTITY; LANES];
             warm_rotations(&of[..count], previous, &mut turned);

@@ -173,27 +173,38 @@ impl Elastic {
         multipliers_product: Mat3,
         rotation: Mat3,
     ) -> ElasticTerms {
+        let turned = self.turned_of(i, offsets_product, multipliers_product);
+        self.terms_of_gradient(i, offsets_product, turned, rotation)
+    }
+
+    /// The matrix particle `i`'s rotation is the polar rotation of: its
+    /// gradient ([`Elastic::gradient`]), or its offsets product `M_i` for a
+    /// flat neighbourhood.
+    pub fn turned_of(&self, i: usize, offsets_product: Mat3, multipliers_product: Mat3) -> Mat3 {
+        if self.is_flat(i) {
+            offsets_product
+        } else {
+            self.gradient(i, offsets_product, multipliers_product)
+        }
+    }
+
+    /// [`Elastic::terms`] from the offsets product and the matrix `turned`
+    /// ([`Elastic::turned_of`]) as already made for the rotation, not made
+    /// again.
+    pub fn terms_of_gradient(
+        &self,
+        i: usize,
+        offsets_product: Mat3,
+        turned: Mat3,
+        rotation: Mat3,
+    ) -> ElasticTerms {
         if self.is_flat(i) {
             return ElasticTerms {
                 target: Mat3A::from(rotation),
                 stress: Mat3A::ZERO,
             };
         }
-        let f = self.gradient(i, offsets_product, multipliers_product);
-        self.terms_of_gradient(i, offsets_product, f, rotation)
-    }
-
-    /// [`Elastic::terms`] of a particle that is not flat, from its offsets
-    /// product and its gradient `f` ([`Elastic::gradient`]) as already
-    /// made for its rotation.
-    pub fn terms_of_gradient(
-        &self,
-        i: usize,
-        offsets_product: Mat3,
-        f: Mat3,
-        rotation: Mat3,
-    ) -> ElasticTerms {
-        let a = self.consistency.scales[i];
+        let (a, f) = (self.consistency.scales[i], turned);
         let q = a * (f - rotation) + (self.weights[i] * (f.determinant() - 1.0)) * cofactor(f);
         ElasticTerms {
             target: Mat3A::from(
@@ -533,12 +544,7 @@ mod tests {
                 let n = elastic
                     .consistency
                     .multipliers_product(current, connections, i);
-                let rotation = if elastic.is_flat(i) {
-                    rotation_of(m)
-                } else {
-                    rotation_of(elastic.gradient(i, m, n))
-                };
-                elastic.terms(i, m, n, rotation)
+                elastic.terms(i, m, n, rotation_of(elastic.turned_of(i, m, n)))
             })
             .collect();
         (0..rest.len())
