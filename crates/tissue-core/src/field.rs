@@ -26,6 +26,13 @@ use rayon::prelude::*;
 use crate::error::FieldError;
 use crate::mesh::SurfaceMesh;
 
+/// Cells (or triangles) per block of the build's parallel loops.
+const BUILD_BLOCK: usize = 64;
+
+/// A candidate triangle of a band cell: its distance from the cell's
+/// centre, and its index.
+type Candidate = (f32, u32);
+
 /// Cell state: the surface passes near; the cell has candidate triangles.
 pub const CELL_BAND: u32 = 0;
 /// Cell state: inside, and the surface is at least one cell from any point of the cell.
@@ -301,19 +308,22 @@ impl SurfaceField {
         let cell = self.cell;
         let diagonal = cell * 3f32.sqrt();
         let field = &*self;
-        let per_cell: Vec<Vec<(f32, u32)>> = (0..cells)
-            .into_par_iter()
-            .map_init(
-                // Per thread: the last cell that gathered each triangle, so a
-                // triangle binned in many cells is measured once per cell.
-                || vec![usize::MAX; field.corners.len()],
-                |seen, index| {
-                    if !band[index] {
-                        return Vec::new();
-                    }
+        let band_cells: Vec<usize> = (0..cells).filter(|&i| band[i]).collect();
+        // A block of band cells at a time, its candidates in one buffer:
+        // an allocation per cell would have the threads queue on the
+        // allocator's lock.
+        let blocks: Vec<(Vec<u32>, Vec<Candidate>)> = band_cells
+            .par_chunks(BUILD_BLOCK)
+            .map(|block| {
+                // The last cell that gathered each triangle, so a triangle
+                // binned in many cells is measured once per cell.
+                let mut seen = vec![usize::MAX; field.corners.len()];
+                let mut lengths = Vec::with_capacity(block.len());
+                let mut kept = Vec::new();
+                for &index in block {
                     let centre = field.cell_centre(index);
                     let reach = nearest(index, centre) + diagonal;
-                    let mut near = Vec::new();
+                    let first = kept.len();
                     field.for_each_binned_near(binned, centre, reach, |t| {
                         if std::mem::replace(&mut seen[t as usize], index) == index {
                             return;
@@ -322,13 +332,14 @@ impl SurfaceField {
                         let (q, _, _) = closest_on_triangle(centre, a, b, c);
                         let d = (q - centre).length();
                         if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
-                            near.push((d, t));
+                            kept.push((d, t));
                         }
                     });
-                    near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                    near
-                },
-            )
+                    kept[first..].sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                    lengths.push((kept.len() - first) as u32);
+                }
+                (lengths, kept)
+            })
             .collect();
         self.cell_state = (0..cells)
             .map(|i| match (band[i], outside[i]) {
@@ -337,15 +348,22 @@ impl SurfaceField {
                 (false, false) => CELL_INSIDE,
             })
             .collect();
-        let mut cell_start = Vec::with_capacity(cells + 1);
-        cell_start.push(0u32);
-        let total: usize = per_cell.iter().map(Vec::len).sum();
+        let total: usize = blocks.iter().map(|(_, kept)| kept.len()).sum();
         let mut candidates = Vec::with_capacity(total);
         let mut candidate_distance = Vec::with_capacity(total);
-        for near in &per_cell {
-            candidates.extend(near.iter().map(|&(_, t)| t));
-            candidate_distance.extend(near.iter().map(|&(d, _)| d));
-            cell_start.push(candidates.len() as u32);
+        let mut lengths = vec![0u32; cells];
+        let band_lengths = blocks.iter().flat_map(|(block, _)| block);
+        for (&index, &length) in band_cells.iter().zip(band_lengths) {
+            lengths[index] = length;
+        }
+        for (_, kept) in &blocks {
+            candidates.extend(kept.iter().map(|&(_, t)| t));
+            candidate_distance.extend(kept.iter().map(|&(d, _)| d));
+        }
+        let mut cell_start = Vec::with_capacity(cells + 1);
+        cell_start.push(0u32);
+        for length in lengths {
+            cell_start.push(cell_start[cell_start.len() - 1] + length);
         }
         self.cell_start = cell_start;
         self.candidate_distance = candidate_distance;
@@ -552,14 +570,14 @@ impl SurfaceField {
     /// triangle in a great many cells.
     fn bin_triangles(&self, reach: f32) -> Binned {
         let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + reach;
-        let cells_of = |t: usize| {
+        // Appends to `cells` the cells of triangle `t`.
+        let cells_of = |t: usize, cells: &mut Vec<u32>| {
             let [a, b, c] = self.corners[t];
             let range = self.cell_range(
                 a.min(b).min(c) - Vec3::splat(half_diagonal),
                 a.max(b).max(c) + Vec3::splat(half_diagonal),
             );
             let normal = (b - a).cross(c - a).normalize_or_zero();
-            let mut cells = Vec::new();
             for_each_cell(range, |cell| {
                 let index = self.cell_index(cell);
                 let centre = self.cell_centre(index);
@@ -572,14 +590,26 @@ impl SurfaceField {
                     cells.push(index as u32);
                 }
             });
-            cells
         };
-        let per_triangle: Vec<Vec<u32>> = (0..self.corners.len())
+        // A block of triangles at a time, its cells in one buffer (no
+        // allocation per triangle, see `fill`).
+        let triangles = self.corners.len();
+        let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..triangles.div_ceil(BUILD_BLOCK))
             .into_par_iter()
-            .map(cells_of)
+            .map(|b| {
+                let block = b * BUILD_BLOCK..((b + 1) * BUILD_BLOCK).min(triangles);
+                let mut lengths = Vec::with_capacity(block.len());
+                let mut cells = Vec::new();
+                for t in block {
+                    let first = cells.len();
+                    cells_of(t, &mut cells);
+                    lengths.push((cells.len() - first) as u32);
+                }
+                (lengths, cells)
+            })
             .collect();
         let mut start = vec![0u32; self.cell_count() + 1];
-        for &cell in per_triangle.iter().flatten() {
+        for &cell in blocks.iter().flat_map(|(_, cells)| cells) {
             start[cell as usize + 1] += 1;
         }
         for i in 0..self.cell_count() {
@@ -587,10 +617,16 @@ impl SurfaceField {
         }
         let mut fill = start.clone();
         let mut items = vec![0u32; start[self.cell_count()] as usize];
-        for (t, cells) in per_triangle.iter().enumerate() {
-            for &cell in cells {
-                items[fill[cell as usize] as usize] = t as u32;
-                fill[cell as usize] += 1;
+        let mut t = 0u32;
+        for (lengths, cells) in &blocks {
+            let mut at = 0;
+            for &length in lengths {
+                for &cell in &cells[at..at + length as usize] {
+                    items[fill[cell as usize] as usize] = t;
+                    fill[cell as usize] += 1;
+                }
+                at += length as usize;
+                t += 1;
             }
         }
         Binned { start, items }

@@ -16,13 +16,16 @@ pub use tissue_solve::stage1::{
     place_surface_particles, prepare,
 };
 
-pub use crate::kernels::imf_force::{imf_force, imf_pair};
+pub use crate::kernels::imf_force::{ForceRows, imf_force, imf_force_near, imf_pair};
 pub use crate::kernels::needs_rebuild::needs_rebuild;
 pub use crate::kernels::radius_update::radius_update;
 pub use crate::kernels::sampling_change::change;
 pub use crate::kernels::sampling_integrate::integrate;
 use crate::stage1::neighbour_rows;
 use crate::stage1::quality_report;
+
+/// Skin of the force's rows ([`ForceRows`]), in `r0`.
+pub const FORCE_SKIN_IN_R0: f32 = 0.3;
 
 /// Stage 1: fills a closed, outward surface (validated by the caller) with
 /// `params.particles` particles and relaxes them to the paper's uniform state.
@@ -52,12 +55,16 @@ pub fn sample(
         skin,
         false,
     );
+    let force_skin = FORCE_SKIN_IN_R0 * r0;
+    let mut near = ForceRows::default();
+    near.filter(&state, &rows.0, &rows.1, params.force_cutoff, force_skin);
     let mut built_at = (state.positions.clone(), state.radii.clone());
+    let mut near_at = built_at.clone();
     let mut iterations = 0;
     let mut rebuilds = 0;
     let mut converged = false;
     while iterations < params.max_iterations {
-        let forces = imf_force(&state, &rows.0, &rows.1, &field, params);
+        let forces = imf_force_near(&state, &rows.0, &near, &field, params);
         let radii = radius_update(&state.radii, &forces, params);
         let (positions, contact) = integrate(&state, &forces, &field, params, r0);
         let (step_rms, radius_rms) = change(&state, &positions, &contact, &radii, r0);
@@ -72,7 +79,8 @@ pub fn sample(
             converged = true;
             break;
         }
-        if needs_rebuild(&state, &built_at, params.force_cutoff, skin) {
+        let rebuild_rows = needs_rebuild(&state, &built_at, params.force_cutoff, skin);
+        if rebuild_rows {
             let rebuild = Instant::now();
             rows = neighbour_rows(
                 &state.positions,
@@ -84,6 +92,10 @@ pub fn sample(
             built_at = (state.positions.clone(), state.radii.clone());
             rebuilds += 1;
             stages.neighbours += rebuild.elapsed().as_secs_f64();
+        }
+        if rebuild_rows || needs_rebuild(&state, &near_at, params.force_cutoff, force_skin) {
+            near.filter(&state, &rows.0, &rows.1, params.force_cutoff, force_skin);
+            near_at = (state.positions.clone(), state.radii.clone());
         }
     }
     lap(&mut stages.iterations);

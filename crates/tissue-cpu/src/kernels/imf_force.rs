@@ -20,12 +20,114 @@ pub fn imf_pair(distance: f32, radius_sum: f32, alpha: f32) -> f32 {
     h3 * h3 - h3
 }
 
+/// Particles per block of [`ForceRows::filter`]'s parallel loop.
+const FILTER_BLOCK: usize = 256;
+
+/// The entries of neighbour rows (CSR) near enough to their particle for
+/// the force, in the rows' order: row `i` is
+/// `entries[offsets[i]..offsets[i] + counts[i]]`, within the full row's
+/// own span.
+///
+/// A force pass over these rows is the pass over the full rows, to the bit,
+/// while no particle has moved (or grown, times the cutoff) by more than
+/// half of the skin they were filtered with since
+/// ([`needs_rebuild`](super::needs_rebuild::needs_rebuild) with that skin):
+/// every pair within the cutoff is still in them, in the same order, and the
+/// pairs left out are ones the pass skips. The full rows carry a wide skin,
+/// so that the grid search is rare; these a narrow one, so that the force's
+/// loop meets few pairs it skips.
+#[derive(Debug, Clone, Default)]
+pub struct ForceRows {
+    counts: Vec<u32>,
+    entries: Vec<u32>,
+}
+
+impl ForceRows {
+    /// Keeps the entries of the rows `offsets`, `neighbours` within `cutoff
+    /// (r_i + r_j) + skin` of their particle in `state`, reusing the buffers.
+    pub fn filter(
+        &mut self,
+        state: &SamplingState,
+        offsets: &[u32],
+        neighbours: &[u32],
+        cutoff: f32,
+        skin: f32,
+    ) {
+        let count = state.positions.len();
+        self.counts.resize(count, 0);
+        self.entries.resize(neighbours.len(), 0);
+        // The entry buffer cut at block boundaries, so that each block
+        // writes only within its own rows.
+        let mut blocks = Vec::with_capacity(count.div_ceil(FILTER_BLOCK));
+        let mut rest = self.entries.as_mut_slice();
+        for (b, counts) in self.counts.chunks_mut(FILTER_BLOCK).enumerate() {
+            let first = b * FILTER_BLOCK;
+            let end = (first + counts.len()).min(count);
+            let len = (offsets[end] - offsets[first]) as usize;
+            let (block, tail) = std::mem::take(&mut rest).split_at_mut(len);
+            rest = tail;
+            blocks.push((first, counts, block));
+        }
+        blocks.into_par_iter().for_each(|(first, counts, block)| {
+            let base_offset = offsets[first] as usize;
+            for (k, kept) in counts.iter_mut().enumerate() {
+                let i = first + k;
+                let p = state.positions[i];
+                let base = cutoff * state.radii[i] + skin;
+                let start = offsets[i] as usize;
+                let row = &neighbours[start..offsets[i + 1] as usize];
+                let out = &mut block[start - base_offset..];
+                let mut n = 0;
+                for &j in row {
+                    let limit = base + cutoff * state.radii[j as usize];
+                    let near = (p - state.positions[j as usize]).length_squared() < limit * limit;
+                    out[n] = j;
+                    n += usize::from(near);
+                }
+                *kept = n as u32;
+            }
+        });
+    }
+
+    /// Row `i`, given the full rows' offsets it was filtered from.
+    fn row<'a>(&'a self, offsets: &[u32], i: usize) -> &'a [u32] {
+        let start = offsets[i] as usize;
+        &self.entries[start..start + self.counts[i] as usize]
+    }
+}
+
 /// Eqs. (2)-(6): the IMF pair forces over a particle's neighbour row, the
 /// surface's force or reaction, and the balloon's compression.
 pub fn imf_force(
     state: &SamplingState,
     offsets: &[u32],
     neighbours: &[u32],
+    field: &SurfaceField,
+    params: &SamplingParams,
+) -> Vec<ForceOut> {
+    forces_over(
+        state,
+        |i| &neighbours[offsets[i] as usize..offsets[i + 1] as usize],
+        field,
+        params,
+    )
+}
+
+/// [`imf_force`] over the rows `near` kept of `offsets`' rows: the same
+/// forces, to the bit, while `near` holds every pair within the cutoff.
+pub fn imf_force_near(
+    state: &SamplingState,
+    offsets: &[u32],
+    near: &ForceRows,
+    field: &SurfaceField,
+    params: &SamplingParams,
+) -> Vec<ForceOut> {
+    forces_over(state, |i| near.row(offsets, i), field, params)
+}
+
+fn forces_over<'a>(
+    state: &SamplingState,
+    row: impl Fn(usize) -> &'a [u32] + Sync,
     field: &SurfaceField,
     params: &SamplingParams,
 ) -> Vec<ForceOut> {
@@ -37,7 +139,7 @@ pub fn imf_force(
             let r = state.radii[i];
             let mut force = Vec3::ZERO;
             let mut magnitudes = 0.0f32;
-            for &j in &neighbours[offsets[i] as usize..offsets[i + 1] as usize] {
+            for &j in row(i) {
                 let offset = p - state.positions[j as usize];
                 let radius_sum = r + state.radii[j as usize];
                 let d2 = offset.length_squared();
@@ -78,8 +180,60 @@ pub fn imf_force(
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
 mod tests {
+    use glam::Vec4;
+    use tissue_core::SurfaceMesh;
+    use tissue_solve::stage1::neighbour_rows;
+    use tissue_testkit::{cloud, octahedron, xorshift};
+
     use super::*;
+
+    #[test]
+    fn force_rows_give_the_full_rows_forces_to_the_bit_until_half_their_skin_is_used() {
+        let (vertices, triangles) = octahedron();
+        let field = SurfaceField::new(&SurfaceMesh::new(vertices, triangles), 0.1, 0.05).unwrap();
+        let (positions, radii) = cloud(600, 5, Vec3::splat(0.6));
+        let count = positions.len();
+        let mut state = SamplingState {
+            positions: positions.iter().map(|p| *p - Vec3::splat(0.3)).collect(),
+            radii,
+            contact: vec![Vec4::ZERO; count],
+        };
+        let params = SamplingParams::default();
+        let (cutoff, wide, narrow) = (params.force_cutoff, 0.06, 0.02);
+        let (offsets, entries) =
+            neighbour_rows(&state.positions, &state.radii, cutoff, wide, false);
+        let mut near = ForceRows::default();
+        near.filter(&state, &offsets, &entries, cutoff, narrow);
+        let kept: u32 = near.counts.iter().sum();
+        assert!(
+            (kept as usize) < entries.len() / 2,
+            "the narrow rows keep {kept} of {} entries",
+            entries.len()
+        );
+        // Every particle moved by just under a quarter of the narrow skin
+        // (so no pair came nearer by half of it), and some radii grew.
+        let mut next = xorshift(11);
+        let mut jitter = || 2.0 * next() - 1.0;
+        for (p, r) in state.positions.iter_mut().zip(&mut state.radii) {
+            let step = Vec3::new(jitter(), jitter(), jitter()).normalize_or_zero();
+            *p += step * (0.24 * narrow);
+            *r += 0.001 * jitter().abs() * narrow;
+        }
+        let full = imf_force(&state, &offsets, &entries, &field, &params);
+        let filtered = imf_force_near(&state, &offsets, &near, &field, &params);
+        let bits = |f: &[ForceOut]| -> Vec<[u32; 4]> {
+            f.iter()
+                .map(|o| {
+                    let [x, y, z] = o.force.to_array().map(f32::to_bits);
+                    [x, y, z, o.compression.to_bits()]
+                })
+                .collect()
+        };
+        assert_eq!(bits(&full), bits(&filtered));
+        assert!(full.iter().any(|o| o.force != Vec3::ZERO));
+    }
 
     #[test]
     fn pair_force_is_zero_at_contact_repulsive_inside_attractive_outside() {
