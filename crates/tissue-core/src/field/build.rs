@@ -1,0 +1,309 @@
+//! How a [`SurfaceField`] is built: the triangles binned into cells, the
+//! band, the sides of the cells away from the surface, and each band
+//! cell's candidate triangles.
+
+use std::collections::HashMap;
+
+use glam::Vec3;
+use parry3d::query::PointQuery;
+use parry3d::shape::TriMesh;
+use rayon::prelude::*;
+
+use super::{CELL_BAND, CELL_INSIDE, CELL_OUTSIDE, SurfaceField, closest_on_triangle};
+use crate::mesh::SurfaceMesh;
+
+/// Cells (or triangles) per block of the build's parallel loops.
+const BUILD_BLOCK: usize = 64;
+
+/// A candidate triangle of a band cell: its distance from the cell's
+/// centre, and its index.
+type Candidate = (f32, u32);
+
+impl SurfaceField {
+    /// Fills the cells: their states from `band` and `outside`, and per
+    /// band cell its candidates sorted by distance from the centre. Any
+    /// triangle nearest to some point of the cell lies within `|d(centre)|
+    /// + diagonal` of the centre (triangle inequality twice), where
+    /// `nearest(index, centre)` is at least `|d(centre)|`.
+    pub(super) fn fill(
+        &mut self,
+        binned: &Binned,
+        band: &[bool],
+        outside: &[bool],
+        nearest: impl Fn(usize, Vec3) -> f32 + Sync,
+    ) {
+        let cells = self.cell_count();
+        let cell = self.cell;
+        let diagonal = cell * 3f32.sqrt();
+        let field = &*self;
+        let band_cells: Vec<usize> = (0..cells).filter(|&i| band[i]).collect();
+        // A block of band cells at a time, its candidates in one buffer:
+        // an allocation per cell would have the threads queue on the
+        // allocator's lock.
+        let blocks: Vec<(Vec<u32>, Vec<Candidate>)> = band_cells
+            .par_chunks(BUILD_BLOCK)
+            .map(|block| {
+                // The last cell that gathered each triangle, so a triangle
+                // binned in many cells is measured once per cell.
+                let mut seen = vec![usize::MAX; field.corners.len()];
+                let mut lengths = Vec::with_capacity(block.len());
+                let mut kept = Vec::new();
+                for &index in block {
+                    let centre = field.cell_centre(index);
+                    let reach = nearest(index, centre) + diagonal;
+                    let first = kept.len();
+                    field.for_each_binned_near(binned, centre, reach, |t| {
+                        if std::mem::replace(&mut seen[t as usize], index) == index {
+                            return;
+                        }
+                        let [a, b, c] = field.corners[t as usize];
+                        let (q, _, _) = closest_on_triangle(centre, a, b, c);
+                        let d = (q - centre).length();
+                        if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
+                            kept.push((d, t));
+                        }
+                    });
+                    kept[first..].sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                    lengths.push((kept.len() - first) as u32);
+                }
+                (lengths, kept)
+            })
+            .collect();
+        self.cell_state = (0..cells)
+            .map(|i| match (band[i], outside[i]) {
+                (true, _) => CELL_BAND,
+                (false, true) => CELL_OUTSIDE,
+                (false, false) => CELL_INSIDE,
+            })
+            .collect();
+        let total: usize = blocks.iter().map(|(_, kept)| kept.len()).sum();
+        let mut candidates = Vec::with_capacity(total);
+        let mut candidate_distance = Vec::with_capacity(total);
+        let mut lengths = vec![0u32; cells];
+        let band_lengths = blocks.iter().flat_map(|(block, _)| block);
+        for (&index, &length) in band_cells.iter().zip(band_lengths) {
+            lengths[index] = length;
+        }
+        for (_, kept) in &blocks {
+            candidates.extend(kept.iter().map(|&(_, t)| t));
+            candidate_distance.extend(kept.iter().map(|&(d, _)| d));
+        }
+        let mut cell_start = Vec::with_capacity(cells + 1);
+        cell_start.push(0u32);
+        for length in lengths {
+            cell_start.push(cell_start[cell_start.len() - 1] + length);
+        }
+        self.cell_start = cell_start;
+        self.candidate_distance = candidate_distance;
+        self.candidates = candidates;
+    }
+
+    /// The band cells: those a triangle passes through or comes within the
+    /// margin of. A point of any other cell is at least the margin from the
+    /// surface.
+    pub(super) fn band(&self) -> Vec<bool> {
+        let binned = self.bin_triangles(self.margin);
+        (0..self.cell_count())
+            .map(|i| binned.start[i] < binned.start[i + 1])
+            .collect()
+    }
+
+    /// Bins every triangle into the cells whose centre lies within half a cell
+    /// diagonal plus `reach` of it (CSR): every cell the triangle passes
+    /// through or comes within `reach` of, but not the whole bounding box of
+    /// a large triangle. With no reach, a triangle's nearest point to any
+    /// point lies in a cell it is binned in, which is what the candidates'
+    /// search needs; a wide margin's band binned so would list every
+    /// triangle in a great many cells.
+    pub(super) fn bin_triangles(&self, reach: f32) -> Binned {
+        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + reach;
+        // Appends to `cells` the cells of triangle `t`.
+        let cells_of = |t: usize, cells: &mut Vec<u32>| {
+            let [a, b, c] = self.corners[t];
+            let range = self.cell_range(
+                a.min(b).min(c) - Vec3::splat(half_diagonal),
+                a.max(b).max(c) + Vec3::splat(half_diagonal),
+            );
+            let normal = (b - a).cross(c - a).normalize_or_zero();
+            for_each_cell(range, |cell| {
+                let index = self.cell_index(cell);
+                let centre = self.cell_centre(index);
+                // Far from the triangle's plane means far from the triangle.
+                if normal.dot(centre - a).abs() > half_diagonal * (1.0 + 1e-5) {
+                    return;
+                }
+                let (q, _, _) = closest_on_triangle(centre, a, b, c);
+                if (q - centre).length() <= half_diagonal * (1.0 + 1e-5) {
+                    cells.push(index as u32);
+                }
+            });
+        };
+        // A block of triangles at a time, its cells in one buffer (no
+        // allocation per triangle, see `fill`).
+        let triangles = self.corners.len();
+        let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..triangles.div_ceil(BUILD_BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let block = b * BUILD_BLOCK..((b + 1) * BUILD_BLOCK).min(triangles);
+                let mut lengths = Vec::with_capacity(block.len());
+                let mut cells = Vec::new();
+                for t in block {
+                    let first = cells.len();
+                    cells_of(t, &mut cells);
+                    lengths.push((cells.len() - first) as u32);
+                }
+                (lengths, cells)
+            })
+            .collect();
+        let mut start = vec![0u32; self.cell_count() + 1];
+        for &cell in blocks.iter().flat_map(|(_, cells)| cells) {
+            start[cell as usize + 1] += 1;
+        }
+        for i in 0..self.cell_count() {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0u32; start[self.cell_count()] as usize];
+        let mut t = 0u32;
+        for (lengths, cells) in &blocks {
+            let mut at = 0;
+            for &length in lengths {
+                for &cell in &cells[at..at + length as usize] {
+                    items[fill[cell as usize] as usize] = t;
+                    fill[cell as usize] += 1;
+                }
+                at += length as usize;
+                t += 1;
+            }
+        }
+        Binned { start, items }
+    }
+
+    /// The side of every non-band cell (`true` outside). The surface never
+    /// crosses a region of face-connected non-band cells, so one exact
+    /// inside test of one cell centre decides the whole region. (A flood fill
+    /// from the border alone would call an outside pocket enclosed by the
+    /// band, between two lobes say, inside.)
+    pub(super) fn sides(&self, band: &[bool], mesh: &TriMesh) -> Vec<bool> {
+        let mut outside = vec![false; self.cell_count()];
+        let mut seen = band.to_vec();
+        let mut stack = Vec::new();
+        let [nx, ny, nz] = self.dims;
+        for seed in 0..self.cell_count() {
+            if seen[seed] {
+                continue;
+            }
+            let side = !mesh
+                .project_local_point(self.cell_centre(seed), false)
+                .is_inside;
+            seen[seed] = true;
+            stack.push(seed);
+            while let Some(index) = stack.pop() {
+                outside[index] = side;
+                let [x, y, z] = self.cell_coords(index);
+                let steps: [(u32, u32, u32, bool); 6] = [
+                    (x.wrapping_sub(1), y, z, x > 0),
+                    (x + 1, y, z, x + 1 < nx),
+                    (x, y.wrapping_sub(1), z, y > 0),
+                    (x, y + 1, z, y + 1 < ny),
+                    (x, y, z.wrapping_sub(1), z > 0),
+                    (x, y, z + 1, z + 1 < nz),
+                ];
+                for (a, b, c, ok) in steps {
+                    if ok {
+                        let next = self.cell_index([a, b, c]);
+                        if !seen[next] {
+                            seen[next] = true;
+                            stack.push(next);
+                        }
+                    }
+                }
+            }
+        }
+        outside
+    }
+
+    /// Calls `f` for the triangles binned in cells that the ball `(centre,
+    /// reach)` can touch (a triangle's nearest point to `centre` lies in a
+    /// cell it is binned in); a triangle may come more than once.
+    pub(super) fn for_each_binned_near(
+        &self,
+        binned: &Binned,
+        centre: Vec3,
+        reach: f32,
+        mut f: impl FnMut(u32),
+    ) {
+        let range = self.cell_range(centre - Vec3::splat(reach), centre + Vec3::splat(reach));
+        for_each_cell(range, |c| {
+            let i = self.cell_index(c);
+            binned.items[binned.start[i] as usize..binned.start[i + 1] as usize]
+                .iter()
+                .for_each(|&t| f(t));
+        });
+    }
+}
+
+/// Triangles per cell, CSR.
+pub(super) struct Binned {
+    pub(super) start: Vec<u32>,
+    pub(super) items: Vec<u32>,
+}
+
+fn for_each_cell([lo, hi]: [[u32; 3]; 2], mut f: impl FnMut([u32; 3])) {
+    for z in lo[2]..=hi[2] {
+        for y in lo[1]..=hi[1] {
+            for x in lo[0]..=hi[0] {
+                f([x, y, z]);
+            }
+        }
+    }
+}
+
+/// Face, edge and angle-weighted vertex pseudo-normals of every triangle.
+pub(super) fn pseudo_normals(mesh: &SurfaceMesh) -> Vec<[Vec3; 7]> {
+    let faces: Vec<Vec3> = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.corners(t);
+            (b - a).cross(c - a).normalize_or_zero()
+        })
+        .collect();
+    let mut vertex_sum = vec![Vec3::ZERO; mesh.vertices.len()];
+    let mut edge_faces: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(t);
+        let pts = [a, b, c];
+        for k in 0..3 {
+            let here = pts[k];
+            let e1 = (pts[(k + 1) % 3] - here).normalize_or_zero();
+            let e2 = (pts[(k + 2) % 3] - here).normalize_or_zero();
+            let angle = e1.dot(e2).clamp(-1.0, 1.0).acos();
+            vertex_sum[tri[k] as usize] += angle * faces[t];
+            let (u, v) = (tri[k], tri[(k + 1) % 3]);
+            edge_faces.entry((u.min(v), u.max(v))).or_default().push(t);
+        }
+    }
+    mesh.triangles
+        .iter()
+        .enumerate()
+        .map(|(t, tri)| {
+            let edge = |k: usize| {
+                let (u, v) = (tri[k], tri[(k + 1) % 3]);
+                let sum: Vec3 = edge_faces
+                    .get(&(u.min(v), u.max(v)))
+                    .map(|fs| fs.iter().map(|&f| faces[f]).sum())
+                    .unwrap_or(faces[t]);
+                sum.normalize_or(faces[t])
+            };
+            let vertex = |k: usize| vertex_sum[tri[k] as usize].normalize_or(faces[t]);
+            [
+                faces[t],
+                edge(0),
+                edge(1),
+                edge(2),
+                vertex(0),
+                vertex(1),
+                vertex(2),
+            ]
+        })
+        .collect()
+}
