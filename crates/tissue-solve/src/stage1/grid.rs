@@ -4,7 +4,7 @@
 
 use std::ops::Range;
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 
 /// Particles sorted into the cells of a uniform grid.
@@ -83,15 +83,10 @@ impl Grid {
         i64::from(self.dims.iter().copied().max().unwrap_or(1))
     }
 
-    /// Calls `f` with the position in `particles` (the cell-order slot) of
-    /// every particle in the cells within `span` cells of `p`'s cell, in a
+    /// Calls `f` with the positions in `particles` (the cell-order slots)
+    /// of the particles in the cells within `span` cells of `p`'s cell, a
+    /// run of consecutive slots (one row of cells along x) at a time, in a
     /// fixed order (so results do not depend on threads).
-    pub fn for_each_slot_near(&self, p: Vec3, span: u32, mut f: impl FnMut(usize)) {
-        self.for_each_run_near(p, span, |run| run.for_each(&mut f));
-    }
-
-    /// [`Grid::for_each_slot_near`] a run of consecutive slots at a time
-    /// (one row of cells along x), in the same order.
     pub fn for_each_run_near(&self, p: Vec3, span: u32, mut f: impl FnMut(Range<usize>)) {
         let [x, y, z] = self.coords(p);
         for cz in z.saturating_sub(span)..=(z + span).min(self.dims[2] - 1) {
@@ -188,15 +183,13 @@ pub fn neighbour_rows(
     // volume scanned per particle instead of 27 reach^3 with full cells.
     let grid = grid_build(positions, 0.5 * reach);
     let span = if grid.cell < reach { 2 } else { 1 };
-    // Positions and radii copied into cell order, a column each: the scan
-    // below then reads memory in runs instead of jumping around (3x faster
-    // at 100k particles), and tests a run's distances in SIMD lanes.
-    let column =
-        |f: &dyn Fn(u32) -> f32| -> Vec<f32> { grid.particles.iter().map(|&j| f(j)).collect() };
-    let xs = column(&|j| positions[j as usize].x);
-    let ys = column(&|j| positions[j as usize].y);
-    let zs = column(&|j| positions[j as usize].z);
-    let ws = column(&|j| factor * radii[j as usize]);
+    // Positions and radii copied into cell order: the scan below then reads
+    // memory in runs instead of jumping around (3x faster at 100k particles).
+    let in_cell_order: Vec<Vec4> = grid
+        .particles
+        .iter()
+        .map(|&j| positions[j as usize].extend(radii[j as usize]))
+        .collect();
     // Rows made a block of particles at a time, each block's rows in one
     // buffer, then joined: no allocation per row.
     let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..positions.len().div_ceil(ROW_BLOCK))
@@ -205,30 +198,18 @@ pub fn neighbour_rows(
             let particles = b * ROW_BLOCK..((b + 1) * ROW_BLOCK).min(positions.len());
             let mut lengths = Vec::with_capacity(particles.len());
             let mut entries = Vec::with_capacity(48 * particles.len());
-            let mut near = Vec::new();
             for i in particles {
                 let p = positions[i];
                 let base = factor * radii[i] + skin;
                 let first = entries.len();
                 let mut kept = first;
                 grid.for_each_run_near(p, span, |run| {
-                    // The distance tests of a run first (in lanes), then the
-                    // kept slots: no branch to mispredict on the test.
-                    near.clear();
-                    near.extend(
-                        xs[run.clone()]
-                            .iter()
-                            .zip(&ys[run.clone()])
-                            .zip(&zs[run.clone()])
-                            .zip(&ws[run.clone()])
-                            .map(|(((&x, &y), &z), &w)| {
-                                let (dx, dy, dz) = (x - p.x, y - p.y, z - p.z);
-                                let limit = base + w;
-                                dx * dx + dy * dy + dz * dz < limit * limit
-                            }),
-                    );
+                    // Every slot written, the kept ones advanced over: no
+                    // branch to mispredict on the distance test.
                     entries.resize(kept + run.len(), 0);
-                    for (&j, &keep) in grid.particles[run].iter().zip(&near) {
+                    for (q, &j) in in_cell_order[run.clone()].iter().zip(&grid.particles[run]) {
+                        let limit = base + factor * q.w;
+                        let keep = (q.truncate() - p).length_squared() < limit * limit;
                         entries[kept] = j;
                         kept += usize::from(keep && j as usize != i);
                     }
