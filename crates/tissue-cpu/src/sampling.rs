@@ -64,7 +64,7 @@ pub fn sample(
     let mut rebuilds = 0;
     let mut converged = false;
     while iterations < params.max_iterations {
-        let forces = imf_force_near(&state, &rows.0, &near, &field, params);
+        let forces = imf_force_near(&state, &near, &field, params);
         let radii = radius_update(&state.radii, &forces, params);
         let (positions, contact) = integrate(&state, &forces, &field, params, r0);
         let (step_rms, radius_rms) = change(&state, &positions, &contact, &radii, r0);

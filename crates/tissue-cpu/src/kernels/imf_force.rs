@@ -24,9 +24,8 @@ pub fn imf_pair(distance: f32, radius_sum: f32, alpha: f32) -> f32 {
 const FILTER_BLOCK: usize = 256;
 
 /// The entries of neighbour rows (CSR) near enough to their particle for
-/// the force, in the rows' order: row `i` is
-/// `entries[offsets[i]..offsets[i] + counts[i]]`, within the full row's
-/// own span.
+/// the force, in the rows' order, a block of [`FILTER_BLOCK`] particles'
+/// rows in each buffer (kept between filters).
 ///
 /// A force pass over these rows is the pass over the full rows, to the bit,
 /// while no particle has moved (or grown, times the cutoff) by more than
@@ -38,13 +37,20 @@ const FILTER_BLOCK: usize = 256;
 /// loop meets few pairs it skips.
 #[derive(Debug, Clone, Default)]
 pub struct ForceRows {
-    counts: Vec<u32>,
+    blocks: Vec<RowBlock>,
+}
+
+/// The rows of one block of particles: row `k` is
+/// `entries[starts[k]..starts[k + 1]]`.
+#[derive(Debug, Clone, Default)]
+struct RowBlock {
+    starts: Vec<u32>,
     entries: Vec<u32>,
 }
 
 impl ForceRows {
     /// Keeps the entries of the rows `offsets`, `neighbours` within `cutoff
-    /// (r_i + r_j) + skin` of their particle in `state`, reusing the buffers.
+    /// (r_i + r_j) + skin` of their particle in `state`.
     pub fn filter(
         &mut self,
         state: &SamplingState,
@@ -54,45 +60,42 @@ impl ForceRows {
         skin: f32,
     ) {
         let count = state.positions.len();
-        self.counts.resize(count, 0);
-        self.entries.resize(neighbours.len(), 0);
-        // The entry buffer cut at block boundaries, so that each block
-        // writes only within its own rows.
-        let mut blocks = Vec::with_capacity(count.div_ceil(FILTER_BLOCK));
-        let mut rest = self.entries.as_mut_slice();
-        for (b, counts) in self.counts.chunks_mut(FILTER_BLOCK).enumerate() {
-            let first = b * FILTER_BLOCK;
-            let end = (first + counts.len()).min(count);
-            let len = (offsets[end] - offsets[first]) as usize;
-            let (block, tail) = std::mem::take(&mut rest).split_at_mut(len);
-            rest = tail;
-            blocks.push((first, counts, block));
-        }
-        blocks.into_par_iter().for_each(|(first, counts, block)| {
-            let base_offset = offsets[first] as usize;
-            for (k, kept) in counts.iter_mut().enumerate() {
-                let i = first + k;
-                let p = state.positions[i];
-                let base = cutoff * state.radii[i] + skin;
-                let start = offsets[i] as usize;
-                let row = &neighbours[start..offsets[i + 1] as usize];
-                let out = &mut block[start - base_offset..];
-                let mut n = 0;
-                for &j in row {
-                    let limit = base + cutoff * state.radii[j as usize];
-                    let near = (p - state.positions[j as usize]).length_squared() < limit * limit;
-                    out[n] = j;
-                    n += usize::from(near);
+        self.blocks
+            .resize_with(count.div_ceil(FILTER_BLOCK), RowBlock::default);
+        self.blocks
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(b, block)| {
+                let particles = b * FILTER_BLOCK..((b + 1) * FILTER_BLOCK).min(count);
+                block.starts.clear();
+                block.starts.push(0);
+                block.entries.clear();
+                for i in particles {
+                    let p = state.positions[i];
+                    let base = cutoff * state.radii[i] + skin;
+                    let row = &neighbours[offsets[i] as usize..offsets[i + 1] as usize];
+                    // Every entry written, the kept ones advanced over: no
+                    // branch to mispredict on the distance test.
+                    let mut kept = block.entries.len();
+                    block.entries.resize(kept + row.len(), 0);
+                    for &j in row {
+                        let limit = base + cutoff * state.radii[j as usize];
+                        let near =
+                            (p - state.positions[j as usize]).length_squared() < limit * limit;
+                        block.entries[kept] = j;
+                        kept += usize::from(near);
+                    }
+                    block.entries.truncate(kept);
+                    block.starts.push(kept as u32);
                 }
-                *kept = n as u32;
-            }
-        });
+            });
     }
 
-    /// Row `i`, given the full rows' offsets it was filtered from.
-    fn row<'a>(&'a self, offsets: &[u32], i: usize) -> &'a [u32] {
-        let start = offsets[i] as usize;
-        &self.entries[start..start + self.counts[i] as usize]
+    /// Row `i`.
+    fn row(&self, i: usize) -> &[u32] {
+        let block = &self.blocks[i / FILTER_BLOCK];
+        let k = i % FILTER_BLOCK;
+        &block.entries[block.starts[k] as usize..block.starts[k + 1] as usize]
     }
 }
 
@@ -113,16 +116,15 @@ pub fn imf_force(
     )
 }
 
-/// [`imf_force`] over the rows `near` kept of `offsets`' rows: the same
-/// forces, to the bit, while `near` holds every pair within the cutoff.
+/// [`imf_force`] over the rows `near` filtered from the full rows: the
+/// same forces, to the bit, while `near` holds every pair within the cutoff.
 pub fn imf_force_near(
     state: &SamplingState,
-    offsets: &[u32],
     near: &ForceRows,
     field: &SurfaceField,
     params: &SamplingParams,
 ) -> Vec<ForceOut> {
-    forces_over(state, |i| near.row(offsets, i), field, params)
+    forces_over(state, |i| near.row(i), field, params)
 }
 
 fn forces_over<'a>(
@@ -206,9 +208,9 @@ mod tests {
             neighbour_rows(&state.positions, &state.radii, cutoff, wide, false);
         let mut near = ForceRows::default();
         near.filter(&state, &offsets, &entries, cutoff, narrow);
-        let kept: u32 = near.counts.iter().sum();
+        let kept: usize = near.blocks.iter().map(|b| b.entries.len()).sum();
         assert!(
-            (kept as usize) < entries.len() / 2,
+            kept < entries.len() / 2,
             "the narrow rows keep {kept} of {} entries",
             entries.len()
         );
@@ -222,7 +224,7 @@ mod tests {
             *r += 0.001 * jitter().abs() * narrow;
         }
         let full = imf_force(&state, &offsets, &entries, &field, &params);
-        let filtered = imf_force_near(&state, &offsets, &near, &field, &params);
+        let filtered = imf_force_near(&state, &near, &field, &params);
         let bits = |f: &[ForceOut]| -> Vec<[u32; 4]> {
             f.iter()
                 .map(|o| {
