@@ -13,6 +13,7 @@ pub mod model;
 pub mod params;
 pub mod phantom;
 pub mod report;
+pub mod rows;
 pub mod validate;
 
 pub use error::{

@@ -7,17 +7,10 @@ use std::collections::HashMap;
 use glam::Vec3;
 use parry3d::query::PointQuery;
 use parry3d::shape::TriMesh;
-use rayon::prelude::*;
 
 use super::{CELL_BAND, CELL_INSIDE, CELL_OUTSIDE, SurfaceField, closest_on_triangle};
 use crate::mesh::SurfaceMesh;
-
-/// Cells (or triangles) per block of the build's parallel loops.
-const BUILD_BLOCK: usize = 64;
-
-/// A candidate triangle of a band cell: its distance from the cell's
-/// centre, and its index.
-type Candidate = (f32, u32);
+use crate::rows::rows_in_blocks;
 
 impl SurfaceField {
     /// Fills the cells: their states from `band` and `outside`, and per
@@ -37,38 +30,31 @@ impl SurfaceField {
         let diagonal = cell * 3f32.sqrt();
         let field = &*self;
         let band_cells: Vec<usize> = (0..cells).filter(|&i| band[i]).collect();
-        // A block of band cells at a time, its candidates in one buffer:
-        // an allocation per cell would have the threads queue on the
-        // allocator's lock.
-        let blocks: Vec<(Vec<u32>, Vec<Candidate>)> = band_cells
-            .par_chunks(BUILD_BLOCK)
-            .map(|block| {
-                // The last cell that gathered each triangle, so a triangle
-                // binned in many cells is measured once per cell.
-                let mut seen = vec![usize::MAX; field.corners.len()];
-                let mut lengths = Vec::with_capacity(block.len());
-                let mut kept = Vec::new();
-                for &index in block {
-                    let centre = field.cell_centre(index);
-                    let reach = nearest(index, centre) + diagonal;
-                    let first = kept.len();
-                    field.for_each_binned_near(binned, centre, reach, |t| {
-                        if std::mem::replace(&mut seen[t as usize], index) == index {
-                            return;
-                        }
-                        let [a, b, c] = field.corners[t as usize];
-                        let (q, _, _) = closest_on_triangle(centre, a, b, c);
-                        let d = (q - centre).length();
-                        if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
-                            kept.push((d, t));
-                        }
-                    });
-                    kept[first..].sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                    lengths.push((kept.len() - first) as u32);
-                }
-                (lengths, kept)
-            })
-            .collect();
+        let (band_start, kept) = rows_in_blocks(
+            band_cells.len(),
+            32,
+            // The last cell that gathered each triangle, so a triangle
+            // binned in many cells is measured once per cell.
+            || vec![usize::MAX; field.corners.len()],
+            |seen, k, kept: &mut Vec<(f32, u32)>| {
+                let index = band_cells[k];
+                let centre = field.cell_centre(index);
+                let reach = nearest(index, centre) + diagonal;
+                let first = kept.len();
+                field.for_each_binned_near(binned, centre, reach, |t| {
+                    if std::mem::replace(&mut seen[t as usize], index) == index {
+                        return;
+                    }
+                    let [a, b, c] = field.corners[t as usize];
+                    let (q, _, _) = closest_on_triangle(centre, a, b, c);
+                    let d = (q - centre).length();
+                    if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
+                        kept.push((d, t));
+                    }
+                });
+                kept[first..].sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            },
+        );
         self.cell_state = (0..cells)
             .map(|i| match (band[i], outside[i]) {
                 (true, _) => CELL_BAND,
@@ -76,23 +62,17 @@ impl SurfaceField {
                 (false, false) => CELL_INSIDE,
             })
             .collect();
-        let total: usize = blocks.iter().map(|(_, kept)| kept.len()).sum();
-        let mut candidates = Vec::with_capacity(total);
-        let mut candidate_distance = Vec::with_capacity(total);
         let mut lengths = vec![0u32; cells];
-        let band_lengths = blocks.iter().flat_map(|(block, _)| block);
-        for (&index, &length) in band_cells.iter().zip(band_lengths) {
-            lengths[index] = length;
-        }
-        for (_, kept) in &blocks {
-            candidates.extend(kept.iter().map(|&(_, t)| t));
-            candidate_distance.extend(kept.iter().map(|&(d, _)| d));
+        for (k, &index) in band_cells.iter().enumerate() {
+            lengths[index] = band_start[k + 1] - band_start[k];
         }
         let mut cell_start = Vec::with_capacity(cells + 1);
         cell_start.push(0u32);
         for length in lengths {
             cell_start.push(cell_start[cell_start.len() - 1] + length);
         }
+        let candidates = kept.iter().map(|&(_, t)| t).collect();
+        let candidate_distance = kept.iter().map(|&(d, _)| d).collect();
         self.cell_start = cell_start;
         self.candidate_distance = candidate_distance;
         self.candidates = candidates;
@@ -138,25 +118,14 @@ impl SurfaceField {
                 }
             });
         };
-        // A block of triangles at a time, its cells in one buffer (no
-        // allocation per triangle, see `fill`).
-        let triangles = self.corners.len();
-        let blocks: Vec<(Vec<u32>, Vec<u32>)> = (0..triangles.div_ceil(BUILD_BLOCK))
-            .into_par_iter()
-            .map(|b| {
-                let block = b * BUILD_BLOCK..((b + 1) * BUILD_BLOCK).min(triangles);
-                let mut lengths = Vec::with_capacity(block.len());
-                let mut cells = Vec::new();
-                for t in block {
-                    let first = cells.len();
-                    cells_of(t, &mut cells);
-                    lengths.push((cells.len() - first) as u32);
-                }
-                (lengths, cells)
-            })
-            .collect();
+        let (triangle_start, cells) = rows_in_blocks(
+            self.corners.len(),
+            8,
+            || (),
+            |_, t, cells| cells_of(t, cells),
+        );
         let mut start = vec![0u32; self.cell_count() + 1];
-        for &cell in blocks.iter().flat_map(|(_, cells)| cells) {
+        for &cell in &cells {
             start[cell as usize + 1] += 1;
         }
         for i in 0..self.cell_count() {
@@ -164,16 +133,10 @@ impl SurfaceField {
         }
         let mut fill = start.clone();
         let mut items = vec![0u32; start[self.cell_count()] as usize];
-        let mut t = 0u32;
-        for (lengths, cells) in &blocks {
-            let mut at = 0;
-            for &length in lengths {
-                for &cell in &cells[at..at + length as usize] {
-                    items[fill[cell as usize] as usize] = t;
-                    fill[cell as usize] += 1;
-                }
-                at += length as usize;
-                t += 1;
+        for (t, ends) in triangle_start.windows(2).enumerate() {
+            for &cell in &cells[ends[0] as usize..ends[1] as usize] {
+                items[fill[cell as usize] as usize] = t as u32;
+                fill[cell as usize] += 1;
             }
         }
         Binned { start, items }
