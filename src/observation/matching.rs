@@ -156,6 +156,20 @@ impl Observation {
         })
     }
 
+    /// Checks what [`Observation::cloud`] would refuse in `cloud`, without
+    /// its grid (a long sequence of scans is checked whole before its
+    /// first frame, each grid made when its frame comes).
+    ///
+    /// # Errors
+    ///
+    /// As [`Observation::cloud`].
+    pub fn check_cloud(cloud: &Cloud, noise: Option<f32>) -> Result<(), Error> {
+        let noise = noise.unwrap_or(CLOUD_NOISE * cloud.spacing());
+        let (cleaned, _) = cloud.cleaned(noise)?;
+        cleaned.check_field(FIELD_MARGIN_CELLS * cleaned.spacing())?;
+        Ok(())
+    }
+
     /// Per point of `points`, whether the observation sees it: every one
     /// for a surface; for a cloud, those within [`CLOUD_EDGE_SPACINGS`]
     /// of its nearest point (the skin past the cloud's edge is not seen).

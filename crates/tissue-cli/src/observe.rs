@@ -67,6 +67,13 @@ pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Res
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
+/// A scan read and checked as [`read_cloud`] would read it, without its
+/// grid.
+pub fn check_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<()> {
+    let cloud = checked_cloud(path, model)?;
+    Observation::check_cloud(&cloud, noise).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
 /// The points of `--cloud` read and checked against the organ's size and
 /// place (another unit or frame is refused), not yet cleaned.
 pub fn checked_cloud(path: &Path, model: &ParticleModel) -> Result<Cloud> {

@@ -22,9 +22,9 @@ pub(super) enum Sequence {
     Frames,
     /// Observations without correspondence (closed surfaces of any
     /// triangulation, or scans), with the held region's rest vertices.
-    /// A scan is `None`: read and checked whole before the first solve,
-    /// then read again when its frame comes, so that a long sequence does
-    /// not hold every scan's grid at once.
+    /// A scan is `None`: read and checked before the first solve (its
+    /// grid not made), then read again and gridded when its frame comes,
+    /// so that a long sequence does not hold every scan's grid at once.
     Matched {
         observations: Vec<Option<Observation>>,
         held: Vec<bool>,
@@ -50,7 +50,7 @@ impl Sequence {
             };
             let held = read_observed(region, rest)?;
             for path in frames {
-                observe::read_cloud(path, model, args.noise)?;
+                observe::check_cloud(path, model, args.noise)?;
             }
             return Self::matched(args, vec![None; frames.len()], held);
         }

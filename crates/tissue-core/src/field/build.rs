@@ -7,6 +7,7 @@ use std::collections::HashMap;
 use glam::Vec3;
 use parry3d::query::PointQuery;
 use parry3d::shape::TriMesh;
+use rayon::prelude::*;
 
 use super::{CELL_BAND, CELL_INSIDE, CELL_OUTSIDE, SurfaceField, closest_on_triangle};
 use crate::mesh::SurfaceMesh;
@@ -55,27 +56,161 @@ impl SurfaceField {
                 kept[first..].sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             },
         );
-        self.cell_state = (0..cells)
-            .map(|i| match (band[i], outside[i]) {
+        let mut lengths = vec![0u32; cells];
+        for (k, &index) in band_cells.iter().enumerate() {
+            lengths[index] = band_start[k + 1] - band_start[k];
+        }
+        self.set_cells(band, outside, &lengths, &kept);
+    }
+
+    /// [`SurfaceField::fill`] for a cloud, whose triangles are points, with
+    /// `nearest` per cell: each point scattered to the band cells whose
+    /// reach it lies within, instead of each band cell gathering over every
+    /// cell its reach spans (most of them empty around a scanned patch).
+    /// The same candidates in the same order, and three to four times
+    /// faster.
+    pub(super) fn fill_from_points(&mut self, band: &[bool], outside: &[bool], nearest: &[f32]) {
+        let cells = self.cell_count();
+        let cell = self.cell;
+        let diagonal = cell * 3f32.sqrt();
+        let reach: Vec<f32> = (0..cells)
+            .map(|i| {
+                if band[i] {
+                    (nearest[i] + diagonal) * (1.0 + 1e-5) + 1e-6 * cell
+                } else {
+                    f32::NEG_INFINITY
+                }
+            })
+            .collect();
+        let widest = reach.iter().copied().fold(0.0, f32::max);
+        let field = &*self;
+        let (_, hits) = rows_in_blocks(
+            field.corners.len(),
+            64,
+            || (),
+            |_, t, out: &mut Vec<(u32, f32, u32)>| {
+                let [a, b, c] = field.corners[t];
+                let range = field.cell_range(a - Vec3::splat(widest), a + Vec3::splat(widest));
+                for_each_cell(range, |at| {
+                    let index = field.cell_index(at);
+                    if !band[index] {
+                        return;
+                    }
+                    let centre = field.cell_centre(index);
+                    let (q, _, _) = closest_on_triangle(centre, a, b, c);
+                    let d = (q - centre).length();
+                    if d <= reach[index] {
+                        out.push((index as u32, d, t as u32));
+                    }
+                });
+            },
+        );
+        let mut lengths = vec![0u32; cells];
+        for &(index, _, _) in &hits {
+            lengths[index as usize] += 1;
+        }
+        let mut next = Vec::with_capacity(cells);
+        let mut total = 0u32;
+        for &length in &lengths {
+            next.push(total);
+            total += length;
+        }
+        let mut kept = vec![(0.0f32, 0u32); total as usize];
+        for &(index, d, t) in &hits {
+            let slot = &mut next[index as usize];
+            kept[*slot as usize] = (d, t);
+            *slot += 1;
+        }
+        let mut rest = kept.as_mut_slice();
+        for &length in &lengths {
+            let (row, after) = rest.split_at_mut(length as usize);
+            row.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            rest = after;
+        }
+        self.set_cells(band, outside, &lengths, &kept);
+    }
+
+    /// The cells' states from `band` and `outside`, and per cell its
+    /// `lengths` candidates, `kept` as `(distance, triangle)` one cell
+    /// after the other.
+    fn set_cells(&mut self, band: &[bool], outside: &[bool], lengths: &[u32], kept: &[(f32, u32)]) {
+        self.cell_state = band
+            .iter()
+            .zip(outside)
+            .map(|(&band, &outside)| match (band, outside) {
                 (true, _) => CELL_BAND,
                 (false, true) => CELL_OUTSIDE,
                 (false, false) => CELL_INSIDE,
             })
             .collect();
-        let mut lengths = vec![0u32; cells];
-        for (k, &index) in band_cells.iter().enumerate() {
-            lengths[index] = band_start[k + 1] - band_start[k];
-        }
-        let mut cell_start = Vec::with_capacity(cells + 1);
+        let mut cell_start = Vec::with_capacity(lengths.len() + 1);
         cell_start.push(0u32);
-        for length in lengths {
+        for &length in lengths {
             cell_start.push(cell_start[cell_start.len() - 1] + length);
         }
-        let candidates = kept.iter().map(|&(_, t)| t).collect();
-        let candidate_distance = kept.iter().map(|&(d, _)| d).collect();
         self.cell_start = cell_start;
-        self.candidate_distance = candidate_distance;
-        self.candidates = candidates;
+        self.candidate_distance = kept.iter().map(|&(d, _)| d).collect();
+        self.candidates = kept.iter().map(|&(_, t)| t).collect();
+    }
+
+    /// Per cell an upper bound on the distance from its centre to the
+    /// nearest of the triangles' first corners (a cloud's points), for the
+    /// band cells (infinite elsewhere, and where no point has reached):
+    /// each cell first takes the points binned in it, then, pass after
+    /// pass, the best point of its 26 neighbours where that is nearer its
+    /// centre, until no bound falls. Any point's distance bounds the
+    /// nearest one's, so the bound holds whichever point a cell ends with;
+    /// it is near the exact one where the points are dense.
+    pub(super) fn point_bounds(&self, binned: &Binned, band: &[bool]) -> Vec<f32> {
+        let cells = self.cell_count();
+        let point = |t: u32| self.corners[t as usize][0];
+        let distance = |index: usize, t: u32| (point(t) - self.cell_centre(index)).length();
+        // Per cell its nearest point so far and that point's distance.
+        let mut best: Vec<(f32, u32)> = (0..cells)
+            .into_par_iter()
+            .map(|index| {
+                binned.items[binned.start[index] as usize..binned.start[index + 1] as usize]
+                    .iter()
+                    .map(|&t| (distance(index, t), t))
+                    .fold(
+                        (f32::INFINITY, u32::MAX),
+                        |a, b| if b.0 < a.0 { b } else { a },
+                    )
+            })
+            .collect();
+        let [nx, ny, nz] = self.dims;
+        loop {
+            let next: Vec<(f32, u32)> = (0..cells)
+                .into_par_iter()
+                .map(|index| {
+                    let mut kept = best[index];
+                    if !band[index] {
+                        return kept;
+                    }
+                    let [x, y, z] = self.cell_coords(index);
+                    for dz in z.saturating_sub(1)..=(z + 1).min(nz - 1) {
+                        for dy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                            for dx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                                let t = best[self.cell_index([dx, dy, dz])].1;
+                                if t != u32::MAX && t != kept.1 {
+                                    let d = distance(index, t);
+                                    if d < kept.0 {
+                                        kept = (d, t);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    kept
+                })
+                .collect();
+            let changed = next != best;
+            best = next;
+            if !changed {
+                break;
+            }
+        }
+        best.into_iter().map(|(d, _)| d).collect()
     }
 
     /// The band cells: those a triangle passes through or comes within the

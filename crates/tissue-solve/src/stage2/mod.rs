@@ -27,6 +27,7 @@ pub(crate) mod plan;
 pub(crate) mod posture;
 pub(crate) mod predict;
 pub(crate) mod report;
+pub(crate) mod rigid;
 pub(crate) mod spectrum;
 pub(crate) mod springs;
 pub(crate) mod tracker;
@@ -40,9 +41,7 @@ pub use batches::{Batches, run_batched, run_batched_from};
 pub use controls::{VOLUME_RATIO, check_same_topology};
 pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
-pub use observation::{
-    Cloud, NORMAL_NEIGHBOURS, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, SCAN_SCALE, rigid_fit,
-};
+pub use observation::{Cloud, NORMAL_NEIGHBOURS, SCAN_SCALE};
 pub use pairing::{
     CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, pair_plane, paired_spring, pairing_plane,
     taper,
@@ -67,6 +66,7 @@ pub use posture::{
 };
 pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
+pub use rigid::{RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, rigid_fit};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
 pub use springs::{
     SPRING_WEIGHT, spring, spring_block, spring_force, spring_operator, spring_potential,
