@@ -233,7 +233,8 @@ fn deform_matches_with_the_postures() {
 /// the held region found without `--fixed-region` is what lies on every
 /// frame. A sequence mixing frames
 /// of the rest surface with other surfaces, and scans without the held
-/// region, are refused.
+/// region, are refused, as is a later scan in metres before the first
+/// frame is solved.
 #[test]
 fn track_matches_sequences_without_correspondence() {
     let dir = tempfile::tempdir().unwrap();
@@ -404,6 +405,30 @@ fn track_matches_sequences_without_correspondence() {
         assert!(said.contains(says), "{args:?}: {said}");
     };
     refused(&["track", "--frames", &pattern("mixed/*.obj")], "mixes");
+    // A later scan in metres is refused before the first frame is solved.
+    std::fs::create_dir(dir.path().join("metres")).unwrap();
+    for k in 1..=2 {
+        let mut points = tissue::observation::load_cloud(
+            &dir.path().join(format!("scans/c-{k}.csv")),
+            Default::default(),
+        )
+        .unwrap();
+        if k == 2 {
+            points.iter_mut().for_each(|p| *p *= 1e-3);
+        }
+        tissue::save_points(&points, &dir.path().join(format!("metres/c-{k}.csv"))).unwrap();
+    }
+    refused(
+        &[
+            "track",
+            "--clouds",
+            &pattern("metres/*.csv"),
+            "--fixed-region",
+            s(&fixed),
+        ],
+        "c-2.csv: the point cloud spans",
+    );
+    assert!(!dir.path().join("refused/frame-0001").exists());
     refused(
         &["track", "--clouds", &pattern("scans/*.csv")],
         "--fixed-region FILE",
