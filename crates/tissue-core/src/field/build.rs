@@ -67,8 +67,8 @@ impl SurfaceField {
     /// `nearest` per cell: each point scattered to the band cells whose
     /// reach it lies within, instead of each band cell gathering over every
     /// cell its reach spans (most of them empty around a scanned patch).
-    /// The same candidates in the same order, and three to four times
-    /// faster.
+    /// The same candidates in the same order: on a scan of 1,864 points,
+    /// 0.055-0.06 s against 0.085 s gathered (with the same bounds).
     pub(super) fn fill_from_points(&mut self, band: &[bool], outside: &[bool], nearest: &[f32]) {
         let cells = self.cell_count();
         let cell = self.cell;
