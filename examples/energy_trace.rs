@@ -71,7 +71,10 @@ impl SolveDevice for Watched {
         self.solve.write_positions(positions, turn)
     }
 
-    fn set_springs(&mut self, springs: &[glam::Vec4]) -> Result<(), Infallible> {
+    fn set_springs(
+        &mut self,
+        springs: &[tissue::advanced::stage2::Spring],
+    ) -> Result<(), Infallible> {
         self.solve.set_springs(springs)
     }
 

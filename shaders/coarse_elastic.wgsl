@@ -2,7 +2,7 @@
 // `tissue_solve::coarse_elastic::ElasticCoarse::correct`, in six passes
 // between `integrate` and `chebyshev`. The elastic operator at the state the
 // phase started from, K = L + 1/2 sum_i W_i g_i g_i^T + S (S the springs'
-// s s^T / 2 per particle, shared/loads; g_i the gradient of
+// P / 2 per particle, shared/loads; g_i the gradient of
 // J_i, its entry at neighbour j cof(F_i) c_ij = C_i d_ij + S_i (mu_j - mu_i)
 // with C_i = cof(F_i) B_i and S_i = a_i cof(F_i) there),
 // gives K e' = −s / (c alpha) + K s for the error after the plain step s;

@@ -1,12 +1,13 @@
 // Stage 2: `pair`, each paired particle's spring set towards the
-// observation's plane at its nearest point, first in the elastic force's
+// observation at its nearest point, first in the elastic force's
 // iterations where the state holds an observation and a pairing. Twin of
 // `tissue_cpu::kernels::pair` with `tissue_solve::stage2::paired_spring`:
-// for a surface the plane across the direction to the nearest point (its
-// normal there on the surface), for a point cloud its plane smoothed over
-// the points near the particle (or its nearest point's fitted plane); the
-// weight faded from half the way to a cloud's edge or the trim,
-// no spring beyond.
+// the curvature of half the squared distance there: for a point cloud the
+// plane smoothed over the points near the particle (or its nearest
+// point's fitted plane), for a surface the plane across the direction to
+// the nearest point (its normal there on the surface) on a face, the
+// line along an edge, the point at a vertex; the weight faded from half
+// the way to a cloud's edge or the trim, no spring beyond.
 
 #import shared/layout
 #import shared/surface_field
@@ -37,7 +38,7 @@ struct Pairing {
 @group(0) @binding(2) var<storage, read> pairing: Pairing;
 // The paired particles' indices.
 @group(0) @binding(3) var<storage, read> skin: array<u32>;
-// Body forces (`count`), then springs (`count`): shared/loads.
+// Body forces (`count`), then springs (two entries each): shared/loads.
 @group(0) @binding(24) var<storage, read_write> loads: array<vec4<f32>>;
 
 // `tissue_core::field::SMOOTH_REACH`.
@@ -47,6 +48,26 @@ const SMOOTH_REACH: f32 = 3.0;
 struct Plane {
     point: vec3<f32>,
     normal: vec3<f32>,
+}
+
+// `tissue_solve::stage2::Spring`, as shared/loads reads it: (c, a) and
+// (u, b).
+struct Spring {
+    anchor: vec4<f32>,
+    axis: vec4<f32>,
+}
+
+// `tissue_solve::stage2::Feature`: where the nearest point lies.
+const FEATURE_FACE: u32 = 0u;
+const FEATURE_EDGE: u32 = 1u;
+const FEATURE_VERTEX: u32 = 2u;
+
+// `tissue_solve::stage2::Paired`: the plane, the feature and, on an edge,
+// its unit direction.
+struct Paired {
+    plane: Plane,
+    feature: u32,
+    tangent: vec3<f32>,
 }
 
 // `SurfaceField::smooth_plane`: the cloud's points within `SMOOTH_REACH h`
@@ -100,16 +121,42 @@ fn smooth_plane(grid: FieldGrid, p: vec3<f32>, h: f32) -> Smoothed {
     return Smoothed(true, Plane(point / weight, normalize(normal)));
 }
 
-// `tissue_solve::stage2::pairing_plane`.
-fn pairing_plane(p: vec3<f32>) -> Plane {
+// `tissue_solve::stage2::feature_of`: two zero coordinates a vertex, one
+// an edge (the one opposite the corner whose coordinate is zero), none the
+// face.
+fn feature_of(near: Nearest) -> Paired {
+    let plane = Plane(near.point, near.normal);
+    let b = near.barycentric;
+    let zero = vec3<u32>(select(0u, 1u, b.x == 0.0), select(0u, 1u, b.y == 0.0), select(0u, 1u, b.z == 0.0));
+    let zeros = zero.x + zero.y + zero.z;
+    if (zeros == 0u) {
+        return Paired(plane, FEATURE_FACE, vec3<f32>(0.0));
+    }
+    if (zeros == 1u) {
+        let k = select(select(2u, 1u, zero.y == 1u), 0u, zero.x == 1u);
+        let base = near.triangle * TRIANGLE_STRIDE;
+        let edge = field_triangles[base + (k + 2u) % 3u].xyz - field_triangles[base + (k + 1u) % 3u].xyz;
+        let l = length(edge);
+        if (l > 0.0) {
+            return Paired(plane, FEATURE_EDGE, edge / l);
+        }
+    }
+    return Paired(plane, FEATURE_VERTEX, vec3<f32>(0.0));
+}
+
+// `tissue_solve::stage2::paired_point`.
+fn paired_point(p: vec3<f32>) -> Paired {
     if (pairing.cloud != 0u && pairing.smoothing > 0.0) {
         let smoothed = smooth_plane(pairing.grid, p, pairing.smoothing);
         if (smoothed.found) {
-            return smoothed.plane;
+            return Paired(smoothed.plane, FEATURE_FACE, vec3<f32>(0.0));
         }
     }
     let near = field_nearest(pairing.grid, p);
-    return Plane(near.point, near.normal);
+    if (pairing.cloud != 0u) {
+        return Paired(Plane(near.point, near.normal), FEATURE_FACE, vec3<f32>(0.0));
+    }
+    return feature_of(near);
 }
 
 // `taper`: the share of a spring's weight kept `ratio` of the way to a limit.
@@ -117,9 +164,12 @@ fn taper(ratio: f32) -> f32 {
     return clamp(2.0 * (1.0 - ratio), 0.0, 1.0);
 }
 
-// `paired_spring`: x's spring from its nearest observed point and the
-// observation's normal there, faded towards a cloud's edge and the trim.
-fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32> {
+// `paired_spring`: x's spring from its paired point, faded towards a
+// cloud's edge and the trim: (c, a) and (u, b) as shared/loads holds them.
+fn paired_spring(x: vec3<f32>, paired: Paired) -> Spring {
+    let none = Spring(vec4<f32>(0.0), vec4<f32>(0.0));
+    let point = paired.plane.point;
+    let normal = paired.plane.normal;
     let offset = x - point;
     var n = normal;
     var distance = 0.0;
@@ -128,7 +178,7 @@ fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32>
         let along = dot(normal, offset);
         let beside = length(offset - along * normal);
         if (beside > pairing.edge) {
-            return vec4<f32>(0.0);
+            return none;
         }
         distance = abs(along);
         across = beside / pairing.edge;
@@ -142,10 +192,16 @@ fn paired_spring(x: vec3<f32>, point: vec3<f32>, normal: vec3<f32>) -> vec4<f32>
     }
     let share = taper(across) * taper(distance / pairing.trim);
     if (share <= 0.0) {
-        return vec4<f32>(0.0);
+        return none;
     }
-    let s = sqrt(max(pairing.weight * share, 0.0)) * n;
-    return vec4<f32>(s, dot(s, point));
+    let weight = max(pairing.weight * share, 0.0);
+    if (paired.feature == FEATURE_EDGE) {
+        return Spring(vec4<f32>(point, weight), vec4<f32>(paired.tangent, -weight));
+    }
+    if (paired.feature == FEATURE_VERTEX) {
+        return Spring(vec4<f32>(point, weight), vec4<f32>(0.0));
+    }
+    return Spring(vec4<f32>(point, 0.0), vec4<f32>(n, weight));
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -160,6 +216,7 @@ fn pair(
     }
     let i = skin[k];
     let x = current[i].xyz;
-    let plane = pairing_plane(x);
-    loads[params.count + i] = paired_spring(x, plane.point, plane.normal);
+    let spring = paired_spring(x, paired_point(x));
+    loads[params.count + 2u * i] = spring.anchor;
+    loads[params.count + 2u * i + 1u] = spring.axis;
 }

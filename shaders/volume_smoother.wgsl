@@ -8,9 +8,10 @@
 // theirs over sqrt(2)), the smoothed step for the residual r is
 // s = (r − H z) / delta, z from two Jacobi sweeps on
 // (delta I + H^T H) z = H^T r relaxed by theta, D_i its diagonal; with
-// springs towards observed planes delta I is delta I + s s^T / 2 on each
-// particle, which turns every field H^T reads and the step by
-// Phi = I − s s^T / (2 delta + |s|^2) (`tissue_solve::coarse::VolumeSmoother`):
+// springs towards the observation delta I is delta I + P / 2 on each
+// particle (P = a I + b u u^T, shared/loads), which turns every field H^T
+// reads and the step by Phi = delta (delta I + P / 2)^-1
+// (`tissue_solve::coarse::VolumeSmoother`):
 // - `smoother_residual`, per particle: r_i = d (F_i + b_i + p_i) / 2 (p_i
 //   the spring's pull, shared/loads) inside the
 //   elastic aggregates (w = 1), 0 outside, into `elastic_step`, with the
@@ -64,11 +65,17 @@ fn entry(i: u32, j: u32) -> vec3<f32> {
     return SQRT_HALF * (c * d + scale * dmu);
 }
 
-// Phi at particle j applied to x: x − s (s . x) / (2 delta + |s|^2) with
-// its spring (shared/loads), x without: delta M_0^-1, M_0 = delta I + s s^T / 2.
+// Phi at particle j applied to x with its spring (shared/loads), x
+// without: delta M_0^-1, M_0 = delta I + P / 2 = alpha I + beta u u^T
+// (alpha = delta + a / 2, beta = b / 2), so
+// (delta / alpha) (x − u (u . x) beta / (alpha + beta |u|^2)).
 fn phi(j: u32, x: vec3<f32>) -> vec3<f32> {
-    let s = spring_of(j, params.count).xyz;
-    return x - s * (dot(s, x) / (2.0 * params.volume_delta + dot(s, s)));
+    let s = spring_of(j, params.count);
+    let u = s.axis.xyz;
+    let alpha = params.volume_delta + 0.5 * s.anchor.w;
+    let beta = 0.5 * s.axis.w;
+    let along = beta / (alpha + beta * dot(u, u));
+    return (params.volume_delta / alpha) * (x - u * (dot(u, x) * along));
 }
 
 // h_i . Phi r, r in `elastic_step` (each field its own function: a kernel

@@ -27,7 +27,7 @@ use std::convert::Infallible;
 use std::fmt;
 use std::str::FromStr;
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 use tissue_core::{
     Connections, DeformError, Error, GpuFailure, ParticleModel, SamplingParams, SurfaceMesh,
@@ -37,7 +37,7 @@ use tissue_cpu::model::Embedding;
 use tissue_cpu::{Progress, Sampled};
 use tissue_gpu::{EmbeddingKernel, GpuEmbedding, GpuError, GpuSolve};
 use tissue_solve::model::{RigidBinding, RigidMotion, offsets_product, rotation_of};
-use tissue_solve::stage2::Pairing;
+use tissue_solve::stage2::{Pairing, Spring};
 use tissue_solve::{Plan, PrepareStage, SolveStep, Tracker};
 
 mod solve_device;
@@ -520,7 +520,7 @@ impl Solver {
         self.tracker.set_surface(deformed)
     }
 
-    /// Sets every particle's spring towards an observed plane
+    /// Sets every particle's spring towards the observation
     /// ([`tissue_solve::stage2::spring`]: one per particle, zero where none,
     /// or an empty list to take them away) for the next solves: the
     /// elastic force's iterations pull each free particle towards its
@@ -531,7 +531,7 @@ impl Solver {
     /// [`Error::Deformation`] for a list that is not one per particle,
     /// holds a value that is not finite, or comes without the elastic
     /// force; [`Error::Gpu`] where the GPU cannot take them.
-    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+    pub fn set_springs(&mut self, springs: Vec<Spring>) -> Result<(), Error> {
         self.tracker.set_springs(springs)
     }
 

@@ -10,7 +10,7 @@ use tissue::backend::{Device, Solver};
 use tissue::{ParticleModel, SurfaceMesh};
 use tissue_cpu::deformation::DeformParams;
 use tissue_solve::model::held_vertices;
-use tissue_solve::stage2::{SPRING_WEIGHT, spring};
+use tissue_solve::stage2::{SPRING_WEIGHT, Spring, spring};
 
 /// Each surface particle's triangle's unit normal on `surface` (the rest
 /// surface's triangles, moved), zero inside.
@@ -61,8 +61,8 @@ fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
         let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
         let on = solver.backend();
         let plan = solver.plan().clone();
-        let springs = skin_springs(&model, &plan, &truth, &normals);
-        let pulled = springs.iter().filter(|s| **s != Vec4::ZERO).count();
+        let springs = skin_springs(&model, &plan, &truth, &normals, false);
+        let pulled = springs.iter().filter(|s| !s.is_zero()).count();
         assert!(pulled > 100, "{pulled} springs");
         solver.set_springs(springs).unwrap();
         solver.set_surface(&sagged).unwrap();
@@ -97,9 +97,10 @@ fn springs_pull_the_free_skin_onto_its_planes_on_both_devices() {
 /// A model hanging from its held chest wall under a load (the truth: its
 /// free skin sags where the mechanics sends it), solved again from rest
 /// under the same load with each free surface particle pulled towards a
-/// plane through where it went (along its rest normal: any plane through
-/// the answer leaves it an equilibrium): the solve lands on the truth on
-/// both devices, its steps lowering the potential.
+/// plane, a line or a point through where it went (the plane across its
+/// rest normal, the line along it: any spring through the answer leaves
+/// it an equilibrium): the solve lands on the truth on both devices, its
+/// steps lowering the potential.
 #[test]
 fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
     let model = common::phantom_model(3_000);
@@ -131,7 +132,7 @@ fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
         let mut solver = Solver::new(device, &model, params.clone()).unwrap();
         let plan = solver.plan().clone();
         let normals = particle_normals(&model, &model.surface);
-        let springs = skin_springs(&model, &plan, &truth, &normals);
+        let springs = skin_springs(&model, &plan, &truth, &normals, true);
         solver.set_springs(springs).unwrap();
         solver.set_surface(&model.surface).unwrap();
         let report = solver.solve().unwrap();
@@ -157,14 +158,14 @@ fn springs_through_an_equilibrium_leave_it_the_answer_on_both_devices() {
 }
 
 /// Springs that do not fit the solve are refused with what is wrong: not
-/// one per particle, not finite, or without the elastic force; an empty
-/// list takes them away.
+/// one per particle, not finite, pushing away, or without the elastic
+/// force; an empty list takes them away.
 #[test]
 fn springs_that_do_not_fit_are_refused_with_the_reason() {
     let model = common::phantom_model(2_000);
     let mut solver = Solver::new(Device::Cpu, &model, DeformParams::default()).unwrap();
     let short = solver
-        .set_springs(vec![Vec4::ZERO; 3])
+        .set_springs(vec![Spring::ZERO; 3])
         .unwrap_err()
         .to_string();
     assert!(
@@ -173,18 +174,28 @@ fn springs_that_do_not_fit_are_refused_with_the_reason() {
             && short.contains("one per particle"),
         "{short}"
     );
-    let mut nan = vec![Vec4::ZERO; model.len()];
-    nan[7] = Vec4::new(f32::NAN, 0.0, 0.0, 0.0);
+    let mut nan = vec![Spring::ZERO; model.len()];
+    nan[7].anchor = Vec4::new(f32::NAN, 0.0, 0.0, 0.0);
     let nan = solver.set_springs(nan).unwrap_err().to_string();
     assert!(
         nan.contains("particle 7") && nan.contains("not finite"),
         "{nan}"
     );
+    let mut pushing = vec![Spring::ZERO; model.len()];
+    pushing[9] = Spring {
+        anchor: Vec4::new(0.0, 0.0, 0.0, 1.0),
+        axis: Vec4::new(0.0, 0.0, 1.0, -3.0),
+    };
+    let pushing = solver.set_springs(pushing).unwrap_err().to_string();
+    assert!(
+        pushing.contains("particle 9") && pushing.contains("pushes away"),
+        "{pushing}"
+    );
     let symmetric =
         DeformParams::default().with(|p| p.force = tissue_cpu::deformation::ForceModel::Symmetric);
     let mut other = Solver::new(Device::Cpu, &model, symmetric).unwrap();
     let refused = other
-        .set_springs(vec![Vec4::ZERO; model.len()])
+        .set_springs(vec![Spring::ZERO; model.len()])
         .unwrap_err()
         .to_string();
     assert!(refused.contains("elastic force"), "{refused}");
@@ -194,19 +205,26 @@ fn springs_that_do_not_fit_are_refused_with_the_reason() {
 }
 
 /// A spring of the default weight on every free surface particle, towards
-/// the plane through its point in `points` with its normal in `normals`.
+/// the plane through its point in `points` with its normal in `normals`;
+/// with `mixed`, every third towards the line along the normal instead
+/// and every third towards the point.
 fn skin_springs(
     model: &ParticleModel,
     plan: &tissue_solve::Plan,
     points: &[Vec3],
     normals: &[Vec3],
-) -> Vec<Vec4> {
+    mixed: bool,
+) -> Vec<Spring> {
+    let weight = SPRING_WEIGHT * plan.lambda_max;
     (0..model.len())
         .map(|i| {
-            if model.attachments[i].is_some() && plan.free[i] {
-                spring(points[i], normals[i], SPRING_WEIGHT * plan.lambda_max)
-            } else {
-                Vec4::ZERO
+            if !(model.attachments[i].is_some() && plan.free[i]) {
+                return Spring::ZERO;
+            }
+            match (mixed, i % 3) {
+                (true, 1) => Spring::line(points[i], normals[i], weight),
+                (true, 2) => Spring::point(points[i], weight),
+                _ => spring(points[i], normals[i], weight),
             }
         })
         .collect()

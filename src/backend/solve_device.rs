@@ -1,12 +1,12 @@
 //! [`SolveDevice`] for [`SolverDevice`]: each call forwarded to the CPU's
 //! or the GPU's solve.
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::Error;
 use tissue_core::field::SurfaceField;
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_gpu::GpuSolve;
-use tissue_solve::stage2::{Pairing, Potential};
+use tissue_solve::stage2::{Pairing, Potential, Spring};
 use tissue_solve::{Iteration, Plan, SolveDevice};
 
 use super::{SolverDevice, infallible};
@@ -116,7 +116,7 @@ impl SolveDevice for SolverDevice {
         }
     }
 
-    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Error> {
+    fn set_springs(&mut self, springs: &[Spring]) -> Result<(), Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.as_mut().set_springs(springs)),
             Self::Gpu(gpu) => gpu.on("uploading the springs", |g| g.set_springs(springs)),

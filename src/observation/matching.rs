@@ -3,12 +3,11 @@
 
 use std::collections::BTreeSet;
 
-use glam::Vec4;
 use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_solve::stage2::{
-    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane,
-    paired_spring, pairing_plane,
+    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, Spring, pair_plane,
+    paired_point, paired_spring,
 };
 
 use super::{Cloud, ObservationError};
@@ -550,7 +549,7 @@ pub fn match_observation(
             _ => NO_LIMIT,
         };
         let springs = springs(&field, &skin, &start, &rule, model.len());
-        if !springs.iter().any(|s| *s != Vec4::ZERO) {
+        if !springs.iter().any(|s| !s.is_zero()) {
             clear(solver)?;
             return Err(ObservationError::Unpaired { skin: skin.len() }.into());
         }
@@ -584,7 +583,7 @@ pub fn match_observation(
     let end = solver.positions().to_vec();
     let pulled = springs(&field, &skin, &end, &rule, model.len())
         .iter()
-        .filter(|s| **s != Vec4::ZERO)
+        .filter(|s| !s.is_zero())
         .count();
     clear(solver)?;
     let bound = solver.bind(&model.surface.vertices)?;
@@ -666,8 +665,8 @@ fn median_distance(
         .par_iter()
         .filter_map(|&i| {
             let x = positions[i as usize];
-            let (point, normal) = pairing_plane(field, x, rule);
-            pair_plane(x, point, normal, rule).map(|(_, d)| d)
+            let paired = paired_point(field, x, rule);
+            pair_plane(x, paired.point, paired.normal, rule).map(|(_, d)| d)
         })
         .collect();
     if distances.is_empty() {
@@ -685,16 +684,15 @@ fn springs(
     positions: &[Vec3],
     rule: &PairingRule,
     count: usize,
-) -> Vec<Vec4> {
-    let paired: Vec<Vec4> = skin
+) -> Vec<Spring> {
+    let paired: Vec<Spring> = skin
         .par_iter()
         .map(|&i| {
             let x = positions[i as usize];
-            let (point, normal) = pairing_plane(field, x, rule);
-            paired_spring(x, point, normal, rule)
+            paired_spring(x, &paired_point(field, x, rule), rule)
         })
         .collect();
-    let mut springs = vec![Vec4::ZERO; count];
+    let mut springs = vec![Spring::ZERO; count];
     for (&i, spring) in skin.iter().zip(paired) {
         springs[i as usize] = spring;
     }

@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::{Connections, ParticleModel, SurfaceMesh};
 use tissue_solve::coarse::{
     Aggregates, CoarseSpace, CorrectionFor, ElasticCoarse, SharedLaplacian, Smoothing,
@@ -11,6 +11,7 @@ use tissue_solve::coarse::{
 };
 use tissue_solve::model::Elastic;
 use tissue_solve::stage2::Plan;
+use tissue_solve::stage2::Spring;
 use tissue_solve::{DeformParams, DeformReport, Iteration, PrepareStage, Tracker};
 
 use crate::{DeformState, GpuError, Pipelines};
@@ -105,9 +106,9 @@ struct ElasticHost {
     volume_smoother: Option<(Smoothing, f32)>,
     /// Up to how many aggregates the correction is factored, cycled above.
     direct_max: usize,
-    /// Per particle its spring towards an observed plane, part of the
+    /// Per particle its spring towards the observation, part of the
     /// correction's operator (empty without: [`Plan::springs`]).
-    springs: Vec<Vec4>,
+    springs: Vec<Spring>,
 }
 
 impl GpuDeformer {

@@ -1,9 +1,10 @@
 //! The buffers of one particle model on the GPU.
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_solve::coarse::{Aggregates, CoarseSpace, ElasticCoarse, RELAXATION};
 use tissue_solve::model::Elastic;
+use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::{Choices, Correction, Holds, Pass};
 use tissue_solve::{ForceModel, RotationMethod};
 
@@ -302,18 +303,18 @@ impl DeformState {
     }
 
     /// Uploads every particle's body force (the plan's loads, one per
-    /// particle, or none) and its spring towards an observed plane (the
+    /// particle, or none) and its spring towards the observation (the
     /// plan's springs, one per particle, or none): from now on the plain
     /// step adds the body force to the force, and the elastic force's
     /// iterations the springs' pulls. The buffer holds the body forces
-    /// (zero without loads) and, with springs, the springs after them
-    /// (`shared/loads.wgsl`).
+    /// (zero without loads) and, with springs, the springs after them, two
+    /// entries each (`shared/loads.wgsl`).
     pub fn set_loads(
         &mut self,
         device: &wgpu::Device,
         pipelines: &Pipelines,
         loads: &[Vec3],
-        springs: &[Vec4],
+        springs: &[Spring],
     ) -> Result<(), GpuError> {
         if !loads.is_empty() {
             self.check_len("loads (one per particle)", loads.len())?;
@@ -323,7 +324,10 @@ impl DeformState {
         }
         let n = self.len();
         let body = (0..n).map(|i| loads.get(i).map_or([0.0; 4], |&b| vec4(b, 0.0)));
-        let packed: Vec<[f32; 4]> = body.chain(springs.iter().map(|s| s.to_array())).collect();
+        let springs = springs
+            .iter()
+            .flat_map(|s| [s.anchor.to_array(), s.axis.to_array()]);
+        let packed: Vec<[f32; 4]> = body.chain(springs).collect();
         self.loads = scoped(device, || {
             Storage::init(
                 device,

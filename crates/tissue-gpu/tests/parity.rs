@@ -6,7 +6,7 @@
 
 mod common;
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::ParticleModel;
 use tissue_cpu::coarse::Aggregates;
 use tissue_cpu::coarse::{CorrectionFor, ElasticCoarse};
@@ -15,7 +15,7 @@ use tissue_cpu::deformation::{
     elastic_residual, elastic_terms, integrate, local_rotations,
 };
 use tissue_gpu::{DeformState, Kernel, Pipelines};
-use tissue_solve::stage2::spring;
+use tissue_solve::stage2::{Spring, spring};
 
 const SIZES: [usize; 2] = [2_000, 3_001];
 
@@ -463,17 +463,24 @@ fn the_smoothed_elastic_step_matches_the_cpu_twin() {
             direct_max_aggregates: usize::MAX,
             envelope: true,
         };
-        // Springs through planes a little off every third free particle,
-        // tilted from axis to axis, as stiff as the default.
-        let springs: Vec<Vec4> = if pulled {
+        // Springs a little off every third free particle, as stiff as the
+        // default, in turn towards a plane, a line and a point, tilted from
+        // axis to axis.
+        let springs: Vec<Spring> = if pulled {
             (0..model.len())
                 .map(|i| match free[i] {
                     true if i % 3 == 0 => {
-                        let normal = Vec3::new(1.0, (i % 3) as f32 - 1.0, 0.5).normalize();
+                        let normal = Vec3::new(1.0, (i % 7) as f32 - 3.0, 0.5).normalize();
                         let weight = tissue_solve::stage2::SPRING_WEIGHT * plan.lambda_max;
-                        spring(current[i] + 0.3 * normal, normal, weight)
+                        let point =
+                            current[i] + 0.3 * normal.any_orthonormal_vector() - 0.2 * normal;
+                        match i % 9 {
+                            0 => spring(point, normal, weight),
+                            3 => Spring::line(point, normal, weight),
+                            _ => Spring::point(point, weight),
+                        }
                     }
-                    _ => Vec4::ZERO,
+                    _ => Spring::ZERO,
                 })
                 .collect()
         } else {

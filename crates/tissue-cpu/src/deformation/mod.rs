@@ -25,7 +25,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
@@ -34,6 +34,7 @@ pub use tissue_solve::model::Elastic;
 use tissue_solve::model::ElasticTerms;
 pub use tissue_solve::stage2::Pass;
 pub use tissue_solve::stage2::Plan;
+use tissue_solve::stage2::Spring;
 pub use tissue_solve::stage2::check_same_topology;
 pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
 use tissue_solve::stage2::{Choices, Holds, Pairing, Tracker};
@@ -190,9 +191,9 @@ impl Deformer {
         self.tracker.set_surface(deformed)
     }
 
-    /// Sets every particle's spring towards an observed plane for the next
+    /// Sets every particle's spring towards the observation for the next
     /// solves (`Tracker::set_springs`: one per particle, or none).
-    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+    pub fn set_springs(&mut self, springs: Vec<Spring>) -> Result<(), Error> {
         self.tracker.set_springs(springs)
     }
 
@@ -250,14 +251,14 @@ pub struct CpuSolve {
     free: Vec<bool>,
     /// Per particle its body force (empty without a load).
     loads: Vec<Vec3>,
-    /// Per particle its spring towards an observed plane as the plan set
+    /// Per particle its spring towards the observation as the plan set
     /// it (empty without: [`Plan::springs`]): what the elastic phase's
     /// correction is made with.
-    springs: Vec<Vec4>,
+    springs: Vec<Spring>,
     /// The springs the elastic force's iterations apply: the plan's, or
     /// where the skin is paired with an observation, as the last
     /// [`Pass::Pair`] set them.
-    pulls: Vec<Vec4>,
+    pulls: Vec<Spring>,
     /// The observation the skin is paired with (its nearest points).
     observation: Option<Arc<SurfaceField>>,
     /// How the skin is paired with it ([`Plan::pairing`]).
@@ -500,7 +501,7 @@ impl CpuSolve {
     /// The springs an iteration with `it` applies: the pulls with the
     /// elastic force, none with the others (whose corrections are made
     /// for the Laplacian without them).
-    fn springs_for(&self, it: Iteration) -> &[Vec4] {
+    fn springs_for(&self, it: Iteration) -> &[Spring] {
         if it.force == ForceModel::Elastic {
             &self.pulls
         } else {

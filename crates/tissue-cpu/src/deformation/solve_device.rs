@@ -3,10 +3,11 @@
 use std::convert::Infallible;
 use std::sync::Arc;
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{CoarseSpace, ElasticCoarse, SharedLaplacian};
+use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::{Pairing, Potential};
 use tissue_solve::{DeformParams, ForceModel, Iteration, Plan, SolveDevice};
 
@@ -149,7 +150,7 @@ impl SolveDevice for CpuSolve {
         Ok(self.current.clone())
     }
 
-    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Infallible> {
+    fn set_springs(&mut self, springs: &[Spring]) -> Result<(), Infallible> {
         springs.clone_into(&mut self.springs);
         springs.clone_into(&mut self.pulls);
         // Its operator holds the springs it was made with.
@@ -170,7 +171,7 @@ impl SolveDevice for CpuSolve {
     fn set_pairing(&mut self, pairing: Option<&Pairing>) -> Result<(), Infallible> {
         self.pairing = pairing.cloned();
         if self.pairing.is_some() && self.pulls.is_empty() {
-            self.pulls = vec![Vec4::ZERO; self.rest.len()];
+            self.pulls = vec![Spring::ZERO; self.rest.len()];
         }
         Ok(())
     }

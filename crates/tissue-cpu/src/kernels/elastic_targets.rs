@@ -3,10 +3,11 @@
 //! over them (`elastic_force`), and each particle's part of the potential
 //! the force descends (`elastic_potential`).
 
-use glam::{Mat3, Mat3A, Vec3, Vec4};
+use glam::{Mat3, Mat3A, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
 use tissue_solve::model::{Elastic, ElasticTerms, rotation_of};
+use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::{RotationMethod, spring_potential};
 
 use super::polar::{LANES, warm_rotations};
@@ -123,7 +124,7 @@ pub fn elastic_potential(
     connections: &Connections,
     elastic: &Elastic,
     loads: &[Vec3],
-    springs: &[Vec4],
+    springs: &[Spring],
     free: &[bool],
     rotations: &[Mat3],
 ) -> Vec<f64> {

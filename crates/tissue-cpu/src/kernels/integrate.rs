@@ -1,8 +1,9 @@
 //! Twin of `shaders/integrate.wgsl`: the plain step (`integrate`) and the
 //! Chebyshev combine (`chebyshev_combine`).
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 use rayon::prelude::*;
+use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::spring_force;
 
 /// The shader this module is the twin of.
@@ -11,7 +12,7 @@ pub const SHADER: &str = "integrate";
 /// `q += alpha (F + b + p)` for free particles (the stiffness `sigma` and
 /// mass `m` fold into `alpha = sigma / m`), `b` the particle's body force
 /// from `loads` (none where `loads` is empty) and `p` its spring's pull
-/// towards an observed plane from `springs`
+/// towards the observation from `springs`
 /// ([`tissue_solve::stage2::spring_force`]; none where `springs` is
 /// empty: the elastic force's iterations pass the plan's, the others
 /// none); control points stay where the surface put them.
@@ -19,7 +20,7 @@ pub fn integrate(
     current: &[Vec3],
     force: &[Vec3],
     loads: &[Vec3],
-    springs: &[Vec4],
+    springs: &[Spring],
     free: &[bool],
     alpha: f32,
 ) -> Vec<Vec3> {
@@ -39,7 +40,7 @@ pub fn integrate(
 
 /// What acts on particle `i` at `q` besides the force between particles:
 /// its body force and its spring's pull, where there are any.
-pub fn applied(i: usize, q: Vec3, loads: &[Vec3], springs: &[Vec4]) -> Vec3 {
+pub fn applied(i: usize, q: Vec3, loads: &[Vec3], springs: &[Spring]) -> Vec3 {
     let b = loads.get(i).copied().unwrap_or(Vec3::ZERO);
     match springs.get(i) {
         Some(&spring) => b + spring_force(spring, q),

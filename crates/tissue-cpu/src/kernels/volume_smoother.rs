@@ -4,9 +4,10 @@
 //! `tissue_solve::coarse::ElasticCoarse::smoothed_step` (its
 //! pressures' sweeps `tissue_solve::coarse::VolumeSmoother`).
 
-use glam::{DVec3, Vec3, Vec4};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_solve::coarse::OUTSIDE;
+use tissue_solve::stage2::Spring;
 
 use crate::kernels::integrate::applied;
 
@@ -23,7 +24,7 @@ pub fn elastic_residual(
     force: &[Vec3],
     current: &[Vec3],
     loads: &[Vec3],
-    springs: &[Vec4],
+    springs: &[Spring],
     aggregate: &[u32],
 ) -> Vec<DVec3> {
     force

@@ -1,9 +1,10 @@
 //! [`SolveDevice`] for [`GpuSolve`]: each call of the seam inside error
 //! scopes of its own, and what those calls run.
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{ElasticCoarse, SharedLaplacian};
+use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::{Pairing, Plan, Potential};
 use tissue_solve::{DeformParams, ForceModel, Iteration, RotationMethod, SolveDevice};
 
@@ -103,7 +104,7 @@ impl SolveDevice for GpuSolve {
 
     /// Uploads them beside the loads; the correction is made again with
     /// them at the next elastic phase's start.
-    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), GpuError> {
+    fn set_springs(&mut self, springs: &[Spring]) -> Result<(), GpuError> {
         self.scoped(|gpu| {
             let device = gpu.device.clone();
             gpu.state
@@ -142,7 +143,7 @@ impl SolveDevice for GpuSolve {
         self.scoped(|gpu| {
             let device = gpu.device.clone();
             if pairing.is_some() && !gpu.state.holds_springs() {
-                let zero = vec![Vec4::ZERO; gpu.state.len()];
+                let zero = vec![Spring::ZERO; gpu.state.len()];
                 gpu.state
                     .set_loads(&device, &gpu.pipelines, &gpu.loads, &zero)?;
             }

@@ -152,7 +152,7 @@ impl DeformState {
 
     /// Whether the loads buffer holds a spring per particle.
     pub(crate) fn holds_springs(&self) -> bool {
-        self.loads.len() == 2 * self.len()
+        self.loads.len() == 3 * self.len()
     }
 
     /// Uploads the pairing's parameters and particles (`pairing` where it

@@ -16,8 +16,8 @@
 //! once, and used for the whole phase, and for warm-started tracking
 //! frames after it.
 //!
-//! *Springs.* A phase whose free skin carries springs towards observed
-//! planes (`s s^T / 2` in `K`, taken exactly by the volume smoother)
+//! *Springs.* A phase whose free skin carries springs towards the
+//! observation (`P / 2` in `K`, taken exactly by the volume smoother)
 //! iterates with the contraction estimated at rest without them
 //! ([`setup::rest_rate`]). The springs only add to `K` and to the
 //! smoother's `M` together, leaving `M - K` as it was, so they shrink the
@@ -28,7 +28,7 @@
 
 use std::time::Instant;
 
-use glam::{DMat3, DVec3, Vec3, Vec4};
+use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use tissue_core::{Connections, DeformError, Error};
 
@@ -39,7 +39,7 @@ use crate::coarse::volume_smoother::{Smoothing, VolumeSmoother};
 use crate::model::elastic::{Elastic, VolumeLinearisation, cofactor};
 use crate::stage2::device::Iteration;
 use crate::stage2::params::ForceModel;
-use crate::stage2::springs::{spring_block, spring_operator};
+use crate::stage2::springs::{Spring, spring_block, spring_operator};
 
 mod setup;
 
@@ -110,9 +110,9 @@ pub struct ElasticCoarse {
     linearisation: VolumeLinearisation,
     /// `K`'s volume part per connection, for the CPU's products.
     entries: Entries,
-    /// Per particle its spring towards an observed plane, whose
-    /// `s s^T / 2` is part of `K` (empty without springs).
-    springs: Vec<Vec4>,
+    /// Per particle its spring towards the observation, whose
+    /// `P / 2` is part of `K` (empty without springs).
+    springs: Vec<Spring>,
     /// The solve of `P^T K P`.
     solve: CoarseSolve,
     /// The volume smoother, where the iteration smooths with it.
@@ -134,9 +134,9 @@ pub(crate) struct Making<'a> {
     pub(crate) rate_steps: usize,
     pub(crate) previous: Option<&'a ElasticCoarse>,
     pub(crate) single: bool,
-    /// Per particle its spring towards an observed plane
+    /// Per particle its spring towards the observation
     /// ([`crate::stage2::plan::Plan::springs`]; empty without).
-    pub(crate) springs: &'a [Vec4],
+    pub(crate) springs: &'a [Spring],
 }
 
 impl Default for Making<'_> {
@@ -277,7 +277,7 @@ impl ElasticCoarse {
         connections: &Connections,
         elastic: &Elastic,
         made_for: CorrectionFor,
-        springs: &[Vec4],
+        springs: &[Spring],
         previous: Option<&Self>,
     ) -> Option<Self> {
         // The rest contraction given with the volume smoother bounds the
@@ -337,12 +337,12 @@ impl ElasticCoarse {
 
     /// Takes `springs` (one per particle, or none) as the springs of the
     /// iterations that follow, where a pairing sets them anew each
-    /// iteration: the per-particle parts (the operator's `s s^T / 2` in
+    /// iteration: the per-particle parts (the operator's `P / 2` in
     /// its products, the smoother's `Phi`) take them, while the coarse
     /// matrix and the smoother's diagonal stay as made, a preconditioner
     /// for springs that change little. A device's kernels read the
     /// iteration's springs the same way.
-    pub fn set_pulls(&mut self, springs: &[Vec4]) {
+    pub fn set_pulls(&mut self, springs: &[Spring]) {
         springs.clone_into(&mut self.springs);
         if let Some(smoother) = &mut self.smoother {
             smoother.set_springs(springs);
@@ -711,13 +711,13 @@ fn linearise(
 /// weight `1/2 W_i (P^T g_i)(P^T g_i)^T` (`parts`), each sorted by column;
 /// with `upper`, only the blocks on and above the diagonal (half the outer
 /// products: what a host factor reads). Each particle's spring (`springs`:
-/// one per particle, or none) adds its `s s^T / 2` to its aggregate's
+/// one per particle, or none) adds its `P / 2` to its aggregate's
 /// diagonal block.
 fn assemble(
     aggregates: &Aggregates,
     parts: &Parts,
     weights: &[f64],
-    springs: &[Vec4],
+    springs: &[Spring],
     upper: bool,
 ) -> Vec<Vec<(u32, DMat3)>> {
     // Per aggregate, the particles whose `g_i` reaches it, in order.
@@ -730,7 +730,7 @@ fn assemble(
     // Per aggregate, its springs' blocks summed in the particles' order.
     let mut pulled = vec![DMat3::ZERO; aggregates.count()];
     for (&a, &spring) in aggregates.aggregate.iter().zip(springs) {
-        if a != OUTSIDE && spring != Vec4::ZERO {
+        if a != OUTSIDE && !spring.is_zero() {
             pulled[a as usize] += spring_block(spring);
         }
     }

@@ -29,7 +29,9 @@
 //! from 0.97 (the plain step) to 0.88: the linear problem to a thousandth
 //! of the error in 15-16 iterations instead of 33.
 
-use glam::{DVec3, Vec4};
+use glam::DVec3;
+
+use crate::stage2::springs::Spring;
 use rayon::prelude::*;
 use tissue_core::Connections;
 
@@ -76,13 +78,15 @@ pub struct Smoothing {
 
 /// The smoother at one linearisation.
 ///
-/// With springs towards an observed plane (`s s^T / 2` of `K` at particle
-/// `k`), the shear part's `delta I` becomes `M_0`, `delta I + s_k s_k^T / 2`
-/// on particle `k`: the smoother takes each spring exactly, so `M - K` is
-/// `delta I - L` with springs as without. Woodbury's
+/// With springs towards the observation (`P_k / 2` of `K` at particle
+/// `k`, `P = a I + b u u^T`: [`crate::stage2::springs`]), the shear part's
+/// `delta I` becomes `M_0`, `delta I + P_k / 2` on particle `k`: the
+/// smoother takes each spring exactly, so `M - K` is `delta I - L` with
+/// springs as without. Woodbury's
 /// `M^-1 r = M_0^-1 (r - H y)` with `(I + H^T M_0^-1 H) y = H^T M_0^-1 r`;
 /// in the pressures `z = delta y` and with `Phi = delta M_0^-1`, per
-/// particle `I - s s^T / (2 delta + |s|^2)` (the identity without a
+/// particle `(delta / alpha) (I - beta u u^T / (alpha + beta |u|^2))` with
+/// `alpha = delta + a / 2` and `beta = b / 2` (the identity without a
 /// spring), the system is `(delta I + H^T Phi H) z = H^T Phi r`, `Phi`
 /// applied to each field before `H^T` reads it, and the step
 /// `Phi (r - H z) / delta`.
@@ -97,9 +101,9 @@ pub struct VolumeSmoother {
     /// Per particle `D_i = delta + sum_j h_ij^T Phi_j h_ij` over the
     /// entries at free particles, the pressure system's diagonal.
     diagonal: Vec<f64>,
-    /// Per particle its spring's `s` and `1 / (2 delta + |s|^2)`, for
-    /// `Phi` (empty without springs: `Phi = I`).
-    springs: Vec<(DVec3, f64)>,
+    /// Per particle `Phi`'s axis `u`, scale `delta / alpha` and
+    /// `beta / (alpha + beta |u|^2)` (empty without springs: `Phi = I`).
+    springs: Vec<(DVec3, f64, f64)>,
 }
 
 impl VolumeSmoother {
@@ -113,14 +117,14 @@ impl VolumeSmoother {
         connections: &Connections,
         inside: &(impl Fn(usize) -> bool + Sync),
         smoothing: Smoothing,
-        springs: &[Vec4],
+        springs: &[Spring],
     ) -> Self {
         let Smoothing { delta, sweeps } = smoothing;
         let roots: Vec<f64> = weights.iter().map(|&w| (0.5 * w).sqrt()).collect();
         let springs = phi_springs(springs, delta);
         // `g^T Phi_j g`.
         let seen = |j: usize, g: DVec3| match springs.get(j) {
-            Some(&(s, inverse)) => g.length_squared() - s.dot(g).powi(2) * inverse,
+            Some(&(u, scale, along)) => scale * (g.length_squared() - along * u.dot(g).powi(2)),
             None => g.length_squared(),
         };
         let diagonal = (0..weights.len())
@@ -156,15 +160,15 @@ impl VolumeSmoother {
 
     /// Takes `springs` (one per particle, or none) for `Phi`; the
     /// pressures' diagonal stays as made (`ElasticCoarse::set_pulls`).
-    pub(crate) fn set_springs(&mut self, springs: &[Vec4]) {
+    pub(crate) fn set_springs(&mut self, springs: &[Spring]) {
         self.springs = phi_springs(springs, self.delta);
     }
 
-    /// `Phi` at particle `k` applied to `x`: `x - s (s . x) / (2 delta +
-    /// |s|^2)` with its spring, `x` without.
+    /// `Phi` at particle `k` applied to `x`: `(delta / alpha) (x - u (u . x)
+    /// beta / (alpha + beta |u|^2))` with its spring, `x` without.
     fn phi(&self, k: usize, x: DVec3) -> DVec3 {
         match self.springs.get(k) {
-            Some(&(s, inverse)) => x - s * (s.dot(x) * inverse),
+            Some(&(u, scale, along)) => scale * (x - u * (u.dot(x) * along)),
             None => x,
         }
     }
@@ -256,13 +260,17 @@ impl VolumeSmoother {
     }
 }
 
-/// Per spring its `s` and `1 / (2 delta + |s|^2)`, what `Phi` reads.
-fn phi_springs(springs: &[Vec4], delta: f64) -> Vec<(DVec3, f64)> {
+/// Per spring `Phi`'s axis `u`, scale `delta / alpha` and
+/// `beta / (alpha + beta |u|^2)` (`alpha = delta + a / 2`, `beta = b / 2`),
+/// what `Phi` reads.
+fn phi_springs(springs: &[Spring], delta: f64) -> Vec<(DVec3, f64, f64)> {
     springs
         .iter()
         .map(|s| {
-            let s = s.truncate().as_dvec3();
-            (s, 1.0 / (2.0 * delta + s.length_squared()))
+            let (a, b, u) = s.stiffness();
+            let alpha = delta + 0.5 * a;
+            let beta = 0.5 * b;
+            (u, delta / alpha, beta / (alpha + beta * u.length_squared()))
         })
         .collect()
 }

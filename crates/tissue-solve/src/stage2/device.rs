@@ -3,7 +3,7 @@
 //! device-neutral [`crate::stage2::tracker::Tracker`] and a device's kernels and
 //! buffers.
 
-use glam::{Mat3, Vec3, Vec4};
+use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 
 use crate::coarse::laplacian::SharedLaplacian;
@@ -119,12 +119,12 @@ pub trait SolveDevice {
         turn: Option<Mat3>,
     ) -> Result<(), Self::Error>;
 
-    /// Sets every particle's spring towards an observed plane (the plan's,
+    /// Sets every particle's spring towards the observation (the plan's,
     /// [`crate::stage2::plan::Plan::set_springs`]: one per particle, or none
     /// to take them away): the elastic force's next iterations pull with
     /// them, and its correction is made again with them at the next
     /// elastic phase's start.
-    fn set_springs(&mut self, springs: &[Vec4]) -> Result<(), Self::Error>;
+    fn set_springs(&mut self, springs: &[crate::stage2::Spring]) -> Result<(), Self::Error>;
 
     /// Sets every particle's body force (the plan's loads,
     /// [`crate::stage2::plan::Plan::set_load`]: one per particle, or none):

@@ -43,8 +43,8 @@ pub use device::{Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{Cloud, NORMAL_NEIGHBOURS, SCAN_SCALE};
 pub use pairing::{
-    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, pair_plane, paired_spring, pairing_plane,
-    taper,
+    CLOUD_SMOOTHING, Feature, NO_LIMIT, Paired, Pairing, PairingRule, feature_of, pair_plane,
+    paired_point, paired_spring, taper,
 };
 pub use params::{
     DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
@@ -69,7 +69,7 @@ pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopRea
 pub use rigid::{RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, rigid_fit};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
 pub use springs::{
-    SPRING_WEIGHT, spring, spring_block, spring_force, spring_operator, spring_potential,
+    SPRING_WEIGHT, Spring, spring, spring_block, spring_force, spring_operator, spring_potential,
     springs_stiffness,
 };
 pub use tracker::Tracker;

@@ -8,10 +8,10 @@
 //! observation and the mechanics decides where along it
 //! (docs/METHOD.md, "Observations without correspondence").
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 use tissue_core::field::SurfaceField;
 
-use crate::stage2::springs::spring;
+use crate::stage2::springs::Spring;
 
 /// A cloud's plane at a particle is smoothed over its points within three
 /// of this many spacings of it, each weighted by `exp(-r^2 / h^2)` with
@@ -47,24 +47,88 @@ pub struct PairingRule {
     /// direction to the nearest point (the distance's gradient).
     pub cloud: bool,
     /// For a point cloud, the radius `h` its plane is smoothed over
-    /// ([`CLOUD_SMOOTHING`] spacings; [`pairing_plane`]); 0 takes the
+    /// ([`CLOUD_SMOOTHING`] spacings; [`paired_point`]); 0 takes the
     /// nearest point's own plane.
     pub smooth: f32,
 }
 
-/// The observed point and unit normal a particle at `x` is paired with on
-/// `field`: for a cloud with a smoothing radius, its smoothed plane where
-/// one is found ([`SurfaceField::smooth_plane`]); else the nearest point
-/// and the normal there. What every device's pairing pass takes.
-pub fn pairing_plane(field: &SurfaceField, x: Vec3, rule: &PairingRule) -> (Vec3, Vec3) {
+/// Where on the observation a particle's nearest point lies, which sets
+/// the curvature of half its squared distance there ([`paired_spring`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Feature {
+    /// Inside a surface's face, or on a cloud's plane.
+    Face,
+    /// On a surface's edge, along this unit direction.
+    Edge(Vec3),
+    /// At a surface's vertex.
+    Vertex,
+}
+
+/// The observed point a particle is paired with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Paired {
+    /// The nearest observed point (for a cloud with a smoothing radius,
+    /// its smoothed plane's point).
+    pub point: Vec3,
+    /// The observation's unit normal there.
+    pub normal: Vec3,
+    /// Where on the observation the point lies.
+    pub feature: Feature,
+}
+
+/// The feature of triangle `corners` that holds the point of barycentric
+/// coordinates `barycentric`, as [`SurfaceField::nearest`] gives them
+/// (exact zeros off the face): two zeros a vertex, one an edge (the one
+/// opposite the corner whose coordinate is zero), none the face.
+pub fn feature_of(corners: [Vec3; 3], barycentric: [f32; 3]) -> Feature {
+    let zeros = barycentric.iter().filter(|&&b| b == 0.0).count();
+    match (zeros, barycentric.iter().position(|&b| b == 0.0)) {
+        (1, Some(k)) => {
+            let edge = corners[(k + 2) % 3] - corners[(k + 1) % 3];
+            let length = edge.length();
+            if length > 0.0 {
+                Feature::Edge(edge / length)
+            } else {
+                Feature::Vertex
+            }
+        }
+        (0, _) => Feature::Face,
+        _ => Feature::Vertex,
+    }
+}
+
+/// The observed point a particle at `x` is paired with on `field`: for a
+/// cloud with a smoothing radius, its smoothed plane where one is found
+/// ([`SurfaceField::smooth_plane`]); else the nearest point, the normal
+/// there, and (for a surface) the feature it lies on. What every device's
+/// pairing pass takes.
+pub fn paired_point(field: &SurfaceField, x: Vec3, rule: &PairingRule) -> Paired {
     if rule.cloud
         && rule.smooth > 0.0
-        && let Some(plane) = field.smooth_plane(x, rule.smooth)
+        && let Some((point, normal)) = field.smooth_plane(x, rule.smooth)
     {
-        return plane;
+        return Paired {
+            point,
+            normal,
+            feature: Feature::Face,
+        };
     }
     let near = field.nearest(x);
-    (near.point, near.normal)
+    let feature = if rule.cloud {
+        Feature::Face
+    } else {
+        field
+            .corners
+            .get(near.triangle as usize)
+            .map_or(Feature::Face, |&corners| {
+                feature_of(corners, near.barycentric)
+            })
+    };
+    Paired {
+        point: near.point,
+        normal: near.normal,
+        feature,
+    }
 }
 
 /// The free skin particles paired at each iteration, and how.
@@ -98,15 +162,23 @@ pub fn pair_plane(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Opt
     Some((n, length))
 }
 
-/// The spring of a particle at `x` paired with its nearest observed point
-/// `point` (the observation's unit `normal` there): towards the plane of
-/// [`pair_plane`] with the rule's weight, faded ([`taper`]) from half the
-/// way to a cloud's edge or to the trim, and zero beyond either. What [`Pass::Pair`](crate::stage2::Pass::Pair) writes
-/// for each paired particle on every device.
-pub fn paired_spring(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Vec4 {
+/// The spring of a particle at `x` paired with `paired`: the curvature of
+/// half its squared distance there with the rule's weight
+/// ([`crate::stage2::springs`]): for a cloud, or on a surface's face,
+/// towards the plane of [`pair_plane`]; on a surface's edge towards the
+/// edge's line, at its vertex towards the vertex. Faded ([`taper`]) from
+/// half the way to a cloud's edge or to the trim, and zero beyond either.
+/// What [`Pass::Pair`](crate::stage2::Pass::Pair) writes for each paired
+/// particle on every device.
+pub fn paired_spring(x: Vec3, paired: &Paired, rule: &PairingRule) -> Spring {
+    let Paired {
+        point,
+        normal,
+        feature,
+    } = *paired;
     let offset = x - point;
     let Some((n, distance)) = pair_plane(x, point, normal, rule) else {
-        return Vec4::ZERO;
+        return Spring::ZERO;
     };
     // How far across a cloud's plane the particle is, in its edges.
     let across = if rule.cloud {
@@ -116,9 +188,14 @@ pub fn paired_spring(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> 
     };
     let share = taper(across) * taper(distance / rule.trim);
     if share <= 0.0 {
-        return Vec4::ZERO;
+        return Spring::ZERO;
     }
-    spring(point, n, rule.weight * share)
+    let weight = rule.weight * share;
+    match feature {
+        Feature::Face => Spring::plane(point, n, weight),
+        Feature::Edge(tangent) => Spring::line(point, tangent, weight),
+        Feature::Vertex => Spring::point(point, weight),
+    }
 }
 
 /// The share of a spring's weight a particle `ratio` of the way to a
@@ -151,42 +228,74 @@ mod tests {
         assert_eq!(tissue_core::field::SMOOTH_REACH, 3.0);
     }
 
+    fn at(point: Vec3, feature: Feature) -> Paired {
+        Paired {
+            point,
+            normal: Vec3::Z,
+            feature,
+        }
+    }
+
     #[test]
-    fn a_surface_pulls_along_the_direction_to_its_nearest_point() {
-        // Off a corner: the plane is across the direction to the corner,
-        // not the face's.
+    fn a_surface_pulls_with_the_curvature_of_its_distance_where_the_nearest_point_lies() {
+        // Off a face: the plane across the direction to the nearest point.
+        let face = at(Vec3::ZERO, Feature::Face);
+        let x = Vec3::new(0.0, 0.0, 0.5);
+        assert_eq!(
+            paired_spring(x, &face, &rule(false)),
+            Spring::plane(Vec3::ZERO, Vec3::Z, 4.0)
+        );
+        // Off a vertex: every direction; off an edge: all but along it.
         let x = Vec3::new(0.5, 0.5, 0.0);
-        let s = paired_spring(x, Vec3::ZERO, Vec3::Z, &rule(false));
-        let n = Vec3::new(1.0, 1.0, 0.0).normalize();
-        assert!((s.truncate() - 2.0 * n).length() < 1e-6, "{s}");
-        assert!(s.w.abs() < 1e-6);
+        let vertex = paired_spring(x, &at(Vec3::ZERO, Feature::Vertex), &rule(false));
+        assert_eq!(vertex, Spring::point(Vec3::ZERO, 4.0));
+        let edge = paired_spring(x, &at(Vec3::ZERO, Feature::Edge(Vec3::Z)), &rule(false));
+        assert_eq!(edge, Spring::line(Vec3::ZERO, Vec3::Z, 4.0));
         // On the surface, its normal.
-        let on = paired_spring(Vec3::ZERO, Vec3::ZERO, Vec3::Z, &rule(false));
-        assert_eq!(on, Vec4::new(0.0, 0.0, 2.0, 0.0));
+        let on = paired_spring(Vec3::ZERO, &face, &rule(false));
+        assert_eq!(on, Spring::plane(Vec3::ZERO, Vec3::Z, 4.0));
         // Beyond the trim, nothing; three quarters of the way, half the
         // weight.
-        let far = paired_spring(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Z, &rule(false));
-        assert_eq!(far, Vec4::ZERO);
-        let fading = paired_spring(Vec3::new(0.0, 0.0, 1.5), Vec3::ZERO, Vec3::Z, &rule(false));
-        assert!(
-            (fading.truncate().length_squared() - 2.0).abs() < 1e-5,
-            "{fading}"
+        let far = paired_spring(Vec3::new(0.0, 0.0, 3.0), &face, &rule(false));
+        assert_eq!(far, Spring::ZERO);
+        let fading = paired_spring(Vec3::new(0.0, 0.0, 1.5), &face, &rule(false));
+        assert!((fading.largest() - 2.0).abs() < 1e-5, "{fading:?}");
+    }
+
+    #[test]
+    fn the_feature_is_read_from_the_nearest_points_zero_coordinates() {
+        let corners = [
+            Vec3::ZERO,
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        assert_eq!(feature_of(corners, [0.2, 0.3, 0.5]), Feature::Face);
+        assert_eq!(feature_of(corners, [0.0, 1.0, 0.0]), Feature::Vertex);
+        // Zero opposite the third corner: the edge from the first to the
+        // second.
+        assert_eq!(feature_of(corners, [0.5, 0.5, 0.0]), Feature::Edge(Vec3::X));
+        assert_eq!(
+            feature_of(corners, [0.5, 0.0, 0.5]),
+            Feature::Edge(Vec3::NEG_Y)
         );
+        let edge = Vec3::new(-2.0, 1.0, 0.0).normalize();
+        match feature_of(corners, [0.0, 0.25, 0.75]) {
+            Feature::Edge(t) => assert!((t - edge).length() < 1e-6),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
     fn a_cloud_pulls_along_its_normal_and_not_past_its_edge() {
-        let near = paired_spring(Vec3::new(0.25, 0.0, 0.5), Vec3::ZERO, Vec3::Z, &rule(true));
-        assert_eq!(near, Vec4::new(0.0, 0.0, 2.0, 0.0));
+        let plane = at(Vec3::ZERO, Feature::Face);
+        let near = paired_spring(Vec3::new(0.25, 0.0, 0.5), &plane, &rule(true));
+        assert_eq!(near, Spring::plane(Vec3::ZERO, Vec3::Z, 4.0));
         // Three quarters of the way to the edge: half the weight.
-        let edge = paired_spring(Vec3::new(0.75, 0.0, 0.5), Vec3::ZERO, Vec3::Z, &rule(true));
-        assert!(
-            (edge.truncate().length_squared() - 2.0).abs() < 1e-5,
-            "{edge}"
-        );
-        let past = paired_spring(Vec3::new(1.5, 0.0, 0.1), Vec3::ZERO, Vec3::Z, &rule(true));
-        assert_eq!(past, Vec4::ZERO);
-        let trimmed = paired_spring(Vec3::new(0.0, 0.0, -2.5), Vec3::ZERO, Vec3::Z, &rule(true));
-        assert_eq!(trimmed, Vec4::ZERO);
+        let edge = paired_spring(Vec3::new(0.75, 0.0, 0.5), &plane, &rule(true));
+        assert!((edge.largest() - 2.0).abs() < 1e-5, "{edge:?}");
+        let past = paired_spring(Vec3::new(1.5, 0.0, 0.1), &plane, &rule(true));
+        assert_eq!(past, Spring::ZERO);
+        let trimmed = paired_spring(Vec3::new(0.0, 0.0, -2.5), &plane, &rule(true));
+        assert_eq!(trimmed, Spring::ZERO);
     }
 }

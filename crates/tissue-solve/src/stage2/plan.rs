@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 use tissue_core::{Connections, DeformError, Error, ParamError, ParticleModel};
 
 use crate::model::elastic::Elastic;
@@ -11,7 +11,7 @@ use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::report::PrepareStage;
 use crate::stage2::spectrum::laplacian_extremes;
-use crate::stage2::springs::springs_stiffness;
+use crate::stage2::springs::{Spring, springs_stiffness};
 
 /// The largest `|load|` times the model's size [`Plan::for_params`]
 /// accepts (a load moves a model by about `2 |load| size^2`): gravity on
@@ -55,12 +55,12 @@ pub struct Plan {
     /// Per particle its body force `a_i` times [`DeformParams::load`]
     /// (empty without a load).
     pub loads: Vec<Vec3>,
-    /// Per particle its spring towards an observed plane
-    /// ([`crate::stage2::springs`]: `s = sqrt(w) n` and `s . c`; zero where
+    /// Per particle its spring towards the observation
+    /// ([`crate::stage2::springs`]: a point and a stiffness; zero where
     /// none), which the elastic force's iterations apply at the free
     /// particles (empty without an observation's springs:
     /// [`Plan::set_springs`]).
-    pub springs: Vec<Vec4>,
+    pub springs: Vec<Spring>,
     /// How each elastic iteration pairs the skin with the observation the
     /// device holds and sets its springs anew (`None`: the springs stay as
     /// set; [`Plan::set_pairing`]).
@@ -310,7 +310,7 @@ impl Plan {
     /// The largest eigenvalue the step of `force` is set for: the
     /// Laplacian's, or for the elastic force its operator's.
     /// With springs, the elastic operator's is raised by the most one adds
-    /// (`max |s|^2 / 2`, a bound: each spring is a particle's own block),
+    /// (the largest eigenvalue of `P / 2`, a bound: each spring is a particle's own block),
     /// with a pairing by the most its springs add (half their weight).
     pub fn lambda_max_for(&self, force: ForceModel) -> f32 {
         match (force, self.elastic_lambda_max) {
@@ -379,7 +379,7 @@ impl Plan {
         Ok(())
     }
 
-    /// Sets every particle's spring towards an observed plane
+    /// Sets every particle's spring towards the observation
     /// ([`crate::stage2::springs::spring`]), one per particle (zero where
     /// none; a control point's is never applied); an empty list takes them
     /// away. Only the elastic force applies them.
@@ -389,7 +389,7 @@ impl Plan {
     /// [`Error::Deformation`] for a list that is not one per particle, one
     /// with a value that is not finite, or springs on a plan without the
     /// elastic model.
-    pub fn set_springs(&mut self, springs: Vec<Vec4>) -> Result<(), Error> {
+    pub fn set_springs(&mut self, springs: Vec<Spring>) -> Result<(), Error> {
         if !springs.is_empty() {
             if springs.len() != self.free.len() {
                 return Err(DeformError::Springs(format!(
@@ -401,7 +401,15 @@ impl Plan {
             }
             if let Some(i) = springs.iter().position(|s| !s.is_finite()) {
                 return Err(DeformError::Springs(format!(
-                    "particle {i}'s spring is not finite ({})",
+                    "particle {i}'s spring is not finite ({:?})",
+                    springs[i]
+                ))
+                .into());
+            }
+            if let Some(i) = springs.iter().position(|s| !s.is_positive()) {
+                return Err(DeformError::Springs(format!(
+                    "particle {i}'s spring pushes away ({:?}): its stiffness `a I + b u u^T` \
+                     needs a >= 0 and a + b |u|^2 >= 0",
                     springs[i]
                 ))
                 .into());

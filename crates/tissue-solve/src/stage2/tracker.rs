@@ -180,7 +180,7 @@ impl<D: SolveDevice> Tracker<D> {
         &self.plan
     }
 
-    /// Sets every particle's spring towards an observed plane
+    /// Sets every particle's spring towards the observation
     /// ([`Plan::set_springs`]: one per particle, zero where none, or none
     /// at all to take them away) for the next solves; the state is kept.
     ///
@@ -190,7 +190,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// them.
     pub fn set_springs<E: From<Error> + From<D::Error>>(
         &mut self,
-        springs: Vec<glam::Vec4>,
+        springs: Vec<crate::stage2::Spring>,
     ) -> Result<(), E> {
         self.plan.set_springs(springs)?;
         self.device.set_springs(&self.plan.springs)?;
@@ -693,7 +693,7 @@ mod tests {
             Ok(())
         }
 
-        fn set_springs(&mut self, _springs: &[glam::Vec4]) -> Result<(), Infallible> {
+        fn set_springs(&mut self, _springs: &[crate::stage2::Spring]) -> Result<(), Infallible> {
             Ok(())
         }
 
