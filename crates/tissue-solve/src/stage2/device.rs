@@ -124,7 +124,10 @@ pub trait SolveDevice {
     /// to take them away): the elastic force's next iterations pull with
     /// them, and its correction is made again with them at the next
     /// elastic phase's start.
-    fn set_springs(&mut self, springs: &[crate::stage2::Spring]) -> Result<(), Self::Error>;
+    fn set_springs(
+        &mut self,
+        springs: &[crate::stage2::springs::Spring],
+    ) -> Result<(), Self::Error>;
 
     /// Sets every particle's body force (the plan's loads,
     /// [`crate::stage2::plan::Plan::set_load`]: one per particle, or none):

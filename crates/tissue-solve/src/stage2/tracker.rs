@@ -190,7 +190,7 @@ impl<D: SolveDevice> Tracker<D> {
     /// them.
     pub fn set_springs<E: From<Error> + From<D::Error>>(
         &mut self,
-        springs: Vec<crate::stage2::Spring>,
+        springs: Vec<crate::stage2::springs::Spring>,
     ) -> Result<(), E> {
         self.plan.set_springs(springs)?;
         self.device.set_springs(&self.plan.springs)?;
@@ -693,7 +693,10 @@ mod tests {
             Ok(())
         }
 
-        fn set_springs(&mut self, _springs: &[crate::stage2::Spring]) -> Result<(), Infallible> {
+        fn set_springs(
+            &mut self,
+            _springs: &[crate::stage2::springs::Spring],
+        ) -> Result<(), Infallible> {
             Ok(())
         }
 
