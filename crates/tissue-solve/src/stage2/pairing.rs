@@ -2,10 +2,11 @@
 //! device: at the start of each of the elastic force's iterations every
 //! free skin particle is paired with its nearest point of the observation
 //! (a surface's, or a point cloud's, on a `SurfaceField` the device holds)
-//! and its spring ([`crate::stage2::springs`]) set towards the plane
-//! there ([`Pass::Pair`](crate::stage2::Pass::Pair)). The planes follow the
-//! skin as it slides, so the solve ends where the skin lies on the
-//! observation and the mechanics decides where along it
+//! and its spring ([`crate::stage2::springs`]) set there with the
+//! curvature of half its squared distance: a face's or a cloud's plane,
+//! an edge's line, a vertex's point ([`Pass::Pair`](crate::stage2::Pass::Pair)).
+//! The springs follow the skin as it slides, so the solve ends where the
+//! skin lies on the observation and the mechanics decides where along it
 //! (docs/METHOD.md, "Observations without correspondence").
 
 use glam::Vec3;

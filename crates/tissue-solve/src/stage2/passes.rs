@@ -17,8 +17,8 @@ use crate::stage2::params::{ForceModel, RotationMethod};
 /// (several kernels of it on the GPU) and of its CPU twin of the same name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Pass {
-    /// `pair`: each paired particle's spring set towards the observation's
-    /// plane at its nearest point ([`crate::stage2::pairing`]), first in
+    /// `pair`: each paired particle's spring set towards the observation
+    /// at its nearest point ([`crate::stage2::pairing`]), first in
     /// the elastic force's iterations where the device holds an
     /// observation and a pairing.
     Pair,
