@@ -1,6 +1,7 @@
 //! The model's skin pulled onto an observation without correspondence
 //! inside the elastic solve ([`match_observation`]).
 
+use std::borrow::Cow;
 use std::collections::BTreeSet;
 
 use rayon::prelude::*;
@@ -333,9 +334,9 @@ impl Observation {
         held: Option<&SurfaceField>,
         reach: f32,
         spacing: f32,
-    ) -> Result<SurfaceField, Error> {
+    ) -> Result<Cow<'_, SurfaceField>, Error> {
         let mesh = match &self.kind {
-            Kind::Cloud { field, .. } => return Ok(field.clone()),
+            Kind::Cloud { field, .. } => return Ok(Cow::Borrowed(field)),
             Kind::Surface(mesh) => mesh,
         };
         let on_held = |t: usize| {
@@ -359,7 +360,9 @@ impl Observation {
         };
         let edge = mean_edge(&free);
         let cell = (FIELD_CELL_EDGES * edge).max(spacing);
-        Ok(SurfaceField::new(&free, cell, FIELD_MARGIN * edge).map_err(ObservationError::from)?)
+        Ok(Cow::Owned(
+            SurfaceField::new(&free, cell, FIELD_MARGIN * edge).map_err(ObservationError::from)?,
+        ))
     }
 }
 
@@ -471,10 +474,10 @@ impl MatchReport {
 /// free skin lies on `observation`, which has no correspondence with it.
 ///
 /// Every elastic iteration pairs each free skin particle with its nearest
-/// observed point and pulls it towards the plane there (the surface's, or
-/// the cloud's fitted one) with a spring ([`Solver::set_pairing`], on the
-/// solver's device): along the plane the skin slides where the mechanics
-/// sends it. The springs' weight grows over [`MatchParams::stages`]
+/// observed point and pulls it there with a spring of the distance's
+/// curvature (a face's or the cloud's fitted plane, an edge's line, a
+/// vertex's point; [`Solver::set_pairing`], on the solver's device): along
+/// a plane the skin slides where the mechanics sends it. The springs' weight grows over [`MatchParams::stages`]
 /// solves; for a cloud, at each stage's start the pairs farther off than
 /// the robust trim are set aside, and those past its edge. Needs the
 /// elastic force. The solver is left without springs or pairing.
@@ -490,6 +493,23 @@ pub fn match_observation(
     model: &ParticleModel,
     observation: &Observation,
     params: &MatchParams,
+) -> Result<MatchReport, Error> {
+    match_observation_held(solver, model, observation, params, None)
+}
+
+/// [`match_observation`] with the model's held region made beforehand
+/// ([`HeldRegion::of`], for a sequence of matches of one solver); made
+/// again where `held` is `None` or was made for other control points.
+///
+/// # Errors
+///
+/// As [`match_observation`].
+pub fn match_observation_held(
+    solver: &mut Solver,
+    model: &ParticleModel,
+    observation: &Observation,
+    params: &MatchParams,
+    held: Option<&HeldRegion>,
 ) -> Result<MatchReport, Error> {
     ParamError::check(
         params.weight.is_finite() && params.weight > 0.0,
@@ -537,8 +557,15 @@ pub fn match_observation(
         ),
     };
     observation.check_against(&model.surface, solver.params().observed.as_deref(), spacing)?;
-    let held = held_field(model, &plan.controls)?;
-    let field = observation.pairing_field(held.as_ref(), HELD_REACH * spacing, spacing)?;
+    let made;
+    let held = match held {
+        Some(region) if region.controls == plan.controls => region.field.as_ref(),
+        _ => {
+            made = held_field(model, &plan.controls)?;
+            made.as_ref()
+        }
+    };
+    let field = observation.pairing_field(held, HELD_REACH * spacing, spacing)?;
     solver.set_observation(Some(&field))?;
     let mut iterations = 0;
     let mut last = None;
@@ -648,6 +675,31 @@ fn clear(solver: &mut Solver) -> Result<(), Error> {
 
 /// The field of the model's held region at rest (the surface triangles of
 /// its control points), or `None` where nothing is held.
+/// The model's held region as a match pairs around it (the field of its
+/// surface triangles that hold control points), made once for a sequence
+/// of matches of one solver ([`match_observation_held`]: `tissue track`'s
+/// frames) instead of at every match.
+#[derive(Debug, Clone)]
+pub struct HeldRegion {
+    /// The control points it was made for.
+    controls: Vec<bool>,
+    /// Its field; `None` without a held region.
+    field: Option<SurfaceField>,
+}
+
+impl HeldRegion {
+    /// The held region of `model` under `solver`'s plan.
+    ///
+    /// # Errors
+    ///
+    /// Where the held triangles' field cannot be made.
+    pub fn of(solver: &Solver, model: &ParticleModel) -> Result<Self, Error> {
+        let controls = solver.plan().controls.clone();
+        let field = held_field(model, &controls)?;
+        Ok(Self { controls, field })
+    }
+}
+
 fn held_field(model: &ParticleModel, controls: &[bool]) -> Result<Option<SurfaceField>, Error> {
     let triangles: BTreeSet<[u32; 3]> = (0..model.len())
         .filter(|&i| controls[i])

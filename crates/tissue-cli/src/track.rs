@@ -403,6 +403,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         first_frame: first_frame.as_ref(),
         posture: posture.as_ref(),
         noise: args.noise,
+        held: std::cell::RefCell::new(None),
     };
     let unloaded = posture.as_ref().and_then(|p| p.unloaded.as_ref());
     // One explorer for the run: each frame's spread from the last one's.

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tissue::deformation::DeformReport;
-use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::observation::{HeldRegion, MatchParams, Observation, match_observation_held};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use super::TrackArgs;
@@ -171,6 +171,9 @@ pub(super) struct Framing<'a> {
     pub(super) first_frame: Option<&'a SurfaceMesh>,
     pub(super) posture: Option<&'a crate::posture::Posture>,
     pub(super) noise: Option<f32>,
+    /// The held region the matches pair around, made at the first match
+    /// and kept for the next frames (the solver and its plan stay).
+    pub(super) held: std::cell::RefCell<Option<HeldRegion>>,
 }
 
 /// A frame solved.
@@ -237,7 +240,17 @@ impl Framing<'_> {
                     MatchParams::next_frame(self.noise)
                 };
                 let report = progress::busy(quiet, &format!("{label}: matching"), |_| {
-                    match_observation(solver, self.model, &observation, &matching)
+                    let mut held = self.held.borrow_mut();
+                    if held.is_none() {
+                        *held = Some(HeldRegion::of(solver, self.model)?);
+                    }
+                    match_observation_held(
+                        solver,
+                        self.model,
+                        &observation,
+                        &matching,
+                        held.as_ref(),
+                    )
                 })
                 .with_context(|| format!("{}", path.display()))?;
                 let mut solve = report.last.clone();
