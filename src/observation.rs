@@ -6,14 +6,16 @@
 //! ([`match_observation`]).
 
 mod matching;
+mod observed;
 
 pub use matching::{
     CLOUD_EDGE_SPACINGS, CLOUD_NOISE, EARLY_TOLERANCE, FIELD_CELL_EDGES, FIELD_MARGIN,
     FRAME_STAGES, HELD_OFF, HELD_REACH, HELD_TOLERANCE, HeldRegion, MATCH_STAGES, MAX_REACH,
-    MAX_VOLUME_CHANGE, MatchParams, MatchReport, Observation, Residual, STAGE_GROWTH,
-    SURFACE_NOISE, held_on, match_observation, match_observation_held, mean_edge,
+    MAX_VOLUME_CHANGE, MatchParams, MatchReport, Residual, STAGE_GROWTH, SURFACE_NOISE, held_on,
+    match_observation, match_observation_held, mean_edge,
 };
 
+pub use observed::Observation;
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
 pub use tissue_solve::stage2::{Cloud, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, rigid_fit};
