@@ -129,6 +129,14 @@ impl SolveDevice for Watched {
         SolveDevice::reset(&mut self.solve)
     }
 
+    fn read_rotations(&mut self) -> Result<Vec<Mat3>, Infallible> {
+        SolveDevice::read_rotations(&mut self.solve)
+    }
+
+    fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Infallible> {
+        self.solve.write_rotations(rotations)
+    }
+
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.solve.potential()
     }

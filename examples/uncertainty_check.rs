@@ -109,6 +109,7 @@ fn main() {
         exact: &exact,
         rest_load: Some(unloaded.rest_load),
         metres_per_unit: 1e-3,
+        held_by: None,
     };
     let started = std::time::Instant::now();
     let linear = explore(&mut solver, &model, answered, &priors).unwrap();

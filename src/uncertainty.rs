@@ -20,7 +20,7 @@
 //! assert!(solver.solve()?.converged);
 //! // The chest wall does not move: no surface error there.
 //! let exact = exact_vertices(&model.surface, &deformed);
-//! let answered = Answered { surface: &deformed, exact: &exact, rest_load: None, metres_per_unit: 0.001 };
+//! let answered = Answered { surface: &deformed, exact: &exact, rest_load: None, metres_per_unit: 0.001, held_by: None };
 //! let priors = Priors::default().with(|p| p.samples = 4);
 //! let spread = explore(&mut solver, &model, answered, &priors)?;
 //! assert!(spread.converged);
@@ -35,9 +35,10 @@ use crate::backend::{Device, Solver, SolverDevice};
 use crate::deformation::SharedLaplacian;
 
 pub use tissue_solve::stage2::uncertainty::{
-    Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, LOAD_SPREAD,
-    POISSON_RANGE, POSTURE_G, POSTURE_KPA, Priors, Region, SEED, SURFACE_CORRELATION_MM,
-    SURFACE_NOISE_MM, SURFACE_SAMPLES, Spread, SurfaceNoise, Unknown, radius_95,
+    Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, HeldBy,
+    LOAD_SPREAD, POISSON_RANGE, POSTURE_G, POSTURE_KPA, Priors, Region, SEED,
+    SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, SURFACE_SAMPLES, Spread, SurfaceNoise, Unknown,
+    radius_95,
 };
 
 /// The tolerance, in model units, within which a deformed vertex that

@@ -23,16 +23,25 @@ fn sagged_spread(
     solver.set_surface(&deformed).unwrap();
     assert!(solver.solve().unwrap().converged);
     let answer = solver.positions().to_vec();
+    let inside: Vec<tissue::Vec3> = model.positions.iter().step_by(37).copied().collect();
+    let bound = solver.bind(&inside).unwrap();
+    let carried = solver.carry(&bound).unwrap();
     let exact = exact_vertices(&model.surface, &deformed);
     let answered = Answered {
         surface: &deformed,
         exact: &exact,
         rest_load: None,
         metres_per_unit: 1e-3,
+        held_by: None,
     };
     let spread = explore(&mut solver, model, answered, priors).unwrap();
     assert!(spread.converged, "every re-solve converges");
     assert_eq!(solver.positions(), answer.as_slice(), "left at the answer");
+    assert_eq!(
+        solver.carry(&bound).unwrap(),
+        carried,
+        "points carried as at the answer, its rotations put back"
+    );
     (spread, exact, deformed)
 }
 
@@ -154,6 +163,7 @@ fn an_explorer_carries_its_columns_from_answer_to_answer() {
             exact: &exact,
             rest_load: None,
             metres_per_unit: 1e-3,
+            held_by: None,
         };
         spreads.push(explorer.explore(&mut solver, &model, answered).unwrap());
     }
@@ -233,4 +243,115 @@ fn another_poisson_ratio_shares_the_elastic_model_and_solves_the_same() {
             .for_ratio(key ^ 1, 0.45, rest, connections)
             .is_none()
     );
+}
+
+/// An answer matched to another triangulation of the sag (no
+/// correspondence: the chest wall held, the skin paired with the surface
+/// inside the solve) spreads with the springs that held its skin there:
+/// every re-solve converges and leaves the solver at the answer with no
+/// springs, the chest wall has no spread, the interior has, the surface's
+/// error alone spreads the skin by about its size, and the CPU and the GPU
+/// (lavapipe in CI) give the same regions.
+#[test]
+fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
+    use tissue::observation::{MatchParams, Observation, match_observation};
+    use tissue::uncertainty::HeldBy;
+    let model = common::phantom_model(1_000);
+    let sagged = tissue::deform::sagged_breast();
+    let (lo, hi) = sagged.bounds().unwrap();
+    let size = (hi - lo).length();
+    let held = tissue::gravity::held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let params = DeformParams::default().with(|p| p.observed = Some(held));
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
+    let observation = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    let sigma = 0.5;
+    let everything = Priors::default().with(|p| p.samples = 4);
+    let surface_alone = everything.clone().with(|p| {
+        let nu = DeformParams::default().poisson;
+        p.poisson = (nu, nu);
+        p.posture_g = 0.0;
+        p.surface_noise = sigma;
+    });
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut radii = Vec::new();
+    for device in devices {
+        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
+        let on = solver.backend();
+        solver.set_surface(&model.surface).unwrap();
+        let matched =
+            match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
+        assert!(matched.converged, "{on}: {:?}", matched.last);
+        assert_eq!(matched.springs.len(), model.len());
+        let answer = solver.positions().to_vec();
+        let exact = exact_vertices(&model.surface, &matched.surface);
+        let answered = Answered {
+            surface: &matched.surface,
+            exact: &exact,
+            rest_load: None,
+            metres_per_unit: 1e-3,
+            held_by: Some(HeldBy {
+                springs: &matched.springs,
+                attachments: &model.attachments,
+            }),
+        };
+        let mut spreads = Vec::new();
+        for priors in [&everything, &surface_alone] {
+            let spread = explore(&mut solver, &model, answered, priors).unwrap();
+            assert!(spread.converged, "{on}: every re-solve converges");
+            assert_eq!(
+                solver.positions(),
+                answer.as_slice(),
+                "{on}: left at the answer"
+            );
+            assert!(solver.plan().springs.is_empty(), "{on}: no springs left");
+            spreads.push(spread.particle_regions());
+        }
+        let (all, surface) = (&spreads[0], &spreads[1]);
+        let on_wall = |i: usize| {
+            model.attachments[i].is_some_and(|a| {
+                model.surface.triangles[a.triangle as usize]
+                    .iter()
+                    .all(|&v| exact[v as usize])
+            })
+        };
+        let wall: Vec<usize> = (0..model.len()).filter(|&i| on_wall(i)).collect();
+        assert!(
+            wall.len() > 5,
+            "{on}: {} particles on the chest wall",
+            wall.len()
+        );
+        for &i in &wall {
+            assert_eq!(all[i].radius, 0.0, "{on}: held particle {i}");
+        }
+        let inside = (0..model.len()).filter(|&i| !model.is_surface(i));
+        assert!(inside.map(|i| all[i].radius).fold(0.0, f32::max) > 0.1);
+        // The skin pulled by a spring moves with the observation's error:
+        // its 95 % radius a few times the error's deviation.
+        let mut skin: Vec<f32> = (0..model.len())
+            .filter(|&i| !matched.springs[i].is_zero())
+            .map(|i| surface[i].radius)
+            .collect();
+        skin.sort_by(f32::total_cmp);
+        let median = skin[skin.len() / 2];
+        eprintln!(
+            "{on}: {} skin particles held by springs, their median 95 % radius {median:.3} mm \
+             under the surface's error alone ({sigma} mm)",
+            skin.len()
+        );
+        assert!(
+            (0.5 * sigma..4.0 * sigma).contains(&median),
+            "{on}: median radius {median}"
+        );
+        radii.push(all.iter().map(|r| r.radius).collect::<Vec<f32>>());
+    }
+    if let [cpu, gpu] = radii.as_slice() {
+        let worst = cpu
+            .iter()
+            .zip(gpu)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max);
+        eprintln!("radii at most {worst:.2e} apart on the CPU and the GPU");
+        assert!(worst <= 2e-3 * size, "{worst}");
+    }
 }

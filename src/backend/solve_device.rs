@@ -88,6 +88,20 @@ impl SolveDevice for SolverDevice {
         }
     }
 
+    fn read_rotations(&mut self) -> Result<Vec<Mat3>, Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(SolveDevice::read_rotations(cpu.as_mut())),
+            Self::Gpu(gpu) => gpu.on("reading rotations", SolveDevice::read_rotations),
+        }
+    }
+
+    fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.write_rotations(rotations)),
+            Self::Gpu(gpu) => gpu.on("writing rotations", |g| g.write_rotations(rotations)),
+        }
+    }
+
     fn potential(&mut self) -> Result<Option<Potential>, Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.potential()),

@@ -202,6 +202,11 @@ pub struct MatchReport {
     pub surface: SurfaceMesh,
     /// The last stage's solve.
     pub last: DeformReport,
+    /// The springs that hold the skin on the observation at the answer,
+    /// one per particle, as the pairing sets them there (zero off the free
+    /// skin and where a particle is set aside): what the uncertainty's
+    /// re-solves keep ([`crate::uncertainty::HeldBy`]).
+    pub springs: Vec<Spring>,
 }
 
 impl MatchReport {
@@ -365,10 +370,8 @@ pub fn match_observation_held(
         last = Some(report);
     }
     let end = solver.positions().to_vec();
-    let pulled = springs(&field, &skin, &end, &rule, model.len())
-        .iter()
-        .filter(|s| !s.is_zero())
-        .count();
+    let held_by = springs(&field, &skin, &end, &rule, model.len());
+    let pulled = held_by.iter().filter(|s| !s.is_zero()).count();
     clear(solver)?;
     let bound = solver.bind(&model.surface.vertices)?;
     let mut surface = SurfaceMesh {
@@ -397,6 +400,7 @@ pub fn match_observation_held(
         volume_change: volume_change as f32,
         surface,
         last,
+        springs: held_by,
     })
 }
 

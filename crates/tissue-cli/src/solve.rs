@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use glam::{IVec3, Vec3};
 use tissue::backend::with_cpu_fallback;
 use tissue::deformation::{DeformParams, ForceModel};
-use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::observation::{MatchParams, MatchReport, Observation, match_observation};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
@@ -552,7 +552,6 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     crate::carry::check_space_tag(observed_file, args.carry.space)?;
     let target = args.target(&model)?;
     let priors = args.uncertainty.priors()?;
-    uncertain::refuse_for_matches(priors.is_some() && matches!(target, Target::Match { .. }))?;
     if let Target::Match { held, observation } = &target {
         if !params.force.eq(&ForceModel::Elastic) {
             bail!("an observation without correspondence is matched by the elastic force alone");
@@ -635,7 +634,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             let mut bar = SolveBar::new("solving", args.quiet);
             let solve = solver.solve_with_progress(&mut |step| bar.step(step));
             bar.finish();
-            (solve?, None, None)
+            (solve?, None::<MatchReport>, None)
         }
         Target::Match { observation, .. } => {
             let started = std::time::Instant::now();
@@ -652,14 +651,15 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             solve.seconds = started.elapsed().as_secs_f64();
             let described =
                 observe::ObservationReport::of(observation, &report, args.noise, &model);
-            (solve, Some(report.surface), Some(described))
+            (solve, Some(report), Some(described))
         }
     };
-    let deformed = matched.as_ref().unwrap_or(placed);
+    let deformed = matched.as_ref().map_or(placed, |m| &m.surface);
     let answer = uncertain::Answer {
         converged: solve.converged,
         deformed,
         unloaded: posture.as_ref().and_then(|p| p.unloaded.as_ref()),
+        held_by: matched.as_ref().map(|m| m.springs.as_slice()),
     };
     let mut explorer = priors.map(Explorer::new);
     let uncertainty = uncertain::regions_after(

@@ -415,6 +415,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             converged: framed.solve.converged,
             deformed: &framed.deformed,
             unloaded,
+            held_by: None,
         };
         uncertain::spread_after(explorer.as_mut(), answer, &mut solver, &model, true)?;
     }
@@ -450,6 +451,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             converged: solve.converged,
             deformed: &deformed,
             unloaded,
+            held_by: None,
         };
         let uncertainty = uncertain::regions_after(
             explorer.as_mut(),

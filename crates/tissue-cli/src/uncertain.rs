@@ -8,8 +8,9 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
+use tissue::observation::Spring;
 use tissue::uncertainty::{
-    Answered, Explorer, GRAVITY_DEGREES, LOAD_SPREAD, POSTURE_G, Priors, Region,
+    Answered, Explorer, GRAVITY_DEGREES, HeldBy, LOAD_SPREAD, POSTURE_G, Priors, Region,
     SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, Spread, Unknown, exact_vertices,
 };
 use tissue::{ParticleModel, gravity::Unloaded};
@@ -111,6 +112,9 @@ pub struct Answer<'a> {
     pub deformed: &'a SurfaceMesh,
     /// With the posture options, the unloaded shape and the loads.
     pub unloaded: Option<&'a Unloaded>,
+    /// For an observation without correspondence, the springs that held
+    /// the skin on it at the answer (one per particle).
+    pub held_by: Option<&'a [Spring]>,
 }
 
 /// With an explorer (`--uncertainty`), the spread of the converged answer
@@ -132,6 +136,10 @@ pub fn spread_after(
         exact: &exact,
         rest_load: answer.unloaded.map(|u| u.rest_load),
         metres_per_unit: MILLIMETRE,
+        held_by: answer.held_by.map(|springs| HeldBy {
+            springs,
+            attachments: &model.attachments,
+        }),
     };
     progress::busy(quiet, "the uncertainty's solves", |_| {
         explorer.explore(solver, model, answered)
@@ -361,13 +369,14 @@ impl UncertaintyReport {
     }
 }
 
-/// Refuses `--uncertainty` where it is not made yet.
+/// Refuses `--uncertainty` where it is not made yet: a tracking run's
+/// frames without correspondence.
 pub fn refuse_for_matches(asked: bool) -> Result<()> {
     if asked {
         bail!(
-            "--uncertainty needs the rest surface with moved vertices (--surface): for an \
-             observation without correspondence the surface's error is the match's, which \
-             the uncertainty does not sample"
+            "--uncertainty in `tissue track` needs frames with the rest surface's vertices \
+             (--frames); for observations without correspondence run `tissue deform \
+             --uncertainty` on a frame"
         );
     }
     Ok(())

@@ -1,6 +1,7 @@
 //! `tissue deform --uncertainty`: every output says how sure it is, the
-//! landmark on the held chest wall is sure, and what the estimate cannot
-//! take is refused.
+//! landmark on the held chest wall is sure, an answer matched without
+//! correspondence has its regions too, and what the estimate cannot take
+//! is refused.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
 mod common;
@@ -105,8 +106,8 @@ fn deform_writes_each_target_region() {
     assert!(median > 0.0 && f64::from(largest) >= median);
 }
 
-/// An observation without correspondence and priors out of range are
-/// refused before anything is solved, each naming what is wrong.
+/// Priors out of range are refused before anything is solved, each
+/// naming what is wrong.
 #[test]
 fn deform_refuses_what_the_uncertainty_cannot_take() {
     let dir = tempfile::tempdir().unwrap();
@@ -134,14 +135,75 @@ fn deform_refuses_what_the_uncertainty_cannot_take() {
     assert!(bad.contains("poisson"), "{bad}");
     let bad = run(&["--surface", s(&sag), "--surface-noise=-1"]);
     assert!(bad.contains("surface_noise"), "{bad}");
-    // Another triangulation of the sagged skin: matched without
-    // correspondence, which the estimate does not sample.
+}
+
+/// Another triangulation of the sagged skin (no correspondence: the skin
+/// matched inside the solve, the chest wall held where the surfaces
+/// meet): the estimate re-solves with the springs that held the skin, its
+/// solves converge, the deep landmark has a region and the chest wall's is
+/// smaller, and the answer's points are those of the same run without it.
+#[test]
+fn deform_spreads_a_match_without_correspondence() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let sag = assets().join("phantom-sag.obj");
     let remeshed = dir.path().join("remeshed.obj");
     let sagged = tissue::load_surface(&sag).unwrap();
     let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
     tissue::save_surface(&tissue::SurfaceMesh::new(vertices, triangles), &remeshed).unwrap();
-    let bad = run(&["--surface", s(&remeshed)]);
-    assert!(bad.contains("--uncertainty"), "{bad}");
+    let low = model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z)
+        .fold(f32::INFINITY, f32::min);
+    let wall = model
+        .surface
+        .vertices
+        .iter()
+        .find(|v| v.z < low + 1e-3)
+        .copied()
+        .unwrap();
+    let points = dir.path().join("targets.csv");
+    std::fs::write(
+        &points,
+        format!("x,y,z\n0,0,25\n{},{},{}\n", wall.x, wall.y, wall.z),
+    )
+    .unwrap();
+    let run = |out: &str, extra: &[&str]| {
+        let out_dir = dir.path().join(out);
+        let mut args = vec![
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&remeshed),
+            "--points",
+            s(&points),
+            "--backend",
+            "cpu",
+            "-o",
+            s(&out_dir),
+        ];
+        args.extend_from_slice(extra);
+        let done = tissue(&args);
+        assert!(done.status.success(), "{}", text(&done));
+        out_dir
+    };
+    let plain = run("plain", &[]);
+    let sure = run("sure", &["--uncertainty", "4"]);
+    let report = json(&sure.join("report.json"));
+    let uncertainty = &report["uncertainty"];
+    assert_eq!(uncertainty["converged"], true);
+    let radius = |k: usize| uncertainty["points"][k]["radius_mm"].as_f64().unwrap();
+    assert!(radius(0) > 0.05, "the deep landmark: {}", radius(0));
+    assert!(
+        radius(1) < 0.5 * radius(0),
+        "the chest wall's: {}",
+        radius(1)
+    );
+    let moved = |dir: &std::path::Path| tissue::load_points(&dir.join("points.csv")).unwrap();
+    assert_eq!(moved(&plain), moved(&sure), "the same answer");
 }
 
 /// `tissue track --uncertainty`: every frame's report and points carry

@@ -37,8 +37,10 @@ pub(crate) struct Deformer {
     /// The rest posture's load, where the deformer solves a posture with
     /// gravity (`Unloaded::rest_load`).
     pub(crate) rest_load: Option<Vec3>,
-    /// Whether the last answer was a match without correspondence.
-    pub(crate) matched: bool,
+    /// Where the last answer was a match without correspondence, the
+    /// springs that held its skin on the observation (one per particle):
+    /// the uncertainty's re-solves keep them.
+    pub(crate) held_by: Option<Vec<tissue::observation::Spring>>,
     /// The last `uncertainty` call's explorer: a call with the same priors
     /// starts from it (a sequence's next frame).
     pub(crate) explorer: Option<tissue::uncertainty::Explorer>,
@@ -158,7 +160,7 @@ impl Deformer {
             .map_err(raise)?;
         callback.result()?;
         self.deformed = Some(deformed);
-        self.matched = false;
+        self.held_by = None;
         if !report.converged {
             let message = format!(
                 "the solve did not converge: {} iterations, stopped by {:?}, estimated error {:e} of the size",
@@ -270,7 +272,7 @@ impl Deformer {
             "stages": report.stages,
         });
         self.deformed = Some(report.surface);
-        self.matched = true;
+        self.held_by = Some(report.springs);
         as_dict(py, &summary)
     }
 
@@ -289,8 +291,10 @@ impl Deformer {
     /// `"gravity"`, `"posture"`, or `None`), with `points` (`(k, 3)` at
     /// rest) `points_radius` and `points_covariance` likewise, and
     /// `solves`, `iterations`, `seconds`, `converged`. Warns
-    /// (RuntimeWarning) where a re-solve did not converge. Not for a
-    /// match without correspondence. A call with the priors of the last
+    /// (RuntimeWarning) where a re-solve did not converge. After
+    /// `match_observation`, re-solved with the springs that held the skin
+    /// on the observation (docs/METHOD.md, "Uncertainty"). A call with the
+    /// priors of the last
     /// starts each re-solve from where the last call's ended (a tracked
     /// sequence's next frame: fewer iterations, the same regions within
     /// the solves' tolerance).
@@ -313,14 +317,7 @@ impl Deformer {
         seed: u64,
     ) -> PyResult<Py<PyAny>> {
         use pyo3::types::PyDict;
-        use tissue::uncertainty::{Answered, Explorer, Priors, Region, exact_vertices};
-        if self.matched {
-            return Err(raise(
-                "the uncertainty needs the last answer solved for a surface with the model's \
-                 vertices (solve); for a match without correspondence the surface's error is \
-                 the match's, which it does not sample",
-            ));
-        }
+        use tissue::uncertainty::{Answered, Explorer, HeldBy, Priors, Region, exact_vertices};
         let deformed = self.solved()?.clone();
         let priors = Priors::default().with(|p| {
             p.samples = samples;
@@ -344,6 +341,7 @@ impl Deformer {
             _ => Explorer::new(priors),
         };
         let (solver, model, rest_load) = (&mut self.solver, &self.model, self.rest_load);
+        let held_by = self.held_by.as_deref();
         let (spread, carriers, explorer) = py
             .detach(move || {
                 let carriers = match &points {
@@ -356,6 +354,10 @@ impl Deformer {
                     exact: &exact,
                     rest_load,
                     metres_per_unit: 1e-3,
+                    held_by: held_by.map(|springs| HeldBy {
+                        springs,
+                        attachments: &model.attachments,
+                    }),
                 };
                 let spread = explorer.explore(solver, model, answered)?;
                 Ok::<_, tissue::Error>((spread, carriers, explorer))

@@ -291,7 +291,7 @@ impl Model {
             posture: None,
             guess: None,
             rest_load: None,
-            matched: false,
+            held_by: None,
             explorer: None,
         })
     }
@@ -453,7 +453,7 @@ impl Model {
                 posture: Some(posture.unbind().into_any()),
                 guess: None,
                 rest_load: None,
-                matched: false,
+                held_by: None,
                 explorer: None,
             });
         }
@@ -553,7 +553,7 @@ impl Model {
                 .deformed_guess
                 .map(|guess| (deformed.vertices.clone(), guess)),
             rest_load: Some(unloaded.rest_load),
-            matched: false,
+            held_by: None,
             explorer: None,
         })
     }

@@ -593,6 +593,13 @@ def test_the_skin_is_matched_to_a_surface_and_a_scan_without_correspondence():
     assert report["converged"] and report["pulled"] == report["skin"] > 0
     size = np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))
     assert report["residual_rms"] < 2e-3 * size
+    # How sure: re-solved with the springs that held the skin; the deformer
+    # is left at its answer.
+    answer = deformer.positions.copy()
+    spread = deformer.uncertainty(samples=4)
+    assert spread["converged"] and spread["radius"].max() > 0.05
+    assert spread["radius"].min() == 0.0
+    np.testing.assert_array_equal(deformer.positions, answer)
     # The front half as a scan: the skin it does not see is set aside.
     front = other[0][other[0][:, 2] > np.median(other[0][:, 2])]
     scan = deformer.match_observation(cloud=front)

@@ -150,11 +150,27 @@ impl SolveDevice for CpuSolve {
         Ok(self.current.clone())
     }
 
+    fn read_rotations(&mut self) -> Result<Vec<Mat3>, Infallible> {
+        Ok(self.rotations.clone())
+    }
+
+    fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Infallible> {
+        rotations.clone_into(&mut self.rotations);
+        Ok(())
+    }
+
     fn set_springs(&mut self, springs: &[Spring]) -> Result<(), Infallible> {
+        // Its operator holds the stiffness of the springs it was made
+        // with: kept where only their points move.
+        if Spring::all_same_stiffness(springs, &self.springs) {
+            if let Some(coarse) = &mut self.elastic_coarse {
+                Arc::make_mut(coarse).set_pulls(springs);
+            }
+        } else {
+            self.elastic_coarse = None;
+        }
         springs.clone_into(&mut self.springs);
         springs.clone_into(&mut self.pulls);
-        // Its operator holds the springs it was made with.
-        self.elastic_coarse = None;
         Ok(())
     }
 

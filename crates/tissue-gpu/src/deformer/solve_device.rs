@@ -110,10 +110,17 @@ impl SolveDevice for GpuSolve {
             gpu.state
                 .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
             if let Some(host) = &mut gpu.elastic_host {
+                // Its operator holds the stiffness of the springs it was
+                // made with: kept where only their points move.
+                if !Spring::all_same_stiffness(springs, &host.springs) {
+                    gpu.elastic_coarse = None;
+                    gpu.state.forget_elastic_linearisation();
+                }
                 springs.clone_into(&mut host.springs);
+            } else {
+                gpu.elastic_coarse = None;
+                gpu.state.forget_elastic_linearisation();
             }
-            gpu.elastic_coarse = None;
-            gpu.state.forget_elastic_linearisation();
             Ok(())
         })
     }
@@ -165,6 +172,14 @@ impl SolveDevice for GpuSolve {
 
     fn read_positions(&mut self) -> Result<Vec<Vec3>, GpuError> {
         self.scoped(Self::read_positions_unscoped)
+    }
+
+    fn read_rotations(&mut self) -> Result<Vec<Mat3>, GpuError> {
+        self.scoped(|gpu| gpu.state.read_rotations(&gpu.device, &gpu.queue))
+    }
+
+    fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), GpuError> {
+        self.scoped(|gpu| gpu.state.write_rotations(&gpu.queue, rotations))
     }
 
     fn reset(&mut self) -> Result<(), GpuError> {

@@ -167,6 +167,14 @@ pub trait SolveDevice {
     /// Back to the rest shape, rotations included.
     fn reset(&mut self) -> Result<(), Self::Error>;
 
+    /// Every particle's rotation (rest offsets onto current offsets) as
+    /// the last iteration left it: what carries points with the particles.
+    fn read_rotations(&mut self) -> Result<Vec<Mat3>, Self::Error>;
+
+    /// Sets every particle's rotation: a state read back earlier
+    /// ([`SolveDevice::read_rotations`]) put back with its positions.
+    fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Self::Error>;
+
     /// The potential the elastic force descends at the current positions,
     /// `E / 2 - sum_k b_k . q_k` over the free particles (docs/METHOD.md,
     /// "Elastic model"), each particle's part summed in `f64` in index

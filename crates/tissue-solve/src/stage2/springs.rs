@@ -118,6 +118,26 @@ impl Spring {
         )
     }
 
+    /// Whether `other` has the same `P` (its point may differ): a device's
+    /// operator made with one holds for the other.
+    pub fn same_stiffness(&self, other: &Self) -> bool {
+        self.anchor.w == other.anchor.w && self.axis == other.axis
+    }
+
+    /// Whether every spring of `a` has the same `P` as `b`'s
+    /// ([`Spring::same_stiffness`]), one for one.
+    pub fn all_same_stiffness(a: &[Self], b: &[Self]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(a, b)| a.same_stiffness(b))
+    }
+
+    /// The same spring with `P` times `factor` (its point kept).
+    pub fn scaled(self, factor: f32) -> Self {
+        Self {
+            anchor: self.anchor.truncate().extend(self.anchor.w * factor),
+            axis: self.axis.truncate().extend(self.axis.w * factor),
+        }
+    }
+
     /// The largest eigenvalue of `P`: `a + max(b |u|^2, 0)`.
     pub fn largest(&self) -> f32 {
         self.anchor.w + (self.axis.w * self.axis.truncate().length_squared()).max(0.0)
@@ -226,5 +246,39 @@ mod tests {
             axis: normal.extend(-2.0),
         };
         assert!(!negative.is_positive());
+    }
+
+    /// A scaled spring pulls to the same point with its stiffness scaled;
+    /// springs whose points alone differ have the same stiffness, others
+    /// not.
+    #[test]
+    fn a_spring_scales_and_compares_by_its_stiffness() {
+        let point = Vec3::new(1.0, -2.0, 0.5);
+        let normal = Vec3::new(0.6, 0.0, 0.8);
+        let q = Vec3::new(0.3, 0.7, -1.1);
+        for s in [
+            spring(point, normal, 8.0),
+            Spring::line(point, normal, 8.0),
+            Spring::point(point, 8.0),
+        ] {
+            let quarter = s.scaled(0.25);
+            assert_eq!(quarter.point_of(), point);
+            assert!((spring_force(quarter, q) - 0.25 * spring_force(s, q)).length() < 1e-5);
+            let elsewhere = Spring {
+                anchor: (point + normal).extend(s.anchor.w),
+                ..s
+            };
+            assert!(s.same_stiffness(&elsewhere) && !s.same_stiffness(&quarter));
+        }
+        let (a, b) = (
+            [spring(point, normal, 8.0), Spring::ZERO],
+            [spring(point + normal, normal, 8.0), Spring::ZERO],
+        );
+        assert!(Spring::all_same_stiffness(&a, &b));
+        assert!(!Spring::all_same_stiffness(&a, &b[..1]));
+        assert!(!Spring::all_same_stiffness(
+            &a,
+            &[Spring::ZERO, Spring::ZERO]
+        ));
     }
 }

@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, Error, ParamError, ParticleModel, SurfaceMesh};
 
@@ -63,6 +63,9 @@ pub struct Tracker<D> {
 #[derive(Debug, Clone)]
 pub(crate) struct Checkpoint {
     current: Vec<Vec3>,
+    /// The device's rotations there: points carried after
+    /// [`Tracker::back_to`] move as they did at the checkpoint.
+    rotations: Vec<Mat3>,
     history: FrameHistory,
     load: Vec3,
     elastic_warm: bool,
@@ -504,19 +507,25 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(report)
     }
 
-    /// What [`Tracker::back_to`] puts back: the positions at the frame
-    /// boundary, the history, the load and whether the next solve starts
-    /// warm. For solves near the answer that must leave no trace on the
-    /// next frames (the uncertainty's columns).
-    pub(crate) fn checkpoint(&self) -> Checkpoint {
-        Checkpoint {
+    /// What [`Tracker::back_to`] puts back: the positions and the
+    /// device's rotations at the frame boundary, the history, the load and
+    /// whether the next solve starts warm. For solves near the answer that
+    /// must leave no trace on the answer or the next frames (the
+    /// uncertainty's columns).
+    ///
+    /// # Errors
+    ///
+    /// The device's error where it cannot read its rotations back.
+    pub(crate) fn checkpoint(&mut self) -> Result<Checkpoint, D::Error> {
+        Ok(Checkpoint {
             current: self.current.clone(),
+            rotations: self.device.read_rotations()?,
             history: self.history.clone(),
             load: self.params.load,
             elastic_warm: self.elastic_warm,
             guessed: self.guessed,
             elastic_correct: self.elastic_correct,
-        }
+        })
     }
 
     /// Back to `kept` ([`Tracker::checkpoint`]): its positions written to
@@ -535,6 +544,7 @@ impl<D: SolveDevice> Tracker<D> {
         self.guessed = kept.guessed;
         self.elastic_correct = kept.elastic_correct;
         self.device.write_positions(&self.current, None)?;
+        self.device.write_rotations(&kept.rotations)?;
         Ok(())
     }
 
@@ -742,6 +752,14 @@ mod tests {
                 value: self.energy,
                 magnitude: self.energy,
             }))
+        }
+
+        fn read_rotations(&mut self) -> Result<Vec<Mat3>, Infallible> {
+            Ok(Vec::new())
+        }
+
+        fn write_rotations(&mut self, _rotations: &[Mat3]) -> Result<(), Infallible> {
+            Ok(())
         }
 
         fn save(&mut self) -> Result<(), Infallible> {

@@ -27,6 +27,13 @@
 //! The Poisson ratio and the loads are the elastic force's: with another
 //! force only the surface's error is sampled.
 //!
+//! An answer matched to an observation without correspondence ([`HeldBy`])
+//! is re-solved with the springs that held its skin on the observation at
+//! the answer (the pairing's, each the curvature of half the squared
+//! distance there: free along the observation, stiff across it), kept
+//! through the re-solve; the surface's error moves each spring's point by
+//! the field's offset where its particle sits on the skin.
+//!
 //! Every column is a re-solve's positions less the answer's with a weight;
 //! a target's covariance is the weighted sum of its offsets' outer
 //! products ([`Region::of`]). Written once for every device: the columns
@@ -39,11 +46,12 @@ use std::time::Instant;
 
 use glam::{Quat, Vec3};
 use serde::Serialize;
-use tissue_core::{Error, ParamError, SurfaceMesh};
+use tissue_core::{Attachment, Error, ParamError, SurfaceMesh};
 
 use crate::model::gravity::gravity_load;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::posture::MAX_GRAVITY_G;
+use crate::stage2::springs::Spring;
 use crate::stage2::tracker::{SolveDevice, Tracker};
 
 pub use noise::SurfaceNoise;
@@ -77,6 +85,15 @@ pub const TISSUE_DENSITY_KG_M3: f32 = 1000.0;
 pub const COLUMN_TOLERANCE: f32 = 3.0;
 /// The samples' seed.
 pub const SEED: u64 = 0x5eed;
+/// A matched answer's re-solves keep its springs at this share of their
+/// weight ([`Priors::held_share`]): the match's weight one stage before
+/// its last, with which the skin still follows its springs' planes to
+/// within about 1.5 % of its move (`crate::stage2::springs::SPRING_WEIGHT`).
+/// At the full weight the re-solves at the Poisson range's upper end
+/// (0.495) stiffened past what the volume smoother's iteration contracts:
+/// on breast_e's remeshed surface at 10,000 particles that column stalled
+/// at its cap, and on breast_d's a column came back 9 mm off.
+pub const HELD_SHARE: f32 = 0.25;
 
 /// What the program does not know, each with its spread; lengths in the
 /// model's units (millimetres by default).
@@ -109,6 +126,9 @@ pub struct Priors {
     pub column_tolerance: f32,
     /// The surface samples' seed.
     pub seed: u64,
+    /// A matched answer's springs, the share of their weight its
+    /// re-solves keep (0 to 1; [`HELD_SHARE`]).
+    pub held_share: f32,
 }
 
 impl Default for Priors {
@@ -124,6 +144,7 @@ impl Default for Priors {
             posture_kpa: POSTURE_KPA,
             column_tolerance: COLUMN_TOLERANCE,
             seed: SEED,
+            held_share: HELD_SHARE,
         }
     }
 }
@@ -203,6 +224,12 @@ impl Priors {
             "uncertainty column_tolerance",
             self.column_tolerance,
             "1 to 100 times the answer's tolerance",
+        )?;
+        ParamError::check(
+            self.held_share.is_finite() && self.held_share > 0.0 && self.held_share <= 1.0,
+            "uncertainty held_share",
+            self.held_share,
+            "a share of the springs' weight above 0, at most 1",
         )
     }
 }
@@ -320,6 +347,45 @@ pub struct Answered<'a> {
     /// The model's length unit in metres (0.001 for millimetres), for the
     /// unmodelled posture's load.
     pub metres_per_unit: f32,
+    /// Where the answer matched an observation without correspondence:
+    /// the springs that held its skin there. `None` where the skin
+    /// followed `surface` point for point.
+    pub held_by: Option<HeldBy<'a>>,
+}
+
+/// The springs that held a matched answer's skin on its observation
+/// ([`Answered::held_by`]).
+#[derive(Debug, Clone, Copy)]
+pub struct HeldBy<'a> {
+    /// One per particle, as the pairing set them at the answer (zero off
+    /// the skin, and where nothing was paired).
+    pub springs: &'a [Spring],
+    /// Where each particle sits on the model's surface (the model's
+    /// attachments; `None` inside), for the surface error's offsets.
+    pub attachments: &'a [Option<Attachment>],
+}
+
+impl HeldBy<'_> {
+    /// The springs with each one's point moved by what moved the point of
+    /// the answer's surface `surface` where its particle sits, in
+    /// `moved` (the same triangles).
+    fn moved(&self, surface: &SurfaceMesh, moved: &SurfaceMesh) -> Vec<Spring> {
+        self.springs
+            .iter()
+            .zip(self.attachments)
+            .map(|(spring, attachment)| match attachment {
+                Some(a) if !spring.is_zero() => {
+                    let (t, bary) = (a.triangle as usize, a.barycentric);
+                    let offset = moved.point_on(t, bary) - surface.point_on(t, bary);
+                    Spring {
+                        anchor: spring.anchor + offset.extend(0.0),
+                        ..*spring
+                    }
+                }
+                _ => *spring,
+            })
+            .collect()
+    }
 }
 
 /// The spread of the answer `tracker` holds (its last solve's, converged,
@@ -425,7 +491,21 @@ impl<D: SolveDevice> Explorer<D> {
             ),
         )
         .map_err(Error::from)?;
-        let kept = tracker.checkpoint();
+        if let Some(held) = answered.held_by {
+            let n = tracker.positions().len();
+            ParamError::check(
+                held.springs.len() == n && held.attachments.len() == n,
+                "uncertainty springs",
+                format!(
+                    "{} springs, {} attachments",
+                    held.springs.len(),
+                    held.attachments.len()
+                ),
+                format!("one of each per particle ({n})"),
+            )
+            .map_err(Error::from)?;
+        }
+        let kept = tracker.checkpoint()?;
         let answer = tracker.positions().to_vec();
         let asked = tracker.params().clone();
         let loose = priors.column_tolerance;
@@ -438,8 +518,33 @@ impl<D: SolveDevice> Explorer<D> {
             converged: true,
             seconds: 0.0,
         };
+        // A match's springs at the priors' share of their weight, and the
+        // answer's equilibrium under them (within the re-solves'
+        // tolerance of the answer): what the columns are offsets from.
+        let share = priors.held_share;
+        let softened: Option<Vec<Spring>> = answered
+            .held_by
+            .map(|h| h.springs.iter().map(|s| s.scaled(share)).collect());
+        let springs = softened.as_deref();
+        let answer = match springs {
+            Some(softened) => {
+                tracker.set_springs::<E>(softened.to_vec())?;
+                tracker.set_surface::<E>(answered.surface)?;
+                tracker.warm_start::<E>(&answer)?;
+                let report = tracker.solve()?;
+                spread.solves += 1;
+                spread.iterations += report.iterations;
+                spread.converged &= report.converged;
+                let base = tracker.positions().to_vec();
+                spread.answer.clone_from(&base);
+                base
+            }
+            None => answer,
+        };
+        // Each re-solve on `surface`, with `springs` where the answer was
+        // matched.
         let mut solve = |t: &mut Tracker<D>,
-                         surface: &SurfaceMesh,
+                         (surface, springs): (&SurfaceMesh, Option<&[Spring]>),
                          spread: &mut Spread|
          -> Result<Vec<Vec3>, E> {
             let start: Vec<Vec3> = match last.get(made.len()) {
@@ -448,6 +553,9 @@ impl<D: SolveDevice> Explorer<D> {
                 }
                 _ => answer.clone(),
             };
+            if let Some(springs) = springs {
+                t.set_springs::<E>(springs.to_vec())?;
+            }
             t.set_surface::<E>(surface)?;
             t.warm_start::<E>(&start)?;
             let report = t.solve()?;
@@ -484,7 +592,7 @@ impl<D: SolveDevice> Explorer<D> {
             let base = match change {
                 Some(change) => {
                     tracker.set_load::<E>(change)?;
-                    let base = solve(tracker, answered.surface, &mut spread)?;
+                    let base = solve(tracker, (answered.surface, springs), &mut spread)?;
                     tracker.set_load::<E>(load)?;
                     base
                 }
@@ -516,7 +624,11 @@ impl<D: SolveDevice> Explorer<D> {
                         self.others.len() - 1
                     }
                 };
-                let positions = solve(&mut self.others[k].1, answered.surface, &mut spread)?;
+                let positions = solve(
+                    &mut self.others[k].1,
+                    (answered.surface, springs),
+                    &mut spread,
+                )?;
                 let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
                 points.push((nu, offsets));
             }
@@ -553,7 +665,15 @@ impl<D: SolveDevice> Explorer<D> {
             );
             for _ in 0..priors.samples {
                 let sample = noise.sample();
-                let positions = solve(tracker, &sample, &mut spread)?;
+                let positions = match (answered.held_by, springs) {
+                    // The observation's error moves the springs' points;
+                    // the held region stays where it is.
+                    (Some(held), Some(springs)) => {
+                        let moved = HeldBy { springs, ..held }.moved(answered.surface, &sample);
+                        solve(tracker, (answered.surface, Some(&moved)), &mut spread)?
+                    }
+                    _ => solve(tracker, (&sample, None), &mut spread)?,
+                };
                 spread.columns.push(Column {
                     unknown: Unknown::Surface,
                     weight: 1.0 / priors.samples as f64,
@@ -597,7 +717,7 @@ impl<D: SolveDevice> Explorer<D> {
         }
         for (unknown, change) in changes {
             tracker.set_load::<E>(load + change)?;
-            let positions = solve(tracker, answered.surface, &mut spread)?;
+            let positions = solve(tracker, (answered.surface, springs), &mut spread)?;
             spread.columns.push(Column {
                 unknown,
                 weight: 1.0,
@@ -608,6 +728,10 @@ impl<D: SolveDevice> Explorer<D> {
             tracker.set_load::<E>(load)?;
         }
         tracker.set_params(asked)?;
+        if springs.is_some() {
+            // The tracker as it was: no springs.
+            tracker.set_springs::<E>(Vec::new())?;
+        }
         tracker.back_to::<E>(kept)?;
         spread.seconds = started.elapsed().as_secs_f64();
         Ok(spread)
@@ -695,6 +819,7 @@ mod tests {
         assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
         assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
         assert_eq!(p.column_tolerance, 3.0);
+        assert_eq!(p.held_share, 0.25);
     }
 
     /// The defaults are in range, and a priors' field out of range is
@@ -707,6 +832,11 @@ mod tests {
         assert!(err.is_some_and(|e| e.contains("poisson")));
         let bad = Priors::default().with(|p| p.samples = 1);
         assert!(bad.validate().is_err());
+        for share in [0.0, 1.5, f32::NAN] {
+            let bad = Priors::default().with(|p| p.held_share = share);
+            let err = bad.validate().err().map(|e| e.to_string());
+            assert!(err.is_some_and(|e| e.contains("held_share")), "{share}");
+        }
         assert_eq!(
             Priors::in_units(10.0).surface_noise,
             SURFACE_NOISE_MM / 10.0
