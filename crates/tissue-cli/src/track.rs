@@ -277,9 +277,6 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     }
     let sequence = Sequence::read(args, &frames, &model)?;
     let priors = args.uncertainty.priors()?;
-    uncertain::refuse_for_matches(
-        priors.is_some() && matches!(sequence, Sequence::Matched { .. }),
-    )?;
     if let Sequence::Matched { held, observations } = &sequence {
         if !params.force.eq(&ForceModel::Elastic) {
             bail!("observations without correspondence are matched by the elastic force alone");
@@ -415,7 +412,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             converged: framed.solve.converged,
             deformed: &framed.deformed,
             unloaded,
-            held_by: None,
+            held_by: framed.springs.as_deref(),
         };
         uncertain::spread_after(explorer.as_mut(), answer, &mut solver, &model, true)?;
     }
@@ -446,12 +443,13 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             solve,
             deformed,
             observation,
+            springs,
         } = framing.solve(k, &mut solver, args.quiet)?;
         let answer = Answer {
             converged: solve.converged,
             deformed: &deformed,
             unloaded,
-            held_by: None,
+            held_by: springs.as_deref(),
         };
         let uncertainty = uncertain::regions_after(
             explorer.as_mut(),

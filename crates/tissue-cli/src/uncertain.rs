@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
@@ -367,19 +367,6 @@ impl UncertaintyReport {
         }
         lines
     }
-}
-
-/// Refuses `--uncertainty` where it is not made yet: a tracking run's
-/// frames without correspondence.
-pub fn refuse_for_matches(asked: bool) -> Result<()> {
-    if asked {
-        bail!(
-            "--uncertainty in `tissue track` needs frames with the rest surface's vertices \
-             (--frames); for observations without correspondence run `tissue deform \
-             --uncertainty` on a frame"
-        );
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -209,7 +209,7 @@ fn deform_spreads_a_match_without_correspondence() {
 /// `tissue track --uncertainty`: every frame's report and points carry
 /// their regions, the regions grow with the sag, a resumed run gives the
 /// last frame to the bit, and a sequence matched without correspondence
-/// is refused.
+/// has its regions too.
 #[test]
 fn track_writes_each_frame_regions() {
     use tissue::deform::{Sag, deform_surface, interpolate};
@@ -275,28 +275,41 @@ fn track_writes_each_frame_regions() {
     assert_eq!(written("particles.vtp"), particles);
     assert_eq!(written("points.csv"), points_csv);
 
-    // The same skins cut in four: matched without correspondence.
+    // The same skins cut in four: matched without correspondence, each
+    // frame's regions from the springs that held its skin.
     let other = dir.path().join("other");
     std::fs::create_dir(&other).unwrap();
-    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
-    let cut = tissue::SurfaceMesh::new(vertices, triangles);
-    tissue::save_surface(&cut, &other.join("skin-1.obj")).unwrap();
-    let refused = tissue(&[
+    for k in 1..=2 {
+        let frame = interpolate(&model.surface, &sagged, k as f32 / 2.0).unwrap();
+        let (vertices, triangles) = tissue_testkit::cut_in_four(&frame.vertices, &frame.triangles);
+        let cut = tissue::SurfaceMesh::new(vertices, triangles);
+        tissue::save_surface(&cut, &other.join(format!("skin-{k}.obj"))).unwrap();
+    }
+    let matched = dir.path().join("matched");
+    let out = tissue(&[
         "track",
         "--model",
         s(&model_path),
         "--frames",
         s(&other.join("*.obj")),
+        "--points",
+        s(&points),
         "--uncertainty",
+        "2",
         "--backend",
         "cpu",
         "-o",
-        s(&dir.path().join("matched")),
+        s(&matched),
+        "--quiet",
     ]);
-    assert!(!refused.status.success());
-    assert!(
-        text(&refused).contains("--uncertainty"),
-        "{}",
-        text(&refused)
-    );
+    assert!(out.status.success(), "{}", text(&out));
+    for k in 1..=2 {
+        let report = json(&matched.join(format!("frame-{k:04}")).join("report.json"));
+        assert!(report["observation"].is_object(), "frame {k} matched");
+        assert_eq!(report["uncertainty"]["converged"], true);
+        let radius = report["uncertainty"]["points"][0]["radius_mm"]
+            .as_f64()
+            .unwrap();
+        assert!(radius > 0.0, "frame {k}: {radius}");
+    }
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tissue::deformation::DeformReport;
-use tissue::observation::{HeldRegion, MatchParams, Observation, match_observation_held};
+use tissue::observation::{HeldRegion, MatchParams, Observation, Spring, match_observation_held};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use super::TrackArgs;
@@ -182,6 +182,10 @@ pub(super) struct Framed {
     /// The deformed surface: the frame, or the model's surface matched.
     pub(super) deformed: SurfaceMesh,
     pub(super) observation: Option<ObservationReport>,
+    /// For an observation without correspondence, the springs that held
+    /// the skin on it at the answer (the uncertainty's re-solves keep
+    /// them).
+    pub(super) springs: Option<Vec<Spring>>,
 }
 
 impl Framing<'_> {
@@ -221,6 +225,7 @@ impl Framing<'_> {
                     solve: solve?,
                     deformed: placed,
                     observation: None,
+                    springs: None,
                 })
             }
             Sequence::Matched { .. } => {
@@ -262,6 +267,7 @@ impl Framing<'_> {
                     solve,
                     deformed: report.surface,
                     observation: Some(described),
+                    springs: Some(report.springs),
                 })
             }
         }
