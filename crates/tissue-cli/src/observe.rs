@@ -2,13 +2,13 @@
 //! of another triangulation, or a point cloud (`--cloud`), matched by the
 //! skin inside the elastic solve (`tissue::observation::match_observation`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use serde::Serialize;
 use tissue::observation::{
-    CLOUD_NOISE, Cloud, HELD_TOLERANCE, MatchParams, MatchReport, Observation, SURFACE_NOISE,
-    load_cloud,
+    CLOUD_NOISE, Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation,
+    SURFACE_NOISE, fiducial_fit, load_cloud,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -61,7 +61,17 @@ pub fn read_surface(path: &Path, rest: &SurfaceMesh) -> Result<Surface> {
 /// outliers set aside and its noise averaged out (`noise`, or the
 /// default), its normals fitted and turned away from the model's inside.
 pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<Observation> {
-    let cloud = checked_cloud(path, model)?;
+    read_cloud_moved(path, model, noise, None)
+}
+
+/// [`read_cloud`], the points first moved by `motion` (`--fiducials`).
+pub fn read_cloud_moved(
+    path: &Path,
+    model: &ParticleModel,
+    noise: Option<f32>,
+    motion: Option<&FiducialFit>,
+) -> Result<Observation> {
+    let cloud = checked_cloud_moved(path, model, motion)?;
     let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
     Observation::cloud(&cloud, noise, centre)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
@@ -77,7 +87,21 @@ pub fn check_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Re
 /// The points of `--cloud` read and checked against the organ's size and
 /// place (another unit or frame is refused), not yet cleaned.
 pub fn checked_cloud(path: &Path, model: &ParticleModel) -> Result<Cloud> {
-    let points = load_cloud(path, Default::default())?;
+    checked_cloud_moved(path, model, None)
+}
+
+/// [`checked_cloud`], the points first moved by `motion`.
+fn checked_cloud_moved(
+    path: &Path,
+    model: &ParticleModel,
+    motion: Option<&FiducialFit>,
+) -> Result<Cloud> {
+    let mut points = load_cloud(path, Default::default())?;
+    if let Some(motion) = motion {
+        for p in &mut points {
+            *p = motion.apply(*p);
+        }
+    }
     let cloud = Cloud::new(points).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let (lo, hi) = model.positions.iter().fold(
         (glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)),
@@ -159,6 +183,73 @@ pub struct ObservationReport {
     pub stages: usize,
     /// The deformed organ's volume over the rest one's, less one.
     pub volume_change: f32,
+    /// With `--fiducials`: the rigid motion that put the observation in
+    /// the model's frame first.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<Alignment>,
+}
+
+/// The rigid motion fitted to `--fiducials` ([`tissue::observation::fiducial_fit`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct Alignment {
+    /// The fiducials paired.
+    pub fiducials: usize,
+    /// The rotation (rows): an observed point `p` goes to `rotation p +
+    /// translation`.
+    pub rotation: [[f32; 3]; 3],
+    /// The translation, in the model's units.
+    pub translation: [f32; 3],
+    /// The rotation's angle, degrees.
+    pub angle_degrees: f32,
+    /// The fiducials' distances after the motion: RMS and largest (the
+    /// fiducial registration error).
+    pub residual_rms_mm: f32,
+    /// See `residual_rms_mm`.
+    pub residual_max_mm: f32,
+}
+
+impl Alignment {
+    /// The report of `fit`.
+    pub fn of(fit: &FiducialFit) -> Self {
+        let r = fit.rotation.transpose();
+        Self {
+            fiducials: fit.count,
+            rotation: [r.x_axis.into(), r.y_axis.into(), r.z_axis.into()],
+            translation: fit.translation.into(),
+            angle_degrees: fit.angle_degrees,
+            residual_rms_mm: fit.rms,
+            residual_max_mm: fit.max,
+        }
+    }
+
+    /// One line for the screen.
+    pub fn line(&self) -> String {
+        let [x, y, z] = self.translation;
+        format!(
+            "put in the model's frame by {} fiducials: turned {:.2} degrees and moved \
+             ({x:.3}, {y:.3}, {z:.3}); the fiducials {:.3} apart after it (RMS; largest {:.3})",
+            self.fiducials, self.angle_degrees, self.residual_rms_mm, self.residual_max_mm
+        )
+    }
+}
+
+/// The rigid motion that puts `--fiducials`' observed points (the second
+/// file) onto the model's (the first), read in the model's space.
+pub fn read_fiducials(files: &[PathBuf]) -> Result<FiducialFit> {
+    let [model_points, observed_points] = files else {
+        bail!("--fiducials takes two files: the model's points, then the observation's");
+    };
+    let read = |path: &Path| {
+        tissue::load_points(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    };
+    let (to, from) = (read(model_points)?, read(observed_points)?);
+    fiducial_fit(&from, &to).map_err(|e| {
+        anyhow::anyhow!(
+            "--fiducials {} {}: {e}",
+            model_points.display(),
+            observed_points.display()
+        )
+    })
 }
 
 impl ObservationReport {
@@ -193,6 +284,7 @@ impl ObservationReport {
             residual_max_mm: report.residual.max,
             stages: report.stages,
             volume_change: report.volume_change,
+            alignment: None,
         }
     }
 

@@ -635,6 +635,9 @@ impl SolveReport {
             self.max_displacement_mm
         )];
         if let Some(observation) = &self.observation {
+            if let Some(alignment) = &observation.alignment {
+                lines.push(format!("{indent}{}", alignment.line()));
+            }
             lines.push(format!("{indent}{}", observation.line()));
         }
         for s in &self.structures {

@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use glam::{IVec3, Vec3};
 use tissue::backend::with_cpu_fallback;
 use tissue::deformation::{DeformParams, ForceModel};
-use tissue::observation::{MatchParams, MatchReport, Observation, match_observation};
+use tissue::observation::{FiducialFit, MatchParams, MatchReport, Observation, match_observation};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::{self, BackendArgs, Device, Solver};
@@ -121,6 +121,14 @@ pub struct DeformArgs {
     /// pairs' robust spread are set aside.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
+    /// Fiducials that put an observation without correspondence (--cloud,
+    /// or --surface of another triangulation) in the model's frame first:
+    /// the same points in the model's frame, then in the observation's, in
+    /// the same order (.csv, .ply, .mrk.json; at least three, not on one
+    /// line). The rigid motion fitted to them moves the observation before
+    /// it is matched; the motion and the fiducials' residual are reported.
+    #[arg(long, num_args = 2, value_names = ["MODEL_POINTS", "OBSERVED_POINTS"])]
+    pub fiducials: Option<Vec<PathBuf>>,
 
     #[command(flatten)]
     pub carry: CarryArgs,
@@ -405,6 +413,9 @@ impl DeformArgs {
         let mut inputs: Vec<(&'static str, &Path)> = vec![("model", self.model.as_path())];
         inputs.extend(self.surface.as_deref().map(|p| ("deformed surface", p)));
         inputs.extend(self.cloud.as_deref().map(|p| ("cloud", p)));
+        for path in self.fiducials.iter().flatten() {
+            inputs.push(("fiducials", path.as_path()));
+        }
         inputs.extend(self.fixed_region().map(|p| ("fixed region", p)));
         inputs.extend(self.carry.inputs());
         inputs
@@ -470,10 +481,15 @@ impl DeformArgs {
     }
 
     /// What to solve for, read and checked against `model`.
-    fn target(&self, model: &ParticleModel) -> Result<Target> {
+    fn target(&self, model: &ParticleModel, motion: Option<&FiducialFit>) -> Result<Target> {
         let held = |path: &Path| read_observed(path, &model.surface);
         let target = match (&self.surface, &self.cloud) {
             (Some(path), None) => match observe::read_surface(path, &model.surface)? {
+                observe::Surface::Frame(_) if motion.is_some() => bail!(
+                    "{}: the surface is the model's rest surface with moved vertices, in the \
+                     model's frame; --fiducials are for an observation without correspondence",
+                    path.display()
+                ),
                 observe::Surface::Frame(deformed) => {
                     let held_without_posture =
                         self.solve.gravity.fixed_region.is_some() && !self.solve.gravity.given();
@@ -489,24 +505,32 @@ impl DeformArgs {
                     }
                     return Ok(Target::Frame(deformed));
                 }
-                observe::Surface::Other(mesh) => Target::Match {
-                    held: match self.fixed_region() {
-                        Some(region) => held(region)?,
-                        None => observe::held_on(&mesh, model).map_err(|e| {
-                            anyhow!(
-                                "{}: not the same mesh with moved vertices as the model's rest \
-                                 surface ({} vertices and {} triangles, against {} and {}), so \
-                                 it is matched without correspondence, but {e}",
-                                path.display(),
-                                mesh.vertices.len(),
-                                mesh.triangles.len(),
-                                model.surface.vertices.len(),
-                                model.surface.triangles.len()
-                            )
-                        })?,
-                    },
-                    observation: Observation::surface(&mesh)?,
-                },
+                observe::Surface::Other(mut mesh) => {
+                    // In the model's frame first, where fiducials say how.
+                    if let Some(motion) = motion {
+                        for v in &mut mesh.vertices {
+                            *v = motion.apply(*v);
+                        }
+                    }
+                    Target::Match {
+                        held: match self.fixed_region() {
+                            Some(region) => held(region)?,
+                            None => observe::held_on(&mesh, model).map_err(|e| {
+                                anyhow!(
+                                    "{}: not the same mesh with moved vertices as the model's \
+                                     rest surface ({} vertices and {} triangles, against {} and \
+                                     {}), so it is matched without correspondence, but {e}",
+                                    path.display(),
+                                    mesh.vertices.len(),
+                                    mesh.triangles.len(),
+                                    model.surface.vertices.len(),
+                                    model.surface.triangles.len()
+                                )
+                            })?,
+                        },
+                        observation: Observation::surface(&mesh)?,
+                    }
+                }
             },
             (None, Some(path)) => {
                 let Some(region) = self.fixed_region() else {
@@ -517,7 +541,7 @@ impl DeformArgs {
                     );
                 };
                 Target::Match {
-                    observation: observe::read_cloud(path, model, self.noise)?,
+                    observation: observe::read_cloud_moved(path, model, self.noise, motion)?,
                     held: held(region)?,
                 }
             }
@@ -550,7 +574,11 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     let model = read_model(&args.model, &mut params, args.solve.observed.as_deref())?;
     let observed_file = args.observed_file()?;
     crate::carry::check_space_tag(observed_file, args.carry.space)?;
-    let target = args.target(&model)?;
+    let aligned = match &args.fiducials {
+        Some(files) => Some(observe::read_fiducials(files)?),
+        None => None,
+    };
+    let target = args.target(&model, aligned.as_ref())?;
     let priors = args.uncertainty.priors()?;
     if let Target::Match { held, observation } = &target {
         if !params.force.eq(&ForceModel::Elastic) {
@@ -649,8 +677,9 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
             let mut solve = report.last.clone();
             solve.iterations = report.iterations;
             solve.seconds = started.elapsed().as_secs_f64();
-            let described =
+            let mut described =
                 observe::ObservationReport::of(observation, &report, args.noise, &model);
+            described.alignment = aligned.as_ref().map(observe::Alignment::of);
             (solve, Some(report), Some(described))
         }
     };

@@ -437,6 +437,12 @@ pub enum ObservationError {
         /// The largest change taken.
         most: f32,
     },
+    /// The fiducials given to align an observation give no rigid motion.
+    #[error("the fiducials cannot align the observation: {reason}")]
+    Fiducials {
+        /// What is wrong with them.
+        reason: String,
+    },
     /// No part of the rest surface lies on an observed closed surface.
     #[error(
         "no part of the model's rest surface lies on it (within {tolerance:.3}): nothing is known \

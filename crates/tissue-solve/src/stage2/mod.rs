@@ -66,7 +66,10 @@ pub use posture::{
 };
 pub use predict::{FrameHistory, affine_fit, predict};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
-pub use rigid::{RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, rigid_fit};
+pub use rigid::{
+    FIDUCIAL_MISFIT, FiducialFit, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, fiducial_fit,
+    rigid_fit,
+};
 pub use spectrum::{lanczos_extremes, laplacian_extremes, laplacian_extremes_with};
 pub use springs::{
     SPRING_WEIGHT, Spring, spring, spring_block, spring_force, spring_operator, spring_potential,

@@ -7,6 +7,8 @@ use rayon::prelude::*;
 use tissue_core::ObservationError;
 use tissue_core::field::SurfaceField;
 
+use crate::model::svd3::best_rotation;
+
 /// How a rigid fit ([`rigid_fit`]) stops: after this many steps at most,
 /// or once the share of the Gauss-Newton step it takes is below
 /// [`RIGID_SHARE`]. A mesh's normals jump from triangle to triangle, so
@@ -45,6 +47,137 @@ impl RigidFit {
     pub fn apply(&self, p: Vec3) -> Vec3 {
         self.rotation * p + self.translation
     }
+}
+
+/// A paired-point fit's residual above this share of the fiducials'
+/// spread (their RMS distance from their centroid) says the points do not
+/// correspond ([`fiducial_fit`]): a fiducial localised to 1-2 mm over a
+/// spread of 40-80 mm leaves a few percent.
+pub const FIDUCIAL_MISFIT: f32 = 0.05;
+
+/// The rigid motion that puts fiducials given in an observation's frame
+/// onto the same fiducials in the model's ([`fiducial_fit`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FiducialFit {
+    /// The motion's rotation: a point `p` goes to `rotation * p + translation`.
+    pub rotation: Mat3,
+    /// The motion's translation.
+    pub translation: Vec3,
+    /// The angle of the rotation, in degrees.
+    pub angle_degrees: f32,
+    /// The fiducials paired.
+    pub count: usize,
+    /// Root mean square and largest distance between the moved fiducials
+    /// and the model's (the fiducial registration error).
+    pub rms: f32,
+    /// See `rms`.
+    pub max: f32,
+}
+
+impl FiducialFit {
+    /// Where the motion puts `p`.
+    pub fn apply(&self, p: Vec3) -> Vec3 {
+        self.rotation * p + self.translation
+    }
+}
+
+/// The rigid motion that best puts the fiducials `from` (in an
+/// observation's frame) onto `to` (the same fiducials, in the same order,
+/// in the model's frame): least squares over the pairs, the rotation by
+/// orthogonal Procrustes about the centroids (Arun, Huang and Blostein
+/// 1987).
+///
+/// # Errors
+///
+/// [`ObservationError::Fiducials`] for fewer than three pairs, lists of
+/// different lengths, a non-finite point, fiducials on one line (no
+/// rotation about it is pinned), spreads that differ by more than a
+/// quarter (another unit, or other points), or a fit that leaves them
+/// farther apart than [`FIDUCIAL_MISFIT`] of their spread (the points do
+/// not correspond: another order).
+pub fn fiducial_fit(from: &[Vec3], to: &[Vec3]) -> Result<FiducialFit, ObservationError> {
+    let refuse = |reason: String| Err(ObservationError::Fiducials { reason });
+    if from.len() != to.len() {
+        return refuse(format!(
+            "{} in the observation's frame against {} in the model's; each fiducial is given \
+             in both, in the same order",
+            from.len(),
+            to.len()
+        ));
+    }
+    if from.len() < 3 {
+        return refuse(format!(
+            "{} pairs; at least three, not on one line, pin a rigid motion",
+            from.len()
+        ));
+    }
+    if let Some((k, p)) = from
+        .iter()
+        .chain(to)
+        .enumerate()
+        .find(|(_, p)| !p.is_finite())
+    {
+        return refuse(format!("point {} is not finite: {p}", k % from.len()));
+    }
+    let centre = |points: &[Vec3]| points.iter().copied().sum::<Vec3>() / points.len() as f32;
+    let (c_from, c_to) = (centre(from), centre(to));
+    let a: Vec<Vec3> = from.iter().map(|p| *p - c_from).collect();
+    let b: Vec<Vec3> = to.iter().map(|p| *p - c_to).collect();
+    let spread = |offsets: &[Vec3]| {
+        (offsets.iter().map(|v| v.length_squared()).sum::<f32>() / offsets.len() as f32).sqrt()
+    };
+    let (s_from, s_to) = (spread(&a), spread(&b));
+    if !(s_from > 0.0 && s_to > 0.0 && (0.8..=1.25).contains(&(s_from / s_to))) {
+        return refuse(format!(
+            "they spread {s_from:.3} in the observation's frame and {s_to:.3} in the model's \
+             (RMS from their centroid); a rigid motion keeps distances: other units, or other \
+             points"
+        ));
+    }
+    // Off the line through the centroid along the farthest fiducial.
+    let far = a.iter().copied().fold(Vec3::ZERO, |m, v| {
+        if v.length_squared() > m.length_squared() {
+            v
+        } else {
+            m
+        }
+    });
+    let axis = far.normalize_or_zero();
+    let off_line = a.iter().map(|v| v.cross(axis).length()).fold(0.0, f32::max);
+    if off_line < FIDUCIAL_MISFIT * s_from {
+        return refuse(
+            "they lie on one line: no rotation about it is pinned; give a third fiducial off it"
+                .to_string(),
+        );
+    }
+    let rotation = best_rotation(&a, &b);
+    let translation = c_to - rotation * c_from;
+    let distances: Vec<f32> = from
+        .iter()
+        .zip(to)
+        .map(|(p, q)| (rotation * *p + translation).distance(*q))
+        .collect();
+    let rms = (distances.iter().map(|d| d * d).sum::<f32>() / distances.len() as f32).sqrt();
+    let max = distances.iter().copied().fold(0.0, f32::max);
+    if rms > FIDUCIAL_MISFIT * s_to {
+        return refuse(format!(
+            "after the best rigid motion they lie {rms:.3} apart (RMS, the largest {max:.3}) \
+             against a spread of {s_to:.3}: they do not correspond (check that both lists give \
+             the fiducials in the same order)"
+        ));
+    }
+    let angle_degrees = ((rotation.x_axis.x + rotation.y_axis.y + rotation.z_axis.z - 1.0) / 2.0)
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    Ok(FiducialFit {
+        rotation,
+        translation,
+        angle_degrees,
+        count: from.len(),
+        rms,
+        max,
+    })
 }
 
 /// The rigid motion that best puts `points` on `surface` (a surface's or
@@ -242,6 +375,7 @@ mod tests {
         // docs/METHOD.md, "Observations without correspondence".
         assert_eq!(RIGID_TRIM, 3.0);
         assert_eq!(RIGID_SHARE, 1.0 / 64.0);
+        assert_eq!(FIDUCIAL_MISFIT, 0.05);
         assert_eq!(RIGID_STEPS, 100);
     }
 
@@ -293,5 +427,60 @@ mod tests {
             fit.set_aside >= seen.len() / 100 && fit.rms < 0.2,
             "{fit:?}"
         );
+    }
+
+    /// Fiducials turned 15 degrees and shifted 20 mm, each moved by up to
+    /// half a millimetre (their localisation): the motion back is found
+    /// within the noise; too few, mismatched, collinear, rescaled or
+    /// reordered fiducials are refused, each by what is wrong.
+    #[test]
+    fn fiducials_give_the_motion_back_and_bad_ones_are_refused() {
+        let model = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(60.0, 0.0, 0.0),
+            Vec3::new(0.0, 50.0, 0.0),
+            Vec3::new(10.0, 20.0, 40.0),
+            Vec3::new(-30.0, 10.0, 15.0),
+        ];
+        let turn = Mat3::from_axis_angle(Vec3::new(0.3, -1.0, 0.4).normalize(), 15f32.to_radians());
+        let shift = Vec3::new(16.0, 0.0, -12.0);
+        let mut random = Pcg64::seed_from_u64(3);
+        let scan: Vec<Vec3> = model
+            .iter()
+            .map(|&p| {
+                let jitter = Vec3::new(
+                    random.random_range(-0.5..0.5),
+                    random.random_range(-0.5..0.5),
+                    random.random_range(-0.5..0.5),
+                );
+                turn * p + shift + jitter
+            })
+            .collect();
+        let fit = fiducial_fit(&scan, &model).unwrap();
+        assert!(
+            (fit.angle_degrees - 15.0).abs() < 1.5,
+            "{}",
+            fit.angle_degrees
+        );
+        assert!(fit.rms < 0.6 && fit.max >= fit.rms, "{fit:?}");
+        for &p in &model {
+            assert!(fit.apply(turn * p + shift).distance(p) < 1.0);
+        }
+        let reason = |from: &[Vec3], to: &[Vec3]| match fiducial_fit(from, to) {
+            Err(ObservationError::Fiducials { reason }) => reason,
+            other => panic!("not refused: {other:?}"),
+        };
+        assert!(reason(&scan[..2], &model[..2]).contains("at least three"));
+        assert!(reason(&scan, &model[..4]).contains("same order"));
+        let line: Vec<Vec3> = (0..4).map(|k| Vec3::X * k as f32 * 10.0).collect();
+        assert!(reason(&line, &line).contains("one line"));
+        let metres: Vec<Vec3> = scan.iter().map(|p| *p * 0.001).collect();
+        assert!(reason(&metres, &model).contains("other units"));
+        let mut shuffled = scan.clone();
+        shuffled.swap(0, 3);
+        assert!(reason(&shuffled, &model).contains("same order"));
+        let mut bad = scan.clone();
+        bad[1] = Vec3::NAN;
+        assert!(reason(&bad, &model).contains("not finite"));
     }
 }
