@@ -31,8 +31,10 @@
 //! is re-solved with the springs that held its skin on the observation at
 //! the answer (the pairing's, each the curvature of half the squared
 //! distance there: free along the observation, stiff across it), kept
-//! through the re-solve; the surface's error moves each spring's point by
-//! the field's offset where its particle sits on the skin.
+//! through the re-solve at [`Priors::held_share`] of their weight, the
+//! columns taken from the answer's equilibrium under them; the surface's
+//! error moves each spring's point by the field's offset where its
+//! particle sits on the skin.
 //!
 //! Every column is a re-solve's positions less the answer's with a weight;
 //! a target's covariance is the weighted sum of its offsets' outer
@@ -519,8 +521,8 @@ impl<D: SolveDevice> Explorer<D> {
             seconds: 0.0,
         };
         // A match's springs at the priors' share of their weight, and the
-        // answer's equilibrium under them (within the re-solves'
-        // tolerance of the answer): what the columns are offsets from.
+        // answer's equilibrium under them, solved from the answer: what
+        // the columns are offsets from.
         let share = priors.held_share;
         let softened: Option<Vec<Spring>> = answered
             .held_by
