@@ -59,19 +59,15 @@ pub fn read_surface(path: &Path, rest: &SurfaceMesh) -> Result<Surface> {
 /// The observation of `--cloud`: its points read, checked against the
 /// organ's size and place (another unit or frame is refused), its
 /// outliers set aside and its noise averaged out (`noise`, or the
-/// default), its normals fitted and turned away from the model's inside.
-pub fn read_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<Observation> {
-    read_cloud_moved(path, model, noise, None)
-}
-
-/// [`read_cloud`], the points first moved by `motion` (`--fiducials`).
-pub fn read_cloud_moved(
+/// default), its normals fitted and turned away from the model's inside;
+/// first moved by `motion` (`--fiducials`) where given.
+pub fn read_cloud(
     path: &Path,
     model: &ParticleModel,
     noise: Option<f32>,
     motion: Option<&FiducialFit>,
 ) -> Result<Observation> {
-    let cloud = checked_cloud_moved(path, model, motion)?;
+    let cloud = checked_cloud(path, model, motion)?;
     let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
     Observation::cloud(&cloud, noise, centre)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
@@ -79,19 +75,20 @@ pub fn read_cloud_moved(
 
 /// A scan read and checked as [`read_cloud`] would read it, without its
 /// grid.
-pub fn check_cloud(path: &Path, model: &ParticleModel, noise: Option<f32>) -> Result<()> {
-    let cloud = checked_cloud(path, model)?;
+pub fn check_cloud(
+    path: &Path,
+    model: &ParticleModel,
+    noise: Option<f32>,
+    motion: Option<&FiducialFit>,
+) -> Result<()> {
+    let cloud = checked_cloud(path, model, motion)?;
     Observation::check_cloud(&cloud, noise).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// The points of `--cloud` read and checked against the organ's size and
-/// place (another unit or frame is refused), not yet cleaned.
-pub fn checked_cloud(path: &Path, model: &ParticleModel) -> Result<Cloud> {
-    checked_cloud_moved(path, model, None)
-}
-
-/// [`checked_cloud`], the points first moved by `motion`.
-fn checked_cloud_moved(
+/// place (another unit or frame is refused), not yet cleaned; first moved
+/// by `motion` where given.
+pub fn checked_cloud(
     path: &Path,
     model: &ParticleModel,
     motion: Option<&FiducialFit>,

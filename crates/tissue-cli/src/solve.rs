@@ -541,7 +541,7 @@ impl DeformArgs {
                     );
                 };
                 Target::Match {
-                    observation: observe::read_cloud_moved(path, model, self.noise, motion)?,
+                    observation: observe::read_cloud(path, model, self.noise, motion)?,
                     held: held(region)?,
                 }
             }

@@ -65,6 +65,11 @@ pub struct TrackArgs {
     /// --noise`); only with observations without correspondence.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
+    /// Fiducials that put every observation in the model's frame first
+    /// (as `deform --fiducials`): the same points in the model's frame,
+    /// then in the observations' (one frame for the whole sequence).
+    #[arg(long, num_args = 2, value_names = ["MODEL_POINTS", "OBSERVED_POINTS"])]
+    pub fiducials: Option<Vec<PathBuf>>,
     #[command(flatten)]
     pub carry: CarryArgs,
     /// Folder for the results: `frame-0001/`, ... and `track.json`.
@@ -168,6 +173,9 @@ struct Plan<'a> {
     /// `--noise`, where given.
     #[serde(skip_serializing_if = "Option::is_none")]
     noise: Option<f32>,
+    /// `--fiducials`, where given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fiducials: Option<&'a [PathBuf]>,
     /// The uncertainty's priors, with `--uncertainty`.
     #[serde(skip_serializing_if = "Option::is_none")]
     uncertainty: Option<&'a Priors>,
@@ -277,7 +285,10 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     }
     let sequence = Sequence::read(args, &frames, &model)?;
     let priors = args.uncertainty.priors()?;
-    if let Sequence::Matched { held, observations } = &sequence {
+    if let Sequence::Matched {
+        held, observations, ..
+    } = &sequence
+    {
         if !params.force.eq(&ForceModel::Elastic) {
             bail!("observations without correspondence are matched by the elastic force alone");
         }
@@ -339,6 +350,9 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     inputs.extend(frames.iter().map(|f| ("frame", f.as_path())));
     let fixed_region = fixed_region_file(args);
     inputs.extend(fixed_region.map(|p| ("fixed region", p)));
+    for path in args.fiducials.iter().flatten() {
+        inputs.push(("fiducials", path.as_path()));
+    }
     inputs.extend(args.carry.inputs());
     let path = args.output_dir.join(TRACK_FILE);
     let mut outputs = vec![path.clone(), args.output_dir.join(COLLECTION_FILE)];
@@ -369,6 +383,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             .then_some(args.solve.gravity.fixed_region.as_deref())
             .flatten(),
         noise: args.noise,
+        fiducials: args.fiducials.as_deref(),
         uncertainty: priors.as_ref(),
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;

@@ -181,6 +181,67 @@ fn deform_puts_a_scan_in_the_models_frame_by_fiducials() {
         said.contains("same order") && !said.contains("panicked"),
         "{said}"
     );
+
+    // `track --clouds` of the scans in the other frame, by the same
+    // fiducials: each frame where the scans in the model's frame put it.
+    let half = tissue::deform::interpolate(&model.surface, &sagged, 0.5).unwrap();
+    let upper = |mesh: &SurfaceMesh| -> Vec<Vec3> {
+        mesh.vertices
+            .iter()
+            .filter(|v| v.z > 10.0)
+            .copied()
+            .collect()
+    };
+    for (folder, turned) in [("scans", false), ("scans-moved", true)] {
+        std::fs::create_dir(dir.path().join(folder)).unwrap();
+        for (k, mesh) in [(1, &half), (2, &sagged)] {
+            let points: Vec<Vec3> = upper(mesh)
+                .iter()
+                .map(|p| if turned { moved(p) } else { *p })
+                .collect();
+            save(&format!("{folder}/c-{k}.csv"), &points);
+        }
+    }
+    let track = |folder: &str, extra: &[&str]| {
+        let out_dir = dir.path().join(format!("track-{folder}"));
+        let pattern = dir.path().join(folder).join("*.csv");
+        let mut args = vec![
+            "track",
+            "--model",
+            s(&model_path),
+            "--clouds",
+            s(&pattern),
+            "--fixed-region",
+            s(&fixed),
+            "--points",
+            s(&targets),
+            "--backend",
+            "cpu",
+            "-o",
+            s(&out_dir),
+            "--quiet",
+        ];
+        args.extend(extra);
+        let out = tissue(&args);
+        assert!(out.status.success(), "{}", text(&out));
+        out_dir
+    };
+    let plain = track("scans", &[]);
+    let aligned = track(
+        "scans-moved",
+        &["--fiducials", s(&model_fiducials), s(&scan_fiducials)],
+    );
+    for k in 1..=2 {
+        let frame = |dir: &std::path::Path| dir.join(format!("frame-{k:04}"));
+        let report = json(&frame(&aligned).join("report.json"));
+        assert_eq!(report["observation"]["alignment"]["fiducials"], 4);
+        for (a, b) in carried(&frame(&plain))
+            .iter()
+            .zip(carried(&frame(&aligned)))
+        {
+            assert!(a.distance(b) < 0.01, "frame {k}: {a} against {b}");
+        }
+    }
 }
 
 /// What an observation without correspondence cannot come with is refused

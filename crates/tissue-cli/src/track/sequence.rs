@@ -7,7 +7,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tissue::deformation::DeformReport;
-use tissue::observation::{HeldRegion, MatchParams, Observation, Spring, match_observation_held};
+use tissue::observation::{
+    FiducialFit, HeldRegion, MatchParams, Observation, Spring, match_observation_held,
+};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use super::TrackArgs;
@@ -28,6 +30,9 @@ pub(super) enum Sequence {
     Matched {
         observations: Vec<Option<Observation>>,
         held: Vec<bool>,
+        /// The motion `--fiducials` fitted, which puts every observation
+        /// in the model's frame first.
+        motion: Option<FiducialFit>,
     },
 }
 
@@ -41,6 +46,10 @@ impl Sequence {
     ) -> Result<Self> {
         let rest = &model.surface;
         let held_file = fixed_region_file(args);
+        let motion = match &args.fiducials {
+            Some(files) => Some(observe::read_fiducials(files)?),
+            None => None,
+        };
         if args.clouds.is_some() {
             let Some(region) = held_file else {
                 bail!(
@@ -50,19 +59,33 @@ impl Sequence {
             };
             let held = read_observed(region, rest)?;
             for path in frames {
-                observe::check_cloud(path, model, args.noise)?;
+                observe::check_cloud(path, model, args.noise, motion.as_ref())?;
             }
-            return Self::matched(args, vec![None; frames.len()], held);
+            return Self::matched(args, vec![None; frames.len()], held, motion);
         }
         let mut others = Vec::new();
         let mut framed = Vec::new();
         for path in frames {
             match observe::read_surface(path, rest)? {
                 observe::Surface::Frame(_) => framed.push(path),
-                observe::Surface::Other(mesh) => others.push((path, mesh)),
+                observe::Surface::Other(mut mesh) => {
+                    // In the model's frame first, where fiducials say how.
+                    if let Some(motion) = &motion {
+                        for v in &mut mesh.vertices {
+                            *v = motion.apply(*v);
+                        }
+                    }
+                    others.push((path, mesh));
+                }
             }
         }
         if others.is_empty() {
+            if motion.is_some() {
+                bail!(
+                    "--frames are the model's rest surface with moved vertices, in the model's \
+                     frame; --fiducials are for observations without correspondence"
+                );
+            }
             if args.noise.is_some()
                 || (args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given())
             {
@@ -108,7 +131,7 @@ impl Sequence {
             .iter()
             .map(|(_, mesh)| Observation::surface(mesh).map(Some))
             .collect::<Result<Vec<_>, _>>()?;
-        Self::matched(args, observations, held)
+        Self::matched(args, observations, held, motion)
     }
 
     /// Observations without correspondence, once the options are checked.
@@ -116,6 +139,7 @@ impl Sequence {
         args: &TrackArgs,
         observations: Vec<Option<Observation>>,
         held: Vec<bool>,
+        motion: Option<FiducialFit>,
     ) -> Result<Self> {
         if args.solve.observed.is_some() {
             bail!(
@@ -130,7 +154,11 @@ impl Sequence {
                 args.noise.unwrap_or_default()
             );
         }
-        Ok(Self::Matched { observations, held })
+        Ok(Self::Matched {
+            observations,
+            held,
+            motion,
+        })
     }
 
     /// Frame `k`'s observation (`path`): a surface's as read, a scan read
@@ -145,9 +173,13 @@ impl Sequence {
         use std::borrow::Cow;
         match self {
             Self::Frames => Ok(None),
-            Self::Matched { observations, .. } => Ok(Some(match &observations[k] {
+            Self::Matched {
+                observations,
+                motion,
+                ..
+            } => Ok(Some(match &observations[k] {
                 Some(observation) => Cow::Borrowed(observation),
-                None => Cow::Owned(observe::read_cloud(path, model, noise)?),
+                None => Cow::Owned(observe::read_cloud(path, model, noise, motion.as_ref())?),
             })),
         }
     }
@@ -228,7 +260,7 @@ impl Framing<'_> {
                     springs: None,
                 })
             }
-            Sequence::Matched { .. } => {
+            Sequence::Matched { motion, .. } => {
                 let observation = self
                     .sequence
                     .observation(k, path, self.model, self.noise)?
@@ -261,8 +293,9 @@ impl Framing<'_> {
                 let mut solve = report.last.clone();
                 solve.iterations = report.iterations;
                 solve.seconds = started.elapsed().as_secs_f64();
-                let described =
+                let mut described =
                     ObservationReport::of(&observation, &report, self.noise, self.model);
+                described.alignment = motion.as_ref().map(observe::Alignment::of);
                 Ok(Framed {
                     solve,
                     deformed: report.surface,
