@@ -14,18 +14,22 @@ fn subdivided(mesh: &SurfaceMesh) -> SurfaceMesh {
     SurfaceMesh::new(vertices, triangles)
 }
 
-/// The phantom's chest wall (its rest vertices on the plane z = 0) as
-/// points in `dir/wall.csv`: the `--fixed-region` file.
-fn chest_wall_file(dir: &std::path::Path, model: &tissue::ParticleModel) -> std::path::PathBuf {
-    let wall: Vec<Vec3> = model
+/// The phantom's chest wall: its rest vertices on the plane z = 0.
+fn chest_wall(model: &tissue::ParticleModel) -> Vec<Vec3> {
+    model
         .surface
         .vertices
         .iter()
         .filter(|v| v.z <= 1e-4)
         .copied()
-        .collect();
+        .collect()
+}
+
+/// The phantom's chest wall as points in `dir/wall.csv`: the
+/// `--fixed-region` file.
+fn chest_wall_file(dir: &std::path::Path, model: &tissue::ParticleModel) -> std::path::PathBuf {
     let path = dir.join("wall.csv");
-    tissue::save_points(&wall, &path).unwrap();
+    tissue::save_points(&chest_wall(model), &path).unwrap();
     path
 }
 
@@ -88,13 +92,7 @@ fn deform_puts_a_scan_in_the_models_frame_by_fiducials() {
         glam::Mat3::from_axis_angle(Vec3::new(0.3, -1.0, 0.4).normalize(), 15f32.to_radians());
     let shift = Vec3::new(16.0, 0.0, -12.0);
     let moved = |p: &Vec3| turn * *p + shift;
-    let wall: Vec<Vec3> = model
-        .surface
-        .vertices
-        .iter()
-        .filter(|v| v.z <= 1e-4)
-        .copied()
-        .collect();
+    let wall = chest_wall(&model);
     let fiducials: Vec<Vec3> = (0..4).map(|k| wall[k * wall.len() / 4]).collect();
     let save = |name: &str, points: &[Vec3]| {
         let path = dir.path().join(name);

@@ -8,15 +8,9 @@ mod common;
 
 use common::{assets, json, s, sampled_model, text, tissue, vtp_array};
 
-/// The sagged phantom with landmarks (one deep inside, one on the chest
-/// wall) and the tumour: the report holds each landmark's and the
-/// tumour's 95 % region, `points.csv` its radius as a fourth column,
-/// `particles.vtp` each particle's; the chest-wall landmark's region is
-/// smaller than the deep one's, and the spread's solves all converged.
-#[test]
-fn deform_writes_each_target_region() {
-    let dir = tempfile::tempdir().unwrap();
-    let (model_path, model) = sampled_model(dir.path());
+/// Two landmarks in `dir/targets.csv`: one deep inside the phantom, one
+/// on its chest wall (a rest vertex at its lowest height).
+fn landmarks(dir: &std::path::Path, model: &tissue::ParticleModel) -> std::path::PathBuf {
     let low = model
         .surface
         .vertices
@@ -30,12 +24,25 @@ fn deform_writes_each_target_region() {
         .find(|v| v.z < low + 1e-3)
         .copied()
         .unwrap();
-    let points = dir.path().join("targets.csv");
+    let points = dir.join("targets.csv");
     std::fs::write(
         &points,
         format!("x,y,z\n0,0,25\n{},{},{}\n", wall.x, wall.y, wall.z),
     )
     .unwrap();
+    points
+}
+
+/// The sagged phantom with landmarks (one deep inside, one on the chest
+/// wall) and the tumour: the report holds each landmark's and the
+/// tumour's 95 % region, `points.csv` its radius as a fourth column,
+/// `particles.vtp` each particle's; the chest-wall landmark's region is
+/// smaller than the deep one's, and the spread's solves all converged.
+#[test]
+fn deform_writes_each_target_region() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, model) = sampled_model(dir.path());
+    let points = landmarks(dir.path(), &model);
     let out_dir = dir.path().join("out");
     let out = tissue(&[
         "deform",
@@ -151,25 +158,7 @@ fn deform_spreads_a_match_without_correspondence() {
     let sagged = tissue::load_surface(&sag).unwrap();
     let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
     tissue::save_surface(&tissue::SurfaceMesh::new(vertices, triangles), &remeshed).unwrap();
-    let low = model
-        .surface
-        .vertices
-        .iter()
-        .map(|v| v.z)
-        .fold(f32::INFINITY, f32::min);
-    let wall = model
-        .surface
-        .vertices
-        .iter()
-        .find(|v| v.z < low + 1e-3)
-        .copied()
-        .unwrap();
-    let points = dir.path().join("targets.csv");
-    std::fs::write(
-        &points,
-        format!("x,y,z\n0,0,25\n{},{},{}\n", wall.x, wall.y, wall.z),
-    )
-    .unwrap();
+    let points = landmarks(dir.path(), &model);
     let run = |out: &str, extra: &[&str]| {
         let out_dir = dir.path().join(out);
         let mut args = vec![
