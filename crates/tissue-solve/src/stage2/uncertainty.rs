@@ -530,14 +530,12 @@ impl<D: SolveDevice> Explorer<D> {
         let springs = softened.as_deref();
         let answer = match springs {
             Some(softened) => {
-                tracker.set_springs::<E>(softened.to_vec())?;
-                tracker.set_surface::<E>(answered.surface)?;
-                tracker.warm_start::<E>(&answer)?;
-                let report = tracker.solve()?;
-                spread.solves += 1;
-                spread.iterations += report.iterations;
-                spread.converged &= report.converged;
-                let base = tracker.positions().to_vec();
+                let base = resolve::<D, E>(
+                    tracker,
+                    (answered.surface, Some(softened)),
+                    &answer,
+                    &mut spread,
+                )?;
                 spread.answer.clone_from(&base);
                 base
             }
@@ -555,16 +553,7 @@ impl<D: SolveDevice> Explorer<D> {
                 }
                 _ => answer.clone(),
             };
-            if let Some(springs) = springs {
-                t.set_springs::<E>(springs.to_vec())?;
-            }
-            t.set_surface::<E>(surface)?;
-            t.warm_start::<E>(&start)?;
-            let report = t.solve()?;
-            spread.solves += 1;
-            spread.iterations += report.iterations;
-            spread.converged &= report.converged;
-            let positions = t.positions().to_vec();
+            let positions = resolve::<D, E>(t, (surface, springs), &start, spread)?;
             made.push(
                 positions
                     .iter()
@@ -738,6 +727,31 @@ impl<D: SolveDevice> Explorer<D> {
         spread.seconds = started.elapsed().as_secs_f64();
         Ok(spread)
     }
+}
+
+/// One re-solve of `t` on `surface`, with `springs` where the answer was
+/// matched, started from `start` as a watched guess and counted in
+/// `spread`; its positions.
+fn resolve<D, E>(
+    t: &mut Tracker<D>,
+    (surface, springs): (&SurfaceMesh, Option<&[Spring]>),
+    start: &[Vec3],
+    spread: &mut Spread,
+) -> Result<Vec<Vec3>, E>
+where
+    D: SolveDevice,
+    E: From<Error> + From<D::Error>,
+{
+    if let Some(springs) = springs {
+        t.set_springs::<E>(springs.to_vec())?;
+    }
+    t.set_surface::<E>(surface)?;
+    t.warm_start::<E>(start)?;
+    let report = t.solve()?;
+    spread.solves += 1;
+    spread.iterations += report.iterations;
+    spread.converged &= report.converged;
+    Ok(t.positions().to_vec())
 }
 
 /// The stiffness ratio `mu / lambda = (1 - 2 nu) / (2 nu)` the answer is
