@@ -593,6 +593,7 @@ fn _tissue(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(save_motion, m)?)?;
     m.add_function(wrap_pyfunction!(observation::load_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(observation::rigid_fit, m)?)?;
+    m.add_function(wrap_pyfunction!(observation::fiducial_fit, m)?)?;
     m.add_class::<Model>()?;
     m.add_class::<Deformer>()?;
     Ok(())

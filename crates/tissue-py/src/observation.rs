@@ -1,5 +1,6 @@
-//! Observations without correspondence: a point cloud read from a file, and
-//! the rigid motion that puts a cloud on a surface.
+//! Observations without correspondence: a point cloud read from a file,
+//! the rigid motion that puts a cloud on a surface, and the one that puts
+//! fiducials on the model's.
 
 use std::path::PathBuf;
 
@@ -56,24 +57,68 @@ pub(crate) fn rigid_fit<'py>(
     let fit = py
         .detach(|| tissue::observation::rigid_fit_to_surface(&points, &surface, reach))
         .map_err(raise)?;
-    let rotation: Vec<f64> = (0..3)
-        .flat_map(|r| (0..3).map(move |c| (r, c)))
-        .map(|(r, c)| f64::from(fit.rotation.col(c)[r]))
-        .collect();
-    let dict = PyDict::new(py);
-    dict.set_item(
-        "rotation",
-        PyArray1::from_vec(py, rotation).reshape([3, 3])?,
+    let dict = motion_dict(
+        py,
+        std::array::from_fn(|k| fit.rotation.col(k % 3)[k / 3]),
+        fit.translation,
+        fit.angle_degrees,
     )?;
-    dict.set_item(
-        "translation",
-        PyArray1::from_vec(py, fit.translation.to_array().map(f64::from).to_vec()),
-    )?;
-    dict.set_item("angle_degrees", f64::from(fit.angle_degrees))?;
     dict.set_item("rms", f64::from(fit.rms))?;
     dict.set_item("set_aside", fit.set_aside)?;
     dict.set_item("steps", fit.steps)?;
     dict.set_item("converged", fit.converged)?;
+    Ok(dict)
+}
+
+/// The rigid motion that best puts fiducials given in an observation's
+/// frame (`observed`, `(n, 3)`) onto the same fiducials in the model's
+/// (`model`, `(n, 3)`, the same order), in least squares (the `tissue
+/// deform --fiducials` fit; docs/METHOD.md, "Observations without
+/// correspondence"). A point `p` goes to `rotation @ p + translation`.
+/// Fewer than three fiducials, lists of different lengths, collinear
+/// fiducials, spreads that differ by more than a quarter (another unit)
+/// or a fit that leaves them farther apart than 5 % of their spread (they
+/// do not correspond) raise `TissueError` with the reason. Returns a
+/// dict: `rotation` (3x3), `translation` (3,), `angle_degrees`,
+/// `fiducials`, `residual_rms`, `residual_max` (the fiducial registration
+/// error).
+#[pyfunction]
+pub(crate) fn fiducial_fit<'py>(
+    py: Python<'py>,
+    observed: &Bound<'py, PyAny>,
+    model: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let observed = points_from(observed, "observed")?;
+    let model = points_from(model, "model")?;
+    let fit = tissue::observation::fiducial_fit(&observed, &model).map_err(raise)?;
+    let dict = motion_dict(
+        py,
+        std::array::from_fn(|k| fit.rotation.col(k % 3)[k / 3]),
+        fit.translation,
+        fit.angle_degrees,
+    )?;
+    dict.set_item("fiducials", fit.count)?;
+    dict.set_item("residual_rms", f64::from(fit.rms))?;
+    dict.set_item("residual_max", f64::from(fit.max))?;
+    Ok(dict)
+}
+
+/// A rigid motion as a dict: `rotation` (3x3, from its `rows`, row by
+/// row), `translation` (3,), `angle_degrees`.
+fn motion_dict<'py>(
+    py: Python<'py>,
+    rows: [f32; 9],
+    translation: tissue::Vec3,
+    angle_degrees: f32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let rows = rows.map(f64::from).to_vec();
+    let dict = PyDict::new(py);
+    dict.set_item("rotation", PyArray1::from_vec(py, rows).reshape([3, 3])?)?;
+    dict.set_item(
+        "translation",
+        PyArray1::from_vec(py, translation.to_array().map(f64::from).to_vec()),
+    )?;
+    dict.set_item("angle_degrees", f64::from(angle_degrees))?;
     Ok(dict)
 }
 

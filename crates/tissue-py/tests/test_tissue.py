@@ -561,6 +561,35 @@ def test_a_turned_and_shifted_scan_is_fitted_back_onto_the_skin(tmp_path):
         tissue.load_cloud(tmp_path / "scan.xyz")
 
 
+def test_fiducials_in_a_scans_frame_give_the_motion_that_puts_them_on_the_models():
+    vertices, _ = tissue.phantom_breast()
+    wall = vertices[np.abs(vertices[:, 2]) < 1e-6]
+    fiducials = wall[np.linspace(0, len(wall) - 1, 5).astype(int)]
+    angle = np.radians(15.0)
+    turn = np.array(
+        [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]]
+    )
+    shift = np.array([20.0, -5.0, 3.0])
+    # The scan's frame: a model point p is seen at turn @ p + shift.
+    seen = fiducials @ turn.T + shift
+
+    fit = tissue.fiducial_fit(seen, fiducials)
+    assert abs(fit["angle_degrees"] - 15.0) < 1e-3, fit
+    assert fit["fiducials"] == 5 and fit["residual_max"] < 1e-3, fit
+    assert np.allclose(fit["rotation"], turn.T, atol=1e-5)
+    scan = vertices[vertices[:, 2] > vertices[:, 2].mean()] @ turn.T + shift
+    back = scan @ fit["rotation"].T + fit["translation"]
+    assert np.abs(back - vertices[vertices[:, 2] > vertices[:, 2].mean()]).max() < 1e-3
+
+    with pytest.raises(tissue.TissueError, match="in the same order"):
+        tissue.fiducial_fit(seen[:4], fiducials)
+    with pytest.raises(tissue.TissueError, match="other units"):
+        tissue.fiducial_fit(seen * 1000.0, fiducials)
+    # Two fiducials swapped: they no longer correspond.
+    with pytest.raises(tissue.TissueError, match="same order"):
+        tissue.fiducial_fit(seen[[1, 0, 2, 3, 4]], fiducials)
+
+
 def _cut_in_four(vertices, triangles):
     """The same surface with every triangle cut into four at its edges' midpoints."""
     vertices = [tuple(v) for v in vertices]

@@ -30,7 +30,9 @@ and ``save_motion`` (a rigid structure's ``.tfm``).
 
 A scanner's point cloud of the organ (no correspondence to the model) is
 read by ``load_cloud``; ``rigid_fit`` finds the rigid motion that puts it
-on a surface (for a scan in another frame). ``Deformer.match_observation``
+on a surface (for a scan in another frame), ``fiducial_fit`` the one that
+puts fiducials given in the scan's frame onto the same points in the
+model's. ``Deformer.match_observation``
 pulls the skin onto another segmentation's surface or onto a scan without
 correspondence (the deformer's ``observed`` vertices held at rest);
 ``from_last=True`` matches a sequence's next frame from the last answer.
@@ -44,6 +46,7 @@ from ._tissue import (
     Model,
     TissueError,
     __version__,
+    fiducial_fit,
     load_cloud,
     load_model,
     phantom_breast,
@@ -58,6 +61,7 @@ __all__ = [
     "Model",
     "TissueError",
     "__version__",
+    "fiducial_fit",
     "load_cloud",
     "load_model",
     "phantom_breast",
