@@ -8,9 +8,9 @@ mod common;
 
 use glam::Vec3;
 use tissue::backend::{Device, Solver};
-use tissue::observation::{MatchParams, Observation, match_observation};
+use tissue::observation::{MatchParams, Observation, SURFACE_SMOOTHING, match_observation};
 use tissue::{ParticleModel, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, ForceModel};
+use tissue_cpu::deformation::{DeformParams, ForceModel, StopReason};
 use tissue_solve::model::held_vertices;
 use tissue_solve::stage2::{NO_LIMIT, Pairing, PairingRule};
 
@@ -41,43 +41,60 @@ fn the_skin_lands_on_another_triangulation_of_the_sag_on_both_devices() {
     let observation = Observation::surface(&subdivided(&sagged)).unwrap();
     let moved = rms(&model.positions, &truth);
 
-    let mut devices = vec![Device::Cpu];
-    devices.extend(common::gpu());
-    let mut solved = Vec::new();
-    for device in devices {
-        let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
-        let on = solver.backend();
-        solver.set_surface(&model.surface).unwrap();
-        let report =
-            match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
-        let positions = solver.positions().to_vec();
-        let off = rms(&positions, &truth);
-        eprintln!(
-            "{on}: {} iterations over {} stages, {}/{} pulled, residual {:?}; the particles \
-             {off:.3} from the truth after moving {moved:.3}",
-            report.iterations, report.stages, report.pulled, report.skin, report.residual
-        );
-        assert!(report.converged, "{on}: {:?}", report.last);
-        assert_eq!(
-            report.pulled, report.skin,
-            "{on}: every free skin particle pulled"
-        );
-        // The skin on the sag: the observed points on the model's surface.
-        assert!(
-            report.residual.rms < 0.01 * moved,
-            "{on}: residual {:?}, {moved} moved",
-            report.residual
-        );
-        assert!(off < 0.5 * moved, "{on}: {off} from the sag, {moved} moved");
-        // Nothing is left pulling: a solve after it has no springs.
-        assert!(solver.plan().springs.is_empty() && solver.plan().pairing.is_none());
-        solved.push((report.iterations, positions));
+    // Paired with the plane smoothed over the surface's vertices (the
+    // default), and with its nearest point and the distance's curvature.
+    for smoothing in [SURFACE_SMOOTHING, 0.0] {
+        let matching = MatchParams {
+            surface_smoothing: smoothing,
+            ..MatchParams::default()
+        };
+        let mut devices = vec![Device::Cpu];
+        devices.extend(common::gpu());
+        let mut solved = Vec::new();
+        for device in devices {
+            let mut solver = Solver::new(device, &model, observed.clone()).unwrap();
+            let on = format!("{}, smoothing {smoothing}", solver.backend());
+            solver.set_surface(&model.surface).unwrap();
+            let report = match_observation(&mut solver, &model, &observation, &matching).unwrap();
+            let positions = solver.positions().to_vec();
+            let off = rms(&positions, &truth);
+            eprintln!(
+                "{on}: {} iterations over {} stages, {}/{} pulled, residual {:?}, stopped by \
+                 {:?}; the particles {off:.3} from the truth after moving {moved:.3}",
+                report.iterations,
+                report.stages,
+                report.pulled,
+                report.skin,
+                report.residual,
+                report.last.stopped_by
+            );
+            assert!(report.converged, "{on}: {:?}", report.last);
+            // The smoothed plane moves with the skin: the last stage ends at
+            // the tolerance, not where the nearest point's jumps leave it.
+            if smoothing > 0.0 {
+                assert_eq!(report.last.stopped_by, StopReason::Tolerance, "{on}");
+            }
+            assert_eq!(
+                report.pulled, report.skin,
+                "{on}: every free skin particle pulled"
+            );
+            // The skin on the sag: the observed points on the model's surface.
+            assert!(
+                report.residual.rms < 0.01 * moved,
+                "{on}: residual {:?}, {moved} moved",
+                report.residual
+            );
+            assert!(off < 0.5 * moved, "{on}: {off} from the sag, {moved} moved");
+            // Nothing is left pulling: a solve after it has no springs.
+            assert!(solver.plan().springs.is_empty() && solver.plan().pairing.is_none());
+            solved.push((report.iterations, positions));
+        }
+        // Near ties of the nearest points round apart on the two devices,
+        // the energy watch then steps back at other iterations, and the
+        // stages' solves stop up to a fifth of their iterations apart; the
+        // skin and the interior land in the same place.
+        assert_same_match(&solved, size);
     }
-    // Near ties of the nearest points round apart on the two devices, the
-    // energy watch then steps back at other iterations, and the stages'
-    // solves stop up to a fifth of their iterations apart; the skin and
-    // the interior land in the same place.
-    assert_same_match(&solved, size);
 }
 
 /// The sag's front half as a scan (the sagged surface's vertices above
@@ -281,4 +298,26 @@ fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
         .sum::<f32>()
         / a.len() as f32)
         .sqrt()
+}
+
+/// A surface's smoothing is a radius of 0 to 8 of its mean edges; any
+/// other is refused, naming it, before the match starts.
+#[test]
+fn a_match_refuses_a_smoothing_out_of_its_range() {
+    let model = common::phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let observed = DeformParams::default().with(|p| p.observed = Some(chest_wall(&model)));
+    let observation = Observation::surface(&subdivided(&sagged)).unwrap();
+    let mut solver = Solver::new(Device::Cpu, &model, observed).unwrap();
+    for smoothing in [-1.0, f32::NAN, 9.0] {
+        let params = MatchParams {
+            surface_smoothing: smoothing,
+            ..MatchParams::default()
+        };
+        let error = match_observation(&mut solver, &model, &observation, &params)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("surface_smoothing"), "{smoothing}: {error}");
+    }
+    assert_eq!(solver.positions(), model.positions.as_slice());
 }

@@ -11,7 +11,7 @@ use super::matching::{
     MAX_VOLUME_CHANGE, mean_edge,
 };
 use super::{Cloud, ObservationError};
-use crate::field::{SurfaceField, signed_distances};
+use crate::field::{SMOOTH_REACH, SurfaceField, signed_distances};
 use crate::{Error, SurfaceMesh, Vec3};
 
 /// What the model's skin is matched to without correspondence: a closed
@@ -232,42 +232,221 @@ impl Observation {
 
     /// The field the skin is paired on: a surface's without its triangles
     /// that show the held region (`held`, within `reach` of it at each
-    /// corner), where no free particle belongs, in cells of
-    /// [`FIELD_CELL_EDGES`] mean edges or the model's mean connection
-    /// length `spacing`, the longer; a cloud's as it is.
+    /// corner), where no free particle belongs; with `smoothing` above
+    /// zero the field of its vertices for a plane smoothed over
+    /// `smoothing` mean edges ([`smoothed_surface_field`]), else of its
+    /// triangles in cells of [`FIELD_CELL_EDGES`] mean edges or the
+    /// model's mean connection length `spacing`, the longer; a cloud's as
+    /// it is.
     pub(super) fn pairing_field(
         &self,
         held: Option<&SurfaceField>,
         reach: f32,
         spacing: f32,
-    ) -> Result<Cow<'_, SurfaceField>, Error> {
-        let mesh = match &self.kind {
-            Kind::Cloud { field, .. } => return Ok(Cow::Borrowed(field)),
-            Kind::Surface(mesh) => mesh,
-        };
-        let on_held = |t: usize| {
-            held.is_some_and(|held| {
-                mesh.corners(t)
-                    .iter()
-                    .all(|&c| held.nearest(c).distance.abs() <= reach)
-            })
-        };
-        let kept: Vec<[u32; 3]> = (0..mesh.triangles.len())
-            .filter(|&t| !on_held(t))
-            .map(|t| mesh.triangles[t])
-            .collect();
-        let free = SurfaceMesh {
-            vertices: mesh.vertices.clone(),
-            triangles: if kept.is_empty() {
-                mesh.triangles.clone()
-            } else {
-                kept
-            },
+        smoothing: f32,
+    ) -> Result<PairingField<'_>, Error> {
+        let free = match &self.kind {
+            Kind::Cloud { field, .. } => {
+                return Ok(PairingField {
+                    field: Cow::Borrowed(field),
+                    smoothed_edge: None,
+                    free: None,
+                });
+            }
+            Kind::Surface(mesh) => free_of_held(mesh, held, reach),
         };
         let edge = mean_edge(&free);
         let cell = (FIELD_CELL_EDGES * edge).max(spacing);
-        Ok(Cow::Owned(
-            SurfaceField::new(&free, cell, FIELD_MARGIN * edge).map_err(ObservationError::from)?,
+        if smoothing > 0.0 {
+            return Ok(PairingField {
+                field: Cow::Owned(smoothed_surface_field(&free, cell, edge, smoothing * edge)?),
+                smoothed_edge: Some(edge),
+                free: Some(free),
+            });
+        }
+        Ok(PairingField {
+            field: Cow::Owned(
+                SurfaceField::new(&free, cell, FIELD_MARGIN * edge)
+                    .map_err(ObservationError::from)?,
+            ),
+            smoothed_edge: None,
+            free: Some(free),
+        })
+    }
+}
+
+/// `mesh` without its triangles that show the held region (`held`, within
+/// `reach` of it at each corner), where no free particle belongs; all of
+/// it where that would leave none.
+fn free_of_held(mesh: &SurfaceMesh, held: Option<&SurfaceField>, reach: f32) -> SurfaceMesh {
+    let on_held = |t: usize| {
+        held.is_some_and(|held| {
+            mesh.corners(t)
+                .iter()
+                .all(|&c| held.nearest(c).distance.abs() <= reach)
+        })
+    };
+    let kept: Vec<[u32; 3]> = (0..mesh.triangles.len())
+        .filter(|&t| !on_held(t))
+        .map(|t| mesh.triangles[t])
+        .collect();
+    SurfaceMesh {
+        vertices: mesh.vertices.clone(),
+        triangles: if kept.is_empty() {
+            mesh.triangles.clone()
+        } else {
+            kept
+        },
+    }
+}
+
+/// The field a match pairs the skin on ([`Observation::pairing_field`]).
+pub(super) struct PairingField<'a> {
+    pub(super) field: Cow<'a, SurfaceField>,
+    /// For a surface paired by its smoothed plane, its mean edge.
+    pub(super) smoothed_edge: Option<f32>,
+    /// For a surface, its triangles the skin is paired on (the held
+    /// region's left out).
+    pub(super) free: Option<SurfaceMesh>,
+}
+
+impl PairingField<'_> {
+    /// A surface's field of its triangles the skin is paired on, exact
+    /// within one mean edge of them (for skin that lies on the surface: a
+    /// match's answer), in cells of [`FIELD_CELL_EDGES`] mean edges or
+    /// `spacing`, the longer; `None` for a cloud.
+    pub(super) fn near_field(&self, spacing: f32) -> Result<Option<SurfaceField>, Error> {
+        let Some(free) = &self.free else {
+            return Ok(None);
+        };
+        let edge = mean_edge(free);
+        let cell = (FIELD_CELL_EDGES * edge).max(spacing);
+        Ok(Some(
+            SurfaceField::new(free, cell, edge).map_err(ObservationError::from)?,
         ))
+    }
+}
+
+/// The field of `mesh`'s vertices (those of its triangles) for the plane
+/// smoothed over radius `h` around a particle ([`SurfaceField::smooth_plane`],
+/// as a cloud's): each vertex with the normal of its triangles (summed
+/// weighted by their areas), lifted along it by how far the plane
+/// smoothed around the vertex passes from it. Smoothed over points on a
+/// curved surface, the plane passes inside a convex bend (about
+/// `h^2 / 2R` at a radius of curvature `R`) and pulled the skin with it;
+/// lifted, it passes through the vertices to second order. In cells of
+/// `cell`, exact within [`FIELD_MARGIN`] mean edges `edge` of a vertex.
+///
+/// # Errors
+///
+/// [`Error::Observation`] where no triangle has an area or the grid
+/// cannot be made.
+pub(super) fn smoothed_surface_field(
+    mesh: &SurfaceMesh,
+    cell: f32,
+    edge: f32,
+    h: f32,
+) -> Result<SurfaceField, Error> {
+    let (points, normals) = vertex_normals(mesh);
+    if points.is_empty() {
+        return Err(ObservationError::Field(tissue_core::FieldError::NoVertices).into());
+    }
+    let margin = FIELD_MARGIN * edge;
+    let reach = SMOOTH_REACH * h;
+    let unlifted = SurfaceField::of_cloud_within(&points, &normals, cell, margin, reach)
+        .map_err(ObservationError::from)?;
+    let lifted: Vec<Vec3> = points
+        .par_iter()
+        .zip(&normals)
+        .map(|(&p, &n)| {
+            let lift = unlifted
+                .smooth_plane(p, h)
+                .map_or(0.0, |(point, normal)| normal.dot(p - point));
+            p + lift * n
+        })
+        .collect();
+    Ok(
+        SurfaceField::of_cloud_within(&lifted, &normals, cell, margin, reach)
+            .map_err(ObservationError::from)?,
+    )
+}
+
+/// The vertices of `mesh`'s triangles and their unit normals, each the
+/// sum of its triangles' area-weighted normals; vertices of no triangle,
+/// or of triangles without area, are left out.
+fn vertex_normals(mesh: &SurfaceMesh) -> (Vec<Vec3>, Vec<Vec3>) {
+    let mut sums = vec![Vec3::ZERO; mesh.vertices.len()];
+    for (t, triangle) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(t);
+        let twice_area = (b - a).cross(c - a);
+        for &v in triangle {
+            sums[v as usize] += twice_area;
+        }
+    }
+    mesh.vertices
+        .iter()
+        .zip(sums)
+        .filter_map(|(&p, sum)| {
+            let normal = sum.normalize_or_zero();
+            (normal != Vec3::ZERO).then_some((p, normal))
+        })
+        .unzip()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+    use super::*;
+
+    /// A sphere of radius `radius` about the origin, triangulated.
+    fn sphere(radius: f32) -> SurfaceMesh {
+        let (mut vertices, mut triangles) = tissue_testkit::octahedron();
+        for _ in 0..4 {
+            (vertices, triangles) = tissue_testkit::cut_in_four(&vertices, &triangles);
+        }
+        SurfaceMesh {
+            vertices: vertices.iter().map(|v| radius * v.normalize()).collect(),
+            triangles,
+        }
+    }
+
+    /// Smoothed over points on a sphere, the plane passes inside it by
+    /// about `h^2 / 2R`; lifted, through it, between the vertices as at
+    /// them.
+    #[test]
+    fn the_lifted_vertices_smooth_planes_that_pass_through_the_surface() {
+        let radius = 50.0;
+        let mesh = sphere(radius);
+        let edge = mean_edge(&mesh);
+        let h = super::super::matching::SURFACE_SMOOTHING * edge;
+        let lifted = smoothed_surface_field(&mesh, 2.0 * edge, edge, h).unwrap();
+        let (points, normals) = vertex_normals(&mesh);
+        let unlifted = SurfaceField::of_cloud_within(
+            &points,
+            &normals,
+            2.0 * edge,
+            FIELD_MARGIN * edge,
+            SMOOTH_REACH * h,
+        )
+        .unwrap();
+        let mut next = tissue_testkit::xorshift(7);
+        let off = |field: &SurfaceField, p: Vec3| {
+            let (point, normal) = field.smooth_plane(p, h).unwrap();
+            normal.dot(p - point)
+        };
+        let (mut before, mut after) = (0.0f32, 0.0f32);
+        for _ in 0..200 {
+            let direction = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize();
+            let p = radius * direction;
+            before = before.max(off(&unlifted, p).abs());
+            after = after.max(off(&lifted, p).abs());
+            // The normal the plane turns to is the sphere's.
+            let (_, normal) = lifted.smooth_plane(p, h).unwrap();
+            assert!(normal.dot(direction) > 0.999, "{normal} at {direction}");
+        }
+        let bias = h * h / (2.0 * radius);
+        eprintln!("h {h}, h^2/2R {bias}: unlifted {before}, lifted {after}");
+        assert!(before > 0.5 * bias, "unlifted {before}, h^2/2R {bias}");
+        assert!(after < 0.1 * bias, "lifted {after}, unlifted {before}");
     }
 }
