@@ -112,22 +112,18 @@ pub fn checked_cloud(
 
 /// The match without gravity that the posture options start from: `model`
 /// under `params` (its held region observed, no load) matched to
-/// `observation` on `device`; the rest surface carried by it (a frame of
+/// `observation` on `device` with `matching`; the rest surface carried by it (a frame of
 /// the rest surface) and which of its vertices the observation saw.
 pub fn first_match(
     device: crate::backend::Device,
     model: &ParticleModel,
     params: &tissue::deformation::DeformParams,
     observation: &Observation,
-    noise: Option<f32>,
+    matching: &MatchParams,
     quiet: bool,
 ) -> Result<(SurfaceMesh, Vec<bool>)> {
-    let matching = MatchParams {
-        noise,
-        ..MatchParams::default()
-    };
     let observed = crate::progress::busy(quiet, "matching the skin without gravity first", |_| {
-        tissue::gravity::observed_frame(&device, model, observation, params, &matching)
+        tissue::gravity::observed_frame(&device, model, observation, params, matching)
     })?;
     if !observed.report.converged {
         bail!(

@@ -121,6 +121,14 @@ pub struct DeformArgs {
     /// pairs' robust spread are set aside.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
+    /// How a surface of another triangulation is paired with the skin, in
+    /// its mean edges: the plane smoothed over its vertices within this
+    /// radius (default 1); 0 pairs each particle with the nearest point
+    /// and the distance's curvature there (slower, its last stage ending at
+    /// the float floor, but an uncertainty's re-solves of its answer are
+    /// faster: docs/ACCURACY.md). Not for a cloud.
+    #[arg(long, value_name = "EDGES")]
+    pub surface_smoothing: Option<f32>,
     /// Fiducials that put an observation without correspondence (--cloud,
     /// or --surface of another triangulation) in the model's frame first:
     /// the same points in the model's frame, then in the observation's, in
@@ -420,6 +428,34 @@ impl DeformArgs {
         inputs.extend(self.carry.inputs());
         inputs
     }
+
+    /// The match's parameters: `--noise` and `--surface-smoothing` where
+    /// given, the library's defaults otherwise.
+    fn matching(&self) -> MatchParams {
+        matching(self.noise, self.surface_smoothing)
+    }
+}
+
+/// A match's parameters from `--noise` and `--surface-smoothing`, where
+/// given.
+pub fn matching(noise: Option<f32>, surface_smoothing: Option<f32>) -> MatchParams {
+    let defaults = MatchParams::default();
+    MatchParams {
+        noise,
+        surface_smoothing: surface_smoothing.unwrap_or(defaults.surface_smoothing),
+        ..defaults
+    }
+}
+
+/// Refuses a `--surface-smoothing` the match cannot take: a radius of 0 to
+/// 8 of the surface's mean edges.
+pub fn check_smoothing(smoothing: Option<f32>) -> Result<()> {
+    if let Some(edges) = smoothing
+        && !(edges.is_finite() && (0.0..=8.0).contains(&edges))
+    {
+        bail!("--surface-smoothing is {edges}: 0 to 8 of the surface's mean edges are needed");
+    }
+    Ok(())
 }
 
 /// The default grid spacing of `--displacement-field`, in mean connection
@@ -493,13 +529,16 @@ impl DeformArgs {
                 observe::Surface::Frame(deformed) => {
                     let held_without_posture =
                         self.solve.gravity.fixed_region.is_some() && !self.solve.gravity.given();
-                    if held_without_posture || self.noise.is_some() {
+                    if held_without_posture
+                        || self.noise.is_some()
+                        || self.surface_smoothing.is_some()
+                    {
                         bail!(
                             "{}: the surface is the model's rest surface with moved vertices, \
-                             which the skin follows vertex by vertex; --noise, and \
-                             --fixed-region without the posture options, are for an \
-                             observation without correspondence (use --observed for the \
-                             vertices that were seen)",
+                             which the skin follows vertex by vertex; --noise, \
+                             --surface-smoothing, and --fixed-region without the posture \
+                             options, are for an observation without correspondence (use \
+                             --observed for the vertices that were seen)",
                             path.display()
                         );
                     }
@@ -533,6 +572,13 @@ impl DeformArgs {
                 }
             },
             (None, Some(path)) => {
+                if self.surface_smoothing.is_some() {
+                    bail!(
+                        "{}: --surface-smoothing is for a surface of another triangulation; a \
+                         scan's plane is smoothed over its own spacing",
+                        path.display()
+                    );
+                }
                 let Some(region) = self.fixed_region() else {
                     bail!(
                         "{}: a scan of part of the skin needs the region held at rest (the \
@@ -560,6 +606,7 @@ impl DeformArgs {
                 self.noise.unwrap_or_default()
             );
         }
+        check_smoothing(self.surface_smoothing)?;
         Ok(target)
     }
 }
@@ -611,7 +658,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
                 &model,
                 &params,
                 observation,
-                args.noise,
+                &args.matching(),
                 args.quiet,
             )
             .with_context(|| format!("{}: the match without gravity", observed_file.display()))?,
@@ -666,10 +713,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         }
         Target::Match { observation, .. } => {
             let started = std::time::Instant::now();
-            let matching = MatchParams {
-                noise: args.noise,
-                ..MatchParams::default()
-            };
+            let matching = args.matching();
             let report =
                 progress::busy(args.quiet, "matching the skin to the observation", |_| {
                     match_observation(&mut solver, &model, observation, &matching)

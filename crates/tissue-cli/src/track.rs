@@ -65,6 +65,14 @@ pub struct TrackArgs {
     /// --noise`); only with observations without correspondence.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
+    /// How a surface of another triangulation is paired with the skin, in
+    /// its mean edges: the plane smoothed over its vertices within this
+    /// radius (default 1); 0 pairs each particle with the nearest point
+    /// and the distance's curvature there (slower, its last stage ending at
+    /// the float floor, but an uncertainty's re-solves of its answer are
+    /// faster: docs/ACCURACY.md). Not for clouds.
+    #[arg(long, value_name = "EDGES")]
+    pub surface_smoothing: Option<f32>,
     /// Fiducials that put every observation in the model's frame first
     /// (as `deform --fiducials`): the same points in the model's frame,
     /// then in the observations' (one frame for the whole sequence).
@@ -173,6 +181,9 @@ struct Plan<'a> {
     /// `--noise`, where given.
     #[serde(skip_serializing_if = "Option::is_none")]
     noise: Option<f32>,
+    /// `--surface-smoothing`, where given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    surface_smoothing: Option<f32>,
     /// `--fiducials`, where given.
     #[serde(skip_serializing_if = "Option::is_none")]
     fiducials: Option<&'a [PathBuf]>,
@@ -321,7 +332,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 &model,
                 &params,
                 &observation,
-                args.noise,
+                &crate::solve::matching(args.noise, args.surface_smoothing),
                 args.quiet,
             )
             .with_context(|| format!("{}: the match without gravity", frames[0].display()))?,
@@ -383,6 +394,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             .then_some(args.solve.gravity.fixed_region.as_deref())
             .flatten(),
         noise: args.noise,
+        surface_smoothing: args.surface_smoothing,
         fiducials: args.fiducials.as_deref(),
         uncertainty: priors.as_ref(),
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
@@ -415,6 +427,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         first_frame: first_frame.as_ref(),
         posture: posture.as_ref(),
         noise: args.noise,
+        surface_smoothing: args.surface_smoothing,
         held: std::cell::RefCell::new(None),
     };
     let unloaded = posture.as_ref().and_then(|p| p.unloaded.as_ref());

@@ -69,6 +69,32 @@ fn deform_matches_a_surface_of_another_triangulation() {
     assert!(rms < 2e-3 * size, "residual {rms}, size {size}");
     assert_eq!(report["status"], "converged");
     assert!(report["observed"]["vertices"].as_u64().unwrap() > 0);
+
+    // Paired with the nearest point instead: the same skin, to a fraction
+    // of the residual.
+    let nearest_dir = dir.path().join("nearest");
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model_path),
+        "--surface",
+        s(&other),
+        "--surface-smoothing",
+        "0",
+        "--backend",
+        "cpu",
+        "--output-dir",
+        s(&nearest_dir),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    let nearest = json(&nearest_dir.join("report.json"));
+    assert_eq!(nearest["status"], "converged");
+    let other_rms = nearest["observation"]["residual_rms_mm"].as_f64().unwrap();
+    assert!(other_rms < 2e-3 * size, "residual {other_rms}, size {size}");
+    assert_ne!(
+        nearest["iterations"], report["iterations"],
+        "another pairing, another iteration"
+    );
 }
 
 /// A scan of the sag in another frame (turned 15 degrees about an oblique
@@ -303,6 +329,25 @@ fn deform_refuses_what_a_match_cannot_take() {
         assert!(!said.contains("panicked"), "{said}");
     };
     refused(&["--cloud", s(&cloud)], &["--fixed-region"]);
+    refused(
+        &["--surface", s(&other), "--surface-smoothing", "9"],
+        &["--surface-smoothing is 9", "0 to 8"],
+    );
+    refused(
+        &[
+            "--cloud",
+            s(&cloud),
+            "--fixed-region",
+            s(&fixed),
+            "--surface-smoothing",
+            "1",
+        ],
+        &["--surface-smoothing is for a surface"],
+    );
+    refused(
+        &["--surface", s(&frame), "--surface-smoothing", "1"],
+        &["moved vertices", "--surface-smoothing"],
+    );
     refused(
         &["--surface", s(&frame), "--noise", "0.5"],
         &["moved vertices", "without correspondence"],
@@ -584,6 +629,28 @@ fn track_matches_sequences_without_correspondence() {
         assert!(said.contains(says), "{args:?}: {said}");
     };
     refused(&["track", "--frames", &pattern("mixed/*.obj")], "mixes");
+    refused(
+        &[
+            "track",
+            "--frames",
+            &pattern("surfaces/*.obj"),
+            "--surface-smoothing",
+            "9",
+        ],
+        "--surface-smoothing is 9",
+    );
+    refused(
+        &[
+            "track",
+            "--clouds",
+            &pattern("scans/*.csv"),
+            "--fixed-region",
+            s(&fixed),
+            "--surface-smoothing",
+            "1",
+        ],
+        "--surface-smoothing is for surfaces",
+    );
     // A later scan in metres is refused before the first frame is solved.
     std::fs::create_dir(dir.path().join("metres")).unwrap();
     for k in 1..=2 {

@@ -192,7 +192,10 @@ impl Deformer {
     /// from where the deformer is (the last match's answer: a sequence's
     /// next frame, as `tissue track` matches it) in one solve at full
     /// weight, rather than from the start in four growing ones.
-    #[pyo3(signature = (surface = None, cloud = None, noise = None, from_last = false))]
+    /// `surface_smoothing`: how a surface is paired, in its mean edges
+    /// (default 1: the plane smoothed over its vertices; 0: the nearest
+    /// point and the distance's curvature there).
+    #[pyo3(signature = (surface = None, cloud = None, noise = None, from_last = false, surface_smoothing = None))]
     fn match_observation(
         &mut self,
         py: Python<'_>,
@@ -200,6 +203,7 @@ impl Deformer {
         cloud: Option<&Bound<'_, PyAny>>,
         noise: Option<f32>,
         from_last: bool,
+        surface_smoothing: Option<f32>,
     ) -> PyResult<Py<PyAny>> {
         let observation = match (surface, cloud) {
             (Some(surface), None) => crate::observation::other_surface_of(surface)?.1,
@@ -225,6 +229,10 @@ impl Deformer {
                 noise,
                 ..MatchParams::default()
             }
+        };
+        let params = MatchParams {
+            surface_smoothing: surface_smoothing.unwrap_or(params.surface_smoothing),
+            ..params
         };
         let report = py
             .detach(|| {

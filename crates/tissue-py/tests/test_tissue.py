@@ -641,6 +641,12 @@ def test_the_skin_is_matched_to_a_surface_and_a_scan_without_correspondence():
     assert again["residual_rms"] < 2e-3 * size
     with pytest.raises(tissue.TissueError, match="one of the two"):
         deformer.match_observation()
+    # Paired with the nearest point instead of the smoothed plane.
+    nearest = deformer.match_observation(surface=other, surface_smoothing=0.0)
+    assert nearest["converged"] and nearest["residual_rms"] < 2e-3 * size
+    assert nearest["iterations"] != report["iterations"]
+    with pytest.raises(tissue.TissueError, match="surface_smoothing"):
+        deformer.match_observation(surface=other, surface_smoothing=-1.0)
     with pytest.raises(tissue.TissueError, match="a quarter of the model's size"):
         deformer.match_observation(cloud=front + [0.0, 0.0, 1000.0])
 

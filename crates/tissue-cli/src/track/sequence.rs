@@ -50,7 +50,14 @@ impl Sequence {
             Some(files) => Some(observe::read_fiducials(files)?),
             None => None,
         };
+        crate::solve::check_smoothing(args.surface_smoothing)?;
         if args.clouds.is_some() {
+            if args.surface_smoothing.is_some() {
+                bail!(
+                    "--surface-smoothing is for surfaces of another triangulation; a scan's \
+                     plane is smoothed over its own spacing"
+                );
+            }
             let Some(region) = held_file else {
                 bail!(
                     "--clouds: scans of part of the skin need the region held at rest (the chest \
@@ -87,13 +94,14 @@ impl Sequence {
                 );
             }
             if args.noise.is_some()
+                || args.surface_smoothing.is_some()
                 || (args.solve.gravity.fixed_region.is_some() && !args.solve.gravity.given())
             {
                 bail!(
                     "--frames are the model's rest surface with moved vertices, which the skin \
-                     follows vertex by vertex; --noise, and --fixed-region without the posture \
-                     options (--gravity-rest, --gravity-deformed), are for observations \
-                     without correspondence"
+                     follows vertex by vertex; --noise, --surface-smoothing, and \
+                     --fixed-region without the posture options (--gravity-rest, \
+                     --gravity-deformed), are for observations without correspondence"
                 );
             }
             return Ok(Self::Frames);
@@ -203,6 +211,8 @@ pub(super) struct Framing<'a> {
     pub(super) first_frame: Option<&'a SurfaceMesh>,
     pub(super) posture: Option<&'a crate::posture::Posture>,
     pub(super) noise: Option<f32>,
+    /// `--surface-smoothing`, where given.
+    pub(super) surface_smoothing: Option<f32>,
     /// The held region the matches pair around, made at the first match
     /// and kept for the next frames (the solver and its plan stay).
     pub(super) held: std::cell::RefCell<Option<HeldRegion>>,
@@ -268,13 +278,14 @@ impl Framing<'_> {
                 let started = Instant::now();
                 // A frame after the first starts from the last one's
                 // answer.
+                let first = crate::solve::matching(self.noise, self.surface_smoothing);
                 let matching = if k == 0 {
-                    MatchParams {
-                        noise: self.noise,
-                        ..MatchParams::default()
-                    }
+                    first
                 } else {
-                    MatchParams::next_frame(self.noise)
+                    MatchParams {
+                        surface_smoothing: first.surface_smoothing,
+                        ..MatchParams::next_frame(self.noise)
+                    }
                 };
                 let report = progress::busy(quiet, &format!("{label}: matching"), |_| {
                     let mut held = self.held.borrow_mut();

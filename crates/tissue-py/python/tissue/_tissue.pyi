@@ -119,5 +119,6 @@ class Deformer:
         cloud: Optional[Any] = None,
         noise: Optional[float] = None,
         from_last: bool = False,
+        surface_smoothing: Optional[float] = None,
     ) -> dict[str, Any]: ...
     def reset(self) -> None: ...
