@@ -110,6 +110,28 @@ pub fn checked_cloud(
     Ok(cloud)
 }
 
+/// A match's parameters from `--noise` and `--surface-smoothing`, where
+/// given.
+pub fn matching(noise: Option<f32>, surface_smoothing: Option<f32>) -> MatchParams {
+    let defaults = MatchParams::default();
+    MatchParams {
+        noise,
+        surface_smoothing: surface_smoothing.unwrap_or(defaults.surface_smoothing),
+        ..defaults
+    }
+}
+
+/// Refuses a `--surface-smoothing` the match cannot take: a radius of 0 to
+/// 8 of the surface's mean edges.
+pub fn check_smoothing(smoothing: Option<f32>) -> Result<()> {
+    if let Some(edges) = smoothing
+        && !(edges.is_finite() && (0.0..=8.0).contains(&edges))
+    {
+        bail!("--surface-smoothing is {edges}: 0 to 8 of the surface's mean edges are needed");
+    }
+    Ok(())
+}
+
 /// The match without gravity that the posture options start from: `model`
 /// under `params` (its held region observed, no load) matched to
 /// `observation` on `device` with `matching`; the rest surface carried by it (a frame of

@@ -432,30 +432,8 @@ impl DeformArgs {
     /// The match's parameters: `--noise` and `--surface-smoothing` where
     /// given, the library's defaults otherwise.
     fn matching(&self) -> MatchParams {
-        matching(self.noise, self.surface_smoothing)
+        observe::matching(self.noise, self.surface_smoothing)
     }
-}
-
-/// A match's parameters from `--noise` and `--surface-smoothing`, where
-/// given.
-pub fn matching(noise: Option<f32>, surface_smoothing: Option<f32>) -> MatchParams {
-    let defaults = MatchParams::default();
-    MatchParams {
-        noise,
-        surface_smoothing: surface_smoothing.unwrap_or(defaults.surface_smoothing),
-        ..defaults
-    }
-}
-
-/// Refuses a `--surface-smoothing` the match cannot take: a radius of 0 to
-/// 8 of the surface's mean edges.
-pub fn check_smoothing(smoothing: Option<f32>) -> Result<()> {
-    if let Some(edges) = smoothing
-        && !(edges.is_finite() && (0.0..=8.0).contains(&edges))
-    {
-        bail!("--surface-smoothing is {edges}: 0 to 8 of the surface's mean edges are needed");
-    }
-    Ok(())
 }
 
 /// The default grid spacing of `--displacement-field`, in mean connection
@@ -606,7 +584,7 @@ impl DeformArgs {
                 self.noise.unwrap_or_default()
             );
         }
-        check_smoothing(self.surface_smoothing)?;
+        observe::check_smoothing(self.surface_smoothing)?;
         Ok(target)
     }
 }

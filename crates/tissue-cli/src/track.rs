@@ -332,7 +332,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 &model,
                 &params,
                 &observation,
-                &crate::solve::matching(args.noise, args.surface_smoothing),
+                &observe::matching(args.noise, args.surface_smoothing),
                 args.quiet,
             )
             .with_context(|| format!("{}: the match without gravity", frames[0].display()))?,

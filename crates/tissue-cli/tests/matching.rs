@@ -44,18 +44,24 @@ fn deform_matches_a_surface_of_another_triangulation() {
     let sagged = tissue::deform::deform_surface(&model.surface, &tissue::deform::Sag::default());
     let other = dir.path().join("other.obj");
     tissue::save_surface(&subdivided(&sagged), &other).unwrap();
+    // `deform` onto the other triangulation with `extra` options.
+    let deform = |extra: &[&str], out_dir: &std::path::Path| {
+        let mut args = vec![
+            "deform",
+            "--model",
+            s(&model_path),
+            "--surface",
+            s(&other),
+            "--backend",
+            "cpu",
+            "--output-dir",
+            s(out_dir),
+        ];
+        args.extend(extra);
+        tissue(&args)
+    };
     let out_dir = dir.path().join("out");
-    let out = tissue(&[
-        "deform",
-        "--model",
-        s(&model_path),
-        "--surface",
-        s(&other),
-        "--backend",
-        "cpu",
-        "--output-dir",
-        s(&out_dir),
-    ]);
+    let out = deform(&[], &out_dir);
     let said = text(&out);
     assert!(out.status.success(), "{said}");
     assert!(said.contains("no correspondence"), "{said}");
@@ -73,19 +79,7 @@ fn deform_matches_a_surface_of_another_triangulation() {
     // Paired with the nearest point instead: the same skin, to a fraction
     // of the residual.
     let nearest_dir = dir.path().join("nearest");
-    let out = tissue(&[
-        "deform",
-        "--model",
-        s(&model_path),
-        "--surface",
-        s(&other),
-        "--surface-smoothing",
-        "0",
-        "--backend",
-        "cpu",
-        "--output-dir",
-        s(&nearest_dir),
-    ]);
+    let out = deform(&["--surface-smoothing", "0"], &nearest_dir);
     assert!(out.status.success(), "{}", text(&out));
     let nearest = json(&nearest_dir.join("report.json"));
     assert_eq!(nearest["status"], "converged");

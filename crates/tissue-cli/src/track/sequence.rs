@@ -50,7 +50,7 @@ impl Sequence {
             Some(files) => Some(observe::read_fiducials(files)?),
             None => None,
         };
-        crate::solve::check_smoothing(args.surface_smoothing)?;
+        observe::check_smoothing(args.surface_smoothing)?;
         if args.clouds.is_some() {
             if args.surface_smoothing.is_some() {
                 bail!(
@@ -278,7 +278,7 @@ impl Framing<'_> {
                 let started = Instant::now();
                 // A frame after the first starts from the last one's
                 // answer.
-                let first = crate::solve::matching(self.noise, self.surface_smoothing);
+                let first = observe::matching(self.noise, self.surface_smoothing);
                 let matching = if k == 0 {
                     first
                 } else {
