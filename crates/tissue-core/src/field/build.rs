@@ -89,16 +89,15 @@ impl SurfaceField {
             64,
             || (),
             |_, t, out: &mut Vec<(u32, f32, u32)>| {
-                let [a, b, c] = field.corners[t];
+                // A cloud's triangles are its points.
+                let a = field.corners[t][0];
                 let range = field.cell_range(a - Vec3::splat(widest), a + Vec3::splat(widest));
-                for_each_cell(range, |at| {
+                field.for_each_cell_near(range, a, widest, |at| {
                     let index = field.cell_index(at);
                     if !band[index] {
                         return;
                     }
-                    let centre = field.cell_centre(index);
-                    let (q, _, _) = closest_on_triangle(centre, a, b, c);
-                    let d = (q - centre).length();
+                    let d = (a - field.cell_centre(index)).length();
                     if d <= reach[index] {
                         out.push((index as u32, d, t as u32));
                     }
@@ -239,6 +238,16 @@ impl SurfaceField {
                 a.min(b).min(c) - Vec3::splat(half_diagonal),
                 a.max(b).max(c) + Vec3::splat(half_diagonal),
             );
+            if a == b && b == c {
+                // A cloud's point: the cells whose centre is near it.
+                self.for_each_cell_near(range, a, half_diagonal, |cell| {
+                    let index = self.cell_index(cell);
+                    if (a - self.cell_centre(index)).length() <= half_diagonal * (1.0 + 1e-5) {
+                        cells.push(index as u32);
+                    }
+                });
+                return;
+            }
             let normal = (b - a).cross(c - a).normalize_or_zero();
             for_each_cell(range, |cell| {
                 let index = self.cell_index(cell);
@@ -338,6 +347,45 @@ impl SurfaceField {
                 .iter()
                 .for_each(|&t| f(t));
         });
+    }
+}
+
+impl SurfaceField {
+    /// Calls `f` for the cells of `range` whose centres may lie within
+    /// `radius` of `p`: in each row of cells along x, those the ball
+    /// reaches after the row's offset in y and z (with a thousandth of
+    /// `radius` and a cell to spare: `f` tests each centre itself), in the
+    /// order [`for_each_cell`] gives them.
+    fn for_each_cell_near(
+        &self,
+        [lo, hi]: [[u32; 3]; 2],
+        p: Vec3,
+        radius: f32,
+        mut f: impl FnMut([u32; 3]),
+    ) {
+        let radius = radius * 1.001;
+        let centre = |k: usize, i: u32| self.origin[k] + (i as f32 + 0.5) * self.cell;
+        for z in lo[2]..=hi[2] {
+            let dz = centre(2, z) - p.z;
+            for y in lo[1]..=hi[1] {
+                let dy = centre(1, y) - p.y;
+                let left = radius * radius - dy * dy - dz * dz;
+                if left < 0.0 {
+                    continue;
+                }
+                let half = left.sqrt();
+                let first = ((p.x - half - self.origin.x) / self.cell - 0.5).floor() - 1.0;
+                let last = ((p.x + half - self.origin.x) / self.cell - 0.5).ceil() + 1.0;
+                let first = first.max(lo[0] as f32) as u32;
+                let last = last.min(hi[0] as f32);
+                if last < first as f32 {
+                    continue;
+                }
+                for x in first..=last as u32 {
+                    f([x, y, z]);
+                }
+            }
+        }
     }
 }
 
