@@ -5,6 +5,7 @@
 //! of any triangulation or a cloud inside the elastic solve
 //! ([`match_observation`]).
 
+mod held;
 mod matching;
 mod observed;
 
@@ -15,6 +16,7 @@ pub use matching::{
     SURFACE_SMOOTHING, held_on, match_observation, match_observation_held, mean_edge,
 };
 
+pub use held::HeldObservation;
 pub use observed::Observation;
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};

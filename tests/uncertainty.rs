@@ -247,15 +247,18 @@ fn another_poisson_ratio_shares_the_elastic_model_and_solves_the_same() {
 
 /// An answer matched to another triangulation of the sag (no
 /// correspondence: the chest wall held, the skin paired with the surface
-/// inside the solve) spreads with the springs that held its skin there:
-/// every re-solve converges and leaves the solver at the answer with no
-/// springs, the chest wall has no spread, the interior has, the surface's
-/// error alone spreads the skin by about its size, and the CPU and the GPU
+/// inside the solve) spreads with its skin paired with the observation
+/// again in every re-solve: the answer is the re-solves' own equilibrium
+/// (the spread's answer is the solver's, to the bit), every re-solve
+/// converges and leaves the solver at the answer with no springs, the
+/// chest wall has no spread, the interior has, the surface's error alone
+/// spreads the skin by about its size, the Poisson ratio's range spreads
+/// the skin by about what matching again at the range's ends moves it
+/// (not by sliding it along the observation), and the CPU and the GPU
 /// (lavapipe in CI) give the same regions.
 #[test]
-fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
+fn a_matched_answer_spreads_with_its_skin_paired_with_the_observation() {
     use tissue::observation::{MatchParams, Observation, match_observation};
-    use tissue::uncertainty::HeldBy;
     let model = common::phantom_model(1_000);
     let sagged = tissue::deform::sagged_breast();
     let (lo, hi) = sagged.bounds().unwrap();
@@ -265,24 +268,27 @@ fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
     let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
     let observation = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
     let sigma = 0.5;
+    let nu = DeformParams::default().poisson;
     let everything = Priors::default().with(|p| p.samples = 4);
     let surface_alone = everything.clone().with(|p| {
-        let nu = DeformParams::default().poisson;
         p.poisson = (nu, nu);
         p.posture_g = 0.0;
         p.surface_noise = sigma;
+    });
+    let poisson_alone = everything.clone().with(|p| {
+        p.posture_g = 0.0;
+        p.surface_noise = 0.0;
     });
     let mut devices = vec![Device::Cpu];
     devices.extend(common::gpu());
     let mut radii = Vec::new();
     for device in devices {
-        let mut solver = Solver::new(device, &model, params.clone()).unwrap();
+        let mut solver = Solver::new(device.clone(), &model, params.clone()).unwrap();
         let on = solver.backend();
         solver.set_surface(&model.surface).unwrap();
         let matched =
             match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
         assert!(matched.converged, "{on}: {:?}", matched.last);
-        assert_eq!(matched.springs.len(), model.len());
         let answer = solver.positions().to_vec();
         let exact = exact_vertices(&model.surface, &matched.surface);
         let answered = Answered {
@@ -290,15 +296,16 @@ fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
             exact: &exact,
             rest_load: None,
             metres_per_unit: 1e-3,
-            held_by: Some(HeldBy {
-                springs: &matched.springs,
-                attachments: &model.attachments,
-            }),
+            held_by: Some(&matched.held),
         };
         let mut spreads = Vec::new();
-        for priors in [&everything, &surface_alone] {
+        for priors in [&everything, &surface_alone, &poisson_alone] {
             let spread = explore(&mut solver, &model, answered, priors).unwrap();
             assert!(spread.converged, "{on}: every re-solve converges");
+            assert_eq!(
+                spread.answer, answer,
+                "{on}: the answer is the re-solves' own"
+            );
             assert_eq!(
                 solver.positions(),
                 answer.as_slice(),
@@ -307,7 +314,7 @@ fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
             assert!(solver.plan().springs.is_empty(), "{on}: no springs left");
             spreads.push(spread.particle_regions());
         }
-        let (all, surface) = (&spreads[0], &spreads[1]);
+        let (all, surface, poisson) = (&spreads[0], &spreads[1], &spreads[2]);
         let on_wall = |i: usize| {
             model.attachments[i].is_some_and(|a| {
                 model.surface.triangles[a.triangle as usize]
@@ -326,22 +333,53 @@ fn a_matched_answer_spreads_with_the_springs_that_held_its_skin() {
         }
         let inside = (0..model.len()).filter(|&i| !model.is_surface(i));
         assert!(inside.map(|i| all[i].radius).fold(0.0, f32::max) > 0.1);
-        // The skin pulled by a spring moves with the observation's error:
-        // its 95 % radius a few times the error's deviation.
-        let mut skin: Vec<f32> = (0..model.len())
-            .filter(|&i| !matched.springs[i].is_zero())
-            .map(|i| surface[i].radius)
-            .collect();
-        skin.sort_by(f32::total_cmp);
-        let median = skin[skin.len() / 2];
+        let skin = &matched.held.pairing().skin;
+        let median = |regions: &[tissue::uncertainty::Region]| {
+            let mut r: Vec<f32> = skin.iter().map(|&i| regions[i as usize].radius).collect();
+            r.sort_by(f32::total_cmp);
+            r[r.len() / 2]
+        };
+        // The paired skin moves with the observation's error: its 95 %
+        // radius a few times the error's deviation.
+        let under_error = median(surface);
+        // Matched again at each end of the range, from rest: how far the
+        // skin moves (RMS), the farther end's.
+        let mut moved = 0.0f32;
+        for end in [poisson_alone.poisson.0, poisson_alone.poisson.1] {
+            let mut again = Solver::new(
+                device.clone(),
+                &model,
+                params.clone().with(|p| p.poisson = end),
+            )
+            .unwrap();
+            again.set_surface(&model.surface).unwrap();
+            let rematched =
+                match_observation(&mut again, &model, &observation, &MatchParams::default())
+                    .unwrap();
+            assert!(rematched.converged, "{on}: {:?}", rematched.last);
+            let rms = (skin
+                .iter()
+                .map(|&i| again.positions()[i as usize].distance_squared(answer[i as usize]))
+                .sum::<f32>()
+                / skin.len() as f32)
+                .sqrt();
+            moved = moved.max(rms);
+        }
+        let under_poisson = median(poisson);
         eprintln!(
-            "{on}: {} skin particles held by springs, their median 95 % radius {median:.3} mm \
-             under the surface's error alone ({sigma} mm)",
+            "{on}: {} skin particles paired; their median 95 % radius {under_error:.3} mm under \
+             the surface's error alone ({sigma} mm), {under_poisson:.3} mm under the Poisson \
+             ratio's range alone; matched again at its ends the skin moves up to {moved:.3} mm (RMS)",
             skin.len()
         );
         assert!(
-            (0.5 * sigma..4.0 * sigma).contains(&median),
-            "{on}: median radius {median}"
+            (0.5 * sigma..4.0 * sigma).contains(&under_error),
+            "{on}: median radius {under_error}"
+        );
+        assert!(
+            (0.1 * moved..3.0 * moved + 0.05).contains(&under_poisson),
+            "{on}: the Poisson ratio's median radius {under_poisson} against a match again \
+             moving the skin {moved}"
         );
         radii.push(all.iter().map(|r| r.radius).collect::<Vec<f32>>());
     }

@@ -6,11 +6,12 @@ use std::collections::BTreeSet;
 use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_solve::stage2::{
-    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, Spring, pair_plane,
-    paired_point, paired_spring,
+    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane,
+    paired_point,
 };
 
 use super::ObservationError;
+use super::held::HeldObservation;
 use super::observed::{Kind, Observation};
 use crate::backend::Solver;
 use crate::deformation::DeformReport;
@@ -227,11 +228,10 @@ pub struct MatchReport {
     pub surface: SurfaceMesh,
     /// The last stage's solve.
     pub last: DeformReport,
-    /// The springs that hold the skin on the observation at the answer,
-    /// one per particle, as the pairing sets them there (zero off the free
-    /// skin and where a particle is set aside): what the uncertainty's
-    /// re-solves keep ([`crate::uncertainty::HeldBy`]).
-    pub springs: Vec<Spring>,
+    /// The observation as the last stage paired the skin with it: what
+    /// the uncertainty's re-solves pair it with again
+    /// ([`crate::uncertainty::HeldBy`]).
+    pub held: HeldObservation,
 }
 
 impl MatchReport {
@@ -384,16 +384,17 @@ pub fn match_observation_held(
             Some(median) if scan => RIGID_TRIM as f32 * (1.4826_f32 * median).max(noise),
             _ => NO_LIMIT,
         };
-        let springs = springs(field, &skin, &start, &rule, model.len());
+        let pairing = Pairing {
+            skin: skin.clone(),
+            rule,
+        };
+        let springs = pairing.springs(field, &start);
         if !springs.iter().any(|s| !s.is_zero()) {
             clear(solver)?;
             return Err(ObservationError::Unpaired { skin: skin.len() }.into());
         }
         solver.set_springs(springs)?;
-        solver.set_pairing(Some(Pairing {
-            skin: skin.clone(),
-            rule,
-        }))?;
+        solver.set_pairing(Some(pairing))?;
         let last_stage = stage + 1 == params.stages;
         solver.set_params(solve_params.clone().with(|p| {
             if !last_stage && !scan {
@@ -417,30 +418,16 @@ pub fn match_observation_held(
         last = Some(report);
     }
     let end = solver.positions().to_vec();
-    // The springs that hold the skin at the answer (the uncertainty's
-    // re-solves keep them): for a surface, the curvature of the distance
-    // to its triangles there, however the match paired it. The smoothed
-    // plane's springs leave the skin free to slide everywhere along the
-    // observation, and the re-solves crawled (docs/METHOD.md,
-    // "Uncertainty").
-    let near = if paired_on.smoothed_edge.is_some() {
-        paired_on.near_field(spacing)?
-    } else {
-        None
-    };
-    let held_by = match &near {
-        Some(near) => {
-            let rule = PairingRule {
-                edge: NO_LIMIT,
-                cloud: false,
-                smooth: 0.0,
-                ..rule
-            };
-            springs(near, &skin, &end, &rule, model.len())
-        }
-        None => springs(field, &skin, &end, &rule, model.len()),
-    };
-    let pulled = held_by.iter().filter(|s| !s.is_zero()).count();
+    // What holds the skin at the answer: the uncertainty's re-solves pair
+    // it again as the last stage did.
+    let pairing = Pairing { skin, rule };
+    let pulled = pairing
+        .springs(field, &end)
+        .iter()
+        .filter(|s| !s.is_zero())
+        .count();
+    let skin = pairing.skin.len();
+    let held = paired_on.held(pairing);
     clear(solver)?;
     let bound = solver.bind(&model.surface.vertices)?;
     let mut surface = SurfaceMesh {
@@ -456,20 +443,20 @@ pub fn match_observation_held(
     }
     let residual = residual(observation.points(), &surface)?;
     let volume_change = surface.signed_volume() / model.surface.signed_volume() - 1.0;
-    let last = last.ok_or_else(|| Error::from(ObservationError::Unpaired { skin: skin.len() }))?;
+    let last = last.ok_or_else(|| Error::from(ObservationError::Unpaired { skin }))?;
     Ok(MatchReport {
         stages: params.stages,
         converged: last.converged,
         iterations,
-        skin: skin.len(),
+        skin,
         pulled,
-        set_aside: skin.len() - pulled,
+        set_aside: skin - pulled,
         trim: rule.trim,
         residual,
         volume_change: volume_change as f32,
         surface,
         last,
-        springs: held_by,
+        held,
     })
 }
 
@@ -556,29 +543,6 @@ fn median_distance(
     }
     let middle = distances.len() / 2;
     Some(*distances.select_nth_unstable_by(middle, f32::total_cmp).1)
-}
-
-/// Per particle its spring at `positions` ([`paired_spring`]), zero for
-/// the particles not in `skin`: what the pairing pass writes.
-fn springs(
-    field: &SurfaceField,
-    skin: &[u32],
-    positions: &[Vec3],
-    rule: &PairingRule,
-    count: usize,
-) -> Vec<Spring> {
-    let paired: Vec<Spring> = skin
-        .par_iter()
-        .map(|&i| {
-            let x = positions[i as usize];
-            paired_spring(x, &paired_point(field, x, rule), rule)
-        })
-        .collect();
-    let mut springs = vec![Spring::ZERO; count];
-    for (&i, spring) in skin.iter().zip(paired) {
-        springs[i as usize] = spring;
-    }
-    springs
 }
 
 /// The distances from `points` to `surface`: RMS, 95th percentile, largest.

@@ -6,6 +6,7 @@ use std::borrow::Cow;
 
 use rayon::prelude::*;
 
+use super::held::HeldObservation;
 use super::matching::{
     CLOUD_EDGE_SPACINGS, CLOUD_NOISE, FIELD_CELL_EDGES, FIELD_MARGIN, HELD_OFF, MAX_REACH,
     MAX_VOLUME_CHANGE, mean_edge,
@@ -13,6 +14,7 @@ use super::matching::{
 use super::{Cloud, ObservationError};
 use crate::field::{SMOOTH_REACH, SurfaceField, signed_distances};
 use crate::{Error, SurfaceMesh, Vec3};
+use tissue_solve::stage2::{CLOUD_SMOOTHING, Pairing};
 
 /// What the model's skin is matched to without correspondence: a closed
 /// surface of any triangulation, or a point cloud with its normals.
@@ -251,6 +253,7 @@ impl Observation {
                     field: Cow::Borrowed(field),
                     smoothed_edge: None,
                     free: None,
+                    reach: SMOOTH_REACH * CLOUD_SMOOTHING * field.cell,
                 });
             }
             Kind::Surface(mesh) => free_of_held(mesh, held, reach),
@@ -262,6 +265,7 @@ impl Observation {
                 field: Cow::Owned(smoothed_surface_field(&free, cell, edge, smoothing * edge)?),
                 smoothed_edge: Some(edge),
                 free: Some(free),
+                reach: SMOOTH_REACH * smoothing * edge,
             });
         }
         Ok(PairingField {
@@ -271,6 +275,7 @@ impl Observation {
             ),
             smoothed_edge: None,
             free: Some(free),
+            reach: 0.0,
         })
     }
 }
@@ -308,22 +313,21 @@ pub(super) struct PairingField<'a> {
     /// For a surface, its triangles the skin is paired on (the held
     /// region's left out).
     pub(super) free: Option<SurfaceMesh>,
+    /// For a field of points (a cloud's, a smoothed surface's), how far
+    /// around a cell its cells list the points.
+    pub(super) reach: f32,
 }
 
 impl PairingField<'_> {
-    /// A surface's field of its triangles the skin is paired on, exact
-    /// within one mean edge of them (for skin that lies on the surface: a
-    /// match's answer), in cells of [`FIELD_CELL_EDGES`] mean edges or
-    /// `spacing`, the longer; `None` for a cloud.
-    pub(super) fn near_field(&self, spacing: f32) -> Result<Option<SurfaceField>, Error> {
-        let Some(free) = &self.free else {
-            return Ok(None);
-        };
-        let edge = mean_edge(free);
-        let cell = (FIELD_CELL_EDGES * edge).max(spacing);
-        Ok(Some(
-            SurfaceField::new(free, cell, edge).map_err(ObservationError::from)?,
-        ))
+    /// What held the skin at the answer: this field paired by `pairing`
+    /// ([`HeldObservation`]).
+    pub(super) fn held(self, pairing: Pairing) -> HeldObservation {
+        match (self.smoothed_edge, self.free) {
+            (None, Some(free)) => {
+                HeldObservation::of_triangles(self.field.into_owned(), pairing, free)
+            }
+            _ => HeldObservation::of_points(self.field.into_owned(), pairing, self.reach),
+        }
     }
 }
 

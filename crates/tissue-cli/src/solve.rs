@@ -710,7 +710,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         converged: solve.converged,
         deformed,
         unloaded: posture.as_ref().and_then(|p| p.unloaded.as_ref()),
-        held_by: matched.as_ref().map(|m| m.springs.as_slice()),
+        held_by: matched.as_ref().map(|m| &m.held),
     };
     let mut explorer = priors.map(Explorer::new);
     let uncertainty = uncertain::regions_after(

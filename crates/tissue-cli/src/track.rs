@@ -440,7 +440,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             converged: framed.solve.converged,
             deformed: &framed.deformed,
             unloaded,
-            held_by: framed.springs.as_deref(),
+            held_by: framed.held.as_ref(),
         };
         uncertain::spread_after(explorer.as_mut(), answer, &mut solver, &model, true)?;
     }
@@ -471,13 +471,13 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             solve,
             deformed,
             observation,
-            springs,
+            held,
         } = framing.solve(k, &mut solver, args.quiet)?;
         let answer = Answer {
             converged: solve.converged,
             deformed: &deformed,
             unloaded,
-            held_by: springs.as_deref(),
+            held_by: held.as_ref(),
         };
         let uncertainty = uncertain::regions_after(
             explorer.as_mut(),

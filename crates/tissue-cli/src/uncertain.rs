@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use serde::Serialize;
 use tissue::SurfaceMesh;
-use tissue::observation::Spring;
+use tissue::observation::HeldObservation;
 use tissue::uncertainty::{
     Answered, Explorer, GRAVITY_DEGREES, HeldBy, LOAD_SPREAD, POSTURE_G, Priors, Region,
     SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, Spread, Unknown, exact_vertices,
@@ -112,9 +112,9 @@ pub struct Answer<'a> {
     pub deformed: &'a SurfaceMesh,
     /// With the posture options, the unloaded shape and the loads.
     pub unloaded: Option<&'a Unloaded>,
-    /// For an observation without correspondence, the springs that held
-    /// the skin on it at the answer (one per particle).
-    pub held_by: Option<&'a [Spring]>,
+    /// For an observation without correspondence, the observation as
+    /// the skin was paired with it at the answer.
+    pub held_by: Option<&'a HeldObservation>,
 }
 
 /// With an explorer (`--uncertainty`), the spread of the converged answer
@@ -136,10 +136,7 @@ pub fn spread_after(
         exact: &exact,
         rest_load: answer.unloaded.map(|u| u.rest_load),
         metres_per_unit: MILLIMETRE,
-        held_by: answer.held_by.map(|springs| HeldBy {
-            springs,
-            attachments: &model.attachments,
-        }),
+        held_by: answer.held_by.map(|h| h as &dyn HeldBy),
     };
     progress::busy(quiet, "the uncertainty's solves", |_| {
         explorer.explore(solver, model, answered)

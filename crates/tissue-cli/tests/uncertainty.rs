@@ -146,8 +146,8 @@ fn deform_refuses_what_the_uncertainty_cannot_take() {
 
 /// Another triangulation of the sagged skin (no correspondence: the skin
 /// matched inside the solve, the chest wall held where the surfaces
-/// meet): the estimate re-solves with the springs that held the skin, its
-/// solves converge, the deep landmark has a region and the chest wall's is
+/// meet): the estimate re-solves with the skin paired with the
+/// observation as the match paired it, its solves converge, the deep landmark has a region and the chest wall's is
 /// smaller, and the answer's points are those of the same run without it.
 #[test]
 fn deform_spreads_a_match_without_correspondence() {
@@ -265,7 +265,7 @@ fn track_writes_each_frame_regions() {
     assert_eq!(written("points.csv"), points_csv);
 
     // The same skins cut in four: matched without correspondence, each
-    // frame's regions from the springs that held its skin.
+    // frame's regions from its skin paired with the frame again.
     let other = dir.path().join("other");
     std::fs::create_dir(&other).unwrap();
     for k in 1..=2 {

@@ -38,9 +38,9 @@ pub(crate) struct Deformer {
     /// gravity (`Unloaded::rest_load`).
     pub(crate) rest_load: Option<Vec3>,
     /// Where the last answer was a match without correspondence, the
-    /// springs that held its skin on the observation (one per particle):
-    /// the uncertainty's re-solves keep them.
-    pub(crate) held_by: Option<Vec<tissue::observation::Spring>>,
+    /// observation as its skin was paired with it: the uncertainty's
+    /// re-solves pair it again.
+    pub(crate) held_by: Option<tissue::observation::HeldObservation>,
     /// The last `uncertainty` call's explorer: a call with the same priors
     /// starts from it (a sequence's next frame).
     pub(crate) explorer: Option<tissue::uncertainty::Explorer>,
@@ -280,7 +280,7 @@ impl Deformer {
             "stages": report.stages,
         });
         self.deformed = Some(report.surface);
-        self.held_by = Some(report.springs);
+        self.held_by = Some(report.held);
         as_dict(py, &summary)
     }
 
@@ -300,8 +300,8 @@ impl Deformer {
     /// rest) `points_radius` and `points_covariance` likewise, and
     /// `solves`, `iterations`, `seconds`, `converged`. Warns
     /// (RuntimeWarning) where a re-solve did not converge. After
-    /// `match_observation`, re-solved with the springs that held the skin
-    /// on the observation (docs/METHOD.md, "Uncertainty"). A call with the
+    /// `match_observation`, re-solved with the skin paired with the
+    /// observation as the match paired it (docs/METHOD.md, "Uncertainty"). A call with the
     /// priors of the last
     /// starts each re-solve from where the last call's ended (a tracked
     /// sequence's next frame: fewer iterations, the same regions within
@@ -349,7 +349,7 @@ impl Deformer {
             _ => Explorer::new(priors),
         };
         let (solver, model, rest_load) = (&mut self.solver, &self.model, self.rest_load);
-        let held_by = self.held_by.as_deref();
+        let held_by = self.held_by.as_ref();
         let (spread, carriers, explorer) = py
             .detach(move || {
                 let carriers = match &points {
@@ -362,10 +362,7 @@ impl Deformer {
                     exact: &exact,
                     rest_load,
                     metres_per_unit: 1e-3,
-                    held_by: held_by.map(|springs| HeldBy {
-                        springs,
-                        attachments: &model.attachments,
-                    }),
+                    held_by: held_by.map(|h| h as &dyn HeldBy),
                 };
                 let spread = explorer.explore(solver, model, answered)?;
                 Ok::<_, tissue::Error>((spread, carriers, explorer))

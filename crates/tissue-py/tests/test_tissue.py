@@ -622,7 +622,7 @@ def test_the_skin_is_matched_to_a_surface_and_a_scan_without_correspondence():
     assert report["converged"] and report["pulled"] == report["skin"] > 0
     size = np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))
     assert report["residual_rms"] < 2e-3 * size
-    # How sure: re-solved with the springs that held the skin; the deformer
+    # How sure: re-solved with the skin paired as the match paired it; the deformer
     # is left at its answer.
     answer = deformer.positions.copy()
     spread = deformer.uncertainty(samples=4)

@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use tissue::deformation::DeformReport;
 use tissue::observation::{
-    FiducialFit, HeldRegion, MatchParams, Observation, Spring, match_observation_held,
+    FiducialFit, HeldObservation, HeldRegion, MatchParams, Observation, match_observation_held,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -224,10 +224,10 @@ pub(super) struct Framed {
     /// The deformed surface: the frame, or the model's surface matched.
     pub(super) deformed: SurfaceMesh,
     pub(super) observation: Option<ObservationReport>,
-    /// For an observation without correspondence, the springs that held
-    /// the skin on it at the answer (the uncertainty's re-solves keep
-    /// them).
-    pub(super) springs: Option<Vec<Spring>>,
+    /// For an observation without correspondence, the observation as
+    /// the skin was paired with it (the uncertainty's re-solves pair it
+    /// again).
+    pub(super) held: Option<HeldObservation>,
 }
 
 impl Framing<'_> {
@@ -267,7 +267,7 @@ impl Framing<'_> {
                     solve: solve?,
                     deformed: placed,
                     observation: None,
-                    springs: None,
+                    held: None,
                 })
             }
             Sequence::Matched { motion, .. } => {
@@ -311,7 +311,7 @@ impl Framing<'_> {
                     solve,
                     deformed: report.surface,
                     observation: Some(described),
-                    springs: Some(report.springs),
+                    held: Some(report.held),
                 })
             }
         }

@@ -10,6 +10,7 @@
 //! (docs/METHOD.md, "Observations without correspondence").
 
 use glam::Vec3;
+use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
 
 use crate::stage2::springs::Spring;
@@ -140,6 +141,27 @@ pub struct Pairing {
     pub skin: Vec<u32>,
     /// How each is paired.
     pub rule: PairingRule,
+}
+
+impl Pairing {
+    /// Per particle of `positions` its spring ([`paired_spring`] on
+    /// `field`), zero for the particles not in the skin: what the pairing
+    /// pass writes, made on the host where a solve starts.
+    pub fn springs(&self, field: &SurfaceField, positions: &[Vec3]) -> Vec<Spring> {
+        let paired: Vec<Spring> = self
+            .skin
+            .par_iter()
+            .map(|&i| {
+                let x = positions[i as usize];
+                paired_spring(x, &paired_point(field, x, &self.rule), &self.rule)
+            })
+            .collect();
+        let mut springs = vec![Spring::ZERO; positions.len()];
+        for (&i, spring) in self.skin.iter().zip(paired) {
+            springs[i as usize] = spring;
+        }
+        springs
+    }
 }
 
 /// The plane a particle at `x` is pulled to, from its nearest observed

@@ -10,7 +10,8 @@
 //!   their spread integrated over the range by three-point Gauss-Legendre.
 //!   With a load, each ratio's response is to the change of load between
 //!   the postures, what the unloaded shape's search turns into the
-//!   deformed posture's move;
+//!   deformed posture's move (for an answer matched to an observation, to
+//!   the deformed posture's own load);
 //! - **the observed surface**, in error along its normals by a smooth
 //!   random field ([`SurfaceNoise`]): a Monte Carlo ensemble, each sample a
 //!   re-solve on the answer's tracker;
@@ -28,13 +29,13 @@
 //! force only the surface's error is sampled.
 //!
 //! An answer matched to an observation without correspondence ([`HeldBy`])
-//! is re-solved with the springs that held its skin on the observation at
-//! the answer (the pairing's, each the curvature of half the squared
-//! distance there: free along the observation, stiff across it), kept
-//! through the re-solve at [`Priors::held_share`] of their weight, the
-//! columns taken from the answer's equilibrium under them; the surface's
-//! error moves each spring's point by the field's offset where its
-//! particle sits on the skin.
+//! is re-solved with its skin paired with the observation at every
+//! iteration, as the match's last stage paired it: the answer is then
+//! the re-solves' own equilibrium, and the skin slides along the
+//! observation only as far as the observation's shape lets it. The
+//! surface's error moves the observation's points along their normals by
+//! the field's offset there, and each sample pairs with its field made
+//! again.
 //!
 //! Every column is a re-solve's positions less the answer's with a weight;
 //! a target's covariance is the weighted sum of its offsets' outer
@@ -48,15 +49,16 @@ use std::time::Instant;
 
 use glam::{Quat, Vec3};
 use serde::Serialize;
-use tissue_core::{Attachment, Error, ParamError, SurfaceMesh};
+use tissue_core::field::SurfaceField;
+use tissue_core::{Error, ParamError, SurfaceMesh};
 
 use crate::model::gravity::gravity_load;
+use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::posture::MAX_GRAVITY_G;
-use crate::stage2::springs::Spring;
 use crate::stage2::tracker::{SolveDevice, Tracker};
 
-pub use noise::SurfaceNoise;
+pub use noise::{NoiseSample, SurfaceNoise};
 pub use region::{CHI2_3_95, FLAT_FLOOR, Region, radius_95, symmetric_eigen};
 
 /// The Poisson ratio's range for soft tissue, uniform.
@@ -87,15 +89,6 @@ pub const TISSUE_DENSITY_KG_M3: f32 = 1000.0;
 pub const COLUMN_TOLERANCE: f32 = 3.0;
 /// The samples' seed.
 pub const SEED: u64 = 0x5eed;
-/// A matched answer's re-solves keep its springs at this share of their
-/// weight ([`Priors::held_share`]): the match's weight one stage before
-/// its last, with which the skin still follows its springs' planes to
-/// within about 1.5 % of its move (`crate::stage2::springs::SPRING_WEIGHT`).
-/// At the full weight the re-solves at the Poisson range's upper end
-/// (0.495) stiffened past what the volume smoother's iteration contracts:
-/// on breast_e's remeshed surface at 10,000 particles that column stalled
-/// at its cap, and on breast_d's a column came back 9 mm off.
-pub const HELD_SHARE: f32 = 0.25;
 
 /// What the program does not know, each with its spread; lengths in the
 /// model's units (millimetres by default).
@@ -128,9 +121,6 @@ pub struct Priors {
     pub column_tolerance: f32,
     /// The surface samples' seed.
     pub seed: u64,
-    /// A matched answer's springs, the share of their weight its
-    /// re-solves keep (0 to 1; [`HELD_SHARE`]).
-    pub held_share: f32,
 }
 
 impl Default for Priors {
@@ -146,7 +136,6 @@ impl Default for Priors {
             posture_kpa: POSTURE_KPA,
             column_tolerance: COLUMN_TOLERANCE,
             seed: SEED,
-            held_share: HELD_SHARE,
         }
     }
 }
@@ -226,12 +215,6 @@ impl Priors {
             "uncertainty column_tolerance",
             self.column_tolerance,
             "1 to 100 times the answer's tolerance",
-        )?;
-        ParamError::check(
-            self.held_share.is_finite() && self.held_share > 0.0 && self.held_share <= 1.0,
-            "uncertainty held_share",
-            self.held_share,
-            "a share of the springs' weight above 0, at most 1",
         )
     }
 }
@@ -350,44 +333,26 @@ pub struct Answered<'a> {
     /// unmodelled posture's load.
     pub metres_per_unit: f32,
     /// Where the answer matched an observation without correspondence:
-    /// the springs that held its skin there. `None` where the skin
-    /// followed `surface` point for point.
-    pub held_by: Option<HeldBy<'a>>,
+    /// the observation and how the skin was paired with it. `None` where
+    /// the skin followed `surface` point for point.
+    pub held_by: Option<&'a dyn HeldBy>,
 }
 
-/// The springs that held a matched answer's skin on its observation
-/// ([`Answered::held_by`]).
-#[derive(Debug, Clone, Copy)]
-pub struct HeldBy<'a> {
-    /// One per particle, as the pairing set them at the answer (zero off
-    /// the skin, and where nothing was paired).
-    pub springs: &'a [Spring],
-    /// Where each particle sits on the model's surface (the model's
-    /// attachments; `None` inside), for the surface error's offsets.
-    pub attachments: &'a [Option<Attachment>],
-}
-
-impl HeldBy<'_> {
-    /// The springs with each one's point moved by what moved the point of
-    /// the answer's surface `surface` where its particle sits, in
-    /// `moved` (the same triangles).
-    fn moved(&self, surface: &SurfaceMesh, moved: &SurfaceMesh) -> Vec<Spring> {
-        self.springs
-            .iter()
-            .zip(self.attachments)
-            .map(|(spring, attachment)| match attachment {
-                Some(a) if !spring.is_zero() => {
-                    let (t, bary) = (a.triangle as usize, a.barycentric);
-                    let offset = moved.point_on(t, bary) - surface.point_on(t, bary);
-                    Spring {
-                        anchor: spring.anchor + offset.extend(0.0),
-                        ..*spring
-                    }
-                }
-                _ => *spring,
-            })
-            .collect()
-    }
+/// What held a matched answer's skin ([`Answered::held_by`]): the
+/// observation it was paired with at every iteration, and how.
+pub trait HeldBy: Sync + std::fmt::Debug {
+    /// The observation's field the skin was paired on.
+    fn field(&self) -> &SurfaceField;
+    /// The match's last pairing: the particles paired and the rule.
+    fn pairing(&self) -> &Pairing;
+    /// The field of the observation with each of its points moved along
+    /// its normal by `offset` there (a sample of the observation's
+    /// error).
+    ///
+    /// # Errors
+    ///
+    /// Where the field cannot be made.
+    fn moved(&self, offset: &dyn Fn(Vec3) -> f32) -> Result<SurfaceField, Error>;
 }
 
 /// The spread of the answer `tracker` holds (its last solve's, converged,
@@ -493,20 +458,6 @@ impl<D: SolveDevice> Explorer<D> {
             ),
         )
         .map_err(Error::from)?;
-        if let Some(held) = answered.held_by {
-            let n = tracker.positions().len();
-            ParamError::check(
-                held.springs.len() == n && held.attachments.len() == n,
-                "uncertainty springs",
-                format!(
-                    "{} springs, {} attachments",
-                    held.springs.len(),
-                    held.attachments.len()
-                ),
-                format!("one of each per particle ({n})"),
-            )
-            .map_err(Error::from)?;
-        }
         let kept = tracker.checkpoint()?;
         let answer = tracker.positions().to_vec();
         let asked = tracker.params().clone();
@@ -520,31 +471,13 @@ impl<D: SolveDevice> Explorer<D> {
             converged: true,
             seconds: 0.0,
         };
-        // A match's springs at the priors' share of their weight, and the
-        // answer's equilibrium under them, solved from the answer: what
-        // the columns are offsets from.
-        let share = priors.held_share;
-        let softened: Option<Vec<Spring>> = answered
-            .held_by
-            .map(|h| h.springs.iter().map(|s| s.scaled(share)).collect());
-        let springs = softened.as_deref();
-        let answer = match springs {
-            Some(softened) => {
-                let base = resolve::<D, E>(
-                    tracker,
-                    (answered.surface, Some(softened)),
-                    &answer,
-                    &mut spread,
-                )?;
-                spread.answer.clone_from(&base);
-                base
-            }
-            None => answer,
-        };
-        // Each re-solve on `surface`, with `springs` where the answer was
+        // A matched answer's skin paired with its observation in every
+        // re-solve, as its match's last stage paired it.
+        let held = answered.held_by.map(|h| (h.field(), h.pairing()));
+        // Each re-solve on `surface`, its skin paired where the answer was
         // matched.
         let mut solve = |t: &mut Tracker<D>,
-                         (surface, springs): (&SurfaceMesh, Option<&[Spring]>),
+                         (surface, held): (&SurfaceMesh, Option<Held<'_>>),
                          spread: &mut Spread|
          -> Result<Vec<Vec3>, E> {
             let start: Vec<Vec3> = match last.get(made.len()) {
@@ -553,7 +486,7 @@ impl<D: SolveDevice> Explorer<D> {
                 }
                 _ => answer.clone(),
             };
-            let positions = resolve::<D, E>(t, (surface, springs), &start, spread)?;
+            let positions = resolve::<D, E>(t, (surface, held), &start, spread)?;
             made.push(
                 positions
                     .iter()
@@ -575,15 +508,21 @@ impl<D: SolveDevice> Explorer<D> {
             .rest_load
             .filter(|_| load != Vec3::ZERO)
             .map(|r| load - r);
+        // A matched answer's ratios answer the deformed posture's own load
+        // from the same unloaded shape: with its skin paired with the
+        // observation, the change of load presses the skin on it with a
+        // whole change of posture, a solve whose energy watch stepped back
+        // until it gave up (breast_e's remeshed surface, 2 g).
+        let poisson_change = change.filter(|_| answered.held_by.is_none());
         let nu0 = params.poisson;
         let (lo, hi) = priors.poisson;
         // The Poisson ratio and the loads are the elastic force's.
         let elastic = params.force == ForceModel::Elastic;
         if elastic && !(lo == hi && lo == nu0) {
-            let base = match change {
+            let base = match poisson_change {
                 Some(change) => {
                     tracker.set_load::<E>(change)?;
-                    let base = solve(tracker, (answered.surface, springs), &mut spread)?;
+                    let base = solve(tracker, (answered.surface, held), &mut spread)?;
                     tracker.set_load::<E>(load)?;
                     base
                 }
@@ -601,7 +540,7 @@ impl<D: SolveDevice> Explorer<D> {
                 let wanted = params.clone().with(|p| {
                     p.tolerance *= loose;
                     p.poisson = nu;
-                    p.load = change.unwrap_or(load);
+                    p.load = poisson_change.unwrap_or(load);
                 });
                 let kept = self
                     .others
@@ -615,11 +554,8 @@ impl<D: SolveDevice> Explorer<D> {
                         self.others.len() - 1
                     }
                 };
-                let positions = solve(
-                    &mut self.others[k].1,
-                    (answered.surface, springs),
-                    &mut spread,
-                )?;
+                let positions =
+                    solve(&mut self.others[k].1, (answered.surface, held), &mut spread)?;
                 let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
                 points.push((nu, offsets));
             }
@@ -655,15 +591,19 @@ impl<D: SolveDevice> Explorer<D> {
                 priors.seed,
             );
             for _ in 0..priors.samples {
-                let sample = noise.sample();
-                let positions = match (answered.held_by, springs) {
-                    // The observation's error moves the springs' points;
-                    // the held region stays where it is.
-                    (Some(held), Some(springs)) => {
-                        let moved = HeldBy { springs, ..held }.moved(answered.surface, &sample);
-                        solve(tracker, (answered.surface, Some(&moved)), &mut spread)?
+                let sample = noise.next_sample();
+                let positions = match (answered.held_by, held) {
+                    // The observation's error moves its points; the held
+                    // region stays where it is.
+                    (Some(held_by), Some((_, pairing))) => {
+                        let moved = held_by.moved(&|x| noise.offset(&sample, x))?;
+                        solve(
+                            tracker,
+                            (answered.surface, Some((&moved, pairing))),
+                            &mut spread,
+                        )?
                     }
-                    _ => solve(tracker, (&sample, None), &mut spread)?,
+                    _ => solve(tracker, (&noise.moved(&sample), None), &mut spread)?,
                 };
                 spread.columns.push(Column {
                     unknown: Unknown::Surface,
@@ -708,7 +648,7 @@ impl<D: SolveDevice> Explorer<D> {
         }
         for (unknown, change) in changes {
             tracker.set_load::<E>(load + change)?;
-            let positions = solve(tracker, (answered.surface, springs), &mut spread)?;
+            let positions = solve(tracker, (answered.surface, held), &mut spread)?;
             spread.columns.push(Column {
                 unknown,
                 weight: 1.0,
@@ -719,8 +659,10 @@ impl<D: SolveDevice> Explorer<D> {
             tracker.set_load::<E>(load)?;
         }
         tracker.set_params(asked)?;
-        if springs.is_some() {
-            // The tracker as it was: no springs.
+        if held.is_some() {
+            // The tracker as it was: no pairing, observation or springs.
+            tracker.set_pairing::<E>(None)?;
+            tracker.set_observation(None)?;
             tracker.set_springs::<E>(Vec::new())?;
         }
         tracker.back_to::<E>(kept)?;
@@ -729,12 +671,15 @@ impl<D: SolveDevice> Explorer<D> {
     }
 }
 
-/// One re-solve of `t` on `surface`, with `springs` where the answer was
-/// matched, started from `start` as a watched guess and counted in
-/// `spread`; its positions.
+/// An observation's field and the pairing of the skin with it.
+type Held<'a> = (&'a SurfaceField, &'a Pairing);
+
+/// Solves `t` from `start` with its control points on `surface` and, with
+/// `held`, its skin paired with that observation from its springs at
+/// `start` on; counts the solve in `spread`.
 fn resolve<D, E>(
     t: &mut Tracker<D>,
-    (surface, springs): (&SurfaceMesh, Option<&[Spring]>),
+    (surface, held): (&SurfaceMesh, Option<Held<'_>>),
     start: &[Vec3],
     spread: &mut Spread,
 ) -> Result<Vec<Vec3>, E>
@@ -742,12 +687,20 @@ where
     D: SolveDevice,
     E: From<Error> + From<D::Error>,
 {
-    if let Some(springs) = springs {
-        t.set_springs::<E>(springs.to_vec())?;
+    if let Some((field, pairing)) = held {
+        t.set_observation(Some(field))?;
+        t.set_springs::<E>(pairing.springs(field, start))?;
+        t.set_pairing::<E>(Some(pairing.clone()))?;
     }
     t.set_surface::<E>(surface)?;
     t.warm_start::<E>(start)?;
     let report = t.solve()?;
+    log::debug!(
+        "uncertainty re-solve {}: {} iterations, stopped by {:?}",
+        spread.solves,
+        report.iterations,
+        report.stopped_by
+    );
     spread.solves += 1;
     spread.iterations += report.iterations;
     spread.converged &= report.converged;
@@ -835,7 +788,6 @@ mod tests {
         assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
         assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
         assert_eq!(p.column_tolerance, 3.0);
-        assert_eq!(p.held_share, 0.25);
     }
 
     /// The defaults are in range, and a priors' field out of range is
@@ -848,11 +800,6 @@ mod tests {
         assert!(err.is_some_and(|e| e.contains("poisson")));
         let bad = Priors::default().with(|p| p.samples = 1);
         assert!(bad.validate().is_err());
-        for share in [0.0, 1.5, f32::NAN] {
-            let bad = Priors::default().with(|p| p.held_share = share);
-            let err = bad.validate().err().map(|e| e.to_string());
-            assert!(err.is_some_and(|e| e.contains("held_share")), "{share}");
-        }
         assert_eq!(
             Priors::in_units(10.0).surface_noise,
             SURFACE_NOISE_MM / 10.0

@@ -27,9 +27,18 @@ pub struct SurfaceNoise<'a> {
     surface: &'a SurfaceMesh,
     normals: Vec<DVec3>,
     strength: Vec<f64>,
+    /// The exact vertices, for the strength anywhere else.
+    held: RTree<[f32; 3]>,
     sigma: f64,
     length: f64,
     random: Pcg64,
+}
+
+/// One sample of the field ([`SurfaceNoise::next_sample`]): its Fourier
+/// features, each a wave vector and a phase.
+#[derive(Debug, Clone)]
+pub struct NoiseSample {
+    features: Vec<(DVec3, f64)>,
 }
 
 impl<'a> SurfaceNoise<'a> {
@@ -52,29 +61,35 @@ impl<'a> SurfaceNoise<'a> {
             .filter(|(_, e)| **e)
             .map(|(v, _)| v.to_array())
             .collect();
-        let tree = RTree::bulk_load(held);
-        let length = f64::from(length);
-        let strength = surface
-            .vertices
-            .iter()
-            .map(|v| match tree.nearest_neighbor(v.to_array()) {
-                None => 1.0,
-                Some(h) => (f64::from(Vec3::from(*h).distance(*v)) / length).min(1.0),
-            })
-            .collect();
-        Self {
+        let mut noise = Self {
             surface,
             normals,
-            strength,
+            strength: Vec::new(),
+            held: RTree::bulk_load(held),
             sigma: f64::from(sigma),
-            length,
+            length: f64::from(length),
             random: Pcg64::seed_from_u64(seed),
+        };
+        noise.strength = surface
+            .vertices
+            .iter()
+            .map(|&v| noise.strength_at(v))
+            .collect();
+        noise
+    }
+
+    /// How much of the field acts at `x`: `min(1, d / length)` for `x` `d`
+    /// from the nearest exact vertex, 1 where none is.
+    fn strength_at(&self, x: Vec3) -> f64 {
+        match self.held.nearest_neighbor(x.to_array()) {
+            None => 1.0,
+            Some(h) => (f64::from(Vec3::from(*h).distance(x)) / self.length).min(1.0),
         }
     }
 
-    /// The next sample.
-    pub fn sample(&mut self) -> SurfaceMesh {
-        let features: Vec<(DVec3, f64)> = (0..FEATURES)
+    /// The next sample's features.
+    pub fn next_sample(&mut self) -> NoiseSample {
+        let features = (0..FEATURES)
             .map(|_| {
                 let w = DVec3::new(
                     normal(&mut self.random),
@@ -84,15 +99,42 @@ impl<'a> SurfaceNoise<'a> {
                 (w, self.random.random::<f64>() * TAU)
             })
             .collect();
+        NoiseSample { features }
+    }
+
+    /// The field's value of `sample` at `x` with the strength `strength`.
+    fn value(&self, sample: &NoiseSample, x: DVec3, strength: f64) -> f64 {
         let amplitude = self.sigma * (2.0 / FEATURES as f64).sqrt();
+        let field: f64 = sample
+            .features
+            .iter()
+            .map(|(w, b)| (w.dot(x) + b).cos())
+            .sum();
+        amplitude * field * strength
+    }
+
+    /// How far `sample` moves a point at `x` along its normal: the same
+    /// field, scaled down near the exact vertices as the surface's are
+    /// (an observation's points, which are not the surface's vertices).
+    pub fn offset(&self, sample: &NoiseSample, x: Vec3) -> f32 {
+        self.value(sample, x.as_dvec3(), self.strength_at(x)) as f32
+    }
+
+    /// The surface with its vertices moved along their normals by `sample`.
+    pub fn moved(&self, sample: &NoiseSample) -> SurfaceMesh {
         let mut moved = self.surface.clone();
         for (i, v) in moved.vertices.iter_mut().enumerate() {
             let x = v.as_dvec3();
-            let field: f64 = features.iter().map(|(w, b)| (w.dot(x) + b).cos()).sum();
-            let offset = self.normals[i] * (amplitude * field * self.strength[i]);
+            let offset = self.normals[i] * self.value(sample, x, self.strength[i]);
             *v = (x + offset).as_vec3();
         }
         moved
+    }
+
+    /// The next sample: the surface moved by [`SurfaceNoise::next_sample`].
+    pub fn sample(&mut self) -> SurfaceMesh {
+        let sample = self.next_sample();
+        self.moved(&sample)
     }
 }
 
