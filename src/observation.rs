@@ -16,7 +16,7 @@ pub use matching::{
     SURFACE_SMOOTHING, held_on, match_observation, match_observation_held, mean_edge,
 };
 
-pub use held::HeldObservation;
+pub use held::{HeldObservation, SAMPLE_CELLS};
 pub use observed::Observation;
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
