@@ -404,14 +404,8 @@ mod tests {
 
     /// A sphere of radius `radius` about the origin, triangulated.
     fn sphere(radius: f32) -> SurfaceMesh {
-        let (mut vertices, mut triangles) = tissue_testkit::octahedron();
-        for _ in 0..4 {
-            (vertices, triangles) = tissue_testkit::cut_in_four(&vertices, &triangles);
-        }
-        SurfaceMesh {
-            vertices: vertices.iter().map(|v| radius * v.normalize()).collect(),
-            triangles,
-        }
+        let (vertices, triangles) = tissue_testkit::sphere(radius, 4);
+        SurfaceMesh::new(vertices, triangles)
     }
 
     /// Smoothed over points on a sphere, the plane passes inside it by

@@ -273,3 +273,16 @@ pub fn cut_in_four(vertices: &[Vec3], triangles: &[[u32; 3]]) -> (Vec<Vec3>, Vec
     }
     (vertices, cut)
 }
+
+/// A sphere of radius `radius` about the origin: the octahedron cut in
+/// four `cuts` times, its vertices put on the sphere.
+pub fn sphere(radius: f32, cuts: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let (mut vertices, mut triangles) = octahedron();
+    for _ in 0..cuts {
+        (vertices, triangles) = cut_in_four(&vertices, &triangles);
+    }
+    (
+        vertices.iter().map(|v| radius * v.normalize()).collect(),
+        triangles,
+    )
+}

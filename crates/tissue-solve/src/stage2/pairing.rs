@@ -144,10 +144,11 @@ pub struct Pairing {
 }
 
 impl Pairing {
-    /// Per particle of `positions` its spring ([`paired_spring`] on
-    /// `field`), zero for the particles not in the skin: what the pairing
-    /// pass writes, made on the host where a solve starts.
-    pub fn springs(&self, field: &SurfaceField, positions: &[Vec3]) -> Vec<Spring> {
+    /// Writes into `springs` (one per particle) the spring of every
+    /// particle it pairs ([`paired_spring`] at its position in `positions`
+    /// on `field`); the others' are left as they are. What every device's
+    /// pairing pass writes (the CPU's runs this).
+    pub fn pair_into(&self, field: &SurfaceField, positions: &[Vec3], springs: &mut [Spring]) {
         let paired: Vec<Spring> = self
             .skin
             .par_iter()
@@ -156,10 +157,17 @@ impl Pairing {
                 paired_spring(x, &paired_point(field, x, &self.rule), &self.rule)
             })
             .collect();
-        let mut springs = vec![Spring::ZERO; positions.len()];
         for (&i, spring) in self.skin.iter().zip(paired) {
             springs[i as usize] = spring;
         }
+    }
+
+    /// Per particle of `positions` its spring ([`Pairing::pair_into`]),
+    /// zero for the particles it does not pair: the springs a solve starts
+    /// from.
+    pub fn springs(&self, field: &SurfaceField, positions: &[Vec3]) -> Vec<Spring> {
+        let mut springs = vec![Spring::ZERO; positions.len()];
+        self.pair_into(field, positions, &mut springs);
         springs
     }
 }
