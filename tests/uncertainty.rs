@@ -393,3 +393,79 @@ fn a_matched_answer_spreads_with_its_skin_paired_with_the_observation() {
         assert!(worst <= 2e-3 * size, "{worst}");
     }
 }
+
+/// With a load, a matched answer's Poisson columns are the response to
+/// the change of load at the range's ends, taken linear in the stiffness
+/// ratio `(1 - 2 nu) / (2 nu)` between them (its own ratio's response is
+/// not solved, docs/METHOD.md "Uncertainty"): each particle's three
+/// columns lie on one line through the answer, at the Gauss nodes'
+/// ratios less the answer's.
+#[test]
+fn a_matched_answer_under_a_load_spreads_linearly_in_the_stiffness_ratio() {
+    use tissue::observation::{MatchParams, Observation, match_observation};
+    let model = common::phantom_model(1_000);
+    let sagged = tissue::deform::sagged_breast();
+    let (lo, hi) = sagged.bounds().unwrap();
+    let size = (hi - lo).length();
+    let held = tissue::gravity::held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let load = tissue::Vec3::new(0.0, 0.0, -0.002);
+    let params = DeformParams::default().with(|p| {
+        p.observed = Some(held);
+        p.load = load;
+    });
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
+    let observation = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    let mut solver = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
+    solver.set_surface(&model.surface).unwrap();
+    let matched =
+        match_observation(&mut solver, &model, &observation, &MatchParams::default()).unwrap();
+    assert!(matched.converged, "{:?}", matched.last);
+    let answer = solver.positions().to_vec();
+    let exact = exact_vertices(&model.surface, &matched.surface);
+    let answered = Answered {
+        surface: &matched.surface,
+        exact: &exact,
+        rest_load: Some(-load),
+        metres_per_unit: 1e-3,
+        held_by: Some(&matched.held),
+    };
+    let priors = Priors::default().with(|p| {
+        p.surface_noise = 0.0;
+        p.load_spread = 0.0;
+        p.gravity_degrees = 0.0;
+    });
+    let spread = explore(&mut solver, &model, answered, &priors).unwrap();
+    assert!(spread.converged, "every re-solve converges");
+    assert_eq!(spread.answer, answer, "the answer is the re-solves' own");
+    let columns: Vec<_> = spread
+        .columns
+        .iter()
+        .filter(|c| c.unknown == Unknown::Poisson)
+        .collect();
+    assert_eq!(columns.len(), 3, "three Gauss nodes");
+    let ratio = |nu: f64| (1.0 - 2.0 * nu) / (2.0 * nu);
+    let (a, b) = (f64::from(priors.poisson.0), f64::from(priors.poisson.1));
+    let (mid, half) = (0.5 * (a + b), 0.5 * (b - a));
+    let nodes = [mid - 0.6f64.sqrt() * half, mid, mid + 0.6f64.sqrt() * half];
+    let own = ratio(f64::from(params.poisson));
+    let s: Vec<f32> = nodes.iter().map(|&nu| (ratio(nu) - own) as f32).collect();
+    let offsets = |k: usize, i: usize| columns[k].positions[i] - answer[i];
+    let largest = (0..answer.len())
+        .flat_map(|i| (0..3).map(move |k| (k, i)))
+        .map(|(k, i)| offsets(k, i).length())
+        .fold(0.0, f32::max);
+    assert!(largest > 1e-3, "the ratio moves the answer: {largest}");
+    let off_line = (0..answer.len())
+        .map(|i| {
+            let (o0, o1, o2) = (offsets(0, i), offsets(1, i), offsets(2, i));
+            (o0 * s[1] - o1 * s[0])
+                .length()
+                .max((o2 * s[1] - o1 * s[2]).length())
+        })
+        .fold(0.0, f32::max);
+    let scale = largest * s.iter().map(|v| v.abs()).fold(0.0, f32::max);
+    eprintln!(
+        "largest Poisson offset {largest:.4} mm, off its line {off_line:.2e} (scale {scale:.2e})"
+    );
+    assert!(off_line <= 1e-3 * scale, "{off_line} against {scale}");
+}
