@@ -245,6 +245,23 @@ fn another_poisson_ratio_shares_the_elastic_model_and_solves_the_same() {
     );
 }
 
+/// The phantom's sag as an observation without correspondence (its
+/// surface cut in four), the parameters that hold `model`'s chest wall
+/// where the sag leaves it, and the sag's size.
+fn sag_without_correspondence(
+    model: &ParticleModel,
+) -> (DeformParams, tissue::observation::Observation, f32) {
+    let sagged = tissue::deform::sagged_breast();
+    let (lo, hi) = sagged.bounds().unwrap();
+    let size = (hi - lo).length();
+    let held = tissue::gravity::held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let params = DeformParams::default().with(|p| p.observed = Some(held));
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
+    let observation =
+        tissue::observation::Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    (params, observation, size)
+}
+
 /// An answer matched to another triangulation of the sag (no
 /// correspondence: the chest wall held, the skin paired with the surface
 /// inside the solve) spreads with its skin paired with the observation
@@ -258,15 +275,9 @@ fn another_poisson_ratio_shares_the_elastic_model_and_solves_the_same() {
 /// (lavapipe in CI) give the same regions.
 #[test]
 fn a_matched_answer_spreads_with_its_skin_paired_with_the_observation() {
-    use tissue::observation::{MatchParams, Observation, match_observation};
+    use tissue::observation::{MatchParams, match_observation};
     let model = common::phantom_model(1_000);
-    let sagged = tissue::deform::sagged_breast();
-    let (lo, hi) = sagged.bounds().unwrap();
-    let size = (hi - lo).length();
-    let held = tissue::gravity::held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
-    let params = DeformParams::default().with(|p| p.observed = Some(held));
-    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
-    let observation = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    let (params, observation, size) = sag_without_correspondence(&model);
     let sigma = 0.5;
     let nu = DeformParams::default().poisson;
     let everything = Priors::default().with(|p| p.samples = 4);
@@ -402,19 +413,11 @@ fn a_matched_answer_spreads_with_its_skin_paired_with_the_observation() {
 /// ratios less the answer's.
 #[test]
 fn a_matched_answer_under_a_load_spreads_linearly_in_the_stiffness_ratio() {
-    use tissue::observation::{MatchParams, Observation, match_observation};
+    use tissue::observation::{MatchParams, match_observation};
     let model = common::phantom_model(1_000);
-    let sagged = tissue::deform::sagged_breast();
-    let (lo, hi) = sagged.bounds().unwrap();
-    let size = (hi - lo).length();
-    let held = tissue::gravity::held_vertices(&model.surface, &sagged, 1e-3 * size).unwrap();
+    let (params, observation, _) = sag_without_correspondence(&model);
     let load = tissue::Vec3::new(0.0, 0.0, -0.002);
-    let params = DeformParams::default().with(|p| {
-        p.observed = Some(held);
-        p.load = load;
-    });
-    let (vertices, triangles) = tissue_testkit::cut_in_four(&sagged.vertices, &sagged.triangles);
-    let observation = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    let params = params.with(|p| p.load = load);
     let mut solver = Solver::new(Device::Cpu, &model, params.clone()).unwrap();
     solver.set_surface(&model.surface).unwrap();
     let matched =
