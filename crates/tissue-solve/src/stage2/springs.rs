@@ -130,14 +130,6 @@ impl Spring {
         a.len() == b.len() && a.iter().zip(b).all(|(a, b)| a.same_stiffness(b))
     }
 
-    /// The same spring with `P` times `factor` (its point kept).
-    pub fn scaled(self, factor: f32) -> Self {
-        Self {
-            anchor: self.anchor.truncate().extend(self.anchor.w * factor),
-            axis: self.axis.truncate().extend(self.axis.w * factor),
-        }
-    }
-
     /// The largest eigenvalue of `P`: `a + max(b |u|^2, 0)`.
     pub fn largest(&self) -> f32 {
         self.anchor.w + (self.axis.w * self.axis.truncate().length_squared()).max(0.0)
@@ -248,11 +240,10 @@ mod tests {
         assert!(!negative.is_positive());
     }
 
-    /// A scaled spring pulls to the same point with its stiffness scaled;
-    /// springs whose points alone differ have the same stiffness, others
-    /// not.
+    /// Springs whose points alone differ have the same stiffness, a
+    /// quarter of the weight at the same point not.
     #[test]
-    fn a_spring_scales_and_compares_by_its_stiffness() {
+    fn a_spring_compares_by_its_stiffness() {
         let point = Vec3::new(1.0, -2.0, 0.5);
         let normal = Vec3::new(0.6, 0.0, 0.8);
         let q = Vec3::new(0.3, 0.7, -1.1);
@@ -261,7 +252,10 @@ mod tests {
             Spring::line(point, normal, 8.0),
             Spring::point(point, 8.0),
         ] {
-            let quarter = s.scaled(0.25);
+            let quarter = Spring {
+                anchor: s.anchor.truncate().extend(0.25 * s.anchor.w),
+                axis: s.axis.truncate().extend(0.25 * s.axis.w),
+            };
             assert_eq!(quarter.point_of(), point);
             assert!((spring_force(quarter, q) - 0.25 * spring_force(s, q)).length() < 1e-5);
             let elsewhere = Spring {
