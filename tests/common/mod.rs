@@ -106,6 +106,9 @@ pub fn assert_consistent(what: &str, model: &ParticleModel, spacing: f32) {
             assert!((sum - 1.0).abs() < 1e-4, "{what}: barycentric sum {sum}");
         }
     }
+    // What stage 2 checks of a model it reads: a sampled one passes.
+    tissue::io::model::check_placement(model)
+        .unwrap_or_else(|e| panic!("{what}: stage 2 would refuse the model: {e}"));
 }
 
 /// The GPU device, or `None` after printing "SKIPPED: no GPU adapter";

@@ -388,17 +388,34 @@ impl SurfaceField {
 /// `mesh` (0 inside or on it), exactly: a bounding-volume hierarchy over
 /// the triangles (parry3d), each point on its own. For a few thousand
 /// points this is milliseconds, where a [`SurfaceField`] fine enough to
-/// answer them costs a grid of the whole box first.
+/// answer them costs a grid of the whole box first. A point the nearest
+/// triangle's side puts outside by more than [`SIDE_CHECKED`] of the
+/// surface's size is counted again by the winding number
+/// ([`SurfaceMesh::winding_number`]): near where a surface crosses itself
+/// the nearest triangle can face the wrong way.
 ///
 /// # Errors
 ///
 /// [`FieldError::NotOrientable`] where the surface cannot be oriented.
 pub fn distances_outside(mesh: &SurfaceMesh, points: &[Vec3]) -> Result<Vec<f32>, FieldError> {
-    Ok(signed_distances(mesh, points)?
-        .into_iter()
-        .map(|d| d.max(0.0))
+    let size = mesh.bounds().map_or(0.0, |(lo, hi)| lo.distance(hi));
+    let signed = signed_distances(mesh, points)?;
+    Ok(signed
+        .into_par_iter()
+        .zip(points)
+        .map(|(d, &p)| {
+            if d > SIDE_CHECKED * size && mesh.winding_number(p) > 0.5 {
+                0.0
+            } else {
+                d.max(0.0)
+            }
+        })
         .collect())
 }
+
+/// Beyond this share of the surface's bounding diagonal outside,
+/// [`distances_outside`] checks a point's side by the winding number.
+pub const SIDE_CHECKED: f32 = 1e-3;
 
 /// The signed distance of each of `points` from the closed, outward
 /// surface `mesh` (negative inside), exactly, as [`distances_outside`]

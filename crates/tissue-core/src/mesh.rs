@@ -61,6 +61,27 @@ impl SurfaceMesh {
             .sum()
     }
 
+    /// The generalized winding number of the surface around `p` (van
+    /// Oosterom and Strackee's solid angle of each triangle, summed in
+    /// `f64`): 1 inside a closed outward surface, 0 outside, whatever the
+    /// surface near `p` looks like. Where a surface crosses itself, the
+    /// nearest triangle's side (its pseudo-normal) can point the wrong way
+    /// while this still counts how many times the surface wraps `p`.
+    /// Costs a pass over every triangle.
+    pub fn winding_number(&self, p: Vec3) -> f64 {
+        let p = p.as_dvec3();
+        let total: f64 = (0..self.triangles.len())
+            .map(|t| {
+                let [a, b, c] = self.corners(t).map(|v| v.as_dvec3() - p);
+                let (la, lb, lc) = (a.length(), b.length(), c.length());
+                let numerator = a.dot(b.cross(c));
+                let denominator = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+                2.0 * numerator.atan2(denominator)
+            })
+            .sum();
+        total / (4.0 * std::f64::consts::PI)
+    }
+
     /// The point with barycentric coordinates `bary` on triangle `t`.
     pub fn point_on(&self, t: usize, bary: [f32; 3]) -> Vec3 {
         let [a, b, c] = self.corners(t);
@@ -168,6 +189,28 @@ mod tests {
     fn octahedron() -> SurfaceMesh {
         let (vertices, triangles) = tissue_testkit::octahedron();
         SurfaceMesh::new(vertices, triangles)
+    }
+
+    #[test]
+    fn the_winding_number_counts_how_often_the_surface_wraps_a_point() {
+        let mesh = octahedron();
+        let scale = mesh.bounds().map(|(lo, hi)| lo.distance(hi)).unwrap();
+        assert!(mesh.signed_volume() > 0.0, "the octahedron faces outward");
+        assert!((mesh.winding_number(Vec3::ZERO) - 1.0).abs() < 1e-12);
+        assert!((mesh.winding_number(Vec3::splat(0.05 * scale)) - 1.0).abs() < 1e-12);
+        assert!(mesh.winding_number(Vec3::splat(scale)).abs() < 1e-12);
+        // The same surface twice wraps its inside twice; turned inside out,
+        // once the other way.
+        let count = mesh.vertices.len() as u32;
+        let mut twice = mesh.clone();
+        twice.vertices.extend(mesh.vertices.iter().copied());
+        twice
+            .triangles
+            .extend(mesh.triangles.iter().map(|t| t.map(|v| v + count)));
+        assert!((twice.winding_number(Vec3::ZERO) - 2.0).abs() < 1e-12);
+        let mut inverted = mesh.clone();
+        inverted.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        assert!((inverted.winding_number(Vec3::ZERO) + 1.0).abs() < 1e-12);
     }
 
     #[test]

@@ -607,23 +607,6 @@ mod tests {
         }
     }
 
-    /// Generalized winding number of `mesh` around `p` (van Oosterom and
-    /// Strackee's solid angle per triangle): 1 inside, 0 outside a closed
-    /// outward surface, robust to where a ray would graze an edge.
-    fn winding_number(mesh: &SurfaceMesh, p: Vec3) -> f64 {
-        let p = p.as_dvec3();
-        let total: f64 = (0..mesh.triangles.len())
-            .map(|t| {
-                let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3() - p);
-                let (la, lb, lc) = (a.length(), b.length(), c.length());
-                let numerator = a.dot(b.cross(c));
-                let denominator = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
-                2.0 * numerator.atan2(denominator)
-            })
-            .sum();
-        total / (4.0 * PI)
-    }
-
     /// Distance from `p` to the surface, by parry (an independent oracle).
     fn distance_to_surface(mesh: &parry3d::shape::TriMesh, p: Vec3) -> f32 {
         use parry3d::query::PointQuery;
@@ -807,7 +790,7 @@ mod tests {
         let tumour = default_tumour();
         let mut nearest = f32::INFINITY;
         for &v in &tumour.vertices {
-            let winding = winding_number(&breast, v);
+            let winding = breast.winding_number(v);
             assert!(
                 (winding - 1.0).abs() < 1e-6,
                 "tumour vertex {v}: winding number {winding}"
@@ -819,8 +802,8 @@ mod tests {
             "tumour comes within {nearest} mm of the breast surface"
         );
         // The winding number is not trivially 1: it is 0 just outside the skin.
-        assert!(winding_number(&breast, Vec3::new(0.0, -8.0, 55.5)).abs() < 1e-6);
-        assert!(winding_number(&breast, Vec3::new(0.0, -8.0, -0.5)).abs() < 1e-6);
+        assert!(breast.winding_number(Vec3::new(0.0, -8.0, 55.5)).abs() < 1e-6);
+        assert!(breast.winding_number(Vec3::new(0.0, -8.0, -0.5)).abs() < 1e-6);
     }
 
     #[test]

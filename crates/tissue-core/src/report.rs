@@ -55,6 +55,12 @@ pub struct SamplingReport {
     pub mean_spacing: f32,
     /// How many times the neighbour rows were rebuilt.
     pub neighbour_rebuilds: usize,
+    /// Two triangles of the surface that cross, where it passes through
+    /// itself (the first pair, [`crate::crossing::first_crossing`]): near
+    /// them the inside is ambiguous, and particles may sit on the wrong
+    /// side of a sheet. `None` for a surface that does not.
+    #[serde(default)]
+    pub surface_crossing: Option<[usize; 2]>,
     /// Where the time went.
     pub stage_seconds: StageSeconds,
 }

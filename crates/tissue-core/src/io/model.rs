@@ -186,7 +186,9 @@ fn placement(model: &ParticleModel) -> Result<(), String> {
         } else {
             p.distance(projection.point)
         };
-        (off > tolerance).then_some((i, p, off))
+        // The nearest triangle's side can be wrong where the surface
+        // crosses itself; the winding number says whether it wraps `p`.
+        (off > tolerance && model.surface.winding_number(p) <= 0.5).then_some((i, p, off))
     });
     if let Some((i, p, outside)) = outside {
         return Err(format!(

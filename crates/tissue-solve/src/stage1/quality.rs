@@ -152,6 +152,15 @@ pub fn quality_report(
         .reduce(|| 0.0, f32::max)
         / mean_spacing.max(f32::MIN_POSITIVE);
 
+    let surface_crossing = tissue_core::crossing::first_crossing(&model.surface);
+    if let Some([a, b]) = surface_crossing {
+        log::warn!(
+            "the surface passes through itself (triangles {a} and {b} cross, near {}): the \
+             inside is ambiguous there, and particles near it may sit on the wrong side of a \
+             sheet; repair the surface (remove its self-intersections) for a clean model",
+            model.surface.corners(a)[0]
+        );
+    }
     SamplingReport {
         particles: model.len(),
         iterations,
@@ -164,6 +173,7 @@ pub fn quality_report(
         max_outside,
         mean_spacing,
         neighbour_rebuilds: 0,
+        surface_crossing,
         stage_seconds: Default::default(),
     }
 }
