@@ -7,7 +7,10 @@
 // point's fitted plane), for a surface the plane across the direction to
 // the nearest point (its normal there on the surface) on a face, the
 // line along an edge, the point at a vertex; the weight faded from half
-// the way to a cloud's edge or the trim, no spring beyond.
+// the way to a cloud's edge, no spring beyond; farther from the
+// observation than the robust scale, Huber's spring (the point moved past
+// the observation, the weight lowered: a force of the weight times the
+// scale).
 
 #import shared/layout
 #import shared/surface_field
@@ -24,8 +27,8 @@ struct Pairing {
     weight: f32,
     // A cloud's edge: no spring farther than this along its plane.
     edge: f32,
-    // No spring farther than this from the observation.
-    trim: f32,
+    // The robust scale: farther than this, the force it has here.
+    robust: f32,
     // A cloud's smoothing radius `h`: its plane from the points within
     // `SMOOTH_REACH h`; 0 for the nearest point's own plane.
     smoothing: f32,
@@ -165,10 +168,11 @@ fn taper(ratio: f32) -> f32 {
 }
 
 // `paired_spring`: x's spring from its paired point, faded towards a
-// cloud's edge and the trim: (c, a) and (u, b) as shared/loads holds them.
+// cloud's edge, Huber's beyond the robust scale: (c, a) and (u, b) as
+// shared/loads holds them.
 fn paired_spring(x: vec3<f32>, paired: Paired) -> Spring {
     let none = Spring(vec4<f32>(0.0), vec4<f32>(0.0));
-    let point = paired.plane.point;
+    var point = paired.plane.point;
     let normal = paired.plane.normal;
     let offset = x - point;
     var n = normal;
@@ -190,9 +194,17 @@ fn paired_spring(x: vec3<f32>, paired: Paired) -> Spring {
         }
         distance = gap;
     }
-    let share = taper(across) * taper(distance / pairing.trim);
+    var share = taper(across);
     if (share <= 0.0) {
         return none;
+    }
+    if (distance > pairing.robust) {
+        var towards = n;
+        if (pairing.cloud != 0u) {
+            towards = normal * sign(dot(normal, offset));
+        }
+        point += towards * (pairing.robust - distance);
+        share *= pairing.robust / (2.0 * distance - pairing.robust);
     }
     let weight = max(pairing.weight * share, 0.0);
     if (paired.feature == FEATURE_EDGE) {

@@ -126,7 +126,7 @@ mod tests {
             rule: PairingRule {
                 weight: 1.0,
                 edge: NO_LIMIT,
-                trim: NO_LIMIT,
+                robust: NO_LIMIT,
                 cloud: true,
                 smooth: 1.0,
             },

@@ -43,8 +43,8 @@ pub const FRAME_STAGES: usize = 1;
 /// cases' remeshed surfaces at 10,000 particles: 320 / 513 / 412
 /// iterations at 1, 250 / 340 / 349 at 30, 221 / 287 / 301 at 100, the
 /// millimetres the same to 0.001 mm; at 1,000, 148 / 283 / 264 and up to
-/// 0.003 mm off. (The shared clouds at 1,000: the trim set the lagging
-/// skin aside, 10-16 mm off.)
+/// 0.003 mm off. (The shared clouds at 1,000 with a loose stage before
+/// each, the skin a stage left behind ended 10-16 mm off.)
 pub const EARLY_TOLERANCE: f32 = 100.0;
 
 /// The factor between one stage's weight and the next's.
@@ -132,8 +132,10 @@ pub struct MatchParams {
     pub weight: f32,
     /// The observation's noise scale (model units): a cloud's pairs
     /// farther than [`RIGID_TRIM`] times the larger of it and the pairs'
-    /// robust deviation at a stage's start are set aside (a surface's are
-    /// all kept: every part of the skin is on it somewhere). `None`:
+    /// robust deviation at a stage's start (the robust scale,
+    /// [`PairingRule::robust`]) are pulled with the force they would have
+    /// there (Huber's; a surface's pull in proportion to the distance:
+    /// every part of the skin is on it somewhere). `None`:
     /// [`SURFACE_NOISE`] mean connection lengths for a surface,
     /// [`CLOUD_NOISE`] spacings for a cloud.
     pub noise: Option<f32>,
@@ -143,8 +145,7 @@ pub struct MatchParams {
     /// the solver's tolerance ([`EARLY_TOLERANCE`]): only the last stage's
     /// answer is the match, the ones before bring the skin near it. A
     /// cloud's stages all solve to the solver's tolerance: each stage's
-    /// trim is set from where the one before left the skin, and skin left
-    /// behind by a loose stage is set aside for good.
+    /// robust scale is set from where the one before left the skin.
     pub early_tolerance: f32,
     /// Whether the first solve starts from the solver's positions as from
     /// a converged solve ([`Solver::warm_start`]: a tracking frame from the
@@ -211,11 +212,17 @@ pub struct MatchReport {
     pub skin: usize,
     /// Of them, those pulled towards the observation at the end.
     pub pulled: usize,
-    /// Of them, those set aside at the end: beyond the trim, or for a
-    /// cloud past its edge.
+    /// Of them, those not pulled at the end: for a cloud, past its edge
+    /// (nothing is seen there).
     pub set_aside: usize,
-    /// The last stage's trim (model units).
-    pub trim: f32,
+    /// Of those pulled, the ones farther from the observation than the
+    /// robust scale at the end: pulled with a bounded force (a pair with
+    /// an outlier, or skin the solve could not bring to the observation).
+    pub beyond_robust: usize,
+    /// The last stage's robust scale (model units; [`PairingRule::robust`]):
+    /// a cloud's; `None` for a surface, whose pairs all pull in proportion
+    /// to their distance.
+    pub robust: Option<f32>,
     /// Distances from the observed points to the deformed model's surface.
     pub residual: Residual,
     /// The deformed model surface's volume over the rest surface's, less
@@ -250,8 +257,9 @@ impl MatchReport {
 /// curvature (a face's or the cloud's fitted plane, an edge's line, a
 /// vertex's point; [`Solver::set_pairing`], on the solver's device): along
 /// a plane the skin slides where the mechanics sends it. The springs' weight grows over [`MatchParams::stages`]
-/// solves; for a cloud, at each stage's start the pairs farther off than
-/// the robust trim are set aside, and those past its edge. Needs the
+/// solves; for a cloud, those past its edge are not pulled, and those
+/// farther off than the robust scale (set at each stage's start) are
+/// pulled with the force they would have there (Huber's). Needs the
 /// elastic force. The solver is left without springs or pairing.
 ///
 /// # Errors
@@ -335,8 +343,9 @@ pub fn match_observation_held(
         spacing,
         params.surface_smoothing,
     )?;
-    // A cloud's pairs are trimmed at each stage and all its stages solve to
-    // the tolerance; a surface's, smoothed or not, are all kept.
+    // A cloud's pairs have a robust scale at each stage and all its stages
+    // solve to the tolerance; a surface's, smoothed or not, pull in
+    // proportion to their distance.
     let scan = observation.is_cloud();
     let (cloud, edge, noise, smooth) = match (&observation.kind, field.smoothed_edge) {
         (Kind::Cloud { spacing: cloud, .. }, _) => (
@@ -366,7 +375,7 @@ pub fn match_observation_held(
     let mut rule = PairingRule {
         weight: 0.0,
         edge,
-        trim: NO_LIMIT,
+        robust: NO_LIMIT,
         cloud,
         smooth,
     };
@@ -380,7 +389,7 @@ pub fn match_observation_held(
             let median = median.unwrap_or_default();
             return Err(ObservationError::Unreachable { median, most }.into());
         }
-        rule.trim = match median {
+        rule.robust = match median {
             Some(median) if scan => RIGID_TRIM as f32 * (1.4826_f32 * median).max(noise),
             _ => NO_LIMIT,
         };
@@ -406,10 +415,10 @@ pub fn match_observation_held(
         }
         let report = solver.solve()?;
         log::debug!(
-            "match stage {stage}: weight {:.3e}, trim {:.3}, {} iterations, stopped by {:?} \
+            "match stage {stage}: weight {:.3e}, robust scale {:.3}, {} iterations, stopped by {:?} \
              (error estimate {:.1e})",
             rule.weight,
-            rule.trim,
+            rule.robust,
             report.iterations,
             report.stopped_by,
             report.residual
@@ -421,10 +430,18 @@ pub fn match_observation_held(
     // What holds the skin at the answer: the uncertainty's re-solves pair
     // it again as the last stage did.
     let pairing = Pairing { skin, rule };
-    let pulled = pairing
-        .springs(field, &end)
+    let springs = pairing.springs(field, &end);
+    let pulled = springs.iter().filter(|s| !s.is_zero()).count();
+    let beyond_robust = pairing
+        .skin
         .iter()
-        .filter(|s| !s.is_zero())
+        .filter(|&&i| {
+            let x = end[i as usize];
+            let paired = paired_point(field, x, &pairing.rule);
+            !springs[i as usize].is_zero()
+                && pair_plane(x, paired.point, paired.normal, &pairing.rule)
+                    .is_some_and(|(_, d)| d > pairing.rule.robust)
+        })
         .count();
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
@@ -451,7 +468,8 @@ pub fn match_observation_held(
         skin,
         pulled,
         set_aside: skin - pulled,
-        trim: rule.trim,
+        beyond_robust,
+        robust: (rule.robust < NO_LIMIT).then_some(rule.robust),
         residual,
         volume_change: volume_change as f32,
         surface,
@@ -522,8 +540,8 @@ fn held_field(model: &ParticleModel, controls: &[bool]) -> Result<Option<Surface
 
 /// The median of the skin's distances from the observation at
 /// `positions`, those past a cloud's edge left out (`None`: all are). The
-/// trim is [`RIGID_TRIM`] times the larger of the noise and the robust
-/// deviation, 1.4826 times it.
+/// robust scale is [`RIGID_TRIM`] times the larger of the noise and the
+/// robust deviation, 1.4826 times the median.
 fn median_distance(
     field: &SurfaceField,
     skin: &[u32],

@@ -176,16 +176,22 @@ pub struct ObservationReport {
     pub points: usize,
     /// A cloud's points set aside as outliers.
     pub outliers: usize,
-    /// The noise scale the trim used, in the model's units.
+    /// The noise scale, in the model's units.
     pub noise_mm: f32,
-    /// The last stage's trim.
-    pub trim_mm: f32,
+    /// The last stage's robust scale (a cloud's; pairs farther off are
+    /// pulled with a bounded force), in the model's units; absent for a
+    /// surface, whose pairs all pull in proportion to their distance.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robust_mm: Option<f32>,
     /// Free skin particles.
     pub skin: usize,
     /// Of them, those pulled towards the observation at the end.
     pub pulled: usize,
-    /// Of them, those set aside (beyond the trim, or past a cloud's edge).
+    /// Of them, those not pulled (past a cloud's edge).
     pub set_aside: usize,
+    /// Of those pulled, the ones farther from the observation than the
+    /// robust scale at the end (pulled with a bounded force).
+    pub beyond_robust: usize,
     /// `pulled / skin`.
     pub observed_fraction: f32,
     /// The observed points' distances to the deformed model's surface.
@@ -289,10 +295,11 @@ impl ObservationReport {
             points: observation.points().len(),
             outliers: observation.outliers(),
             noise_mm,
-            trim_mm: report.trim,
+            robust_mm: report.robust,
             skin: report.skin,
             pulled: report.pulled,
             set_aside: report.set_aside,
+            beyond_robust: report.beyond_robust,
             observed_fraction: report.observed_fraction(),
             residual_rms_mm: report.residual.rms,
             residual_p95_mm: report.residual.p95,
@@ -329,14 +336,16 @@ impl ObservationReport {
     pub fn line(&self) -> String {
         format!(
             "matched without correspondence to a {} of {} points ({} set aside as outliers): {} \
-             of {} free skin particles pulled ({} set aside); the observed points {:.3} from the \
-             deformed skin (RMS; 95th percentile {:.3}, largest {:.3})",
+             of {} free skin particles pulled ({} past the observation's edge, {} farther off than \
+             the robust scale at the end); the observed points {:.3} from the deformed skin (RMS; \
+             95th percentile {:.3}, largest {:.3})",
             self.kind,
             self.points,
             self.outliers,
             self.pulled,
             self.skin,
             self.set_aside,
+            self.beyond_robust,
             self.residual_rms_mm,
             self.residual_p95_mm,
             self.residual_max_mm

@@ -117,8 +117,10 @@ pub struct DeformArgs {
     pub cloud: Option<PathBuf>,
     /// The observation's noise scale, in the model's units (default: a
     /// tenth of the model's mean connection length for a surface, a fifth
-    /// of a cloud's spacing): pairs farther off than 3 times it and the
-    /// pairs' robust spread are set aside.
+    /// of a cloud's spacing): a cloud's pairs farther off than 3 times it
+    /// and the pairs' robust spread are pulled with the force they would
+    /// have there (Huber's), so an outlier moves the skin little and skin
+    /// with far to go is pulled all the way.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
     /// How a surface of another triangulation is paired with the skin, in

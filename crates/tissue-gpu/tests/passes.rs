@@ -106,7 +106,7 @@ fn both_devices_run_the_same_passes_for_every_combination() {
                         rule: PairingRule {
                             weight: plan.lambda_max,
                             edge: NO_LIMIT,
-                            trim: NO_LIMIT,
+                            robust: NO_LIMIT,
                             cloud: false,
                             smooth: 0.0,
                         },

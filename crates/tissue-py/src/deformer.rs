@@ -184,7 +184,9 @@ impl Deformer {
     /// the observation's noise scale in the model's units (default: a
     /// tenth of a connection length for a surface, a fifth of a cloud's
     /// spacing). The report: `iterations`, `converged`, `skin`, `pulled`,
-    /// `set_aside`, `outliers` (a cloud's points set aside),
+    /// `set_aside` (past a cloud's edge), `beyond_robust` (pulled with a
+    /// bounded force, farther off than the robust scale), `outliers` (a
+    /// cloud's points set aside),
     /// `residual_rms`, `residual_p95`, `residual_max` (the observed
     /// points' distances to the deformed skin), `volume_change`, `stages`.
     /// A match that did not converge, or whose residual is above three
@@ -272,6 +274,7 @@ impl Deformer {
             "skin": report.skin,
             "pulled": report.pulled,
             "set_aside": report.set_aside,
+            "beyond_robust": report.beyond_robust,
             "outliers": observation.outliers(),
             "residual_rms": report.residual.rms,
             "residual_p95": report.residual.p95,

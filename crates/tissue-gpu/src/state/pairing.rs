@@ -39,8 +39,8 @@ pub struct PairingParams {
     pub weight: f32,
     /// A cloud's edge.
     pub edge: f32,
-    /// The trim.
-    pub trim: f32,
+    /// The robust scale (Huber's).
+    pub robust: f32,
     /// A cloud's smoothing radius (0: the nearest point's plane).
     pub smoothing: f32,
     /// Padding to the WGSL struct's size.
@@ -176,7 +176,7 @@ impl DeformState {
             params.cloud = u32::from(pairing.rule.cloud);
             params.weight = pairing.rule.weight;
             params.edge = pairing.rule.edge;
-            params.trim = pairing.rule.trim;
+            params.robust = pairing.rule.robust;
             params.smoothing = pairing.rule.smooth;
             let skin: &[u32] = if pairing.skin.is_empty() {
                 &[0]
@@ -227,7 +227,7 @@ mod tests {
                 cloud,
                 weight,
                 edge,
-                trim,
+                robust,
                 smoothing,
                 pad1,
                 pad2,

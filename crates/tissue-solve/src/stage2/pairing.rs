@@ -40,10 +40,14 @@ pub struct PairingRule {
     /// plane from its nearest point is past the cloud's edge (or over a
     /// hole in it) and is not pulled. [`NO_LIMIT`] for a surface.
     pub edge: f32,
-    /// A particle farther than this from the observation (for a cloud,
-    /// across its plane) is set aside as an outlier's pair. [`NO_LIMIT`]:
-    /// none is.
-    pub trim: f32,
+    /// The robust scale `s` (Huber's): a particle farther than this from
+    /// the observation (for a cloud, across its plane) is pulled with the
+    /// force it would have at this distance, and the potential grows in
+    /// proportion to its distance beyond rather than its square
+    /// ([`paired_spring`]): skin that has far to go is pulled all the way,
+    /// an outlier's pair moves the skin by about `s` at most. [`NO_LIMIT`]:
+    /// every pair is pulled in proportion to its distance.
+    pub robust: f32,
     /// Whether the observation is a point cloud: its points' fitted
     /// normals give the planes. A surface's plane is the one across the
     /// direction to the nearest point (the distance's gradient).
@@ -198,7 +202,14 @@ pub fn pair_plane(x: Vec3, point: Vec3, normal: Vec3, rule: &PairingRule) -> Opt
 /// ([`crate::stage2::springs`]): for a cloud, or on a surface's face,
 /// towards the plane of [`pair_plane`]; on a surface's edge towards the
 /// edge's line, at its vertex towards the vertex. Faded ([`taper`]) from
-/// half the way to a cloud's edge or to the trim, and zero beyond either.
+/// half the way to a cloud's edge, zero beyond it. Farther from the
+/// observation than the robust scale `s` ([`PairingRule::robust`]), at a
+/// distance `d`, the spring is Huber's there: its point moved `d - s`
+/// past the observation (away from the particle) and its weight times
+/// `s / (2 d - s)`, so that its force is the weight times `s` and its
+/// potential the weight times `s (d - s / 2)`, both continuous at `s`
+/// (the potential is measured at the positions paired, so it is a
+/// function of the positions alone).
 /// What [`Pass::Pair`](crate::stage2::Pass::Pair) writes for each paired
 /// particle on every device.
 pub fn paired_spring(x: Vec3, paired: &Paired, rule: &PairingRule) -> Spring {
@@ -217,9 +228,21 @@ pub fn paired_spring(x: Vec3, paired: &Paired, rule: &PairingRule) -> Spring {
     } else {
         0.0
     };
-    let share = taper(across) * taper(distance / rule.trim);
+    let mut share = taper(across);
     if share <= 0.0 {
         return Spring::ZERO;
+    }
+    let mut point = point;
+    if distance > rule.robust {
+        // Towards the particle: along the plane's normal for a cloud, the
+        // direction to the nearest point for a surface.
+        let towards = if rule.cloud {
+            normal * normal.dot(offset).signum()
+        } else {
+            n
+        };
+        point += towards * (rule.robust - distance);
+        share *= rule.robust / (2.0 * distance - rule.robust);
     }
     let weight = rule.weight * share;
     match feature {
@@ -232,7 +255,7 @@ pub fn paired_spring(x: Vec3, paired: &Paired, rule: &PairingRule) -> Spring {
 /// The share of a spring's weight a particle `ratio` of the way to a
 /// limit keeps: all of it to half the limit, then less in proportion to
 /// none at the limit, so that the pull and its potential fade rather than
-/// jump as a particle crosses a cloud's edge or the trim.
+/// jump as a particle crosses a cloud's edge.
 pub fn taper(ratio: f32) -> f32 {
     (2.0 * (1.0 - ratio)).clamp(0.0, 1.0)
 }
@@ -240,12 +263,13 @@ pub fn taper(ratio: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stage2::springs::{spring_force, spring_potential};
 
     fn rule(cloud: bool) -> PairingRule {
         PairingRule {
             weight: 4.0,
             edge: 1.0,
-            trim: 2.0,
+            robust: 2.0,
             cloud,
             smooth: 0.0,
         }
@@ -285,12 +309,53 @@ mod tests {
         // On the surface, its normal.
         let on = paired_spring(Vec3::ZERO, &face, &rule(false));
         assert_eq!(on, Spring::plane(Vec3::ZERO, Vec3::Z, 4.0));
-        // Beyond the trim, nothing; three quarters of the way, half the
-        // weight.
-        let far = paired_spring(Vec3::new(0.0, 0.0, 3.0), &face, &rule(false));
-        assert_eq!(far, Spring::ZERO);
-        let fading = paired_spring(Vec3::new(0.0, 0.0, 1.5), &face, &rule(false));
-        assert!((fading.largest() - 2.0).abs() < 1e-5, "{fading:?}");
+        // Within the robust scale, the whole weight.
+        let within = paired_spring(Vec3::new(0.0, 0.0, 1.5), &face, &rule(false));
+        assert_eq!(within, Spring::plane(Vec3::ZERO, Vec3::Z, 4.0));
+    }
+
+    /// Beyond the robust scale `s` a pair pulls with the force it has at
+    /// `s` and its potential grows in proportion to the distance (Huber's),
+    /// for every feature, both continuous at `s`.
+    #[test]
+    fn beyond_the_robust_scale_the_pull_is_hubers() {
+        let (weight, s) = (4.0, 2.0);
+        let huber = |d: f32| f64::from(weight * s * (d - s / 2.0));
+        let x = Vec3::new(0.0, 0.0, 3.0);
+        for feature in [Feature::Face, Feature::Edge(Vec3::X), Feature::Vertex] {
+            for cloud in [false, true] {
+                if cloud && feature != Feature::Face {
+                    continue;
+                }
+                let spring = paired_spring(x, &at(Vec3::ZERO, feature), &rule(cloud));
+                let force = spring_force(spring, x);
+                assert!(
+                    (force - Vec3::new(0.0, 0.0, -weight * s)).length() < 1e-5,
+                    "{feature:?}: {force}"
+                );
+                let potential = spring_potential(spring, x);
+                assert!(
+                    (potential - huber(3.0)).abs() < 1e-5,
+                    "{feature:?}: {potential}"
+                );
+            }
+        }
+        // A cloud's pair below its plane is pulled up.
+        let below = Vec3::new(0.0, 0.0, -2.5);
+        let spring = paired_spring(below, &at(Vec3::ZERO, Feature::Face), &rule(true));
+        assert!((spring_force(spring, below) - Vec3::new(0.0, 0.0, weight * s)).length() < 1e-5);
+        assert!((spring_potential(spring, below) - huber(2.5)).abs() < 1e-5);
+        // Continuous at the scale: just inside and just beyond, the same
+        // force and potential.
+        let face = at(Vec3::ZERO, Feature::Face);
+        let inside = Vec3::new(0.0, 0.0, s - 1e-4);
+        let beyond = Vec3::new(0.0, 0.0, s + 1e-4);
+        let (a, b) = (
+            paired_spring(inside, &face, &rule(false)),
+            paired_spring(beyond, &face, &rule(false)),
+        );
+        assert!((spring_force(a, inside) - spring_force(b, beyond)).length() < 1e-3);
+        assert!((spring_potential(a, inside) - spring_potential(b, beyond)).abs() < 3e-3);
     }
 
     #[test]
@@ -326,7 +391,5 @@ mod tests {
         assert!((edge.largest() - 2.0).abs() < 1e-5, "{edge:?}");
         let past = paired_spring(Vec3::new(1.5, 0.0, 0.1), &plane, &rule(true));
         assert_eq!(past, Spring::ZERO);
-        let trimmed = paired_spring(Vec3::new(0.0, 0.0, -2.5), &plane, &rule(true));
-        assert_eq!(trimmed, Spring::ZERO);
     }
 }

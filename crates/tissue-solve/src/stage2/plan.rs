@@ -361,7 +361,7 @@ impl Plan {
                     rule.weight
                 ));
             }
-            for (what, limit) in [("edge", rule.edge), ("trim", rule.trim)] {
+            for (what, limit) in [("edge", rule.edge), ("robust scale", rule.robust)] {
                 if !(limit.is_finite() && limit > 0.0) {
                     return refuse(format!(
                         "the pairing's {what} {limit} is not a positive length"
