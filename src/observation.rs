@@ -21,7 +21,7 @@ pub use observed::Observation;
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
 pub use tissue_solve::stage2::{
-    Cloud, FIDUCIAL_MISFIT, FiducialFit, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, Spring,
+    Cleaned, Cloud, FIDUCIAL_MISFIT, FiducialFit, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, Spring,
     fiducial_fit, rigid_fit,
 };
 

@@ -8,7 +8,7 @@ mod common;
 
 use tissue::field::{Side, SurfaceField};
 use tissue::io::space::Space;
-use tissue::observation::{Cloud, load_cloud, rigid_fit};
+use tissue::observation::{CLOUD_NOISE, Cloud, Observation, load_cloud, rigid_fit};
 
 #[test]
 fn the_cases_clouds_have_their_spacing_and_the_skins_normals() {
@@ -111,4 +111,53 @@ fn a_cases_cloud_in_another_frame_is_fitted_back_onto_the_skin() {
             "{name}: {fit:?}"
         );
     }
+}
+
+/// A cloud's noise scale where none is given: the larger of a fifth of
+/// its spacing and its points' own scatter about their neighbours' planes.
+/// A dense scan with 1 mm of noise (points 1.3 mm apart on a dome of
+/// radius 50 mm) gets most of it (the nearest neighbours, picked in 3-D,
+/// lean to the point's side of the surface, so the scatter reads low
+/// where the noise nears the spacing: 0.72 mm here), not a fifth of its
+/// spacing (0.26 mm), so a good match to it is not flagged as far above
+/// its noise; the same points without noise get a fifth of their
+/// spacing.
+#[test]
+fn a_clouds_noise_scale_is_its_own_scatter_at_least_a_fifth_of_its_spacing() {
+    let count = 10_000;
+    let dome = |noise: f32| -> Vec<glam::Vec3> {
+        let mut uniform = tissue_testkit::xorshift(7);
+        let golden = std::f32::consts::PI * (3.0 - 5.0_f32.sqrt());
+        (0..count)
+            .map(|k| {
+                let z = 1.0 - (k as f32 + 0.5) / count as f32;
+                let ring = (1.0 - z * z).sqrt();
+                let turn = golden * k as f32;
+                let direction = glam::Vec3::new(ring * turn.cos(), ring * turn.sin(), z);
+                // A normal deviate from two uniform ones (Box-Muller).
+                let (u, v) = (0.5 * (uniform() + 1.0), 0.5 * (uniform() + 1.0));
+                let u = u.max(1e-7);
+                let deviate = (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos();
+                direction * (50.0 + noise * deviate)
+            })
+            .collect()
+    };
+    let inside = glam::Vec3::ZERO;
+    let noisy = Cloud::new(dome(1.0)).unwrap();
+    let spacing = noisy.spacing();
+    let scale = Observation::cloud(&noisy, None, inside)
+        .unwrap()
+        .cloud_noise()
+        .unwrap();
+    assert!(
+        (0.6..1.2).contains(&scale) && scale > 2.0 * CLOUD_NOISE * spacing,
+        "noise 1: the scale {scale}, the spacing {spacing}"
+    );
+    let clean = Cloud::new(dome(0.0)).unwrap();
+    let observation = Observation::cloud(&clean, None, inside).unwrap();
+    let fifth = CLOUD_NOISE * observation.cloud_spacing().unwrap();
+    assert_eq!(observation.cloud_noise(), Some(fifth));
+    // The caller's noise is taken as it is.
+    let given = Observation::cloud(&noisy, Some(0.3), inside).unwrap();
+    assert_eq!(given.cloud_noise(), Some(0.3));
 }

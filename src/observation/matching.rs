@@ -136,8 +136,9 @@ pub struct MatchParams {
     /// [`PairingRule::robust`]) are pulled with the force they would have
     /// there (Huber's; a surface's pull in proportion to the distance:
     /// every part of the skin is on it somewhere). `None`:
-    /// [`SURFACE_NOISE`] mean connection lengths for a surface,
-    /// [`CLOUD_NOISE`] spacings for a cloud.
+    /// [`SURFACE_NOISE`] mean connection lengths for a surface, the
+    /// cloud's own for a cloud (the larger of [`CLOUD_NOISE`] spacings and
+    /// its points' scatter, [`Observation::cloud_noise`]).
     pub noise: Option<f32>,
     /// Solves over which the weight grows ([`MATCH_STAGES`]).
     pub stages: usize,
@@ -348,10 +349,17 @@ pub fn match_observation_held(
     // proportion to their distance.
     let scan = observation.is_cloud();
     let (cloud, edge, noise, smooth) = match (&observation.kind, field.smoothed_edge) {
-        (Kind::Cloud { spacing: cloud, .. }, _) => (
+        (
+            Kind::Cloud {
+                spacing: cloud,
+                noise: scale,
+                ..
+            },
+            _,
+        ) => (
             true,
             CLOUD_EDGE_SPACINGS * cloud,
-            params.noise.unwrap_or(CLOUD_NOISE * cloud),
+            params.noise.unwrap_or(*scale),
             CLOUD_SMOOTHING * cloud,
         ),
         (Kind::Surface(_), Some(edge)) => (

@@ -31,7 +31,11 @@ pub struct Observation {
 #[derive(Debug, Clone)]
 pub(super) enum Kind {
     Surface(SurfaceMesh),
-    Cloud { field: SurfaceField, spacing: f32 },
+    Cloud {
+        field: SurfaceField,
+        spacing: f32,
+        noise: f32,
+    },
 }
 
 impl Observation {
@@ -55,16 +59,23 @@ impl Observation {
     /// noise across the skin averaged out ([`Cloud::cleaned`] with `noise`,
     /// or [`CLOUD_NOISE`] spacings; the points set aside are counted,
     /// [`Observation::outliers`]), its normals turned away from `inside`
-    /// (a point inside the organ: [`Cloud::oriented_from`]).
+    /// (a point inside the organ: [`Cloud::oriented_from`]). Its noise
+    /// scale ([`Observation::cloud_noise`]) is `noise`, or the larger of
+    /// [`CLOUD_NOISE`] spacings and the points' own scatter about their
+    /// neighbours' planes ([`Cleaned::scatter`](super::Cleaned::scatter)):
+    /// a dense scan may be noisier than a fifth of its spacing.
     ///
     /// # Errors
     ///
     /// [`Error::Observation`] where too few points are kept or its grid
     /// cannot be made.
     pub fn cloud(cloud: &Cloud, noise: Option<f32>, inside: Vec3) -> Result<Self, Error> {
-        let noise = noise.unwrap_or(CLOUD_NOISE * cloud.spacing());
-        let (cleaned, outliers) = cloud.cleaned(noise)?;
-        let cleaned = cleaned.oriented_from(inside);
+        let given = noise;
+        let noise = given.unwrap_or(CLOUD_NOISE * cloud.spacing());
+        let cleaned = cloud.cleaned(noise)?;
+        let scatter = cleaned.scatter;
+        let outliers = cleaned.set_aside;
+        let cleaned = cleaned.cloud.oriented_from(inside);
         let spacing = cleaned.spacing();
         Ok(Self {
             points: cleaned.points().to_vec(),
@@ -72,6 +83,7 @@ impl Observation {
             kind: Kind::Cloud {
                 field: cleaned.field(FIELD_MARGIN * spacing)?,
                 spacing,
+                noise: given.unwrap_or((CLOUD_NOISE * spacing).max(scatter)),
             },
         })
     }
@@ -85,7 +97,7 @@ impl Observation {
     /// As [`Observation::cloud`].
     pub fn check_cloud(cloud: &Cloud, noise: Option<f32>) -> Result<(), Error> {
         let noise = noise.unwrap_or(CLOUD_NOISE * cloud.spacing());
-        let (cleaned, _) = cloud.cleaned(noise)?;
+        let cleaned = cloud.cleaned(noise)?.cloud;
         cleaned.check_field(FIELD_MARGIN * cleaned.spacing())?;
         Ok(())
     }
@@ -96,7 +108,7 @@ impl Observation {
     pub fn sees(&self, points: &[Vec3]) -> Vec<bool> {
         match &self.kind {
             Kind::Surface(_) => vec![true; points.len()],
-            Kind::Cloud { field, spacing } => points
+            Kind::Cloud { field, spacing, .. } => points
                 .par_iter()
                 .map(|&p| (p - field.nearest(p).point).length() <= CLOUD_EDGE_SPACINGS * spacing)
                 .collect(),
@@ -124,6 +136,16 @@ impl Observation {
     pub fn cloud_spacing(&self) -> Option<f32> {
         match self.kind {
             Kind::Cloud { spacing, .. } => Some(spacing),
+            Kind::Surface(_) => None,
+        }
+    }
+
+    /// A cloud's noise scale (model units): the one it was made with, or
+    /// the larger of [`CLOUD_NOISE`] spacings and its points' scatter
+    /// ([`Observation::cloud`]); `None` for a surface.
+    pub fn cloud_noise(&self) -> Option<f32> {
+        match self.kind {
+            Kind::Cloud { noise, .. } => Some(noise),
             Kind::Surface(_) => None,
         }
     }

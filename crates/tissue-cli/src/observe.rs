@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 use serde::Serialize;
 use tissue::observation::{
-    CLOUD_NOISE, Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation,
-    SURFACE_NOISE, fiducial_fit, load_cloud,
+    Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation, SURFACE_NOISE,
+    fiducial_fit, load_cloud,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -282,9 +282,10 @@ impl ObservationReport {
         noise: Option<f32>,
         model: &ParticleModel,
     ) -> Self {
-        let noise_mm = noise.unwrap_or_else(|| match observation.cloud_spacing() {
-            Some(spacing) => CLOUD_NOISE * spacing,
-            None => SURFACE_NOISE * model.mean_connection_length(),
+        let noise_mm = noise.unwrap_or_else(|| {
+            observation
+                .cloud_noise()
+                .unwrap_or(SURFACE_NOISE * model.mean_connection_length())
         });
         Self {
             kind: if observation.is_cloud() {

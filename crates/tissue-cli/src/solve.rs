@@ -116,8 +116,9 @@ pub struct DeformArgs {
     #[arg(long, value_name = "FILE")]
     pub cloud: Option<PathBuf>,
     /// The observation's noise scale, in the model's units (default: a
-    /// tenth of the model's mean connection length for a surface, a fifth
-    /// of a cloud's spacing): a cloud's pairs farther off than 3 times it
+    /// tenth of the model's mean connection length for a surface; for a
+    /// cloud the larger of a fifth of its spacing and its points' scatter
+    /// about their neighbours' planes): a cloud's pairs farther off than 3 times it
     /// and the pairs' robust spread are pulled with the force they would
     /// have there (Huber's), so an outlier moves the skin little and skin
     /// with far to go is pulled all the way.

@@ -182,8 +182,9 @@ impl Deformer {
     /// of the skin is pulled onto the observation inside the elastic
     /// solve and slides along it where the mechanics sends it. `noise`:
     /// the observation's noise scale in the model's units (default: a
-    /// tenth of a connection length for a surface, a fifth of a cloud's
-    /// spacing). The report: `iterations`, `converged`, `skin`, `pulled`,
+    /// tenth of a connection length for a surface, for a cloud the larger
+    /// of a fifth of its spacing and its points' scatter about their
+    /// neighbours' planes). The report: `iterations`, `converged`, `skin`, `pulled`,
     /// `set_aside` (past a cloud's edge), `beyond_robust` (pulled with a
     /// bounded force, farther off than the robust scale), `outliers` (a
     /// cloud's points set aside),
@@ -245,9 +246,10 @@ impl Deformer {
                 match_observation(solver, model, &observation, &params)
             })
             .map_err(raise)?;
-        let scale = noise.unwrap_or_else(|| match observation.cloud_spacing() {
-            Some(spacing) => tissue::observation::CLOUD_NOISE * spacing,
-            None => tissue::observation::SURFACE_NOISE * self.spacing,
+        let scale = noise.unwrap_or_else(|| {
+            observation
+                .cloud_noise()
+                .unwrap_or(tissue::observation::SURFACE_NOISE * self.spacing)
         });
         if !report.converged {
             warn(

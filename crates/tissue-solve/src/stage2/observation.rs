@@ -37,6 +37,22 @@ pub struct Cloud {
     spacing: f32,
 }
 
+/// A cloud cleaned of its outliers ([`Cloud::cleaned`]).
+#[derive(Debug, Clone)]
+pub struct Cleaned {
+    /// The kept points, each moved onto the plane of its kept nearest
+    /// others.
+    pub cloud: Cloud,
+    /// How many points were set aside as outliers.
+    pub set_aside: usize,
+    /// The points' scatter across the surface, seen from the cloud alone:
+    /// the robust deviation (1.4826 times the median) of every point's
+    /// distance from the plane of its nearest others. About the scanner's
+    /// noise where the surface is flat over a few spacings (a little more
+    /// where it bends within them).
+    pub scatter: f32,
+}
+
 impl Cloud {
     /// The cloud of `points`: its spacing (the median distance from a point
     /// to its nearest other point) and its normals, each the normal of the
@@ -93,7 +109,8 @@ impl Cloud {
     }
 
     /// The cloud without its outliers and with its noise across the
-    /// surface averaged out, and how many points were set aside. Each
+    /// surface averaged out, how many points were set aside, and the
+    /// points' scatter about their neighbours' planes. Each
     /// point's plane is the least-squares plane of its
     /// [`NORMAL_NEIGHBOURS`]` - 1` nearest others; a point farther from its
     /// plane than [`RIGID_TRIM`] times the larger of `noise` and the robust
@@ -105,7 +122,7 @@ impl Cloud {
     /// # Errors
     ///
     /// As [`Cloud::new`] for what is kept.
-    pub fn cleaned(&self, noise: f32) -> Result<(Self, usize), ObservationError> {
+    pub fn cleaned(&self, noise: f32) -> Result<Cleaned, ObservationError> {
         let planes = neighbour_planes(&self.points);
         let deviation = 1.4826 * median(planes.iter().map(|(offset, _)| offset.abs()).collect());
         let limit = RIGID_TRIM as f32 * deviation.max(noise);
@@ -128,7 +145,11 @@ impl Cloud {
             .zip(&kept)
             .map(|(&(offset, normal), &p)| p - offset * normal)
             .collect();
-        Ok((Self::new(projected)?, set_aside))
+        Ok(Cleaned {
+            cloud: Self::new(projected)?,
+            set_aside,
+            scatter: deviation,
+        })
     }
 
     /// The same cloud with its normals turned to the side of the surface
@@ -499,7 +520,13 @@ mod tests {
             points[k] *= 1.0 + 5.0 / 50.0;
         }
         let cloud = Cloud::new(points.clone()).unwrap();
-        let (cleaned, set_aside) = cloud.cleaned(0.5).unwrap();
+        let Cleaned {
+            cloud: cleaned,
+            set_aside,
+            scatter,
+        } = cloud.cleaned(0.5).unwrap();
+        // The scatter is the noise (0.5), seen through the outliers.
+        assert!((0.4..0.65).contains(&scatter), "scatter {scatter}");
         let tail = set_aside - outliers.len().min(set_aside);
         assert!(
             set_aside >= outliers.len() && tail <= points.len() / 200,
