@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_solve::stage2::{
     CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane,
-    paired_point,
+    paired_point, paired_spring,
 };
 
 use super::ObservationError;
@@ -438,19 +438,23 @@ pub fn match_observation_held(
     // What holds the skin at the answer: the uncertainty's re-solves pair
     // it again as the last stage did.
     let pairing = Pairing { skin, rule };
-    let springs = pairing.springs(field, &end);
-    let pulled = springs.iter().filter(|s| !s.is_zero()).count();
-    let beyond_robust = pairing
+    // Each free skin particle paired once at the answer: whether it is
+    // pulled, and whether from farther off than the robust scale.
+    let rule = pairing.rule;
+    let (pulled, beyond_robust) = pairing
         .skin
-        .iter()
-        .filter(|&&i| {
+        .par_iter()
+        .map(|&i| {
             let x = end[i as usize];
-            let paired = paired_point(field, x, &pairing.rule);
-            !springs[i as usize].is_zero()
-                && pair_plane(x, paired.point, paired.normal, &pairing.rule)
-                    .is_some_and(|(_, d)| d > pairing.rule.robust)
+            let paired = paired_point(field, x, &rule);
+            if paired_spring(x, &paired, &rule).is_zero() {
+                return (0, 0);
+            }
+            let far = pair_plane(x, paired.point, paired.normal, &rule)
+                .is_some_and(|(_, d)| d > rule.robust);
+            (1, usize::from(far))
         })
-        .count();
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
     clear(solver)?;
