@@ -620,6 +620,12 @@ impl Solver {
         self.tracker.potential()
     }
 
+    /// [`Solver::potential`] with the magnitude of its parts, the scale of
+    /// its rounding (`Potential::magnitude`).
+    pub fn potential_parts(&mut self) -> Result<Option<tissue_solve::stage2::Potential>, Error> {
+        self.tracker.potential_parts()
+    }
+
     /// Rest particle positions: the shape the solve is stress-free in.
     pub fn rest(&self) -> &[Vec3] {
         self.tracker.rest()
@@ -640,6 +646,17 @@ impl Solver {
             Some(reference) => &reference.positions,
             None => self.rest(),
         }
+    }
+
+    /// The last frames' converged solutions (`Tracker::history`).
+    pub fn history(&self) -> &tissue_solve::stage2::FrameHistory {
+        self.tracker.history()
+    }
+
+    /// Makes `from` and the positions now the only frames the next
+    /// prediction takes changes from (`Tracker::restart_history`).
+    pub fn restart_history(&mut self, from: &[Vec3]) {
+        self.tracker.restart_history(from);
     }
 
     /// Particle positions after the last solve (or the last

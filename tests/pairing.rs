@@ -253,6 +253,88 @@ fn the_skin_follows_a_scan_of_a_deep_indentation_on_both_devices() {
     assert_same_match(&solved, size);
 }
 
+/// Tracking frames of scans of a growing sag (the phantom's front half
+/// sagging 3 mm more each frame), each matched from the last frame's
+/// answer: after the first two, a frame starts where the last frames'
+/// changes put the skin on its scan, and lands where the frame started
+/// from the last answer lands, in at most two thirds of its iterations;
+/// the CPU and the GPU take the same steps.
+#[test]
+fn tracking_frames_of_scans_start_where_the_last_changes_lead_on_both_devices() {
+    let model = common::phantom_model(3_000);
+    let size = truth_size(&model);
+    let held = chest_wall(&model);
+    let observed = DeformParams::default().with(|p| p.observed = Some(held));
+    let mut heights: Vec<f32> = model.surface.vertices.iter().map(|v| v.z).collect();
+    heights.sort_by(f32::total_cmp);
+    let middle = heights[heights.len() / 2];
+    let centre = model.positions.iter().copied().sum::<Vec3>() / model.len() as f32;
+    let scans: Vec<Observation> = (1..=4)
+        .map(|k| {
+            let sag = tissue::deform::Sag {
+                magnitude_mm: 3.0 * k as f32,
+                ..Default::default()
+            };
+            let sagged = tissue::deform::deform_surface(&model.surface, &sag);
+            let seen: Vec<Vec3> = sagged
+                .vertices
+                .iter()
+                .zip(&model.surface.vertices)
+                .filter(|(_, rest)| rest.z > middle)
+                .map(|(v, _)| *v)
+                .collect();
+            let cloud = tissue::observation::Cloud::new(seen).unwrap();
+            Observation::cloud(&cloud, None, centre).unwrap()
+        })
+        .collect();
+    let mut devices = vec![Device::Cpu];
+    devices.extend(common::gpu());
+    let mut solved = Vec::new();
+    for device in devices {
+        // Every frame's iterations and the last frame's answer.
+        let track = |predict: bool| {
+            let mut solver = Solver::new(device.clone(), &model, observed.clone()).unwrap();
+            let on = solver.backend();
+            solver.set_surface(&model.surface).unwrap();
+            let mut iterations = Vec::new();
+            for (k, scan) in scans.iter().enumerate() {
+                let params = if k == 0 {
+                    MatchParams::default()
+                } else {
+                    MatchParams {
+                        predict,
+                        ..MatchParams::next_frame(None)
+                    }
+                };
+                let report = match_observation(&mut solver, &model, scan, &params).unwrap();
+                assert!(report.converged, "{on}, frame {k}: {:?}", report.last);
+                assert!(
+                    report.residual.rms < 2e-3 * size,
+                    "{on}, frame {k}: {:?}",
+                    report.residual
+                );
+                iterations.push(report.iterations);
+            }
+            eprintln!("{on}, predicted {predict}: {iterations:?} iterations");
+            (iterations, solver.positions().to_vec())
+        };
+        let (predicted, at) = track(true);
+        let (plain, plain_at) = track(false);
+        let later = |iterations: &[usize]| iterations[2..].iter().sum::<usize>();
+        assert!(
+            3 * later(&predicted) <= 2 * later(&plain),
+            "{predicted:?} iterations predicted against {plain:?}"
+        );
+        assert!(
+            rms(&at, &plain_at) < 1e-3 * size,
+            "{} apart",
+            rms(&at, &plain_at)
+        );
+        solved.push((predicted.iter().sum(), at));
+    }
+    assert_same_match(&solved, size);
+}
+
 /// A pairing that does not fit the solve is refused with what is wrong:
 /// without the elastic force, of a particle the solve does not move, with
 /// a weight or a limit that is not a positive number.

@@ -6,8 +6,8 @@ use std::collections::BTreeSet;
 use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_solve::stage2::{
-    CLOUD_SMOOTHING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT, pair_plane,
-    paired_point, paired_spring,
+    CLOUD_SMOOTHING, ENERGY_ROUNDING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT,
+    pair_plane, paired_point, paired_spring, predict_paired,
 };
 
 use super::ObservationError;
@@ -17,6 +17,10 @@ use crate::backend::Solver;
 use crate::deformation::DeformReport;
 use crate::field::{SurfaceField, signed_distances};
 use crate::{Error, ParticleModel, SurfaceMesh, Vec3};
+
+/// A tracking frame's predicted start ([`predict_paired`]) pairs the skin
+/// this many times: at the last answer, then at each prediction.
+pub const PREDICTION_ROUNDS: usize = 3;
 
 /// The springs' weight grows over this many solves, each from where the
 /// last one ended, by [`STAGE_GROWTH`] each to [`MatchParams::weight`]:
@@ -161,6 +165,11 @@ pub struct MatchParams {
     /// face's plane, an edge's line, a vertex's point). A cloud's
     /// smoothing is its own.
     pub surface_smoothing: f32,
+    /// For a `warm` match (a tracking frame), whether it starts where the
+    /// last frames' changes put the skin on the observation
+    /// ([`predict_paired`]), where that lowers the potential, rather than
+    /// at the last answer.
+    pub predict: bool,
 }
 
 impl MatchParams {
@@ -171,6 +180,7 @@ impl MatchParams {
             noise,
             stages: FRAME_STAGES,
             warm: true,
+            predict: true,
             ..Self::default()
         }
     }
@@ -185,6 +195,7 @@ impl Default for MatchParams {
             early_tolerance: EARLY_TOLERANCE,
             warm: false,
             surface_smoothing: SURFACE_SMOOTHING,
+            predict: true,
         }
     }
 }
@@ -380,6 +391,7 @@ pub fn match_observation_held(
     solver.set_observation(Some(field))?;
     let mut iterations = 0;
     let mut last = None;
+    let begun = solver.positions().to_vec();
     let mut rule = PairingRule {
         weight: 0.0,
         edge,
@@ -410,6 +422,19 @@ pub fn match_observation_held(
             clear(solver)?;
             return Err(ObservationError::Unpaired { skin: skin.len() }.into());
         }
+        let predicted = if stage == 0 && params.warm && params.predict {
+            let noise = solve_params.tolerance * plan.size;
+            predict_paired(
+                &start,
+                solver.history(),
+                field,
+                &pairing,
+                PREDICTION_ROUNDS,
+                noise,
+            )
+        } else {
+            None
+        };
         solver.set_springs(springs)?;
         solver.set_pairing(Some(pairing))?;
         let last_stage = stage + 1 == params.stages;
@@ -420,6 +445,9 @@ pub fn match_observation_held(
         }))?;
         if stage > 0 || params.warm {
             solver.warm_start(&start)?;
+        }
+        if let Some(predicted) = predicted {
+            predict_if_lower(solver, &start, &predicted)?;
         }
         let report = solver.solve()?;
         log::debug!(
@@ -433,6 +461,11 @@ pub fn match_observation_held(
         );
         iterations += report.iterations;
         last = Some(report);
+    }
+    if !params.warm {
+        // The stages' answers are no frames: the next frame's prediction
+        // takes the match's whole change.
+        solver.restart_history(&begun);
     }
     let end = solver.positions().to_vec();
     // What holds the skin at the answer: the uncertainty's re-solves pair
@@ -488,6 +521,33 @@ pub fn match_observation_held(
         last,
         held,
     })
+}
+
+/// Starts the solve from `predicted` where the potential there (the skin
+/// paired there) is below the one at `start` by more than its rounding
+/// ([`ENERGY_ROUNDING`] of its parts' magnitude, so that every device
+/// decides alike); otherwise from `start`, where the solver starts now.
+fn predict_if_lower(solver: &mut Solver, start: &[Vec3], predicted: &[Vec3]) -> Result<(), Error> {
+    let Some(at_start) = solver.potential_parts()? else {
+        return Ok(());
+    };
+    solver.warm_start(predicted)?;
+    let lower = solver.potential_parts()?.is_some_and(|at| {
+        let rounding = ENERGY_ROUNDING * at.magnitude.max(at_start.magnitude);
+        at.value.is_finite() && at.value < at_start.value - rounding
+    });
+    log::debug!(
+        "the predicted start {}",
+        if lower {
+            "lowers the potential"
+        } else {
+            "does not lower the potential: set aside"
+        }
+    );
+    if !lower {
+        solver.warm_start(start)?;
+    }
+    Ok(())
 }
 
 /// The springs' weight of stage `stage` of `stages` (in the Laplacian's
@@ -649,7 +709,8 @@ mod tests {
     /// times the tolerance, from the solve's start (a tracking frame: one
     /// stage, warm); the weight grows by four a stage to the last one's; a
     /// surface's field in cells of two mean edges, exact within four; a
-    /// surface paired by its plane smoothed over one mean edge.
+    /// surface paired by its plane smoothed over one mean edge; a tracking
+    /// frame's start predicted, its skin paired three times.
     #[test]
     fn the_weight_grows_by_four_a_stage_to_the_springs_weight() {
         let params = MatchParams::default();
@@ -668,10 +729,13 @@ mod tests {
                 frame.stages,
                 frame.warm,
                 frame.noise,
-                frame.surface_smoothing
+                frame.surface_smoothing,
+                frame.predict
             ),
-            (1, true, Some(0.5), SURFACE_SMOOTHING)
+            (1, true, Some(0.5), SURFACE_SMOOTHING, true)
         );
+        assert!(params.predict);
+        assert_eq!(PREDICTION_ROUNDS, 3);
         let weights: Vec<f32> = (0..4).map(|k| stage_weight(16.0, 4, k)).collect();
         assert_eq!(weights, [0.25, 1.0, 4.0, 16.0]);
         assert_eq!(stage_weight(16.0, 1, 0), 16.0);

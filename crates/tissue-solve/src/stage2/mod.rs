@@ -64,7 +64,7 @@ pub use posture::{
     MAX_GRAVITY_G, MIN_FIT_PARTICLES, NO_CHANGE, ORGAN_SIZE_M, PostureDevice, SolveProgress,
     UNLOADED_TOLERANCE_M, Unloaded, unload,
 };
-pub use predict::{FrameHistory, affine_fit, predict};
+pub use predict::{FrameHistory, affine_fit, predict, predict_paired};
 pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
 pub use rigid::{
     FIDUCIAL_MISFIT, FiducialFit, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, fiducial_fit,

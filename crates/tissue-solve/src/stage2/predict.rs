@@ -3,6 +3,9 @@
 
 use glam::{DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
+use tissue_core::field::SurfaceField;
+
+use crate::stage2::pairing::Pairing;
 
 /// The converged solutions of the last frames, oldest first, from which
 /// [`predict`] takes the changes it fits a new frame's surface move with.
@@ -45,9 +48,24 @@ impl FrameHistory {
         self.solutions.clear();
     }
 
+    /// Whether no solution is kept (after a solve that did not converge).
+    pub fn is_empty(&self) -> bool {
+        self.solutions.is_empty()
+    }
+
     /// The number of frame-to-frame changes kept.
     pub fn changes(&self) -> usize {
         self.solutions.len().saturating_sub(1)
+    }
+
+    /// Starts again from two solutions: `from`, a converged state, and
+    /// `to`, the answer reached from it (a solve of several stages whose
+    /// stages' answers are no frames of their own), when `depth` keeps a
+    /// change.
+    pub fn restart(&mut self, from: &[Vec3], to: &[Vec3], depth: usize) {
+        self.solutions.clear();
+        self.record(from, true, depth);
+        self.record(to, true, depth);
     }
 
     /// `(earlier, later)` solution pairs, newest first.
@@ -149,6 +167,150 @@ pub fn predict(
         })
         .collect();
     (predicted, linear)
+}
+
+/// Where a tracking frame matched to an observation without
+/// correspondence starts: the last answer `current` plus the combination
+/// of the last frames' changes that brings its paired skin closest to the
+/// observation, `current + sum_k beta_k d_k`. Nothing moves the control
+/// points (the held region stays), so the changes themselves are the
+/// basis: `beta` minimises the springs' potential
+/// `sum_i (q_i - c_i)^T P_i (q_i - c_i) / 2` over the skin `pairing`
+/// pairs on `field`, paired again at the prediction `rounds` times (the
+/// springs move as the skin does). A sag growing by the same step gets
+/// `beta = 1`, as a frame with correspondence does ([`predict`]). As
+/// there, a change that moved no paired particle by `noise` (the solve's
+/// tolerance as a length) is left out (a frame that did not move: its
+/// change is what the solve left undone), and one with less than a
+/// hundredth of its length (in the springs' norm) outside the newer ones'
+/// span gets `beta = 0`. `None` where no change is left.
+pub fn predict_paired(
+    current: &[Vec3],
+    history: &FrameHistory,
+    field: &SurfaceField,
+    pairing: &Pairing,
+    rounds: usize,
+    noise: f32,
+) -> Option<Vec<Vec3>> {
+    let changes: Vec<Vec<Vec3>> = history
+        .pairs()
+        .map(|(earlier, later)| -> Vec<Vec3> {
+            later.iter().zip(earlier).map(|(&l, &e)| l - e).collect()
+        })
+        .filter(|d| {
+            pairing
+                .skin
+                .iter()
+                .any(|&i| d[i as usize].length() >= noise)
+        })
+        .collect();
+    if changes.is_empty() {
+        return None;
+    }
+    let count = changes.len();
+    let moved = |beta: &[f64]| -> Vec<Vec3> {
+        current
+            .par_iter()
+            .enumerate()
+            .map(|(i, &q)| {
+                q + changes
+                    .iter()
+                    .zip(beta)
+                    .map(|(d, &b)| b as f32 * d[i])
+                    .sum::<Vec3>()
+            })
+            .collect()
+    };
+    let mut at = current.to_vec();
+    let mut fitted = None;
+    for _ in 0..rounds.max(1) {
+        let springs = pairing.springs(field, &at);
+        // The normal equations `G beta = r` in the springs' norm, over the
+        // paired skin.
+        let (gram, right) = pairing
+            .skin
+            .par_iter()
+            .map(|&i| {
+                let i = i as usize;
+                let spring = springs[i];
+                let mut gram = vec![0.0; count * count];
+                let mut right = vec![0.0; count];
+                if spring.is_zero() {
+                    return (gram, right);
+                }
+                let pulls: Vec<DVec3> = changes
+                    .iter()
+                    .map(|d| spring.times_f64(d[i].as_dvec3()))
+                    .collect();
+                let gap = (spring.point_of() - current[i]).as_dvec3();
+                for k in 0..count {
+                    right[k] = pulls[k].dot(gap);
+                    for l in 0..count {
+                        gram[k * count + l] = pulls[k].dot(changes[l][i].as_dvec3());
+                    }
+                }
+                (gram, right)
+            })
+            .reduce(
+                || (vec![0.0; count * count], vec![0.0; count]),
+                |(mut g, mut r), (g2, r2)| {
+                    g.iter_mut().zip(g2).for_each(|(a, b)| *a += b);
+                    r.iter_mut().zip(r2).for_each(|(a, b)| *a += b);
+                    (g, r)
+                },
+            );
+        let beta = solve_gram(&gram, &right, count, 1e-4)?;
+        at = moved(&beta);
+        fitted = Some(beta);
+    }
+    fitted.map(|_| at)
+}
+
+/// `G beta = r` for a symmetric positive semidefinite `G` (`count` by
+/// `count`, row-major) by a Cholesky factor taken column by column in
+/// order: a column whose pivot falls below `keep` of its diagonal (less
+/// than `sqrt(keep)` of its length outside the span of the columns before
+/// it) gets `beta = 0`. `None` where every column is dropped.
+fn solve_gram(gram: &[f64], right: &[f64], count: usize, keep: f64) -> Option<Vec<f64>> {
+    let mut factor = vec![0.0_f64; count * count];
+    let mut kept = vec![false; count];
+    for j in 0..count {
+        let diagonal = gram[j * count + j];
+        let pivot = diagonal - (0..j).map(|k| factor[j * count + k].powi(2)).sum::<f64>();
+        if !(diagonal > 0.0 && pivot > keep * diagonal) {
+            continue;
+        }
+        kept[j] = true;
+        let root = pivot.sqrt();
+        factor[j * count + j] = root;
+        for i in j + 1..count {
+            let dot: f64 = (0..j)
+                .map(|k| factor[i * count + k] * factor[j * count + k])
+                .sum();
+            factor[i * count + j] = (gram[i * count + j] - dot) / root;
+        }
+    }
+    if !kept.contains(&true) {
+        return None;
+    }
+    // Forward and back substitution over the kept columns.
+    let mut y = vec![0.0; count];
+    for i in (0..count).filter(|&i| kept[i]) {
+        let dot: f64 = (0..i)
+            .filter(|&k| kept[k])
+            .map(|k| factor[i * count + k] * y[k])
+            .sum();
+        y[i] = (right[i] - dot) / factor[i * count + i];
+    }
+    let mut beta = vec![0.0; count];
+    for i in (0..count).rev().filter(|&i| kept[i]) {
+        let dot: f64 = (i + 1..count)
+            .filter(|&k| kept[k])
+            .map(|k| factor[k * count + i] * beta[k])
+            .sum();
+        beta[i] = (y[i] - dot) / factor[i * count + i];
+    }
+    beta.iter().all(|b| b.is_finite()).then_some(beta)
 }
 
 /// The coefficients `beta` minimising `|target - sum_k beta_k columns_k|`,
@@ -386,5 +548,87 @@ mod tests {
         let firsts: Vec<f32> = history.pairs().map(|(e, l)| l[0].x - e[0].x).collect();
         assert_eq!(firsts, [1.0]);
         assert_eq!(FrameHistory::at_rest(&state(0.0), 0).changes(), 0);
+    }
+
+    /// A scanned plane `z = height` (points half a unit apart) as an
+    /// observation, and a patch of skin under it paired with it.
+    fn plane_scan(height: f32) -> (SurfaceField, Pairing) {
+        let points: Vec<Vec3> = (0..=40)
+            .flat_map(|x| (0..=40).map(move |y| Vec3::new(x as f32 * 0.5, y as f32 * 0.5, height)))
+            .collect();
+        let Ok(cloud) = crate::stage2::observation::Cloud::new(points) else {
+            panic!("a plane's points make no cloud");
+        };
+        let Ok(field) = cloud.field(8.0) else {
+            panic!("a plane's cloud makes no field");
+        };
+        let rule = crate::stage2::pairing::PairingRule {
+            weight: 1.0,
+            edge: 1.0,
+            robust: crate::stage2::pairing::NO_LIMIT,
+            cloud: true,
+            smooth: 0.5,
+        };
+        let pairing = Pairing {
+            skin: (0..25).collect(),
+            rule,
+        };
+        (field, pairing)
+    }
+
+    /// The skin: 25 particles on a grid at height `z`, shifted along x by
+    /// `x`.
+    fn skin_at(x: f32, z: f32) -> Vec<Vec3> {
+        (0..25)
+            .map(|k| Vec3::new(6.0 + (k % 5) as f32 + x, 6.0 + (k / 5) as f32, z))
+            .collect()
+    }
+
+    #[test]
+    fn a_paired_prediction_carries_the_last_change_onto_the_observation() {
+        // The skin rose by 1 (sliding 0.3 along x) in the last frame; the
+        // scan now lies 2 above it: twice the change, slide included.
+        let mut history = FrameHistory::at_rest(&skin_at(0.0, 0.0), 2);
+        history.record(&skin_at(0.3, 1.0), true, 2);
+        let (field, pairing) = plane_scan(3.0);
+        let current = skin_at(0.3, 1.0);
+        let Some(predicted) = predict_paired(&current, &history, &field, &pairing, 3, 1e-4) else {
+            panic!("no prediction from one change");
+        };
+        for (p, q) in predicted.iter().zip(skin_at(0.9, 3.0)) {
+            assert!(p.abs_diff_eq(q, 1e-4), "{p} against {q}");
+        }
+        // A frame that did not move (the newest change below the noise)
+        // is left out; the one before it still predicts.
+        history.record(&current, true, 2);
+        let Some(again) = predict_paired(&current, &history, &field, &pairing, 3, 1e-4) else {
+            panic!("no prediction past a frame that did not move");
+        };
+        for (p, q) in again.iter().zip(skin_at(0.9, 3.0)) {
+            assert!(p.abs_diff_eq(q, 1e-4), "{p} against {q}");
+        }
+        // Nothing that moved, nothing to predict with.
+        let still = FrameHistory::at_rest(&current, 2);
+        assert!(predict_paired(&current, &still, &field, &pairing, 3, 1e-4).is_none());
+    }
+
+    #[test]
+    fn the_gram_solve_gives_a_dependent_column_nothing() {
+        // Columns d and 2d with r = G's first column times 3: beta (3, 0).
+        let gram = [1.0, 2.0, 2.0, 4.0];
+        assert_eq!(
+            solve_gram(&gram, &[3.0, 6.0], 2, 1e-4),
+            Some(vec![3.0, 0.0])
+        );
+        // Independent columns: the exact solution.
+        let gram = [2.0, 1.0, 1.0, 3.0];
+        let Some(beta) = solve_gram(&gram, &[4.0, 7.0], 2, 1e-4) else {
+            panic!("no solution with independent columns");
+        };
+        assert!(
+            (beta[0] - 1.0).abs() < 1e-12 && (beta[1] - 2.0).abs() < 1e-12,
+            "{beta:?}"
+        );
+        assert!(solve_gram(&[0.0], &[1.0], 1, 1e-4).is_none());
     }
 }

@@ -19,6 +19,7 @@ use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
 use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 
+use crate::stage2::device::Potential;
 pub use crate::stage2::device::SolveDevice;
 
 mod descent;
@@ -164,7 +165,13 @@ impl<D: SolveDevice> Tracker<D> {
     /// The potential the elastic force descends at the current positions
     /// ([`SolveDevice::potential`]); `None` without the elastic model.
     pub fn potential(&mut self) -> Result<Option<f64>, D::Error> {
-        Ok(self.device.potential()?.map(|p| p.value))
+        Ok(self.potential_parts()?.map(|p| p.value))
+    }
+
+    /// [`Tracker::potential`] with the magnitude of its parts, the scale
+    /// of its rounding ([`Potential::magnitude`]).
+    pub fn potential_parts(&mut self) -> Result<Option<Potential>, D::Error> {
+        self.device.potential()
     }
 
     /// The device's kernels and buffers.
@@ -313,6 +320,24 @@ impl<D: SolveDevice> Tracker<D> {
     /// the last `set_surface` or `reset`.
     pub fn positions(&self) -> &[Vec3] {
         &self.current
+    }
+
+    /// The last frames' converged solutions, whose changes predict where
+    /// the next frame starts ([`predict`], [`crate::stage2::predict_paired`]).
+    pub fn history(&self) -> &FrameHistory {
+        &self.history
+    }
+
+    /// Makes `from`, a converged state, and the positions now the
+    /// history's only frames ([`FrameHistory::restart`]): after a match in
+    /// several solves from `from`, whose solves' answers are no frames of
+    /// their own. Nothing where the last solve did not converge (the
+    /// history is then empty).
+    pub fn restart_history(&mut self, from: &[Vec3]) {
+        if !self.history.is_empty() {
+            self.history
+                .restart(from, &self.current, self.params.tuning.history);
+        }
     }
 
     /// The contraction the Chebyshev weights and the stopping rule use (of
