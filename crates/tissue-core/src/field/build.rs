@@ -222,6 +222,43 @@ impl SurfaceField {
             .collect()
     }
 
+    /// [`SurfaceField::band`] for a cloud, whose triangles are points:
+    /// each point marks the cells [`SurfaceField::bin_triangles`] would
+    /// bin it in, without the bins (the same cells).
+    pub(super) fn band_of_points(&self) -> Vec<bool> {
+        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
+        let cells = self.cell_count();
+        self.corners
+            .par_chunks(256)
+            .fold(
+                || vec![false; cells],
+                |mut band, chunk| {
+                    for &[a, _, _] in chunk {
+                        let range = self.cell_range(
+                            a - Vec3::splat(half_diagonal),
+                            a + Vec3::splat(half_diagonal),
+                        );
+                        self.for_each_cell_near(range, a, half_diagonal, |cell| {
+                            let index = self.cell_index(cell);
+                            if (a - self.cell_centre(index)).length()
+                                <= half_diagonal * (1.0 + 1e-5)
+                            {
+                                band[index] = true;
+                            }
+                        });
+                    }
+                    band
+                },
+            )
+            .reduce(
+                || vec![false; cells],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(a, b)| *a |= b);
+                    a
+                },
+            )
+    }
+
     /// Bins every triangle into the cells whose centre lies within half a cell
     /// diagonal plus `reach` of it (CSR): every cell the triangle passes
     /// through or comes within `reach` of, but not the whole bounding box of

@@ -59,7 +59,7 @@ impl SurfaceField {
         let corners = points.iter().map(|&p| [p; 3]).collect();
         let normals = normals.iter().map(|&n| [n; 7]).collect();
         let mut field = Self::unfilled(lo, hi, cell, margin, corners, normals)?;
-        let band = field.band();
+        let band = field.band_of_points();
         let binned = field.bin_triangles(0.0);
         let outside = vec![true; field.cell_count()];
         // The nearest point to a band cell's centre is at most as far as
@@ -166,6 +166,20 @@ mod tests {
             }
         }
         assert!(near > 300 && far > 300, "{near} near, {far} far");
+    }
+
+    /// A cloud's band marked point by point is the band of its points
+    /// binned: the same cells, at margins that put cell centres on and
+    /// near the balls' edges.
+    #[test]
+    fn a_clouds_band_marked_by_its_points_is_its_binned_band() {
+        let (cloud, normals) = sphere_cloud(300);
+        for (cell, margin) in [(0.1, 0.3), (0.07, 0.2), (0.25, 0.25), (0.1, 0.0)] {
+            let field = SurfaceField::of_cloud(&cloud, &normals, cell, margin).unwrap();
+            let marked = field.band_of_points();
+            assert_eq!(marked, field.band(), "cells {cell}, margin {margin}");
+            assert!(marked.iter().any(|&b| b) && !marked.iter().all(|&b| b));
+        }
     }
 
     /// A flat cloud's smoothed plane is the plane itself, and it moves

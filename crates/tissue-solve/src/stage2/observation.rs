@@ -35,7 +35,14 @@ pub struct Cloud {
     points: Vec<Vec3>,
     normals: Vec<Vec3>,
     spacing: f32,
+    /// Per point its [`OTHERS`] nearest other points, one row after the
+    /// other: the graph its normals are turned alike over and the
+    /// neighbours of its points' planes.
+    others: Vec<u32>,
 }
+
+/// The nearest other points each point's plane is fitted to.
+const OTHERS: usize = NORMAL_NEIGHBOURS - 1;
 
 /// A cloud cleaned of its outliers ([`Cloud::cleaned`]).
 #[derive(Debug, Clone)]
@@ -83,13 +90,21 @@ impl Cloud {
             return Err(ObservationError::Degenerate);
         }
         let tree = indexed_tree(&points);
-        let (normals, nearest): (Vec<Vec3>, Vec<f32>) = points
+        let fitted: Vec<(Vec3, f32, [u32; OTHERS])> = points
             .par_iter()
-            .map(|&p| {
-                let near: Vec<Vec3> = tree
+            .enumerate()
+            .map(|(i, &p)| {
+                // The point itself (or a copy of it) and its nearest others,
+                // one more than a plane takes: the first `OTHERS` that are
+                // not `i` are among them whether `i` is or not.
+                let nearest: Vec<usize> = tree
                     .nearest_neighbor_iter(p.to_array())
-                    .take(NORMAL_NEIGHBOURS)
-                    .map(|n| points[n.data])
+                    .take(NORMAL_NEIGHBOURS + 1)
+                    .map(|n| n.data)
+                    .collect();
+                let near: Vec<Vec3> = nearest[..NORMAL_NEIGHBOURS]
+                    .iter()
+                    .map(|&j| points[j])
                     .collect();
                 let mean = near.iter().sum::<Vec3>() / near.len() as f32;
                 let fit = svd3(covariance(near.iter().copied(), mean));
@@ -97,14 +112,25 @@ impl Cloud {
                 let normal = fit.u.z_axis;
                 // The first neighbour is the point itself (or a copy of it).
                 let other = near.get(1).map_or(0.0, |q| (*q - p).length());
-                (normal, other)
+                let mut others = [0u32; OTHERS];
+                for (slot, j) in others
+                    .iter_mut()
+                    .zip(nearest.into_iter().filter(|&j| j != i))
+                {
+                    *slot = j as u32;
+                }
+                (normal, other, others)
             })
-            .unzip();
-        let normals = turned_alike(&points, normals, &tree, centroid);
+            .collect();
+        let nearest: Vec<f32> = fitted.iter().map(|f| f.1).collect();
+        let normals: Vec<Vec3> = fitted.iter().map(|f| f.0).collect();
+        let others: Vec<u32> = fitted.iter().flat_map(|f| f.2).collect();
+        let normals = turned_alike(&points, normals, &others, centroid);
         Ok(Self {
             spacing: median(nearest),
             points,
             normals,
+            others,
         })
     }
 
@@ -123,7 +149,7 @@ impl Cloud {
     ///
     /// As [`Cloud::new`] for what is kept.
     pub fn cleaned(&self, noise: f32) -> Result<Cleaned, ObservationError> {
-        let planes = neighbour_planes(&self.points);
+        let planes = planes_of(&self.points, &self.others);
         let deviation = 1.4826 * median(planes.iter().map(|(offset, _)| offset.abs()).collect());
         let limit = RIGID_TRIM as f32 * deviation.max(noise);
         let kept: Vec<Vec3> = self
@@ -140,7 +166,14 @@ impl Cloud {
                 least: NORMAL_NEIGHBOURS,
             });
         }
-        let projected = neighbour_planes(&kept)
+        // With nothing set aside the kept points' planes are the ones just
+        // fitted.
+        let kept_planes = if set_aside == 0 {
+            planes
+        } else {
+            neighbour_planes(&kept)
+        };
+        let projected = kept_planes
             .iter()
             .zip(&kept)
             .map(|(&(offset, normal), &p)| p - offset * normal)
@@ -159,8 +192,7 @@ impl Cloud {
     /// inner side of a bend, which faces `centre`, is turned with the rest.
     #[must_use]
     pub fn oriented_from(mut self, centre: Vec3) -> Self {
-        let tree = indexed_tree(&self.points);
-        self.normals = turned_alike(&self.points, self.normals, &tree, centre);
+        self.normals = turned_alike(&self.points, self.normals, &self.others, centre);
         self
     }
 
@@ -325,20 +357,13 @@ fn indexed_tree(points: &[Vec3]) -> RTree<GeomWithData<[f32; 3], usize>> {
 fn turned_alike(
     points: &[Vec3],
     mut normals: Vec<Vec3>,
-    tree: &RTree<GeomWithData<[f32; 3], usize>>,
+    others: &[u32],
     centre: Vec3,
 ) -> Vec<Vec3> {
     let count = points.len();
-    let near: Vec<Vec<usize>> = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            tree.nearest_neighbor_iter(p.to_array())
-                .map(|n| n.data)
-                .filter(|&j| j != i)
-                .take(NORMAL_NEIGHBOURS - 1)
-                .collect()
-        })
+    let near: Vec<Vec<usize>> = others
+        .chunks(OTHERS)
+        .map(|row| row.iter().map(|&j| j as usize).collect())
         .collect();
     // Both ways: a point is joined to the points it is among the nearest of.
     let mut joined: Vec<Vec<usize>> = near.clone();
@@ -397,16 +422,26 @@ fn turned_alike(
 /// normal.
 fn neighbour_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
     let tree = indexed_tree(points);
-    (0..points.len())
+    let others: Vec<u32> = (0..points.len())
         .into_par_iter()
-        .map(|i| {
-            let p = points[i];
-            let near: Vec<Vec3> = tree
-                .nearest_neighbor_iter(p.to_array())
-                .filter(|n| n.data != i)
-                .take(NORMAL_NEIGHBOURS - 1)
-                .map(|n| points[n.data])
-                .collect();
+        .flat_map_iter(|i| {
+            tree.nearest_neighbor_iter(points[i].to_array())
+                .filter(move |n| n.data != i)
+                .take(OTHERS)
+                .map(|n| n.data as u32)
+        })
+        .collect();
+    planes_of(points, &others)
+}
+
+/// [`neighbour_planes`] with each point's nearest others given
+/// ([`Cloud`]'s rows).
+fn planes_of(points: &[Vec3], others: &[u32]) -> Vec<(f32, Vec3)> {
+    points
+        .par_iter()
+        .zip(others.par_chunks(OTHERS))
+        .map(|(&p, row)| {
+            let near: Vec<Vec3> = row.iter().map(|&j| points[j as usize]).collect();
             let mean = near.iter().sum::<Vec3>() / near.len().max(1) as f32;
             let normal = svd3(covariance(near.iter().copied(), mean)).u.z_axis;
             (normal.dot(p - mean), normal)
@@ -485,6 +520,20 @@ mod tests {
     /// ring faces: turned away from the centroid, a third of its normals
     /// would point inward. Turned alike from the point farthest from the
     /// centre, every one points outward, from either centre given.
+    /// The planes fitted to each point's nearest others that the cloud
+    /// keeps are the ones a search of its own finds, copies of a point
+    /// included (each copy's others are the rest of them first).
+    #[test]
+    fn a_clouds_kept_neighbours_are_its_points_nearest_others() {
+        let mut points = cap(2.0, 0.3);
+        let copied = points[40];
+        points.extend([copied; 13]);
+        let cloud = Cloud::new(points.clone()).unwrap();
+        assert_eq!(planes_of(&points, &cloud.others), neighbour_planes(&points));
+        let oriented = cloud.clone().oriented_from(Vec3::ZERO);
+        assert_eq!(oriented.others, cloud.others);
+    }
+
     #[test]
     fn the_normals_of_a_bent_cloud_are_turned_alike() {
         let (points, outward) = torus(2.0);
