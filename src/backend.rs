@@ -355,6 +355,12 @@ impl BoundPoints {
     pub fn carriers(&self) -> &[Vec<(u32, f32)>] {
         &self.embedding.carriers
     }
+
+    /// The points bound to the reference positions, device aside (for
+    /// [`Solver::bind_embedded`]).
+    pub fn embedding(&self) -> &Embedding {
+        &self.embedding
+    }
 }
 
 impl Solver {
@@ -693,7 +699,17 @@ impl Solver {
     /// and on the GPU, where the reference is the rest shape, uploads the
     /// binding.
     pub fn bind(&self, points: &[Vec3]) -> Result<BoundPoints, Error> {
-        let embedding = Embedding::new(self.reference(), points);
+        self.bind_embedded(Embedding::new(self.reference(), points))
+    }
+
+    /// [`Solver::bind`] of points already bound to this solver's reference
+    /// positions ([`BoundPoints::embedding`] of an earlier binding): for a
+    /// sequence that carries the same points after every solve.
+    ///
+    /// # Errors
+    ///
+    /// As [`Solver::bind`].
+    pub fn bind_embedded(&self, embedding: Embedding) -> Result<BoundPoints, Error> {
         let gpu = match self.tracker.device() {
             SolverDevice::Gpu(gpu) if self.reference.is_none() => Some(
                 GpuEmbedding::new(

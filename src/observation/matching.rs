@@ -5,6 +5,7 @@ use std::collections::BTreeSet;
 
 use rayon::prelude::*;
 use tissue_core::ParamError;
+use tissue_cpu::model::Embedding;
 use tissue_solve::stage2::{
     CLOUD_SMOOTHING, ENERGY_ROUNDING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT,
     pair_plane, paired_point, paired_spring, predict_paired,
@@ -342,13 +343,15 @@ pub fn match_observation_held(
         .collect();
     observation.check_against(&model.surface, solver.params().observed.as_deref(), spacing)?;
     let made;
-    let held = match held {
-        Some(region) if region.controls == plan.controls => region.field.as_ref(),
-        _ => {
+    let region = held.filter(|region| region.made_for(solver));
+    let held = match region {
+        Some(region) => region.field.as_ref(),
+        None => {
             made = held_field(model, &plan.controls)?;
             made.as_ref()
         }
     };
+    let bound_surface = region.map(|region| region.surface.clone());
     let field = observation.pairing_field(
         held,
         HELD_REACH * spacing,
@@ -491,7 +494,10 @@ pub fn match_observation_held(
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
     clear(solver)?;
-    let bound = solver.bind(&model.surface.vertices)?;
+    let bound = match bound_surface {
+        Some(embedding) => solver.bind_embedded(embedding)?,
+        None => solver.bind(&model.surface.vertices)?,
+    };
     let mut surface = SurfaceMesh {
         vertices: solver.carry(&bound)?,
         ..model.surface.clone()
@@ -565,18 +571,23 @@ fn clear(solver: &mut Solver) -> Result<(), Error> {
     solver.set_observation(None)
 }
 
-/// The field of the model's held region at rest (the surface triangles of
-/// its control points), or `None` where nothing is held.
 /// The model's held region as a match pairs around it (the field of its
 /// surface triangles that hold control points), made once for a sequence
 /// of matches of one solver ([`match_observation_held`]: `tissue track`'s
 /// frames) instead of at every match.
+/// It also holds the model's surface bound to the solver's particles, which
+/// every match carries to its answer; a match made with another solver's
+/// control points or reference positions makes both again.
 #[derive(Debug, Clone)]
 pub struct HeldRegion {
     /// The control points it was made for.
     controls: Vec<bool>,
     /// Its field; `None` without a held region.
     field: Option<SurfaceField>,
+    /// The positions the surface was bound at (the solver's reference).
+    reference: Vec<Vec3>,
+    /// The model's surface vertices bound to the particles there.
+    surface: Embedding,
 }
 
 impl HeldRegion {
@@ -584,14 +595,27 @@ impl HeldRegion {
     ///
     /// # Errors
     ///
-    /// Where the held triangles' field cannot be made.
+    /// Where the held triangles' field cannot be made, or the surface not
+    /// bound on the solver's device.
     pub fn of(solver: &Solver, model: &ParticleModel) -> Result<Self, Error> {
         let controls = solver.plan().controls.clone();
         let field = held_field(model, &controls)?;
-        Ok(Self { controls, field })
+        Ok(Self {
+            controls,
+            field,
+            reference: solver.reference().to_vec(),
+            surface: solver.bind(&model.surface.vertices)?.embedding().clone(),
+        })
+    }
+
+    /// Whether it was made for `solver`'s control points and reference.
+    fn made_for(&self, solver: &Solver) -> bool {
+        self.controls == solver.plan().controls && self.reference == solver.reference()
     }
 }
 
+/// The field of the model's held region at rest (the surface triangles of
+/// its control points), or `None` where nothing is held.
 fn held_field(model: &ParticleModel, controls: &[bool]) -> Result<Option<SurfaceField>, Error> {
     let triangles: BTreeSet<[u32; 3]> = (0..model.len())
         .filter(|&i| controls[i])
