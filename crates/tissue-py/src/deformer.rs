@@ -194,11 +194,14 @@ impl Deformer {
     /// times the noise, warns (RuntimeWarning). `from_last=True` starts
     /// from where the deformer is (the last match's answer: a sequence's
     /// next frame, as `tissue track` matches it) in one solve at full
-    /// weight, rather than from the start in four growing ones.
+    /// weight, rather than from the start in four growing ones; with
+    /// `predict` (the default) it starts where the last matches' changes
+    /// put the skin on the observation, where that lowers the potential.
     /// `surface_smoothing`: how a surface is paired, in its mean edges
     /// (default 1: the plane smoothed over its vertices; 0: the nearest
     /// point and the distance's curvature there).
-    #[pyo3(signature = (surface = None, cloud = None, noise = None, from_last = false, surface_smoothing = None))]
+    #[pyo3(signature = (surface = None, cloud = None, noise = None, from_last = false, surface_smoothing = None, predict = true))]
+    #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn match_observation(
         &mut self,
         py: Python<'_>,
@@ -207,6 +210,7 @@ impl Deformer {
         noise: Option<f32>,
         from_last: bool,
         surface_smoothing: Option<f32>,
+        predict: bool,
     ) -> PyResult<Py<PyAny>> {
         let observation = match (surface, cloud) {
             (Some(surface), None) => crate::observation::other_surface_of(surface)?.1,
@@ -235,6 +239,7 @@ impl Deformer {
         };
         let params = MatchParams {
             surface_smoothing: surface_smoothing.unwrap_or(params.surface_smoothing),
+            predict,
             ..params
         };
         let report = py

@@ -639,6 +639,10 @@ def test_the_skin_is_matched_to_a_surface_and_a_scan_without_correspondence():
     assert again["converged"] and again["stages"] == 1
     assert again["iterations"] < scan["iterations"]
     assert again["residual_rms"] < 2e-3 * size
+    # Nothing moved since: started at the last answer, predicted or not.
+    plain = deformer.match_observation(cloud=front, from_last=True, predict=False)
+    assert plain["converged"] and plain["stages"] == 1
+    assert plain["iterations"] < scan["iterations"]
     with pytest.raises(tissue.TissueError, match="one of the two"):
         deformer.match_observation()
     # Paired with the nearest point instead of the smoothed plane.

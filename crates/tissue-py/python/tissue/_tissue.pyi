@@ -120,5 +120,6 @@ class Deformer:
         noise: Optional[float] = None,
         from_last: bool = False,
         surface_smoothing: Optional[float] = None,
+        predict: bool = True,
     ) -> dict[str, Any]: ...
     def reset(self) -> None: ...
