@@ -534,6 +534,9 @@ pub fn match_observation_held(
 /// ([`ENERGY_ROUNDING`] of its parts' magnitude, so that every device
 /// decides alike); otherwise from `start`, where the solver starts now.
 fn predict_if_lower(solver: &mut Solver, start: &[Vec3], predicted: &[Vec3]) -> Result<(), Error> {
+    if !predicted.iter().all(|p| p.is_finite()) {
+        return Ok(());
+    }
     let Some(at_start) = solver.potential_parts()? else {
         return Ok(());
     };
