@@ -226,8 +226,9 @@ pub fn predict_paired(
     for _ in 0..rounds.max(1) {
         let springs = pairing.springs(field, &at);
         // The normal equations `G beta = r` in the springs' norm, over the
-        // paired skin.
-        let (gram, right) = pairing
+        // paired skin: each particle's part made in parallel, summed in
+        // index order (the same `beta` whatever the threads).
+        let parts: Vec<(Vec<f64>, Vec<f64>)> = pairing
             .skin
             .par_iter()
             .map(|&i| {
@@ -251,14 +252,13 @@ pub fn predict_paired(
                 }
                 (gram, right)
             })
-            .reduce(
-                || (vec![0.0; count * count], vec![0.0; count]),
-                |(mut g, mut r), (g2, r2)| {
-                    g.iter_mut().zip(g2).for_each(|(a, b)| *a += b);
-                    r.iter_mut().zip(r2).for_each(|(a, b)| *a += b);
-                    (g, r)
-                },
-            );
+            .collect();
+        let mut gram = vec![0.0; count * count];
+        let mut right = vec![0.0; count];
+        for (g, r) in &parts {
+            gram.iter_mut().zip(g).for_each(|(a, b)| *a += b);
+            right.iter_mut().zip(r).for_each(|(a, b)| *a += b);
+        }
         let beta = solve_gram(&gram, &right, count, 1e-4)?;
         at = moved(&beta);
         fitted = Some(beta);
