@@ -598,8 +598,7 @@ impl HeldRegion {
     ///
     /// # Errors
     ///
-    /// Where the held triangles' field cannot be made, or the surface not
-    /// bound on the solver's device.
+    /// Where the held triangles' field cannot be made.
     pub fn of(solver: &Solver, model: &ParticleModel) -> Result<Self, Error> {
         let controls = solver.plan().controls.clone();
         let field = held_field(model, &controls)?;
@@ -607,7 +606,7 @@ impl HeldRegion {
             controls,
             field,
             reference: solver.reference().to_vec(),
-            surface: solver.bind(&model.surface.vertices)?.embedding().clone(),
+            surface: Embedding::new(solver.reference(), &model.surface.vertices),
         })
     }
 

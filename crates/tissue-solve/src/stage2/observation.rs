@@ -361,15 +361,15 @@ fn turned_alike(
     centre: Vec3,
 ) -> Vec<Vec3> {
     let count = points.len();
-    let near: Vec<Vec<usize>> = others
+    // Both ways: a point is joined to its nearest others, then to the
+    // points it is among the nearest of.
+    let mut joined: Vec<Vec<usize>> = others
         .chunks(OTHERS)
         .map(|row| row.iter().map(|&j| j as usize).collect())
         .collect();
-    // Both ways: a point is joined to the points it is among the nearest of.
-    let mut joined: Vec<Vec<usize>> = near.clone();
-    for (i, row) in near.iter().enumerate() {
+    for (i, row) in others.chunks(OTHERS).enumerate() {
         for &j in row {
-            joined[j].push(i);
+            joined[j as usize].push(i);
         }
     }
     let cost = |i: usize, j: usize, normals: &[Vec3]| -> f32 {
