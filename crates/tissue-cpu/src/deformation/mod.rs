@@ -25,7 +25,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{Mat3, Vec3};
+use glam::{DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
 use tissue_core::{Connections, Error, ParticleModel, SurfaceMesh};
@@ -498,6 +498,37 @@ impl CpuSolve {
         work.measured
     }
 
+    /// At the current positions, left where they are, the smoothed elastic
+    /// phase's residual `r = (f + b) / 2` and its two-level step (smoothed
+    /// and corrected, undamped): a preconditioned direction of descent
+    /// for a method that searches along it (`examples/ncg_trial.rs`).
+    /// `None` outside an elastic phase that smooths with the volume
+    /// smoother. The warm rotations and terms are those of the current
+    /// positions afterwards, as after an iteration.
+    pub fn residual_and_step(&mut self) -> Option<(Vec<Vec3>, Vec<Vec3>)> {
+        let mut it = self
+            .iteration
+            .filter(|it| it.force == ForceModel::Elastic)?;
+        it.damping = 1.0;
+        let mut work = Work::default();
+        for pass in Choices::of_iteration(&it, self.holds()).passes() {
+            if !matches!(pass, Pass::StepNorms | Pass::Combine | Pass::UpdateNorms) {
+                self.run_pass(pass, it, 1.0, &mut work);
+            }
+        }
+        if work.residual.is_empty() {
+            return None;
+        }
+        let step = work
+            .plain
+            .iter()
+            .zip(&self.current)
+            .map(|(&next, &now)| next - now)
+            .collect();
+        let residual = work.residual.iter().map(|r| r.as_vec3()).collect();
+        Some((residual, step))
+    }
+
     /// The springs an iteration with `it` applies: the pulls with the
     /// elastic force, none with the others (whose corrections are made
     /// for the Laplacian without them).
@@ -599,7 +630,9 @@ impl CpuSolve {
                         let damping = f64::from(it.damping);
                         residual.par_iter_mut().for_each(|r| *r *= damping);
                     }
-                    c.smoothed_step(aggregates, &self.connections, &residual)
+                    let step = c.smoothed_step(aggregates, &self.connections, &residual);
+                    work.residual = residual;
+                    step
                 });
                 work.plain = match step {
                     Some(step) => self
@@ -667,6 +700,9 @@ struct Work {
     next: Option<Vec<Vec3>>,
     /// The largest and RMS step the stopping rule measures.
     measured: (f32, f32),
+    /// The smoothed step's residual `(f + b) / 2` (empty where the
+    /// iteration has none).
+    residual: Vec<DVec3>,
 }
 
 /// The clock of a timed iteration: each lap's seconds to `clock`; off, no
@@ -696,5 +732,70 @@ impl<'a> Laps<'a> {
             clock(pass, since.elapsed().as_secs_f64());
             *since = Instant::now();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+    use super::*;
+    use tissue_core::deform::sagged_breast;
+    use tissue_core::{SamplingParams, phantom};
+
+    /// The residual and step a descent method reads are those of an
+    /// undamped iteration at the current positions, which stay where they
+    /// were; outside an elastic phase there are none.
+    #[test]
+    fn the_residual_and_step_are_an_undamped_iterations_at_the_current_positions() {
+        let model = crate::sampling::sample(
+            &phantom::default_breast(),
+            &SamplingParams::with_particles(1_500),
+            &mut |_| {},
+        )
+        .unwrap()
+        .model;
+        let mut tracker = Tracker::new(&model, DeformParams::default(), |plan, params| {
+            Ok::<_, Error>(CpuSolve::new(&model, plan, params))
+        })
+        .unwrap();
+        assert!(tracker.device_mut().residual_and_step().is_none());
+        tracker.set_surface::<Error>(&sagged_breast()).unwrap();
+        let Ok(report) = tracker.solve();
+        assert!(report.converged, "{report:?}");
+        let solve = tracker.device_mut();
+        assert!(solve.elastic_smoothed());
+        // Off the answer, where the step is not small.
+        let moved: Vec<Vec3> = solve
+            .current
+            .iter()
+            .zip(&solve.free)
+            .map(|(&p, &free)| {
+                if free {
+                    p + Vec3::new(0.3, -0.2, 0.1)
+                } else {
+                    p
+                }
+            })
+            .collect();
+        let Ok(()) = solve.write_positions(&moved, None);
+        // The iteration compared with starts from the same warm rotations.
+        let rotations = solve.rotations.clone();
+        let (residual, step) = solve.residual_and_step().unwrap();
+        assert_eq!(solve.current, moved);
+        assert_eq!((residual.len(), step.len()), (moved.len(), moved.len()));
+        let largest = step.iter().map(|s| s.length()).fold(0.0, f32::max);
+        assert!(largest > 0.05, "step {largest}");
+        solve.rotations = rotations;
+        let Ok(_) = solve.run(&[1.0]);
+        let off = moved
+            .iter()
+            .zip(&step)
+            .zip(&solve.current)
+            .map(|((&p, &s), &q)| (p + s).distance(q))
+            .fold(0.0, f32::max);
+        assert!(
+            off < 1e-5 * largest.max(1.0),
+            "{off} from the iteration's step"
+        );
     }
 }
