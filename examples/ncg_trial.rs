@@ -17,16 +17,21 @@
 //! potential by at least `1e-4 t (2 r . d)` (Armijo). Every accepted step
 //! lowers the potential; nothing is linearised again.
 //!
-//! Printed per case (the bench's sag and indentation, and its 16 probes):
+//! Printed per case (the bench's sag and indentation, its 16 probes, and
+//! any shared case given):
 //! the solver's iterations (elastic ones in brackets), retries and steps
 //! back; the conjugate gradient's iterations until its step is below a
 //! tenth of the tolerance, and until it lies within the tolerance of the
 //! solver's answer; its potential measurements; and its final potential
 //! less the solver's.
 //!
-//! `cargo run --release --example ncg_trial [particles] [--no-conjugacy]`
+//! `cargo run --release --example ncg_trial [particles] [CASE_DIR...] [--no-conjugacy]`
+//! (a case folder holds `rest.obj` and `deformed.obj`, as
+//! `../shared/cases/breast_c` does: its deformed surface with
+//! correspondence).
 
 use std::convert::Infallible;
+use std::path::PathBuf;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::coarse::SharedLaplacian;
@@ -34,7 +39,7 @@ use tissue::advanced::stage2::{Iteration, Pairing, Plan, Potential, SolveDevice,
 use tissue::deform::{Indentation, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::field::SurfaceField;
-use tissue::{SamplingParams, SurfaceMesh, phantom};
+use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::CpuSolve;
 
 /// The CPU's solve, keeping the state where the first elastic phase of
@@ -259,58 +264,72 @@ fn largest_distance(a: &[Vec3], b: &[Vec3]) -> f32 {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
+    let args: Vec<String> = std::env::args().skip(1).collect();
     let particles = args
-        .next()
+        .first()
         .and_then(|t| t.parse().ok())
         .unwrap_or(10_000usize);
-    let conjugacy = !std::env::args().any(|a| a == "--no-conjugacy");
-    let model = tissue::sample(
-        &phantom::default_breast(),
-        &SamplingParams::with_particles(particles),
-    )?
-    .model;
-    let (low, high) = model
-        .positions
+    let conjugacy = !args.iter().any(|a| a == "--no-conjugacy");
+    let case_dirs: Vec<PathBuf> = args
         .iter()
-        .fold((Vec3::MAX, Vec3::MIN), |(l, h), &p| (l.min(p), h.max(p)));
-    let size = (high - low).length();
-    let mut cases: Vec<(String, SurfaceMesh)> = vec![
-        ("sag 12 mm".into(), sagged_breast()),
-        ("indentation 8 mm".into(), indented_breast()),
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .map(PathBuf::from)
+        .collect();
+    let sampling = SamplingParams::with_particles(particles);
+    let model = tissue::sample(&phantom::default_breast(), &sampling)?.model;
+    let mut cases: Vec<(String, ParticleModel, SurfaceMesh)> = vec![
+        ("sag 12 mm".into(), model.clone(), sagged_breast()),
+        ("indentation 8 mm".into(), model.clone(), indented_breast()),
     ];
     for depth in [15.0, 20.0, 25.0, 30.0] {
         for width in [8.0, 15.0, 25.0, 35.0] {
             if let Some(probe) = Indentation::down_at_top(&model.surface, depth, width) {
                 cases.push((
                     format!("probe {depth} x {width} mm"),
+                    model.clone(),
                     deform_surface(&model.surface, &probe),
                 ));
             }
         }
     }
+    // Shared cases: the deformed surface with correspondence.
+    for dir in &case_dirs {
+        let rest = tissue::load_surface(&dir.join("rest.obj"))?;
+        let case_model = tissue::sample(&rest, &sampling)?.model;
+        let deformed = tissue::load_surface_as_written(&dir.join("deformed.obj"))?
+            .as_frame_of(&case_model.surface, false);
+        let name = dir
+            .file_name()
+            .map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into());
+        cases.push((name, case_model, deformed));
+    }
     // From rest, the solver alone, as the bench solves it.
     let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
-    let tolerance = params.tolerance * size;
-    let tracker = || {
-        Tracker::new(&model, params.clone(), |plan, params| {
-            Ok::<_, tissue::Error>(Captured {
-                solve: CpuSolve::new(&model, plan, params),
-                start: None,
-                force: None,
-                elastic_iterations: 0,
-            })
-        })
-    };
-    let (mut solver, mut trial) = (tracker()?, tracker()?);
     println!(
         "| case | solver: iterations (elastic) | retries | steps back | conjugate gradient: \
          iterations | within the tolerance of the solver's answer | potential measurements | \
          potential less the solver's |"
     );
     println!("|---|---|---|---|---|---|---|---|");
-    for (name, surface) in &cases {
-        let Ok(()) = solver.reset();
+    for (name, model, surface) in &cases {
+        let (low, high) = model
+            .positions
+            .iter()
+            .fold((Vec3::MAX, Vec3::MIN), |(l, h), &p| (l.min(p), h.max(p)));
+        let size = (high - low).length();
+        let tolerance = params.tolerance * size;
+        let tracker = || {
+            Tracker::new(model, params.clone(), |plan, params| {
+                Ok::<_, tissue::Error>(Captured {
+                    solve: CpuSolve::new(model, plan, params),
+                    start: None,
+                    force: None,
+                    elastic_iterations: 0,
+                })
+            })
+        };
+        let (mut solver, mut trial) = (tracker()?, tracker()?);
         solver.set_surface::<tissue::Error>(surface)?;
         let Ok(report) = solver.solve();
         let Ok(answer) = solver.device_mut().read_positions();
