@@ -233,6 +233,11 @@ fn descend(
             phi_t = potential_at(solve, &along(t));
             measurements += 1;
         }
+        if phi_t > phi - 1e-4 * f64::from(t) * slope {
+            // No step along `d` lowers the potential enough: stopped
+            // where it is, not converged.
+            break;
+        }
         let largest = d.iter().map(|d| (*d * t).length()).fold(0.0, f32::max);
         x = along(t);
         phi = phi_t;
