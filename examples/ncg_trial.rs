@@ -17,8 +17,9 @@
 //! potential by at least `1e-4 t (2 r . d)` (Armijo). Every accepted step
 //! lowers the potential; nothing is linearised again.
 //!
-//! Printed per case (the bench's sag and indentation, its 16 probes, and
-//! any shared case given):
+//! Printed per case (the bench's sag and indentation, its 16 probes, any
+//! shared case given, and the phantom hanging under its weight with its
+//! chest wall held):
 //! the solver's iterations (elastic ones in brackets), retries and steps
 //! back; the conjugate gradient's iterations until its step is below a
 //! tenth of the tolerance, and until it lies within the tolerance of the
@@ -35,6 +36,7 @@ use std::path::PathBuf;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::coarse::SharedLaplacian;
+use tissue::advanced::model::gravity_load;
 use tissue::advanced::stage2::{Iteration, Pairing, Plan, Potential, SolveDevice, Spring, Tracker};
 use tissue::deform::{Indentation, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, ForceModel};
@@ -283,9 +285,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     let sampling = SamplingParams::with_particles(particles);
     let model = tissue::sample(&phantom::default_breast(), &sampling)?.model;
-    let mut cases: Vec<(String, ParticleModel, SurfaceMesh)> = vec![
-        ("sag 12 mm".into(), model.clone(), sagged_breast()),
-        ("indentation 8 mm".into(), model.clone(), indented_breast()),
+    // From rest, the solver alone, as the bench solves it.
+    let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
+    let mut cases: Vec<(String, ParticleModel, SurfaceMesh, DeformParams)> = vec![
+        (
+            "sag 12 mm".into(),
+            model.clone(),
+            sagged_breast(),
+            params.clone(),
+        ),
+        (
+            "indentation 8 mm".into(),
+            model.clone(),
+            indented_breast(),
+            params.clone(),
+        ),
     ];
     for depth in [15.0, 20.0, 25.0, 30.0] {
         for width in [8.0, 15.0, 25.0, 35.0] {
@@ -294,6 +308,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     format!("probe {depth} x {width} mm"),
                     model.clone(),
                     deform_surface(&model.surface, &probe),
+                    params.clone(),
                 ));
             }
         }
@@ -307,17 +322,40 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let name = dir
             .file_name()
             .map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into());
-        cases.push((name, case_model, deformed));
+        cases.push((name, case_model, deformed, params.clone()));
     }
-    // From rest, the solver alone, as the bench solves it.
-    let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
+    // The phantom's skin free, its chest wall held (the rest vertices on
+    // z = 0), hanging under its weight (2 kPa, 1,000 kg/m^3) towards its
+    // feet, its back and its side: the posture's forward solves.
+    let held: Vec<bool> = model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z.abs() < 1e-3)
+        .collect();
+    for (towards, gravity) in [
+        ("the feet", Vec3::NEG_Y),
+        ("the back", Vec3::NEG_Z),
+        ("the side", Vec3::X),
+    ] {
+        let load = gravity_load(gravity, 1000.0, 2.0, params.poisson, 1e-3)?;
+        cases.push((
+            format!("hanging towards {towards}"),
+            model.clone(),
+            model.surface.clone(),
+            params.clone().with(|p| {
+                p.observed = Some(held.clone());
+                p.load = load;
+            }),
+        ));
+    }
     println!(
         "| case | solver: iterations (elastic) | retries | steps back | conjugate gradient: \
          iterations | within the tolerance of the solver's answer | potential measurements | \
          potential less the solver's |"
     );
     println!("|---|---|---|---|---|---|---|---|");
-    for (name, model, surface) in &cases {
+    for (name, model, surface, params) in &cases {
         let (low, high) = model
             .positions
             .iter()
