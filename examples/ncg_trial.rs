@@ -23,8 +23,9 @@
 //! the solver's iterations (elastic ones in brackets), retries and steps
 //! back; the conjugate gradient's iterations until its step is below a
 //! tenth of the tolerance, and until it lies within the tolerance of the
-//! solver's answer; its potential measurements; and its final potential
-//! less the solver's.
+//! solver's answer; its potential measurements; its final potential
+//! less the solver's; and how many particles each answer turned inside
+//! out.
 //!
 //! `cargo run --release --example ncg_trial [particles] [CASE_DIR...] [--no-conjugacy]`
 //! (a case folder holds `rest.obj` and `deformed.obj`, as
@@ -39,7 +40,7 @@ use tissue::advanced::coarse::SharedLaplacian;
 use tissue::advanced::model::gravity_load;
 use tissue::advanced::stage2::{Iteration, Pairing, Plan, Potential, SolveDevice, Spring, Tracker};
 use tissue::deform::{Indentation, deform_surface, indented_breast, sagged_breast};
-use tissue::deformation::{DeformParams, ForceModel};
+use tissue::deformation::{DeformParams, ForceModel, inversions};
 use tissue::field::SurfaceField;
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 use tissue_cpu::deformation::CpuSolve;
@@ -352,9 +353,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "| case | solver: iterations (elastic) | retries | steps back | conjugate gradient: \
          iterations | within the tolerance of the solver's answer | potential measurements | \
-         potential less the solver's |"
+         potential less the solver's | inverted particles (solver, conjugate gradient) |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for (name, model, surface, params) in &cases {
         let (low, high) = model
             .positions
@@ -390,7 +391,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             conjugacy,
         );
         println!(
-            "| {name} | {} ({}) | {} | {} | {}{} | {} | {} | {:.2e} (answers {:.1e} of the size apart) |",
+            "| {name} | {} ({}) | {} | {} | {}{} | {} | {} | {:.2e} (answers {:.1e} of the size apart) | {}, {} |",
             report.iterations,
             solver.device().elastic_iterations,
             report.elastic_retries,
@@ -405,6 +406,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             descent.measurements,
             descent.potential - reached.value,
             largest_distance(&descent.positions, &answer) / size,
+            inversions(&model.positions, &answer, &model.connections).count,
+            inversions(&model.positions, &descent.positions, &model.connections).count,
         );
     }
     Ok(())
