@@ -27,7 +27,9 @@
 //! less the solver's; and how many particles each answer turned inside
 //! out.
 //!
-//! `cargo run --release --example ncg_trial [particles] [CASE_DIR...] [--no-conjugacy]`
+//! `cargo run --release --example ncg_trial [particles] [CASE_DIR...]
+//! [--no-conjugacy] [--relinearise-every N] [--only TEXT]` (`--only`: the
+//! cases whose name holds `TEXT`)
 //! (a case folder holds `rest.obj` and `deformed.obj`, as
 //! `../shared/cases/breast_c` does: its deformed surface with
 //! correspondence).
@@ -179,6 +181,17 @@ struct Descent {
     within: Option<usize>,
 }
 
+/// How the descent runs.
+#[derive(Clone, Copy)]
+struct Options {
+    /// Polak-Ribiere directions (without: steepest descent in the
+    /// two-level step's metric).
+    conjugacy: bool,
+    /// Every this many iterations the correction is made again at the
+    /// current state and the directions start afresh (0: never).
+    relinearise_every: usize,
+}
+
 /// The conjugate gradient (or, without `conjugacy`, steepest descent in
 /// the two-level step's metric) from `start`, until its largest step is
 /// below a tenth of `tolerance` (at most 1,000 iterations).
@@ -187,7 +200,7 @@ fn descend(
     start: &(Vec<Vec3>, Vec<Mat3>, Iteration),
     answer: &[Vec3],
     tolerance: f32,
-    conjugacy: bool,
+    options: Options,
 ) -> Descent {
     let (positions, rotations, iteration) = start;
     let Ok(()) = solve.write_positions(positions, None);
@@ -205,7 +218,7 @@ fn descend(
         };
         let rz = dot(&r, &z);
         let mut d = z.clone();
-        if let (true, Some((d_last, r_last, rz_last))) = (conjugacy, &last) {
+        if let (true, Some((d_last, r_last, rz_last))) = (options.conjugacy, &last) {
             let change: Vec<Vec3> = r.iter().zip(r_last).map(|(a, b)| *a - *b).collect();
             let beta = (dot(&z, &change) / rz_last).max(0.0) as f32;
             for (d, d_last) in d.iter_mut().zip(d_last) {
@@ -246,6 +259,14 @@ fn descend(
         phi = phi_t;
         iterations += 1;
         last = Some((d, r, rz));
+        if options.relinearise_every > 0 && iterations % options.relinearise_every == 0 {
+            let Ok(()) = solve.write_positions(&x, None);
+            let Ok(()) = solve.begin(Iteration {
+                relinearise: true,
+                ..*iteration
+            });
+            last = None;
+        }
         if within.is_none() && largest_distance(&x, answer) < tolerance {
             within = Some(iterations);
         }
@@ -277,12 +298,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .first()
         .and_then(|t| t.parse().ok())
         .unwrap_or(10_000usize);
-    let conjugacy = !args.iter().any(|a| a == "--no-conjugacy");
+    let options = Options {
+        conjugacy: !args.iter().any(|a| a == "--no-conjugacy"),
+        relinearise_every: args
+            .iter()
+            .position(|a| a == "--relinearise-every")
+            .and_then(|k| args.get(k + 1))
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0),
+    };
+    let only: Option<&String> = args
+        .iter()
+        .position(|a| a == "--only")
+        .and_then(|k| args.get(k + 1));
+    // Folders: the arguments after the particles that are neither options
+    // nor their values.
     let case_dirs: Vec<PathBuf> = args
         .iter()
+        .enumerate()
         .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .map(PathBuf::from)
+        .filter(|&(k, a)| {
+            !a.starts_with("--")
+                && !args[k - 1].starts_with("--relinearise")
+                && args[k - 1] != "--only"
+        })
+        .map(|(_, a)| PathBuf::from(a))
         .collect();
     let sampling = SamplingParams::with_particles(particles);
     let model = tissue::sample(&phantom::default_breast(), &sampling)?.model;
@@ -357,6 +397,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     println!("|---|---|---|---|---|---|---|---|---|");
     for (name, model, surface, params) in &cases {
+        if only.is_some_and(|only| !name.contains(only.as_str())) {
+            continue;
+        }
         let (low, high) = model
             .positions
             .iter()
@@ -388,7 +431,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             &start,
             &answer,
             tolerance,
-            conjugacy,
+            options,
         );
         println!(
             "| {name} | {} ({}) | {} | {} | {}{} | {} | {} | {:.2e} (answers {:.1e} of the size apart) | {}, {} |",
