@@ -700,8 +700,8 @@ struct Work {
     next: Option<Vec<Vec3>>,
     /// The largest and RMS step the stopping rule measures.
     measured: (f32, f32),
-    /// The smoothed step's residual `(f + b) / 2` (empty where the
-    /// iteration has none).
+    /// The residual the smoothed step read, `(f + b) / 2` scaled by the
+    /// iteration's damping (empty where the iteration has none).
     residual: Vec<DVec3>,
 }
 
