@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use glam::{Mat3, Vec3};
 use tissue::advanced::coarse::SharedLaplacian;
-use tissue::advanced::stage2::{Iteration, Plan, Potential, SolveDevice, Tracker};
+use tissue::advanced::stage2::{DescentDots, Iteration, Plan, Potential, SolveDevice, Tracker};
 use tissue::deform::{Indentation, Rigid, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, DeformReport, ForceModel};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
@@ -139,6 +139,18 @@ impl SolveDevice for Watched {
 
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.solve.potential()
+    }
+
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, Infallible> {
+        self.solve.descent_residual()
+    }
+
+    fn descent_direction(&mut self, beta: f32) -> Result<(), Infallible> {
+        self.solve.descent_direction(beta)
+    }
+
+    fn descent_move(&mut self, t: f32) -> Result<(), Infallible> {
+        self.solve.descent_move(t)
     }
 
     fn save(&mut self) -> Result<(), Infallible> {

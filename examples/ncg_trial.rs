@@ -40,7 +40,9 @@ use std::path::PathBuf;
 use glam::{Mat3, Vec3};
 use tissue::advanced::coarse::SharedLaplacian;
 use tissue::advanced::model::gravity_load;
-use tissue::advanced::stage2::{Iteration, Pairing, Plan, Potential, SolveDevice, Spring, Tracker};
+use tissue::advanced::stage2::{
+    DescentDots, Iteration, Pairing, Plan, Potential, SolveDevice, Spring, Tracker,
+};
 use tissue::deform::{Indentation, deform_surface, indented_breast, sagged_breast};
 use tissue::deformation::{DeformParams, ForceModel, inversions};
 use tissue::field::SurfaceField;
@@ -144,6 +146,18 @@ impl SolveDevice for Captured {
 
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.solve.potential()
+    }
+
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, Infallible> {
+        self.solve.descent_residual()
+    }
+
+    fn descent_direction(&mut self, beta: f32) -> Result<(), Infallible> {
+        self.solve.descent_direction(beta)
+    }
+
+    fn descent_move(&mut self, t: f32) -> Result<(), Infallible> {
+        self.solve.descent_move(t)
     }
 
     fn save(&mut self) -> Result<(), Infallible> {

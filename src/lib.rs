@@ -62,8 +62,8 @@ pub mod uncertainty;
 pub mod deformation {
     pub use tissue_cpu::deformation::{Deformer, SharedLaplacian};
     pub use tissue_solve::{
-        DeformParams, DeformReport, ForceModel, Inversions, PrepareStage, RotationMethod,
-        SolveStep, SolverTuning, StopReason, check_same_topology, inversions,
+        DeformParams, DeformReport, ElasticSolve, ForceModel, Inversions, PrepareStage,
+        RotationMethod, SolveStep, SolverTuning, StopReason, check_same_topology, inversions,
     };
 }
 

@@ -6,7 +6,7 @@ use tissue_core::Error;
 use tissue_core::field::SurfaceField;
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_gpu::GpuSolve;
-use tissue_solve::stage2::{Pairing, Potential, Spring};
+use tissue_solve::stage2::{DescentDots, Pairing, Potential, Spring};
 use tissue_solve::{Iteration, Plan, SolveDevice};
 
 use super::{SolverDevice, infallible};
@@ -106,6 +106,27 @@ impl SolveDevice for SolverDevice {
         match self {
             Self::Cpu(cpu) => infallible(cpu.potential()),
             Self::Gpu(gpu) => gpu.on("measuring the potential", GpuSolve::potential),
+        }
+    }
+
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.descent_residual()),
+            Self::Gpu(gpu) => gpu.on("stage 2", SolveDevice::descent_residual),
+        }
+    }
+
+    fn descent_direction(&mut self, beta: f32) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.descent_direction(beta)),
+            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.descent_direction(beta)),
+        }
+    }
+
+    fn descent_move(&mut self, t: f32) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.descent_move(t)),
+            Self::Gpu(gpu) => gpu.on("stage 2", |g| g.descent_move(t)),
         }
     }
 

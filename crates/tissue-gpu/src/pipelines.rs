@@ -138,11 +138,21 @@ pub enum Kernel {
     /// observation's plane at its nearest point (one thread a paired
     /// particle, its dispatch set with the pairing).
     Pair,
+    /// `descent.wgsl::descent_dots`: per particle the conjugate-gradient
+    /// phase's residual and its dot products' parts (after an iteration's
+    /// passes up to its combine; in no iteration).
+    DescentDots,
+    /// `descent.wgsl::descent_direction`: per particle the new direction,
+    /// and the line search's base.
+    DescentDirection,
+    /// `descent.wgsl::descent_move`: per particle the base moved along the
+    /// direction.
+    DescentMove,
 }
 
 impl Kernel {
     /// Every kernel, in the order of the state's per-kernel tables.
-    pub const ALL: [Kernel; 45] = [
+    pub const ALL: [Kernel; 48] = [
         Kernel::LocalRotations,
         Kernel::LocalRotationsWarm,
         Kernel::TurnRotations,
@@ -188,6 +198,9 @@ impl Kernel {
         Kernel::BlockGroupBackward,
         Kernel::BlockCycleProlong,
         Kernel::Pair,
+        Kernel::DescentDots,
+        Kernel::DescentDirection,
+        Kernel::DescentMove,
     ];
 
     /// The kernels that run `pass`, in order, appended to `out`.
@@ -317,6 +330,9 @@ impl Kernel {
             Kernel::BlockGroupBackward => ("coarse_elastic", "elastic_backward"),
             Kernel::BlockCycleProlong => ("block_multilevel", "block_cycle_prolong"),
             Kernel::Pair => ("pair", "pair"),
+            Kernel::DescentDots => ("descent", "descent_dots"),
+            Kernel::DescentDirection => ("descent", "descent_direction"),
+            Kernel::DescentMove => ("descent", "descent_move"),
         }
     }
 
@@ -499,6 +515,24 @@ impl Pipelines {
         pass.dispatch_workgroups(x, y, 1);
     }
 
+    /// `kernels` in order, each with the parameters of `slot`, in one
+    /// compute pass.
+    pub fn record_kernels(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        state: &DeformState,
+        kernels: &[Kernel],
+        slot: u32,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("tissue stage 2 kernels"),
+            timestamp_writes: None,
+        });
+        for &kernel in kernels {
+            self.dispatch_in(&mut pass, state, kernel, slot);
+        }
+    }
+
     /// The step: `iterations` solver iterations (at most [`crate::SLOTS`]),
     /// iteration `k` with the parameters of slot `k`, in one compute pass,
     /// the kernels of [`DeformState::iteration`] (each pass of the
@@ -663,7 +697,8 @@ mod tests {
 
     /// Each pass starts with a kernel of its own shader, and every stage-2
     /// kernel but the frame boundary's (the turn, the potential's
-    /// measure) runs in some iteration.
+    /// measure) and the conjugate-gradient phase's (`descent.wgsl`, after
+    /// an iteration's passes) runs in some iteration.
     #[test]
     fn every_pass_runs_its_shader_and_every_kernel_runs_in_a_pass() {
         let mut used = std::collections::HashSet::new();
@@ -679,7 +714,12 @@ mod tests {
                 used.contains(&kernel),
                 !matches!(
                     kernel,
-                    Kernel::TurnRotations | Kernel::ElasticPotential | Kernel::ElasticPotentialWork
+                    Kernel::TurnRotations
+                        | Kernel::ElasticPotential
+                        | Kernel::ElasticPotentialWork
+                        | Kernel::DescentDots
+                        | Kernel::DescentDirection
+                        | Kernel::DescentMove
                 ),
                 "{kernel:?}"
             );

@@ -58,6 +58,7 @@ pub const SHADERS: &[(&str, &str)] = &[
         include_str!("../shaders/deformation_force.wgsl"),
     ),
     ("integrate", include_str!("../shaders/integrate.wgsl")),
+    ("descent", include_str!("../shaders/descent.wgsl")),
     ("pair", include_str!("../shaders/pair.wgsl")),
     ("step_norms", include_str!("../shaders/step_norms.wgsl")),
     ("coarse", include_str!("../shaders/coarse.wgsl")),

@@ -85,6 +85,9 @@ pub struct DeformState {
     /// Per particle its part of the potential the elastic force descends
     /// ([`Kernel::ElasticPotential`]; empty without the elastic model).
     pub(crate) potential: Storage<f32>,
+    /// The conjugate-gradient elastic phase's vectors
+    /// (`descent.wgsl`; empty without the elastic model).
+    pub(crate) descent: DescentBuffers,
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
     pub(crate) coarse: CoarseBuffers,
@@ -101,6 +104,46 @@ pub struct DeformState {
     control_runs: Vec<(u32, usize, usize)>,
     /// The staging buffer of every read back.
     pub(crate) readback: Readback,
+}
+
+/// The conjugate-gradient elastic phase's vectors, one `vec4` per
+/// particle each (`shaders/descent.wgsl`).
+#[derive(Debug)]
+pub(crate) struct DescentBuffers {
+    /// The residual the last `descent_dots` kept.
+    pub(crate) last_residual: Storage<[f32; 4]>,
+    /// The direction.
+    pub(crate) direction: Storage<[f32; 4]>,
+    /// The positions the line search moves from.
+    pub(crate) line_base: Storage<[f32; 4]>,
+    /// Per particle the dot products' parts, read back.
+    pub(crate) dot_parts: Storage<[f32; 4]>,
+}
+
+impl DescentBuffers {
+    /// Empty buffers (16 bytes each), for a state without the elastic model.
+    fn empty(device: &wgpu::Device, what: &dyn Fn(&str) -> String) -> Result<Self, GpuError> {
+        Ok(Self {
+            last_residual: Storage::init(device, "last_residual", &[], &what("last_residual"))?,
+            direction: Storage::init(device, "direction", &[], &what("direction"))?,
+            line_base: Storage::init(device, "line_base", &[], &what("line_base"))?,
+            dot_parts: Storage::init(device, "dot_parts", &[], &what("dot_parts"))?,
+        })
+    }
+
+    /// Zeroed buffers of `n` particles.
+    fn zeroed(
+        device: &wgpu::Device,
+        n: usize,
+        what: &dyn Fn(&str) -> String,
+    ) -> Result<Self, GpuError> {
+        Ok(Self {
+            last_residual: Storage::zeroed(device, "last_residual", n, &what("last_residual"))?,
+            direction: Storage::zeroed(device, "direction", n, &what("direction"))?,
+            line_base: Storage::zeroed(device, "line_base", n, &what("line_base"))?,
+            dot_parts: Storage::zeroed(device, "dot_parts", n, &what("dot_parts"))?,
+        })
+    }
 }
 
 /// Workgroups `[x, y]` covering `count` threads in groups of `size`; beyond
@@ -237,6 +280,7 @@ impl DeformState {
                 )?,
                 elastic_terms: Storage::init(device, "elastic_terms", &[], &what("elastic_terms"))?,
                 potential: Storage::init(device, "potential", &[], &what("potential"))?,
+                descent: DescentBuffers::empty(device, &what)?,
                 coarse: CoarseBuffers::empty(device)?,
                 elastic_coarse: ElasticCoarseBuffers::empty(device)?,
                 pairing: PairingBuffers::empty(device)?,
@@ -284,7 +328,12 @@ impl DeformState {
         let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
         let particles: Vec<ElasticParticle> =
             (0..n).map(|i| ElasticParticle::of(elastic, i)).collect();
-        (self.elastic_particles, self.elastic_terms, self.potential) = scoped(device, || {
+        (
+            self.elastic_particles,
+            self.elastic_terms,
+            self.potential,
+            self.descent,
+        ) = scoped(device, || {
             Ok((
                 Storage::init(
                     device,
@@ -294,6 +343,7 @@ impl DeformState {
                 )?,
                 Storage::zeroed(device, "elastic_terms", n, &what("elastic_terms"))?,
                 Storage::zeroed(device, "potential", n, &what("potential"))?,
+                DescentBuffers::zeroed(device, n, &what)?,
             ))
         })?;
         self.elastic = true;
@@ -575,6 +625,10 @@ impl DeformState {
             ("elastic_particles", self.elastic_particles.buffer()),
             ("elastic_terms", self.elastic_terms.buffer()),
             ("potential", self.potential.buffer()),
+            ("last_residual", self.descent.last_residual.buffer()),
+            ("direction", self.descent.direction.buffer()),
+            ("line_base", self.descent.line_base.buffer()),
+            ("dot_parts", self.descent.dot_parts.buffer()),
         ];
         named.extend(self.coarse.named());
         named.extend(self.elastic_coarse.named());

@@ -39,7 +39,8 @@ pub use tissue_solve::stage2::check_same_topology;
 pub use tissue_solve::stage2::{Chebyshev, StoppingRule};
 use tissue_solve::stage2::{Choices, Holds, Pairing, Tracker};
 pub use tissue_solve::stage2::{
-    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod, SolverTuning,
+    DeformParams, ElasticSolve, ForceModel, MAX_COARSE_AGGREGATES, MAX_HISTORY, RotationMethod,
+    SolverTuning,
 };
 pub use tissue_solve::stage2::{DeformReport, PrepareStage, StopReason};
 pub use tissue_solve::stage2::{FrameHistory, affine_fit, predict};
@@ -293,6 +294,22 @@ pub struct CpuSolve {
     /// `rotations`: kept from iteration to iteration.
     terms: Vec<ElasticTerms>,
     turned: Vec<Mat3>,
+    /// The conjugate-gradient elastic phase's vectors (empty until its
+    /// first [`SolveDevice::descent_residual`]).
+    descent: Descent,
+}
+
+/// The conjugate-gradient elastic phase's vectors, one per particle.
+#[derive(Debug, Clone, Default)]
+struct Descent {
+    /// The two-level step `z` the last residual call made.
+    step: Vec<Vec3>,
+    /// The residual `r'` it kept.
+    last_residual: Vec<Vec3>,
+    /// The direction `d`.
+    direction: Vec<Vec3>,
+    /// The positions the line search moves from.
+    base: Vec<Vec3>,
 }
 
 /// The state and the weights a batch started from.
@@ -374,6 +391,7 @@ impl CpuSolve {
             saved: None,
             terms: Vec::new(),
             turned: Vec::new(),
+            descent: Descent::default(),
         }
     }
 

@@ -8,10 +8,11 @@ use rayon::prelude::*;
 use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{CoarseSpace, ElasticCoarse, SharedLaplacian};
 use tissue_solve::stage2::Spring;
-use tissue_solve::stage2::{Pairing, Potential};
+use tissue_solve::stage2::{DescentDots, Pairing, Potential};
 use tissue_solve::{DeformParams, ForceModel, Iteration, Plan, SolveDevice};
 
 use super::{BatchStart, CpuSolve, elastic_potential};
+use crate::kernels::descent::{descent_direction, descent_dots, descent_move};
 
 impl SolveDevice for CpuSolve {
     type Error = Infallible;
@@ -118,6 +119,46 @@ impl SolveDevice for CpuSolve {
                 &self.rotations,
             ))
         }))
+    }
+
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, Infallible> {
+        let Some((residual, step)) = self.residual_and_step() else {
+            return Ok(None);
+        };
+        let descent = &mut self.descent;
+        for kept in [&mut descent.last_residual, &mut descent.direction] {
+            kept.resize(residual.len(), Vec3::ZERO);
+        }
+        let parts = descent_dots(
+            &residual,
+            &step,
+            &mut descent.last_residual,
+            &descent.direction,
+        );
+        descent.step = step;
+        Ok(Some(DescentDots::of(parts)))
+    }
+
+    fn descent_direction(&mut self, beta: f32) -> Result<(), Infallible> {
+        let descent = &mut self.descent;
+        descent.base.resize(self.current.len(), Vec3::ZERO);
+        descent_direction(
+            &descent.step,
+            beta,
+            &mut descent.direction,
+            &self.current,
+            &mut descent.base,
+        );
+        Ok(())
+    }
+
+    fn descent_move(&mut self, t: f32) -> Result<(), Infallible> {
+        let descent = &self.descent;
+        if descent.base.len() == self.current.len() && descent.direction.len() == descent.base.len()
+        {
+            descent_move(&descent.base, &descent.direction, t, &mut self.current);
+        }
+        Ok(())
     }
 
     fn save(&mut self) -> Result<(), Infallible> {

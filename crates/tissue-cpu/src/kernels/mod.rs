@@ -11,6 +11,7 @@ pub mod block_multilevel;
 pub mod coarse;
 pub mod coarse_elastic;
 pub mod deformation_force;
+pub mod descent;
 pub mod elastic_targets;
 pub mod embedding_moved;
 pub mod grid_build;
@@ -35,6 +36,7 @@ pub const TWINS: &[&str] = &[
     coarse::SHADER,
     coarse_elastic::SHADER,
     deformation_force::SHADER,
+    descent::SHADER,
     elastic_targets::SHADER,
     embedding_moved::SHADER,
     grid_build::SHADER,

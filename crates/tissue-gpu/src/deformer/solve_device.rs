@@ -5,13 +5,13 @@ use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{ElasticCoarse, SharedLaplacian};
 use tissue_solve::stage2::Spring;
-use tissue_solve::stage2::{Pairing, Plan, Potential};
+use tissue_solve::stage2::{DescentDots, Pairing, Pass, Plan, Potential};
 use tissue_solve::{DeformParams, ForceModel, Iteration, RotationMethod, SolveDevice};
 
 use super::{GpuDeformer, GpuSolve};
 use crate::state::SLOTS;
 use crate::support::Scopes;
-use crate::{GpuError, Params};
+use crate::{GpuError, Kernel, Params};
 
 impl SolveDevice for GpuSolve {
     type Error = GpuError;
@@ -53,6 +53,29 @@ impl SolveDevice for GpuSolve {
                 .state
                 .read_potential(&gpu.device, &gpu.queue, &gpu.pipelines)?;
             Ok((!parts.is_empty()).then(|| Potential::of(parts.iter().map(|&p| f64::from(p)))))
+        })
+    }
+
+    /// The iteration's kernels up to its combine and `descent_dots` in one
+    /// submission, the parts read back and summed on the host in `f64`.
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, GpuError> {
+        if !self.elastic_smoothed() {
+            return Ok(None);
+        }
+        self.scoped(Self::descent_residual_unscoped)
+    }
+
+    fn descent_direction(&mut self, beta: f32) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            gpu.descent_kernel(Kernel::DescentDirection, beta);
+            Ok(())
+        })
+    }
+
+    fn descent_move(&mut self, t: f32) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            gpu.descent_kernel(Kernel::DescentMove, t);
+            Ok(())
         })
     }
 
@@ -212,6 +235,62 @@ impl GpuSolve {
         for (from, to) in pairs {
             encoder.copy_buffer_to_buffer(from, 0, to, 0, None);
         }
+        self.queue.submit([encoder.finish()]);
+    }
+
+    fn descent_residual_unscoped(&mut self) -> Result<Option<DescentDots>, GpuError> {
+        let Some(it) = self.iteration.filter(|it| it.force == ForceModel::Elastic) else {
+            return Ok(None);
+        };
+        let (device, queue) = (&self.device, &self.queue);
+        let state = &self.state;
+        // Undamped, whatever the phase's damping.
+        let params = Params {
+            volume_damping: 1.0,
+            ..state.params(it.force, it.alpha, 1.0, 0)
+        };
+        state.write_params(queue, 0, params);
+        let passes: Vec<Pass> = state
+            .passes()
+            .into_iter()
+            .filter(|pass| !matches!(pass, Pass::StepNorms | Pass::Combine | Pass::UpdateNorms))
+            .collect();
+        let mut kernels = Kernel::of_passes(&passes);
+        kernels.push(Kernel::DescentDots);
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("descent residual"),
+        });
+        self.pipelines
+            .record_kernels(&mut encoder, state, &kernels, 0);
+        queue.submit([encoder.finish()]);
+        let parts = state
+            .descent
+            .dot_parts
+            .read(device, queue, &state.readback)?;
+        Ok(Some(DescentDots::of(
+            parts.iter().map(|part| part.map(f64::from)),
+        )))
+    }
+
+    /// One of `descent.wgsl`'s per-particle kernels with `value` (beta or
+    /// t) as its parameter.
+    fn descent_kernel(&self, kernel: Kernel, value: f32) {
+        let state = &self.state;
+        let it = self.iteration;
+        let params = state.params(
+            it.map_or(ForceModel::Elastic, |it| it.force),
+            it.map_or(0.0, |it| it.alpha),
+            value,
+            0,
+        );
+        state.write_params(&self.queue, 0, params);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some(kernel.name()),
+            });
+        self.pipelines
+            .record_kernels(&mut encoder, state, &[kernel], 0);
         self.queue.submit([encoder.finish()]);
     }
 

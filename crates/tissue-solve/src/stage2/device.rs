@@ -65,6 +65,44 @@ impl Potential {
     }
 }
 
+/// What the conjugate-gradient elastic phase reads at the current
+/// positions ([`SolveDevice::descent_residual`]): sums over the particles
+/// of their parts, each part made in `f32` or better and summed in `f64` in
+/// index order ([`DescentDots::of`]), so every device adds the same way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DescentDots {
+    /// `r . z`: the residual against the two-level step at these positions.
+    pub residual_step: f64,
+    /// `z . r'`: the step against the residual of the call before.
+    pub step_last_residual: f64,
+    /// `r . d'`: the residual against the last direction.
+    pub residual_last_direction: f64,
+    /// `max |z_i|`: the two-level step's largest move of one particle.
+    pub step_largest: f32,
+}
+
+impl DescentDots {
+    /// The sums of per-particle `parts`: `(r_i . z_i, z_i . r'_i,
+    /// r_i . d'_i, |z_i|)`, the first three added in index order, the
+    /// largest of the last.
+    pub fn of(parts: impl IntoIterator<Item = [f64; 4]>) -> Self {
+        parts.into_iter().fold(
+            Self {
+                residual_step: 0.0,
+                step_last_residual: 0.0,
+                residual_last_direction: 0.0,
+                step_largest: 0.0,
+            },
+            |sum, [rz, zr, rd, z]| Self {
+                residual_step: sum.residual_step + rz,
+                step_last_residual: sum.step_last_residual + zr,
+                residual_last_direction: sum.residual_last_direction + rd,
+                step_largest: sum.step_largest.max(z as f32),
+            },
+        )
+    }
+}
+
 /// What a device does for a stage-2 solve: kernels and buffers, nothing
 /// else. The iteration is the same on every device: rotations, force, the
 /// plain step, the correction (a coarse space, if any), the
@@ -190,6 +228,30 @@ pub trait SolveDevice {
     /// Puts back the positions and rotations [`SolveDevice::save`] kept;
     /// the solve goes on from them after a [`SolveDevice::begin`].
     fn restore(&mut self) -> Result<(), Self::Error>;
+
+    /// The conjugate-gradient elastic phase's first call of an iteration
+    /// (docs/METHOD.md, "Elastic model", *The conjugate-gradient phase*):
+    /// at the current positions, left where they are, the elastic phase's
+    /// residual `r = (f + b) / 2` and its two-level step `z` (smoothed and
+    /// corrected, undamped: the passes of an iteration up to its combine,
+    /// the skin paired first where it is paired), both kept; returns
+    /// their [`DescentDots`] with `r'`, the residual this call kept last
+    /// time, and `d'`, the direction [`SolveDevice::descent_direction`]
+    /// made last (zero before the first). `r'` is then `r`. `None` outside
+    /// an elastic phase that smooths with the volume smoother. The warm
+    /// rotations are those of the current positions afterwards, as after
+    /// an iteration.
+    fn descent_residual(&mut self) -> Result<Option<DescentDots>, Self::Error>;
+
+    /// The direction `d = z + beta d'` from the step the last
+    /// [`SolveDevice::descent_residual`] kept, which replaces `d'`; the
+    /// current positions are kept as the base the line search moves from.
+    fn descent_direction(&mut self, beta: f32) -> Result<(), Self::Error>;
+
+    /// Moves every particle to `base + t d`: the base and the direction
+    /// of the last [`SolveDevice::descent_direction`] (`t = 0` puts the
+    /// base back).
+    fn descent_move(&mut self, t: f32) -> Result<(), Self::Error>;
 
     /// What the device prepared that depends only on the connections and
     /// the free particles (its coarse space, if any), with `plan` and

@@ -39,7 +39,7 @@ pub use acceleration::{
 };
 pub use batches::{Batches, run_batched, run_batched_from};
 pub use controls::{VOLUME_RATIO, check_same_topology};
-pub use device::{Iteration, Potential, SolveDevice};
+pub use device::{DescentDots, Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{Cleaned, Cloud, NORMAL_NEIGHBOURS, SCAN_SCALE};
 pub use pairing::{
@@ -47,7 +47,7 @@ pub use pairing::{
     paired_point, paired_spring, taper,
 };
 pub use params::{
-    DeformParams, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
+    DeformParams, ElasticSolve, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,
     MAX_ELASTIC_COARSE_AGGREGATES, MAX_ELASTIC_COARSE_DIRECT_AGGREGATES, MAX_HISTORY, MAX_POISSON,
     MAX_SHEAR_VOLUME_SHARE, RotationMethod, SolverTuning,
 };
@@ -76,3 +76,6 @@ pub use springs::{
     springs_stiffness,
 };
 pub use tracker::Tracker;
+pub use tracker::conjugate::{
+    ARMIJO, DESCENT_ERROR_BOUND, DESCENT_RELINEARISE, LONGEST_STEP, SMALLEST_STEP,
+};

@@ -36,6 +36,24 @@ pub enum RotationMethod {
     WarmPolar,
 }
 
+/// How an elastic solve's elastic phase descends the potential after its
+/// shear phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ElasticSolve {
+    /// The two-level iteration (volume smoother and elastic correction)
+    /// accelerated by Chebyshev's weights, the potential watched every
+    /// [`crate::stage2::phase::ENERGY_WATCH`] iterations, with steps back
+    /// and new linearisations where it rises or stalls.
+    Chebyshev,
+    /// A nonlinear conjugate gradient preconditioned by the same two-level
+    /// step: Polak-Ribiere directions, each step searched along its
+    /// direction and accepted only where the potential fell by Armijo's
+    /// margin (docs/METHOD.md, "Elastic model", *The conjugate-gradient
+    /// phase*).
+    ConjugateGradient,
+}
+
 /// Parameters of stage 2 a user sets: the force and its Poisson ratio, the
 /// tolerance and the iteration cap, the observed vertices and the load;
 /// how the solver reaches the answer is [`SolverTuning`] (`tuning`).
@@ -163,6 +181,13 @@ pub struct SolverTuning {
     /// at its tolerance ([`crate::stage2::phase::SHEAR_TOLERANCE`]). Why 0.25:
     /// docs/METHOD.md, "Elastic model", *The shear phase's end*.
     pub shear_volume_share: f32,
+    /// How the elastic phase descends the potential after the shear phase
+    /// of an elastic solve from rest ([`ElasticSolve`]); a tracking
+    /// frame's warm phase, a few iterations from its answer, steps by
+    /// Chebyshev's weights either way. Where the device has no volume
+    /// smoother for the phase, Chebyshev's. The default and why:
+    /// docs/METHOD.md, "Elastic model", *The conjugate-gradient phase*.
+    pub elastic_solve: ElasticSolve,
 }
 
 impl Default for DeformParams {
@@ -195,6 +220,7 @@ impl Default for SolverTuning {
             elastic_coarse_direct_max_aggregates: 1_365,
             volume_smoother: true,
             shear_volume_share: 0.25,
+            elastic_solve: ElasticSolve::Chebyshev,
         }
     }
 }
@@ -429,6 +455,20 @@ mod tests {
                 .with(|p| p.tuning.coarse = 0.0)
                 .validate()
                 .is_ok()
+        );
+    }
+
+    /// An elastic solve from rest descends by Chebyshev's weights unless
+    /// told otherwise: the conjugate gradient takes fewer iterations and
+    /// never steps back, but each of its iterations measures the potential
+    /// about twice, and on the CPU at 10k the solves from rest that need
+    /// few iterations take up to 1.5 times as long (docs/METHOD.md,
+    /// "Elastic model", *The conjugate-gradient phase*).
+    #[test]
+    fn the_elastic_phase_descends_by_chebyshevs_weights_by_default() {
+        assert_eq!(
+            DeformParams::default().tuning.elastic_solve,
+            ElasticSolve::Chebyshev
         );
     }
 }

@@ -122,14 +122,20 @@ pub struct DeformReport {
     /// (`phase::MAX_RELINEARISATIONS` times at most), or without its
     /// correction after those (`phase::Next`); and a tracking frame's
     /// warm-started phase that failed and was solved again from a shear
-    /// phase. 0 for the other forces. Told here (and in the log at `info`),
-    /// not as warnings: a solve that ends converged is a success.
+    /// phase. The conjugate-gradient phase counts here the times it made
+    /// its correction again because no step along its direction lowered
+    /// the potential (not those it makes every
+    /// `tracker::conjugate::DESCENT_RELINEARISE` steps;
+    /// [`crate::stage2::params::ElasticSolve`]). 0
+    /// for the other forces. Told here (and in the log at `info`), not as
+    /// warnings: a solve that ends converged is a success.
     #[serde(default)]
     pub elastic_retries: usize,
     /// How many times an elastic phase went back to the last state it
     /// accepted and went on with half its step, because the potential had
     /// risen (or the iteration diverged) since
-    /// (`phase::ENERGY_WATCH`).
+    /// (`phase::ENERGY_WATCH`); in the conjugate-gradient phase, how many
+    /// times its line searches halved a step.
     #[serde(default)]
     pub backtracks: usize,
     /// Per elastic descent (a warm-started phase, or the elastic phases

@@ -22,6 +22,7 @@ use crate::stage2::report::{DeformReport, PrepareStage, SolveStep, StopReason};
 use crate::stage2::device::Potential;
 pub use crate::stage2::device::SolveDevice;
 
+pub(crate) mod conjugate;
 mod descent;
 
 /// Stage 2 for one particle model on one device: the control points follow
@@ -594,7 +595,7 @@ mod tests {
 
     use super::*;
     use crate::stage2::acceleration::StoppingRule;
-    use crate::stage2::device::{Iteration, Potential};
+    use crate::stage2::device::{DescentDots, Iteration, Potential};
     use crate::stage2::phase::FIRST_BATCH;
     use crate::stage2::phase::{ENERGY_WATCH, MAX_RELINEARISATIONS};
 
@@ -784,6 +785,19 @@ mod tests {
         }
 
         fn write_rotations(&mut self, _rotations: &[Mat3]) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        /// No volume smoother to precondition with.
+        fn descent_residual(&mut self) -> Result<Option<DescentDots>, Infallible> {
+            Ok(None)
+        }
+
+        fn descent_direction(&mut self, _beta: f32) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        fn descent_move(&mut self, _t: f32) -> Result<(), Infallible> {
             Ok(())
         }
 

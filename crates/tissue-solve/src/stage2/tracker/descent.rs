@@ -8,7 +8,7 @@ use std::time::Instant;
 use crate::stage2::acceleration::{Chebyshev, StoppingRule};
 use crate::stage2::batches::run_batched_from;
 use crate::stage2::device::{Iteration, SolveDevice};
-use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::params::{DeformParams, ElasticSolve, ForceModel};
 use crate::stage2::phase::{
     ENERGY_WATCH, FIRST_BATCH, MAX_BACKTRACKS, Next, PhaseRun, SHEAR_CHECK, SHEAR_TOLERANCE,
     SolveBatches, Steps, Verdict, WATCH_SETTLED, Watched,
@@ -61,6 +61,15 @@ impl<D: SolveDevice> Tracker<D> {
                 stopped_by: StopReason::IterationCap,
                 ..first
             });
+        }
+        if params.tuning.elastic_solve == ElasticSolve::ConjugateGradient
+            && let Some(mut second) =
+                self.conjugate_phase(params, budget - first.iterations, steps)?
+        {
+            second.iterations += first.iterations;
+            second.residual_history.splice(0..0, first.residual_history);
+            self.elastic_correct = true;
+            return Ok(second);
         }
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let (mut potentials, mut backtracks) = (Vec::new(), 0);
@@ -344,7 +353,7 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// What a phase's iterations run with: `p`'s step and force, corrected
     /// where `correct`, the smoothed step scaled by `damping`.
-    fn iteration(
+    pub(super) fn iteration(
         &self,
         p: &DeformParams,
         correct: bool,

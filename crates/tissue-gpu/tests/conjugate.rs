@@ -1,0 +1,138 @@
+//! The conjugate-gradient elastic phase (`ElasticSolve::ConjugateGradient`)
+//! on both devices: its kernels (`shaders/descent.wgsl`) against their CPU
+//! twins through whole solves, with the tracker's phase written once.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use glam::Vec3;
+use tissue_cpu::deformation::{DeformParams, DeformReport, ForceModel, StopReason};
+use tissue_solve::model::gravity_load;
+use tissue_solve::stage2::{DESCENT_RELINEARISE, ElasticSolve};
+
+/// Every state the conjugate-gradient phase accepted has a finite
+/// potential below the one before: by Armijo's margin, or, where the
+/// decrease is below what the potential tells apart, within its rounding.
+fn every_step_lowered(report: &DeformReport) -> bool {
+    report.potentials.len() == 1 && report.potentials_fell()
+}
+
+/// Asserts what both devices' solves of one case share: converged, every
+/// accepted step lowering the potential, no divergence; the same
+/// iterations within a fifth, two and one more per new linearisation
+/// (every [`DESCENT_RELINEARISE`] steps: the devices' `beta`s differ by
+/// rounding, so their paths part, and near the tolerance the error falls
+/// by a few tenths an iteration, so the last iteration moves by a few: 37
+/// and 41 under the 30 x 35 mm probe), the same
+/// positions within the tolerance (3e-5 of the size: the devices' `beta`s
+/// differ by rounding, so their paths part, and each answer is within
+/// about the tolerance of the converged one).
+fn assert_same_descent(
+    solved: &(
+        tissue_cpu::deformation::Deformer,
+        DeformReport,
+        tissue_gpu::GpuDeformer,
+        DeformReport,
+    ),
+    context: &str,
+) {
+    let (cpu, cpu_report, gpu, gpu_report) = solved;
+    eprintln!(
+        "{context}: CPU {} iterations, {} retries, {} halvings, {:?}; GPU {} iterations, {} \
+         retries, {} halvings, {:?}",
+        cpu_report.iterations,
+        cpu_report.elastic_retries,
+        cpu_report.backtracks,
+        cpu_report.stopped_by,
+        gpu_report.iterations,
+        gpu_report.elastic_retries,
+        gpu_report.backtracks,
+        gpu_report.stopped_by
+    );
+    for (device, report) in [("CPU", cpu_report), ("GPU", gpu_report)] {
+        assert!(report.converged, "{context} on the {device}: {report:?}");
+        assert_ne!(report.stopped_by, StopReason::Diverged, "{context}");
+        assert!(
+            every_step_lowered(report),
+            "{context} on the {device}: {:?}",
+            report.potentials
+        );
+    }
+    let within = 2 + cpu_report.iterations / DESCENT_RELINEARISE + cpu_report.iterations / 5;
+    assert!(
+        cpu_report.iterations.abs_diff(gpu_report.iterations) <= within,
+        "{context}: CPU {} iterations, GPU {}",
+        cpu_report.iterations,
+        gpu_report.iterations
+    );
+    common::assert_same_positions(gpu, cpu, DeformParams::default().tolerance, context);
+}
+
+/// The conjugate-gradient phase by default's elastic parameters.
+fn conjugate() -> DeformParams {
+    DeformParams::default().with(|p| {
+        p.tuning.extrapolate = false;
+        p.tuning.elastic_solve = ElasticSolve::ConjugateGradient;
+    })
+}
+
+/// The bench's sixteen probes (15-30 mm deep, 8-35 mm wide, at the
+/// phantom's tip, from rest) and its sag at 2,000 particles: on both
+/// devices every step the phase accepted lowered the potential, every
+/// solve converged with no divergence, in the same iterations within a
+/// fifth and two (one more per new linearisation), the same positions
+/// within the tolerance.
+#[test]
+fn every_conjugate_step_descends_on_both_devices_under_the_probes() {
+    let Some((device, queue)) = common::gpu("conjugate-gradient probes") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = conjugate();
+    assert_eq!(params.force, ForceModel::Elastic);
+    let sag = tissue_core::deform::sagged_breast();
+    let solved = common::solve_on_both(&device, &queue, model, params.clone(), &sag);
+    assert_same_descent(&solved, "sag");
+    for depth in [15.0, 20.0, 25.0, 30.0] {
+        for width in [8.0, 15.0, 25.0, 35.0] {
+            let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, depth, width)
+                .unwrap_or_else(|| panic!("the phantom has vertices"));
+            let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
+            let solved = common::solve_on_both(&device, &queue, model, params.clone(), &poked);
+            assert_same_descent(&solved, &format!("probe {depth} x {width} mm"));
+        }
+    }
+}
+
+/// The phantom's skin free, its chest wall held (the rest vertices on
+/// z = 0), hanging under its weight (2 kPa, 1,000 kg/m^3) towards its
+/// feet, its back and its side, at 2,000 particles: the same on both
+/// devices, every accepted step lowering the potential.
+#[test]
+fn every_conjugate_step_descends_on_both_devices_under_gravity() {
+    let Some((device, queue)) = common::gpu("conjugate-gradient gravity") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let held: Vec<bool> = model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z.abs() < 1e-3)
+        .collect();
+    for (towards, gravity) in [
+        ("the feet", Vec3::NEG_Y),
+        ("the back", Vec3::NEG_Z),
+        ("the side", Vec3::X),
+    ] {
+        let base = conjugate();
+        let load = gravity_load(gravity, 1000.0, 2.0, base.poisson, 1e-3).unwrap();
+        let params = base.with(|p| {
+            p.observed = Some(held.clone());
+            p.load = load;
+        });
+        let solved = common::solve_on_both(&device, &queue, model, params, &model.surface);
+        assert_same_descent(&solved, &format!("hanging towards {towards}"));
+    }
+}
