@@ -23,7 +23,7 @@ use glam::{Vec2, Vec3};
 use serde::Serialize;
 use tissue_core::deform::{Indentation, Rigid, Sag, deform_surface};
 use tissue_core::{SamplingParams, StageSeconds, SurfaceMesh};
-use tissue_cpu::deformation::{DeformParams, ForceModel};
+use tissue_cpu::deformation::{DeformParams, ElasticSolve, ForceModel};
 
 use crate::machine::{Adapter, Machine};
 use crate::memory::{CpuModelBytes, IterationFloor};
@@ -65,6 +65,10 @@ struct Args {
     /// default, elastic).
     #[arg(long, value_enum, default_value_t = ForceName::Elastic)]
     force: ForceName,
+    /// How the elastic phase of a solve from rest descends its potential
+    /// (`SolverTuning::elastic_solve`; the library's default).
+    #[arg(long, value_enum, default_value_t = DescentName::of(DeformParams::default().tuning.elastic_solve))]
+    elastic_solve: DescentName,
     /// The elastic force's Poisson ratio (`DeformParams::poisson`).
     #[arg(long, default_value_t = DeformParams::default().poisson)]
     poisson: f32,
@@ -93,6 +97,24 @@ enum ForceName {
     Symmetric,
     /// The symmetric force plus the volume term (`--poisson`).
     Elastic,
+}
+
+/// How an elastic solve's elastic phase descends its potential.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DescentName {
+    /// Chebyshev-accelerated two-level iterations, the potential watched.
+    Chebyshev,
+    /// The conjugate gradient preconditioned by the two-level step.
+    ConjugateGradient,
+}
+
+impl DescentName {
+    fn of(solve: ElasticSolve) -> Self {
+        match solve {
+            ElasticSolve::Chebyshev => Self::Chebyshev,
+            ElasticSolve::ConjugateGradient => Self::ConjugateGradient,
+        }
+    }
 }
 
 /// A stage-2 backend.
@@ -353,6 +375,10 @@ fn run(args: &Args) -> Result<()> {
         };
         p.poisson = args.poisson;
         p.tuning.coarse = args.coarse;
+        p.tuning.elastic_solve = match args.elastic_solve {
+            DescentName::Chebyshev => ElasticSolve::Chebyshev,
+            DescentName::ConjugateGradient => ElasticSolve::ConjugateGradient,
+        };
     });
     params.validate()?;
     let (mesh, cases) = surfaces(args.mesh.as_ref(), args.probes)?;

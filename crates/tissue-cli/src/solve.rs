@@ -8,7 +8,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::ValueEnum;
 use glam::{IVec3, Vec3};
 use tissue::backend::with_cpu_fallback;
-use tissue::deformation::{DeformParams, ForceModel};
+use tissue::deformation::{DeformParams, ElasticSolve, ForceModel};
 use tissue::observation::{FiducialFit, MatchParams, MatchReport, Observation, match_observation};
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -40,6 +40,36 @@ pub enum Force {
     Elastic,
 }
 
+/// How the elastic phase of a solve from rest descends its potential.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Descent {
+    /// The two-level iteration with Chebyshev's weights, the potential
+    /// watched every 8 iterations.
+    Chebyshev,
+    /// A conjugate gradient preconditioned by the same two-level step,
+    /// every step accepted only where the potential fell (docs/METHOD.md,
+    /// "Elastic model", *The conjugate-gradient phase*).
+    ConjugateGradient,
+}
+
+impl Descent {
+    /// The library's choice.
+    fn solve(self) -> ElasticSolve {
+        match self {
+            Self::Chebyshev => ElasticSolve::Chebyshev,
+            Self::ConjugateGradient => ElasticSolve::ConjugateGradient,
+        }
+    }
+
+    /// The option's value of the library's choice.
+    fn of(solve: ElasticSolve) -> Self {
+        match solve {
+            ElasticSolve::Chebyshev => Self::Chebyshev,
+            ElasticSolve::ConjugateGradient => Self::ConjugateGradient,
+        }
+    }
+}
+
 /// Stage-2 options shared by `deform` and `track`.
 #[derive(Debug, clap::Args)]
 pub struct SolveArgs {
@@ -61,6 +91,10 @@ pub struct SolveArgs {
     /// both backends. 0 turns it off.
     #[arg(long, default_value_t = DeformParams::default().tuning.coarse)]
     pub coarse: f32,
+    /// How the elastic phase of a solve from rest descends its potential
+    /// (a tracking frame's warm phase takes Chebyshev's steps either way).
+    #[arg(long, value_enum, default_value_t = Descent::of(DeformParams::default().tuning.elastic_solve))]
+    pub elastic_solve: Descent,
     /// Only these vertices of the surface were observed: the observed patch
     /// of the rest surface as a surface file, or its vertices as points
     /// (.csv, .ply), in the rest posture (docs/FORMATS.md). Surface
@@ -91,6 +125,7 @@ impl SolveArgs {
             p.max_iterations = self.max_iterations;
             p.tolerance = self.tolerance;
             p.tuning.coarse = self.coarse;
+            p.tuning.elastic_solve = self.elastic_solve.solve();
         });
         params.validate()?;
         Ok(params)
@@ -813,6 +848,7 @@ mod tests {
             max_iterations: 100,
             tolerance: 1e-4,
             coarse: 2.0,
+            elastic_solve: Descent::Chebyshev,
             observed: None,
             gravity: if gravity {
                 GravityArgs {
@@ -845,6 +881,7 @@ mod tests {
             max_iterations: 100,
             tolerance: 1e-4,
             coarse,
+            elastic_solve: Descent::Chebyshev,
             observed: None,
             gravity: GravityArgs::default(),
         };
@@ -858,5 +895,35 @@ mod tests {
                 .is_some_and(|e| e.contains("coarse is 0.5")),
             "{refused:?}"
         );
+    }
+
+    /// `--elastic-solve` defaults to the library's choice and passes the
+    /// one given on to the parameters.
+    #[test]
+    fn the_elastic_solve_is_the_librarys_unless_chosen() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Command {
+            #[command(flatten)]
+            solve: SolveArgs,
+        }
+        let solve = |extra: &[&str]| {
+            let mut words = vec!["tissue"];
+            words.extend_from_slice(extra);
+            Command::try_parse_from(words)
+                .map_err(|e| e.to_string())
+                .and_then(|c| c.solve.params().map_err(|e| e.to_string()))
+                .map(|p| p.tuning.elastic_solve)
+        };
+        assert_eq!(solve(&[]), Ok(DeformParams::default().tuning.elastic_solve));
+        assert_eq!(
+            solve(&["--elastic-solve", "conjugate-gradient"]),
+            Ok(ElasticSolve::ConjugateGradient)
+        );
+        assert_eq!(
+            solve(&["--elastic-solve", "chebyshev"]),
+            Ok(ElasticSolve::Chebyshev)
+        );
+        assert!(solve(&["--elastic-solve", "newton"]).is_err());
     }
 }
