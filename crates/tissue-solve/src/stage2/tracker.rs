@@ -601,7 +601,7 @@ mod tests {
 
     /// The octahedron's six vertices as control points and one free
     /// particle at its centre, connected to all six.
-    fn star() -> ParticleModel {
+    pub(super) fn star() -> ParticleModel {
         let (vertices, triangles) = tissue_testkit::octahedron();
         let mut attachments: Vec<Option<Attachment>> = (0..6u32)
             .map(|v| {
