@@ -91,9 +91,12 @@ impl<D: SolveDevice> Tracker<D> {
         let size = self.plan.size;
         let mut potentials = vec![at.value];
         let mut history = Vec::new();
-        // `(r . z, beta's denominator)` of the last iteration since the
-        // last linearisation: none, the direction starts afresh.
+        // `r . z` of the last step since the last linearisation (beta's
+        // denominator); none: the direction starts afresh.
         let mut last_rz: Option<f64> = None;
+        // How many steps' errors the history holds: each step's is read
+        // at the next residual, the state it left.
+        let mut recorded = 0;
         let (mut iterations, mut since_linearised) = (0, 0);
         let (mut halvings, mut relinearisations, mut retries) = (0, 0, 0);
         let stopped_by = loop {
@@ -102,6 +105,11 @@ impl<D: SolveDevice> Tracker<D> {
                 break StopReason::Stalled;
             };
             let error = DESCENT_ERROR_BOUND * dots.step_largest / size;
+            if recorded < iterations {
+                history.push(error);
+                steps.told(error);
+                recorded = iterations;
+            }
             if !(error.is_finite() && dots.residual_step.is_finite()) {
                 break StopReason::Diverged;
             }
@@ -131,8 +139,6 @@ impl<D: SolveDevice> Tracker<D> {
                     potentials.push(now.value);
                     iterations += 1;
                     since_linearised += 1;
-                    history.push(error);
-                    steps.told(error);
                     last_rz = Some(dots.residual_step);
                 }
                 Search::Failed if since_linearised == 0 => {
@@ -485,6 +491,8 @@ mod tests {
         assert!(report.converged);
         assert!(report.iterations < 60, "{report:?}");
         assert_eq!((report.backtracks, report.elastic_retries), (0, 0));
+        assert_eq!(report.residual_history.len(), report.iterations);
+        assert!(report.residual < DeformParams::default().tolerance, "{report:?}");
         let potentials = &report.potentials[0];
         assert_eq!(potentials.len(), report.iterations + 1);
         assert!(
