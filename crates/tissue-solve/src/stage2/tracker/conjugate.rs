@@ -492,7 +492,10 @@ mod tests {
         assert!(report.iterations < 60, "{report:?}");
         assert_eq!((report.backtracks, report.elastic_retries), (0, 0));
         assert_eq!(report.residual_history.len(), report.iterations);
-        assert!(report.residual < DeformParams::default().tolerance, "{report:?}");
+        assert!(
+            report.residual < DeformParams::default().tolerance,
+            "{report:?}"
+        );
         let potentials = &report.potentials[0];
         assert_eq!(potentials.len(), report.iterations + 1);
         assert!(
