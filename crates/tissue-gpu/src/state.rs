@@ -86,7 +86,7 @@ pub struct DeformState {
     /// ([`Kernel::ElasticPotential`]; empty without the elastic model).
     pub(crate) potential: Storage<f32>,
     /// The conjugate-gradient elastic phase's vectors
-    /// (`descent.wgsl`; empty without the elastic model).
+    /// (`descent.wgsl`; empty until [`DeformState::ensure_descent`]).
     pub(crate) descent: DescentBuffers,
     /// The two-level solve's coarse space (empty until
     /// [`DeformState::set_coarse`]).
@@ -121,7 +121,8 @@ pub(crate) struct DescentBuffers {
 }
 
 impl DescentBuffers {
-    /// Empty buffers (16 bytes each), for a state without the elastic model.
+    /// Empty buffers (16 bytes each), for a state whose elastic phase has
+    /// not descended by the conjugate gradient.
     fn empty(device: &wgpu::Device, what: &dyn Fn(&str) -> String) -> Result<Self, GpuError> {
         Ok(Self {
             last_residual: Storage::init(device, "last_residual", &[], &what("last_residual"))?,
@@ -328,12 +329,7 @@ impl DeformState {
         let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
         let particles: Vec<ElasticParticle> =
             (0..n).map(|i| ElasticParticle::of(elastic, i)).collect();
-        (
-            self.elastic_particles,
-            self.elastic_terms,
-            self.potential,
-            self.descent,
-        ) = scoped(device, || {
+        (self.elastic_particles, self.elastic_terms, self.potential) = scoped(device, || {
             Ok((
                 Storage::init(
                     device,
@@ -343,11 +339,28 @@ impl DeformState {
                 )?,
                 Storage::zeroed(device, "elastic_terms", n, &what("elastic_terms"))?,
                 Storage::zeroed(device, "potential", n, &what("potential"))?,
-                DescentBuffers::zeroed(device, n, &what)?,
             ))
         })?;
         self.elastic = true;
         self.phase_force = ForceModel::Elastic;
+        self.bind_groups = self.bind_all(device, pipelines)?;
+        Ok(())
+    }
+
+    /// Makes the conjugate-gradient elastic phase's buffers where they are
+    /// empty (zeroed; the first phase that descends by it asks for them,
+    /// so a state that never does holds none).
+    pub fn ensure_descent(
+        &mut self,
+        device: &wgpu::Device,
+        pipelines: &Pipelines,
+    ) -> Result<(), GpuError> {
+        let n = self.len();
+        if self.descent.last_residual.len() == n {
+            return Ok(());
+        }
+        let what = |buffer: &str| format!("the {buffer} buffer ({n} particles)");
+        self.descent = scoped(device, || DescentBuffers::zeroed(device, n, &what))?;
         self.bind_groups = self.bind_all(device, pipelines)?;
         Ok(())
     }

@@ -242,6 +242,8 @@ impl GpuSolve {
         let Some(it) = self.iteration.filter(|it| it.force == ForceModel::Elastic) else {
             return Ok(None);
         };
+        let device = self.device.clone();
+        self.state.ensure_descent(&device, &self.pipelines)?;
         let (device, queue) = (&self.device, &self.queue);
         let state = &self.state;
         // Undamped, whatever the phase's damping.
