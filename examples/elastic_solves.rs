@@ -16,7 +16,10 @@
 //! answer turned inside out.
 //!
 //! `cargo run --release --example elastic_solves [particles] [CASE_DIR...]
-//! [--only TEXT]` (`--only`: the cases whose name holds `TEXT`).
+//! [--only TEXT]` (`--only`: the cases whose name holds `TEXT`;
+//! `RUST_LOG=tissue_solve::stage2::tracker::conjugate=debug` also prints
+//! how each conjugate-gradient phase went: its potentials measured, halved
+//! steps and new linearisations).
 
 use glam::Vec3;
 use std::path::PathBuf;
@@ -28,6 +31,7 @@ use tissue::deformation::{DeformParams, Deformer, inversions};
 use tissue::{ParticleModel, SamplingParams, SurfaceMesh, phantom};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    env_logger::init();
     let args: Vec<String> = std::env::args().skip(1).collect();
     let particles = args
         .first()

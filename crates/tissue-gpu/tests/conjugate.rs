@@ -66,7 +66,9 @@ fn assert_same_descent(
         cpu_report.iterations,
         gpu_report.iterations
     );
-    common::assert_same_positions(gpu, cpu, DeformParams::default().tolerance, context);
+    // Each answer is within the tolerance of the converged one, so the two
+    // are within two tolerances of each other.
+    common::assert_same_positions(gpu, cpu, 2.0 * DeformParams::default().tolerance, context);
 }
 
 /// The conjugate-gradient phase by default's elastic parameters.

@@ -6,7 +6,7 @@
 use glam::{Mat3, Mat3A, Vec3};
 use rayon::prelude::*;
 use tissue_core::Connections;
-use tissue_solve::model::{Elastic, ElasticTerms, rotation_of};
+use tissue_solve::model::{Elastic, ElasticTerms, EnergySums, rotation_of};
 use tissue_solve::stage2::Spring;
 use tissue_solve::stage2::{RotationMethod, spring_potential};
 
@@ -136,10 +136,11 @@ pub fn elastic_potential(
         .for_each(|(chunk, (parts, previous))| {
             let (first, count) = (chunk * LANES, parts.len());
             let mut of = [Mat3::ZERO; LANES];
-            for (l, of) in of.iter_mut().enumerate().take(count) {
+            let mut sums = [EnergySums::ZERO; LANES];
+            for (l, (of, sums)) in of.iter_mut().zip(&mut sums).enumerate().take(count) {
                 let i = first + l;
-                let (m, n) = elastic.products(rest, current, connections, i);
-                *of = elastic.turned_of(i, m, n);
+                *sums = elastic.energy_sums(i, rest, current, connections);
+                *of = elastic.turned_of(i, sums.offsets.as_mat3(), sums.multipliers.as_mat3());
             }
             let mut turned = [Mat3::IDENTITY; LANES];
             warm_rotations(&of[..count], previous, &mut turned);
@@ -153,8 +154,7 @@ pub fn elastic_potential(
                     Some(&spring) if free[i] => spring_potential(spring, current[i]),
                     _ => 0.0,
                 };
-                let energy =
-                    elastic.particle_energy_turned(i, rest, current, connections, |_| turned[l]);
+                let energy = elastic.energy_of(i, &sums[l], turned[l]);
                 *part = 0.5 * energy - work + pull;
             }
         });

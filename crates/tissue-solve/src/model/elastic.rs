@@ -303,41 +303,59 @@ impl Elastic {
         connections: &Connections,
         rotate: impl FnOnce(Mat3) -> Mat3,
     ) -> f64 {
-        let c = &self.consistency;
-        let (mut m, mut n) = (DMat3::ZERO, DMat3::ZERO);
+        let sums = self.energy_sums(i, rest, current, connections);
+        let rotation =
+            rotate(self.turned_of(i, sums.offsets.as_mat3(), sums.multipliers.as_mat3()));
+        self.energy_of(i, &sums, rotation)
+    }
+
+    /// The sums over particle `i`'s connections its part of the energy is
+    /// made of, in `f64`, in one pass over them.
+    pub fn energy_sums(
+        &self,
+        i: usize,
+        rest: &[Vec3],
+        current: &[Vec3],
+        connections: &Connections,
+    ) -> EnergySums {
+        // The offsets in `f32`, as the force takes them, then summed in
+        // `f64`.
+        let mu = &self.consistency.multipliers;
+        let mut sums = EnergySums::ZERO;
         for &j in connections.of(i) {
             let j = j as usize;
-            let (d, e) = (
+            let (d, e, u) = (
                 (rest[j] - rest[i]).as_dvec3(),
                 (current[j] - current[i]).as_dvec3(),
+                (mu[j] - mu[i]).as_dvec3(),
             );
-            let u = (c.multipliers[j] - c.multipliers[i]).as_dvec3();
-            m += DMat3::from_cols(e * d.x, e * d.y, e * d.z);
-            n += DMat3::from_cols(e * u.x, e * u.y, e * u.z);
+            sums.offsets += DMat3::from_cols(e * d.x, e * d.y, e * d.z);
+            sums.multipliers += DMat3::from_cols(e * u.x, e * u.y, e * u.z);
+            sums.moments += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+            sums.lengths += e.length_squared();
         }
-        let pair = |t: DMat3| -> f64 {
-            connections
-                .of(i)
-                .iter()
-                .map(|&j| {
-                    let j = j as usize;
-                    let (d, e) = (
-                        (rest[j] - rest[i]).as_dvec3(),
-                        (current[j] - current[i]).as_dvec3(),
-                    );
-                    (e - t * d).length_squared()
-                })
-                .sum()
-        };
+        sums
+    }
+
+    /// Particle `i`'s part of the energy from its [`EnergySums`] and its
+    /// rotation (that of [`Elastic::turned_of`] the sums' products): the
+    /// pair term `sum_j |e_ij - T d_ij|^2` of its map `T` (the rotation
+    /// where flat, else `M_i A_i^-1`) as `sum_j |e_ij|^2 - 2 T : M_i +
+    /// T : (T A_i)` with `A_i = sum_j d_ij d_ij^T` (exact for any `T`; in
+    /// `f64` it rounds within about `1e-16 sum_j |e_ij|^2`, far below what
+    /// states in `f32` tell apart), plus the shear and volume terms of its
+    /// gradient.
+    pub fn energy_of(&self, i: usize, sums: &EnergySums, rotation: Mat3) -> f64 {
+        let m = sums.offsets;
+        let pair = |t: DMat3| pair_term(sums, t);
+        let rotation = rotation.as_dmat3();
         if self.is_flat(i) {
-            return pair(rotate(m.as_mat3()).as_dmat3());
+            return pair(rotation);
         }
+        let c = &self.consistency;
         let a = f64::from(c.scales[i]);
-        let f = m * c.corrections[i].as_dmat3().transpose() + a * n;
-        let shear = f - rotate(f.as_mat3()).as_dmat3();
-        let shear = shear.x_axis.length_squared()
-            + shear.y_axis.length_squared()
-            + shear.z_axis.length_squared();
+        let f = m * c.corrections[i].as_dmat3().transpose() + a * sums.multipliers;
+        let shear = frobenius(f - rotation, f - rotation);
         pair(m * self.inverse_moments[i].as_dmat3())
             + a * shear
             + f64::from(self.weights[i]) * (f.determinant() - 1.0).powi(2)
@@ -395,6 +413,43 @@ impl Elastic {
             multipliers: c.multipliers.iter().map(|m| m.as_dvec3()).collect(),
         }
     }
+}
+
+/// The sums over a particle's connections `j` its part of the energy is
+/// made of ([`Elastic::energy_sums`]): `M_i = sum_j e_ij d_ij^T`, `N_i =
+/// sum_j e_ij (mu_j - mu_i)^T`, `A_i = sum_j d_ij d_ij^T` and `sum_j
+/// |e_ij|^2` (`d` the rest offsets, `e` the current ones).
+#[derive(Debug, Clone, Copy)]
+pub struct EnergySums {
+    /// `M_i`.
+    pub offsets: DMat3,
+    /// `N_i`.
+    pub multipliers: DMat3,
+    /// `A_i`.
+    pub moments: DMat3,
+    /// `sum_j |e_ij|^2`.
+    pub lengths: f64,
+}
+
+impl EnergySums {
+    /// No connections' sums.
+    pub const ZERO: Self = Self {
+        offsets: DMat3::ZERO,
+        multipliers: DMat3::ZERO,
+        moments: DMat3::ZERO,
+        lengths: 0.0,
+    };
+}
+
+/// `sum_j |e_ij - t d_ij|^2` from a particle's sums: `sum_j |e_ij|^2 - 2 t :
+/// M_i + t : (t A_i)` (never below zero, where it rounds there).
+fn pair_term(sums: &EnergySums, t: DMat3) -> f64 {
+    (sums.lengths - 2.0 * frobenius(t, sums.offsets) + frobenius(t, t * sums.moments)).max(0.0)
+}
+
+/// The Frobenius inner product `a : b = tr(a^T b)`.
+fn frobenius(a: DMat3, b: DMat3) -> f64 {
+    a.x_axis.dot(b.x_axis) + a.y_axis.dot(b.y_axis) + a.z_axis.dot(b.z_axis)
 }
 
 /// The largest eigenvalue of the symmetric operator `apply` on
@@ -686,6 +741,40 @@ mod tests {
                     f[k][axis]
                 );
             }
+        }
+    }
+
+    #[test]
+    fn the_pair_term_from_the_sums_is_the_sum_over_the_connections() {
+        let (rest, connections, free) = jittered_block();
+        let elastic = Elastic::new(&rest, &connections, 0.3, &free);
+        let x: Vec<Vec3> = rest
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| {
+                let t = i as f32;
+                Mat3::from_rotation_z(0.4) * p * 1.05
+                    + 0.08 * Vec3::new((t * 1.3).sin(), (t * 2.1).cos(), (t * 0.7).sin())
+            })
+            .collect();
+        let map = (Mat3::from_rotation_x(0.3) * 1.1).as_dmat3();
+        for i in 0..rest.len() {
+            let sums = elastic.energy_sums(i, &rest, &x, &connections);
+            let direct: f64 = connections
+                .of(i)
+                .iter()
+                .map(|&j| {
+                    let j = j as usize;
+                    let (d, e) = ((rest[j] - rest[i]).as_dvec3(), (x[j] - x[i]).as_dvec3());
+                    (e - map * d).length_squared()
+                })
+                .sum();
+            let expanded = pair_term(&sums, map);
+            assert!(
+                (expanded - direct).abs() <= 1e-12 * sums.lengths,
+                "particle {i}: {expanded} from the sums, {direct} summed"
+            );
+            assert!(direct > 1e-3 * sums.lengths, "particle {i}: the map fits");
         }
     }
 

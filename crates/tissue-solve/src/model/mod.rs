@@ -19,7 +19,7 @@ pub use consistent::{
     offsets_outer,
 };
 pub use elastic::{
-    Elastic, ElasticTerms, FLAT_NEIGHBOURHOOD, STIFFENING, cofactor, is_round, moment,
+    Elastic, ElasticTerms, EnergySums, FLAT_NEIGHBOURHOOD, STIFFENING, cofactor, is_round, moment,
     moment_inverse, moment_unit, offsets_product,
 };
 pub use gravity::{

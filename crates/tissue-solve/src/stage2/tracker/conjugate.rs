@@ -58,6 +58,15 @@ enum Search {
     Failed,
 }
 
+/// One line search: what it found and what it took.
+struct Searched {
+    found: Search,
+    /// Times the step was halved.
+    halved: usize,
+    /// Potentials measured.
+    measured: usize,
+}
+
 impl<D: SolveDevice> Tracker<D> {
     /// The elastic phase by the preconditioned conjugate gradient, from the
     /// state the shear phase left, within `cap` iterations; `None` where the
@@ -98,7 +107,7 @@ impl<D: SolveDevice> Tracker<D> {
         // at the next residual, the state it left.
         let mut recorded = 0;
         let (mut iterations, mut since_linearised) = (0, 0);
-        let (mut halvings, mut relinearisations, mut retries) = (0, 0, 0);
+        let (mut halvings, mut relinearisations, mut retries, mut measured) = (0, 0, 0, 0);
         let stopped_by = loop {
             let Some(dots) = self.device.descent_residual()? else {
                 // The device left its smoothed phase: nothing to descend by.
@@ -131,9 +140,10 @@ impl<D: SolveDevice> Tracker<D> {
                 };
             }
             self.device.descent_direction(beta as f32)?;
-            let (search, halved) = self.line_search(at, slope)?;
-            halvings += halved;
-            match search {
+            let searched = self.line_search(at, slope)?;
+            halvings += searched.halved;
+            measured += searched.measured;
+            match searched.found {
                 Search::Accepted(now) => {
                     at = now;
                     potentials.push(now.value);
@@ -162,9 +172,9 @@ impl<D: SolveDevice> Tracker<D> {
         };
         let seconds = started.elapsed().as_secs_f64();
         log::debug!(
-            "conjugate-gradient elastic phase: {iterations} iterations, {halvings} halved \
-             steps, {relinearisations} new linearisations ({retries} after a failed search) in \
-             {seconds:.4} s, {stopped_by:?}"
+            "conjugate-gradient elastic phase: {iterations} iterations, {measured} potentials \
+             measured, {halvings} halved steps, {relinearisations} new linearisations ({retries} \
+             after a failed search) in {seconds:.4} s, {stopped_by:?}"
         );
         Ok(Some(DeformReport {
             iterations,
@@ -189,10 +199,11 @@ impl<D: SolveDevice> Tracker<D> {
     /// from it; halving until Armijo's margin holds, or until the decrease
     /// asked for is below the potential's rounding ([`MEASURABLE`]), where
     /// a step that did not raise it beyond that rounding is taken.
-    /// Leaves the state at the step accepted (or at the base). Also returns
-    /// how many times the step was halved.
-    fn line_search(&mut self, at: Potential, slope: f64) -> Result<(Search, usize), D::Error> {
-        let measure = |device: &mut D, t: f32| -> Result<Potential, D::Error> {
+    /// Leaves the state at the step accepted (or at the base).
+    fn line_search(&mut self, at: Potential, slope: f64) -> Result<Searched, D::Error> {
+        let mut measured = 0;
+        let mut measure = |device: &mut D, t: f32| -> Result<Potential, D::Error> {
+            measured += 1;
             device.descent_move(t)?;
             Ok(device.potential()?.unwrap_or(Potential {
                 value: f64::NAN,
@@ -226,14 +237,20 @@ impl<D: SolveDevice> Tracker<D> {
         // Below that, a step where the potential did not rise beyond its
         // rounding is taken.
         let in_the_rounding = unmeasurable(at, f64::from(t) * slope) && !rose(at, now);
-        if !enough(t, now) && !in_the_rounding {
+        let found = if !enough(t, now) && !in_the_rounding {
             self.device.descent_move(0.0)?;
-            return Ok((Search::Failed, halved));
-        }
-        if moved_to != t {
-            self.device.descent_move(t)?;
-        }
-        Ok((Search::Accepted(now), halved))
+            Search::Failed
+        } else {
+            if moved_to != t {
+                self.device.descent_move(t)?;
+            }
+            Search::Accepted(now)
+        };
+        Ok(Searched {
+            found,
+            halved,
+            measured,
+        })
     }
 }
 
