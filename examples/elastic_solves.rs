@@ -16,7 +16,9 @@
 //! answer turned inside out.
 //!
 //! `cargo run --release --example elastic_solves [particles] [CASE_DIR...]
-//! [--only TEXT]` (`--only`: the cases whose name holds `TEXT`;
+//! [--only TEXT] [--against conjugate-gradient|chebyshev-then-conjugate-gradient]`
+//! (`--against`: the descent compared with Chebyshev's, by default the
+//! conjugate gradient; `--only`: the cases whose name holds `TEXT`;
 //! `RUST_LOG=tissue_solve::stage2::tracker::conjugate=debug` also prints
 //! how each conjugate-gradient phase went: its potentials measured, halved
 //! steps and new linearisations).
@@ -37,6 +39,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .first()
         .and_then(|t| t.parse().ok())
         .unwrap_or(10_000usize);
+    // The descent Chebyshev's is compared with: the conjugate gradient, or
+    // with `--against chebyshev-then-conjugate-gradient` the two in turn.
+    let against =
+        match args.iter().position(|a| a == "--against") {
+            Some(k) => match args.get(k + 1).map(String::as_str) {
+                Some("conjugate-gradient") => ElasticSolve::ConjugateGradient,
+                Some("chebyshev-then-conjugate-gradient") => {
+                    ElasticSolve::ChebyshevThenConjugateGradient
+                }
+                other => return Err(format!(
+                    "--against {other:?}: conjugate-gradient or chebyshev-then-conjugate-gradient"
+                )
+                .into()),
+            },
+            None => ElasticSolve::ConjugateGradient,
+        };
     let only = args
         .iter()
         .position(|a| a == "--only")
@@ -46,7 +64,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .enumerate()
         .skip(1)
-        .filter(|&(k, a)| !a.starts_with("--") && args[k - 1] != "--only")
+        .filter(|&(k, a)| {
+            !a.starts_with("--") && args[k - 1] != "--only" && args[k - 1] != "--against"
+        })
         .map(|(_, a)| PathBuf::from(a))
         .collect();
     let sampling = SamplingParams::with_particles(particles);
@@ -114,7 +134,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         }
         let mut out = Vec::new();
-        for solve in [ElasticSolve::Chebyshev, ElasticSolve::ConjugateGradient] {
+        for solve in [ElasticSolve::Chebyshev, against] {
             let p = params.clone().with(|p| p.tuning.elastic_solve = solve);
             let mut d = Deformer::new(model, p)?;
             d.set_surface(surface)?;

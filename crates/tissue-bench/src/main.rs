@@ -106,6 +106,9 @@ enum DescentName {
     Chebyshev,
     /// The conjugate gradient preconditioned by the two-level step.
     ConjugateGradient,
+    /// Chebyshev's iterations until the potential first rises or they
+    /// stall, then the conjugate gradient.
+    ChebyshevThenConjugateGradient,
 }
 
 impl DescentName {
@@ -113,6 +116,7 @@ impl DescentName {
         match solve {
             ElasticSolve::Chebyshev => Self::Chebyshev,
             ElasticSolve::ConjugateGradient => Self::ConjugateGradient,
+            ElasticSolve::ChebyshevThenConjugateGradient => Self::ChebyshevThenConjugateGradient,
         }
     }
 }
@@ -378,6 +382,9 @@ fn run(args: &Args) -> Result<()> {
         p.tuning.elastic_solve = match args.elastic_solve {
             DescentName::Chebyshev => ElasticSolve::Chebyshev,
             DescentName::ConjugateGradient => ElasticSolve::ConjugateGradient,
+            DescentName::ChebyshevThenConjugateGradient => {
+                ElasticSolve::ChebyshevThenConjugateGradient
+            }
         };
     });
     params.validate()?;

@@ -826,6 +826,10 @@ mod tests {
             solve(&["--elastic-solve", "chebyshev"]),
             Ok(ElasticSolve::Chebyshev)
         );
+        assert_eq!(
+            solve(&["--elastic-solve", "chebyshev-then-conjugate-gradient"]),
+            Ok(ElasticSolve::ChebyshevThenConjugateGradient)
+        );
         assert!(solve(&["--elastic-solve", "newton"]).is_err());
     }
 }

@@ -1,4 +1,5 @@
-//! The conjugate-gradient elastic phase (`ElasticSolve::ConjugateGradient`)
+//! The conjugate-gradient elastic phase (`ElasticSolve::ConjugateGradient`,
+//! and after Chebyshev's, `ElasticSolve::ChebyshevThenConjugateGradient`)
 //! on both devices: its kernels (`shaders/descent.wgsl`) against their CPU
 //! twins through whole solves, with the tracker's phase written once.
 
@@ -71,12 +72,17 @@ fn assert_same_descent(
     common::assert_same_positions(gpu, cpu, 2.0 * DeformParams::default().tolerance, context);
 }
 
-/// The conjugate-gradient phase by default's elastic parameters.
-fn conjugate() -> DeformParams {
+/// The default elastic parameters descending by `solve`.
+fn descending(solve: ElasticSolve) -> DeformParams {
     DeformParams::default().with(|p| {
         p.tuning.extrapolate = false;
-        p.tuning.elastic_solve = ElasticSolve::ConjugateGradient;
+        p.tuning.elastic_solve = solve;
     })
+}
+
+/// The conjugate-gradient phase by default's elastic parameters.
+fn conjugate() -> DeformParams {
+    descending(ElasticSolve::ConjugateGradient)
 }
 
 /// The bench's sixteen probes (15-30 mm deep, 8-35 mm wide, at the
@@ -96,15 +102,58 @@ fn every_conjugate_step_descends_on_both_devices_under_the_probes() {
     let sag = tissue_core::deform::sagged_breast();
     let solved = common::solve_on_both(&device, &queue, model, params.clone(), &sag);
     assert_same_descent(&solved, "sag");
+    for (depth, width, poked) in probes(model) {
+        let solved = common::solve_on_both(&device, &queue, model, params.clone(), &poked);
+        assert_same_descent(&solved, &format!("probe {depth} x {width} mm"));
+    }
+}
+
+/// The bench's sixteen probes on the phantom's surface, depth and width
+/// in mm.
+fn probes(model: &tissue_core::ParticleModel) -> Vec<(f32, f32, tissue_core::SurfaceMesh)> {
+    let mut probes = Vec::new();
     for depth in [15.0, 20.0, 25.0, 30.0] {
         for width in [8.0, 15.0, 25.0, 35.0] {
             let probe = tissue_core::deform::Indentation::down_at_top(&model.surface, depth, width)
                 .unwrap_or_else(|| panic!("the phantom has vertices"));
-            let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
-            let solved = common::solve_on_both(&device, &queue, model, params.clone(), &poked);
-            assert_same_descent(&solved, &format!("probe {depth} x {width} mm"));
+            probes.push((
+                depth,
+                width,
+                tissue_core::deform::deform_surface(&model.surface, &probe),
+            ));
         }
     }
+    probes
+}
+
+/// Chebyshev's phase, then the conjugate gradient's from where its
+/// potential first rose (`ElasticSolve::ChebyshevThenConjugateGradient`),
+/// under the sixteen probes at 2,000 particles: as the conjugate gradient
+/// alone, every accepted state below the one before, every solve
+/// converged with no retry, on both devices alike; and the conjugate
+/// gradient took over under at least one probe on each device (a step
+/// back is the turn).
+#[test]
+fn chebyshev_then_the_conjugate_gradient_descends_on_both_devices_under_the_probes() {
+    let Some((device, queue)) = common::gpu("Chebyshev then the conjugate gradient") else {
+        return;
+    };
+    let model = common::phantom(2_000);
+    let params = descending(ElasticSolve::ChebyshevThenConjugateGradient);
+    let mut turned = [0, 0];
+    for (depth, width, poked) in probes(model) {
+        let solved = common::solve_on_both(&device, &queue, model, params.clone(), &poked);
+        let context = format!("probe {depth} x {width} mm");
+        assert_same_descent(&solved, &context);
+        for (k, report) in [&solved.1, &solved.3].into_iter().enumerate() {
+            assert_eq!(report.elastic_retries, 0, "{context}: {report:?}");
+            turned[k] += usize::from(report.backtracks > 0);
+        }
+    }
+    assert!(
+        turned[0] > 0 && turned[1] > 0,
+        "turned on the CPU and the GPU: {turned:?}"
+    );
 }
 
 /// The phantom's skin free, its chest wall held (the rest vertices on

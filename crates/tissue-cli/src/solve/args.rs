@@ -31,6 +31,9 @@ pub enum Descent {
     /// every step accepted only where the potential fell (docs/METHOD.md,
     /// "Elastic model", *The conjugate-gradient phase*).
     ConjugateGradient,
+    /// Chebyshev's iterations until the potential first rises or they
+    /// stall, then the conjugate gradient from the state they accepted last.
+    ChebyshevThenConjugateGradient,
 }
 
 impl Descent {
@@ -39,6 +42,7 @@ impl Descent {
         match self {
             Self::Chebyshev => ElasticSolve::Chebyshev,
             Self::ConjugateGradient => ElasticSolve::ConjugateGradient,
+            Self::ChebyshevThenConjugateGradient => ElasticSolve::ChebyshevThenConjugateGradient,
         }
     }
 
@@ -47,6 +51,7 @@ impl Descent {
         match solve {
             ElasticSolve::Chebyshev => Self::Chebyshev,
             ElasticSolve::ConjugateGradient => Self::ConjugateGradient,
+            ElasticSolve::ChebyshevThenConjugateGradient => Self::ChebyshevThenConjugateGradient,
         }
     }
 }

@@ -52,6 +52,10 @@ pub enum ElasticSolve {
     /// margin (docs/METHOD.md, "Elastic model", *The conjugate-gradient
     /// phase*).
     ConjugateGradient,
+    /// Chebyshev's phase, watched, until its potential first rises or it
+    /// stalls; from the state it accepted last, the conjugate gradient's
+    /// (docs/METHOD.md, "Elastic model", *The conjugate-gradient phase*).
+    ChebyshevThenConjugateGradient,
 }
 
 /// Parameters of stage 2 a user sets: the force and its Poisson ratio, the

@@ -219,6 +219,10 @@ pub(crate) struct PhaseRun {
     /// time or more, and where it fails the frame is solved again from a
     /// shear phase, watched).
     pub(crate) watch: bool,
+    /// A watched phase goes back to the state it accepted at most this many
+    /// times ([`MAX_BACKTRACKS`]); past them, a rise ends it there,
+    /// diverged.
+    pub(crate) steps_back: usize,
 }
 
 impl PhaseRun {
@@ -230,6 +234,7 @@ impl PhaseRun {
             damping: 1.0,
             volume_check: false,
             watch: true,
+            steps_back: MAX_BACKTRACKS,
         }
     }
 }

@@ -596,6 +596,7 @@ mod tests {
     use super::*;
     use crate::stage2::acceleration::StoppingRule;
     use crate::stage2::device::{DescentDots, Iteration, Potential};
+    use crate::stage2::params::ElasticSolve;
     use crate::stage2::phase::FIRST_BATCH;
     use crate::stage2::phase::{ENERGY_WATCH, MAX_RELINEARISATIONS};
 
@@ -1390,6 +1391,42 @@ mod tests {
             let Ok(after) = tracker.solve();
             assert!(after.potentials.is_empty(), "{after:?}");
         }
+    }
+
+    /// Chebyshev then the conjugate gradient on a device without the
+    /// conjugate gradient's calls: the phase whose potential rose ends at
+    /// the state it accepted (no step back of its own), and the solve goes
+    /// on as Chebyshev's does without it, its correction made again there
+    /// and its rises stepped back from; it converges, each state it
+    /// accepted lower than the one before.
+    #[test]
+    fn chebyshev_then_the_conjugate_gradient_goes_on_by_chebyshev_where_the_device_cannot_descend()
+    {
+        let mut tracker = elastic_tracker(8, |device| {
+            device.elastic_correction = Some(0.5);
+            device.smoothed = true;
+            device.watched = true;
+            device.rising = true;
+        });
+        tracker.params.tuning.elastic_solve = ElasticSolve::ChebyshevThenConjugateGradient;
+        let Ok(report) = tracker.solve();
+        assert!(report.converged, "{report:?}");
+        assert!(report.potentials_fell(), "{report:?}");
+        // Back where the first phase accepted, then went on from there as
+        // a retry, whose own rise is stepped back from with half its step.
+        assert_eq!(report.elastic_retries, 1, "{report:?}");
+        assert_eq!(tracker.device.restores, 2, "{report:?}");
+        let elastic: Vec<(bool, f32)> = tracker.device.begun[1..]
+            .iter()
+            .map(|it| (it.relinearise, it.damping))
+            .collect();
+        // The first phase, the conjugate gradient's attempt, the phase
+        // linearised again where the first accepted, its step back.
+        assert_eq!(
+            elastic,
+            [(true, 1.0), (true, 1.0), (true, 1.0), (false, 0.5)],
+            "{report:?}"
+        );
     }
 
     /// A smoothed elastic phase whose potential and error estimate both

@@ -70,8 +70,9 @@ struct Searched {
 impl<D: SolveDevice> Tracker<D> {
     /// The elastic phase by the preconditioned conjugate gradient, from the
     /// state the shear phase left, within `cap` iterations; `None` where the
-    /// device has no smoothed elastic phase to precondition it with (the
-    /// phase made its correction; the caller runs the Chebyshev phase).
+    /// device has no smoothed elastic phase to precondition it with, or no
+    /// [`SolveDevice::descent_residual`] (the phase made its correction;
+    /// the caller runs the Chebyshev phase).
     ///
     /// Each iteration reads the residual `r` and the two-level step `z`
     /// at the current state ([`SolveDevice::descent_residual`]), stops where
@@ -110,6 +111,10 @@ impl<D: SolveDevice> Tracker<D> {
         let (mut halvings, mut relinearisations, mut retries, mut measured) = (0, 0, 0, 0);
         let stopped_by = loop {
             let Some(dots) = self.device.descent_residual()? else {
+                if iterations == 0 && measured == 0 {
+                    // The device has no conjugate-gradient calls.
+                    return Ok(None);
+                }
                 // The device left its smoothed phase: nothing to descend by.
                 break StopReason::Stalled;
             };

@@ -73,7 +73,13 @@ impl<D: SolveDevice> Tracker<D> {
         }
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let (mut potentials, mut backtracks) = (Vec::new(), 0);
-        let mut run = PhaseRun::corrected(true);
+        // Chebyshev's phase, then the conjugate gradient's from where its
+        // potential first rose or it stalled.
+        let mut turn = params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient;
+        let mut run = PhaseRun {
+            steps_back: if turn { 0 } else { MAX_BACKTRACKS },
+            ..PhaseRun::corrected(true)
+        };
         let (mut relinearised, mut went_on) = (0, 0);
         loop {
             let left = budget.saturating_sub(used);
@@ -85,6 +91,41 @@ impl<D: SolveDevice> Tracker<D> {
             // The phases go on from one another: one descent.
             potentials.extend(second.potentials.concat());
             backtracks += second.backtracks;
+            let failed = matches!(
+                second.stopped_by,
+                StopReason::Diverged | StopReason::Stalled
+            );
+            if turn && smoothed && failed && used < budget {
+                log::debug!(
+                    "the elastic phase {} after {} iterations; the conjugate gradient goes on \
+                     from the state it accepted last",
+                    if second.stopped_by == StopReason::Stalled {
+                        "stalled"
+                    } else {
+                        "rose"
+                    },
+                    second.iterations
+                );
+                if let Some(mut third) = self.conjugate_phase(params, budget - used, steps)? {
+                    // The state it accepted last: its potential is the
+                    // conjugate gradient's first.
+                    potentials.extend(third.potentials.concat().into_iter().skip(1));
+                    history.append(&mut third.residual_history);
+                    self.elastic_correct = true;
+                    return Ok(DeformReport {
+                        iterations: used + third.iterations,
+                        residual_history: history,
+                        potentials: vec![potentials],
+                        // Back to the state Chebyshev's phase accepted last.
+                        backtracks: backtracks + 1 + third.backtracks,
+                        elastic_retries: went_on + third.elastic_retries,
+                        ..third
+                    });
+                }
+                // The device cannot descend by it: Chebyshev's phases go on
+                // as they do without it.
+                turn = false;
+            }
             let next = Next::after(
                 second.stopped_by,
                 corrected,
@@ -251,7 +292,7 @@ impl<D: SolveDevice> Tracker<D> {
                 // A stall ends the phase at the state it kept last: a new
                 // linearisation, not a shorter step, is what it lacks.
                 let stalled = stopped_by == StopReason::Stalled;
-                let may_step_back = backtracks < MAX_BACKTRACKS
+                let may_step_back = backtracks < run.steps_back
                     && iterations < cap
                     && (!plain || !back_there)
                     && !stalled;
