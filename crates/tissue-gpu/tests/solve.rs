@@ -4,7 +4,7 @@
 
 mod common;
 
-use tissue_cpu::deformation::{DeformParams, ForceModel, RotationMethod, StopReason};
+use tissue_cpu::deformation::{DeformParams, ElasticSolve, ForceModel, RotationMethod, StopReason};
 
 #[test]
 fn the_gpu_solve_of_the_sag_matches_the_cpu_solve() {
@@ -229,6 +229,8 @@ fn the_gpu_steps_a_diverged_elastic_phase_back_as_the_cpu_does() {
     for (coarse, retries, backtracks) in [(0.0, 0, 1), (2.0, 0, 2)] {
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
+            // Chebyshev's steps back and retries, which it holds.
+            p.tuning.elastic_solve = ElasticSolve::Chebyshev;
             p.tuning.rotations = RotationMethod::Svd;
             p.tuning.coarse = coarse;
         });
@@ -263,6 +265,8 @@ fn the_gpu_steps_a_smoothed_elastic_phase_back_as_the_cpu_does() {
         let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
         let params = DeformParams::default().with(|p| {
             p.force = ForceModel::Elastic;
+            // Chebyshev's steps back and retries, which it holds.
+            p.tuning.elastic_solve = ElasticSolve::Chebyshev;
         });
         let solved = common::solve_on_both(&device, &queue, model, params, &poked);
         for report in [&solved.1, &solved.3] {
@@ -298,7 +302,11 @@ fn every_probe_descends_the_potential_on_both_devices() {
         return;
     };
     let model = common::phantom(2_000);
-    let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
+    let params = DeformParams::default().with(|p| {
+        p.tuning.extrapolate = false;
+        // Chebyshev's steps back and retries, which it holds.
+        p.tuning.elastic_solve = ElasticSolve::Chebyshev;
+    });
     assert_eq!(params.force, ForceModel::Elastic);
     for depth in [15.0, 20.0, 25.0, 30.0] {
         for width in [8.0, 15.0, 25.0, 35.0] {
@@ -336,6 +344,8 @@ fn an_infinite_potential_on_the_gpu_is_a_rise() {
     let poked = tissue_core::deform::deform_surface(&model.surface, &probe);
     let params = DeformParams::default().with(|p| {
         p.force = ForceModel::Elastic;
+        // Chebyshev's steps back and retries, which it holds.
+        p.tuning.elastic_solve = ElasticSolve::Chebyshev;
         p.tuning.extrapolate = false;
     });
     let solved = common::solve_on_both(&device, &queue, model, params, &poked);

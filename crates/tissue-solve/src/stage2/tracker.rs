@@ -888,13 +888,16 @@ mod tests {
     }
 
     /// A tracker of [`star`] with the elastic force on a [`Halving`]
-    /// device running `batch` iterations at a time, set up by `setup`.
+    /// device running `batch` iterations at a time, set up by `setup`,
+    /// descending by Chebyshev's phases (their steps back and retries are
+    /// what the tests of it hold).
     fn elastic_tracker(batch: usize, setup: impl FnOnce(&mut Halving)) -> Tracker<Halving> {
         let model = star();
         let params = DeformParams {
             force: ForceModel::Elastic,
             ..DeformParams::default()
-        };
+        }
+        .with(|p| p.tuning.elastic_solve = ElasticSolve::Chebyshev);
         Tracker::new(&model, params, |_, _| {
             let mut device = Halving::new(batch, &model);
             setup(&mut device);
