@@ -219,10 +219,11 @@ pub(crate) struct PhaseRun {
     /// time or more, and where it fails the frame is solved again from a
     /// shear phase, watched).
     pub(crate) watch: bool,
-    /// A watched phase goes back to the state it accepted at most this many
-    /// times ([`MAX_BACKTRACKS`]); past them, a rise ends it there,
-    /// diverged.
-    pub(crate) steps_back: usize,
+    /// A watched smoothed phase takes no step back: its first rise ends it
+    /// at the state it accepted, diverged, for the conjugate gradient to go
+    /// on from ([`crate::stage2::params::ElasticSolve::ChebyshevThenConjugateGradient`]).
+    /// Otherwise it goes back there up to [`MAX_BACKTRACKS`] times.
+    pub(crate) turn: bool,
 }
 
 impl PhaseRun {
@@ -234,7 +235,7 @@ impl PhaseRun {
             damping: 1.0,
             volume_check: false,
             watch: true,
-            steps_back: MAX_BACKTRACKS,
+            turn: false,
         }
     }
 }

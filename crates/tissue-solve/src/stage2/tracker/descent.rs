@@ -77,7 +77,7 @@ impl<D: SolveDevice> Tracker<D> {
         // potential first rose or it stalled.
         let mut turn = params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient;
         let mut run = PhaseRun {
-            steps_back: if turn { 0 } else { MAX_BACKTRACKS },
+            turn,
             ..PhaseRun::corrected(true)
         };
         let (mut relinearised, mut went_on) = (0, 0);
@@ -292,7 +292,12 @@ impl<D: SolveDevice> Tracker<D> {
                 // A stall ends the phase at the state it kept last: a new
                 // linearisation, not a shorter step, is what it lacks.
                 let stalled = stopped_by == StopReason::Stalled;
-                let may_step_back = backtracks < run.steps_back
+                let steps_back = if run.turn && smoothed {
+                    0
+                } else {
+                    MAX_BACKTRACKS
+                };
+                let may_step_back = backtracks < steps_back
                     && iterations < cap
                     && (!plain || !back_there)
                     && !stalled;
