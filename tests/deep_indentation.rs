@@ -11,7 +11,9 @@
 #![allow(clippy::unwrap_used, reason = "tests")]
 
 use tissue::deform::{Indentation, deform_surface};
-use tissue::deformation::{DeformParams, Deformer, ForceModel, StopReason, inversions};
+use tissue::deformation::{
+    DeformParams, Deformer, ElasticSolve, ForceModel, StopReason, inversions,
+};
 use tissue::{SamplingParams, phantom};
 
 fn poked_model() -> (tissue::ParticleModel, tissue::SurfaceMesh) {
@@ -121,10 +123,13 @@ fn converges_stepping_back(depth_mm: f32) {
 /// 10,000 particles, where the deepest compress their particles far from
 /// where the two-level solve was linearised: each converges, none
 /// diverges, and its elastic phases are one descent whose every accepted
-/// state has a potential at most the one before, the linearisations made
-/// again where a phase stalled included. The GPU's twin of this runs the
-/// same probes at 2,000 particles on lavapipe
-/// (`crates/tissue-gpu/tests/solve.rs::every_probe_descends_the_potential_on_both_devices`).
+/// state has a potential at most the one before. By Chebyshev's phases
+/// alone the deepest stall and are linearised again where they stalled;
+/// by default none runs again, the conjugate gradient going on where
+/// Chebyshev's phase first rose. The GPU's twins of this run the same
+/// probes at 2,000 particles on lavapipe
+/// (`crates/tissue-gpu/tests/solve.rs::every_probe_descends_the_potential_on_both_devices`,
+/// `crates/tissue-gpu/tests/conjugate.rs`).
 #[test]
 fn the_sixteen_probes_at_10k_descend_the_potential_and_converge() {
     let model = tissue::sample(
@@ -133,9 +138,31 @@ fn the_sixteen_probes_at_10k_descend_the_potential_and_converge() {
     )
     .unwrap()
     .model;
-    let params = DeformParams::default().with(|p| p.tuning.extrapolate = false);
-    let mut deformer = Deformer::new(&model, params).unwrap();
-    let mut relinearised = 0;
+    for chebyshev_alone in [true, false] {
+        let params = DeformParams::default().with(|p| {
+            p.tuning.extrapolate = false;
+            if chebyshev_alone {
+                p.tuning.elastic_solve = ElasticSolve::Chebyshev;
+            }
+        });
+        let (relinearised, turned) = probes_descend(&model, params);
+        if chebyshev_alone {
+            // The deepest stall and go on from where they stalled.
+            assert!(relinearised > 0);
+        } else {
+            assert_eq!(relinearised, 0);
+            assert!(turned > 0);
+        }
+    }
+}
+
+/// Solves the sixteen probes with `params`, asserting that each
+/// converges as one descent whose accepted potentials fall; returns how
+/// many times they were linearised again, and how many stepped back (by
+/// default, turned to the conjugate gradient).
+fn probes_descend(model: &tissue::ParticleModel, params: DeformParams) -> (usize, usize) {
+    let mut deformer = Deformer::new(model, params).unwrap();
+    let (mut relinearised, mut turned) = (0, 0);
     for depth in [15.0, 20.0, 25.0, 30.0] {
         for width in [8.0, 15.0, 25.0, 35.0] {
             let probe = Indentation::down_at_top(&model.surface, depth, width).unwrap();
@@ -157,8 +184,8 @@ fn the_sixteen_probes_at_10k_descend_the_potential_and_converge() {
                 report.potentials
             );
             relinearised += report.elastic_retries;
+            turned += usize::from(report.backtracks > 0);
         }
     }
-    // The deepest stall and go on from where they stalled.
-    assert!(relinearised > 0);
+    (relinearised, turned)
 }
