@@ -53,8 +53,10 @@ pub enum ElasticSolve {
     /// phase*).
     ConjugateGradient,
     /// Chebyshev's phase, watched, until its potential first rises or it
-    /// stalls; from the state it accepted last, the conjugate gradient's
-    /// (docs/METHOD.md, "Elastic model", *The conjugate-gradient phase*).
+    /// stalls; from the state it accepted last, the conjugate gradient's.
+    /// Where the skin is paired with an observation, Chebyshev's phases
+    /// alone (docs/METHOD.md, "Elastic model", *Chebyshev, then the
+    /// conjugate gradient*). The default.
     ChebyshevThenConjugateGradient,
 }
 
@@ -190,7 +192,8 @@ pub struct SolverTuning {
     /// frame's warm phase, a few iterations from its answer, steps by
     /// Chebyshev's weights either way. Where the device has no volume
     /// smoother for the phase, Chebyshev's. The default and why:
-    /// docs/METHOD.md, "Elastic model", *The conjugate-gradient phase*.
+    /// docs/METHOD.md, "Elastic model", *Chebyshev, then the conjugate
+    /// gradient*.
     pub elastic_solve: ElasticSolve,
 }
 
