@@ -711,18 +711,24 @@ mod tests {
         );
     }
 
+    /// `rest` turned by `turn`, stretched by 5 % and moved by up to 0.08
+    /// per particle in a pattern that is no affine map.
+    fn wobbled(rest: &[Vec3], turn: Mat3) -> Vec<Vec3> {
+        rest.iter()
+            .enumerate()
+            .map(|(i, &p)| {
+                let t = i as f32;
+                turn * p * 1.05
+                    + 0.08 * Vec3::new((t * 1.3).sin(), (t * 2.1).cos(), (t * 0.7).sin())
+            })
+            .collect()
+    }
+
     #[test]
     fn the_elastic_force_is_the_energy_gradient() {
         let (rest, connections, free) = jittered_block();
         let elastic = Elastic::new(&rest, &connections, 0.3, &free);
-        let x: Vec<Vec3> = rest
-            .iter()
-            .enumerate()
-            .map(|(i, &p)| {
-                let t = i as f32;
-                p * 1.05 + 0.08 * Vec3::new((t * 1.3).sin(), (t * 2.1).cos(), (t * 0.7).sin())
-            })
-            .collect();
+        let x = wobbled(&rest, Mat3::IDENTITY);
         let f = forces(&rest, &x, &connections, &elastic);
         let h = 1e-3f32;
         for k in [43usize, 86, 129] {
@@ -748,15 +754,7 @@ mod tests {
     fn the_pair_term_from_the_sums_is_the_sum_over_the_connections() {
         let (rest, connections, free) = jittered_block();
         let elastic = Elastic::new(&rest, &connections, 0.3, &free);
-        let x: Vec<Vec3> = rest
-            .iter()
-            .enumerate()
-            .map(|(i, &p)| {
-                let t = i as f32;
-                Mat3::from_rotation_z(0.4) * p * 1.05
-                    + 0.08 * Vec3::new((t * 1.3).sin(), (t * 2.1).cos(), (t * 0.7).sin())
-            })
-            .collect();
+        let x = wobbled(&rest, Mat3::from_rotation_z(0.4));
         let map = (Mat3::from_rotation_x(0.3) * 1.1).as_dmat3();
         for i in 0..rest.len() {
             let sums = elastic.energy_sums(i, &rest, &x, &connections);
