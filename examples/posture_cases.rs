@@ -141,7 +141,7 @@ fn main() {
                     ..Gravity::millimetres(g_rest, g_deformed, None)
                 },
                 &params,
-                &mut |s| solves.push((s.iterations, s.converged)),
+                &mut |s| solves.push((s.iterations, s.converged, s.backtracks, s.elastic_retries)),
             );
             let posture_s = started.elapsed().as_secs_f64();
             let found = match found {
@@ -171,7 +171,8 @@ fn main() {
             let skin = |i: usize| model.is_surface(i);
             println!(
                 "{name}, {posture} at {particles} particles, {e_true} kPa: fitted {:.3} kPa \
-                 ({:+.1} %); {} solves ({} not converged) in {posture_s:.2} s, iterations {:?}; \
+                 ({:+.1} %); {} solves ({} not converged, {} steps back, {} run again) in \
+                 {posture_s:.2} s, iterations {:?}; \
                  unloaded shape {:.3} mm RMS from the truth (skin {:.3}), loaded again {:.3} mm \
                  from the rest skin; the deformed posture from it, skin free ({} iterations), \
                  {:.3} mm RMS from the truth's (skin {:.3})",
@@ -179,6 +180,8 @@ fn main() {
                 100.0 * (found.stiffness_kpa / e_true - 1.0),
                 found.solves,
                 solves.iter().filter(|s| !s.1).count(),
+                solves.iter().map(|s| s.2).sum::<usize>(),
+                solves.iter().map(|s| s.3).sum::<usize>(),
                 solves.iter().map(|s| s.0).collect::<Vec<_>>(),
                 rms(&found.shape.positions, &unloaded.positions, |_| true),
                 rms(&found.shape.positions, &unloaded.positions, skin),

@@ -13,7 +13,7 @@ use crate::coarse::laplacian::SharedLaplacian;
 use crate::model::svd3::rotation_of;
 use crate::stage2::controls::check_same_topology;
 use crate::stage2::pairing::Pairing;
-use crate::stage2::params::{DeformParams, ForceModel};
+use crate::stage2::params::{DeformParams, ElasticSolve, ForceModel};
 use crate::stage2::phase::{PhaseRun, Steps, WARM_ITERATIONS};
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
@@ -461,6 +461,12 @@ impl<D: SolveDevice> Tracker<D> {
         } else if self.elastic_warm {
             let correct = self.elastic_correct;
             let cap = params.max_iterations.min(WARM_ITERATIONS);
+            // A guess's watched phase turns to the conjugate gradient as a
+            // phase from rest does (not where the skin is paired).
+            let turn = self.guessed
+                && correct
+                && params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient
+                && self.plan.pairing.is_none();
             let mut warm = self
                 .phase(
                     &params,
@@ -468,11 +474,26 @@ impl<D: SolveDevice> Tracker<D> {
                     PhaseRun {
                         correct,
                         watch: self.guessed,
+                        turn,
                         ..PhaseRun::corrected(false)
                     },
                     &mut steps,
                 )?
                 .0;
+            if turn
+                && self.device.elastic_smoothed()
+                && matches!(warm.stopped_by, StopReason::Diverged | StopReason::Stalled)
+                && warm.iterations < params.max_iterations
+            {
+                warm = match self.turn_to_conjugate(
+                    &params,
+                    params.max_iterations,
+                    warm,
+                    &mut steps,
+                )? {
+                    Ok(turned) | Err(turned) => turned,
+                };
+            }
             if warm.stopped_by == StopReason::IterationCap && cap < params.max_iterations {
                 // It circles far from its answer: stalled.
                 warm.stopped_by = StopReason::Stalled;
@@ -596,7 +617,6 @@ mod tests {
     use super::*;
     use crate::stage2::acceleration::StoppingRule;
     use crate::stage2::device::{DescentDots, Iteration, Potential};
-    use crate::stage2::params::ElasticSolve;
     use crate::stage2::phase::FIRST_BATCH;
     use crate::stage2::phase::{ENERGY_WATCH, MAX_RELINEARISATIONS};
 

@@ -101,35 +101,24 @@ impl<D: SolveDevice> Tracker<D> {
                 StopReason::Diverged | StopReason::Stalled
             );
             if turn && smoothed && failed && used < budget {
-                log::debug!(
-                    "the elastic phase {} after {} iterations; the conjugate gradient goes on \
-                     from the state it accepted last",
-                    if second.stopped_by == StopReason::Stalled {
-                        "stalled"
-                    } else {
-                        "rose"
-                    },
-                    second.iterations
-                );
-                if let Some(mut third) = self.conjugate_phase(params, budget - used, steps)? {
-                    // The state it accepted last: its potential is the
-                    // conjugate gradient's first.
-                    potentials.extend(third.potentials.concat().into_iter().skip(1));
-                    history.append(&mut third.residual_history);
-                    self.elastic_correct = true;
-                    return Ok(DeformReport {
-                        iterations: used + third.iterations,
-                        residual_history: history,
-                        potentials: vec![potentials],
-                        // Back to the state Chebyshev's phase accepted last.
-                        backtracks: backtracks + 1 + third.backtracks,
-                        elastic_retries: went_on + third.elastic_retries,
-                        ..third
-                    });
+                let before = DeformReport {
+                    iterations: used,
+                    residual_history: std::mem::take(&mut history),
+                    potentials: vec![std::mem::take(&mut potentials)],
+                    backtracks,
+                    elastic_retries: went_on,
+                    ..second.clone()
+                };
+                match self.turn_to_conjugate(params, budget, before, steps)? {
+                    Ok(turned) => return Ok(turned),
+                    Err(before) => {
+                        // The device cannot descend by it: Chebyshev's
+                        // phases go on as they do without it.
+                        history = before.residual_history;
+                        potentials = before.potentials.concat();
+                        turn = false;
+                    }
                 }
-                // The device cannot descend by it: Chebyshev's phases go on
-                // as they do without it.
-                turn = false;
             }
             let next = Next::after(
                 second.stopped_by,
@@ -182,6 +171,51 @@ impl<D: SolveDevice> Tracker<D> {
             }
             went_on += 1;
         }
+    }
+
+    /// Where a Chebyshev phase run with [`PhaseRun::turn`] first rose,
+    /// diverged or stalled (`before`: every phase so far, ended at the
+    /// state it accepted last), the conjugate-gradient phase goes on from
+    /// there within what is left of `budget`: the whole descent's report,
+    /// the turn counted as a step back. `Err(before)` where the device
+    /// cannot descend by the conjugate gradient (nothing was run).
+    pub(super) fn turn_to_conjugate(
+        &mut self,
+        params: &DeformParams,
+        budget: usize,
+        before: DeformReport,
+        steps: &mut Steps<'_>,
+    ) -> Result<Result<DeformReport, DeformReport>, D::Error> {
+        log::debug!(
+            "the elastic phase {} after {} iterations; the conjugate gradient goes on from the \
+             state it accepted last",
+            if before.stopped_by == StopReason::Stalled {
+                "stalled"
+            } else {
+                "rose"
+            },
+            before.iterations
+        );
+        let left = budget.saturating_sub(before.iterations);
+        let Some(mut third) = self.conjugate_phase(params, left, steps)? else {
+            return Ok(Err(before));
+        };
+        // The state accepted last: its potential is the conjugate
+        // gradient's first.
+        let mut potentials = before.potentials.concat();
+        potentials.extend(third.potentials.concat().into_iter().skip(1));
+        let mut history = before.residual_history;
+        history.append(&mut third.residual_history);
+        self.elastic_correct = true;
+        Ok(Ok(DeformReport {
+            iterations: before.iterations + third.iterations,
+            residual_history: history,
+            potentials: vec![potentials],
+            // Back to the state Chebyshev's phase accepted last.
+            backtracks: before.backtracks + 1 + third.backtracks,
+            elastic_retries: before.elastic_retries + third.elastic_retries,
+            ..third
+        }))
     }
 
     /// One phase of a solve: `p`'s force from the current state until its
