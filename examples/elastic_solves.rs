@@ -1,8 +1,10 @@
 //! The elastic solve's two descents compared from rest, on the CPU: the
 //! Chebyshev-accelerated two-level iteration with its energy watch
-//! (`ElasticSolve::Chebyshev`, the default) and the preconditioned
-//! conjugate gradient (`ElasticSolve::ConjugateGradient`; docs/METHOD.md,
-//! "Elastic model", *The conjugate-gradient phase*).
+//! (`ElasticSolve::Chebyshev`) and the preconditioned conjugate gradient
+//! (`ElasticSolve::ConjugateGradient`, or after Chebyshev's phase
+//! `ElasticSolve::ChebyshevThenConjugateGradient`, the default, with
+//! `--against`; docs/METHOD.md, "Elastic model", *The conjugate-gradient
+//! phase*).
 //!
 //! Cases: the bench's sag and indentation, its 16 probes (15-30 mm deep,
 //! 8-35 mm wide, at the phantom's tip), any shared case given (its
