@@ -454,10 +454,14 @@ pub fn match_observation_held(
         }
         let report = solver.solve()?;
         log::debug!(
-            "match stage {stage}: weight {:.3e}, robust scale {:.3}, {} iterations, stopped by {:?} \
+            "match stage {stage}: weight {:.3e}, robust scale {}, {} iterations, stopped by {:?} \
              (error estimate {:.1e})",
             rule.weight,
-            rule.robust,
+            if rule.robust < NO_LIMIT {
+                format!("{:.3}", rule.robust)
+            } else {
+                "none".to_owned()
+            },
             report.iterations,
             report.stopped_by,
             report.residual
