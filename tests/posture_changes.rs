@@ -183,15 +183,16 @@ fn recovered(
 }
 
 /// Prone to supine (a 2 g change) on the CPU at 10,000 particles: the
-/// stiffness within 1 %, the unloaded shape 0.44 mm and the free skin
-/// 0.09 mm RMS from the truth's, in 9 solves (measured).
+/// stiffness 3.2 % low (fitted on 4,000 particles), the unloaded shape
+/// 0.42 mm and the free skin 0.13 mm RMS from the truth's, in 9 solves
+/// (measured).
 #[test]
 fn prone_to_supine_is_recovered_on_the_cpu() {
     recovered(&Device::Cpu, 10_000, Vec3::Z, Vec3::NEG_Z, 0.6, 0.15);
 }
 
 /// Supine to lateral (90°) on the CPU at 10,000 particles: the stiffness
-/// within 1 %, the unloaded shape 0.38 mm and the free skin 0.34 mm RMS
+/// 4.3 % high, the unloaded shape 0.28 mm and the free skin 0.35 mm RMS
 /// from the truth's, in 9 solves (measured).
 #[test]
 fn supine_to_lateral_is_recovered_on_the_cpu() {
