@@ -156,6 +156,23 @@ fn chebyshev_then_the_conjugate_gradient_descends_on_both_devices_under_the_prob
     );
 }
 
+/// `base` for the phantom `model` with its skin free and its chest wall
+/// held (the rest vertices on z = 0), hanging under its weight (2 kPa,
+/// 1,000 kg/m^3) towards `gravity`.
+fn hanging(model: &tissue_core::ParticleModel, base: DeformParams, gravity: Vec3) -> DeformParams {
+    let held: Vec<bool> = model
+        .surface
+        .vertices
+        .iter()
+        .map(|v| v.z.abs() < 1e-3)
+        .collect();
+    let load = gravity_load(gravity, 1000.0, 2.0, base.poisson, 1e-3).unwrap();
+    base.with(|p| {
+        p.observed = Some(held);
+        p.load = load;
+    })
+}
+
 /// The phantom's skin free, its chest wall held (the rest vertices on
 /// z = 0), hanging under its weight (2 kPa, 1,000 kg/m^3) towards its
 /// feet, its back and its side, at 2,000 particles: the same on both
@@ -166,23 +183,12 @@ fn every_conjugate_step_descends_on_both_devices_under_gravity() {
         return;
     };
     let model = common::phantom(2_000);
-    let held: Vec<bool> = model
-        .surface
-        .vertices
-        .iter()
-        .map(|v| v.z.abs() < 1e-3)
-        .collect();
     for (towards, gravity) in [
         ("the feet", Vec3::NEG_Y),
         ("the back", Vec3::NEG_Z),
         ("the side", Vec3::X),
     ] {
-        let base = conjugate();
-        let load = gravity_load(gravity, 1000.0, 2.0, base.poisson, 1e-3).unwrap();
-        let params = base.with(|p| {
-            p.observed = Some(held.clone());
-            p.load = load;
-        });
+        let params = hanging(model, conjugate(), gravity);
         let solved = common::solve_on_both(&device, &queue, model, params, &model.surface);
         assert_same_descent(&solved, &format!("hanging towards {towards}"));
     }
@@ -203,30 +209,20 @@ fn a_warm_start_far_from_its_answer_turns_to_the_conjugate_gradient_on_both_devi
         return;
     };
     let model = common::phantom(2_000);
-    let held: Vec<bool> = model
-        .surface
-        .vertices
-        .iter()
-        .map(|v| v.z.abs() < 1e-3)
-        .collect();
-    let hanging = |gravity: Vec3| {
-        let base = DeformParams::default();
-        let load = gravity_load(gravity, 1000.0, 2.0, base.poisson, 1e-3).unwrap();
-        base.with(|p| {
-            p.observed = Some(held.clone());
-            p.load = load;
-        })
-    };
     for (from, to) in [
         (Vec3::NEG_Y, Vec3::NEG_Z),
         (Vec3::NEG_Z, Vec3::X),
         (Vec3::X, Vec3::NEG_X),
     ] {
-        let mut start = tissue_cpu::deformation::Deformer::new(model, hanging(from)).unwrap();
+        let mut start = tissue_cpu::deformation::Deformer::new(
+            model,
+            hanging(model, DeformParams::default(), from),
+        )
+        .unwrap();
         start.set_surface(&model.surface).unwrap();
         assert!(start.solve().converged);
         let guess = start.positions().to_vec();
-        let params = hanging(to);
+        let params = hanging(model, DeformParams::default(), to);
         let mut cpu = tissue_cpu::deformation::Deformer::new(
             model,
             tissue_gpu::GpuDeformer::cpu_twin(&params),
