@@ -187,8 +187,8 @@ impl<D: SolveDevice> Tracker<D> {
         steps: &mut Steps<'_>,
     ) -> Result<Result<DeformReport, DeformReport>, D::Error> {
         log::debug!(
-            "the elastic phase {} after {} iterations; the conjugate gradient goes on from the \
-             state it accepted last",
+            "the elastic phase {} ({} iterations into the solve); the conjugate gradient goes on \
+             from the state it accepted last",
             if before.stopped_by == StopReason::Stalled {
                 "stalled"
             } else {
