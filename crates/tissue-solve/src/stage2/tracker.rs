@@ -389,9 +389,11 @@ impl<D: SolveDevice> Tracker<D> {
     /// that fails, as a tracking frame does. For a solve whose answer is
     /// known roughly: the next of a search over nearby loads or shapes.
     /// Unlike a tracking frame's, that elastic phase is watched (the
-    /// potential measured, a rise stepped back from with half the step,
-    /// as from rest): a guess is no converged state, and unwatched the
-    /// posture's first round on a model diverged from one.
+    /// potential measured; where it rises, the conjugate gradient goes on
+    /// from the state accepted last, or with `ElasticSolve::Chebyshev` the
+    /// phase steps back with half its step, as from rest): a guess is no
+    /// converged state, and unwatched the posture's first round on a model
+    /// diverged from one.
     pub fn warm_start<E: From<Error> + From<D::Error>>(
         &mut self,
         positions: &[Vec3],
