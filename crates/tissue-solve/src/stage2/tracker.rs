@@ -13,7 +13,7 @@ use crate::coarse::laplacian::SharedLaplacian;
 use crate::model::svd3::rotation_of;
 use crate::stage2::controls::check_same_topology;
 use crate::stage2::pairing::Pairing;
-use crate::stage2::params::{DeformParams, ElasticSolve, ForceModel};
+use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::phase::{PhaseRun, Steps, WARM_ITERATIONS};
 use crate::stage2::plan::Plan;
 use crate::stage2::predict::{FrameHistory, predict};
@@ -464,11 +464,8 @@ impl<D: SolveDevice> Tracker<D> {
             let correct = self.elastic_correct;
             let cap = params.max_iterations.min(WARM_ITERATIONS);
             // A guess's watched phase turns to the conjugate gradient as a
-            // phase from rest does (not where the skin is paired).
-            let turn = self.guessed
-                && correct
-                && params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient
-                && self.plan.pairing.is_none();
+            // phase from rest does.
+            let turn = self.guessed && correct && self.turns_to_conjugate(&params);
             let mut warm = self
                 .phase(
                     &params,
@@ -619,6 +616,7 @@ mod tests {
     use super::*;
     use crate::stage2::acceleration::StoppingRule;
     use crate::stage2::device::{DescentDots, Iteration, Potential};
+    use crate::stage2::params::ElasticSolve;
     use crate::stage2::phase::FIRST_BATCH;
     use crate::stage2::phase::{ENERGY_WATCH, MAX_RELINEARISATIONS};
 

@@ -73,14 +73,7 @@ impl<D: SolveDevice> Tracker<D> {
         }
         let (mut used, mut history) = (first.iterations, first.residual_history);
         let (mut potentials, mut backtracks) = (Vec::new(), 0);
-        // Chebyshev's phase, then the conjugate gradient's from where its
-        // potential first rose or it stalled; not where the skin is paired
-        // with an observation, whose potential changes with the pairing
-        // (paired with the nearest points of the sag's surface subdivided,
-        // at 3,000 particles, the conjugate gradient circled to the cap
-        // where Chebyshev's phases converge).
-        let mut turn = params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient
-            && self.plan.pairing.is_none();
+        let mut turn = self.turns_to_conjugate(params);
         let mut run = PhaseRun {
             turn,
             ..PhaseRun::corrected(true)
@@ -171,6 +164,18 @@ impl<D: SolveDevice> Tracker<D> {
             }
             went_on += 1;
         }
+    }
+
+    /// Whether `params`' watched Chebyshev phases turn to the conjugate
+    /// gradient where their potential first rises or they stall
+    /// ([`ElasticSolve::ChebyshevThenConjugateGradient`]): not where the
+    /// skin is paired with an observation, whose potential changes with the
+    /// pairing (paired with the nearest points of the sag's surface
+    /// subdivided, at 3,000 particles, the conjugate gradient circled to
+    /// the cap where Chebyshev's phases converge).
+    pub(super) fn turns_to_conjugate(&self, params: &DeformParams) -> bool {
+        params.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient
+            && self.plan.pairing.is_none()
     }
 
     /// Where a Chebyshev phase run with [`PhaseRun::turn`] first rose,
