@@ -177,6 +177,7 @@ fn kernels(c: &mut Criterion) {
                 &elastic,
                 &[],
                 &[],
+                &[],
                 &free,
                 &rotations,
             )

@@ -37,9 +37,13 @@
 @group(0) @binding(6) var<storage, read> elastic_particles: array<ElasticParticle>;
 @group(0) @binding(7) var<storage, read_write> elastic_terms: array<ElasticTerms>;
 @group(0) @binding(8) var<storage, read_write> force: array<vec4<f32>>;
-// Per particle its part of the potential (`elastic_potential`'s output).
+// Per particle its part of the potential (`elastic_potential`'s output),
+// then its held part (`elastic_potential_work`'s).
 @group(0) @binding(9) var<storage, read_write> potential: array<f32>;
 @group(0) @binding(10) var<storage, read> free: array<u32>;
+// With a pairing, each particle's spring where the solve last kept a state
+// (two entries each, as `loads` holds them); one zero entry without.
+@group(0) @binding(11) var<storage, read> held_springs: array<vec4<f32>>;
 
 // M_i and N_i over particle i's connections.
 struct Products {
@@ -202,19 +206,36 @@ fn elastic_potential(
 }
 
 // The loads' work taken from each free particle's part of the potential,
-// and its spring's part added (`elastic_potential` binds all a stage may).
+// and its spring's part added (`elastic_potential` binds all a stage may);
+// with held springs, its held part after all the parts: the same with its
+// held spring's part instead.
+// Twin: `tissue_cpu::kernels::elastic_targets::elastic_potential`.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn elastic_potential_work(
     @builtin(workgroup_id) workgroup: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) local: u32,
 ) {
+    let n = params.count;
     let i = particle_index(workgroup, groups, local);
-    if (i >= params.count) {
+    if (i >= n) {
         return;
     }
+    var base = potential[i];
+    var pull = 0.0;
+    var held = 0.0;
     if (free[i] != 0u) {
         let q = current[i].xyz;
-        potential[i] = potential[i] - dot(body_force(i, params.count), q) + spring_potential(i, params.count, q);
+        base = base - dot(body_force(i, n), q);
+        pull = spring_potential(i, n, q);
+        if (arrayLength(&held_springs) == 2u * n) {
+            let s = Spring(held_springs[2u * i], held_springs[2u * i + 1u]);
+            let miss = q - s.anchor.xyz;
+            held = 0.5 * dot(miss, spring_times(s, miss));
+        }
+    }
+    potential[i] = base + pull;
+    if (arrayLength(&held_springs) == 2u * n && arrayLength(&potential) >= 2u * n) {
+        potential[n + i] = base + held;
     }
 }

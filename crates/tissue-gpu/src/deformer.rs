@@ -189,6 +189,13 @@ impl GpuDeformer {
         self.tracker.device()
     }
 
+    /// The kernels and buffers, to drive through their
+    /// [`tissue_solve::SolveDevice`] calls (tests that compare devices one
+    /// call at a time).
+    pub fn solve_device_mut(&mut self) -> &mut GpuSolve {
+        self.tracker.device_mut()
+    }
+
     /// The device the solve runs on.
     pub fn device(&self) -> &wgpu::Device {
         self.tracker.device().device()

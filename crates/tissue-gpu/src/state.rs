@@ -83,7 +83,9 @@ pub struct DeformState {
     /// Per particle its terms of the elastic force (empty without it).
     pub(crate) elastic_terms: Storage<ElasticTerms>,
     /// Per particle its part of the potential the elastic force descends
-    /// ([`Kernel::ElasticPotential`]; empty without the elastic model).
+    /// ([`Kernel::ElasticPotential`]; empty without the elastic model),
+    /// then per particle its held part (with a pairing:
+    /// [`DeformState::read_potential`]).
     pub(crate) potential: Storage<f32>,
     /// The conjugate-gradient elastic phase's vectors
     /// (`descent.wgsl`; empty until [`DeformState::ensure_descent`]).
@@ -338,7 +340,9 @@ impl DeformState {
                     &what("elastic_particles"),
                 )?,
                 Storage::zeroed(device, "elastic_terms", n, &what("elastic_terms"))?,
-                Storage::zeroed(device, "potential", n, &what("potential"))?,
+                // Each particle's part, then (with a pairing) its held
+                // part (`elastic_potential_work`).
+                Storage::zeroed(device, "potential", 2 * n, &what("potential"))?,
             ))
         })?;
         self.elastic = true;

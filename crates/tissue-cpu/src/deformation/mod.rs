@@ -131,6 +131,13 @@ impl Deformer {
         self.tracker.device()
     }
 
+    /// The state and kernels, to drive through their
+    /// [`tissue_solve::SolveDevice`] calls (tests that compare devices one
+    /// call at a time).
+    pub fn device_mut(&mut self) -> &mut CpuSolve {
+        self.tracker.device_mut()
+    }
+
     /// The passes every iteration of the last solve ran, in order (the GPU
     /// path's `GpuDeformer::passes`).
     pub fn passes(&self) -> Vec<Pass> {
@@ -289,6 +296,11 @@ pub struct CpuSolve {
     batch_start: Option<BatchStart>,
     /// The positions and rotations [`SolveDevice::save`] kept.
     saved: Option<(Vec<Vec3>, Vec<Mat3>)>,
+    /// Where the skin is paired, the pulls as they were when
+    /// [`SolveDevice::save`] kept a state (paired there by the
+    /// [`SolveDevice::potential`] before it): what
+    /// [`tissue_solve::stage2::Potential::held`] is measured with.
+    held_pulls: Vec<Spring>,
     /// The elastic terms of the last iteration ([`Pass::ElasticTerms`]),
     /// and the buffer its rotations are made in before they replace
     /// `rotations`: kept from iteration to iteration.
@@ -389,6 +401,7 @@ impl CpuSolve {
             iteration: None,
             batch_start: None,
             saved: None,
+            held_pulls: Vec::new(),
             terms: Vec::new(),
             turned: Vec::new(),
             descent: Descent::default(),
@@ -492,7 +505,7 @@ impl CpuSolve {
             elastic: self.elastic.is_some(),
             coarse: self.coarse.as_deref().map(|c| c.multilevel().is_some()),
             elastic_correction,
-            pairs: self.observation.is_some() && self.pairing.is_some(),
+            pairs: self.pairs(),
         }
     }
 
@@ -556,6 +569,12 @@ impl CpuSolve {
         } else {
             &[]
         }
+    }
+
+    /// Whether the skin is paired with an observation: one is held, and a
+    /// pairing.
+    fn pairs(&self) -> bool {
+        self.observation.is_some() && self.pairing.is_some()
     }
 
     /// [`Pass::Pair`]: the pulls paired at the current positions, where an

@@ -104,20 +104,29 @@ impl SolveDevice for CpuSolve {
 
     /// Paired at the positions measured where the skin is paired with an
     /// observation: the potential is then a function of the positions
-    /// alone, whatever pairing the last iteration had.
+    /// alone, whatever pairing the last iteration had; `held` with the
+    /// pulls the last save kept.
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.pair_at_current();
+        let paired = self.pairs() && self.held_pulls.len() == self.current.len();
+        let held: &[Spring] = if paired { &self.held_pulls } else { &[] };
         Ok(self.elastic.as_deref().map(|elastic| {
-            Potential::of(elastic_potential(
+            let (parts, held_parts) = elastic_potential(
                 &self.rest,
                 &self.current,
                 &self.connections,
                 elastic,
                 &self.loads,
                 &self.pulls,
+                held,
                 &self.free,
                 &self.rotations,
-            ))
+            );
+            if paired {
+                Potential::paired(parts, &held_parts)
+            } else {
+                Potential::of(parts)
+            }
         }))
     }
 
@@ -165,6 +174,9 @@ impl SolveDevice for CpuSolve {
         let saved = self.saved.get_or_insert_with(Default::default);
         saved.0.clone_from(&self.current);
         saved.1.clone_from(&self.rotations);
+        if self.pairs() {
+            self.held_pulls.clone_from(&self.pulls);
+        }
         Ok(())
     }
 
@@ -226,6 +238,7 @@ impl SolveDevice for CpuSolve {
     }
 
     fn set_pairing(&mut self, pairing: Option<&Pairing>) -> Result<(), Infallible> {
+        self.held_pulls.clear();
         self.pairing = pairing.cloned();
         if self.pairing.is_some() && self.pulls.is_empty() {
             self.pulls = vec![Spring::ZERO; self.rest.len()];

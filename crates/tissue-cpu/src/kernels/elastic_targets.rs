@@ -113,7 +113,10 @@ pub fn elastic_force(
 /// [`Elastic::particle_energy_turned`] in `f64`, its rotation the polar
 /// update of its gradient (of `M_i` where flat) warm-started from
 /// `rotations` (the last iteration's, which stay as they are): the
-/// potential is their sum, in index order.
+/// potential is their sum, in index order. Where `held` has springs (the
+/// pairing a kept state had), also each part with its spring's part from
+/// them instead ([`tissue_solve::stage2::Potential::held`]); else the
+/// second list is empty.
 #[allow(
     clippy::too_many_arguments,
     reason = "the state and what acts on it, as the shader binds them"
@@ -125,15 +128,18 @@ pub fn elastic_potential(
     elastic: &Elastic,
     loads: &[Vec3],
     springs: &[Spring],
+    held: &[Spring],
     free: &[bool],
     rotations: &[Mat3],
-) -> Vec<f64> {
+) -> (Vec<f64>, Vec<f64>) {
     let mut parts = vec![0.0; current.len()];
+    let mut held_parts = vec![0.0; current.len()];
     parts
         .par_chunks_mut(LANES)
+        .zip(held_parts.par_chunks_mut(LANES))
         .zip(rotations.par_chunks(LANES))
         .enumerate()
-        .for_each(|(chunk, (parts, previous))| {
+        .for_each(|(chunk, ((parts, held_parts), previous))| {
             let (first, count) = (chunk * LANES, parts.len());
             let mut of = [Mat3::ZERO; LANES];
             let mut sums = [EnergySums::ZERO; LANES];
@@ -150,13 +156,18 @@ pub fn elastic_potential(
                     Some(b) if free[i] => f64::from(b.dot(current[i])),
                     _ => 0.0,
                 };
-                let pull = match springs.get(i) {
+                let pull = |springs: &[Spring]| match springs.get(i) {
                     Some(&spring) if free[i] => spring_potential(spring, current[i]),
                     _ => 0.0,
                 };
                 let energy = elastic.energy_of(i, &sums[l], turned[l]);
-                *part = 0.5 * energy - work + pull;
+                let base = 0.5 * energy - work;
+                *part = base + pull(springs);
+                held_parts[l] = base + pull(held);
             }
         });
-    parts
+    if held.is_empty() {
+        held_parts.clear();
+    }
+    (parts, held_parts)
 }

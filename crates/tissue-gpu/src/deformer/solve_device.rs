@@ -46,13 +46,24 @@ impl SolveDevice for GpuSolve {
                 .is_some_and(|c| c.smoother().is_some())
     }
 
-    /// Each particle's part read back and summed on the host in `f64`.
+    /// Each particle's part (and held part) read back and summed on the
+    /// host in `f64`.
     fn potential(&mut self) -> Result<Option<Potential>, GpuError> {
         self.scoped(|gpu| {
-            let parts = gpu
-                .state
-                .read_potential(&gpu.device, &gpu.queue, &gpu.pipelines)?;
-            Ok((!parts.is_empty()).then(|| Potential::of(parts.iter().map(|&p| f64::from(p)))))
+            let (parts, held) =
+                gpu.state
+                    .read_potential(&gpu.device, &gpu.queue, &gpu.pipelines)?;
+            if parts.is_empty() {
+                return Ok(None);
+            }
+            let parts = parts.iter().map(|&p| f64::from(p));
+            Ok(Some(match held {
+                Some(held) => {
+                    let held: Vec<f64> = held.iter().map(|&p| f64::from(p)).collect();
+                    Potential::paired(parts, &held)
+                }
+                None => Potential::of(parts),
+            }))
         })
     }
 
@@ -79,16 +90,22 @@ impl SolveDevice for GpuSolve {
         })
     }
 
+    /// With a pairing, the springs held too ([`crate::DeformState::hold_springs`]).
     fn save(&mut self) -> Result<(), GpuError> {
         self.scoped(|gpu| {
-            let state = &gpu.state;
-            gpu.copy_all(
-                "save",
-                [
-                    (state.current.buffer(), &gpu.saved_current),
-                    (state.rotations.buffer(), &gpu.saved_rotations),
-                ],
-            );
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("save"),
+                });
+            for (from, to) in [
+                (gpu.state.current.buffer(), &gpu.saved_current),
+                (gpu.state.rotations.buffer(), &gpu.saved_rotations),
+            ] {
+                encoder.copy_buffer_to_buffer(from, 0, to, 0, None);
+            }
+            gpu.state.hold_springs(&mut encoder);
+            gpu.queue.submit([encoder.finish()]);
             Ok(())
         })
     }

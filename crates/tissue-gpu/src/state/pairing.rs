@@ -67,6 +67,13 @@ pub(crate) struct PairingBuffers {
     pub(crate) skin: Storage<u32>,
     /// Whether a pairing is set.
     pub(crate) pairing: bool,
+    /// With a pairing, the springs as they were where the solve last kept
+    /// a state ([`DeformState::hold_springs`], two entries per particle as
+    /// the loads buffer holds them): the potential's held parts are
+    /// measured with them (`held_springs`). One zero entry without.
+    pub(crate) held_springs: Storage<[f32; 4]>,
+    /// Whether `held_springs` holds springs kept since the pairing was set.
+    pub(crate) held: bool,
 }
 
 impl PairingBuffers {
@@ -81,6 +88,8 @@ impl PairingBuffers {
             host: PairingParams::default(),
             skin: Storage::zeroed(device, "skin", 1, none)?,
             pairing: false,
+            held_springs: Storage::zeroed(device, "held_springs", 1, none)?,
+            held: false,
         })
     }
 
@@ -89,13 +98,20 @@ impl PairingBuffers {
         self.grid.is_some() && self.pairing
     }
 
+    /// Whether the potential's held parts are measured: the iterations
+    /// pair, and springs were held since the pairing was set.
+    pub(crate) fn measures_held(&self) -> bool {
+        self.pairs() && self.held
+    }
+
     /// Every buffer, by the WGSL variable's name.
-    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 4] {
+    pub(crate) fn named(&self) -> [(&'static str, &wgpu::Buffer); 5] {
         [
             ("field_cells", self.field_cells.buffer()),
             ("field_triangles", self.field_triangles.buffer()),
             ("pairing", self.params.buffer()),
             ("skin", self.skin.buffer()),
+            ("held_springs", self.held_springs.buffer()),
         ]
     }
 }
@@ -147,7 +163,40 @@ impl DeformState {
             });
         }
         self.pairing.pairing = pairing.is_some();
+        self.pairing.held = false;
+        let n = self.len();
+        let entries = if pairing.is_some() { 2 * n } else { 1 };
+        if self.pairing.held_springs.len() != entries {
+            self.pairing.held_springs = scoped(device, || {
+                Storage::zeroed(
+                    device,
+                    "held_springs",
+                    entries,
+                    &format!("the held springs buffer ({n} particles)"),
+                )
+            })?;
+        }
         self.refresh_pairing(device, pipelines, pairing)
+    }
+
+    /// Keeps the springs the loads buffer holds now as the held springs
+    /// (`tissue_solve::SolveDevice::save` with a pairing: the springs the
+    /// potential measured last paired at the state kept). Nothing without
+    /// a pairing.
+    pub(crate) fn hold_springs(&mut self, encoder: &mut wgpu::CommandEncoder) {
+        let n = self.len() as u64;
+        if !self.pairing.pairing || self.pairing.held_springs.len() as u64 != 2 * n {
+            return;
+        }
+        self.pairing.held = true;
+        let entry = std::mem::size_of::<[f32; 4]>() as u64;
+        encoder.copy_buffer_to_buffer(
+            self.loads.buffer(),
+            n * entry,
+            self.pairing.held_springs.buffer(),
+            0,
+            Some(2 * n * entry),
+        );
     }
 
     /// Whether the loads buffer holds a spring per particle.

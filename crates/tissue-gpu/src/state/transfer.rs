@@ -118,16 +118,19 @@ impl DeformState {
 
     /// Each particle's part of the potential the elastic force descends,
     /// at the current positions (`elastic_targets.wgsl::elastic_potential`,
-    /// dispatched here); empty without [`DeformState::set_elastic`]. Stalls
-    /// until the GPU is done: frame boundaries only.
+    /// dispatched here), and with a pairing whose springs were held since
+    /// it was set each one's held part (its spring's part from the held
+    /// springs, [`DeformState::hold_springs`]);
+    /// empty without [`DeformState::set_elastic`]. Stalls until the GPU is
+    /// done: frame boundaries only.
     pub fn read_potential(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         pipelines: &Pipelines,
-    ) -> Result<Vec<f32>, GpuError> {
+    ) -> Result<(Vec<f32>, Option<Vec<f32>>), GpuError> {
         if !self.elastic {
-            return Ok(Vec::new());
+            return Ok((Vec::new(), None));
         }
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("potential"),
@@ -135,13 +138,23 @@ impl DeformState {
         // Paired at the positions measured: the potential is then a
         // function of the positions alone, whatever pairing the last
         // iteration had.
-        if self.pairing.pairs() {
+        let pairs = self.pairing.pairs();
+        if pairs {
             pipelines.dispatch(&mut encoder, self, Kernel::Pair, 0);
         }
         pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotential, 0);
         pipelines.dispatch(&mut encoder, self, Kernel::ElasticPotentialWork, 0);
         queue.submit([encoder.finish()]);
-        self.potential.read(device, queue, &self.readback)
+        let n = self.len();
+        if !self.pairing.measures_held() {
+            let parts = self
+                .potential
+                .read_first(device, queue, &self.readback, n)?;
+            return Ok((parts, None));
+        }
+        let mut parts = self.potential.read(device, queue, &self.readback)?;
+        let held = parts.split_off(n);
+        Ok((parts, Some(held)))
     }
 
     /// Reads `buffer`'s matrices back.

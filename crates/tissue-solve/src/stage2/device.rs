@@ -47,21 +47,38 @@ pub struct Potential {
     /// The sum of their magnitudes: the scale of the rounding in `value`,
     /// whose parts a device may make in `f32`.
     pub magnitude: f64,
+    /// Where the skin is paired with an observation, the potential at
+    /// these positions under the pairing kept with the state
+    /// [`SolveDevice::save`] kept (each particle's spring as it was paired
+    /// there), summed as `value`: what the energy watch compares with that
+    /// state's `value`, both under one pairing. `value` where nothing is
+    /// paired.
+    pub held: f64,
 }
 
 impl Potential {
-    /// The potential of `parts`, summed in index order.
+    /// The potential of `parts`, summed in index order; `held` the same.
     pub fn of(parts: impl IntoIterator<Item = f64>) -> Self {
-        parts.into_iter().fold(
-            Self {
-                value: 0.0,
-                magnitude: 0.0,
-            },
-            |sum, part| Self {
-                value: sum.value + part,
-                magnitude: sum.magnitude + part.abs(),
-            },
-        )
+        let (value, magnitude) = parts
+            .into_iter()
+            .fold((0.0, 0.0), |(value, magnitude): (f64, f64), part| {
+                (value + part, magnitude + part.abs())
+            });
+        Self {
+            value,
+            magnitude,
+            held: value,
+        }
+    }
+
+    /// The potential of `parts` (paired at these positions), `held` that of
+    /// `held_parts` (under the kept state's pairing), each summed in index
+    /// order.
+    pub fn paired(parts: impl IntoIterator<Item = f64>, held_parts: &[f64]) -> Self {
+        Self {
+            held: held_parts.iter().sum(),
+            ..Self::of(parts)
+        }
     }
 }
 
@@ -222,7 +239,10 @@ pub trait SolveDevice {
     fn potential(&mut self) -> Result<Option<Potential>, Self::Error>;
 
     /// Keeps the current positions and rotations for
-    /// [`SolveDevice::restore`]: the last state an elastic phase accepted.
+    /// [`SolveDevice::restore`]: the last state an elastic phase accepted;
+    /// where the skin is paired, also the springs as the last
+    /// [`SolveDevice::potential`] paired them, which [`Potential::held`]
+    /// is measured with until the next save.
     fn save(&mut self) -> Result<(), Self::Error>;
 
     /// Puts back the positions and rotations [`SolveDevice::save`] kept;

@@ -177,16 +177,36 @@ impl Watched {
     /// particle stepping back and forth at a flat potential). A smoothed
     /// phase settling passes over a finite rise (docs/METHOD.md, *The
     /// energy watch*).
+    ///
+    /// Where the skin is paired, the state now is measured under the
+    /// pairing of the state kept last as well ([`Potential::held`]): the
+    /// pairing moves the springs' planes as the skin slides, and the
+    /// potential paired at each state is not quite the one the iterations
+    /// descend (their springs' planes held while they step), so it may
+    /// rise a little as they converge. A state is kept where neither
+    /// rose, or where only the potential paired where it is rose and the
+    /// error estimate fell (the iteration contracting); a rise paired
+    /// where it is with the error estimate up is a cycle of the pairing,
+    /// stepped back from as any rise.
     pub(crate) fn verdict(&self) -> Verdict {
         let settling = self.smoothed && self.settling;
-        let rise = |now: Potential| rose(self.last, now);
+        let held = |now: Potential| Potential {
+            value: now.held,
+            ..now
+        };
+        let contracting = matches!(
+            (self.accepted_error, self.error_now),
+            (Some(a), Some(e)) if e < a
+        );
+        let rise =
+            |now: Potential| rose(self.last, held(now)) || (rose(self.last, now) && !contracting);
         match self.now {
-            Some(now) if settling && now.value.is_finite() && rise(now) => Verdict::Pass,
+            Some(now) if settling && now.held.is_finite() && rise(now) => Verdict::Pass,
             Some(now) if !rise(now) => {
                 let stuck = self.smoothed
                     && !settling
                     && self.may_step_back
-                    && !fell(self.last, now)
+                    && !fell(self.last, held(now))
                     && matches!(
                         (self.accepted_error, self.error_now),
                         (Some(a), Some(e)) if e >= a
@@ -293,7 +313,11 @@ mod tests {
     /// magnitude (an infinite magnitude would make any rounding infinite).
     #[test]
     fn a_potential_that_is_not_finite_rose() {
-        let at = |value: f64, magnitude: f64| Potential { value, magnitude };
+        let at = |value: f64, magnitude: f64| Potential {
+            value,
+            magnitude,
+            held: value,
+        };
         let last = at(100.0, 200.0);
         assert!(!rose(last, at(99.0, 200.0)));
         assert!(!rose(last, at(100.0 + 1e-4, 200.0)));
@@ -340,6 +364,7 @@ mod tests {
         let at = |value: f64| Potential {
             value,
             magnitude: 200.0,
+            held: value,
         };
         let watched = |now: Option<f64>, error_now: f32| Watched {
             last: at(100.0),
@@ -400,5 +425,47 @@ mod tests {
             ..settling(watched(Some(101.0), 0.5))
         };
         assert_eq!(plain_settling.verdict(), Verdict::StepBack("rose"));
+    }
+
+    /// Where the skin is paired the watch also compares the state now
+    /// under the kept state's pairing (`held`) with the kept state's
+    /// potential: a state whose potential paired where it is rose, but fell
+    /// under the kept pairing, is kept (its own potential the next
+    /// reference) while the error estimate falls, and stepped back from
+    /// where it rose (a cycle of the pairing); one that fell paired where
+    /// it is but rose under the kept pairing is stepped back from.
+    #[test]
+    fn a_paired_watch_compares_under_the_kept_states_pairing() {
+        let paired = |value: f64, held: f64| Potential {
+            value,
+            magnitude: 200.0,
+            held,
+        };
+        let watched = |now: Potential| Watched {
+            last: paired(100.0, 100.0),
+            now: Some(now),
+            accepted_error: Some(1.0),
+            error_now: Some(0.5),
+            smoothed: true,
+            settling: false,
+            may_step_back: true,
+        };
+        let slid = paired(101.0, 99.0);
+        assert_eq!(watched(slid).verdict(), Verdict::Keep(slid));
+        let cycling = Watched {
+            error_now: Some(2.0),
+            ..watched(slid)
+        };
+        assert_eq!(cycling.verdict(), Verdict::StepBack("rose"));
+        // Right after a step back there is no estimate to compare.
+        let after_a_step_back = Watched {
+            accepted_error: None,
+            ..watched(slid)
+        };
+        assert_eq!(after_a_step_back.verdict(), Verdict::StepBack("rose"));
+        assert_eq!(
+            watched(paired(99.0, 101.0)).verdict(),
+            Verdict::StepBack("rose")
+        );
     }
 }

@@ -142,7 +142,11 @@ pub struct DeformReport {
     /// after a shear phase, each going on from the state the one before
     /// accepted last), the potential the elastic force descends where it
     /// started and at every state it accepted: each at most the one before,
-    /// within the rounding of its parts ([`ENERGY_ROUNDING`]).
+    /// within the rounding of its parts ([`ENERGY_ROUNDING`]). Where the
+    /// skin is paired with an observation each is the state's potential
+    /// paired there; the watch compared it under the pairing of the state
+    /// before ([`crate::stage2::Potential::held`]), where it fell, so the
+    /// list itself may rise where the pairing moved.
     #[serde(default)]
     pub potentials: Vec<Vec<f64>>,
 }

@@ -798,6 +798,7 @@ mod tests {
             Ok(self.watched.then_some(Potential {
                 value: self.energy,
                 magnitude: self.energy,
+                held: self.energy,
             }))
         }
 

@@ -213,6 +213,7 @@ impl<D: SolveDevice> Tracker<D> {
             Ok(device.potential()?.unwrap_or(Potential {
                 value: f64::NAN,
                 magnitude: f64::NAN,
+                held: f64::NAN,
             }))
         };
         let enough = |t: f32, now: Potential| now.value <= at.value - ARMIJO * f64::from(t) * slope;

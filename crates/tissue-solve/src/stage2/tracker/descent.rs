@@ -355,6 +355,13 @@ impl<D: SolveDevice> Tracker<D> {
                     may_step_back,
                 }
                 .verdict();
+                log::trace!(
+                    "the energy watch after {iterations} iterations (step {damping}): the \
+                     potential {:.6} kept, now {:?} (paired here, under the kept pairing), the \
+                     error estimate {accepted_error:?} kept, now {error_now:?}: {verdict:?}",
+                    last.value,
+                    now.map(|n| (n.value, n.held))
+                );
                 if let Verdict::Keep(now) = verdict {
                     self.device.save()?;
                     potentials.push(now.value);
