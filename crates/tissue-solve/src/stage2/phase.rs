@@ -183,10 +183,10 @@ impl Watched {
     /// pairing moves the springs' planes as the skin slides, and the
     /// potential paired at each state is not quite the one the iterations
     /// descend (their springs' planes held while they step), so it may
-    /// rise a little as they converge. A state is kept where neither
-    /// rose, or where only the potential paired where it is rose and the
-    /// error estimate fell (the iteration contracting); a rise paired
-    /// where it is with the error estimate up is a cycle of the pairing,
+    /// rise a little as they converge. A state whose potential paired
+    /// where it is rose is still kept where it fell under the kept
+    /// pairing while the error estimate fell (the iteration contracting);
+    /// with the error estimate up, such a rise is a cycle of the pairing,
     /// stepped back from as any rise.
     pub(crate) fn verdict(&self) -> Verdict {
         let settling = self.smoothed && self.settling;
@@ -199,14 +199,14 @@ impl Watched {
             (Some(a), Some(e)) if e < a
         );
         let rise =
-            |now: Potential| rose(self.last, held(now)) || (rose(self.last, now) && !contracting);
+            |now: Potential| rose(self.last, now) && !(contracting && !rose(self.last, held(now)));
         match self.now {
-            Some(now) if settling && now.held.is_finite() && rise(now) => Verdict::Pass,
+            Some(now) if settling && now.value.is_finite() && rise(now) => Verdict::Pass,
             Some(now) if !rise(now) => {
                 let stuck = self.smoothed
                     && !settling
                     && self.may_step_back
-                    && !fell(self.last, held(now))
+                    && !fell(self.last, now)
                     && matches!(
                         (self.accepted_error, self.error_now),
                         (Some(a), Some(e)) if e >= a
@@ -432,8 +432,8 @@ mod tests {
     /// potential: a state whose potential paired where it is rose, but fell
     /// under the kept pairing, is kept (its own potential the next
     /// reference) while the error estimate falls, and stepped back from
-    /// where it rose (a cycle of the pairing); one that fell paired where
-    /// it is but rose under the kept pairing is stepped back from.
+    /// where it rose (a cycle of the pairing); one whose potential paired
+    /// where it is fell is kept whatever the kept pairing says.
     #[test]
     fn a_paired_watch_compares_under_the_kept_states_pairing() {
         let paired = |value: f64, held: f64| Potential {
@@ -463,8 +463,11 @@ mod tests {
             ..watched(slid)
         };
         assert_eq!(after_a_step_back.verdict(), Verdict::StepBack("rose"));
+        let fell_here = paired(99.0, 101.0);
+        assert_eq!(watched(fell_here).verdict(), Verdict::Keep(fell_here));
+        // Rose both ways: a rise, contracting or not.
         assert_eq!(
-            watched(paired(99.0, 101.0)).verdict(),
+            watched(paired(101.0, 100.5)).verdict(),
             Verdict::StepBack("rose")
         );
     }
