@@ -203,7 +203,7 @@ fn observations_without_correspondence_with_the_postures() {
 /// with the observation, press it along the observation under each
 /// change of load; every one converges (the energy watch comparing under
 /// the kept state's pairing, docs/METHOD.md, *The potential with a
-/// pairing*: 1,415 iterations in all, where one re-solve ran to the
+/// pairing*: 1,449 iterations in all, where one re-solve ran to the
 /// 5,000-iteration cap comparing the potential paired where the skin is
 /// alone), and the regions hold the truth.
 #[test]
