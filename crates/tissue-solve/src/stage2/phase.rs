@@ -198,8 +198,12 @@ impl Watched {
             (self.accepted_error, self.error_now),
             (Some(a), Some(e)) if e < a
         );
-        let rise =
-            |now: Potential| rose(self.last, now) && !(contracting && !rose(self.last, held(now)));
+        let rise = |now: Potential| {
+            // Fell under the kept pairing while the iteration contracts:
+            // the skin slid.
+            let slid = contracting && !rose(self.last, held(now));
+            rose(self.last, now) && !slid
+        };
         match self.now {
             Some(now) if settling && now.value.is_finite() && rise(now) => Verdict::Pass,
             Some(now) if !rise(now) => {
