@@ -420,7 +420,7 @@ pub fn match_observation_held(
             skin: skin.clone(),
             rule,
         };
-        let springs = pairing.springs(field, &start);
+        let (springs, iterated) = pairing.for_solve_from(field, &start);
         if !springs.iter().any(|s| !s.is_zero()) {
             clear(solver)?;
             return Err(ObservationError::Unpaired { skin: skin.len() }.into());
@@ -439,7 +439,7 @@ pub fn match_observation_held(
             None
         };
         solver.set_springs(springs)?;
-        solver.set_pairing(Some(pairing))?;
+        solver.set_pairing(Some(iterated))?;
         let last_stage = stage + 1 == params.stages;
         solver.set_params(solve_params.clone().with(|p| {
             if !last_stage && !scan {

@@ -43,8 +43,8 @@ pub use device::{DescentDots, Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
 pub use observation::{Cleaned, Cloud, NORMAL_NEIGHBOURS, SCAN_SCALE};
 pub use pairing::{
-    CLOUD_SMOOTHING, Feature, NO_LIMIT, Paired, Pairing, PairingRule, feature_of, pair_plane,
-    paired_point, paired_spring, taper,
+    CLOUD_SMOOTHING, Feature, NO_LIMIT, Paired, Pairing, PairingRule, feature_of, on_rim,
+    pair_plane, paired_point, paired_spring, taper,
 };
 pub use params::{
     DeformParams, ElasticSolve, ForceModel, MAX_COARSE_AGGREGATES, MAX_COARSE_DIRECT_AGGREGATES,

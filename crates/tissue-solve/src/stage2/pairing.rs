@@ -174,6 +174,56 @@ impl Pairing {
         self.pair_into(field, positions, &mut springs);
         springs
     }
+
+    /// What a solve from `positions` runs with: every paired particle's
+    /// spring there ([`Pairing::springs`]), and the pairing its iterations
+    /// repeat, which for a cloud leaves out the particles on its rim at
+    /// `positions` ([`on_rim`]): theirs stay the springs they start with
+    /// for the whole solve. Past half the way to a cloud's edge the
+    /// smoothed plane's point is the weighted mean of the rim's points
+    /// alone and moves many times as far as the particle does, and the
+    /// pull fades ([`taper`]) as the particle slides out: paired at every
+    /// iteration, a rim particle stepped back and forth between two planes
+    /// (breast_d's scan under its posture options, a cycle of four
+    /// iterations that held two re-solves at their error estimate for 500
+    /// iterations each) or crept outward as its pull faded (breast_c's
+    /// scan, whose last stage ended at the float floor after 367
+    /// iterations) (docs/METHOD.md, "Observations without
+    /// correspondence").
+    pub fn for_solve_from(&self, field: &SurfaceField, positions: &[Vec3]) -> (Vec<Spring>, Self) {
+        let springs = self.springs(field, positions);
+        if !self.rule.cloud {
+            return (springs, self.clone());
+        }
+        let skin = self
+            .skin
+            .par_iter()
+            .copied()
+            .filter(|&i| {
+                let x = positions[i as usize];
+                !on_rim(x, &paired_point(field, x, &self.rule), &self.rule)
+            })
+            .collect();
+        (
+            springs,
+            Self {
+                skin,
+                rule: self.rule,
+            },
+        )
+    }
+}
+
+/// Whether a particle at `x` paired with `paired` lies on a cloud's rim:
+/// farther along the cloud's plane from its point than half the way to
+/// the edge, where its pull fades ([`taper`]). Never for a surface.
+pub fn on_rim(x: Vec3, paired: &Paired, rule: &PairingRule) -> bool {
+    if !rule.cloud {
+        return false;
+    }
+    let offset = x - paired.point;
+    let across = (offset - paired.normal.dot(offset) * paired.normal).length();
+    taper(across / rule.edge) < 1.0
 }
 
 /// The plane a particle at `x` is pulled to, from its nearest observed
@@ -379,6 +429,53 @@ mod tests {
             Feature::Edge(t) => assert!((t - edge).length() < 1e-6),
             other => panic!("{other:?}"),
         }
+    }
+
+    /// A solve from positions with one particle over a flat cloud and one
+    /// past its last points, on its rim: both start with their springs,
+    /// and only the one over the cloud is paired again at each iteration.
+    /// A surface's pairing is repeated whole.
+    #[test]
+    fn a_clouds_rim_keeps_the_springs_a_solve_starts_with() {
+        let mut points = Vec::new();
+        for i in -10..=10 {
+            for j in -10..=10 {
+                points.push(Vec3::new(i as f32, j as f32, 0.0));
+            }
+        }
+        let normals = vec![Vec3::Z; points.len()];
+        let field = SurfaceField::of_cloud_within(&points, &normals, 1.0, 4.0, 3.0)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let rule = PairingRule {
+            weight: 4.0,
+            edge: 3.0,
+            robust: NO_LIMIT,
+            cloud: true,
+            smooth: 1.0,
+        };
+        let positions = [Vec3::new(0.2, 0.3, 0.5), Vec3::new(12.0, 0.0, 0.5)];
+        let over = paired_point(&field, positions[0], &rule);
+        let past = paired_point(&field, positions[1], &rule);
+        assert!(!on_rim(positions[0], &over, &rule));
+        assert!(on_rim(positions[1], &past, &rule), "{past:?}");
+        let pairing = Pairing {
+            skin: vec![0, 1],
+            rule,
+        };
+        let (springs, iterated) = pairing.for_solve_from(&field, &positions);
+        assert_eq!(springs, pairing.springs(&field, &positions));
+        assert!(springs.iter().all(|s| !s.is_zero()), "{springs:?}");
+        assert_eq!(iterated.skin, vec![0]);
+        assert_eq!(iterated.rule, rule);
+        let surface = Pairing {
+            rule: PairingRule {
+                cloud: false,
+                edge: NO_LIMIT,
+                ..rule
+            },
+            ..pairing
+        };
+        assert_eq!(surface.for_solve_from(&field, &positions).1, surface);
     }
 
     #[test]

@@ -694,7 +694,8 @@ type Held<'a> = (&'a SurfaceField, &'a Pairing);
 
 /// Solves `t` from `start` with its control points on `surface` and, with
 /// `held`, its skin paired with that observation from its springs at
-/// `start` on; counts the solve in `spread`.
+/// `start` on, as the match's stages were ([`Pairing::for_solve_from`]: a
+/// cloud's rim held at its springs there); counts the solve in `spread`.
 fn resolve<D, E>(
     t: &mut Tracker<D>,
     (surface, held): (&SurfaceMesh, Option<Held<'_>>),
@@ -707,8 +708,9 @@ where
 {
     if let Some((field, pairing)) = held {
         t.set_observation(Some(field))?;
-        t.set_springs::<E>(pairing.springs(field, start))?;
-        t.set_pairing::<E>(Some(pairing.clone()))?;
+        let (springs, iterated) = pairing.for_solve_from(field, start);
+        t.set_springs::<E>(springs)?;
+        t.set_pairing::<E>(Some(iterated))?;
     }
     t.set_surface::<E>(surface)?;
     t.warm_start::<E>(start)?;
