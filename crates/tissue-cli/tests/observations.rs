@@ -250,3 +250,30 @@ fn breast_es_remeshed_surface_with_its_postures_is_sure_of_itself_in_few_iterati
         radii.len()
     );
 }
+
+/// breast_c's scan without the posture options: the skin on the scan's
+/// rim keeps the springs each stage starts with (docs/METHOD.md, *A
+/// cloud's rim keeps its springs through a solve*), and every stage stops
+/// at the tolerance: 246 iterations, where paired at every iteration the
+/// rim crept outward and the last stage ended at the float floor after
+/// 681. The probes land within 1.8 mm (1.729; the best peer 7.48).
+#[test]
+fn breast_cs_scan_matches_to_the_tolerance_with_its_rim_held() {
+    let Some(dir) = common::shared_case("breast_c") else {
+        return;
+    };
+    let work = tempfile::tempdir().unwrap();
+    let mut case = Case::new(&dir, work.path());
+    case.gravity.clear();
+    let cloud = dir.join("observed_cloud.csv");
+    let ((rmse, tumour), report) =
+        case.score(["--cloud", s(&cloud)], &work.path().join("cloud"));
+    let iterations = report["iterations"].as_u64().unwrap();
+    eprintln!(
+        "breast_c's scan: {rmse:.3} / {tumour:.3} mm in {iterations} iterations, stopped by {}",
+        report["stopped_by"]
+    );
+    assert_eq!(report["stopped_by"], "tolerance", "{}", report["stopped_by"]);
+    assert!(iterations <= 400, "{iterations} iterations");
+    assert!(rmse <= 1.8 && tumour <= 1.3, "{rmse} / {tumour} mm");
+}
