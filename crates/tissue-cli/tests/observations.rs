@@ -266,14 +266,17 @@ fn breast_cs_scan_matches_to_the_tolerance_with_its_rim_held() {
     let mut case = Case::new(&dir, work.path());
     case.gravity.clear();
     let cloud = dir.join("observed_cloud.csv");
-    let ((rmse, tumour), report) =
-        case.score(["--cloud", s(&cloud)], &work.path().join("cloud"));
+    let ((rmse, tumour), report) = case.score(["--cloud", s(&cloud)], &work.path().join("cloud"));
     let iterations = report["iterations"].as_u64().unwrap();
     eprintln!(
         "breast_c's scan: {rmse:.3} / {tumour:.3} mm in {iterations} iterations, stopped by {}",
         report["stopped_by"]
     );
-    assert_eq!(report["stopped_by"], "tolerance", "{}", report["stopped_by"]);
+    assert_eq!(
+        report["stopped_by"], "tolerance",
+        "{}",
+        report["stopped_by"]
+    );
     assert!(iterations <= 400, "{iterations} iterations");
     assert!(rmse <= 1.8 && tumour <= 1.3, "{rmse} / {tumour} mm");
 }
