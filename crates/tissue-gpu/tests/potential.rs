@@ -15,6 +15,15 @@ use tissue_solve::SolveDevice;
 use tissue_solve::model::held_vertices;
 use tissue_solve::stage2::{NO_LIMIT, Pairing, PairingRule, spring_potential};
 
+/// The GPU's potential `gpu` is the CPU's `cpu` within 1e-4 of it (its
+/// parts in `f32`).
+fn close(gpu: f64, cpu: f64, what: &str) {
+    assert!(
+        (gpu - cpu).abs() <= 1e-4 * cpu.abs().max(1e-9),
+        "{what}: GPU {gpu} against CPU {cpu}"
+    );
+}
+
 /// At rest the potential is nothing; at the sag's start (the control
 /// points moved, the rest at rest) and at its answer the GPU's is the
 /// CPU's within 1e-4 (its parts in `f32`), and the solve lowered it on
@@ -27,12 +36,6 @@ fn the_gpu_measures_the_potential_as_the_cpu_does() {
     };
     let model = common::phantom(2_000);
     let sag = tissue_core::deform::sagged_breast();
-    let close = |gpu: f64, cpu: f64, what: &str| {
-        assert!(
-            (gpu - cpu).abs() <= 1e-4 * cpu.abs().max(1e-9),
-            "{what}: GPU {gpu} against CPU {cpu}"
-        );
-    };
     for load in [Vec3::ZERO, Vec3::new(0.0, -2e-3, 0.0)] {
         let params = DeformParams::default().with(|p| p.load = load);
         let mut cpu = Deformer::new(model, GpuDeformer::cpu_twin(&params)).unwrap();
@@ -133,12 +136,6 @@ fn a_paired_potential_is_also_measured_under_the_pairing_of_the_state_kept() {
     );
     gpu.solve_device_mut().save().unwrap();
     cpu.device_mut().save().unwrap();
-    let close = |gpu: f64, cpu: f64, what: &str| {
-        assert!(
-            (gpu - cpu).abs() <= 1e-4 * cpu.abs().max(1e-9),
-            "{what}: GPU {gpu} against CPU {cpu}"
-        );
-    };
     close(at_rest.0.value, at_rest.1.value, "at rest");
     // Measured again where it was kept, under its own pairing.
     for (potential, on) in [
