@@ -191,19 +191,27 @@ impl Pairing {
     /// iterations) (docs/METHOD.md, "Observations without
     /// correspondence").
     pub fn for_solve_from(&self, field: &SurfaceField, positions: &[Vec3]) -> (Vec<Spring>, Self) {
-        let springs = self.springs(field, positions);
-        if !self.rule.cloud {
-            return (springs, self.clone());
-        }
-        let skin = self
+        // Each particle paired once: its spring, and whether it is on the rim.
+        let paired: Vec<(Spring, bool)> = self
             .skin
             .par_iter()
-            .copied()
-            .filter(|&i| {
+            .map(|&i| {
                 let x = positions[i as usize];
-                !on_rim(x, &paired_point(field, x, &self.rule), &self.rule)
+                let at = paired_point(field, x, &self.rule);
+                (
+                    paired_spring(x, &at, &self.rule),
+                    on_rim(x, &at, &self.rule),
+                )
             })
             .collect();
+        let mut springs = vec![Spring::ZERO; positions.len()];
+        let mut skin = Vec::with_capacity(self.skin.len());
+        for (&i, &(spring, rim)) in self.skin.iter().zip(&paired) {
+            springs[i as usize] = spring;
+            if !rim {
+                skin.push(i);
+            }
+        }
         (
             springs,
             Self {
