@@ -41,6 +41,26 @@ cargo test --workspace --release --exclude tissue-gpu --exclude tissue-py
 echo "== GPU tests (release; the output names the adapter)"
 cargo test -p tissue-gpu --release -- --show-output
 
+# wgpu's other backend on Linux: OpenGL through EGL, here Mesa's llvmpipe
+# (its shader compiler is not lavapipe's). Installed like lavapipe where
+# missing.
+have_gl() {
+    [ -n "$(ldconfig -p | grep 'libEGL_mesa\.so\.0')" ] &&
+        compgen -G '/usr/lib/*/dri/swrast_dri.so' >/dev/null
+}
+if ! have_gl; then
+    echo "== no Mesa OpenGL driver found: installing llvmpipe's for the GL tests"
+    sudo=""
+    [ "$(id -u)" -ne 0 ] && sudo="sudo"
+    export DEBIAN_FRONTEND=noninteractive
+    packages="libegl1 libegl-mesa0 libgl1-mesa-dri"
+    $sudo apt-get install -y --no-install-recommends $packages ||
+        { $sudo apt-get update && $sudo apt-get install -y --no-install-recommends $packages; }
+    have_gl || { echo "error: Mesa's OpenGL driver did not install"; exit 1; }
+fi
+echo "== GPU tests on OpenGL (wgpu's GL backend): the kernels' parity and the potential"
+WGPU_BACKEND=gl cargo test -p tissue-gpu --release --test parity --test potential -- --show-output
+
 echo "== criterion micro-benchmarks, smoke mode (each kernel once)"
 cargo bench --bench kernels -- --test
 cargo bench --bench gpu_kernels -- --test

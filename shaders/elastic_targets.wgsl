@@ -173,6 +173,12 @@ fn elastic_potential(
     if (i >= params.count) {
         return;
     }
+    // The row's bounds read before the rotation's code: Mesa's OpenGL
+    // compiler (llvmpipe, wgpu's GL backend) reads them wrong for part of
+    // the particles where they are read after it, and the pair term then
+    // skips their connections.
+    let first = offsets[i];
+    let last = offsets[i + 1u];
     let particle = elastic_particles[i];
     let a = particle.correction.x_axis.w;
     let p = products(i);
@@ -195,7 +201,7 @@ fn elastic_potential(
             + w * (jacobian - 1.0) * (jacobian - 1.0);
     }
     var pair = 0.0;
-    for (var k = offsets[i]; k < offsets[i + 1u]; k++) {
+    for (var k = first; k < last; k++) {
         let j = indices[k];
         let d = rest[j].xyz - rest[i].xyz;
         let e = current[j].xyz - current[i].xyz;
