@@ -63,6 +63,8 @@ pub struct SolveArgs {
     #[arg(long, value_enum)]
     pub force: Option<Force>,
     /// Poisson ratio of the elastic force (0 to 0.499; soft tissue is 0.45 to 0.49).
+    /// With the posture options the tissue's own ratio matters most: give it
+    /// where it is known (docs/ACCURACY.md, "The Poisson ratio, with gravity").
     #[arg(long, default_value_t = DeformParams::default().poisson)]
     pub poisson: f32,
     /// Iteration cap per solve.
