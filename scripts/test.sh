@@ -3,25 +3,40 @@
 # CI runs exactly this (.ci/run). The tests read ../shared/meshes when it exists;
 # under CI=true its absence is a failure. The GPU tests run on whatever Vulkan
 # driver there is; on a machine without one this installs Mesa's lavapipe (a
-# software Vulkan device), so they run rather than skip.
+# software Vulkan device), so they run rather than skip; some run again on
+# Mesa's OpenGL driver (llvmpipe), installed the same way.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# Debian packages, installed with apt where missing.
+apt_install() {
+    local sudo=""
+    [ "$(id -u)" -ne 0 ] && sudo="sudo"
+    export DEBIAN_FRONTEND=noninteractive
+    $sudo apt-get install -y --no-install-recommends "$@" ||
+        { $sudo apt-get update && $sudo apt-get install -y --no-install-recommends "$@"; }
+}
 have_vulkan() {
     # No `grep -q`: under pipefail its early exit can fail the pipeline.
     [ -n "$(ldconfig -p | grep 'libvulkan\.so\.1')" ] &&
         { compgen -G '/usr/share/vulkan/icd.d/*.json' >/dev/null ||
             compgen -G '/etc/vulkan/icd.d/*.json' >/dev/null; }
 }
+# wgpu's other backend on Linux: OpenGL through EGL, here Mesa's llvmpipe
+# (its shader compiler is not lavapipe's).
+have_gl() {
+    [ -n "$(ldconfig -p | grep 'libEGL_mesa\.so\.0')" ] &&
+        compgen -G '/usr/lib/*/dri/swrast_dri.so' >/dev/null
+}
 if ! have_vulkan; then
     echo "== no Vulkan driver found: installing Mesa lavapipe for the GPU tests"
-    sudo=""
-    [ "$(id -u)" -ne 0 ] && sudo="sudo"
-    export DEBIAN_FRONTEND=noninteractive
-    packages="mesa-vulkan-drivers libvulkan1"
-    $sudo apt-get install -y --no-install-recommends $packages ||
-        { $sudo apt-get update && $sudo apt-get install -y --no-install-recommends $packages; }
+    apt_install mesa-vulkan-drivers libvulkan1
     have_vulkan || { echo "error: lavapipe did not install"; exit 1; }
+fi
+if ! have_gl; then
+    echo "== no Mesa OpenGL driver found: installing llvmpipe's for the GL tests"
+    apt_install libegl1 libegl-mesa0 libgl1-mesa-dri
+    have_gl || { echo "error: Mesa's OpenGL driver did not install"; exit 1; }
 fi
 # lavapipe warns about a missing runtime directory; give it one.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
@@ -41,23 +56,6 @@ cargo test --workspace --release --exclude tissue-gpu --exclude tissue-py
 echo "== GPU tests (release; the output names the adapter)"
 cargo test -p tissue-gpu --release -- --show-output
 
-# wgpu's other backend on Linux: OpenGL through EGL, here Mesa's llvmpipe
-# (its shader compiler is not lavapipe's). Installed like lavapipe where
-# missing.
-have_gl() {
-    [ -n "$(ldconfig -p | grep 'libEGL_mesa\.so\.0')" ] &&
-        compgen -G '/usr/lib/*/dri/swrast_dri.so' >/dev/null
-}
-if ! have_gl; then
-    echo "== no Mesa OpenGL driver found: installing llvmpipe's for the GL tests"
-    sudo=""
-    [ "$(id -u)" -ne 0 ] && sudo="sudo"
-    export DEBIAN_FRONTEND=noninteractive
-    packages="libegl1 libegl-mesa0 libgl1-mesa-dri"
-    $sudo apt-get install -y --no-install-recommends $packages ||
-        { $sudo apt-get update && $sudo apt-get install -y --no-install-recommends $packages; }
-    have_gl || { echo "error: Mesa's OpenGL driver did not install"; exit 1; }
-fi
 echo "== GPU tests on OpenGL (wgpu's GL backend): the kernels' parity and the potential"
 WGPU_BACKEND=gl cargo test -p tissue-gpu --release --test parity --test potential -- --show-output
 
