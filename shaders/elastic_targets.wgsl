@@ -173,10 +173,10 @@ fn elastic_potential(
     if (i >= params.count) {
         return;
     }
-    // The row's bounds read before the rotation's code: Mesa's OpenGL
-    // compiler (llvmpipe, wgpu's GL backend) reads them wrong for part of
-    // the particles where they are read after it, and the pair term then
-    // skips their connections.
+    // The row's bounds read first: Mesa's OpenGL compiler (llvmpipe,
+    // wgpu's GL backend) reads them wrong for part of the particles where
+    // they are read after the products and the rotation, and the pair
+    // term then skips their connections.
     let first = offsets[i];
     let last = offsets[i + 1u];
     let particle = elastic_particles[i];
