@@ -265,6 +265,12 @@ const BOUND_SHARE: f32 = 0.01;
 /// lengths between the scans: a held region does not move.
 pub const HELD_FILE_SPACINGS: f32 = 0.1;
 
+/// A posture's gravity farther than this from 1 g in length is said to be
+/// (a warning): gravity is given in units of g, and a direction written
+/// without normalising it (`0,-1,-1` for 45 degrees, 1.41 g) loads the
+/// tissue as given.
+pub const GRAVITY_G_SLACK: f32 = 0.1;
+
 /// Refuses a held region (`held`, one flag per surface vertex) whose
 /// vertices move between `rest` and `deformed` by more than
 /// [`HELD_FILE_SPACINGS`] of `spacing`.
@@ -464,6 +470,19 @@ pub fn prepare(
     gravity
         .validate()
         .map_err(|e| anyhow!("the posture options: {e}"))?;
+    for (option, g) in [
+        ("--gravity-rest", rest),
+        ("--gravity-deformed", deformed_gravity),
+    ] {
+        let length = g.length();
+        if (length - 1.0).abs() > GRAVITY_G_SLACK {
+            log::warn!(
+                "{option} is {length:.2} g long, where a posture's gravity is 1 g (its \
+                 direction as a unit vector: 0,0,-1 along -z, 0,-0.707,-0.707 at 45 degrees); \
+                 the tissue is loaded as given"
+            );
+        }
+    }
     let (held, from) = match args.fixed_region.as_deref() {
         None | Some("auto") => {
             let tolerance = HELD_SPACINGS * model.mean_connection_length();

@@ -183,6 +183,44 @@ fn no_change_of_gravity_fits_no_load() {
     assert_eq!(particles(&same), particles(&plain));
 }
 
+/// A gravity not 1 g long (a 45-degree direction written as `0,-1,-1`,
+/// 1.41 g) loads the tissue as given, with a warning naming the option and
+/// its length; a unit one is not warned of.
+#[test]
+fn a_gravity_not_one_g_long_is_warned_of() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, _) = sampled_model(dir.path());
+    let tilted = [
+        "--gravity-rest",
+        "0,0,-1",
+        "--gravity-deformed",
+        "0,-1,-1",
+        "--stiffness",
+        "3",
+    ];
+    let (output, report) = deform(&model, &dir.path().join("tilted"), &tilted);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(said.contains("--gravity-deformed is 1.41 g long"), "{said}");
+    assert!(!said.contains("--gravity-rest is"), "{said}");
+    assert_eq!(
+        report.unwrap()["gravity"]["deformed"],
+        serde_json::json!([0.0, -1.0, -1.0])
+    );
+    let unit = [
+        "--gravity-rest",
+        "0,0,-1",
+        "--gravity-deformed",
+        "0,-0.7071068,-0.7071068",
+        "--stiffness",
+        "3",
+    ];
+    let (output, _) = deform(&model, &dir.path().join("unit"), &unit);
+    let said = text(&output);
+    assert!(output.status.success(), "{said}");
+    assert!(!said.contains("g long"), "{said}");
+}
+
 /// Bad posture options are refused before any work, each naming the
 /// problem.
 #[test]
