@@ -190,15 +190,20 @@ fn no_change_of_gravity_fits_no_load() {
 fn a_gravity_not_one_g_long_is_warned_of() {
     let dir = tempfile::tempdir().unwrap();
     let (model, _) = sampled_model(dir.path());
-    let tilted = [
-        "--gravity-rest",
-        "0,0,-1",
-        "--gravity-deformed",
-        "0,-1,-1",
-        "--stiffness",
-        "3",
-    ];
-    let (output, report) = deform(&model, &dir.path().join("tilted"), &tilted);
+    // The rest posture 1 g along -z, the deformed one `deformed`, the
+    // stiffness given.
+    let postures = |deformed| {
+        [
+            "--gravity-rest",
+            "0,0,-1",
+            "--gravity-deformed",
+            deformed,
+            "--stiffness",
+            "3",
+        ]
+    };
+    let tilted = dir.path().join("tilted");
+    let (output, report) = deform(&model, &tilted, &postures("0,-1,-1"));
     let said = text(&output);
     assert!(output.status.success(), "{said}");
     assert!(said.contains("--gravity-deformed is 1.41 g long"), "{said}");
@@ -207,15 +212,8 @@ fn a_gravity_not_one_g_long_is_warned_of() {
         report.unwrap()["gravity"]["deformed"],
         serde_json::json!([0.0, -1.0, -1.0])
     );
-    let unit = [
-        "--gravity-rest",
-        "0,0,-1",
-        "--gravity-deformed",
-        "0,-0.7071068,-0.7071068",
-        "--stiffness",
-        "3",
-    ];
-    let (output, _) = deform(&model, &dir.path().join("unit"), &unit);
+    let unit = dir.path().join("unit");
+    let (output, _) = deform(&model, &unit, &postures("0,-0.7071068,-0.7071068"));
     let said = text(&output);
     assert!(output.status.success(), "{said}");
     assert!(!said.contains("g long"), "{said}");
