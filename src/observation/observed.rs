@@ -35,6 +35,9 @@ pub(super) enum Kind {
         field: SurfaceField,
         spacing: f32,
         noise: f32,
+        /// Whether its points were moved onto their neighbours' planes
+        /// ([`tissue_solve::stage2::Cleaned::flattened`]).
+        flattened: bool,
     },
 }
 
@@ -56,7 +59,8 @@ impl Observation {
     }
 
     /// A scanned point cloud ([`Cloud`]) without its outliers and with its
-    /// noise across the skin averaged out ([`Cloud::cleaned`] with `noise`,
+    /// noise across the skin averaged out where the skin is flat enough
+    /// over a neighbourhood ([`Cloud::cleaned`] with `noise`,
     /// or [`CLOUD_NOISE`] spacings; the points set aside are counted,
     /// [`Observation::outliers`]), its normals turned away from `inside`
     /// (a point inside the organ: [`Cloud::oriented_from`]). Its noise
@@ -75,6 +79,7 @@ impl Observation {
         let cleaned = cloud.cleaned(noise)?;
         let scatter = cleaned.scatter;
         let outliers = cleaned.set_aside;
+        let flattened = cleaned.flattened;
         let cleaned = cleaned.cloud.oriented_from(inside);
         let spacing = cleaned.spacing();
         Ok(Self {
@@ -84,6 +89,7 @@ impl Observation {
                 field: cleaned.field(FIELD_MARGIN * spacing)?,
                 spacing,
                 noise: given.unwrap_or((CLOUD_NOISE * spacing).max(scatter)),
+                flattened,
             },
         })
     }
@@ -138,6 +144,21 @@ impl Observation {
             Kind::Cloud { spacing, .. } => Some(spacing),
             Kind::Surface(_) => None,
         }
+    }
+
+    /// Whether a cloud was kept as scanned: its points left where they
+    /// were, not moved onto their neighbours' planes, which lie under a
+    /// skin that bends within a neighbourhood by more than
+    /// [`tissue_solve::stage2::FLAT_BEND`] of the noise (a scan sparse for
+    /// the skin's curvature). `false` for a surface.
+    pub fn kept_as_scanned(&self) -> bool {
+        matches!(
+            self.kind,
+            Kind::Cloud {
+                flattened: false,
+                ..
+            }
+        )
     }
 
     /// A cloud's noise scale (model units): the one it was made with, or

@@ -176,6 +176,11 @@ pub struct ObservationReport {
     pub points: usize,
     /// A cloud's points set aside as outliers.
     pub outliers: usize,
+    /// A cloud's: whether its points were kept as scanned, not moved onto
+    /// their neighbours' planes (a scan sparse for the skin's curvature,
+    /// whose planes lie under the skin); absent for a surface.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub kept_as_scanned: Option<bool>,
     /// The noise scale, in the model's units.
     pub noise_mm: f32,
     /// The last stage's robust scale (a cloud's; pairs farther off are
@@ -295,6 +300,9 @@ impl ObservationReport {
             },
             points: observation.points().len(),
             outliers: observation.outliers(),
+            kept_as_scanned: observation
+                .is_cloud()
+                .then(|| observation.kept_as_scanned()),
             noise_mm,
             robust_mm: report.robust,
             skin: report.skin,
@@ -336,13 +344,18 @@ impl ObservationReport {
     /// A line for the screen.
     pub fn line(&self) -> String {
         format!(
-            "matched without correspondence to a {} of {} points ({} set aside as outliers): {} \
+            "matched without correspondence to a {} of {} points ({} set aside as outliers{}): {} \
              of {} free skin particles pulled ({} past the observation's edge, {} farther off than \
              the robust scale at the end); the observed points {:.3} from the deformed skin (RMS; \
              95th percentile {:.3}, largest {:.3})",
             self.kind,
             self.points,
             self.outliers,
+            if self.kept_as_scanned == Some(true) {
+                "; kept as scanned, sparse for the skin's curvature"
+            } else {
+                ""
+            },
             self.pulled,
             self.skin,
             self.set_aside,

@@ -187,7 +187,9 @@ impl Deformer {
     /// neighbours' planes). The report: `iterations`, `converged`, `skin`, `pulled`,
     /// `set_aside` (past a cloud's edge), `beyond_robust` (pulled with a
     /// bounded force, farther off than the robust scale), `outliers` (a
-    /// cloud's points set aside),
+    /// cloud's points set aside), `kept_as_scanned` (a cloud sparse for
+    /// the skin's curvature, its points not moved onto their neighbours'
+    /// planes),
     /// `residual_rms`, `residual_p95`, `residual_max` (the observed
     /// points' distances to the deformed skin), `volume_change`, `stages`.
     /// A match that did not converge, or whose residual is above three
@@ -283,6 +285,7 @@ impl Deformer {
             "set_aside": report.set_aside,
             "beyond_robust": report.beyond_robust,
             "outliers": observation.outliers(),
+            "kept_as_scanned": observation.kept_as_scanned(),
             "residual_rms": report.residual.rms,
             "residual_p95": report.residual.p95,
             "residual_max": report.residual.max,

@@ -29,6 +29,16 @@ pub const SCAN_SCALE: (f32, f32) = (0.02, 5.0);
 /// is fitted to: the plane of least squares through them.
 pub const NORMAL_NEIGHBOURS: usize = 12;
 
+/// How far a scan's points may sit above their neighbours' planes, in its
+/// noise, for [`Cloud::cleaned`] to move them onto the planes: the noise
+/// left after averaging over a plane's [`NORMAL_NEIGHBOURS`] points,
+/// `1 / sqrt(12)`. Where the skin bends more within a neighbourhood (a
+/// sparse scan, a sharply curved organ) the planes lie under it, and moving
+/// the points onto them shifts the whole scan inwards by more than the
+/// noise it averages out: such a scan is kept as scanned
+/// (docs/METHOD.md, "Observations without correspondence").
+pub const FLAT_BEND: f32 = 0.288_675_13;
+
 /// A point cloud with a unit normal at every point.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Cloud {
@@ -58,6 +68,17 @@ pub struct Cleaned {
     /// little more where it bends within them), read low only where the
     /// noise exceeds the spacing ([`scatter_of`]).
     pub scatter: f32,
+    /// How far the kept points sit above their neighbours' planes where
+    /// the surface bends (the mean, outwards, of the quadric through each
+    /// point's neighbours read at the point, [`bends_of`]), and the noise
+    /// about those quadrics (the robust deviation of the points from
+    /// them): the points were moved onto the planes only where the bend is
+    /// at most [`FLAT_BEND`] of that noise (or of the `noise`
+    /// [`Cloud::cleaned`] was given, if larger), and kept as scanned
+    /// otherwise ([`Cleaned::flattened`]).
+    pub bend: (f32, f32),
+    /// Whether the kept points were moved onto their neighbours' planes.
+    pub flattened: bool,
 }
 
 impl Cloud {
@@ -143,7 +164,10 @@ impl Cloud {
     /// deviation of all points' distances (1.4826 times their median) is
     /// set aside. Each kept point then moves onto the plane of its kept
     /// nearest others, and the normals are fitted again (as
-    /// [`Cloud::new`] turns them).
+    /// [`Cloud::new`] turns them), where those planes fit the surface
+    /// within the noise they average out: where the points sit above
+    /// them, on average, by at most [`FLAT_BEND`] of the noise
+    /// ([`Cleaned::bend`]); elsewhere the kept points stay as scanned.
     ///
     /// # Errors
     ///
@@ -166,22 +190,41 @@ impl Cloud {
                 least: NORMAL_NEIGHBOURS,
             });
         }
-        // With nothing set aside the kept points' planes are the ones just
-        // fitted.
-        let kept_planes = if set_aside == 0 {
-            planes
+        // With nothing set aside the kept points are this cloud, and their
+        // planes the ones just fitted.
+        let (kept, kept_planes) = if set_aside == 0 {
+            (self.clone(), planes)
         } else {
-            neighbour_planes(&kept)
+            let kept = Self::new(kept)?;
+            let planes = planes_of(&kept.points, &kept.others);
+            (kept, planes)
         };
-        let projected = kept_planes
-            .iter()
-            .zip(&kept)
-            .map(|(&(offset, normal), &p)| p - offset * normal)
-            .collect();
+        let bends = bends_of(&kept.points, &kept.others, &kept.normals);
+        let bend = bends.iter().map(|b| b.0).sum::<f32>() / bends.len() as f32;
+        let about = 1.4826 * median(bends.iter().map(|b| b.1.abs()).collect());
+        let flattened = bend <= FLAT_BEND * about.max(noise);
+        let cloud = if flattened {
+            let projected = kept_planes
+                .iter()
+                .zip(&kept.points)
+                .map(|(&(offset, normal), &p)| p - offset * normal)
+                .collect();
+            Self::new(projected)?
+        } else {
+            log::info!(
+                "the scan is kept as scanned: its points sit {bend:.3} above their neighbours' \
+                 planes where the skin bends, more than {FLAT_BEND:.2} of their noise \
+                 {:.3} (a scan sparse for the skin's curvature)",
+                about.max(noise)
+            );
+            kept
+        };
         Ok(Cleaned {
-            cloud: Self::new(projected)?,
+            cloud,
             set_aside,
             scatter: scatter_of(&self.points),
+            bend: (bend, about),
+            flattened,
         })
     }
 
@@ -417,25 +460,8 @@ fn turned_alike(
     normals
 }
 
-/// Per point, its signed distance from the least-squares plane of its
-/// [`NORMAL_NEIGHBOURS`]` - 1` nearest other points, and that plane's unit
-/// normal.
-fn neighbour_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
-    let tree = indexed_tree(points);
-    let others: Vec<u32> = (0..points.len())
-        .into_par_iter()
-        .flat_map_iter(|i| {
-            tree.nearest_neighbor_iter(points[i].to_array())
-                .filter(move |n| n.data != i)
-                .take(OTHERS)
-                .map(|n| n.data as u32)
-        })
-        .collect();
-    planes_of(points, &others)
-}
-
-/// [`neighbour_planes`] with each point's nearest others given
-/// ([`Cloud`]'s rows).
+/// Per point its signed distance from the least-squares plane of its nearest
+/// others `others` ([`Cloud`]'s rows), and that plane's unit normal.
 fn planes_of(points: &[Vec3], others: &[u32]) -> Vec<(f32, Vec3)> {
     points
         .par_iter()
@@ -447,6 +473,81 @@ fn planes_of(points: &[Vec3], others: &[u32]) -> Vec<(f32, Vec3)> {
             (normal.dot(p - mean), normal)
         })
         .collect()
+}
+
+/// Per point, how far it sits above its neighbours' plane where the
+/// surface bends, and its offset from the surface: the least-squares
+/// quadric `w = a + b u + c v + d u^2 + e u v + f v^2` through its nearest
+/// others `row`, in the frame of their plane (`u`, `v` along it, `w` along
+/// its normal from their mean), read at the point: its height there, with
+/// the sign of the point's own `normals` (positive where the plane lies
+/// under a convex surface), and the point's height less it. A neighbourhood
+/// whose quadric is not determined (its points on a curve) reads `(0,
+/// offset)`.
+fn bends_of(points: &[Vec3], others: &[u32], normals: &[Vec3]) -> Vec<(f32, f32)> {
+    points
+        .par_iter()
+        .zip(others.par_chunks(OTHERS))
+        .zip(normals)
+        .map(|((&p, row), &outward)| {
+            let near: Vec<Vec3> = row.iter().map(|&j| points[j as usize]).collect();
+            let mean = near.iter().sum::<Vec3>() / near.len().max(1) as f32;
+            let axes = svd3(covariance(near.iter().copied(), mean)).u;
+            let frame = [axes.x_axis, axes.y_axis, axes.z_axis].map(Vec3::as_dvec3);
+            let local = |q: Vec3| {
+                let d = (q - mean).as_dvec3();
+                frame.map(|axis| d.dot(axis))
+            };
+            let terms = |u: f64, v: f64| [1.0, u, v, u * u, u * v, v * v];
+            let mut normal = [[0.0f64; 6]; 6];
+            let mut right = [0.0f64; 6];
+            for &q in &near {
+                let [u, v, w] = local(q);
+                let t = terms(u, v);
+                for r in 0..6 {
+                    right[r] += t[r] * w;
+                    for c in 0..6 {
+                        normal[r][c] += t[r] * t[c];
+                    }
+                }
+            }
+            let [u, v, w] = local(p);
+            let side = f64::from(axes.z_axis.dot(outward)).signum();
+            match solve_spd(normal, right) {
+                Some(x) => {
+                    let height: f64 = terms(u, v).iter().zip(&x).map(|(t, x)| t * x).sum();
+                    ((side * height) as f32, (w - height) as f32)
+                }
+                None => (0.0, w as f32),
+            }
+        })
+        .collect()
+}
+
+/// `A x = b` for a symmetric positive definite `A` by its Cholesky factor;
+/// `None` where a pivot falls below a millionth of the largest diagonal
+/// entry.
+fn solve_spd<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
+    let largest = (0..N).map(|i| a[i][i]).fold(0.0f64, f64::max);
+    for j in 0..N {
+        let pivot = a[j][j] - (0..j).map(|k| a[j][k] * a[j][k]).sum::<f64>();
+        // NaN fails the test as well.
+        if pivot.is_nan() || pivot <= 1e-6 * largest {
+            return None;
+        }
+        let pivot = pivot.sqrt();
+        a[j][j] = pivot;
+        for i in j + 1..N {
+            a[i][j] = (a[i][j] - (0..j).map(|k| a[i][k] * a[j][k]).sum::<f64>()) / pivot;
+        }
+    }
+    for i in 0..N {
+        b[i] = (b[i] - (0..i).map(|k| a[i][k] * b[k]).sum::<f64>()) / a[i][i];
+    }
+    for i in (0..N).rev() {
+        b[i] = (b[i] - (i + 1..N).map(|k| a[k][i] * b[k]).sum::<f64>()) / a[i][i];
+    }
+    Some(b)
 }
 
 /// How many nearest points (in space) a point's scatter is measured
@@ -507,13 +608,18 @@ mod tests {
     /// origin, about `spacing` apart on a jittered lattice, with Gaussian
     /// noise of `sigma` along the radius.
     fn cap(spacing: f32, sigma: f32) -> Vec<Vec3> {
+        cap_of(50.0, spacing, sigma)
+    }
+
+    /// [`cap`] on a sphere of `radius`.
+    fn cap_of(radius: f32, spacing: f32, sigma: f32) -> Vec<Vec3> {
         let mut rng = Pcg64::seed_from_u64(7);
         let mut points = Vec::new();
-        let steps = (50.0 * std::f32::consts::FRAC_PI_2 / spacing) as usize;
+        let steps = (radius * std::f32::consts::FRAC_PI_2 / spacing) as usize;
         for i in 0..=steps {
-            let polar = i as f32 * spacing / 50.0;
+            let polar = i as f32 * spacing / radius;
             let around =
-                ((2.0 * std::f32::consts::PI * 50.0 * polar.sin() / spacing) as usize).max(1);
+                ((2.0 * std::f32::consts::PI * radius * polar.sin() / spacing) as usize).max(1);
             for j in 0..around {
                 let azimuth = (j as f32 + rng.random::<f32>() * 0.3) / around as f32
                     * 2.0
@@ -526,7 +632,7 @@ mod tests {
                 // Box-Muller.
                 let (u, v): (f32, f32) = (rng.random::<f32>().max(1e-7), rng.random());
                 let noise = (-2.0 * u.ln()).sqrt() * (2.0 * std::f32::consts::PI * v).cos();
-                points.push(direction * (50.0 + sigma * noise));
+                points.push(direction * (radius + sigma * noise));
             }
         }
         points
@@ -557,10 +663,22 @@ mod tests {
         (points, normals)
     }
 
-    /// A torus's centroid lies in its hole, which the inner side of its
-    /// ring faces: turned away from the centroid, a third of its normals
-    /// would point inward. Turned alike from the point farthest from the
-    /// centre, every one points outward, from either centre given.
+    /// Per point the plane of its nearest others found by a search of its
+    /// own (the tree's nearest, the point itself left out).
+    fn searched_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
+        let tree = indexed_tree(points);
+        let others: Vec<u32> = (0..points.len())
+            .flat_map(|i| {
+                tree.nearest_neighbor_iter(points[i].to_array())
+                    .filter(move |n| n.data != i)
+                    .take(OTHERS)
+                    .map(|n| n.data as u32)
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        planes_of(points, &others)
+    }
+
     /// The planes fitted to each point's nearest others that the cloud
     /// keeps are the ones a search of its own finds, copies of a point
     /// included (each copy's others are the rest of them first).
@@ -570,11 +688,15 @@ mod tests {
         let copied = points[40];
         points.extend([copied; 13]);
         let cloud = Cloud::new(points.clone()).unwrap();
-        assert_eq!(planes_of(&points, &cloud.others), neighbour_planes(&points));
+        assert_eq!(planes_of(&points, &cloud.others), searched_planes(&points));
         let oriented = cloud.clone().oriented_from(Vec3::ZERO);
         assert_eq!(oriented.others, cloud.others);
     }
 
+    /// A torus's centroid lies in its hole, which the inner side of its
+    /// ring faces: turned away from the centroid, a third of its normals
+    /// would point inward. Turned alike from the point farthest from the
+    /// centre, every one points outward, from either centre given.
     #[test]
     fn the_normals_of_a_bent_cloud_are_turned_alike() {
         let (points, outward) = torus(2.0);
@@ -628,17 +750,20 @@ mod tests {
 
     #[test]
     fn cleaning_sets_the_outliers_aside_and_averages_the_noise_out() {
-        let mut points = cap(3.0, 0.5);
+        let mut points = cap_of(100.0, 3.0, 0.5);
         let outliers: Vec<usize> = (0..points.len()).step_by(97).collect();
         for &k in &outliers {
-            points[k] *= 1.0 + 5.0 / 50.0;
+            points[k] *= 1.0 + 5.0 / 100.0;
         }
         let cloud = Cloud::new(points.clone()).unwrap();
         let Cleaned {
             cloud: cleaned,
             set_aside,
             scatter,
+            flattened,
+            ..
         } = cloud.cleaned(0.5).unwrap();
+        assert!(flattened);
         // The scatter is the noise (0.5), seen through the outliers.
         assert!((0.4..0.65).contains(&scatter), "scatter {scatter}");
         let tail = set_aside - outliers.len().min(set_aside);
@@ -652,11 +777,11 @@ mod tests {
         let farthest = cleaned
             .points()
             .iter()
-            .map(|p| (p.length() - 50.0).abs())
+            .map(|p| (p.length() - 100.0).abs())
             .fold(0.0f32, f32::max);
         assert!(farthest < 2.5, "a kept point {farthest} off the sphere");
         let rms = |p: &[Vec3]| {
-            (p.iter().map(|p| (p.length() - 50.0).powi(2)).sum::<f32>() / p.len() as f32).sqrt()
+            (p.iter().map(|p| (p.length() - 100.0).powi(2)).sum::<f32>() / p.len() as f32).sqrt()
         };
         let kept: Vec<Vec3> = (0..points.len())
             .filter(|k| !outliers.contains(k))
@@ -664,6 +789,60 @@ mod tests {
             .collect();
         let (before, after) = (rms(&kept), rms(cleaned.points()));
         assert!(after < 0.6 * before, "{before} -> {after} off the sphere");
+    }
+
+    /// A scan sparse for its surface's bend keeps its points where they
+    /// were scanned: on a sphere of 50 mm, points 8 mm apart sit about
+    /// 0.9 mm above their neighbours' planes, far above 0.1 mm of noise,
+    /// and moving them onto the planes would shrink the scan by that much.
+    /// A denser one is moved onto them where the bend is below
+    /// [`FLAT_BEND`] of its noise.
+    #[test]
+    fn a_scan_sparse_for_its_bend_is_kept_as_scanned() {
+        let radial = |points: &[Vec3]| {
+            points.iter().map(|p| p.length() - 50.0).sum::<f32>() / points.len() as f32
+        };
+        let sparse = cap(8.0, 0.1);
+        let cleaned = Cloud::new(sparse.clone()).unwrap().cleaned(0.0).unwrap();
+        let (bend, noise) = cleaned.bend;
+        assert!(!cleaned.flattened, "bend {bend} over noise {noise}");
+        assert!(bend > 0.5 && noise < 0.3, "bend {bend}, noise {noise}");
+        assert_eq!(cleaned.set_aside, 0);
+        assert_eq!(cleaned.cloud.points(), &sparse[..]);
+        // Moved onto the planes, the scan would have shrunk by about the
+        // bend.
+        let planes = planes_of(&sparse, &Cloud::new(sparse.clone()).unwrap().others);
+        let flattened: Vec<Vec3> = sparse
+            .iter()
+            .zip(&planes)
+            .map(|(&p, &(offset, normal))| p - offset * normal)
+            .collect();
+        assert!(radial(&flattened) < -0.5, "{}", radial(&flattened));
+        assert!(radial(cleaned.cloud.points()).abs() < 0.05);
+
+        // 3 mm apart on 50 mm, 0.5 mm of noise: the bend (0.2 mm) is a
+        // third of the noise, and the points are kept; on 100 mm they are
+        // moved onto the planes (the test above).
+        let curved = Cloud::new(cap(3.0, 0.5)).unwrap().cleaned(0.0).unwrap();
+        let (bend, noise) = curved.bend;
+        assert!(
+            !curved.flattened && bend > FLAT_BEND * noise,
+            "bend {bend} over noise {noise}"
+        );
+        let flatter = Cloud::new(cap_of(100.0, 3.0, 0.5))
+            .unwrap()
+            .cleaned(0.0)
+            .unwrap();
+        let (bend, noise) = flatter.bend;
+        assert!(
+            flatter.flattened && bend < FLAT_BEND * noise,
+            "bend {bend} over noise {noise}"
+        );
+    }
+
+    #[test]
+    fn the_flat_bend_is_the_noise_left_after_a_planes_average() {
+        assert!((FLAT_BEND - 1.0 / (NORMAL_NEIGHBOURS as f32).sqrt()).abs() < 1e-7);
     }
 
     #[test]
