@@ -507,3 +507,35 @@ fn a_match_refuses_a_smoothing_out_of_its_range() {
     }
     assert_eq!(solver.positions(), model.positions.as_slice());
 }
+
+/// A noise scale beyond a quarter of the organ's size (the farthest the
+/// skin may lie from an observation) is refused before any solve, naming
+/// the bound; one just below it is taken.
+#[test]
+fn a_match_refuses_a_noise_beyond_the_organs_reach() {
+    let model = common::phantom_model(3_000);
+    let sagged = tissue::deform::sagged_breast();
+    let observed = DeformParams::default().with(|p| p.observed = Some(chest_wall(&model)));
+    let observation = Observation::surface(&subdivided(&sagged)).unwrap();
+    let mut solver = Solver::new(Device::Cpu, &model, observed).unwrap();
+    let reach = tissue::observation::MAX_REACH * solver.plan().size;
+    for noise in [1e30, 1.01 * reach, -1.0, f32::NAN] {
+        let params = MatchParams {
+            noise: Some(noise),
+            ..MatchParams::default()
+        };
+        let error = match_observation(&mut solver, &model, &observation, &params)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("noise"), "{noise}: {error}");
+        if noise > reach {
+            assert!(error.contains("a quarter of the organ's size"), "{error}");
+        }
+    }
+    assert_eq!(solver.positions(), model.positions.as_slice());
+    let params = MatchParams {
+        noise: Some(0.99 * reach),
+        ..MatchParams::default()
+    };
+    assert!(match_observation(&mut solver, &model, &observation, &params).is_ok());
+}

@@ -335,6 +335,18 @@ pub fn match_observation_held(
         "0 to 8 mean edges of the surface",
     )?;
     let plan = solver.plan().clone();
+    // A noise beyond the farthest the skin may lie from the observation
+    // leaves the robust scale and the residual's flag nothing to tell.
+    ParamError::check(
+        params.noise.is_none_or(|n| n <= MAX_REACH * plan.size),
+        "noise",
+        format!("{:?}", params.noise),
+        format!(
+            "at most a quarter of the organ's size ({:.3}): no scan is that noisy (is it in \
+             another unit?)",
+            MAX_REACH * plan.size
+        ),
+    )?;
     let solve_params = solver.params().clone();
     let spacing = model.mean_connection_length();
     let skin: Vec<u32> = (0..model.len())

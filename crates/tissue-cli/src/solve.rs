@@ -56,7 +56,8 @@ pub struct DeformArgs {
     /// about their neighbours' planes): a cloud's pairs farther off than 3 times it
     /// and the pairs' robust spread are pulled with the force they would
     /// have there (Huber's), so an outlier moves the skin little and skin
-    /// with far to go is pulled all the way.
+    /// with far to go is pulled all the way. At most a quarter of the
+    /// organ's size.
     #[arg(long, value_name = "MM")]
     pub noise: Option<f32>,
     /// How a surface of another triangulation is paired with the skin, in

@@ -184,7 +184,7 @@ impl Deformer {
     /// the observation's noise scale in the model's units (default: a
     /// tenth of a connection length for a surface, for a cloud the larger
     /// of a fifth of its spacing and its points' scatter about their
-    /// neighbours' planes). The report: `iterations`, `converged`, `skin`, `pulled`,
+    /// neighbours' planes; at most a quarter of the organ's size). The report: `iterations`, `converged`, `skin`, `pulled`,
     /// `set_aside` (past a cloud's edge), `beyond_robust` (pulled with a
     /// bounded force, farther off than the robust scale), `outliers` (a
     /// cloud's points set aside), `kept_as_scanned` (a cloud sparse for
