@@ -486,15 +486,22 @@ fn rms(a: &[Vec3], b: &[Vec3]) -> f32 {
         .sqrt()
 }
 
-/// A surface's smoothing is a radius of 0 to 8 of its mean edges; any
-/// other is refused, naming it, before the match starts.
-#[test]
-fn a_match_refuses_a_smoothing_out_of_its_range() {
+/// The phantom at 3,000 particles with its chest wall held, a
+/// subdivision of its sag to match it to, and a solver on the CPU.
+fn sag_match() -> (ParticleModel, Observation, Solver) {
     let model = common::phantom_model(3_000);
     let sagged = tissue::deform::sagged_breast();
     let observed = DeformParams::default().with(|p| p.observed = Some(chest_wall(&model)));
     let observation = Observation::surface(&subdivided(&sagged)).unwrap();
-    let mut solver = Solver::new(Device::Cpu, &model, observed).unwrap();
+    let solver = Solver::new(Device::Cpu, &model, observed).unwrap();
+    (model, observation, solver)
+}
+
+/// A surface's smoothing is a radius of 0 to 8 of its mean edges; any
+/// other is refused, naming it, before the match starts.
+#[test]
+fn a_match_refuses_a_smoothing_out_of_its_range() {
+    let (model, observation, mut solver) = sag_match();
     for smoothing in [-1.0, f32::NAN, 9.0] {
         let params = MatchParams {
             surface_smoothing: smoothing,
@@ -513,11 +520,7 @@ fn a_match_refuses_a_smoothing_out_of_its_range() {
 /// the bound; one just below it is taken.
 #[test]
 fn a_match_refuses_a_noise_beyond_the_organs_reach() {
-    let model = common::phantom_model(3_000);
-    let sagged = tissue::deform::sagged_breast();
-    let observed = DeformParams::default().with(|p| p.observed = Some(chest_wall(&model)));
-    let observation = Observation::surface(&subdivided(&sagged)).unwrap();
-    let mut solver = Solver::new(Device::Cpu, &model, observed).unwrap();
+    let (model, observation, mut solver) = sag_match();
     let reach = tissue::observation::MAX_REACH * solver.plan().size;
     for noise in [1e30, 1.01 * reach, -1.0, f32::NAN] {
         let params = MatchParams {
