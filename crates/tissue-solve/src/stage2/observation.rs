@@ -176,13 +176,10 @@ impl Cloud {
         let planes = planes_of(&self.points, &self.others);
         let deviation = 1.4826 * median(planes.iter().map(|(offset, _)| offset.abs()).collect());
         let limit = RIGID_TRIM as f32 * deviation.max(noise);
-        let kept: Vec<Vec3> = self
-            .points
-            .iter()
-            .zip(&planes)
-            .filter(|(_, (offset, _))| offset.abs() <= limit)
-            .map(|(&p, _)| p)
+        let kept_index: Vec<usize> = (0..self.points.len())
+            .filter(|&i| planes[i].0.abs() <= limit)
             .collect();
+        let kept: Vec<Vec3> = kept_index.iter().map(|&i| self.points[i]).collect();
         let set_aside = self.points.len() - kept.len();
         if kept.len() < NORMAL_NEIGHBOURS {
             return Err(ObservationError::TooFew {
@@ -190,23 +187,25 @@ impl Cloud {
                 least: NORMAL_NEIGHBOURS,
             });
         }
-        // With nothing set aside the kept points are this cloud, and their
-        // planes the ones just fitted.
-        let (kept, kept_planes) = if set_aside == 0 {
-            (self.clone(), planes)
+        // With nothing set aside the kept points' rows and planes are the
+        // ones just fitted.
+        let searched;
+        let (others, kept_planes) = if set_aside == 0 {
+            (&self.others[..], planes)
         } else {
-            let kept = Self::new(kept)?;
-            let planes = planes_of(&kept.points, &kept.others);
-            (kept, planes)
+            searched = nearest_others(&kept);
+            let planes = planes_of(&kept, &searched);
+            (&searched[..], planes)
         };
-        let bends = bends_of(&kept.points, &kept.others, &kept.normals);
+        let outward: Vec<Vec3> = kept_index.iter().map(|&i| self.normals[i]).collect();
+        let bends = bends_of(&kept, others, &outward);
         let bend = bends.iter().map(|b| b.0).sum::<f32>() / bends.len() as f32;
         let about = 1.4826 * median(bends.iter().map(|b| b.1.abs()).collect());
         let flattened = bend <= FLAT_BEND * about.max(noise);
         let cloud = if flattened {
             let projected = kept_planes
                 .iter()
-                .zip(&kept.points)
+                .zip(&kept)
                 .map(|(&(offset, normal), &p)| p - offset * normal)
                 .collect();
             Self::new(projected)?
@@ -217,7 +216,11 @@ impl Cloud {
                  {:.3} (a scan sparse for the skin's curvature)",
                 about.max(noise)
             );
-            kept
+            if set_aside == 0 {
+                self.clone()
+            } else {
+                Self::new(kept)?
+            }
         };
         Ok(Cleaned {
             cloud,
@@ -460,6 +463,21 @@ fn turned_alike(
     normals
 }
 
+/// Per point its [`NORMAL_NEIGHBOURS`]` - 1` nearest other points, one
+/// row after the other (the rows [`Cloud::new`] keeps).
+fn nearest_others(points: &[Vec3]) -> Vec<u32> {
+    let tree = indexed_tree(points);
+    (0..points.len())
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            tree.nearest_neighbor_iter(points[i].to_array())
+                .filter(move |n| n.data != i)
+                .take(OTHERS)
+                .map(|n| n.data as u32)
+        })
+        .collect()
+}
+
 /// Per point its signed distance from the least-squares plane of its nearest
 /// others `others` ([`Cloud`]'s rows), and that plane's unit normal.
 fn planes_of(points: &[Vec3], others: &[u32]) -> Vec<(f32, Vec3)> {
@@ -663,22 +681,6 @@ mod tests {
         (points, normals)
     }
 
-    /// Per point the plane of its nearest others found by a search of its
-    /// own (the tree's nearest, the point itself left out).
-    fn searched_planes(points: &[Vec3]) -> Vec<(f32, Vec3)> {
-        let tree = indexed_tree(points);
-        let others: Vec<u32> = (0..points.len())
-            .flat_map(|i| {
-                tree.nearest_neighbor_iter(points[i].to_array())
-                    .filter(move |n| n.data != i)
-                    .take(OTHERS)
-                    .map(|n| n.data as u32)
-                    .collect::<Vec<_>>()
-            })
-            .collect();
-        planes_of(points, &others)
-    }
-
     /// The planes fitted to each point's nearest others that the cloud
     /// keeps are the ones a search of its own finds, copies of a point
     /// included (each copy's others are the rest of them first).
@@ -688,7 +690,7 @@ mod tests {
         let copied = points[40];
         points.extend([copied; 13]);
         let cloud = Cloud::new(points.clone()).unwrap();
-        assert_eq!(planes_of(&points, &cloud.others), searched_planes(&points));
+        assert_eq!(cloud.others, nearest_others(&points));
         let oriented = cloud.clone().oriented_from(Vec3::ZERO);
         assert_eq!(oriented.others, cloud.others);
     }
