@@ -62,8 +62,9 @@ pub mod uncertainty;
 pub mod deformation {
     pub use tissue_cpu::deformation::{Deformer, SharedLaplacian};
     pub use tissue_solve::{
-        DeformParams, DeformReport, ElasticSolve, ForceModel, Inversions, PrepareStage,
-        RotationMethod, SolveStep, SolverTuning, StopReason, check_same_topology, inversions,
+        DeformParams, DeformReport, ElasticSolve, FLOAT_FLOOR_ERROR, ForceModel, Inversions,
+        PrepareStage, RotationMethod, SolveStep, SolverTuning, StopReason, check_same_topology,
+        inversions,
     };
 }
 

@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::Serialize;
-use tissue::deformation::{DeformParams, DeformReport, Inversions, StopReason, inversions};
+use tissue::deformation::{
+    DeformParams, DeformReport, ForceModel, Inversions, StopReason, inversions,
+};
 use tissue::{ParticleModel, SurfaceMesh};
 
 use crate::backend::Solver;
@@ -18,7 +20,7 @@ use crate::posture::PostureReport;
 use crate::uncertain::{RADIUS_NAME, Uncertainty, UncertaintyReport};
 
 mod status;
-pub use status::{Status, Unfinished, convergence, diverged};
+pub use status::{Status, Unfinished, convergence, diverged, remedy};
 
 /// The moved particles and the deformed surface.
 pub const PARTICLES_FILE: &str = "particles.vtp";
@@ -686,11 +688,28 @@ impl SolveReport {
             flags.extend(uncertainty.flags());
         }
         if self.inverted.count > 0 {
+            // The likely cause: the elastic force keeps every volume
+            // positive under a deep indentation, so under it the input
+            // asked for the fold.
+            let cause = match (self.params.force, &self.observation) {
+                (ForceModel::Elastic, Some(_)) => {
+                    "the pull towards the observation folded the tissue: the points may be too \
+                     sparse for the skin's curvature (each pulls the skin around it onto one \
+                     plane), or lie where the skin cannot reach"
+                }
+                (ForceModel::Elastic, None) => {
+                    "the surface has crossed or pushed-through vertices, or moved where the \
+                     tissue cannot follow"
+                }
+                (ForceModel::Symmetric | ForceModel::Paper, _) => {
+                    "the solve folded the tissue, as the symmetric force does under a deep, \
+                     narrow indentation (try --force elastic), or the surface has crossed or \
+                     pushed-through vertices"
+                }
+            };
             flags.push(format!(
                 "{} particles are turned inside out (local volume ratio down to {:.2}, first \
-                 particle {}; `inverted` in the report): the solve folded the tissue, as \
-                 the symmetric force does under a deep, narrow indentation (try --force \
-                 elastic), or the surface has crossed or pushed-through vertices",
+                 particle {}; `inverted` in the report): {cause}",
                 self.inverted.count,
                 self.inverted.min_volume_ratio,
                 self.inverted.first.unwrap_or_default()

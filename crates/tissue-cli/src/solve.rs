@@ -16,7 +16,7 @@ use crate::carry::{Carried, CarryArgs};
 use crate::observe;
 use crate::output::{
     Destination, FieldRequest, Solved, Status, Unfinished, planned_outputs, prepare_outputs,
-    refuse_overwriting, remove_earlier_outputs, write_solution,
+    refuse_overwriting, remedy, remove_earlier_outputs, write_solution,
 };
 use crate::picture;
 use crate::posture::{self, GravityArgs, Posture};
@@ -703,10 +703,11 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         ),
         _ => format!(
             "the solve did NOT converge in {} iterations (error estimate {:.1e} of the size); \
-             the results in {} are not final: raise --max-iterations",
+             the results in {} are not final: {}",
             report.iterations,
             report.residual,
-            args.output_dir.display()
+            args.output_dir.display(),
+            remedy(report.stopped_by)
         ),
     };
     Err(Unfinished {

@@ -625,7 +625,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             if totals.converged {
                 "all converged"
             } else {
-                "NOT all converged: raise --max-iterations"
+                "NOT all converged (each frame's `stopped_by`: more iterations help where it \
+                 is `iteration_cap`)"
             }
         );
         println!(
@@ -650,7 +651,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
             path.display()
         ),
         _ => format!(
-            "{unconverged} of {count} frames did NOT converge ({}): raise --max-iterations",
+            "{unconverged} of {count} frames did NOT converge ({}; each frame's `stopped_by`: \
+             raise --max-iterations where it is `iteration_cap`)",
             path.display()
         ),
     };

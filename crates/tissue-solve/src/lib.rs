@@ -22,8 +22,8 @@ pub mod stage1;
 pub mod stage2;
 
 pub use stage2::{
-    Chebyshev, Choices, Correction, DeformParams, DeformReport, ElasticSolve, ForceModel,
-    FrameHistory, Holds, Inversions, Iteration, Pass, Plan, PrepareStage, RotationMethod,
-    SolveDevice, SolveStep, SolverTuning, StopReason, StoppingRule, Tracker, check_same_topology,
-    inversions, predict,
+    Chebyshev, Choices, Correction, DeformParams, DeformReport, ElasticSolve, FLOAT_FLOOR_ERROR,
+    ForceModel, FrameHistory, Holds, Inversions, Iteration, Pass, Plan, PrepareStage,
+    RotationMethod, SolveDevice, SolveStep, SolverTuning, StopReason, StoppingRule, Tracker,
+    check_same_topology, inversions, predict,
 };

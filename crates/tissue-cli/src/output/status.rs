@@ -14,7 +14,10 @@ use tissue::deformation::StopReason;
 pub enum Status {
     /// The stopping rule held.
     Converged,
-    /// The iteration cap came first: the result is written but not final.
+    /// The iteration cap came first, the iteration stalled, or it stopped
+    /// at the float floor with an error estimate above
+    /// [`tissue::deformation::FLOAT_FLOOR_ERROR`]: the result is written
+    /// but not final.
     NotConverged,
     /// The state became non-finite: nothing is written.
     Diverged,
@@ -93,12 +96,31 @@ pub fn diverged(current: &[Vec3], iterations: usize, stopped_by: StopReason) -> 
     })
 }
 
+/// What a user can do about a solve that stopped by `stopped_by` short
+/// of converging: more iterations help only where the cap stopped it.
+pub fn remedy(stopped_by: StopReason) -> &'static str {
+    match stopped_by {
+        StopReason::IterationCap => "raise --max-iterations",
+        StopReason::Tolerance
+        | StopReason::FloatPrecision
+        | StopReason::Diverged
+        | StopReason::Stalled => {
+            "more iterations will not help: the iteration stopped short of the answer (the \
+             input may ask what the tissue cannot do)"
+        }
+    }
+}
+
 /// `converged`, or how far and why not.
 pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
     match stopped_by {
         StopReason::Tolerance => "converged".into(),
-        StopReason::FloatPrecision => format!(
+        StopReason::FloatPrecision if stopped_by.converged_at(residual) => format!(
             "converged to single precision (error estimate {residual:.1e} of the size, above --tolerance)"
+        ),
+        StopReason::FloatPrecision => format!(
+            "NOT converged (error estimate {residual:.1e} of the size): it stopped where single \
+             precision tells no further decrease apart, short of the answer"
         ),
         StopReason::IterationCap => format!(
             "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
@@ -122,17 +144,37 @@ mod status_tests {
         let cases = [
             (true, StopReason::Tolerance, Status::Converged, 0),
             (true, StopReason::FloatPrecision, Status::Converged, 0),
+            (false, StopReason::FloatPrecision, Status::NotConverged, 2),
             (false, StopReason::IterationCap, Status::NotConverged, 2),
             (false, StopReason::Diverged, Status::Diverged, 3),
             (false, StopReason::Stalled, Status::NotConverged, 2),
         ];
         for (converged, stopped_by, status, code) in cases {
+            let more = remedy(stopped_by).contains("--max-iterations");
+            assert_eq!(
+                more,
+                stopped_by == StopReason::IterationCap,
+                "{stopped_by:?}"
+            );
             assert_eq!(Status::of(converged, stopped_by), status);
             assert_eq!(status.exit_code(), code);
         }
         assert_eq!(
             serde_json::to_value(Status::NotConverged).ok(),
             Some(serde_json::json!("not_converged"))
+        );
+    }
+
+    /// A stop at the float floor reads converged within the potential's
+    /// precision and NOT converged beyond it, its estimate given either way.
+    #[test]
+    fn a_float_floor_short_of_the_answer_reads_not_converged() {
+        let near = convergence(StopReason::FloatPrecision, 4e-4);
+        assert!(near.starts_with("converged to single precision"), "{near}");
+        let far = convergence(StopReason::FloatPrecision, 0.48);
+        assert!(
+            far.starts_with("NOT converged (error estimate 4.8e-1"),
+            "{far}"
         );
     }
 

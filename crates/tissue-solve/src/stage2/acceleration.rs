@@ -196,14 +196,12 @@ impl StoppingRule {
 
     /// The report of the solve, ended by `stopped_by` after `iterations`.
     pub fn report(self, iterations: usize, stopped_by: StopReason, seconds: f64) -> DeformReport {
+        let residual = self.history.last().copied().unwrap_or(0.0);
         DeformReport {
             iterations,
-            residual: self.history.last().copied().unwrap_or(0.0),
+            residual,
             residual_history: self.history,
-            converged: matches!(
-                stopped_by,
-                StopReason::Tolerance | StopReason::FloatPrecision
-            ),
+            converged: stopped_by.converged_at(residual),
             stopped_by,
             seconds,
             elastic_retries: 0,

@@ -65,7 +65,9 @@ pub use posture::{
     UNLOADED_TOLERANCE_M, Unloaded, unload,
 };
 pub use predict::{FrameHistory, affine_fit, predict, predict_paired};
-pub use report::{DeformReport, ENERGY_ROUNDING, PrepareStage, SolveStep, StopReason};
+pub use report::{
+    DeformReport, ENERGY_ROUNDING, FLOAT_FLOOR_ERROR, PrepareStage, SolveStep, StopReason,
+};
 pub use rigid::{
     FIDUCIAL_MISFIT, FiducialFit, RIGID_SHARE, RIGID_STEPS, RIGID_TRIM, RigidFit, fiducial_fit,
     rigid_fit,

@@ -8,6 +8,19 @@ use serde::{Deserialize, Serialize};
 /// a rise: `f32` parts round within about `6e-8` of it, so the CPU and the
 /// GPU, on states that agree to rounding, accept the same ones.
 pub const ENERGY_ROUNDING: f64 = 1e-6;
+/// The largest error estimate (a fraction of the model's size) a solve
+/// that stopped at the float floor ([`StopReason::FloatPrecision`]) is
+/// taken to have converged with: `sqrt(ENERGY_ROUNDING)`. The elastic
+/// phases stop there where the decrease a step asks is below what the
+/// potential tells apart, `ENERGY_ROUNDING` of its parts' magnitude; near
+/// the answer that decrease is the error's energy, about the square of
+/// the error over the square of the motion times the motion's energy, so
+/// rounding alone stops a phase at an error of about `sqrt(ENERGY_ROUNDING)`
+/// of the motion, at most that of the size. A larger estimate at that stop
+/// is a phase short of its answer (a sparse scan's pull folding the
+/// tissue stopped at 0.48 of the size): not converged.
+pub const FLOAT_FLOOR_ERROR: f32 = 1e-3;
+
 /// Which rule ended a solve.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -31,6 +44,17 @@ pub enum StopReason {
 }
 
 impl StopReason {
+    /// Whether a solve it ended with the error estimate `residual` (a
+    /// fraction of the model's size) converged: at the tolerance, or at
+    /// the float floor with an estimate of at most [`FLOAT_FLOOR_ERROR`].
+    pub fn converged_at(self, residual: f32) -> bool {
+        match self {
+            StopReason::Tolerance => true,
+            StopReason::FloatPrecision => residual <= FLOAT_FLOOR_ERROR,
+            StopReason::IterationCap | StopReason::Diverged | StopReason::Stalled => false,
+        }
+    }
+
     /// Whether the phase it ended stopped short of the tolerance: the
     /// state became non-finite, or the iteration stopped contracting.
     pub fn failed(self) -> bool {
@@ -165,5 +189,31 @@ impl DeformReport {
                     .windows(2)
                     .all(|pair| pair[1] <= pair[0] + rounding * pair[0].abs().max(pair[1].abs()))
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The tolerance converges at any estimate it stops on; the float
+    /// floor up to [`FLOAT_FLOOR_ERROR`] and not beyond; the cap, a
+    /// divergence and a stall never.
+    #[test]
+    fn a_float_floor_converges_only_within_the_potentials_precision() {
+        assert!(FLOAT_FLOOR_ERROR.to_bits() == (ENERGY_ROUNDING.sqrt() as f32).to_bits());
+        assert!(StopReason::Tolerance.converged_at(1e-5));
+        assert!(StopReason::FloatPrecision.converged_at(FLOAT_FLOOR_ERROR));
+        assert!(StopReason::FloatPrecision.converged_at(5e-4));
+        assert!(!StopReason::FloatPrecision.converged_at(2e-3));
+        assert!(!StopReason::FloatPrecision.converged_at(0.48));
+        assert!(!StopReason::FloatPrecision.converged_at(f32::NAN));
+        for never in [
+            StopReason::IterationCap,
+            StopReason::Diverged,
+            StopReason::Stalled,
+        ] {
+            assert!(!never.converged_at(0.0), "{never:?}");
+        }
     }
 }

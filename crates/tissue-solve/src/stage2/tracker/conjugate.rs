@@ -109,6 +109,9 @@ impl<D: SolveDevice> Tracker<D> {
         let mut recorded = 0;
         let (mut iterations, mut since_linearised) = (0, 0);
         let (mut halvings, mut relinearisations, mut retries, mut measured) = (0, 0, 0, 0);
+        // The error estimate at the state the phase ends on (read there
+        // whether or not a step followed it).
+        let mut latest = 0.0;
         let stopped_by = loop {
             let Some(dots) = self.device.descent_residual()? else {
                 if iterations == 0 && measured == 0 {
@@ -119,6 +122,7 @@ impl<D: SolveDevice> Tracker<D> {
                 break StopReason::Stalled;
             };
             let error = DESCENT_ERROR_BOUND * dots.step_largest / size;
+            latest = error;
             if recorded < iterations {
                 history.push(error);
                 steps.told(error);
@@ -183,12 +187,9 @@ impl<D: SolveDevice> Tracker<D> {
         );
         Ok(Some(DeformReport {
             iterations,
-            residual: history.last().copied().unwrap_or(0.0),
+            residual: latest,
             residual_history: history,
-            converged: matches!(
-                stopped_by,
-                StopReason::Tolerance | StopReason::FloatPrecision
-            ),
+            converged: stopped_by.converged_at(latest),
             stopped_by,
             seconds,
             elastic_retries: retries,
@@ -298,6 +299,7 @@ mod tests {
     use crate::stage2::pairing::Pairing;
     use crate::stage2::params::ForceModel;
     use crate::stage2::plan::Plan;
+    use crate::stage2::report::FLOAT_FLOOR_ERROR;
     use crate::stage2::report::SolveStep;
     use crate::stage2::springs::Spring;
     use crate::stage2::tracker::tests::star;
@@ -583,6 +585,28 @@ mod tests {
         assert_eq!((report.iterations, report.elastic_retries), (3, 1));
         assert_eq!(device.linearisations, 2);
         assert_eq!(device.x, device.base);
+    }
+
+    /// Where the potential's parts are so large that no decrease a step
+    /// asks is told apart from their rounding, and every step after the
+    /// third raises it beyond that rounding, the phase stops there at the
+    /// float floor with an error estimate of about 0.6 of the size: short
+    /// of the answer, not at its precision ([`FLOAT_FLOOR_ERROR`]), and
+    /// not converged.
+    #[test]
+    fn a_float_floor_far_from_the_answer_is_not_converged() {
+        let mut device = Quadratic::new(60);
+        (device.offset, device.bump, device.bump_from) = (1e14, 1e10, 3);
+        let (report, _) = descend(device, 500);
+        let (stopped_by, iterations, residual) =
+            (report.stopped_by, report.iterations, report.residual);
+        assert_eq!(
+            (stopped_by, iterations),
+            (StopReason::FloatPrecision, 3),
+            "{residual}"
+        );
+        assert!(residual > 100.0 * FLOAT_FLOOR_ERROR, "{residual}");
+        assert!(!report.converged);
     }
 
     /// The cap ends the phase not converged, after exactly that many
