@@ -22,8 +22,8 @@ pub use observed::Observation;
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
 pub use tissue_solve::stage2::{
-    Cleaned, Cloud, FIDUCIAL_MISFIT, FiducialFit, NORMAL_NEIGHBOURS, RigidFit, SCAN_SCALE, Spring,
-    fiducial_fit, rigid_fit,
+    Cleaned, Cloud, FIDUCIAL_MISFIT, FiducialFit, LINE_SPREAD, NORMAL_NEIGHBOURS, RigidFit,
+    SCAN_SCALE, Spring, fiducial_fit, rigid_fit,
 };
 
 use crate::{Error, SurfaceMesh, field::SurfaceField};

@@ -54,6 +54,9 @@ fn the_cases_clouds_have_their_spacing_and_the_skins_normals() {
             median < 6.0 && ninetieth < 12.0,
             "{name}: normals off by {median:.1} (median) and {ninetieth:.1} degrees (90th percentile)"
         );
+        // A scan's patch: no point lies on a line of points, so every
+        // normal is the scan's own.
+        assert!(cloud.lines().is_empty(), "{name}: {:?}", cloud.lines());
     }
 }
 

@@ -1,6 +1,7 @@
 //! The model's skin pulled onto an observation without correspondence
 //! inside the elastic solve ([`match_observation`]).
 
+use std::borrow::Cow;
 use std::collections::BTreeSet;
 
 use rayon::prelude::*;
@@ -363,13 +364,29 @@ pub fn match_observation_held(
             made.as_ref()
         }
     };
-    let bound_surface = region.map(|region| region.surface.clone());
-    let field = observation.pairing_field(
+    // The model's surface bound to the particles: the skin the match
+    // starts from, and the answer's surface.
+    let bound = match region.map(|region| region.surface.clone()) {
+        Some(embedding) => solver.bind_embedded(embedding)?,
+        None => solver.bind(&model.surface.vertices)?,
+    };
+    let mut field = observation.pairing_field(
         held,
         HELD_REACH * spacing,
         spacing,
         params.surface_smoothing,
     )?;
+    // A cloud's points on lines of points (a stylus's strips) take the
+    // normal of the skin the match starts from.
+    if observation.on_lines() > 0 {
+        let start = SurfaceMesh {
+            vertices: solver.carry(&bound)?,
+            ..model.surface.clone()
+        };
+        if let Some(turned) = observation.turned_on(&start)? {
+            field.field = Cow::Owned(turned);
+        }
+    }
     // A cloud's pairs have a robust scale at each stage and all its stages
     // solve to the tolerance; a surface's, smoothed or not, pull in
     // proportion to their distance.
@@ -510,10 +527,6 @@ pub fn match_observation_held(
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
     clear(solver)?;
-    let bound = match bound_surface {
-        Some(embedding) => solver.bind_embedded(embedding)?,
-        None => solver.bind(&model.surface.vertices)?,
-    };
     let mut surface = SurfaceMesh {
         vertices: solver.carry(&bound)?,
         ..model.surface.clone()

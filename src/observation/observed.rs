@@ -38,6 +38,10 @@ pub(super) enum Kind {
         /// Whether its points were moved onto their neighbours' planes
         /// ([`tissue_solve::stage2::Cleaned::flattened`]).
         flattened: bool,
+        /// Its points on lines of points, each with the line's direction
+        /// ([`Cloud::lines`]): their normals are the skin's
+        /// ([`Observation::turned_on`]).
+        lines: Vec<(u32, Vec3)>,
     },
 }
 
@@ -90,8 +94,53 @@ impl Observation {
                 spacing,
                 noise: given.unwrap_or((CLOUD_NOISE * spacing).max(scatter)),
                 flattened,
+                lines: cleaned.lines(),
             },
         })
+    }
+
+    /// How many of a cloud's points lie on lines of points (a stylus's
+    /// strips, [`Cloud::lines`]), whose normals are the model's skin's;
+    /// 0 for a surface.
+    pub fn on_lines(&self) -> usize {
+        match &self.kind {
+            Kind::Cloud { lines, .. } => lines.len(),
+            Kind::Surface(_) => 0,
+        }
+    }
+
+    /// A cloud's field with the normals of its points on lines of points
+    /// taken from `skin` (the model's skin where the match starts): the
+    /// normal of its nearest point there, turned square to the line (the
+    /// line lies in the skin; its points' own plane turns about it).
+    /// `None` where no point lies on a line, and for a surface.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Observation`] where `skin`'s field cannot be made.
+    pub(super) fn turned_on(&self, skin: &SurfaceMesh) -> Result<Option<SurfaceField>, Error> {
+        let Kind::Cloud { field, lines, .. } = &self.kind else {
+            return Ok(None);
+        };
+        if lines.is_empty() {
+            return Ok(None);
+        }
+        let edge = mean_edge(skin);
+        let skin_field =
+            SurfaceField::new(skin, edge, FIELD_MARGIN * edge).map_err(ObservationError::from)?;
+        let turned: Vec<Vec3> = lines
+            .par_iter()
+            .map(|&(i, along)| {
+                let normal = skin_field.nearest(self.points[i as usize]).normal;
+                let square = normal - normal.dot(along) * along;
+                square.try_normalize().unwrap_or(normal)
+            })
+            .collect();
+        let mut field = field.clone();
+        for (&(i, _), normal) in lines.iter().zip(turned) {
+            field.normals[i as usize] = [normal; 7];
+        }
+        Ok(Some(field))
     }
 
     /// Checks what [`Observation::cloud`] would refuse in `cloud`, without

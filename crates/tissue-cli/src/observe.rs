@@ -181,6 +181,11 @@ pub struct ObservationReport {
     /// whose planes lie under the skin); absent for a surface.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub kept_as_scanned: Option<bool>,
+    /// A cloud's points on lines of points (a stylus's strips), whose
+    /// normals are the model's skin's where the match starts; absent for a
+    /// surface.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub on_lines: Option<usize>,
     /// The noise scale, in the model's units.
     pub noise_mm: f32,
     /// The last stage's robust scale (a cloud's; pairs farther off are
@@ -303,6 +308,7 @@ impl ObservationReport {
             kept_as_scanned: observation
                 .is_cloud()
                 .then(|| observation.kept_as_scanned()),
+            on_lines: observation.is_cloud().then(|| observation.on_lines()),
             noise_mm,
             robust_mm: report.robust,
             skin: report.skin,
@@ -344,7 +350,7 @@ impl ObservationReport {
     /// A line for the screen.
     pub fn line(&self) -> String {
         format!(
-            "matched without correspondence to a {} of {} points ({} set aside as outliers{}): {} \
+            "matched without correspondence to a {} of {} points ({} set aside as outliers{}{}): {} \
              of {} free skin particles pulled ({} past the observation's edge, {} farther off than \
              the robust scale at the end); the observed points {:.3} from the deformed skin (RMS; \
              95th percentile {:.3}, largest {:.3})",
@@ -355,6 +361,12 @@ impl ObservationReport {
                 "; kept as scanned, sparse for the skin's curvature"
             } else {
                 ""
+            },
+            match self.on_lines {
+                Some(lines) if lines > 0 => {
+                    format!("; {lines} on lines of points, their normals the skin's")
+                }
+                _ => String::new(),
             },
             self.pulled,
             self.skin,

@@ -411,7 +411,7 @@ enum Target {
     /// An observation without correspondence, with the held region's
     /// vertices of the rest surface.
     Match {
-        observation: Observation,
+        observation: Box<Observation>,
         held: Vec<bool>,
     },
 }
@@ -484,7 +484,7 @@ impl DeformArgs {
                                 )
                             })?,
                         },
-                        observation: Observation::surface(&mesh)?,
+                        observation: Box::new(Observation::surface(&mesh)?),
                     }
                 }
             },
@@ -504,7 +504,7 @@ impl DeformArgs {
                     );
                 };
                 Target::Match {
-                    observation: observe::read_cloud(path, model, self.noise, motion)?,
+                    observation: Box::new(observe::read_cloud(path, model, self.noise, motion)?),
                     held: held(region)?,
                 }
             }

@@ -280,3 +280,50 @@ fn breast_cs_scan_matches_to_the_tolerance_with_its_rim_held() {
     assert!(iterations <= 400, "{iterations} iterations");
     assert!(rmse <= 1.8 && tumour <= 1.3, "{rmse} / {tumour} mm");
 }
+
+/// A tracked stylus's strips: breast_c's scan cut to its points within
+/// 1.5 mm of three planes of constant x (at its points' quartiles) and two
+/// of constant y (at their thirds), 196 points, with the posture options.
+/// The points along the strips lie on lines of points, whose own planes
+/// turn about the strips (27 degrees off the skin at the median); with the
+/// model's skin's normals there the match converges and the probes land
+/// within 3 mm (2.42 / 1.94 mm). With their own normals the match without
+/// gravity the posture starts from stopped 2.4 times the organ's size
+/// short of its answer and the run was refused.
+#[test]
+fn a_stylus_strips_match_with_the_postures() {
+    let Some(dir) = common::shared_case("breast_c") else {
+        return;
+    };
+    let work = tempfile::tempdir().unwrap();
+    let case = Case::new(&dir, work.path());
+    let scan = tissue::load_points(&dir.join("observed_cloud.csv")).unwrap();
+    let at = |axis: usize, share: f32| {
+        let mut values: Vec<f32> = scan.iter().map(|p| p[axis]).collect();
+        values.sort_by(f32::total_cmp);
+        values[((values.len() - 1) as f32 * share) as usize]
+    };
+    let planes = [
+        (0, at(0, 0.25)),
+        (0, at(0, 0.5)),
+        (0, at(0, 0.75)),
+        (1, at(1, 0.33)),
+        (1, at(1, 0.66)),
+    ];
+    let strips: Vec<Vec3> = scan
+        .iter()
+        .copied()
+        .filter(|p| planes.iter().any(|&(axis, at)| (p[axis] - at).abs() < 1.5))
+        .collect();
+    let path = work.path().join("strips.csv");
+    tissue::save_points(&strips, &path).unwrap();
+    let ((rmse, tumour), report) = case.score(["--cloud", s(&path)], &work.path().join("strips"));
+    let on_lines = report["observation"]["on_lines"].as_u64().unwrap();
+    eprintln!(
+        "breast_c's strips ({} points, {on_lines} on lines): {rmse:.3} / {tumour:.3} mm",
+        strips.len()
+    );
+    assert_eq!(report["status"], "converged", "{}", report["status"]);
+    assert!(on_lines >= 40, "{on_lines} on lines");
+    assert!(rmse <= 3.0 && tumour <= 2.5, "{rmse} / {tumour} mm");
+}

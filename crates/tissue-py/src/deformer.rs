@@ -189,7 +189,8 @@ impl Deformer {
     /// bounded force, farther off than the robust scale), `outliers` (a
     /// cloud's points set aside), `kept_as_scanned` (a cloud sparse for
     /// the skin's curvature, its points not moved onto their neighbours'
-    /// planes),
+    /// planes), `on_lines` (a cloud's points on lines of points, a
+    /// stylus's strips, their normals the model's skin's),
     /// `residual_rms`, `residual_p95`, `residual_max` (the observed
     /// points' distances to the deformed skin), `volume_change`, `stages`.
     /// A match that did not converge, or whose residual is above three
@@ -286,6 +287,7 @@ impl Deformer {
             "beyond_robust": report.beyond_robust,
             "outliers": observation.outliers(),
             "kept_as_scanned": observation.kept_as_scanned(),
+            "on_lines": observation.on_lines(),
             "residual_rms": report.residual.rms,
             "residual_p95": report.residual.p95,
             "residual_max": report.residual.max,

@@ -41,7 +41,7 @@ pub use batches::{Batches, run_batched, run_batched_from};
 pub use controls::{VOLUME_RATIO, check_same_topology};
 pub use device::{DescentDots, Iteration, Potential, SolveDevice};
 pub use inversion::{INVERTED_VOLUME_RATIO, Inversions, inversions};
-pub use observation::{Cleaned, Cloud, FLAT_BEND, NORMAL_NEIGHBOURS, SCAN_SCALE};
+pub use observation::{Cleaned, Cloud, FLAT_BEND, LINE_SPREAD, NORMAL_NEIGHBOURS, SCAN_SCALE};
 pub use pairing::{
     CLOUD_SMOOTHING, Feature, NO_LIMIT, Paired, Pairing, PairingRule, feature_of, on_rim,
     pair_plane, paired_point, paired_spring, taper,

@@ -51,6 +51,19 @@ pub struct Cloud {
     others: Vec<u32>,
 }
 
+/// A point whose [`NORMAL_NEIGHBOURS`] nearest points (itself among them)
+/// spread across their main direction by less than this share of their
+/// spread along it (`sqrt(lambda_2 / lambda_1)` of their covariance) lies
+/// on a line of points, not a patch: a tracked stylus's strip. Their
+/// least-squares plane then contains the line but turns about it with the
+/// noise and the skin's curvature along it (on strips cut from the shared
+/// cases' scans, 27-57 degrees off the skin's normal at the median), so
+/// its normal is the model's skin's instead ([`Cloud::lines`]). On the
+/// shared cases' whole scans the ratio is at least 0.3 at every point (at
+/// the tenth percentile 0.67-0.68); on the strips' points off their
+/// crossings 0.09-0.2 (docs/METHOD.md, *Points on lines of points*).
+pub const LINE_SPREAD: f32 = 0.3;
+
 /// The nearest other points each point's plane is fitted to.
 const OTHERS: usize = NORMAL_NEIGHBOURS - 1;
 
@@ -229,6 +242,26 @@ impl Cloud {
             bend: (bend, about),
             flattened,
         })
+    }
+
+    /// Per point that lies on a line of points ([`LINE_SPREAD`]), its
+    /// index and the line's unit direction (the main direction of its
+    /// [`NORMAL_NEIGHBOURS`] nearest points); the points of a patch are
+    /// not listed.
+    pub fn lines(&self) -> Vec<(u32, Vec3)> {
+        self.points
+            .par_iter()
+            .zip(self.others.par_chunks(OTHERS))
+            .enumerate()
+            .filter_map(|(i, (&p, row))| {
+                let near =
+                    || std::iter::once(p).chain(row.iter().map(|&j| self.points[j as usize]));
+                let mean = near().sum::<Vec3>() / (row.len() + 1) as f32;
+                let fit = svd3(covariance(near(), mean));
+                let across = (fit.sigma.y / fit.sigma.x).max(0.0).sqrt();
+                (fit.sigma.x > 0.0 && across < LINE_SPREAD).then_some((i as u32, fit.u.x_axis))
+            })
+            .collect()
     }
 
     /// The same cloud with its normals turned to the side of the surface
@@ -799,6 +832,83 @@ mod tests {
     /// and moving them onto the planes would shrink the scan by that much.
     /// A denser one is moved onto them where the bend is below
     /// [`FLAT_BEND`] of its noise.
+    /// A stylus's strips (points 1.5 mm apart along three arcs of a
+    /// 50 mm sphere 20 mm apart, 0.3 mm of noise) lie on lines of points,
+    /// each along its arc, while their least-squares planes turn about the
+    /// arcs away from the sphere's normal; a scan's patch (a cap, whole or
+    /// every 4th point) and a ring of points around the pole lie on none.
+    #[test]
+    fn a_stylus_strips_points_lie_on_lines_and_a_patchs_do_not() {
+        let mut rng = Pcg64::seed_from_u64(3);
+        let mut strips = Vec::new();
+        let mut along = Vec::new();
+        for offset in [-20.0f32, 0.0, 20.0] {
+            // Arcs of constant x: the circle of radius r in that plane.
+            let r = (50.0f32 * 50.0 - offset * offset).sqrt();
+            let steps = (0.8 * r / 1.5) as usize;
+            for k in 0..steps {
+                let angle = 1.5 * k as f32 / r - 0.4;
+                let on = Vec3::new(offset, r * angle.sin(), r * angle.cos());
+                let noise: f32 = rng.random_range(-0.3..0.3) * 3f32.sqrt();
+                strips.push(on + on.normalize() * noise);
+                along.push(Vec3::new(0.0, angle.cos(), -angle.sin()));
+            }
+        }
+        let cloud = Cloud::new(strips.clone()).unwrap();
+        let lines = cloud.lines();
+        assert!(
+            lines.len() * 10 >= strips.len() * 9,
+            "{} of {}",
+            lines.len(),
+            strips.len()
+        );
+        // Along the arc, within the chord of twelve points at an arc's end.
+        for &(i, direction) in &lines {
+            let i = i as usize;
+            assert!(
+                direction.dot(along[i]).abs() > 0.97,
+                "point {i}: {direction}"
+            );
+        }
+        let tilts: Vec<f32> = (0..strips.len())
+            .map(|i| {
+                let sphere = strips[i].normalize();
+                cloud.normals()[i]
+                    .dot(sphere)
+                    .abs()
+                    .min(1.0)
+                    .acos()
+                    .to_degrees()
+            })
+            .collect();
+        let turned = tilts.iter().filter(|&&tilt| tilt > 20.0).count();
+        assert!(
+            turned * 4 > strips.len(),
+            "{turned} of {} turned",
+            strips.len()
+        );
+
+        for patch in [
+            cap(3.0, 0.5),
+            cap(3.0, 0.5).into_iter().step_by(4).collect(),
+        ] {
+            assert!(Cloud::new(patch).unwrap().lines().is_empty());
+        }
+        let ring: Vec<Vec3> = (0..40)
+            .flat_map(|k| {
+                let around = k as f32 * std::f32::consts::TAU / 40.0;
+                [0.2f32, 0.3].map(|polar| {
+                    Vec3::new(
+                        polar.sin() * around.cos(),
+                        polar.sin() * around.sin(),
+                        polar.cos(),
+                    ) * 50.0
+                })
+            })
+            .collect();
+        assert!(Cloud::new(ring).unwrap().lines().is_empty());
+    }
+
     #[test]
     fn a_scan_sparse_for_its_bend_is_kept_as_scanned() {
         let radial = |points: &[Vec3]| {
