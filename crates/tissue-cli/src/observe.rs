@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use serde::Serialize;
+use tissue::deformation::StopReason;
 use tissue::observation::{
     Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation, SURFACE_NOISE,
     fiducial_fit, load_cloud,
@@ -135,7 +136,11 @@ pub fn check_smoothing(smoothing: Option<f32>) -> Result<()> {
 /// The match without gravity that the posture options start from: `model`
 /// under `params` (its held region observed, no load) matched to
 /// `observation` on `device` with `matching`; the rest surface carried by it (a frame of
-/// the rest surface) and which of its vertices the observation saw.
+/// the rest surface), which of its vertices the observation saw, and its
+/// error estimate where it stopped short of its answer (at the float
+/// floor or stalled, as a sparse scan's may: the stiffness is then fitted
+/// to the skin it left, and the run flagged). A match stopped by the
+/// iteration cap or diverged is refused.
 pub fn first_match(
     device: crate::backend::Device,
     model: &ParticleModel,
@@ -143,18 +148,21 @@ pub fn first_match(
     observation: &Observation,
     matching: &MatchParams,
     quiet: bool,
-) -> Result<(SurfaceMesh, Vec<bool>)> {
+) -> Result<(SurfaceMesh, Vec<bool>, Option<f32>)> {
     let observed = crate::progress::busy(quiet, "matching the skin without gravity first", |_| {
         tissue::gravity::observed_frame(&device, model, observation, params, matching)
     })?;
-    if !observed.report.converged {
-        bail!(
+    let last = &observed.report.last;
+    let short = match last.stopped_by {
+        _ if observed.report.converged => None,
+        StopReason::FloatPrecision | StopReason::Stalled => Some(last.residual),
+        StopReason::Tolerance | StopReason::IterationCap | StopReason::Diverged => bail!(
             "it did not converge ({} iterations, stopped by {:?})",
             observed.report.iterations,
-            observed.report.last.stopped_by
-        );
-    }
-    Ok((observed.frame, observed.seen))
+            last.stopped_by
+        ),
+    };
+    Ok((observed.frame, observed.seen, short))
 }
 
 /// The rest surface's vertices that lie on `observed` (within

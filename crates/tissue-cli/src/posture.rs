@@ -219,6 +219,12 @@ pub struct PostureReport {
     /// Seconds the unloaded shape and the fit took, the coarse model's
     /// sampling included (the solve's own are `seconds`).
     pub posture_seconds: f64,
+    /// With an observation without correspondence, the error estimate
+    /// (a fraction of the model's size) of the match without gravity the
+    /// fit read the skin from, where it stopped short of its answer (at
+    /// the float floor or stalled); absent where it converged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_match_short: Option<f32>,
 }
 
 impl PostureReport {
@@ -238,6 +244,13 @@ impl PostureReport {
                  stiffness explains the skin with this gravity, density ({} kg/m^3) and unit \
                  ({:?}); check them",
                 self.gravity.density_kg_m3, self.gravity.unit
+            ));
+        }
+        if let Some(short) = self.first_match_short {
+            flags.push(format!(
+                "the match without gravity that the stiffness was fitted from stopped short of \
+                 its answer (error estimate {short:.1e} of the size; `first_match_short`), as a \
+                 sparse scan's may: the fit, and the answer from it, are not final"
             ));
         }
         if let (true, Some(fit), Some(motion)) = (
@@ -549,6 +562,7 @@ pub fn prepare(
                 posture_elastic_retries: 0,
                 posture_backtracks: 0,
                 posture_seconds: 0.0,
+                first_match_short: None,
             },
         }));
     }
@@ -607,6 +621,7 @@ pub fn prepare(
         posture_elastic_retries: unloaded.elastic_retries,
         posture_backtracks: unloaded.backtracks,
         posture_seconds: started.elapsed().as_secs_f64(),
+        first_match_short: None,
     };
     Ok(Some(Posture {
         unloaded: Some(unloaded),
@@ -637,7 +652,8 @@ mod tests {
     }
 
     /// A fit is flagged when its stiffness lies on a bound of the search,
-    /// or its free skin misses the observed by more than the skin moved; a
+    /// its free skin misses the observed by more than the skin moved, or
+    /// the match without gravity it read the skin from stopped short; a
     /// given stiffness, or a fit inside the bounds that explains the skin,
     /// is not.
     #[test]
@@ -667,6 +683,7 @@ mod tests {
             posture_elastic_retries: 0,
             posture_backtracks: 0,
             posture_seconds: 1.0,
+            first_match_short: None,
         };
         let (low, high) = FIT_BOUNDS_KPA;
         assert!(report(3.0, true, 0.2, 5.0).flags().is_empty());
@@ -682,6 +699,15 @@ mod tests {
         let flags = report(3.0, true, 6.0, 5.0).flags();
         assert!(
             flags.len() == 1 && flags[0].contains("more than the skin moved"),
+            "{flags:?}"
+        );
+        // Fitted from a match without gravity that stopped short of its
+        // answer: flagged, naming its error estimate.
+        let mut short = report(3.0, true, 0.2, 5.0);
+        short.first_match_short = Some(5e-3);
+        let flags = short.flags();
+        assert!(
+            flags.len() == 1 && flags[0].contains("stopped short") && flags[0].contains("5.0e-3"),
             "{flags:?}"
         );
     }

@@ -586,7 +586,7 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
     // where it is) or the first match's.
     let placed = match (&target, &first) {
         (Target::Frame(deformed), _) => deformed,
-        (Target::Match { .. }, Some((frame, _))) => frame,
+        (Target::Match { .. }, Some((frame, _, _))) => frame,
         (Target::Match { .. }, None) => &model.surface,
     };
     let stage2 = Stage2 {
@@ -594,10 +594,13 @@ pub fn deform(args: &DeformArgs) -> Result<()> {
         model: &model,
         deformed: placed,
         gravity: &args.solve.gravity,
-        seen: first.as_ref().map(|(_, seen)| seen.as_slice()),
+        seen: first.as_ref().map(|(_, seen, _)| seen.as_slice()),
         quiet: args.quiet,
     };
-    let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
+    let (mut solver, mut posture) = stage2.solver(args.backend.backend, device, &mut params)?;
+    if let (Some(posture), Some((_, _, short))) = (posture.as_mut(), &first) {
+        posture.report.first_match_short = *short;
+    }
     set_deformed(observed_file, &mut solver, placed)?;
     if let Some(posture) = &posture {
         posture.warm_start(&mut solver)?;

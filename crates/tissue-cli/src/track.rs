@@ -341,7 +341,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     };
     let first_frame = match (&sequence, args.solve.gravity.given()) {
         (Sequence::Frames, true) => Some(read_frame(&frames[0], &model.surface)?),
-        (Sequence::Matched { .. }, true) => first_match.as_ref().map(|(frame, _)| frame.clone()),
+        (Sequence::Matched { .. }, true) => first_match.as_ref().map(|(frame, _, _)| frame.clone()),
         _ => None,
     };
     let stage2 = Stage2 {
@@ -349,10 +349,13 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         model: &model,
         deformed: first_frame.as_ref().unwrap_or(&model.surface),
         gravity: &args.solve.gravity,
-        seen: first_match.as_ref().map(|(_, seen)| seen.as_slice()),
+        seen: first_match.as_ref().map(|(_, seen, _)| seen.as_slice()),
         quiet: args.quiet,
     };
-    let (mut solver, posture) = stage2.solver(args.backend.backend, device, &mut params)?;
+    let (mut solver, mut posture) = stage2.solver(args.backend.backend, device, &mut params)?;
+    if let (Some(posture), Some((_, _, short))) = (posture.as_mut(), &first_match) {
+        posture.report.first_match_short = *short;
+    }
     let posture_report = posture.as_ref().map(|p| &p.report);
     let carried = Carried::load(&args.carry, &solver, &model)?;
     let model_name = args.model.display().to_string();
