@@ -318,7 +318,10 @@ impl Model {
     /// and `backtracks` over all the solves). Where gravity does not change and no stiffness is
     /// given there is no load to fit: a RuntimeWarning, and the deformer
     /// is the plain elastic one. An unloaded shape not found within 0.1 mm
-    /// also warns. `fit_particles`: the stiffness is fitted on a model of
+    /// also warns, and so does a match without gravity (another surface,
+    /// or a scan) that stopped short of its answer, which the stiffness
+    /// is then fitted from (`posture["first_match_converged"]` False;
+    /// None for a frame of the rest surface). `fit_particles`: the stiffness is fitted on a model of
     /// that many particles sampled on the same surface where this one has
     /// at least twice as many, this model's unloaded shape then found at
     /// the fitted stiffness (several times faster; docs/METHOD.md);
@@ -459,13 +462,13 @@ impl Model {
         }
         let mut callback = Callback::new(progress.as_ref());
         // `auto` runs the posture on the CPU where the GPU it picked has no room.
-        let ((unloaded, solver, deformed), fell_back) = py
+        let ((unloaded, solver, deformed, first), fell_back) = py
             .detach(|| {
                 with_cpu_fallback(backend, device, Error::is_gpu_capacity, |device| {
                     // An observation's frame: where it puts the skin
                     // without gravity, the fit's targets the skin it saw.
-                    let (deformed, fit_params) = match &target {
-                        Target::Frame(deformed) => (deformed.clone(), params.clone()),
+                    let (deformed, fit_params, first) = match &target {
+                        Target::Frame(deformed) => (deformed.clone(), params.clone(), None),
                         Target::Other(_, observation) | Target::Scan(observation) => {
                             let matching = MatchParams {
                                 noise,
@@ -474,9 +477,11 @@ impl Model {
                             let observed =
                                 observed_frame(&device, model, observation, &params, &matching)?;
                             let seen = observed.seen;
+                            let first = (observed.report.converged, observed.report.last.residual);
                             (
                                 observed.frame,
                                 params.clone().with(|p| p.observed = Some(seen)),
+                                Some(first),
                             )
                         }
                     };
@@ -500,13 +505,23 @@ impl Model {
                     let params = params.clone().with(|p| p.load = unloaded.deformed_load);
                     let solver =
                         Solver::unloaded(device, model, &unloaded.shape.positions, params)?;
-                    Ok::<_, tissue::Error>((unloaded, solver, deformed))
+                    Ok::<_, tissue::Error>((unloaded, solver, deformed, first))
                 })
             })
             .map_err(raise)?;
         callback.result()?;
         if let Some(why) = fell_back {
             warn(py, &why)?;
+        }
+        if let Some((false, residual)) = first {
+            warn(
+                py,
+                &format!(
+                    "the match without gravity that the stiffness was fitted from stopped short \
+                     of its answer (error estimate {residual:.1e} of the size): the fit, and the \
+                     answer from it, are not final"
+                ),
+            )?;
         }
         if !unloaded.shape.converged {
             warn(
@@ -543,6 +558,10 @@ impl Model {
         posture.set_item("backtracks", unloaded.backtracks)?;
         let load = unloaded.deformed_load;
         posture.set_item("load", (load.x, load.y, load.z))?;
+        posture.set_item(
+            "first_match_converged",
+            first.map(|(converged, _)| converged),
+        )?;
         Ok(Deformer {
             solver,
             model: self.model.clone(),

@@ -675,6 +675,9 @@ def test_a_posture_is_fitted_to_an_observation_without_correspondence():
     a = framed.posture["stiffness_kpa"]
     b = matched.posture["stiffness_kpa"]
     assert matched.posture["stiffness_fitted"] and abs(np.log(a / b)) < np.log(2), (a, b)
+    # The match without gravity converged; a frame of the rest surface has none.
+    assert matched.posture["first_match_converged"] is True
+    assert framed.posture["first_match_converged"] is None
     report = matched.match_observation(surface=other)
     assert report["converged"] and report["pulled"] == report["skin"] > 0
     assert report["residual_rms"] < 2e-3 * size
@@ -683,6 +686,7 @@ def test_a_posture_is_fitted_to_an_observation_without_correspondence():
         front, (0, 0, -1), (0, -1, 0), held=wall, backend="cpu", scan=True
     )
     assert scanned.posture["stiffness_fitted"]
+    assert scanned.posture["first_match_converged"] is True
     scan = scanned.match_observation(cloud=front)
     assert scan["converged"] and 0 < scan["pulled"] < scan["skin"]
     assert scan["residual_rms"] < 2e-3 * size
