@@ -106,6 +106,14 @@ impl Case {
         extra: &[&str],
         out: &Path,
     ) -> ((f32, f32), Value) {
+        let run = self.deform(observation, extra, out);
+        assert!(run.status.success(), "{observation:?}: {}", text(&run));
+        self.scored(out)
+    }
+
+    /// `deform` with `observation` and `extra` options into `out`, quiet
+    /// but for warnings and errors, however it ends.
+    fn deform(&self, observation: [&str; 2], extra: &[&str], out: &Path) -> std::process::Output {
         let mut args = vec![
             "deform",
             "--model",
@@ -124,9 +132,16 @@ impl Case {
         ];
         args.extend(self.gravity.iter().map(String::as_str));
         args.extend(extra);
-        let run = tissue(&args);
-        assert!(run.status.success(), "{observation:?}: {}", text(&run));
-        self.scored(out)
+        tissue(&args)
+    }
+
+    /// The case's scan cut to the points `keep` keeps, written in `work`
+    /// as `name`.
+    fn scan_cut(&self, work: &Path, name: &str, keep: impl Fn(&[Vec3]) -> Vec<Vec3>) -> PathBuf {
+        let scan = tissue::load_points(&self.dir.join("observed_cloud.csv")).unwrap();
+        let path = work.join(name);
+        tissue::save_points(&keep(&scan), &path).unwrap();
+        path
     }
 
     /// The probe RMSE and tumour-centre error (mm) of the run written to
@@ -303,31 +318,29 @@ fn a_stylus_strips_match_with_the_postures() {
     };
     let work = tempfile::tempdir().unwrap();
     let case = Case::new(&dir, work.path());
-    let scan = tissue::load_points(&dir.join("observed_cloud.csv")).unwrap();
-    let at = |axis: usize, share: f32| {
-        let mut values: Vec<f32> = scan.iter().map(|p| p[axis]).collect();
-        values.sort_by(f32::total_cmp);
-        values[((values.len() - 1) as f32 * share) as usize]
-    };
-    let planes = [
-        (0, at(0, 0.25)),
-        (0, at(0, 0.5)),
-        (0, at(0, 0.75)),
-        (1, at(1, 0.33)),
-        (1, at(1, 0.66)),
-    ];
-    let strips: Vec<Vec3> = scan
-        .iter()
-        .copied()
-        .filter(|p| planes.iter().any(|&(axis, at)| (p[axis] - at).abs() < 1.5))
-        .collect();
-    let path = work.path().join("strips.csv");
-    tissue::save_points(&strips, &path).unwrap();
+    let path = case.scan_cut(work.path(), "strips.csv", |scan| {
+        let at = |axis: usize, share: f32| {
+            let mut values: Vec<f32> = scan.iter().map(|p| p[axis]).collect();
+            values.sort_by(f32::total_cmp);
+            values[((values.len() - 1) as f32 * share) as usize]
+        };
+        let planes = [
+            (0, at(0, 0.25)),
+            (0, at(0, 0.5)),
+            (0, at(0, 0.75)),
+            (1, at(1, 0.33)),
+            (1, at(1, 0.66)),
+        ];
+        scan.iter()
+            .copied()
+            .filter(|p| planes.iter().any(|&(axis, at)| (p[axis] - at).abs() < 1.5))
+            .collect()
+    });
     let ((rmse, tumour), report) = case.score(["--cloud", s(&path)], &work.path().join("strips"));
     let on_lines = report["observation"]["on_lines"].as_u64().unwrap();
     eprintln!(
         "breast_c's strips ({} points, {on_lines} on lines): {rmse:.3} / {tumour:.3} mm",
-        strips.len()
+        report["observation"]["points"]
     );
     assert_eq!(report["status"], "converged", "{}", report["status"]);
     assert!(on_lines >= 40, "{on_lines} on lines");
@@ -346,28 +359,11 @@ fn a_first_match_short_of_its_answer_is_fitted_from_and_flagged() {
     };
     let work = tempfile::tempdir().unwrap();
     let case = Case::new(&dir, work.path());
-    let scan = tissue::load_points(&dir.join("observed_cloud.csv")).unwrap();
-    let sparse: Vec<Vec3> = scan.iter().step_by(16).copied().collect();
-    let path = work.path().join("sparse.csv");
-    tissue::save_points(&sparse, &path).unwrap();
+    let path = case.scan_cut(work.path(), "sparse.csv", |scan| {
+        scan.iter().step_by(16).copied().collect()
+    });
     let out = work.path().join("sparse");
-    let mut args = vec![
-        "deform",
-        "--model",
-        s(&case.model),
-        "--cloud",
-        s(&path),
-        "--fixed-region",
-        s(&case.wall),
-        "--points",
-        s(&case.points),
-        "--backend",
-        "cpu",
-        "--output-dir",
-        s(&out),
-    ];
-    args.extend(case.gravity.iter().map(String::as_str));
-    let run = tissue(&args);
+    let run = case.deform(["--cloud", s(&path)], &[], &out);
     assert_eq!(run.status.code(), Some(4), "{}", text(&run));
     assert!(
         text(&run).contains("stopped short of its answer"),
