@@ -633,7 +633,7 @@ impl SolveReport {
             "{indent}{} iterations in {:.3} s, {}{retried}; particles moved up to {:.2} mm",
             self.iterations,
             self.seconds,
-            convergence(self.stopped_by, self.residual),
+            convergence(self.converged, self.stopped_by, self.residual),
             self.max_displacement_mm
         )];
         if let Some(observation) = &self.observation {

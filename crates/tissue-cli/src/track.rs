@@ -544,7 +544,7 @@ pub fn track(args: &TrackArgs) -> Result<()> {
                 surface,
                 report.iterations,
                 1e3 * report.seconds,
-                convergence(report.stopped_by, report.residual)
+                convergence(report.converged, report.stopped_by, report.residual)
             );
             if !moved.is_empty() {
                 line = format!("{line}; {}", moved.join(", "));

@@ -111,16 +111,17 @@ pub fn remedy(stopped_by: StopReason) -> &'static str {
     }
 }
 
-/// `converged`, or how far and why not.
-pub fn convergence(stopped_by: StopReason, residual: f32) -> String {
+/// `converged`, or how far and why not, of a solve that stopped by
+/// `stopped_by` with the error estimate `residual`, `converged` or not.
+pub fn convergence(converged: bool, stopped_by: StopReason, residual: f32) -> String {
     match stopped_by {
         StopReason::Tolerance => "converged".into(),
-        StopReason::FloatPrecision if stopped_by.converged_at(residual) => format!(
+        StopReason::FloatPrecision if converged => format!(
             "converged to single precision (error estimate {residual:.1e} of the size, above --tolerance)"
         ),
         StopReason::FloatPrecision => format!(
-            "NOT converged (error estimate {residual:.1e} of the size): it stopped where single \
-             precision tells no further decrease apart, short of the answer"
+            "NOT converged (error estimate {residual:.1e} of the size): it stopped at single \
+             precision short of the answer"
         ),
         StopReason::IterationCap => format!(
             "NOT converged (error estimate {residual:.1e} of the size): raise --max-iterations"
@@ -165,13 +166,14 @@ mod status_tests {
         );
     }
 
-    /// A stop at the float floor reads converged within the potential's
-    /// precision and NOT converged beyond it, its estimate given either way.
+    /// A stop at the float floor reads converged where the solve
+    /// converged there and NOT converged where it stopped short, its
+    /// estimate given either way.
     #[test]
     fn a_float_floor_short_of_the_answer_reads_not_converged() {
-        let near = convergence(StopReason::FloatPrecision, 4e-4);
+        let near = convergence(true, StopReason::FloatPrecision, 4e-4);
         assert!(near.starts_with("converged to single precision"), "{near}");
-        let far = convergence(StopReason::FloatPrecision, 0.48);
+        let far = convergence(false, StopReason::FloatPrecision, 0.48);
         assert!(
             far.starts_with("NOT converged (error estimate 4.8e-1"),
             "{far}"
