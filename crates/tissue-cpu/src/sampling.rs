@@ -20,7 +20,7 @@ pub use crate::kernels::imf_force::{ForceRows, imf_force, imf_force_near, imf_pa
 pub use crate::kernels::needs_rebuild::needs_rebuild;
 pub use crate::kernels::radius_update::radius_update;
 pub use crate::kernels::sampling_change::change;
-pub use crate::kernels::sampling_integrate::integrate;
+pub use crate::kernels::sampling_integrate::{integrate, integrate_clear};
 use crate::stage1::neighbour_rows;
 use crate::stage1::quality_report;
 
@@ -60,13 +60,17 @@ pub fn sample(
     near.filter(&state, &rows.0, &rows.1, params.force_cutoff, force_skin);
     let mut built_at = (state.positions.clone(), state.radii.clone());
     let mut near_at = built_at.clone();
+    // How deep inside each particle surely is: its surface query is
+    // skipped while its step is shorter ([`integrate_clear`]).
+    let mut clearance = vec![0.0; state.positions.len()];
     let mut iterations = 0;
     let mut rebuilds = 0;
     let mut converged = false;
     while iterations < params.max_iterations {
         let forces = imf_force_near(&state, &near, &field, params);
         let radii = radius_update(&state.radii, &forces, params);
-        let (positions, contact) = integrate(&state, &forces, &field, params, r0);
+        let (positions, contact) =
+            integrate_clear(&state, &forces, &field, params, r0, &mut clearance);
         let (step_rms, radius_rms) = change(&state, &positions, &contact, &radii, r0);
         let done = converged_after(iterations, step_rms, radius_rms, params, progress)?;
         state = SamplingState {

@@ -2,11 +2,12 @@
 //! from: data arrays and cell sections, written and read. The model's layout
 //! on top of them is in `model`.
 
-use std::fmt::Display;
+use std::fmt::{Display, Write as _};
 use std::io::{self, Write};
 use std::str::FromStr;
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::space::Space;
 use super::xml::Element;
@@ -53,7 +54,7 @@ fn compressed(bytes: &[u8]) -> io::Result<(Vec<u8>, Vec<u8>)> {
 
 /// A value as the bytes of VTK type `ty` (little-endian). The writers only
 /// ask for a type that holds the value (the model is checked first).
-pub(super) trait Encode: Display + Copy {
+pub(super) trait Encode: Display + Copy + Send + Sync {
     fn encode(self, ty: &str, out: &mut Vec<u8>);
 }
 
@@ -165,15 +166,34 @@ fn write_values<T: Encode>(
         );
     }
     write!(w, r#" format="ascii">"#)?;
-    for (k, value) in values.enumerate() {
-        if k % per_line == 0 {
-            write!(w, "\n          {value}")?;
-        } else {
-            write!(w, " {value}")?;
-        }
+    // Formatted in blocks of whole lines on every thread (the decimal
+    // formatting is most of a large model's writing), then written in
+    // order: the same text as one value after the other.
+    let values: Vec<T> = values.collect();
+    let blocks: Vec<String> = values
+        .par_chunks(per_line * LINES_PER_BLOCK)
+        .map(|block| {
+            let mut text = String::with_capacity(12 * block.len());
+            for (k, value) in block.iter().enumerate() {
+                let gap = if k % per_line == 0 {
+                    "\n          "
+                } else {
+                    " "
+                };
+                // Writing into a `String` cannot fail.
+                let _ = write!(text, "{gap}{value}");
+            }
+            text
+        })
+        .collect();
+    for block in blocks {
+        w.write_all(block.as_bytes())?;
     }
     writeln!(w, "\n        </DataArray>")
 }
+
+/// Lines of an ASCII array formatted together ([`write_values`]).
+const LINES_PER_BLOCK: usize = 512;
 
 // ---------------------------------------------------------------------------
 // Reading
