@@ -724,7 +724,15 @@ fn frames_with_touching_vertices_and_stl_frames_are_read_as_the_rest_mesh() {
     }
     let stl = dir.path().join("moved.stl");
     tissue::save_surface(&moved, &stl).unwrap();
-    for (surface, out) in [(&obj, "touching"), (&stl, "stl")] {
+    // An STL file stores every corner apart: its touching vertices are
+    // read by the corners of the triangles, listed in the rest's order.
+    let touching_stl = dir.path().join("touching.stl");
+    tissue::save_surface(&touching, &touching_stl).unwrap();
+    for (surface, out) in [
+        (&obj, "touching"),
+        (&stl, "stl"),
+        (&touching_stl, "touching-stl"),
+    ] {
         let result = tissue(&[
             "deform",
             "--model",
@@ -735,6 +743,9 @@ fn frames_with_touching_vertices_and_stl_frames_are_read_as_the_rest_mesh() {
             s(&dir.path().join(out)),
         ]);
         assert!(result.status.success(), "{out}: {}", text(&result));
+        // Followed as a frame, not matched as another surface.
+        let report = json(&dir.path().join(out).join("report.json"));
+        assert!(report.get("observation").is_none(), "{out}: {report}");
     }
 }
 

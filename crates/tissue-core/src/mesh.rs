@@ -127,17 +127,58 @@ impl SurfaceMesh {
         Some(SurfaceMesh::new(vertices, rest.triangles.clone()))
     }
 
+    /// `rest`'s mesh with each vertex where the corners of `self`'s
+    /// triangles that stand for it lie, `self` listing `rest`'s triangles
+    /// in `rest`'s order (each wound the same way, or each reversed) with
+    /// vertices of its own numbering, however many: an STL file's three
+    /// corners a triangle. `None` where the triangle counts differ or two
+    /// corners standing for one vertex of `rest` lie apart. Vertices that
+    /// touch in the frame stay two, which welding would merge.
+    fn corners_in_order(&self, rest: &SurfaceMesh) -> Option<SurfaceMesh> {
+        if self.triangles.len() != rest.triangles.len() || rest.triangles.is_empty() {
+            return None;
+        }
+        [false, true].into_iter().find_map(|reversed| {
+            let mut at: Vec<Option<Vec3>> = vec![None; rest.vertices.len()];
+            for (mine, theirs) in self.triangles.iter().zip(&rest.triangles) {
+                let mine = if reversed {
+                    [mine[0], mine[2], mine[1]]
+                } else {
+                    *mine
+                };
+                for (&m, &r) in mine.iter().zip(theirs) {
+                    let corner = *self.vertices.get(m as usize)?;
+                    match at.get_mut(r as usize)? {
+                        slot @ None => *slot = Some(corner),
+                        Some(seen) if *seen == corner => {}
+                        Some(_) => return None,
+                    }
+                }
+            }
+            let vertices = at.into_iter().collect::<Option<Vec<Vec3>>>()?;
+            Some(SurfaceMesh::new(vertices, rest.triangles.clone()))
+        })
+    }
+
     /// `self`, a deformed frame of `rest` as another tool wrote it, made
-    /// `rest`'s mesh with moved vertices where it can be: coinciding
-    /// vertices welded when that gives `rest`'s count (an `stl` file, which
-    /// stores three corners a triangle, is always welded), every triangle's
-    /// winding reversed when all of `rest`'s are (sampling turned an
-    /// inward-facing surface outward), and the vertices renumbered by the
-    /// triangles when only their numbering differs. What cannot be matched
-    /// is returned as it is, for the topology check to name.
+    /// `rest`'s mesh with moved vertices where it can be: with more or
+    /// fewer vertices than `rest` (an `stl` file stores three corners a
+    /// triangle), read by its corners where it lists `rest`'s triangles in
+    /// their order ([`SurfaceMesh::corners_in_order`]: vertices that touch
+    /// stay two), else with coinciding vertices welded when that gives
+    /// `rest`'s count (an `stl` file always is); every triangle's winding
+    /// reversed when all of `rest`'s are (sampling turned an inward-facing
+    /// surface outward), and the vertices renumbered by the triangles when
+    /// only their numbering differs. What cannot be matched is returned as
+    /// it is, for the topology check to name.
     pub fn as_frame_of(self, rest: &SurfaceMesh, stl: bool) -> SurfaceMesh {
         let mut deformed = if self.vertices.len() == rest.vertices.len() {
             self
+        } else if let Some(frame) = self.corners_in_order(rest) {
+            log::info!(
+                "the frame lists the rest surface's triangles in their order: read by their corners"
+            );
+            frame
         } else {
             let welded = crate::io::surface::weld(&self, 0.0);
             if welded.vertices.len() == rest.vertices.len() || stl {
@@ -233,6 +274,56 @@ mod tests {
         for (b, r) in back.vertices.iter().zip(&rest.vertices) {
             assert_eq!(*b, *r + Vec3::X);
         }
+    }
+
+    /// `mesh` as an STL file stores it: three corners a triangle, each its
+    /// own vertex, the triangles wound as given by `reversed`.
+    fn soup(mesh: &SurfaceMesh, reversed: bool) -> SurfaceMesh {
+        let vertices = mesh
+            .triangles
+            .iter()
+            .flat_map(|t| t.map(|v| mesh.vertices[v as usize]))
+            .collect();
+        let triangles = (0..mesh.triangles.len() as u32)
+            .map(|t| {
+                let [a, b, c] = [3 * t, 3 * t + 1, 3 * t + 2];
+                if reversed { [a, c, b] } else { [a, b, c] }
+            })
+            .collect();
+        SurfaceMesh::new(vertices, triangles)
+    }
+
+    #[test]
+    fn a_frame_whose_vertices_touch_is_read_by_its_corners_not_welded() {
+        let rest = octahedron();
+        // Two opposite vertices pressed together: welded, they would merge.
+        let mut frame = rest.clone();
+        frame.vertices[0] = Vec3::ZERO;
+        frame.vertices[1] = Vec3::ZERO;
+        for reversed in [false, true] {
+            let read = soup(&frame, reversed).as_frame_of(&rest, true);
+            assert_eq!(read.triangles, rest.triangles, "reversed {reversed}");
+            assert_eq!(read.vertices, frame.vertices, "reversed {reversed}");
+        }
+        // The same touching frame as written with the two merged (an OBJ
+        // with one vertex for both) is read by its corners too.
+        let mut merged = frame.clone();
+        merged.vertices.remove(1);
+        merged
+            .triangles
+            .iter_mut()
+            .flatten()
+            .for_each(|v| *v = v.saturating_sub(1));
+        let read = merged.as_frame_of(&rest, false);
+        assert_eq!(read.triangles, rest.triangles);
+        assert_eq!(read.vertices, frame.vertices);
+        // Triangles in another order: one vertex's corners lie apart, so
+        // none are read, and the welded soup is no frame of `rest`.
+        let mut shuffled = rest.clone();
+        shuffled.triangles.rotate_left(3);
+        assert!(soup(&shuffled, false).corners_in_order(&rest).is_none());
+        let read = soup(&shuffled, false).as_frame_of(&rest, true);
+        assert_ne!(read.triangles, rest.triangles);
     }
 
     #[test]
