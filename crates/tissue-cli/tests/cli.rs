@@ -259,3 +259,52 @@ fn params_file_and_presets_reach_the_sampler() {
         text(&out)
     );
 }
+
+/// A surface file of several closed shells (an organ exported with a
+/// stray speck) is refused, the error naming `--largest-shell`; with it,
+/// the largest shell is sampled and the dropped one is said.
+#[test]
+fn largest_shell_samples_the_organ_and_drops_the_speck() {
+    let dir = tempfile::tempdir().unwrap();
+    let breast = std::fs::read_to_string(assets().join("phantom-breast.obj")).unwrap();
+    let vertices = breast.lines().filter(|l| l.starts_with("v ")).count();
+    // A tetrahedron 200 mm off the phantom, its faces wound outward.
+    let mut two = breast.clone();
+    for v in ["200 0 0", "201 0 0", "200 1 0", "200 0 1"] {
+        two.push_str(&format!("v {v}\n"));
+    }
+    for [a, b, c] in [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+        let [a, b, c] = [a, b, c].map(|k| vertices + 1 + k);
+        two.push_str(&format!("f {a} {b} {c}\n"));
+    }
+    let path = dir.path().join("two-shells.obj");
+    std::fs::write(&path, two).unwrap();
+    let run = |extra: &[&str]| {
+        let model = dir.path().join("m.vtp");
+        let mut args = vec!["sample", s(&path), "-n", "1000", "-o", s(&model)];
+        args.extend(extra);
+        tissue(&args)
+    };
+    let refused = run(&[]);
+    assert_eq!(refused.status.code(), Some(1), "{}", text(&refused));
+    assert!(
+        text(&refused).contains("2 disconnected shells")
+            && text(&refused).contains("--largest-shell"),
+        "{}",
+        text(&refused)
+    );
+    assert!(!dir.path().join("m.vtp").exists());
+    let kept = run(&["--largest-shell"]);
+    assert!(kept.status.success(), "{}", text(&kept));
+    assert!(
+        text(&kept).contains("kept the largest of 2 shells")
+            && text(&kept).contains("dropped 1 shell"),
+        "{}",
+        text(&kept)
+    );
+    let model = tissue::load_model(&dir.path().join("m.vtp")).unwrap();
+    assert!(
+        model.positions.iter().all(|p| p.x < 100.0),
+        "no particle in the speck"
+    );
+}
