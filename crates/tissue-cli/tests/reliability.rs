@@ -216,6 +216,74 @@ fn a_landmark_outside_the_organ_is_flagged_and_exits_4() {
     }
 }
 
+/// A structure with a vertex outside the organ (a tetrahedron whose tip
+/// stands 25 mm out of the phantom's skin) is flagged like a landmark:
+/// `deform` and `track` exit 4, the report names the vertex outside, and
+/// the same structure with its tip inside is not flagged.
+#[test]
+fn a_structure_vertex_outside_the_organ_is_flagged_in_deform_and_track() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model_path, _) = sampled_model(dir.path());
+    let model = s(&model_path).to_owned();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    for (name, file) in [
+        ("a.obj", "phantom-sag.obj"),
+        ("b.obj", "phantom-indentation.obj"),
+    ] {
+        std::fs::copy(assets().join(file), frames.join(name)).unwrap();
+    }
+    let d = |name: &str| dir.path().join(name).to_str().unwrap().to_owned();
+    let tetrahedron = |tip: f32| {
+        format!(
+            "v 15 -10 25\nv 17 -10 25\nv 15 -8 25\nv 15 -10 {tip}\n\
+             f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+        )
+    };
+    std::fs::write(d("out.obj"), tetrahedron(80.0)).unwrap();
+    std::fs::write(d("in.obj"), tetrahedron(30.0)).unwrap();
+    for (name, code, status, outside) in [
+        ("out.obj", Some(4), "flagged", 1),
+        ("in.obj", Some(0), "converged", 0),
+    ] {
+        let sag = assets().join("phantom-sag.obj");
+        let pattern = d("frames/*.obj");
+        let structure = d(name);
+        let commands = [
+            ["deform", "--surface", s(&sag)],
+            ["track", "--frames", &pattern],
+        ];
+        for command in commands {
+            let out_dir = d(&format!("{}-{name}", command[0]));
+            let mut args = command.to_vec();
+            args.extend([
+                "--model",
+                &model,
+                "--structure",
+                &structure,
+                "-o",
+                &out_dir,
+                "-q",
+            ]);
+            let out = tissue(&args);
+            let message = text(&out);
+            assert_eq!(out.status.code(), code, "{args:?}: {message}");
+            let report = if command[0] == "deform" {
+                json(&Path::new(&out_dir).join("report.json"))
+            } else {
+                let summary = json(&Path::new(&out_dir).join("track.json"));
+                assert_eq!(summary["totals"]["status"], status, "{summary}");
+                json(&Path::new(&out_dir).join("frame-0002/report.json"))
+            };
+            assert_eq!(report["status"], status, "{report}");
+            assert_eq!(
+                report["structures"][0]["outside"]["count"], outside,
+                "{report}"
+            );
+        }
+    }
+}
+
 /// A hand-edited model (a particle moved far outside, a surface particle
 /// moved off its attachment) is refused before any work, naming the
 /// particle, and exits 1; the model as sampled is accepted (issue 15).
