@@ -7,7 +7,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{assets, json, s, sampled_model, size, text, tissue, vtp_array};
+use common::{assets, json, s, sampled_model, shared_mesh, size, text, tissue, vtp_array};
 use tissue::Vec3;
 
 /// `surface` with the vertices within 15 mm of its highest one pushed down
@@ -815,6 +815,45 @@ fn frames_with_touching_vertices_and_stl_frames_are_read_as_the_rest_mesh() {
         let report = json(&dir.path().join(out).join("report.json"));
         assert!(report.get("observation").is_none(), "{out}: {report}");
     }
+}
+
+/// A frame of a rest surface that already passes through itself
+/// (`liver-smooth.obj`, whose triangles 810 and 811 fold over their
+/// neighbours) is solved with a warning that its crossing is the rest's,
+/// not refused as a skin pushed through itself.
+#[test]
+fn a_frame_crossing_itself_where_its_rest_surface_does_is_solved_with_a_warning() {
+    let Some(liver) = shared_mesh("liver-smooth.obj") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("liver.vtp");
+    let sampled = tissue(&["sample", s(&liver), "-n", "2000", "-o", s(&model), "-q"]);
+    assert!(sampled.status.success(), "{}", text(&sampled));
+    let rest = tissue::load_model(&model).unwrap().surface;
+    let mut frame = rest.clone();
+    for v in &mut frame.vertices {
+        v.z *= 0.99;
+    }
+    let frame_path = dir.path().join("frame.obj");
+    tissue::save_surface(&frame, &frame_path).unwrap();
+    let out = tissue(&[
+        "deform",
+        "--model",
+        s(&model),
+        "--surface",
+        s(&frame_path),
+        "-o",
+        s(&dir.path().join("out")),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        text(&out).contains("cross, as the rest surface's do"),
+        "{}",
+        text(&out)
+    );
+    let report = json(&dir.path().join("out/report.json"));
+    assert_eq!(report["status"], "converged", "{report}");
 }
 
 /// A frame whose name is not UTF-8 is not skipped without a word (issue

@@ -72,15 +72,33 @@ pub fn gpu(test: &str) -> bool {
 /// A case of `../shared/cases/` (its folder), or `None` (printing why)
 /// when it is absent; under `CI=true` its absence is a failure.
 pub fn shared_case(name: &str) -> Option<PathBuf> {
+    shared("cases", name, "truth.json")
+}
+
+/// A mesh of `../shared/meshes/`, or `None` (printing why) when it is
+/// absent; under `CI=true` its absence is a failure.
+pub fn shared_mesh(name: &str) -> Option<PathBuf> {
+    shared("meshes", name, "")
+}
+
+/// `../shared/FOLDER/NAME` where `NAME/INSIDE` exists (`NAME` itself for
+/// an empty `INSIDE`).
+fn shared(folder: &str, name: &str, inside: &str) -> Option<PathBuf> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/cases")
+        .join("../../../shared")
+        .join(folder)
         .join(name);
-    if path.join("truth.json").exists() {
+    let marker = if inside.is_empty() {
+        path.clone()
+    } else {
+        path.join(inside)
+    };
+    if marker.exists() {
         return Some(path);
     }
     assert!(
         std::env::var("CI").as_deref() != Ok("true"),
-        "CI=true but the shared case {} is missing",
+        "CI=true but the shared {folder} entry {} is missing",
         path.display()
     );
     eprintln!("SKIPPED: {} not found", path.display());
