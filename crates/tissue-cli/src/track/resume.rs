@@ -160,3 +160,53 @@ pub(super) fn resumed(
     }
     Ok(done)
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_earlier_runs_leftovers_are_removed_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let write = |name: &str| {
+            let path = d.join(name);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, "x").unwrap();
+        };
+        for name in [
+            TRACK_FILE,
+            COLLECTION_FILE,
+            "notes.txt",
+            ".particles.vtp.k3Yq.part",
+            "frame-0001/report.json",
+            "frame-0001/.report.json.Zx81.part",
+            "frame-0001/.hidden",
+            "frame-0003/report.json",
+            "frame-0004/points.csv",
+        ] {
+            write(name);
+        }
+        remove_stale(d, 2, true).unwrap();
+        // A resumed run keeps its summary; the frames past its last go,
+        // with the killed writes' temporary files.
+        assert!(d.join(TRACK_FILE).exists() && d.join(COLLECTION_FILE).exists());
+        assert!(!d.join("frame-0003").exists());
+        assert!(!d.join(".particles.vtp.k3Yq.part").exists());
+        assert!(!d.join("frame-0001/.report.json.Zx81.part").exists());
+        // What no run of `track` writes stays: the user's file, a hidden
+        // file that is no temporary one, a folder holding no report.
+        for kept in [
+            "notes.txt",
+            "frame-0001/report.json",
+            "frame-0001/.hidden",
+            "frame-0004/points.csv",
+        ] {
+            assert!(d.join(kept).exists(), "{kept}");
+        }
+        remove_stale(d, 2, false).unwrap();
+        assert!(!d.join(TRACK_FILE).exists() && !d.join(COLLECTION_FILE).exists());
+        assert!(d.join("frame-0001/report.json").exists());
+    }
+}
