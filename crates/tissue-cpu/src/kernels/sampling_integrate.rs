@@ -87,7 +87,6 @@ pub fn integrate_clear(
 
 #[cfg(test)]
 mod tests {
-    use tissue_core::SurfaceMesh;
     use tissue_solve::stage1::{SKIN_IN_R0, prepare};
 
     use super::*;
@@ -95,38 +94,9 @@ mod tests {
     use crate::kernels::radius_update::radius_update;
     use crate::stage1::neighbour_rows;
 
-    /// A closed box of `lo..hi`, outward.
-    fn cuboid(lo: Vec3, hi: Vec3) -> SurfaceMesh {
-        let v = |x: bool, y: bool, z: bool| {
-            Vec3::new(
-                if x { hi.x } else { lo.x },
-                if y { hi.y } else { lo.y },
-                if z { hi.z } else { lo.z },
-            )
-        };
-        let vertices = (0..8)
-            .map(|k| v(k & 1 != 0, k & 2 != 0, k & 4 != 0))
-            .collect();
-        let triangles = vec![
-            [0, 2, 1],
-            [1, 2, 3],
-            [4, 5, 6],
-            [5, 7, 6],
-            [0, 1, 4],
-            [1, 5, 4],
-            [2, 6, 3],
-            [3, 6, 7],
-            [0, 4, 2],
-            [2, 4, 6],
-            [1, 3, 5],
-            [3, 7, 5],
-        ];
-        SurfaceMesh::new(vertices, triangles)
-    }
-
     #[test]
     fn skipping_the_query_of_particles_surely_inside_changes_nothing() {
-        let mesh = cuboid(Vec3::ZERO, Vec3::new(30.0, 20.0, 10.0));
+        let mesh = tissue_core::phantom::default_breast();
         let params = SamplingParams::with_particles(1500);
         let prepared = prepare(&mesh, &params).unwrap_or_else(|e| panic!("{e}"));
         let (r0, field) = (prepared.r0, &prepared.field);
