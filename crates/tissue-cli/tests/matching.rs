@@ -669,6 +669,28 @@ fn track_matches_sequences_without_correspondence() {
         "c-2.csv: the point cloud spans",
     );
     assert!(!dir.path().join("refused/frame-0001").exists());
+    // Scans are checked side by side: of two bad ones the first in the
+    // sequence's order is named.
+    std::fs::create_dir(dir.path().join("both")).unwrap();
+    for (k, scale) in [(1, 1e-3), (2, 1e3)] {
+        let mut points = tissue::observation::load_cloud(
+            &dir.path().join(format!("scans/c-{k}.csv")),
+            Default::default(),
+        )
+        .unwrap();
+        points.iter_mut().for_each(|p| *p *= scale);
+        tissue::save_points(&points, &dir.path().join(format!("both/c-{k}.csv"))).unwrap();
+    }
+    refused(
+        &[
+            "track",
+            "--clouds",
+            &pattern("both/*.csv"),
+            "--fixed-region",
+            s(&fixed),
+        ],
+        "c-1.csv: the point cloud spans",
+    );
     refused(
         &["track", "--clouds", &pattern("scans/*.csv")],
         "--fixed-region FILE",

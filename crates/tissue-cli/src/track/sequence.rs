@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use rayon::prelude::*;
 use tissue::deformation::DeformReport;
 use tissue::observation::{
     FiducialFit, HeldObservation, HeldRegion, MatchParams, Observation, match_observation_held,
@@ -65,9 +66,13 @@ impl Sequence {
                 );
             };
             let held = read_observed(region, rest)?;
-            for path in frames {
-                observe::check_cloud(path, model, args.noise, motion.as_ref())?;
-            }
+            // Every scan read and cleaned on every thread; the first bad
+            // one in the sequence's order is the one named.
+            let checked: Vec<Result<()>> = frames
+                .par_iter()
+                .map(|path| observe::check_cloud(path, model, args.noise, motion.as_ref()))
+                .collect();
+            checked.into_iter().collect::<Result<Vec<()>>>()?;
             return Self::matched(args, vec![None; frames.len()], held, motion);
         }
         let mut others = Vec::new();
