@@ -47,8 +47,10 @@ fn reorder(at: Invocation) {
     in_cell_order[slot] = positions[particles[slot]];
 }
 
-// `Grid::for_each_slot_near` with the pair test: counts row i and, when
-// `fill`, writes it from `offsets[i]` (never past `offsets[i + 1]`).
+// The block of cells around p_i's with the pair test (the CPU twin reads
+// only the cells of that block p_i's sphere reaches: the same particles in
+// the same order): counts row i and, when `fill`, writes it from
+// `offsets[i]` (never past `offsets[i + 1]`).
 fn search(i: u32, fill: bool) -> u32 {
     let p = positions[i].xyz;
     let base = params.factor * positions[i].w + params.skin;
