@@ -533,6 +533,8 @@ fn a_match_refuses_a_noise_beyond_the_organs_reach() {
         assert!(error.contains("noise"), "{noise}: {error}");
         if noise > reach {
             assert!(error.contains("a quarter of the organ's size"), "{error}");
+            // The value as a number, as the user gave it.
+            assert!(error.contains(&format!("noise is {noise},")), "{error}");
         }
     }
     assert_eq!(solver.positions(), model.positions.as_slice());

@@ -311,10 +311,12 @@ pub fn match_observation_held(
         params.weight,
         "a positive number",
     )?;
+    // Only a given noise can be refused: shown as the number it is.
+    let noise = params.noise.map_or_else(String::new, |n| n.to_string());
     ParamError::check(
         params.noise.is_none_or(|n| n.is_finite() && n >= 0.0),
         "noise",
-        format!("{:?}", params.noise),
+        &noise,
         "a distance of at least zero",
     )?;
     ParamError::check(
@@ -341,7 +343,7 @@ pub fn match_observation_held(
     ParamError::check(
         params.noise.is_none_or(|n| n <= MAX_REACH * plan.size),
         "noise",
-        format!("{:?}", params.noise),
+        &noise,
         format!(
             "at most a quarter of the organ's size ({:.3}): no scan is that noisy (is it in \
              another unit?)",
