@@ -18,7 +18,7 @@ pub use matching::{
 };
 
 pub use held::{HeldObservation, SAMPLE_CELLS};
-pub use observed::Observation;
+pub use observed::{CleanedScan, Observation};
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
 pub use tissue_solve::stage2::{

@@ -45,6 +45,29 @@ pub(super) enum Kind {
     },
 }
 
+/// A scan cleaned, its normals turned and its grid's size checked, as
+/// [`Observation::cloud`] makes it, without the grid
+/// ([`Observation::clean_cloud`]).
+#[derive(Debug, Clone)]
+pub struct CleanedScan {
+    cloud: Cloud,
+    set_aside: usize,
+    flattened: bool,
+    noise: f32,
+}
+
+impl CleanedScan {
+    /// The points kept.
+    pub fn len(&self) -> usize {
+        self.cloud.points().len()
+    }
+
+    /// Whether no point is kept (never, for a scan that was cleaned).
+    pub fn is_empty(&self) -> bool {
+        self.cloud.points().is_empty()
+    }
+}
+
 impl Observation {
     /// A closed surface of the organ, of any triangulation.
     ///
@@ -78,23 +101,55 @@ impl Observation {
     /// [`Error::Observation`] where too few points are kept or its grid
     /// cannot be made.
     pub fn cloud(cloud: &Cloud, noise: Option<f32>, inside: Vec3) -> Result<Self, Error> {
+        Self::of_cleaned(&Self::clean_cloud(cloud, noise, inside)?)
+    }
+
+    /// [`Observation::cloud`] up to its grid: the scan cleaned, its
+    /// normals turned away from `inside` and its grid's size checked
+    /// ([`CleanedScan`]). A long sequence of scans is cleaned whole before
+    /// its first frame, each grid made when its frame comes
+    /// ([`Observation::of_cleaned`]).
+    ///
+    /// # Errors
+    ///
+    /// As [`Observation::cloud`].
+    pub fn clean_cloud(
+        cloud: &Cloud,
+        noise: Option<f32>,
+        inside: Vec3,
+    ) -> Result<CleanedScan, Error> {
         let given = noise;
         let noise = given.unwrap_or(CLOUD_NOISE * cloud.spacing());
         let cleaned = cloud.cleaned(noise)?;
-        let scatter = cleaned.scatter;
-        let outliers = cleaned.set_aside;
-        let flattened = cleaned.flattened;
-        let cleaned = cleaned.cloud.oriented_from(inside);
-        let spacing = cleaned.spacing();
+        let cloud = cleaned.cloud.oriented_from(inside);
+        let spacing = cloud.spacing();
+        cloud.check_field(FIELD_MARGIN * spacing)?;
+        Ok(CleanedScan {
+            noise: given.unwrap_or((CLOUD_NOISE * spacing).max(cleaned.scatter)),
+            set_aside: cleaned.set_aside,
+            flattened: cleaned.flattened,
+            cloud,
+        })
+    }
+
+    /// The observation of a scan cleaned by [`Observation::clean_cloud`]:
+    /// [`Observation::cloud`]'s, its grid made here.
+    ///
+    /// # Errors
+    ///
+    /// [`Error::Observation`] where its grid cannot be made.
+    pub fn of_cleaned(scan: &CleanedScan) -> Result<Self, Error> {
+        let cloud = &scan.cloud;
+        let spacing = cloud.spacing();
         Ok(Self {
-            points: cleaned.points().to_vec(),
-            outliers,
+            points: cloud.points().to_vec(),
+            outliers: scan.set_aside,
             kind: Kind::Cloud {
-                field: cleaned.field(FIELD_MARGIN * spacing)?,
+                field: cloud.field(FIELD_MARGIN * spacing)?,
                 spacing,
-                noise: given.unwrap_or((CLOUD_NOISE * spacing).max(scatter)),
-                flattened,
-                lines: cleaned.lines(),
+                noise: scan.noise,
+                flattened: scan.flattened,
+                lines: cloud.lines(),
             },
         })
     }
@@ -141,20 +196,6 @@ impl Observation {
             field.normals[i as usize] = [normal; 7];
         }
         Ok(Some(field))
-    }
-
-    /// Checks what [`Observation::cloud`] would refuse in `cloud`, without
-    /// its grid (a long sequence of scans is checked whole before its
-    /// first frame, each grid made when its frame comes).
-    ///
-    /// # Errors
-    ///
-    /// As [`Observation::cloud`].
-    pub fn check_cloud(cloud: &Cloud, noise: Option<f32>) -> Result<(), Error> {
-        let noise = noise.unwrap_or(CLOUD_NOISE * cloud.spacing());
-        let cleaned = cloud.cleaned(noise)?.cloud;
-        cleaned.check_field(FIELD_MARGIN * cleaned.spacing())?;
-        Ok(())
     }
 
     /// Per point of `points`, whether the observation sees it: every one

@@ -8,8 +8,8 @@ use anyhow::{Result, bail};
 use serde::Serialize;
 use tissue::deformation::StopReason;
 use tissue::observation::{
-    Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation, SURFACE_NOISE,
-    fiducial_fit, load_cloud,
+    CleanedScan, Cloud, FiducialFit, HELD_TOLERANCE, MatchParams, MatchReport, Observation,
+    SURFACE_NOISE, fiducial_fit, load_cloud,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -68,22 +68,22 @@ pub fn read_cloud(
     noise: Option<f32>,
     motion: Option<&FiducialFit>,
 ) -> Result<Observation> {
-    let cloud = checked_cloud(path, model, motion)?;
-    let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
-    Observation::cloud(&cloud, noise, centre)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    let scan = clean_cloud(path, model, noise, motion)?;
+    Observation::of_cleaned(&scan).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// A scan read and checked as [`read_cloud`] would read it, without its
-/// grid.
-pub fn check_cloud(
+/// A scan read, checked and cleaned as [`read_cloud`] reads it, without
+/// its grid.
+pub fn clean_cloud(
     path: &Path,
     model: &ParticleModel,
     noise: Option<f32>,
     motion: Option<&FiducialFit>,
-) -> Result<()> {
+) -> Result<CleanedScan> {
     let cloud = checked_cloud(path, model, motion)?;
-    Observation::check_cloud(&cloud, noise).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    let centre = model.positions.iter().copied().sum::<glam::Vec3>() / model.len() as f32;
+    Observation::clean_cloud(&cloud, noise, centre)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// The points of `--cloud` read and checked against the organ's size and

@@ -9,7 +9,8 @@ use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use tissue::deformation::DeformReport;
 use tissue::observation::{
-    FiducialFit, HeldObservation, HeldRegion, MatchParams, Observation, match_observation_held,
+    CleanedScan, FiducialFit, HeldObservation, HeldRegion, MatchParams, Observation,
+    match_observation_held,
 };
 use tissue::{ParticleModel, SurfaceMesh};
 
@@ -18,6 +19,12 @@ use crate::observe::{self, ObservationReport};
 use crate::progress::{self, SolveBar};
 use crate::solve::{read_frame, read_observed, set_deformed};
 
+/// The most points the cleaned scans of `track --clouds` keep from their
+/// check before the first frame to their own frame (about 70 bytes a
+/// point: 140 MB); a longer sequence reads and cleans each scan again when
+/// its frame comes.
+pub(super) const KEPT_SCAN_POINTS: usize = 2_000_000;
+
 /// What the frames are.
 pub(super) enum Sequence {
     /// Frames of the model's rest surface: the skin follows each vertex by
@@ -25,11 +32,16 @@ pub(super) enum Sequence {
     Frames,
     /// Observations without correspondence (closed surfaces of any
     /// triangulation, or scans), with the held region's rest vertices.
-    /// A scan is `None`: read and checked before the first solve (its
-    /// grid not made), then read again and gridded when its frame comes,
-    /// so that a long sequence does not hold every scan's grid at once.
+    /// A scan is `None`: read, checked and cleaned before the first solve
+    /// (its grid not made), and gridded when its frame comes, so that a
+    /// long sequence does not hold every scan's grid at once; the cleaned
+    /// scans are kept in `scans` up to [`KEPT_SCAN_POINTS`] in all, and
+    /// beyond it read and cleaned again.
     Matched {
         observations: Vec<Option<Observation>>,
+        /// Per scan, the scan cleaned where it is kept (empty for
+        /// surfaces).
+        scans: Vec<Option<CleanedScan>>,
         held: Vec<bool>,
         /// The motion `--fiducials` fitted, which puts every observation
         /// in the model's frame first.
@@ -68,12 +80,13 @@ impl Sequence {
             let held = read_observed(region, rest)?;
             // Every scan read and cleaned on every thread; the first bad
             // one in the sequence's order is the one named.
-            let checked: Vec<Result<()>> = frames
+            let cleaned: Vec<Result<CleanedScan>> = frames
                 .par_iter()
-                .map(|path| observe::check_cloud(path, model, args.noise, motion.as_ref()))
+                .map(|path| observe::clean_cloud(path, model, args.noise, motion.as_ref()))
                 .collect();
-            checked.into_iter().collect::<Result<Vec<()>>>()?;
-            return Self::matched(args, vec![None; frames.len()], held, motion);
+            let cleaned = cleaned.into_iter().collect::<Result<Vec<_>>>()?;
+            let scans = kept(cleaned, KEPT_SCAN_POINTS);
+            return Self::matched(args, vec![None; frames.len()], scans, held, motion);
         }
         let mut others = Vec::new();
         let mut framed = Vec::new();
@@ -144,13 +157,14 @@ impl Sequence {
             .iter()
             .map(|(_, mesh)| Observation::surface(mesh).map(Some))
             .collect::<Result<Vec<_>, _>>()?;
-        Self::matched(args, observations, held, motion)
+        Self::matched(args, observations, Vec::new(), held, motion)
     }
 
     /// Observations without correspondence, once the options are checked.
     fn matched(
         args: &TrackArgs,
         observations: Vec<Option<Observation>>,
+        scans: Vec<Option<CleanedScan>>,
         held: Vec<bool>,
         motion: Option<FiducialFit>,
     ) -> Result<Self> {
@@ -169,13 +183,15 @@ impl Sequence {
         }
         Ok(Self::Matched {
             observations,
+            scans,
             held,
             motion,
         })
     }
 
-    /// Frame `k`'s observation (`path`): a surface's as read, a scan read
-    /// again; `None` for a frame of the rest surface.
+    /// Frame `k`'s observation (`path`): a surface's as read, a scan's
+    /// gridded from the scan kept cleaned or else read again; `None` for a
+    /// frame of the rest surface.
     pub(super) fn observation(
         &self,
         k: usize,
@@ -188,13 +204,30 @@ impl Sequence {
             Self::Frames => Ok(None),
             Self::Matched {
                 observations,
+                scans,
                 motion,
                 ..
-            } => Ok(Some(match &observations[k] {
-                Some(observation) => Cow::Borrowed(observation),
-                None => Cow::Owned(observe::read_cloud(path, model, noise, motion.as_ref())?),
+            } => Ok(Some(match (&observations[k], scans.get(k)) {
+                (Some(observation), _) => Cow::Borrowed(observation),
+                (None, Some(Some(scan))) => Cow::Owned(
+                    Observation::of_cleaned(scan)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
+                ),
+                (None, _) => Cow::Owned(observe::read_cloud(path, model, noise, motion.as_ref())?),
             })),
         }
+    }
+}
+
+/// The cleaned scans, each kept where they hold at most `budget` points
+/// in all, none otherwise (each is then read and cleaned again when its
+/// frame comes).
+fn kept(cleaned: Vec<CleanedScan>, budget: usize) -> Vec<Option<CleanedScan>> {
+    let points: usize = cleaned.iter().map(CleanedScan::len).sum();
+    if points <= budget {
+        cleaned.into_iter().map(Some).collect()
+    } else {
+        vec![None; cleaned.len()]
     }
 }
 
@@ -320,5 +353,38 @@ impl Framing<'_> {
                 })
             }
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests fail loudly on purpose")]
+mod tests {
+    use glam::Vec3;
+    use tissue::observation::Cloud;
+
+    use super::*;
+
+    /// A scan of a flat patch, 12 x 12 points 1 mm apart, seen from below.
+    fn patch() -> CleanedScan {
+        let points = (0..144)
+            .map(|k| Vec3::new((k % 12) as f32, (k / 12) as f32, 0.0))
+            .collect();
+        let cloud = Cloud::new(points).unwrap();
+        Observation::clean_cloud(&cloud, None, Vec3::new(5.5, 5.5, -10.0)).unwrap()
+    }
+
+    #[test]
+    fn scans_are_kept_within_the_budget_and_read_again_beyond_it() {
+        let scans = vec![patch(), patch(), patch()];
+        let points: usize = scans.iter().map(CleanedScan::len).sum();
+        assert!(points > 0);
+        let within = kept(scans.clone(), points);
+        assert!(within.iter().all(Option::is_some));
+        // Each kept scan grids into the scan's observation.
+        let observation = Observation::of_cleaned(within[0].as_ref().unwrap()).unwrap();
+        assert_eq!(observation.points().len(), scans[0].len());
+        let beyond = kept(scans, points - 1);
+        assert_eq!(beyond.len(), 3);
+        assert!(beyond.iter().all(Option::is_none));
     }
 }
