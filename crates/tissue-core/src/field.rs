@@ -242,7 +242,12 @@ impl SurfaceField {
     }
 
     fn cell_centre(&self, index: usize) -> Vec3 {
-        let [x, y, z] = self.cell_coords(index);
+        self.centre_of(self.cell_coords(index))
+    }
+
+    /// The centre of the cell at `[x, y, z]` ([`Self::cell_centre`] without
+    /// working out the coordinates from the index).
+    fn centre_of(&self, [x, y, z]: [u32; 3]) -> Vec3 {
         self.origin + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * self.cell
     }
 

@@ -182,6 +182,121 @@ mod tests {
         }
     }
 
+    /// The bounds' passes: every band cell takes the best of its 26
+    /// neighbours' points where nearer, all cells reading the last pass's
+    /// points, until none changes. [`SurfaceField::point_bounds`] measures
+    /// only the cells next to a change; it must give these bounds to the bit.
+    fn bounds_of_every_pass(field: &SurfaceField, band: &[bool]) -> Vec<f32> {
+        let binned = field.bin_triangles(0.0);
+        let distance = |index: usize, t: u32| {
+            (field.corners[t as usize][0] - field.cell_centre(index)).length()
+        };
+        let mut best: Vec<(f32, u32)> = (0..field.cell_count())
+            .map(|index| {
+                binned.items[binned.start[index] as usize..binned.start[index + 1] as usize]
+                    .iter()
+                    .map(|&t| (distance(index, t), t))
+                    .fold(
+                        (f32::INFINITY, u32::MAX),
+                        |a, b| if b.0 < a.0 { b } else { a },
+                    )
+            })
+            .collect();
+        loop {
+            let next: Vec<(f32, u32)> = (0..field.cell_count())
+                .map(|index| {
+                    let mut kept = best[index];
+                    if band[index] {
+                        field.for_each_neighbour(field.cell_coords(index), |near| {
+                            let t = best[field.cell_index(near)].1;
+                            if t != u32::MAX && t != kept.1 && distance(index, t) < kept.0 {
+                                kept = (distance(index, t), t);
+                            }
+                        });
+                    }
+                    kept
+                })
+                .collect();
+            if next == best {
+                return best.into_iter().map(|(d, _)| d).collect();
+            }
+            best = next;
+        }
+    }
+
+    #[test]
+    fn the_bounds_measured_next_to_changes_are_those_of_every_pass() {
+        // A sphere's points, and a patch of it spread thin (few points,
+        // long chains of passes), at cells that make the band wide.
+        let (sphere, _) = sphere_cloud(300);
+        let patch: Vec<Vec3> = sphere
+            .iter()
+            .copied()
+            .filter(|p| p.z > 0.6)
+            .step_by(3)
+            .collect();
+        for (cloud, cell, margin) in [
+            (&sphere, 0.1, 0.3),
+            (&sphere, 0.07, 0.5),
+            (&patch, 0.05, 0.4),
+        ] {
+            let field = SurfaceField::of_cloud(cloud, cloud, cell, margin).unwrap();
+            let band = field.band_of_points();
+            let bounds = field.point_bounds(&field.bin_triangles(0.0), &band);
+            let passes = bounds_of_every_pass(&field, &band);
+            assert_eq!(
+                bounds.iter().map(|b| b.to_bits()).collect::<Vec<_>>(),
+                passes.iter().map(|b| b.to_bits()).collect::<Vec<_>>(),
+                "cells {cell}, margin {margin}"
+            );
+            assert!(bounds.iter().filter(|b| b.is_finite()).count() > 100);
+        }
+    }
+
+    /// Each band cell lists exactly the points within its reach
+    /// (`nearest + diagonal`, with the fill's slack), by distance from its
+    /// centre and then by index: against every point measured from every
+    /// band cell. Points repeated tie on their distance.
+    #[test]
+    fn a_clouds_cells_list_the_points_within_their_reach_in_order() {
+        let (mut cloud, _) = sphere_cloud(250);
+        cloud.extend_from_within(..20);
+        let (cell, margin) = (0.1, 0.3);
+        let mut field = SurfaceField::of_cloud(&cloud, &cloud, cell, margin).unwrap();
+        let band = field.band_of_points();
+        let outside = vec![true; field.cell_count()];
+        // Reaches from 2 to 5 cells, cell by cell.
+        let nearest: Vec<f32> = (0..field.cell_count())
+            .map(|i| cell * (0.3 + (i % 7) as f32 * 0.5))
+            .collect();
+        field.fill_from_points(&band, &outside, &nearest);
+        let diagonal = cell * 3f32.sqrt();
+        let mut listed = 0;
+        for index in 0..field.cell_count() {
+            let mut expected: Vec<(f32, u32)> = Vec::new();
+            if band[index] {
+                let reach = (nearest[index] + diagonal) * (1.0 + 1e-5) + 1e-6 * cell;
+                let centre = field.cell_centre(index);
+                for (t, p) in cloud.iter().enumerate() {
+                    let d = (*p - centre).length();
+                    if d <= reach {
+                        expected.push((d, t as u32));
+                    }
+                }
+                expected.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            }
+            let range = field.cell_start[index] as usize..field.cell_start[index + 1] as usize;
+            let got: Vec<(f32, u32)> = field.candidate_distance[range.clone()]
+                .iter()
+                .copied()
+                .zip(field.candidates[range].iter().copied())
+                .collect();
+            assert_eq!(got, expected, "cell {index}");
+            listed += got.len();
+        }
+        assert!(listed > 10_000, "{listed} candidates");
+    }
+
     /// A flat cloud's smoothed plane is the plane itself, and it moves
     /// with the query point without jumps: across a cell's border, and as
     /// the nearest point changes, a small step moves it a little.
