@@ -285,9 +285,23 @@ impl SurfaceField {
                             a - Vec3::splat(half_diagonal),
                             a + Vec3::splat(half_diagonal),
                         );
-                        self.for_each_cell_near(range, a, half_diagonal, |cell| {
-                            if (a - self.centre_of(cell)).length() <= half_diagonal * (1.0 + 1e-5) {
-                                band[self.cell_index(cell)] = true;
+                        // Along a row the distance from `a` falls, then
+                        // rises: the cells within reach are one run, found
+                        // from its two ends.
+                        let within = |cell| {
+                            (a - self.centre_of(cell)).length() <= half_diagonal * (1.0 + 1e-5)
+                        };
+                        self.for_each_row_near(range, a, half_diagonal, |y, z, xs| {
+                            let (mut first, mut last) = (*xs.start(), *xs.end());
+                            while first <= last && !within([first, y, z]) {
+                                first += 1;
+                            }
+                            while last > first && !within([last, y, z]) {
+                                last -= 1;
+                            }
+                            if first <= last {
+                                let row = self.cell_index([0, y, z]);
+                                band[row + first as usize..=row + last as usize].fill(true);
                             }
                         });
                     }
@@ -439,10 +453,27 @@ impl SurfaceField {
     /// order [`for_each_cell`] gives them.
     fn for_each_cell_near(
         &self,
-        [lo, hi]: [[u32; 3]; 2],
+        range: [[u32; 3]; 2],
         p: Vec3,
         radius: f32,
         mut f: impl FnMut([u32; 3]),
+    ) {
+        self.for_each_row_near(range, p, radius, |y, z, xs| {
+            for x in xs {
+                f([x, y, z]);
+            }
+        });
+    }
+
+    /// [`SurfaceField::for_each_cell_near`] a row of cells at a time:
+    /// `f(y, z, xs)` for each row along x the ball reaches, `xs` the cells
+    /// of the row it may reach.
+    fn for_each_row_near(
+        &self,
+        [lo, hi]: [[u32; 3]; 2],
+        p: Vec3,
+        radius: f32,
+        mut f: impl FnMut(u32, u32, std::ops::RangeInclusive<u32>),
     ) {
         let radius = radius * 1.001;
         let centre = |k: usize, i: u32| self.origin[k] + (i as f32 + 0.5) * self.cell;
@@ -462,9 +493,7 @@ impl SurfaceField {
                 if last < first as f32 {
                     continue;
                 }
-                for x in first..=last as u32 {
-                    f([x, y, z]);
-                }
+                f(y, z, first..=last as u32);
             }
         }
     }

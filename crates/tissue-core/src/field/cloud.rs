@@ -173,9 +173,22 @@ mod tests {
     /// near the balls' edges.
     #[test]
     fn a_clouds_band_marked_by_its_points_is_its_binned_band() {
-        let (cloud, normals) = sphere_cloud(300);
-        for (cell, margin) in [(0.1, 0.3), (0.07, 0.2), (0.25, 0.25), (0.1, 0.0)] {
-            let field = SurfaceField::of_cloud(&cloud, &normals, cell, margin).unwrap();
+        let (cloud, _) = sphere_cloud(300);
+        // Points on the corners of a lattice of cells: centres on and
+        // near the balls' edges along whole rows.
+        let lattice: Vec<Vec3> = (0..125)
+            .map(|i| Vec3::new((i % 5) as f32, ((i / 5) % 5) as f32, (i / 25) as f32) * 0.2)
+            .collect();
+        for (points, cell, margin) in [
+            (&cloud, 0.1, 0.3),
+            (&cloud, 0.07, 0.2),
+            (&cloud, 0.25, 0.25),
+            (&cloud, 0.1, 0.0),
+            (&cloud, 0.03, 0.41),
+            (&lattice, 0.1, 0.2 - 0.05 * 3f32.sqrt()),
+            (&lattice, 0.05, 0.15),
+        ] {
+            let field = SurfaceField::of_cloud(points, points, cell, margin).unwrap();
             let marked = field.band_of_points();
             assert_eq!(marked, field.band(), "cells {cell}, margin {margin}");
             assert!(marked.iter().any(|&b| b) && !marked.iter().all(|&b| b));
