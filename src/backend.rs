@@ -515,6 +515,18 @@ impl Solver {
         self.tracker.set_springs(springs)
     }
 
+    /// [`Solver::set_springs`] with the elastic correction in hand kept
+    /// whatever the springs' stiffness, a preconditioner for springs that
+    /// change little ([`SolveDevice::set_springs_keeping_correction`]: a
+    /// tracking sequence's next scan).
+    ///
+    /// # Errors
+    ///
+    /// As [`Solver::set_springs`].
+    pub fn set_springs_keeping_correction(&mut self, springs: Vec<Spring>) -> Result<(), Error> {
+        self.tracker.set_springs_keeping_correction(springs)
+    }
+
     /// Holds the observation the skin is paired with (its nearest points'
     /// field: a surface's, or a point cloud's), or none; the state is kept.
     ///

@@ -258,7 +258,10 @@ fn the_skin_follows_a_scan_of_a_deep_indentation_on_both_devices() {
 /// answer: after the first two, a frame starts where the last frames'
 /// changes put the skin on its scan, and lands where the frame started
 /// from the last answer lands, in at most two thirds of its iterations;
-/// the CPU and the GPU take the same steps.
+/// with the elastic correction kept from frame to frame
+/// (`MatchParams::keep_correction`) it lands there too, in about as many
+/// iterations as with the correction made again; the CPU and the GPU take
+/// the same steps.
 #[test]
 fn tracking_frames_of_scans_start_where_the_last_changes_lead_on_both_devices() {
     let model = common::phantom_model(3_000);
@@ -289,20 +292,24 @@ fn tracking_frames_of_scans_start_where_the_last_changes_lead_on_both_devices() 
         .collect();
     let mut devices = vec![Device::Cpu];
     devices.extend(common::gpu());
-    let mut solved = Vec::new();
+    let (mut solved, mut kept_solved) = (Vec::new(), Vec::new());
     for device in devices {
         // Every frame's iterations and the last frame's answer.
-        let track = |predict: bool| {
+        let track = |predict: bool, keep_correction: bool| {
             let mut solver = Solver::new(device.clone(), &model, observed.clone()).unwrap();
             let on = solver.backend();
             solver.set_surface(&model.surface).unwrap();
             let mut iterations = Vec::new();
             for (k, scan) in scans.iter().enumerate() {
                 let params = if k == 0 {
-                    MatchParams::default()
+                    MatchParams {
+                        keep_correction,
+                        ..MatchParams::default()
+                    }
                 } else {
                     MatchParams {
                         predict,
+                        keep_correction,
                         ..MatchParams::next_frame(None)
                     }
                 };
@@ -315,11 +322,15 @@ fn tracking_frames_of_scans_start_where_the_last_changes_lead_on_both_devices() 
                 );
                 iterations.push(report.iterations);
             }
-            eprintln!("{on}, predicted {predict}: {iterations:?} iterations");
+            eprintln!(
+                "{on}, predicted {predict}, correction kept {keep_correction}: {iterations:?} \
+                 iterations"
+            );
             (iterations, solver.positions().to_vec())
         };
-        let (predicted, at) = track(true);
-        let (plain, plain_at) = track(false);
+        let (predicted, at) = track(true, false);
+        let (plain, plain_at) = track(false, false);
+        let (kept, kept_at) = track(true, true);
         let later = |iterations: &[usize]| iterations[2..].iter().sum::<usize>();
         assert!(
             3 * later(&predicted) <= 2 * later(&plain),
@@ -330,9 +341,20 @@ fn tracking_frames_of_scans_start_where_the_last_changes_lead_on_both_devices() 
             "{} apart",
             rms(&at, &plain_at)
         );
+        assert!(
+            2 * later(&kept) <= 3 * later(&predicted) + 4,
+            "{kept:?} iterations with the correction kept against {predicted:?}"
+        );
+        assert!(
+            rms(&kept_at, &at) < 1e-3 * size,
+            "{} apart",
+            rms(&kept_at, &at)
+        );
         solved.push((predicted.iter().sum(), at));
+        kept_solved.push((kept.iter().sum(), kept_at));
     }
     assert_same_match(&solved, size);
+    assert_same_match(&kept_solved, size);
 }
 
 /// A pairing that does not fit the solve is refused with what is wrong:

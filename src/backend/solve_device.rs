@@ -158,6 +158,15 @@ impl SolveDevice for SolverDevice {
         }
     }
 
+    fn set_springs_keeping_correction(&mut self, springs: &[Spring]) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.as_mut().set_springs_keeping_correction(springs)),
+            Self::Gpu(gpu) => gpu.on("uploading the springs", |g| {
+                g.set_springs_keeping_correction(springs)
+            }),
+        }
+    }
+
     fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.as_mut().set_loads(loads)),

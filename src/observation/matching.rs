@@ -172,6 +172,15 @@ pub struct MatchParams {
     /// ([`predict_paired`]), where that lowers the potential, rather than
     /// at the last answer.
     pub predict: bool,
+    /// For a match in a tracking sequence: whether the elastic correction
+    /// the match ends with is kept for the next frame, and a `warm` match
+    /// starts with the one in hand rather than making it again
+    /// ([`Solver::set_springs_keeping_correction`]). Made at an earlier
+    /// frame's start with that frame's springs, it is a preconditioner for
+    /// springs that change little, as a correspondence's tracking frames
+    /// keep theirs; a frame that circles far from it is solved again from
+    /// a shear phase, the correction made anew.
+    pub keep_correction: bool,
 }
 
 impl MatchParams {
@@ -198,6 +207,7 @@ impl Default for MatchParams {
             warm: false,
             surface_smoothing: SURFACE_SMOOTHING,
             predict: true,
+            keep_correction: false,
         }
     }
 }
@@ -469,7 +479,11 @@ pub fn match_observation_held(
         } else {
             None
         };
-        solver.set_springs(springs)?;
+        if stage == 0 && params.warm && params.keep_correction {
+            solver.set_springs_keeping_correction(springs)?;
+        } else {
+            solver.set_springs(springs)?;
+        }
         solver.set_pairing(Some(iterated))?;
         let last_stage = stage + 1 == params.stages;
         solver.set_params(solve_params.clone().with(|p| {
@@ -528,7 +542,13 @@ pub fn match_observation_held(
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
-    clear(solver)?;
+    if params.keep_correction {
+        solver.set_pairing(None)?;
+        solver.set_springs_keeping_correction(Vec::new())?;
+        solver.set_observation(None)?;
+    } else {
+        clear(solver)?;
+    }
     let mut surface = SurfaceMesh {
         vertices: solver.carry(&bound)?,
         ..model.surface.clone()

@@ -199,7 +199,9 @@ impl Deformer {
     /// next frame, as `tissue track` matches it) in one solve at full
     /// weight, rather than from the start in four growing ones; with
     /// `predict` (the default) it starts where the last matches' changes
-    /// put the skin on the observation, where that lowers the potential.
+    /// put the skin on the observation, where that lowers the potential,
+    /// and it keeps the elastic correction it ends with for the next
+    /// frame (the one the last match kept, if any, is its start's).
     /// `surface_smoothing`: how a surface is paired, in its mean edges
     /// (default 1: the plane smoothed over its vertices; 0: the nearest
     /// point and the distance's curvature there).
@@ -233,7 +235,11 @@ impl Deformer {
         };
         let (solver, model) = (&mut self.solver, &self.model);
         let params = if from_last {
-            MatchParams::next_frame(noise)
+            // A tracking frame keeps its elastic correction for the next.
+            MatchParams {
+                keep_correction: true,
+                ..MatchParams::next_frame(noise)
+            }
         } else {
             MatchParams {
                 noise,

@@ -317,11 +317,16 @@ impl Framing<'_> {
                 // A frame after the first starts from the last one's
                 // answer.
                 let first = observe::matching(self.noise, self.surface_smoothing);
+                // Each frame keeps its elastic correction for the next.
                 let matching = if k == 0 {
-                    first
+                    MatchParams {
+                        keep_correction: true,
+                        ..first
+                    }
                 } else {
                     MatchParams {
                         surface_smoothing: first.surface_smoothing,
+                        keep_correction: true,
                         ..MatchParams::next_frame(self.noise)
                     }
                 };

@@ -835,4 +835,56 @@ mod tests {
             "{off} from the iteration's step"
         );
     }
+    #[test]
+    fn springs_set_keeping_the_correction_keep_it_where_others_make_it_again() {
+        let model = crate::sampling::sample(
+            &phantom::default_breast(),
+            &SamplingParams::with_particles(1_500),
+            &mut |_| {},
+        )
+        .unwrap()
+        .model;
+        let mut tracker = Tracker::new(&model, DeformParams::default(), |plan, params| {
+            Ok::<_, Error>(CpuSolve::new(&model, plan, params))
+        })
+        .unwrap();
+        tracker.set_surface::<Error>(&sagged_breast()).unwrap();
+        let Ok(report) = tracker.solve();
+        assert!(report.converged, "{report:?}");
+        assert!(tracker.device().elastic_coarse().is_some());
+        // Springs on every seventh free particle, of weight `w`, across z.
+        let free = tracker.plan().free.clone();
+        let springs = |w: f32, tracker: &Tracker<CpuSolve>| -> Vec<Spring> {
+            (0..free.len())
+                .map(|i| {
+                    if free[i] && i % 7 == 0 {
+                        Spring::plane(tracker.positions()[i], Vec3::Z, w)
+                    } else {
+                        Spring::ZERO
+                    }
+                })
+                .collect()
+        };
+        let first = springs(0.5, &tracker);
+        tracker
+            .set_springs_keeping_correction::<Error>(first)
+            .unwrap();
+        assert!(
+            tracker.device().elastic_coarse().is_some(),
+            "kept for springs"
+        );
+        tracker
+            .set_springs_keeping_correction::<Error>(Vec::new())
+            .unwrap();
+        assert!(
+            tracker.device().elastic_coarse().is_some(),
+            "kept without springs"
+        );
+        let other = springs(2.0, &tracker);
+        tracker.set_springs::<Error>(other).unwrap();
+        assert!(
+            tracker.device().elastic_coarse().is_none(),
+            "made again for other springs"
+        );
+    }
 }

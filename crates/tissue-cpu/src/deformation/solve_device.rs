@@ -227,6 +227,15 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
+    fn set_springs_keeping_correction(&mut self, springs: &[Spring]) -> Result<(), Infallible> {
+        if let Some(coarse) = &mut self.elastic_coarse {
+            Arc::make_mut(coarse).set_pulls(springs);
+        }
+        springs.clone_into(&mut self.springs);
+        springs.clone_into(&mut self.pulls);
+        Ok(())
+    }
+
     fn set_loads(&mut self, loads: &[Vec3]) -> Result<(), Infallible> {
         loads.clone_into(&mut self.loads);
         Ok(())

@@ -165,6 +165,22 @@ impl SolveDevice for GpuSolve {
         })
     }
 
+    fn set_springs_keeping_correction(&mut self, springs: &[Spring]) -> Result<(), GpuError> {
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            gpu.state
+                .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
+            match &mut gpu.elastic_host {
+                Some(host) => springs.clone_into(&mut host.springs),
+                None => {
+                    gpu.elastic_coarse = None;
+                    gpu.state.forget_elastic_linearisation();
+                }
+            }
+            Ok(())
+        })
+    }
+
     /// Written over the body forces' part of the loads buffer where it
     /// holds one per particle (the springs after them kept), the buffer
     /// made again where it does not.

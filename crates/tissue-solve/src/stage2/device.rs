@@ -184,6 +184,20 @@ pub trait SolveDevice {
         springs: &[crate::stage2::springs::Spring],
     ) -> Result<(), Self::Error>;
 
+    /// [`SolveDevice::set_springs`] with the elastic correction in hand
+    /// kept whatever the springs' stiffness: made with earlier springs at
+    /// an earlier state, it is a preconditioner for springs that change
+    /// little (a tracking sequence's next scan, paired as the last one
+    /// was), as within a solve whose pairing turns the springs. Where no
+    /// correction is in hand, or a device keeps none, as
+    /// [`SolveDevice::set_springs`].
+    fn set_springs_keeping_correction(
+        &mut self,
+        springs: &[crate::stage2::springs::Spring],
+    ) -> Result<(), Self::Error> {
+        self.set_springs(springs)
+    }
+
     /// Sets every particle's body force (the plan's loads,
     /// [`crate::stage2::plan::Plan::set_load`]: one per particle, or none):
     /// the next iterations' plain steps and potentials take them; the

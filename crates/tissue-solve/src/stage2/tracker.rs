@@ -208,6 +208,23 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(())
     }
 
+    /// [`Tracker::set_springs`] with the device's elastic correction kept
+    /// ([`SolveDevice::set_springs_keeping_correction`]): a tracking
+    /// sequence's next scan, paired as the last one was.
+    ///
+    /// # Errors
+    ///
+    /// As [`Tracker::set_springs`].
+    pub fn set_springs_keeping_correction<E: From<Error> + From<D::Error>>(
+        &mut self,
+        springs: Vec<crate::stage2::springs::Spring>,
+    ) -> Result<(), E> {
+        self.plan.set_springs(springs)?;
+        self.device
+            .set_springs_keeping_correction(&self.plan.springs)?;
+        Ok(())
+    }
+
     /// Changes the body force of the next solves ([`DeformParams::load`]):
     /// each particle's load made again at the rest shape
     /// ([`Plan::set_load`]) and given to the device; the state is kept.
