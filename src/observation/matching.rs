@@ -542,13 +542,7 @@ pub fn match_observation_held(
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let skin = pairing.skin.len();
     let held = paired_on.held(pairing);
-    if params.keep_correction {
-        solver.set_pairing(None)?;
-        solver.set_springs_keeping_correction(Vec::new())?;
-        solver.set_observation(None)?;
-    } else {
-        clear(solver)?;
-    }
+    clear_keeping(solver, params.keep_correction)?;
     let mut surface = SurfaceMesh {
         vertices: solver.carry(&bound)?,
         ..model.surface.clone()
@@ -620,8 +614,18 @@ fn stage_weight(weight: f32, stages: usize, stage: usize) -> f32 {
 
 /// Takes the springs, the pairing and the observation away.
 fn clear(solver: &mut Solver) -> Result<(), Error> {
+    clear_keeping(solver, false)
+}
+
+/// [`clear`], the elastic correction kept where `keep_correction` says
+/// ([`MatchParams::keep_correction`]).
+fn clear_keeping(solver: &mut Solver, keep_correction: bool) -> Result<(), Error> {
     solver.set_pairing(None)?;
-    solver.set_springs(Vec::new())?;
+    if keep_correction {
+        solver.set_springs_keeping_correction(Vec::new())?;
+    } else {
+        solver.set_springs(Vec::new())?;
+    }
     solver.set_observation(None)
 }
 

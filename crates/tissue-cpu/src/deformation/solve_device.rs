@@ -215,16 +215,10 @@ impl SolveDevice for CpuSolve {
     fn set_springs(&mut self, springs: &[Spring]) -> Result<(), Infallible> {
         // Its operator holds the stiffness of the springs it was made
         // with: kept where only their points move.
-        if Spring::all_same_stiffness(springs, &self.springs) {
-            if let Some(coarse) = &mut self.elastic_coarse {
-                Arc::make_mut(coarse).set_pulls(springs);
-            }
-        } else {
+        if !Spring::all_same_stiffness(springs, &self.springs) {
             self.elastic_coarse = None;
         }
-        springs.clone_into(&mut self.springs);
-        springs.clone_into(&mut self.pulls);
-        Ok(())
+        self.set_springs_keeping_correction(springs)
     }
 
     fn set_springs_keeping_correction(&mut self, springs: &[Spring]) -> Result<(), Infallible> {

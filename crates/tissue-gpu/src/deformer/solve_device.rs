@@ -149,17 +149,13 @@ impl SolveDevice for GpuSolve {
             let device = gpu.device.clone();
             gpu.state
                 .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
-            if let Some(host) = &mut gpu.elastic_host {
-                // Its operator holds the stiffness of the springs it was
-                // made with: kept where only their points move.
-                if !Spring::all_same_stiffness(springs, &host.springs) {
-                    gpu.elastic_coarse = None;
-                    gpu.state.forget_elastic_linearisation();
+            // Its operator holds the stiffness of the springs it was made
+            // with: kept where only their points move.
+            match &mut gpu.elastic_host {
+                Some(host) if Spring::all_same_stiffness(springs, &host.springs) => {
+                    springs.clone_into(&mut host.springs);
                 }
-                springs.clone_into(&mut host.springs);
-            } else {
-                gpu.elastic_coarse = None;
-                gpu.state.forget_elastic_linearisation();
+                _ => gpu.forget_elastic_correction(springs),
             }
             Ok(())
         })
@@ -172,10 +168,7 @@ impl SolveDevice for GpuSolve {
                 .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
             match &mut gpu.elastic_host {
                 Some(host) => springs.clone_into(&mut host.springs),
-                None => {
-                    gpu.elastic_coarse = None;
-                    gpu.state.forget_elastic_linearisation();
-                }
+                None => gpu.forget_elastic_correction(springs),
             }
             Ok(())
         })
@@ -257,6 +250,16 @@ impl GpuSolve {
         let done = work(self);
         scope.pop()?;
         done
+    }
+
+    /// Drops the elastic correction (made again at the next elastic
+    /// phase's start) with the springs `springs` now in place.
+    fn forget_elastic_correction(&mut self, springs: &[Spring]) {
+        self.elastic_coarse = None;
+        self.state.forget_elastic_linearisation();
+        if let Some(host) = &mut self.elastic_host {
+            springs.clone_into(&mut host.springs);
+        }
     }
 
     /// Copies each pair's whole first buffer into its second, in one
