@@ -145,20 +145,16 @@ impl SolveDevice for GpuSolve {
     /// Uploads them beside the loads; the correction is made again with
     /// them at the next elastic phase's start.
     fn set_springs(&mut self, springs: &[Spring]) -> Result<(), GpuError> {
-        self.scoped(|gpu| {
-            let device = gpu.device.clone();
-            gpu.state
-                .set_loads(&device, &gpu.pipelines, &gpu.loads, springs)?;
-            // Its operator holds the stiffness of the springs it was made
-            // with: kept where only their points move.
-            match &mut gpu.elastic_host {
-                Some(host) if Spring::all_same_stiffness(springs, &host.springs) => {
-                    springs.clone_into(&mut host.springs);
-                }
-                _ => gpu.forget_elastic_correction(springs),
-            }
-            Ok(())
-        })
+        // Its operator holds the stiffness of the springs it was made with:
+        // kept where only their points move.
+        let same = self
+            .elastic_host
+            .as_ref()
+            .is_some_and(|host| Spring::all_same_stiffness(springs, &host.springs));
+        if !same {
+            self.forget_elastic_correction(springs);
+        }
+        self.set_springs_keeping_correction(springs)
     }
 
     fn set_springs_keeping_correction(&mut self, springs: &[Spring]) -> Result<(), GpuError> {
