@@ -199,9 +199,9 @@ impl Deformer {
     /// next frame, as `tissue track` matches it) in one solve at full
     /// weight, rather than from the start in four growing ones; with
     /// `predict` (the default) it starts where the last matches' changes
-    /// put the skin on the observation, where that lowers the potential,
-    /// and it keeps the elastic correction it ends with for the next
-    /// frame (the one the last match kept, if any, is its start's).
+    /// put the skin on the observation, where that lowers the potential;
+    /// it starts with the elastic correction the last match kept, if any,
+    /// and keeps the one it ends with for the next frame.
     /// `surface_smoothing`: how a surface is paired, in its mean edges
     /// (default 1: the plane smoothed over its vertices; 0: the nearest
     /// point and the distance's curvature there).
