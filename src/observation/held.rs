@@ -3,6 +3,7 @@
 //! pairing, and how to make the field again with the observation moved
 //! (a sample of its error), for the uncertainty's re-solves.
 
+use rayon::prelude::*;
 use tissue_solve::stage2::Pairing;
 use tissue_solve::stage2::uncertainty::HeldBy;
 
@@ -76,7 +77,7 @@ impl HeldBy for HeldObservation {
         &self.pairing
     }
 
-    fn moved(&self, offset: &dyn Fn(Vec3) -> f32) -> Result<SurfaceField, Error> {
+    fn moved(&self, offset: &(dyn Fn(Vec3) -> f32 + Sync)) -> Result<SurfaceField, Error> {
         let field = &self.field;
         let started = std::time::Instant::now();
         let made = match &self.remake {
@@ -84,7 +85,7 @@ impl HeldBy for HeldObservation {
                 let normals: Vec<Vec3> = field.normals.iter().map(|n| n[0]).collect();
                 let points: Vec<Vec3> = field
                     .corners
-                    .iter()
+                    .par_iter()
                     .zip(&normals)
                     .map(|(c, &n)| c[0] + offset(c[0]) * n)
                     .collect();
@@ -96,7 +97,7 @@ impl HeldBy for HeldObservation {
                 let moved = SurfaceMesh {
                     vertices: mesh
                         .vertices
-                        .iter()
+                        .par_iter()
                         .zip(&normals)
                         .map(|(&v, &n)| v + offset(v) * n.normalize_or_zero())
                         .collect(),

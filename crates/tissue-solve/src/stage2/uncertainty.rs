@@ -49,6 +49,7 @@ pub mod region;
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
+use rayon::prelude::*;
 use serde::Serialize;
 use tissue_core::field::SurfaceField;
 use tissue_core::{Error, ParamError, SurfaceMesh};
@@ -302,6 +303,7 @@ impl Spread {
         let answer = targets(&self.answer);
         let moved: Vec<Vec<Vec3>> = self.columns.iter().map(|c| targets(&c.positions)).collect();
         (0..answer.len())
+            .into_par_iter()
             .map(|k| {
                 Region::of(
                     self.columns
@@ -348,12 +350,12 @@ pub trait HeldBy: Sync + std::fmt::Debug {
     fn pairing(&self) -> &Pairing;
     /// The field of the observation with each of its points moved along
     /// its normal by `offset` there (a sample of the observation's
-    /// error).
+    /// error; `offset` may be called on several threads at once).
     ///
     /// # Errors
     ///
     /// Where the field cannot be made.
-    fn moved(&self, offset: &dyn Fn(Vec3) -> f32) -> Result<SurfaceField, Error>;
+    fn moved(&self, offset: &(dyn Fn(Vec3) -> f32 + Sync)) -> Result<SurfaceField, Error>;
 }
 
 /// The spread of the answer `tracker` holds (its last solve's, converged,
