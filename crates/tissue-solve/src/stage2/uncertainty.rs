@@ -85,10 +85,13 @@ pub const POSTURE_G: f32 = 1.0;
 pub const POSTURE_KPA: f32 = 2.0;
 /// The tissue density the unmodelled change acts on, kg/m^3.
 pub const TISSUE_DENSITY_KG_M3: f32 = 1000.0;
-/// The re-solves' tolerance, a multiple of the answer's: measured on the
-/// shared cases at 10,000 particles, 3 moves the radii by under 0.5 %
-/// and takes a fifth fewer iterations, 10 by up to 4 % and a third fewer.
-pub const COLUMN_TOLERANCE: f32 = 3.0;
+/// The re-solves' tolerance, a multiple of the answer's. A column's error
+/// need only be small against the ensemble's own: on the shared cases at
+/// 10,000 particles (24 settings, docs/ACCURACY.md) 8 against 3 takes
+/// 8-26 % fewer iterations and moves the probes' 95 % radii by 0.01-1 %
+/// at the median (13 % at most, one probe), while another seed of the
+/// surface's samples moves them by 3 % at the median (86 % at most).
+pub const COLUMN_TOLERANCE: f32 = 8.0;
 /// The samples' seed.
 pub const SEED: u64 = 0x5eed;
 
@@ -809,7 +812,7 @@ mod tests {
         assert_eq!(p.samples, 16);
         assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
         assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
-        assert_eq!(p.column_tolerance, 3.0);
+        assert_eq!(p.column_tolerance, 8.0);
     }
 
     /// The defaults are in range, and a priors' field out of range is
