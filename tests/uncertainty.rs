@@ -140,6 +140,40 @@ fn the_same_seed_gives_the_same_regions_on_cpu_and_gpu() {
     assert!(worst <= 1e-3 * size, "{worst}");
 }
 
+/// The surface's samples run in chains, side by side on the CPU: the same
+/// columns to the bit on one thread as on three, every sample in its
+/// place.
+#[test]
+fn the_chains_give_the_same_columns_on_any_number_of_threads() {
+    let model = common::phantom_model(1_000);
+    let priors = Priors::default().with(|p| p.samples = 5);
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| sagged_spread(&Device::Cpu, &model, &priors).0)
+    };
+    let (one, three) = (on(1), on(3));
+    assert_eq!(one.columns, three.columns);
+    assert_eq!(
+        (one.solves, one.iterations),
+        (three.solves, three.iterations)
+    );
+    let samples: Vec<_> = one
+        .columns
+        .iter()
+        .filter(|c| c.unknown == Unknown::Surface)
+        .collect();
+    assert_eq!(samples.len(), 5);
+    // Five samples, five different surfaces.
+    for (k, a) in samples.iter().enumerate() {
+        for b in &samples[k + 1..] {
+            assert_ne!(a.positions, b.positions);
+        }
+    }
+}
+
 /// An explorer kept over a sequence gives the next answer the regions a
 /// fresh estimate gives it, each particle's radius within a thousandth of
 /// the model's size, in fewer iterations: its other Poisson ratios'

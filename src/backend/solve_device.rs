@@ -95,6 +95,14 @@ impl SolveDevice for SolverDevice {
         }
     }
 
+    /// The CPU's state copies cheaply; a GPU's buffers are not copied.
+    fn fork(&self) -> Option<Self> {
+        match self {
+            Self::Cpu(cpu) => cpu.fork().map(|c| Self::Cpu(Box::new(c))),
+            Self::Gpu(_) => None,
+        }
+    }
+
     fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Error> {
         match self {
             Self::Cpu(cpu) => infallible(cpu.write_rotations(rotations)),

@@ -212,6 +212,12 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
+    /// The state's vectors copied, its prepared parts (the coarse spaces,
+    /// the elastic model, the observation) shared.
+    fn fork(&self) -> Option<Self> {
+        Some(self.clone())
+    }
+
     fn set_springs(&mut self, springs: &[Spring]) -> Result<(), Infallible> {
         // Its operator holds the stiffness of the springs it was made
         // with: kept where only their points move.

@@ -240,6 +240,17 @@ pub trait SolveDevice {
     /// the last iteration left it: what carries points with the particles.
     fn read_rotations(&mut self) -> Result<Vec<Mat3>, Self::Error>;
 
+    /// A copy of the device in the state it is in, which solves as this
+    /// one would from here and apart from it (so that independent solves
+    /// may run side by side); `None` where the device cannot copy its state
+    /// cheaply.
+    fn fork(&self) -> Option<Self>
+    where
+        Self: Sized,
+    {
+        None
+    }
+
     /// Sets every particle's rotation: a state read back earlier
     /// ([`SolveDevice::read_rotations`]) put back with its positions.
     fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Self::Error>;

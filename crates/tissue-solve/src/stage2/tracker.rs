@@ -591,6 +591,27 @@ impl<D: SolveDevice> Tracker<D> {
         })
     }
 
+    /// A copy of the tracker in its state, on a copy of its device
+    /// ([`SolveDevice::fork`]), that solves as this one would from here;
+    /// `None` where the device cannot be copied.
+    pub(crate) fn fork(&self) -> Option<Self> {
+        Some(Self {
+            device: self.device.fork()?,
+            plan: self.plan.clone(),
+            params: self.params.clone(),
+            surface: self.surface.clone(),
+            attachments: self.attachments.clone(),
+            free_skin: self.free_skin,
+            rest: self.rest.clone(),
+            current: self.current.clone(),
+            history: self.history.clone(),
+            elastic_warm: self.elastic_warm,
+            guessed: self.guessed,
+            elastic_correct: self.elastic_correct,
+            connections: self.connections.clone(),
+        })
+    }
+
     /// Back to `kept` ([`Tracker::checkpoint`]): its positions written to
     /// the device (the control points with them), its history, load and
     /// warm start.

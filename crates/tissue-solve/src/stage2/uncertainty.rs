@@ -43,6 +43,7 @@
 //! products ([`Region::of`]). Written once for every device: the columns
 //! are solves of a [`Tracker`].
 
+pub mod chains;
 pub mod noise;
 pub mod region;
 
@@ -379,8 +380,8 @@ pub fn explore<D, E>(
     other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
 ) -> Result<Spread, E>
 where
-    D: SolveDevice,
-    E: From<Error> + From<D::Error>,
+    D: SolveDevice + Send,
+    E: From<Error> + From<D::Error> + Send,
 {
     Explorer::new(priors.clone()).explore(tracker, answered, other)
 }
@@ -398,7 +399,7 @@ pub struct Explorer<D> {
     last: Vec<Vec<Vec3>>,
 }
 
-impl<D: SolveDevice> Explorer<D> {
+impl<D: SolveDevice + Send> Explorer<D> {
     /// An explorer with nothing prepared.
     pub fn new(priors: Priors) -> Self {
         Self {
@@ -427,7 +428,7 @@ impl<D: SolveDevice> Explorer<D> {
         other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
     ) -> Result<Spread, E>
     where
-        E: From<Error> + From<D::Error>,
+        E: From<Error> + From<D::Error> + Send,
     {
         let priors = self.priors.clone();
         let last = std::mem::take(&mut self.last);
@@ -450,7 +451,7 @@ impl<D: SolveDevice> Explorer<D> {
         made: &mut Vec<Vec<Vec3>>,
     ) -> Result<Spread, E>
     where
-        E: From<Error> + From<D::Error>,
+        E: From<Error> + From<D::Error> + Send,
     {
         let started = Instant::now();
         priors.validate().map_err(Error::from)?;
@@ -482,24 +483,31 @@ impl<D: SolveDevice> Explorer<D> {
         let held = answered.held_by.map(|h| (h.field(), h.pairing()));
         // Each re-solve on `surface`, its skin paired where the answer was
         // matched.
-        let mut solve = |t: &mut Tracker<D>,
-                         (surface, held): (&SurfaceMesh, Option<Held<'_>>),
-                         spread: &mut Spread|
-         -> Result<Vec<Vec3>, E> {
-            let start: Vec<Vec3> = match last.get(made.len()) {
+        // Re-solve `i` starts from the answer moved by the last answer's
+        // re-solve `i`, where there is one.
+        let start_of = |i: usize| -> Vec<Vec3> {
+            match last.get(i) {
                 Some(offsets) if offsets.len() == answer.len() => {
                     answer.iter().zip(offsets).map(|(a, o)| *a + *o).collect()
                 }
                 _ => answer.clone(),
-            };
+            }
+        };
+        let offsets_from = |positions: &[Vec3]| -> Vec<Vec3> {
+            positions
+                .iter()
+                .zip(&answer)
+                .map(|(p, a)| *p - *a)
+                .collect()
+        };
+        let solve = |t: &mut Tracker<D>,
+                     (surface, held): (&SurfaceMesh, Option<Held<'_>>),
+                     spread: &mut Spread,
+                     made: &mut Vec<Vec<Vec3>>|
+         -> Result<Vec<Vec3>, E> {
+            let start = start_of(made.len());
             let positions = resolve::<D, E>(t, (surface, held), &start, spread)?;
-            made.push(
-                positions
-                    .iter()
-                    .zip(&answer)
-                    .map(|(p, a)| *p - *a)
-                    .collect(),
-            );
+            made.push(offsets_from(&positions));
             Ok(positions)
         };
 
@@ -531,7 +539,7 @@ impl<D: SolveDevice> Explorer<D> {
                 Some(_) if between_ends => Vec::new(),
                 Some(change) => {
                     tracker.set_load::<E>(change)?;
-                    let base = solve(tracker, (answered.surface, held), &mut spread)?;
+                    let base = solve(tracker, (answered.surface, held), &mut spread, made)?;
                     tracker.set_load::<E>(load)?;
                     base
                 }
@@ -564,8 +572,12 @@ impl<D: SolveDevice> Explorer<D> {
                         self.others.len() - 1
                     }
                 };
-                let positions =
-                    solve(&mut self.others[k].1, (answered.surface, held), &mut spread)?;
+                let positions = solve(
+                    &mut self.others[k].1,
+                    (answered.surface, held),
+                    &mut spread,
+                    made,
+                )?;
                 solved.push((nu, positions));
             }
             let base = match solved.as_slice() {
@@ -613,21 +625,27 @@ impl<D: SolveDevice> Explorer<D> {
                 priors.surface_correlation,
                 priors.seed,
             );
-            for _ in 0..priors.samples {
-                let sample = noise.next_sample();
-                let positions = match (answered.held_by, held) {
+            let samples: Vec<NoiseSample> =
+                (0..priors.samples).map(|_| noise.next_sample()).collect();
+            // Sample `k`'s re-solve is re-solve `first + k` of the last
+            // answer's.
+            let first = made.len();
+            let noise = &noise;
+            let one = |t: &mut Tracker<D>, k: usize, counted: &mut Spread| {
+                let start = start_of(first + k);
+                match (answered.held_by, held) {
                     // The observation's error moves its points; the held
                     // region stays where it is.
                     (Some(held_by), Some((_, pairing))) => {
-                        let moved = held_by.moved(&|x| noise.offset(&sample, x))?;
-                        solve(
-                            tracker,
-                            (answered.surface, Some((&moved, pairing))),
-                            &mut spread,
-                        )?
+                        let moved = held_by.moved(&|x| noise.offset(&samples[k], x))?;
+                        let observed = Some((&moved, pairing));
+                        resolve::<D, E>(t, (answered.surface, observed), &start, counted)
                     }
-                    _ => solve(tracker, (&noise.moved(&sample), None), &mut spread)?,
-                };
+                    _ => resolve::<D, E>(t, (&noise.moved(&samples[k]), None), &start, counted),
+                }
+            };
+            for positions in chains::in_chains(tracker, samples.len(), &one, &mut spread)? {
+                made.push(offsets_from(&positions));
                 spread.columns.push(Column {
                     unknown: Unknown::Surface,
                     weight: 1.0 / priors.samples as f64,
@@ -671,7 +689,7 @@ impl<D: SolveDevice> Explorer<D> {
         }
         for (unknown, change) in changes {
             tracker.set_load::<E>(load + change)?;
-            let positions = solve(tracker, (answered.surface, held), &mut spread)?;
+            let positions = solve(tracker, (answered.surface, held), &mut spread, made)?;
             spread.columns.push(Column {
                 unknown,
                 weight: 1.0,
