@@ -15,7 +15,7 @@
 //!   response is not solved);
 //! - **the observed surface**, in error along its normals by a smooth
 //!   random field ([`SurfaceNoise`]): a Monte Carlo ensemble, each sample a
-//!   re-solve on the answer's tracker;
+//!   re-solve on the answer's tracker or a copy of it ([`chains`]);
 //! - with a load (a posture's gravity): **the load's scale** (density and
 //!   stiffness, relative), the change of load between the postures scaled
 //!   (the unloaded shape is found from the rest scan, so to first order the
