@@ -377,7 +377,7 @@ pub fn explore<D, E>(
     tracker: &mut Tracker<D>,
     answered: Answered<'_>,
     priors: &Priors,
-    other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+    other: &mut (dyn FnMut(DeformParams) -> Result<Tracker<D>, E> + Send),
 ) -> Result<Spread, E>
 where
     D: SolveDevice + Send,
@@ -425,7 +425,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
         &mut self,
         tracker: &mut Tracker<D>,
         answered: Answered<'_>,
-        other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+        other: &mut (dyn FnMut(DeformParams) -> Result<Tracker<D>, E> + Send),
     ) -> Result<Spread, E>
     where
         E: From<Error> + From<D::Error> + Send,
@@ -446,7 +446,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
         tracker: &mut Tracker<D>,
         answered: Answered<'_>,
         priors: &Priors,
-        other: &mut dyn FnMut(DeformParams) -> Result<Tracker<D>, E>,
+        other: &mut (dyn FnMut(DeformParams) -> Result<Tracker<D>, E> + Send),
         last: &[Vec<Vec3>],
         made: &mut Vec<Vec<Vec3>>,
     ) -> Result<Spread, E>
@@ -534,52 +534,107 @@ impl<D: SolveDevice + Send> Explorer<D> {
         let between_ends = change.is_some() && answered.held_by.is_some() && lo < hi;
         // The Poisson ratio and the loads are the elastic force's.
         let elastic = params.force == ForceModel::Elastic;
-        if elastic && !(lo == hi && lo == nu0) {
-            let base = match change {
-                Some(_) if between_ends => Vec::new(),
-                Some(change) => {
-                    tracker.set_load::<E>(change)?;
-                    let base = solve(tracker, (answered.surface, held), &mut spread, made)?;
-                    tracker.set_load::<E>(load)?;
-                    base
-                }
-                None => answer.clone(),
-            };
-            let mut others = vec![lo, hi];
+        let poisson = elastic && !(lo == hi && lo == nu0);
+        let base = match change {
+            _ if !poisson => Vec::new(),
+            Some(_) if between_ends => Vec::new(),
+            Some(change) => {
+                tracker.set_load::<E>(change)?;
+                let base = solve(tracker, (answered.surface, held), &mut spread, made)?;
+                tracker.set_load::<E>(load)?;
+                base
+            }
+            None => answer.clone(),
+        };
+        let mut others = Vec::new();
+        if poisson {
+            others = vec![lo, hi];
             if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
                 // The solve's own ratio at an end: the middle is the third.
                 others = vec![lo, 0.5 * (lo + hi), hi];
             }
             others.retain(|nu| (nu - nu0).abs() > 1e-6);
             others.dedup();
-            let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
-            let mut solved: Vec<(f32, Vec<Vec3>)> = Vec::new();
-            for nu in others {
+        }
+
+        // The surface's error: a Monte Carlo ensemble.
+        let mut noise = SurfaceNoise::new(
+            answered.surface,
+            answered.exact,
+            priors.surface_noise,
+            priors.surface_correlation,
+            priors.seed,
+        );
+        let samples: Vec<NoiseSample> = if priors.surface_noise > 0.0 {
+            (0..priors.samples).map(|_| noise.next_sample()).collect()
+        } else {
+            Vec::new()
+        };
+        let noise = &noise;
+
+        // The other ratios' re-solves (on trackers of their own, prepared
+        // by `other` where this explorer has none yet) beside the surface's
+        // samples (on the answer's tracker and its copies): neither touches
+        // the other's state. Re-solve `first + j` of the last answer's is
+        // the other ratio `j`'s, then come the samples'.
+        let first = made.len();
+        let trackers = &mut self.others;
+        let mut ratios = |counted: &mut Spread| -> Result<Vec<(f32, Vec<Vec3>)>, E> {
+            let mut solved = Vec::new();
+            for (j, &nu) in others.iter().enumerate() {
                 let wanted = params.clone().with(|p| {
                     p.tolerance *= loose;
                     p.poisson = nu;
                     p.load = change.unwrap_or(load);
                 });
-                let kept = self
-                    .others
+                let kept = trackers
                     .iter()
                     .position(|(ratio, t)| *ratio == nu && *t.params() == wanted);
                 let k = match kept {
                     Some(k) => k,
                     None => {
-                        self.others.retain(|(ratio, _)| *ratio != nu);
-                        self.others.push((nu, other(wanted)?));
-                        self.others.len() - 1
+                        trackers.retain(|(ratio, _)| *ratio != nu);
+                        trackers.push((nu, other(wanted)?));
+                        trackers.len() - 1
                     }
                 };
-                let positions = solve(
-                    &mut self.others[k].1,
-                    (answered.surface, held),
-                    &mut spread,
-                    made,
-                )?;
+                let start = start_of(first + j);
+                let held_here = (answered.surface, held);
+                let positions = resolve::<D, E>(&mut trackers[k].1, held_here, &start, counted)?;
                 solved.push((nu, positions));
             }
+            Ok(solved)
+        };
+        let after = first + others.len();
+        let one = |t: &mut Tracker<D>, k: usize, counted: &mut Spread| {
+            let start = start_of(after + k);
+            match (answered.held_by, held) {
+                // The observation's error moves its points; the held
+                // region stays where it is.
+                (Some(held_by), Some((_, pairing))) => {
+                    let moved = held_by.moved(&|x| noise.offset(&samples[k], x))?;
+                    let observed = Some((&moved, pairing));
+                    resolve::<D, E>(t, (answered.surface, observed), &start, counted)
+                }
+                _ => resolve::<D, E>(t, (&noise.moved(&samples[k]), None), &start, counted),
+            }
+        };
+        let (mut at_ratios, mut at_samples) = (chains::counting(), chains::counting());
+        let (solved, sampled) = rayon::join(
+            || ratios(&mut at_ratios),
+            || chains::in_chains(tracker, samples.len(), &one, &mut at_samples),
+        );
+        let (solved, sampled) = (solved?, sampled?);
+        for counted in [at_ratios, at_samples] {
+            spread.solves += counted.solves;
+            spread.iterations += counted.iterations;
+            spread.converged &= counted.converged;
+        }
+
+        // The Poisson ratio's columns: quadratic in the stiffness ratio
+        // through the answer and the other ratios, integrated over the range.
+        made.extend(solved.iter().map(|(_, positions)| offsets_from(positions)));
+        if poisson {
             let base = match solved.as_slice() {
                 [(a, at_a), (b, at_b)] if between_ends => {
                     let t = ((ratio(nu0) - ratio(*a)) / (ratio(*b) - ratio(*a))) as f32;
@@ -590,6 +645,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
                 }
                 _ => base,
             };
+            let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
             for (nu, positions) in solved {
                 let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
                 points.push((nu, offsets));
@@ -615,43 +671,13 @@ impl<D: SolveDevice + Send> Explorer<D> {
                 });
             }
         }
-
-        // The surface's error: a Monte Carlo ensemble.
-        if priors.surface_noise > 0.0 {
-            let mut noise = SurfaceNoise::new(
-                answered.surface,
-                answered.exact,
-                priors.surface_noise,
-                priors.surface_correlation,
-                priors.seed,
-            );
-            let samples: Vec<NoiseSample> =
-                (0..priors.samples).map(|_| noise.next_sample()).collect();
-            // Sample `k`'s re-solve is re-solve `first + k` of the last
-            // answer's.
-            let first = made.len();
-            let noise = &noise;
-            let one = |t: &mut Tracker<D>, k: usize, counted: &mut Spread| {
-                let start = start_of(first + k);
-                match (answered.held_by, held) {
-                    // The observation's error moves its points; the held
-                    // region stays where it is.
-                    (Some(held_by), Some((_, pairing))) => {
-                        let moved = held_by.moved(&|x| noise.offset(&samples[k], x))?;
-                        let observed = Some((&moved, pairing));
-                        resolve::<D, E>(t, (answered.surface, observed), &start, counted)
-                    }
-                    _ => resolve::<D, E>(t, (&noise.moved(&samples[k]), None), &start, counted),
-                }
-            };
-            for positions in chains::in_chains(tracker, samples.len(), &one, &mut spread)? {
-                made.push(offsets_from(&positions));
-                spread.columns.push(Column {
-                    unknown: Unknown::Surface,
-                    weight: 1.0 / priors.samples as f64,
-                    positions,
-                });
-            }
+        for positions in sampled {
+            made.push(offsets_from(&positions));
+            spread.columns.push(Column {
+                unknown: Unknown::Surface,
+                weight: 1.0 / priors.samples as f64,
+                positions,
+            });
         }
 
         // The load's scale and the gravity's directions, linearised; without

@@ -31,8 +31,9 @@ pub(super) type SampleSolve<'a, D, E> =
 /// A chain's positions, sample after sample, and its re-solves counted.
 type Chain = (Vec<Vec<Vec3>>, Spread);
 
-/// A chain's re-solves counted apart, then added to the spread's.
-fn counting() -> Spread {
+/// Re-solves counted apart (a chain's, or beside the chains), then added
+/// to the spread's.
+pub(super) fn counting() -> Spread {
     Spread {
         answer: Vec::new(),
         columns: Vec::new(),
