@@ -45,6 +45,7 @@
 
 pub mod chains;
 pub mod noise;
+mod quadrature;
 pub mod region;
 
 use std::time::Instant;
@@ -60,6 +61,8 @@ use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::posture::MAX_GRAVITY_G;
 use crate::stage2::tracker::{SolveDevice, Tracker};
+
+use quadrature::{gauss_legendre, lagrange, ratio};
 
 pub use noise::{NoiseSample, SurfaceNoise};
 pub use region::{CHI2_3_95, FLAT_FLOOR, Region, radius_95, symmetric_eigen};
@@ -774,44 +777,6 @@ where
     spread.iterations += report.iterations;
     spread.converged &= report.converged;
     Ok(t.positions().to_vec())
-}
-
-/// The stiffness ratio `mu / lambda = (1 - 2 nu) / (2 nu)` the answer is
-/// taken as quadratic in.
-fn ratio(nu: f32) -> f64 {
-    let nu = f64::from(nu);
-    (1.0 - 2.0 * nu) / (2.0 * nu)
-}
-
-/// The three-point Gauss-Legendre nodes and weights of the uniform
-/// distribution on `[lo, hi]` (the weights sum to one); one node of
-/// weight one for a point range.
-fn gauss_legendre(lo: f32, hi: f32) -> Vec<(f32, f64)> {
-    if lo == hi {
-        return vec![(lo, 1.0)];
-    }
-    let (mid, half) = (
-        0.5 * (f64::from(lo) + f64::from(hi)),
-        0.5 * f64::from(hi - lo),
-    );
-    let node = (0.6_f64).sqrt() * half;
-    vec![
-        ((mid - node) as f32, 5.0 / 18.0),
-        (mid as f32, 8.0 / 18.0),
-        ((mid + node) as f32, 5.0 / 18.0),
-    ]
-}
-
-/// The Lagrange basis of the distinct points `xs` at `x`.
-fn lagrange(xs: &[f64], x: f64) -> Vec<f64> {
-    (0..xs.len())
-        .map(|j| {
-            (0..xs.len())
-                .filter(|&m| m != j)
-                .map(|m| (x - xs[m]) / (xs[j] - xs[m]))
-                .product()
-        })
-        .collect()
 }
 
 #[cfg(test)]
