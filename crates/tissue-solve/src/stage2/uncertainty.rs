@@ -628,11 +628,8 @@ impl<D: SolveDevice + Send> Explorer<D> {
             || chains::in_chains(tracker, samples.len(), &one, &mut at_samples),
         );
         let (solved, sampled) = (solved?, sampled?);
-        for counted in [at_ratios, at_samples] {
-            spread.solves += counted.solves;
-            spread.iterations += counted.iterations;
-            spread.converged &= counted.converged;
-        }
+        spread.add_counted(&at_ratios);
+        spread.add_counted(&at_samples);
 
         // The Poisson ratio's columns: quadratic in the stiffness ratio
         // through the answer and the other ratios, integrated over the range.

@@ -31,8 +31,17 @@ pub(super) type SampleSolve<'a, D, E> =
 /// A chain's positions, sample after sample, and its re-solves counted.
 type Chain = (Vec<Vec<Vec3>>, Spread);
 
+impl Spread {
+    /// Adds the re-solves `counted` counted apart ([`counting`]).
+    pub(super) fn add_counted(&mut self, counted: &Spread) {
+        self.solves += counted.solves;
+        self.iterations += counted.iterations;
+        self.converged &= counted.converged;
+    }
+}
+
 /// Re-solves counted apart (a chain's, or beside the chains), then added
-/// to the spread's.
+/// to the spread's ([`Spread::add_counted`]).
 pub(super) fn counting() -> Spread {
     Spread {
         answer: Vec::new(),
@@ -91,9 +100,7 @@ where
     let mut by_chain = Vec::with_capacity(chains);
     for result in ran {
         let (solved, counted) = result?;
-        spread.solves += counted.solves;
-        spread.iterations += counted.iterations;
-        spread.converged &= counted.converged;
+        spread.add_counted(&counted);
         by_chain.push(solved.into_iter());
     }
     let mut positions = Vec::with_capacity(count);
