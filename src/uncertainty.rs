@@ -36,7 +36,7 @@ use crate::deformation::SharedLaplacian;
 
 pub use tissue_solve::stage2::uncertainty::{
     Answered, CHI2_3_95, COLUMN_TOLERANCE, Column, FLAT_FLOOR, GRAVITY_DEGREES, HeldBy,
-    LOAD_SPREAD, POISSON_RANGE, POSTURE_G, POSTURE_KPA, Priors, Region, SEED,
+    LOAD_SPREAD, POISSON_RANGE, POSTURE_G, POSTURE_KPA, Priors, Refresh, Region, SEED,
     SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, SURFACE_SAMPLES, Spread, SurfaceNoise, Unknown,
     radius_95,
 };
@@ -96,9 +96,25 @@ impl Explorer {
         }
     }
 
+    /// The explorer refreshing its re-solves as `refresh` says: all of
+    /// them at every answer ([`Refresh::all`], the default), or after the
+    /// first answer a few in turn, the others carried from the answer that
+    /// made them last ([`Refresh::every`]).
+    pub fn refreshing(self, refresh: Refresh) -> Self {
+        Self {
+            inner: self.inner.refreshing(refresh),
+            ..self
+        }
+    }
+
     /// The priors it samples.
     pub fn priors(&self) -> &Priors {
         self.inner.priors()
+    }
+
+    /// How it refreshes its re-solves.
+    pub fn refresh(&self) -> Refresh {
+        self.inner.refresh()
     }
 
     /// The spread of the answer `solver` holds, as [`explore`] makes it,

@@ -15,7 +15,7 @@ use serde_json::Value;
 use tissue::SurfaceMesh;
 use tissue::deformation::{DeformParams, ForceModel};
 use tissue::io::space::Space;
-use tissue::uncertainty::{Explorer, Priors};
+use tissue::uncertainty::{Explorer, Priors, Refresh};
 
 use crate::backend::{self, BackendArgs};
 use crate::carry::{Carried, CarryArgs, StructureReport};
@@ -87,6 +87,13 @@ pub struct TrackArgs {
     pub solve: SolveArgs,
     #[command(flatten)]
     pub uncertainty: UncertaintyArgs,
+    /// With --uncertainty: after the first frame, how many of the
+    /// uncertainty's re-solves each frame makes anew, in turn (of 21 by
+    /// default); the others are carried from the frame that made them
+    /// last, their offsets put on the new answer (docs/METHOD.md,
+    /// "Uncertainty", *Tracking*). `all`: every re-solve at every frame
+    #[arg(long, value_name = "N|all", default_value = "2", value_parser = uncertain::parse_refresh)]
+    pub uncertainty_refresh: Refresh,
     /// Start each frame from the fit of its surface move by this many of the
     /// last frames' changes (0: by the affine part of the move alone).
     #[arg(long, default_value_t = DeformParams::default().tuning.history)]
@@ -190,6 +197,9 @@ struct Plan<'a> {
     /// The uncertainty's priors, with `--uncertainty`.
     #[serde(skip_serializing_if = "Option::is_none")]
     uncertainty: Option<&'a Priors>,
+    /// With `--uncertainty`, `--uncertainty-refresh` (`null`: all).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    uncertainty_refresh: Option<Option<usize>>,
     /// Each input file's contents as a hash ([`input_hashes`]), by path: a
     /// resume must read the same files, not only the same names.
     inputs: BTreeMap<String, String>,
@@ -400,6 +410,9 @@ pub fn track(args: &TrackArgs) -> Result<()> {
         surface_smoothing: args.surface_smoothing,
         fiducials: args.fiducials.as_deref(),
         uncertainty: priors.as_ref(),
+        uncertainty_refresh: priors
+            .as_ref()
+            .map(|_| args.uncertainty_refresh.per_answer()),
         inputs: input_hashes(inputs.iter().map(|(_, path)| *path))?,
     })?)?;
     prepare_outputs(std::slice::from_ref(&path))?;
@@ -435,7 +448,8 @@ pub fn track(args: &TrackArgs) -> Result<()> {
     };
     let unloaded = posture.as_ref().and_then(|p| p.unloaded.as_ref());
     // One explorer for the run: each frame's spread from the last one's.
-    let mut explorer = priors.clone().map(Explorer::new);
+    let refresh = args.uncertainty_refresh;
+    let mut explorer = priors.clone().map(|p| Explorer::new(p).refreshing(refresh));
     for k in 0..done.len() {
         // With its spread, which leaves the device as the first run had it.
         let framed = framing.solve(k, &mut solver, true)?;

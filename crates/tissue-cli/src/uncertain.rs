@@ -10,7 +10,7 @@ use serde::Serialize;
 use tissue::SurfaceMesh;
 use tissue::observation::HeldObservation;
 use tissue::uncertainty::{
-    Answered, Explorer, GRAVITY_DEGREES, HeldBy, LOAD_SPREAD, POSTURE_G, Priors, Region,
+    Answered, Explorer, GRAVITY_DEGREES, HeldBy, LOAD_SPREAD, POSTURE_G, Priors, Refresh, Region,
     SURFACE_CORRELATION_MM, SURFACE_NOISE_MM, Spread, Unknown, exact_vertices,
 };
 use tissue::{ParticleModel, gravity::Unloaded};
@@ -220,6 +220,10 @@ pub struct UncertaintyReport {
     pub priors: Priors,
     /// Stage-2 solves made.
     pub solves: usize,
+    /// Re-solves carried from an earlier frame instead (`track
+    /// --uncertainty-refresh`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub carried: usize,
     /// Their iterations.
     pub iterations: usize,
     /// Whether every one converged.
@@ -311,6 +315,7 @@ impl Uncertainty {
             report: UncertaintyReport {
                 priors: priors.clone(),
                 solves: spread.solves,
+                carried: spread.carried,
                 iterations: spread.iterations,
                 converged: spread.converged,
                 seconds: spread.seconds,
@@ -366,6 +371,24 @@ impl UncertaintyReport {
     }
 }
 
+/// `--uncertainty-refresh`: `all`, or a count of at least one.
+pub fn parse_refresh(text: &str) -> Result<Refresh, String> {
+    match text.trim() {
+        "all" => Ok(Refresh::all()),
+        count => match count.parse::<usize>() {
+            Ok(count) if count >= 1 => Ok(Refresh::every(count)),
+            _ => Err(format!(
+                "`{text}`: a count of re-solves of at least 1, or `all`"
+            )),
+        },
+    }
+}
+
+/// Whether a count is zero (left out of the report).
+fn is_zero(count: &usize) -> bool {
+    *count == 0
+}
+
 #[cfg(test)]
 mod tests {
     use clap::Parser;
@@ -405,5 +428,19 @@ mod tests {
             reversed.as_ref().is_err_and(|e| e.contains("poisson")),
             "{reversed:?}"
         );
+    }
+
+    /// `--uncertainty-refresh` takes a count of at least one, or `all`;
+    /// nothing else.
+    #[test]
+    fn the_refresh_is_a_count_or_all() {
+        assert_eq!(parse_refresh("2"), Ok(Refresh::every(2)));
+        assert_eq!(parse_refresh(" all "), Ok(Refresh::all()));
+        for bad in ["0", "-1", "two", ""] {
+            assert!(
+                parse_refresh(bad).is_err_and(|e| e.contains("at least 1")),
+                "{bad}"
+            );
+        }
     }
 }

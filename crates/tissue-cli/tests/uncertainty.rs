@@ -249,15 +249,26 @@ fn track_writes_each_frame_regions() {
     };
     let (half, whole) = (radius(1), radius(2));
     assert!(0.0 < half && half < whole, "{half} then {whole}");
+    // The second frame makes 2 of its 7 re-solves (two other Poisson
+    // ratios, two samples, three unmodelled postures) and carries 5.
+    let counts = |k: usize| {
+        let report = json(&out_dir.join(format!("frame-{k:04}")).join("report.json"));
+        let u = &report["uncertainty"];
+        (u["solves"].as_u64(), u["carried"].as_u64())
+    };
+    assert_eq!(counts(1), (Some(7), None));
+    assert_eq!(counts(2), (Some(2), Some(5)));
 
     // Resumed at the last frame (its folder gone, as after a kill): the
     // first frame and its spread replayed, the last the same to the bit;
-    // a resume with other priors is refused.
+    // a resume with other priors, or another refresh, is refused.
     let last = out_dir.join("frame-0002");
     let written = |name: &str| std::fs::read(last.join(name)).unwrap();
     let (particles, points_csv) = (written("particles.vtp"), written("points.csv"));
     std::fs::remove_dir_all(&last).unwrap();
     let other = run(&["--resume", "--surface-noise", "0.25"]);
+    assert!(!other.status.success(), "{}", text(&other));
+    let other = run(&["--resume", "--uncertainty-refresh", "all"]);
     assert!(!other.status.success(), "{}", text(&other));
     let again = run(&["--resume"]);
     assert!(again.status.success(), "{}", text(&again));

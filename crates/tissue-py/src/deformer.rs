@@ -319,18 +319,21 @@ impl Deformer {
     /// particle's unknown: `"poisson"`, `"surface"`, `"load"`,
     /// `"gravity"`, `"posture"`, or `None`), with `points` (`(k, 3)` at
     /// rest) `points_radius` and `points_covariance` likewise, and
-    /// `solves`, `iterations`, `seconds`, `converged`. Warns
+    /// `solves`, `carried`, `iterations`, `seconds`, `converged`. Warns
     /// (RuntimeWarning) where a re-solve did not converge. After
     /// `match_observation`, re-solved with the skin paired with the
     /// observation as the match paired it (docs/METHOD.md, "Uncertainty"). A call with the
     /// priors of the last
     /// starts each re-solve from where the last call's ended (a tracked
     /// sequence's next frame: fewer iterations, the same regions within
-    /// the solves' tolerance).
+    /// the solves' tolerance); with `refresh=N` such a call makes only
+    /// `N` of its re-solves anew, in turn, and carries the others from the
+    /// call that made them last (`tissue track --uncertainty-refresh`:
+    /// docs/METHOD.md, "Uncertainty", *Tracking*).
     #[pyo3(signature = (points = None, samples = 16, surface_noise = 0.5,
                         surface_correlation = 10.0, poisson_range = (0.45, 0.495),
                         load_spread = 0.14, gravity_spread = 3.0, posture_spread = 1.0,
-                        seed = tissue::uncertainty::SEED))]
+                        seed = tissue::uncertainty::SEED, refresh = None))]
     #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn uncertainty(
         &mut self,
@@ -344,9 +347,21 @@ impl Deformer {
         gravity_spread: f32,
         posture_spread: f32,
         seed: u64,
+        refresh: Option<usize>,
     ) -> PyResult<Py<PyAny>> {
         use pyo3::types::PyDict;
-        use tissue::uncertainty::{Answered, Explorer, HeldBy, Priors, Region, exact_vertices};
+        use tissue::uncertainty::{
+            Answered, Explorer, HeldBy, Priors, Refresh, Region, exact_vertices,
+        };
+        let refresh = match refresh {
+            None => Refresh::all(),
+            Some(0) => {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "refresh: a count of re-solves of at least 1, or None for all of them",
+                ));
+            }
+            Some(count) => Refresh::every(count),
+        };
         let deformed = self.solved()?.clone();
         let priors = Priors::default().with(|p| {
             p.samples = samples;
@@ -366,8 +381,13 @@ impl Deformer {
         // The last call's explorer where the priors are the same: its
         // re-solves start from the last answer's.
         let mut explorer = match self.explorer.take() {
-            Some(explorer) if *explorer.priors() == priors => explorer,
-            _ => Explorer::new(priors),
+            Some(explorer)
+                if *explorer.priors() == priors
+                    && explorer.refresh().per_answer() == refresh.per_answer() =>
+            {
+                explorer
+            }
+            _ => Explorer::new(priors).refreshing(refresh),
         };
         let (solver, model, rest_load) = (&mut self.solver, &self.model, self.rest_load);
         let held_by = self.held_by.as_ref();
@@ -422,6 +442,7 @@ impl Deformer {
             fill(&regions, "points_")?;
         }
         out.set_item("solves", spread.solves)?;
+        out.set_item("carried", spread.carried)?;
         out.set_item("iterations", spread.iterations)?;
         out.set_item("seconds", spread.seconds)?;
         out.set_item("converged", spread.converged)?;

@@ -724,6 +724,16 @@ def test_the_uncertainty_gives_every_particle_and_point_a_region(model):
     assert again["iterations"] < spread["iterations"]
     size = np.linalg.norm(answer.max(axis=0) - answer.min(axis=0))
     assert np.abs(again["radius"] - spread["radius"]).max() < 1e-3 * size
+    assert again["carried"] == 0
+    # Refreshing two re-solves a call: the first call makes them all, the
+    # next two and carries the others from the call before.
+    first = deformer.uncertainty(points=inside, samples=4, refresh=2)
+    assert first["carried"] == 0 and first["solves"] == spread["solves"]
+    later = deformer.uncertainty(points=inside, samples=4, refresh=2)
+    assert later["solves"] == 2 and later["carried"] == spread["solves"] - 2
+    assert np.abs(later["radius"] - spread["radius"]).max() < 1e-3 * size
+    with pytest.raises(ValueError, match="refresh"):
+        deformer.uncertainty(samples=4, refresh=0)
     # Nothing unknown: no spread.
     none = deformer.uncertainty(
         samples=4, surface_noise=0.0, poisson_range=(0.49, 0.49), posture_spread=0.0

@@ -46,6 +46,7 @@
 pub mod chains;
 pub mod noise;
 mod quadrature;
+pub mod refresh;
 pub mod region;
 
 use std::time::Instant;
@@ -65,6 +66,7 @@ use crate::stage2::tracker::{SolveDevice, Tracker};
 use quadrature::{gauss_legendre, lagrange, ratio};
 
 pub use noise::{NoiseSample, SurfaceNoise};
+pub use refresh::Refresh;
 pub use region::{CHI2_3_95, FLAT_FLOOR, Region, radius_95, symmetric_eigen};
 
 /// The Poisson ratio's range for soft tissue, uniform.
@@ -294,6 +296,9 @@ pub struct Spread {
     /// Stage-2 solves made (one per column, and one per other Poisson
     /// ratio).
     pub solves: usize,
+    /// Re-solves carried from an earlier answer of a sequence instead
+    /// ([`Refresh::every`]): that answer's offset put on this one.
+    pub carried: usize,
     /// Their iterations.
     pub iterations: usize,
     /// Whether every re-solve converged.
@@ -392,9 +397,12 @@ where
 /// [`explore`] over a sequence of answers (a tracking run's frames): the
 /// other Poisson ratios' trackers are prepared once and kept, and each
 /// re-solve starts from the answer moved by what the same re-solve moved
-/// the last answer by (the columns change little from frame to frame).
+/// the last answer by (the columns change little from frame to frame);
+/// with [`Refresh::every`], only a few re-solves are made at each answer
+/// after the first, the others carried.
 pub struct Explorer<D> {
     priors: Priors,
+    refresh: Refresh,
     /// The other Poisson ratios' trackers, by ratio.
     others: Vec<(f32, Tracker<D>)>,
     /// The last spread's re-solves, each its positions less its answer's,
@@ -407,9 +415,21 @@ impl<D: SolveDevice + Send> Explorer<D> {
     pub fn new(priors: Priors) -> Self {
         Self {
             priors,
+            refresh: Refresh::all(),
             others: Vec::new(),
             last: Vec::new(),
         }
+    }
+
+    /// The explorer refreshing its re-solves as `refresh` says.
+    pub fn refreshing(mut self, refresh: Refresh) -> Self {
+        self.refresh = refresh;
+        self
+    }
+
+    /// How it refreshes its re-solves.
+    pub fn refresh(&self) -> Refresh {
+        self.refresh
     }
 
     /// The priors it samples.
@@ -477,6 +497,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
             answer: answer.clone(),
             columns: Vec::new(),
             solves: 0,
+            carried: 0,
             iterations: 0,
             converged: true,
             seconds: 0.0,
@@ -503,17 +524,6 @@ impl<D: SolveDevice + Send> Explorer<D> {
                 .map(|(p, a)| *p - *a)
                 .collect()
         };
-        let solve = |t: &mut Tracker<D>,
-                     (surface, held): (&SurfaceMesh, Option<Held<'_>>),
-                     spread: &mut Spread,
-                     made: &mut Vec<Vec<Vec3>>|
-         -> Result<Vec<Vec3>, E> {
-            let start = start_of(made.len());
-            let positions = resolve::<D, E>(t, (surface, held), &start, spread)?;
-            made.push(offsets_from(&positions));
-            Ok(positions)
-        };
-
         // The Poisson ratio: quadratic in the stiffness ratio through the
         // answer and the range's ends, integrated over the range. With a
         // load, each ratio's response to the change of load between the
@@ -538,6 +548,84 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // The Poisson ratio and the loads are the elastic force's.
         let elastic = params.force == ForceModel::Elastic;
         let poisson = elastic && !(lo == hi && lo == nu0);
+        let mut others = Vec::new();
+        if poisson {
+            others = vec![lo, hi];
+            if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
+                // The solve's own ratio at an end: the middle is the third.
+                others = vec![lo, 0.5 * (lo + hi), hi];
+            }
+            others.retain(|nu| (nu - nu0).abs() > 1e-6);
+            others.dedup();
+        }
+        // The load's scale and the gravity's directions, linearised; without
+        // a load, the change of gravity the answer did not model, along each
+        // axis.
+        let mut changes = Vec::new();
+        if let (Some(rest_load), Some(change)) = (answered.rest_load, change) {
+            if priors.load_spread > 0.0 {
+                changes.push((Unknown::Load, priors.load_spread * change));
+            }
+            if priors.gravity_degrees > 0.0 {
+                let angle = priors.gravity_degrees.to_radians();
+                for (posture, sign) in [(load, 1.0), (rest_load, -1.0)] {
+                    let (a, b) = posture.normalize_or_zero().any_orthonormal_pair();
+                    for axis in [a, b] {
+                        let tilted = Quat::from_axis_angle(axis, angle) * posture;
+                        changes.push((Unknown::Gravity, sign * (tilted - posture)));
+                    }
+                }
+            }
+        } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
+            let unit = gravity_load(
+                Vec3::Z,
+                TISSUE_DENSITY_KG_M3,
+                priors.posture_kpa,
+                nu0,
+                answered.metres_per_unit,
+            )
+            .map_err(Error::from)?
+            .length();
+            let each = priors.posture_g * unit / 3f32.sqrt();
+            for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+                changes.push((Unknown::Posture, each * axis));
+            }
+        }
+        let samples_count = if priors.surface_noise > 0.0 {
+            priors.samples
+        } else {
+            0
+        };
+        // The re-solves in the order they are made: the Poisson ratio's
+        // base under a load, the other ratios, the surface's samples, the
+        // loads' changes. Those of the last answer are carried where this
+        // explorer refreshes only some.
+        let base_solved = poisson && change.is_some() && !between_ends;
+        let count = usize::from(base_solved) + others.len() + samples_count + changes.len();
+        let can_carry = last.len() == count && last.iter().all(|o| o.len() == answer.len());
+        let plan = self.refresh.plan(count, can_carry);
+        // Re-solve `i` made anew, or carried from the last answer: its
+        // start, as it ended there.
+        let fresh = |i: usize| plan.get(i).is_none_or(|&f| f);
+        let carry = |i: usize, counted: &mut Spread| {
+            counted.carried += 1;
+            start_of(i)
+        };
+        let solve = |t: &mut Tracker<D>,
+                     (surface, held): (&SurfaceMesh, Option<Held<'_>>),
+                     spread: &mut Spread,
+                     made: &mut Vec<Vec<Vec3>>|
+         -> Result<Vec<Vec3>, E> {
+            let i = made.len();
+            let positions = if fresh(i) {
+                resolve::<D, E>(t, (surface, held), &start_of(i), spread)?
+            } else {
+                carry(i, spread)
+            };
+            made.push(offsets_from(&positions));
+            Ok(positions)
+        };
+
         let base = match change {
             _ if !poisson => Vec::new(),
             Some(_) if between_ends => Vec::new(),
@@ -549,16 +637,6 @@ impl<D: SolveDevice + Send> Explorer<D> {
             }
             None => answer.clone(),
         };
-        let mut others = Vec::new();
-        if poisson {
-            others = vec![lo, hi];
-            if (lo - nu0).abs() <= 1e-6 || (hi - nu0).abs() <= 1e-6 {
-                // The solve's own ratio at an end: the middle is the third.
-                others = vec![lo, 0.5 * (lo + hi), hi];
-            }
-            others.retain(|nu| (nu - nu0).abs() > 1e-6);
-            others.dedup();
-        }
 
         // The surface's error: a Monte Carlo ensemble.
         let mut noise = SurfaceNoise::new(
@@ -568,11 +646,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
             priors.surface_correlation,
             priors.seed,
         );
-        let samples: Vec<NoiseSample> = if priors.surface_noise > 0.0 {
-            (0..priors.samples).map(|_| noise.next_sample()).collect()
-        } else {
-            Vec::new()
-        };
+        let samples: Vec<NoiseSample> = (0..samples_count).map(|_| noise.next_sample()).collect();
         let noise = &noise;
 
         // The other ratios' re-solves (on trackers of their own, prepared
@@ -585,6 +659,10 @@ impl<D: SolveDevice + Send> Explorer<D> {
         let mut ratios = |counted: &mut Spread| -> Result<Vec<(f32, Vec<Vec3>)>, E> {
             let mut solved = Vec::new();
             for (j, &nu) in others.iter().enumerate() {
+                if !fresh(first + j) {
+                    solved.push((nu, carry(first + j, counted)));
+                    continue;
+                }
                 let wanted = params.clone().with(|p| {
                     p.tolerance *= loose;
                     p.poisson = nu;
@@ -610,6 +688,9 @@ impl<D: SolveDevice + Send> Explorer<D> {
         };
         let after = first + others.len();
         let one = |t: &mut Tracker<D>, k: usize, counted: &mut Spread| {
+            if !fresh(after + k) {
+                return Ok(carry(after + k, counted));
+            }
             let start = start_of(after + k);
             match (answered.held_by, held) {
                 // The observation's error moves its points; the held
@@ -680,39 +761,6 @@ impl<D: SolveDevice + Send> Explorer<D> {
             });
         }
 
-        // The load's scale and the gravity's directions, linearised; without
-        // a load, the change of gravity the answer did not model, along each
-        // axis.
-        let mut changes = Vec::new();
-        if let (Some(rest_load), Some(change)) = (answered.rest_load, change) {
-            if priors.load_spread > 0.0 {
-                changes.push((Unknown::Load, priors.load_spread * change));
-            }
-            if priors.gravity_degrees > 0.0 {
-                let angle = priors.gravity_degrees.to_radians();
-                for (posture, sign) in [(load, 1.0), (rest_load, -1.0)] {
-                    let (a, b) = posture.normalize_or_zero().any_orthonormal_pair();
-                    for axis in [a, b] {
-                        let tilted = Quat::from_axis_angle(axis, angle) * posture;
-                        changes.push((Unknown::Gravity, sign * (tilted - posture)));
-                    }
-                }
-            }
-        } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
-            let unit = gravity_load(
-                Vec3::Z,
-                TISSUE_DENSITY_KG_M3,
-                priors.posture_kpa,
-                nu0,
-                answered.metres_per_unit,
-            )
-            .map_err(Error::from)?
-            .length();
-            let each = priors.posture_g * unit / 3f32.sqrt();
-            for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
-                changes.push((Unknown::Posture, each * axis));
-            }
-        }
         for (unknown, change) in changes {
             tracker.set_load::<E>(load + change)?;
             let positions = solve(tracker, (answered.surface, held), &mut spread, made)?;

@@ -35,6 +35,7 @@ impl Spread {
     /// Adds the re-solves `counted` counted apart ([`counting`]).
     pub(super) fn add_counted(&mut self, counted: &Spread) {
         self.solves += counted.solves;
+        self.carried += counted.carried;
         self.iterations += counted.iterations;
         self.converged &= counted.converged;
     }
@@ -47,6 +48,7 @@ pub(super) fn counting() -> Spread {
         answer: Vec::new(),
         columns: Vec::new(),
         solves: 0,
+        carried: 0,
         iterations: 0,
         converged: true,
         seconds: 0.0,
