@@ -13,8 +13,8 @@ pub use matching::{
     CLOUD_EDGE_SPACINGS, CLOUD_NOISE, EARLY_TOLERANCE, FIELD_CELL_EDGES, FIELD_MARGIN,
     FRAME_STAGES, HELD_OFF, HELD_REACH, HELD_TOLERANCE, HeldRegion, MATCH_STAGES, MAX_REACH,
     MAX_VOLUME_CHANGE, MatchParams, MatchReport, PREDICTION_ROUNDS, Residual, STAGE_GROWTH,
-    SURFACE_NOISE, SURFACE_SMOOTHING, held_on, match_observation, match_observation_held,
-    mean_edge,
+    SURFACE_FIRST_STAGE, SURFACE_NOISE, SURFACE_SMOOTHING, held_on, match_observation,
+    match_observation_held, mean_edge,
 };
 
 pub use held::{HeldObservation, SAMPLE_CELLS};

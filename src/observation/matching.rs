@@ -8,8 +8,8 @@ use rayon::prelude::*;
 use tissue_core::ParamError;
 use tissue_cpu::model::Embedding;
 use tissue_solve::stage2::{
-    CLOUD_SMOOTHING, ENERGY_ROUNDING, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM, SPRING_WEIGHT,
-    pair_plane, paired_point, paired_spring, predict_paired,
+    CLOUD_SMOOTHING, ENERGY_ROUNDING, ElasticSolve, NO_LIMIT, Pairing, PairingRule, RIGID_TRIM,
+    SPRING_WEIGHT, pair_plane, paired_point, paired_spring, predict_paired,
 };
 
 use super::ObservationError;
@@ -32,7 +32,9 @@ pub const PREDICTION_ROUNDS: usize = 3;
 /// 10,000 particles, paired with the plane smoothed over their vertices,
 /// 1 to 4 stages land the same millimetres (within 0.0005 mm) in 435 /
 /// 394 / 486 iterations with one stage and 129 / 122 / 100 with four, the
-/// fewest in all (docs/METHOD.md, "Observations without correspondence").
+/// fewest in all, every stage by Chebyshev's steps (86 / 82 / 82 with
+/// the first by the conjugate gradient, [`SURFACE_FIRST_STAGE`];
+/// docs/METHOD.md, "Observations without correspondence").
 pub const MATCH_STAGES: usize = 4;
 
 /// Solves of a tracking frame matched from the last frame's answer
@@ -73,13 +75,32 @@ pub const HELD_REACH: f32 = 0.5;
 /// another face: a particle on such a place is pulled one way and then the
 /// other, the last stage steps back, and it ends at the float floor. The
 /// smoothed plane moves with the particle. On the shared cases' remeshed
-/// surfaces at 10,000 particles: 129 / 122 / 100 iterations, every stage
+/// surfaces at 10,000 particles (the first stage by Chebyshev's steps):
+/// 129 / 122 / 100 iterations, every stage
 /// to the tolerance, against 184 / 268 / 271 paired with the nearest
 /// point (the last stages at the float floor), the probes and tumour
 /// centres within 0.03 mm of theirs on breast_d and breast_e and closer on
 /// breast_c (docs/METHOD.md, "Observations without correspondence"); at
 /// 0.75 and 1.5 edges 133-152 and 100-138 iterations.
 pub const SURFACE_SMOOTHING: f32 = 1.0;
+
+/// A surface's first stage from rest descends by the conjugate gradient
+/// where the solve's own choice is the default (Chebyshev's steps, then
+/// the conjugate gradient where the potential first rises, which a
+/// pairing does not take): the skin starts far from the surface, and
+/// Chebyshev's first steps overshoot, its potential rising after 6-7
+/// iterations on every shared case, then settle at half their length. On
+/// the shared cases' remeshed surfaces at 10,000 particles the first
+/// stage took 21 / 22 / 22 iterations against 65 / 64 / 41, the match 86
+/// / 82 / 82 against 129 / 122 / 100 and 5-14 % less time (medians of
+/// eight runs alternating: 0.54 / 0.56 / 0.58 s against 0.62 / 0.65 /
+/// 0.61 s on two cores), the same millimetres. The later stages start
+/// near their answer, where a Chebyshev iteration costs half of one of
+/// the conjugate gradient's (its line search measures the potential); a
+/// cloud's first stage gained nothing (its pairs' robust scale and rim),
+/// nor does a surface paired with the nearest point, whose potential
+/// jumps as the nearest point moves.
+pub const SURFACE_FIRST_STAGE: ElasticSolve = ElasticSolve::ConjugateGradient;
 
 /// The noise scale where none is given, for a surface in mean connection
 /// lengths of the model (another segmentation's corners and facets).
@@ -432,6 +453,8 @@ pub fn match_observation_held(
     };
     let paired_on = field;
     let field = &paired_on.field;
+    // A surface paired with its smoothed plane ([`SURFACE_FIRST_STAGE`]).
+    let smoothed_surface = !scan && paired_on.smoothed_edge.is_some();
     solver.set_observation(Some(field))?;
     let mut iterations = 0;
     let mut last = None;
@@ -489,6 +512,13 @@ pub fn match_observation_held(
         solver.set_params(solve_params.clone().with(|p| {
             if !last_stage && !scan {
                 p.tolerance *= params.early_tolerance;
+            }
+            if stage == 0
+                && !params.warm
+                && smoothed_surface
+                && p.tuning.elastic_solve == ElasticSolve::ChebyshevThenConjugateGradient
+            {
+                p.tuning.elastic_solve = SURFACE_FIRST_STAGE;
             }
         }))?;
         if stage > 0 || params.warm {
@@ -790,8 +820,9 @@ mod tests {
     /// times the tolerance, from the solve's start (a tracking frame: one
     /// stage, warm); the weight grows by four a stage to the last one's; a
     /// surface's field in cells of two mean edges, exact within four; a
-    /// surface paired by its plane smoothed over one mean edge; a tracking
-    /// frame's start predicted, its skin paired three times.
+    /// surface paired by its plane smoothed over one mean edge, its first
+    /// stage by the conjugate gradient; a tracking frame's start
+    /// predicted, its skin paired three times.
     #[test]
     fn the_weight_grows_by_four_a_stage_to_the_springs_weight() {
         let params = MatchParams::default();
@@ -802,6 +833,7 @@ mod tests {
         assert!(!params.warm);
         assert_eq!(params.surface_smoothing, 1.0);
         assert_eq!(SURFACE_SMOOTHING, 1.0);
+        assert_eq!(SURFACE_FIRST_STAGE, ElasticSolve::ConjugateGradient);
         assert_eq!(FIELD_CELL_EDGES, 2.0);
         assert_eq!(FIELD_MARGIN, 4.0);
         let frame = MatchParams::next_frame(Some(0.5));

@@ -55,8 +55,10 @@ pub enum ElasticSolve {
     /// Chebyshev's phase, watched, until its potential first rises or it
     /// stalls; from the state it accepted last, the conjugate gradient's.
     /// Where the skin is paired with an observation, Chebyshev's phases
-    /// alone (docs/METHOD.md, "Elastic model", *Chebyshev, then the
-    /// conjugate gradient*). The default.
+    /// alone, but for a surface's first match stage from rest, which the
+    /// match runs by the conjugate gradient (`tissue::observation::SURFACE_FIRST_STAGE`;
+    /// docs/METHOD.md, "Elastic model", *Chebyshev, then the conjugate
+    /// gradient*). The default.
     ChebyshevThenConjugateGradient,
 }
 
