@@ -8,17 +8,18 @@
 mod held;
 mod matching;
 mod observed;
+mod region;
 
 pub use matching::{
     CLOUD_EDGE_SPACINGS, CLOUD_NOISE, EARLY_TOLERANCE, FIELD_CELL_EDGES, FIELD_MARGIN,
-    FRAME_STAGES, HELD_OFF, HELD_REACH, HELD_TOLERANCE, HeldRegion, MATCH_STAGES, MAX_REACH,
-    MAX_VOLUME_CHANGE, MatchParams, MatchReport, PREDICTION_ROUNDS, Residual, STAGE_GROWTH,
-    SURFACE_FIRST_STAGE, SURFACE_NOISE, SURFACE_SMOOTHING, held_on, match_observation,
-    match_observation_held, mean_edge,
+    FRAME_STAGES, HELD_OFF, HELD_REACH, HELD_TOLERANCE, MATCH_STAGES, MAX_REACH, MAX_VOLUME_CHANGE,
+    MatchParams, MatchReport, PREDICTION_ROUNDS, Residual, STAGE_GROWTH, SURFACE_FIRST_STAGE,
+    SURFACE_NOISE, SURFACE_SMOOTHING, match_observation, match_observation_held, mean_edge,
 };
 
 pub use held::{HeldObservation, SAMPLE_CELLS};
 pub use observed::{CleanedScan, Observation};
+pub use region::{HeldRegion, held_on};
 pub use tissue_core::ObservationError;
 pub use tissue_core::io::cloud::{CLOUD_EXTENSIONS, load_cloud};
 pub use tissue_solve::stage2::{
