@@ -245,6 +245,7 @@ where
 /// after the first, the others carried.
 pub struct Explorer<D> {
     priors: Priors,
+    /// Which re-solves each answer makes anew, and where it got to.
     refresh: Refresh,
     /// The other Poisson ratios' trackers, by ratio.
     others: Vec<(f32, Tracker<D>)>,
