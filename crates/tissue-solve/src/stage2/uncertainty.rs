@@ -339,12 +339,7 @@ impl<D: SolveDevice + Send> Explorer<D> {
         tracker.set_params(asked.clone().with(|p| p.tolerance *= loose))?;
         let mut spread = Spread {
             answer: answer.clone(),
-            columns: Vec::new(),
-            solves: 0,
-            carried: 0,
-            iterations: 0,
-            converged: true,
-            seconds: 0.0,
+            ..chains::counting()
         };
         // A matched answer's skin paired with its observation in every
         // re-solve, as its match's last stage paired it.

@@ -41,8 +41,9 @@ impl Spread {
     }
 }
 
-/// Re-solves counted apart (a chain's, or beside the chains), then added
-/// to the spread's ([`Spread::add_counted`]).
+/// A spread with nothing in it yet: re-solves counted apart (a chain's,
+/// or beside the chains) and then added to the spread's
+/// ([`Spread::add_counted`]), or the spread's own start.
 pub(super) fn counting() -> Spread {
     Spread {
         answer: Vec::new(),
