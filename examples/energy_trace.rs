@@ -137,6 +137,16 @@ impl SolveDevice for Watched {
         self.solve.write_rotations(rotations)
     }
 
+    type Correction = <CpuSolve as SolveDevice>::Correction;
+
+    fn correction(&self) -> Self::Correction {
+        self.solve.correction()
+    }
+
+    fn put_correction(&mut self, correction: Self::Correction) -> Result<(), Infallible> {
+        self.solve.put_correction(correction)
+    }
+
     fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
         self.solve.potential()
     }

@@ -224,25 +224,100 @@ fn an_explorer_carries_its_columns_from_answer_to_answer() {
 /// explorer that refreshes two re-solves an answer.
 fn refreshed_sag(device: &Device, model: &ParticleModel, priors: &Priors) -> Vec<Spread> {
     use tissue::uncertainty::{Explorer, Refresh};
-    let sagged = tissue::deform::sagged_breast();
-    let mut solver = Solver::new(device.clone(), model, DeformParams::default()).unwrap();
     let mut explorer = Explorer::new(priors.clone()).refreshing(Refresh::every(2));
     let mut spreads = Vec::new();
-    for step in [0.25, 0.5, 0.75, 1.0] {
-        let surface = tissue::deform::interpolate(&model.surface, &sagged, step).unwrap();
-        solver.set_surface(&surface).unwrap();
-        assert!(solver.solve().unwrap().converged);
-        let exact = exact_vertices(&model.surface, &surface);
+    sag_in_steps(device, model, |solver, surface| {
+        let exact = exact_vertices(&model.surface, surface);
         let answered = Answered {
-            surface: &surface,
+            surface,
             exact: &exact,
             rest_load: None,
             metres_per_unit: 1e-3,
             held_by: None,
         };
-        spreads.push(explorer.explore(&mut solver, model, answered).unwrap());
-    }
+        spreads.push(explorer.explore(solver, model, answered).unwrap());
+    });
     spreads
+}
+
+/// The phantom's sag tracked on `device` in four steps, `between` run
+/// after each answer: each step's positions and iterations.
+fn sag_in_steps(
+    device: &Device,
+    model: &ParticleModel,
+    mut between: impl FnMut(&mut Solver, &SurfaceMesh),
+) -> Vec<(Vec<tissue::Vec3>, usize)> {
+    let sagged = tissue::deform::sagged_breast();
+    let mut solver = Solver::new(device.clone(), model, DeformParams::default()).unwrap();
+    let mut answers = Vec::new();
+    for step in [0.25, 0.5, 0.75, 1.0] {
+        let surface = tissue::deform::interpolate(&model.surface, &sagged, step).unwrap();
+        solver.set_surface(&surface).unwrap();
+        let report = solver.solve().unwrap();
+        assert!(report.converged);
+        answers.push((solver.positions().to_vec(), report.iterations));
+        between(&mut solver, &surface);
+    }
+    answers
+}
+
+/// An estimate between two frames leaves no trace on the frames after
+/// it: a sag matched without correspondence in two frames, the second
+/// keeping the first's elastic correction as a tracked scan does, with
+/// an estimate of the first answer between them (its re-solves, paired
+/// with the observation, make corrections of their own) takes the second
+/// frame's iterations and answer to the bit, on the CPU and on the GPU
+/// (lavapipe in CI), where the correction is put back on the device.
+#[test]
+fn an_estimate_between_frames_leaves_the_frames_as_they_were() {
+    use tissue::observation::{MatchParams, Observation, match_observation};
+    let model = common::phantom_model(1_000);
+    let (params, whole, _) = sag_without_correspondence(&model);
+    let halfway =
+        tissue::deform::interpolate(&model.surface, &tissue::deform::sagged_breast(), 0.5).unwrap();
+    let (vertices, triangles) = tissue_testkit::cut_in_four(&halfway.vertices, &halfway.triangles);
+    let half = Observation::surface(&SurfaceMesh::new(vertices, triangles)).unwrap();
+    let priors = Priors::default().with(|p| p.samples = 2);
+    let devices = std::iter::once(Device::Cpu).chain(common::gpu());
+    for device in devices {
+        let track = |explored: bool| {
+            let mut solver = Solver::new(device.clone(), &model, params.clone()).unwrap();
+            let on = solver.backend();
+            solver.set_surface(&model.surface).unwrap();
+            let first = MatchParams {
+                keep_correction: true,
+                ..MatchParams::default()
+            };
+            let matched = match_observation(&mut solver, &model, &half, &first).unwrap();
+            assert!(matched.converged, "{on}");
+            if explored {
+                let exact = exact_vertices(&model.surface, &matched.surface);
+                let answered = Answered {
+                    surface: &matched.surface,
+                    exact: &exact,
+                    rest_load: None,
+                    metres_per_unit: 1e-3,
+                    held_by: Some(&matched.held),
+                };
+                assert!(
+                    explore(&mut solver, &model, answered, &priors)
+                        .unwrap()
+                        .converged
+                );
+            }
+            let next = MatchParams {
+                keep_correction: true,
+                ..MatchParams::next_frame(None)
+            };
+            let matched = match_observation(&mut solver, &model, &whole, &next).unwrap();
+            assert!(matched.converged, "{on}");
+            (on, matched.iterations, solver.positions().to_vec())
+        };
+        let (on, iterations, answer) = track(false);
+        let explored = track(true);
+        assert_eq!(iterations, explored.1, "{on}: the next frame's iterations");
+        assert!(answer == explored.2, "{on}: the next frame's answer");
+    }
 }
 
 /// An explorer that refreshes two re-solves an answer makes them all at

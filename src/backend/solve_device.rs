@@ -1,11 +1,14 @@
 //! [`SolveDevice`] for [`SolverDevice`]: each call forwarded to the CPU's
 //! or the GPU's solve.
 
+use std::sync::Arc;
+
 use glam::{Mat3, Vec3};
 use tissue_core::Error;
 use tissue_core::field::SurfaceField;
 use tissue_cpu::deformation::{DeformParams, SharedLaplacian};
 use tissue_gpu::GpuSolve;
+use tissue_solve::coarse::ElasticCoarse;
 use tissue_solve::stage2::{DescentDots, Pairing, Potential, Spring};
 use tissue_solve::{Iteration, Plan, SolveDevice};
 
@@ -107,6 +110,25 @@ impl SolveDevice for SolverDevice {
         match self {
             Self::Cpu(cpu) => infallible(cpu.write_rotations(rotations)),
             Self::Gpu(gpu) => gpu.on("writing rotations", |g| g.write_rotations(rotations)),
+        }
+    }
+
+    /// Both devices keep the host's correction.
+    type Correction = Option<Arc<ElasticCoarse>>;
+
+    fn correction(&self) -> Self::Correction {
+        match self {
+            Self::Cpu(cpu) => cpu.correction(),
+            Self::Gpu(gpu) => gpu.solve.correction(),
+        }
+    }
+
+    fn put_correction(&mut self, correction: Self::Correction) -> Result<(), Error> {
+        match self {
+            Self::Cpu(cpu) => infallible(cpu.put_correction(correction)),
+            Self::Gpu(gpu) => gpu.on("uploading the elastic correction", |g| {
+                g.put_correction(correction)
+            }),
         }
     }
 

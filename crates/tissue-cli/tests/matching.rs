@@ -544,6 +544,33 @@ fn track_matches_sequences_without_correspondence() {
             let rms = observation["residual_rms_mm"].as_f64().unwrap();
             assert!(rms < 2e-3 * f64::from(size), "{kind}: residual {rms}");
         }
+        if fixed_region.is_some() {
+            // The uncertainty's re-solves between frames leave no trace
+            // on the frames: each frame's particles and iterations the
+            // same as without them.
+            let uncertain_dir = out_dir.with_extension("uncertain");
+            let mut uncertain = args.clone();
+            uncertain[4] = s(&uncertain_dir);
+            uncertain.extend(["--uncertainty", "2"]);
+            let out = run(&uncertain);
+            assert!(out.status.success(), "{kind}: {}", text(&out));
+            let iterations = |dir: &std::path::Path| {
+                json(&dir.join("track.json"))["frames"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|f| f["iterations"].as_u64())
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(iterations(&uncertain_dir), iterations(&out_dir), "{kind}");
+            for k in 1..=3 {
+                let frame = |dir: &std::path::Path| {
+                    points(&dir.join(format!("frame-{k:04}/particles.vtp")))
+                };
+                let (p95, largest) = apart(&frame(&uncertain_dir), &frame(&out_dir));
+                assert_eq!((p95, largest), (0.0, 0.0), "{kind}: frame {k}");
+            }
+        }
         let Some(region) = fixed_region else {
             // The held region lies on every frame: at most what the
             // first frame alone holds.

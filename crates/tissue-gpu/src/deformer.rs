@@ -60,7 +60,7 @@ pub struct GpuSolve {
     /// solve (the elastic force, `coarse` and `elastic_coarse_max_aggregates` on).
     elastic_host: Option<ElasticHost>,
     /// The elastic phase's correction in hand (its contraction, its step).
-    elastic_coarse: Option<ElasticCoarse>,
+    elastic_coarse: Option<Arc<ElasticCoarse>>,
     /// Per particle its body force (the plan's loads; empty without), for
     /// the loads buffer made again with other springs.
     loads: Vec<Vec3>,
@@ -523,7 +523,8 @@ impl GpuSolve {
             },
             &host.springs,
             None,
-        );
+        )
+        .map(Arc::new);
         match &self.elastic_coarse {
             Some(coarse) => self
                 .state

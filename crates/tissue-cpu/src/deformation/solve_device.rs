@@ -212,6 +212,18 @@ impl SolveDevice for CpuSolve {
         Ok(())
     }
 
+    /// Shared, not copied.
+    type Correction = Option<Arc<ElasticCoarse>>;
+
+    fn correction(&self) -> Self::Correction {
+        self.elastic_coarse.clone()
+    }
+
+    fn put_correction(&mut self, correction: Self::Correction) -> Result<(), Infallible> {
+        self.elastic_coarse = correction;
+        Ok(())
+    }
+
     /// The state's vectors copied, its prepared parts (the coarse spaces,
     /// the elastic model, the observation) shared.
     fn fork(&self) -> Option<Self> {

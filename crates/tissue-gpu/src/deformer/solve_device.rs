@@ -1,6 +1,8 @@
 //! [`SolveDevice`] for [`GpuSolve`]: each call of the seam inside error
 //! scopes of its own, and what those calls run.
 
+use std::sync::Arc;
+
 use glam::{Mat3, Vec3};
 use tissue_core::field::SurfaceField;
 use tissue_solve::coarse::{ElasticCoarse, SharedLaplacian};
@@ -28,7 +30,7 @@ impl SolveDevice for GpuSolve {
     fn elastic_rho(&self) -> Option<f32> {
         self.iteration
             .filter(|it| it.correct && it.force == ForceModel::Elastic)
-            .and(self.elastic_coarse.as_ref())
+            .and(self.elastic_coarse.as_deref())
             .map(ElasticCoarse::rho)
     }
 
@@ -227,6 +229,36 @@ impl SolveDevice for GpuSolve {
         self.scoped(|gpu| gpu.state.write_rotations(&gpu.queue, rotations))
     }
 
+    /// The host's copy, shared; the device's buffers are made from it.
+    type Correction = Option<Arc<ElasticCoarse>>;
+
+    fn correction(&self) -> Self::Correction {
+        self.elastic_coarse.clone()
+    }
+
+    /// Uploaded again unless it is the correction in hand.
+    fn put_correction(&mut self, correction: Self::Correction) -> Result<(), GpuError> {
+        let same = match (&correction, &self.elastic_coarse) {
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            (None, None) => true,
+            _ => false,
+        };
+        if same {
+            return Ok(());
+        }
+        self.scoped(|gpu| {
+            let device = gpu.device.clone();
+            match &correction {
+                Some(coarse) => gpu
+                    .state
+                    .linearise_elastic(&device, &gpu.pipelines, coarse)?,
+                None => gpu.state.forget_elastic_linearisation(),
+            }
+            gpu.elastic_coarse = correction;
+            Ok(())
+        })
+    }
+
     fn reset(&mut self) -> Result<(), GpuError> {
         self.scoped(Self::reset_unscoped)
     }
@@ -353,7 +385,7 @@ impl GpuSolve {
     fn begin_unscoped(&mut self, iteration: Iteration) -> Result<(), GpuError> {
         let (device, queue) = (self.device.clone(), self.queue.clone());
         let (device, queue) = (&device, &queue);
-        if ElasticCoarse::is_needed_anew(self.elastic_coarse.as_ref(), &iteration) {
+        if ElasticCoarse::is_needed_anew(self.elastic_coarse.as_deref(), &iteration) {
             self.linearise(iteration)?;
         }
         self.iteration = Some(iteration);

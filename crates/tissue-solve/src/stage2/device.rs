@@ -255,6 +255,21 @@ pub trait SolveDevice {
     /// ([`SolveDevice::read_rotations`]) put back with its positions.
     fn write_rotations(&mut self, rotations: &[Mat3]) -> Result<(), Self::Error>;
 
+    /// The elastic phase's correction in hand, as the device keeps it
+    /// (`()` for a device that keeps none): what a tracker's checkpoint
+    /// holds, so that solves made after it and undone leave the
+    /// correction a later phase reuses as it was
+    /// ([`SolveDevice::set_springs_keeping_correction`]).
+    type Correction: Clone + std::fmt::Debug + Send;
+
+    /// The elastic correction in hand (none before an elastic phase made
+    /// one, or after springs of another stiffness put it away).
+    fn correction(&self) -> Self::Correction;
+
+    /// Puts back a correction [`SolveDevice::correction`] gave: an elastic
+    /// phase that does not make its own runs with it.
+    fn put_correction(&mut self, correction: Self::Correction) -> Result<(), Self::Error>;
+
     /// The potential the elastic force descends at the current positions,
     /// `E / 2 - sum_k b_k . q_k` over the free particles (docs/METHOD.md,
     /// "Elastic model"), each particle's part summed in `f64` in index

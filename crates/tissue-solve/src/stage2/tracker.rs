@@ -61,13 +61,17 @@ pub struct Tracker<D> {
     connections: Option<Connections>,
 }
 
-/// A tracker's state at a frame boundary ([`Tracker::checkpoint`]).
+/// A tracker's state at a frame boundary ([`Tracker::checkpoint`]), `C`
+/// its device's [`SolveDevice::Correction`].
 #[derive(Debug, Clone)]
-pub(crate) struct Checkpoint {
+pub(crate) struct Checkpoint<C> {
     current: Vec<Vec3>,
     /// The device's rotations there: points carried after
     /// [`Tracker::back_to`] move as they did at the checkpoint.
     rotations: Vec<Mat3>,
+    /// The device's elastic correction there: the next frame's solve
+    /// that keeps its correction keeps this one.
+    correction: C,
     history: FrameHistory,
     load: Vec3,
     elastic_warm: bool,
@@ -570,19 +574,20 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(report)
     }
 
-    /// What [`Tracker::back_to`] puts back: the positions and the
-    /// device's rotations at the frame boundary, the history, the load and
-    /// whether the next solve starts warm. For solves near the answer that
+    /// What [`Tracker::back_to`] puts back: the positions, the device's
+    /// rotations and elastic correction at the frame boundary, the
+    /// history, the load and whether the next solve starts warm. For solves near the answer that
     /// must leave no trace on the answer or the next frames (the
     /// uncertainty's columns).
     ///
     /// # Errors
     ///
     /// The device's error where it cannot read its rotations back.
-    pub(crate) fn checkpoint(&mut self) -> Result<Checkpoint, D::Error> {
+    pub(crate) fn checkpoint(&mut self) -> Result<Checkpoint<D::Correction>, D::Error> {
         Ok(Checkpoint {
             current: self.current.clone(),
             rotations: self.device.read_rotations()?,
+            correction: self.device.correction(),
             history: self.history.clone(),
             load: self.params.load,
             elastic_warm: self.elastic_warm,
@@ -613,11 +618,11 @@ impl<D: SolveDevice> Tracker<D> {
     }
 
     /// Back to `kept` ([`Tracker::checkpoint`]): its positions written to
-    /// the device (the control points with them), its history, load and
-    /// warm start.
+    /// the device (the control points with them), its rotations and
+    /// elastic correction, its history, load and warm start.
     pub(crate) fn back_to<E: From<Error> + From<D::Error>>(
         &mut self,
-        kept: Checkpoint,
+        kept: Checkpoint<D::Correction>,
     ) -> Result<(), E> {
         if self.params.load != kept.load {
             self.set_load::<E>(kept.load)?;
@@ -629,6 +634,7 @@ impl<D: SolveDevice> Tracker<D> {
         self.elastic_correct = kept.elastic_correct;
         self.device.write_positions(&self.current, None)?;
         self.device.write_rotations(&kept.rotations)?;
+        self.device.put_correction(kept.correction)?;
         Ok(())
     }
 
@@ -845,6 +851,15 @@ mod tests {
         }
 
         fn write_rotations(&mut self, _rotations: &[Mat3]) -> Result<(), Infallible> {
+            Ok(())
+        }
+
+        /// No correction kept.
+        type Correction = ();
+
+        fn correction(&self) {}
+
+        fn put_correction(&mut self, (): ()) -> Result<(), Infallible> {
             Ok(())
         }
 

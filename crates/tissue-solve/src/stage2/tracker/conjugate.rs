@@ -423,6 +423,15 @@ mod tests {
             Ok(())
         }
 
+        /// No correction kept.
+        type Correction = ();
+
+        fn correction(&self) {}
+
+        fn put_correction(&mut self, (): ()) -> Result<(), Infallible> {
+            Ok(())
+        }
+
         fn potential(&mut self) -> Result<Option<Potential>, Infallible> {
             let parts = self
                 .x
