@@ -660,6 +660,59 @@ mod tests {
         assert!(!field.is_inside(Vec3::new(2.5, 2.5, 4.5)), "in the tunnel");
     }
 
+    /// The band is every cell whose centre some triangle comes within the
+    /// margin and half a diagonal of (as the triangles binned with the
+    /// margin mark it), and each band cell lists every triangle within
+    /// its reach (the exact nearest distance from its centre and a
+    /// diagonal), by distance, then index: none of the shortcuts that
+    /// make them leaves one out or takes one in.
+    #[test]
+    fn the_band_and_its_candidates_are_those_of_the_exact_tests() {
+        let (vertices, triangles) = tissue_testkit::sphere(1.0, 3);
+        let mesh = SurfaceMesh::new(vertices, triangles);
+        let oracle = TriMesh::with_flags(
+            mesh.vertices.clone(),
+            mesh.triangles.clone(),
+            TriMeshFlags::ORIENTED,
+        )
+        .unwrap();
+        for (cell, margin) in [(0.1, 0.02), (0.2, 0.6)] {
+            let field = SurfaceField::new(&mesh, cell, margin).unwrap();
+            let binned = field.bin_triangles(margin);
+            let band = field.band();
+            let mut listed = 0;
+            for (index, &in_band) in band.iter().enumerate() {
+                let marked = binned.start[index] < binned.start[index + 1];
+                assert_eq!(in_band, marked, "cell {index}");
+                assert_eq!(field.cell_state[index] == CELL_BAND, marked);
+                if !marked {
+                    continue;
+                }
+                let centre = field.cell_centre(index);
+                let nearest = (oracle.project_local_point(centre, false).point - centre).length();
+                let limit = (nearest + cell * 3f32.sqrt()) * (1.0 + 1e-5) + 1e-6 * cell;
+                let mut within: Vec<(f32, u32)> = (0..field.corners.len())
+                    .filter_map(|t| {
+                        let [a, b, c] = field.corners[t];
+                        let d = (closest_on_triangle(centre, a, b, c).0 - centre).length();
+                        (d <= limit).then_some((d, t as u32))
+                    })
+                    .collect();
+                within.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                let range = field.cell_start[index] as usize..field.cell_start[index + 1] as usize;
+                let (distances, triangles): (Vec<f32>, Vec<u32>) = within.into_iter().unzip();
+                assert_eq!(
+                    field.candidates_of(index),
+                    triangles.as_slice(),
+                    "cell {index}"
+                );
+                assert_eq!(&field.candidate_distance[range], distances.as_slice());
+                listed += triangles.len();
+            }
+            assert!(listed > 1000, "{listed} candidates in all");
+        }
+    }
+
     #[test]
     fn absurd_cell_counts_are_refused() {
         let err = SurfaceField::new(&octahedron(), 1e-4, 0.0).unwrap_err();

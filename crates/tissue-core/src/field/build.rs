@@ -31,6 +31,21 @@ impl SurfaceField {
         let diagonal = cell * 3f32.sqrt();
         let field = &*self;
         let band_cells: Vec<usize> = (0..cells).filter(|&i| band[i]).collect();
+        // Each triangle's bounding sphere (its centroid, the farthest
+        // corner's distance): a triangle whose sphere lies beyond a cell's
+        // reach by more than rounding is not measured exactly.
+        let spheres: Vec<(Vec3, f32)> = field
+            .corners
+            .par_iter()
+            .map(|&[a, b, c]| {
+                let centroid = (a + b + c) / 3.0;
+                let radius = (a - centroid)
+                    .length()
+                    .max((b - centroid).length())
+                    .max((c - centroid).length());
+                (centroid, radius)
+            })
+            .collect();
         let (band_start, kept) = rows_in_blocks(
             band_cells.len(),
             32,
@@ -41,15 +56,21 @@ impl SurfaceField {
                 let index = band_cells[k];
                 let centre = field.cell_centre(index);
                 let reach = nearest(index, centre) + diagonal;
+                let limit = reach * (1.0 + 1e-5) + 1e-6 * cell;
+                let beyond = limit * (1.0 + 1e-4) + 1e-5 * cell;
                 let first = kept.len();
                 field.for_each_binned_near(binned, centre, reach, |t| {
                     if std::mem::replace(&mut seen[t as usize], index) == index {
                         return;
                     }
+                    let (centroid, radius) = spheres[t as usize];
+                    if (centroid - centre).length() - radius > beyond {
+                        return;
+                    }
                     let [a, b, c] = field.corners[t as usize];
                     let (q, _, _) = closest_on_triangle(centre, a, b, c);
                     let d = (q - centre).length();
-                    if d <= reach * (1.0 + 1e-5) + 1e-6 * cell {
+                    if d <= limit {
                         kept.push((d, t));
                     }
                 });
@@ -262,11 +283,56 @@ impl SurfaceField {
     /// The band cells: those a triangle passes through or comes within the
     /// margin of. A point of any other cell is at least the margin from the
     /// surface.
+    ///
+    /// The cells [`SurfaceField::bin_triangles`] with the margin would bin
+    /// some triangle in, by the same tests, without the bins: a cell one
+    /// triangle marked is not measured again against the others.
     pub(super) fn band(&self) -> Vec<bool> {
-        let binned = self.bin_triangles(self.margin);
-        (0..self.cell_count())
-            .map(|i| binned.start[i] < binned.start[i + 1])
-            .collect()
+        let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
+        let cells = self.cell_count();
+        self.corners
+            .par_chunks(64)
+            .fold(
+                || vec![false; cells],
+                |mut band, chunk| {
+                    for &[a, b, c] in chunk {
+                        let range = self.cell_range(
+                            a.min(b).min(c) - Vec3::splat(half_diagonal),
+                            a.max(b).max(c) + Vec3::splat(half_diagonal),
+                        );
+                        let normal = (b - a).cross(c - a).normalize_or_zero();
+                        let point = a == b && b == c;
+                        for_each_cell(range, |cell| {
+                            let index = self.cell_index(cell);
+                            if band[index] {
+                                return;
+                            }
+                            let centre = self.centre_of(cell);
+                            let near = if point {
+                                (a - centre).length()
+                            } else {
+                                // Far from the triangle's plane means far
+                                // from the triangle.
+                                if normal.dot(centre - a).abs() > half_diagonal * (1.0 + 1e-5) {
+                                    return;
+                                }
+                                (closest_on_triangle(centre, a, b, c).0 - centre).length()
+                            };
+                            if near <= half_diagonal * (1.0 + 1e-5) {
+                                band[index] = true;
+                            }
+                        });
+                    }
+                    band
+                },
+            )
+            .reduce(
+                || vec![false; cells],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(a, b)| *a |= b);
+                    a
+                },
+            )
     }
 
     /// [`SurfaceField::band`] for a cloud, whose triangles are points:
