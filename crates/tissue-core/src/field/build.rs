@@ -289,50 +289,34 @@ impl SurfaceField {
     /// triangle marked is not measured again against the others.
     pub(super) fn band(&self) -> Vec<bool> {
         let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
-        let cells = self.cell_count();
-        self.corners
-            .par_chunks(64)
-            .fold(
-                || vec![false; cells],
-                |mut band, chunk| {
-                    for &[a, b, c] in chunk {
-                        let range = self.cell_range(
-                            a.min(b).min(c) - Vec3::splat(half_diagonal),
-                            a.max(b).max(c) + Vec3::splat(half_diagonal),
-                        );
-                        let normal = (b - a).cross(c - a).normalize_or_zero();
-                        let point = a == b && b == c;
-                        for_each_cell(range, |cell| {
-                            let index = self.cell_index(cell);
-                            if band[index] {
-                                return;
-                            }
-                            let centre = self.centre_of(cell);
-                            let near = if point {
-                                (a - centre).length()
-                            } else {
-                                // Far from the triangle's plane means far
-                                // from the triangle.
-                                if normal.dot(centre - a).abs() > half_diagonal * (1.0 + 1e-5) {
-                                    return;
-                                }
-                                (closest_on_triangle(centre, a, b, c).0 - centre).length()
-                            };
-                            if near <= half_diagonal * (1.0 + 1e-5) {
-                                band[index] = true;
-                            }
-                        });
+        self.cells_marked(64, |[a, b, c], band| {
+            let range = self.cell_range(
+                a.min(b).min(c) - Vec3::splat(half_diagonal),
+                a.max(b).max(c) + Vec3::splat(half_diagonal),
+            );
+            let normal = (b - a).cross(c - a).normalize_or_zero();
+            let point = a == b && b == c;
+            for_each_cell(range, |cell| {
+                let index = self.cell_index(cell);
+                if band[index] {
+                    return;
+                }
+                let centre = self.centre_of(cell);
+                let near = if point {
+                    (a - centre).length()
+                } else {
+                    // Far from the triangle's plane means far from the
+                    // triangle.
+                    if normal.dot(centre - a).abs() > half_diagonal * (1.0 + 1e-5) {
+                        return;
                     }
-                    band
-                },
-            )
-            .reduce(
-                || vec![false; cells],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(a, b)| *a |= b);
-                    a
-                },
-            )
+                    (closest_on_triangle(centre, a, b, c).0 - centre).length()
+                };
+                if near <= half_diagonal * (1.0 + 1e-5) {
+                    band[index] = true;
+                }
+            });
+        })
     }
 
     /// [`SurfaceField::band`] for a cloud, whose triangles are points:
@@ -340,36 +324,47 @@ impl SurfaceField {
     /// bin it in, without the bins (the same cells).
     pub(super) fn band_of_points(&self) -> Vec<bool> {
         let half_diagonal = 0.5 * self.cell * 3f32.sqrt() + self.margin;
+        self.cells_marked(256, |[a, _, _], band| {
+            let range = self.cell_range(
+                a - Vec3::splat(half_diagonal),
+                a + Vec3::splat(half_diagonal),
+            );
+            // Along a row the distance from `a` falls, then rises: the
+            // cells within reach are one run, found from its two ends.
+            let within = |cell| (a - self.centre_of(cell)).length() <= half_diagonal * (1.0 + 1e-5);
+            self.for_each_row_near(range, a, half_diagonal, |y, z, xs| {
+                let (mut first, mut last) = (*xs.start(), *xs.end());
+                while first <= last && !within([first, y, z]) {
+                    first += 1;
+                }
+                while last > first && !within([last, y, z]) {
+                    last -= 1;
+                }
+                if first <= last {
+                    let row = self.cell_index([0, y, z]);
+                    band[row + first as usize..=row + last as usize].fill(true);
+                }
+            });
+        })
+    }
+
+    /// Per cell whether `mark` marked it for some triangle: the triangles
+    /// `chunk` at a time side by side, each chunk's marks made in flags of
+    /// its own (which `mark` may read to skip a cell already marked), the
+    /// flags then joined.
+    fn cells_marked(
+        &self,
+        chunk: usize,
+        mark: impl Fn([Vec3; 3], &mut [bool]) + Sync,
+    ) -> Vec<bool> {
         let cells = self.cell_count();
         self.corners
-            .par_chunks(256)
+            .par_chunks(chunk)
             .fold(
                 || vec![false; cells],
-                |mut band, chunk| {
-                    for &[a, _, _] in chunk {
-                        let range = self.cell_range(
-                            a - Vec3::splat(half_diagonal),
-                            a + Vec3::splat(half_diagonal),
-                        );
-                        // Along a row the distance from `a` falls, then
-                        // rises: the cells within reach are one run, found
-                        // from its two ends.
-                        let within = |cell| {
-                            (a - self.centre_of(cell)).length() <= half_diagonal * (1.0 + 1e-5)
-                        };
-                        self.for_each_row_near(range, a, half_diagonal, |y, z, xs| {
-                            let (mut first, mut last) = (*xs.start(), *xs.end());
-                            while first <= last && !within([first, y, z]) {
-                                first += 1;
-                            }
-                            while last > first && !within([last, y, z]) {
-                                last -= 1;
-                            }
-                            if first <= last {
-                                let row = self.cell_index([0, y, z]);
-                                band[row + first as usize..=row + last as usize].fill(true);
-                            }
-                        });
+                |mut band, triangles| {
+                    for &corners in triangles {
+                        mark(corners, &mut band);
                     }
                     band
                 },
