@@ -576,9 +576,9 @@ impl<D: SolveDevice> Tracker<D> {
 
     /// What [`Tracker::back_to`] puts back: the positions, the device's
     /// rotations and elastic correction at the frame boundary, the
-    /// history, the load and whether the next solve starts warm. For solves near the answer that
-    /// must leave no trace on the answer or the next frames (the
-    /// uncertainty's columns).
+    /// history, the load and whether the next solve starts warm. For
+    /// solves near the answer that must leave no trace on the answer or
+    /// the next frames (the uncertainty's columns).
     ///
     /// # Errors
     ///
