@@ -292,13 +292,7 @@ fn an_estimate_between_frames_leaves_the_frames_as_they_were() {
             assert!(matched.converged, "{on}");
             if explored {
                 let exact = exact_vertices(&model.surface, &matched.surface);
-                let answered = Answered {
-                    surface: &matched.surface,
-                    exact: &exact,
-                    rest_load: None,
-                    metres_per_unit: 1e-3,
-                    held_by: Some(&matched.held),
-                };
+                let answered = matched_answer(&matched, &exact, None);
                 assert!(
                     explore(&mut solver, &model, answered, &priors)
                         .unwrap()
@@ -430,6 +424,23 @@ fn another_poisson_ratio_shares_the_elastic_model_and_solves_the_same() {
     );
 }
 
+/// A matched answer (`exact` its surface's vertices given exactly, in
+/// millimetres), its skin paired with the observation it was matched to,
+/// its rest posture's load `rest_load` where it has one.
+fn matched_answer<'a>(
+    matched: &'a tissue::observation::MatchReport,
+    exact: &'a [bool],
+    rest_load: Option<tissue::Vec3>,
+) -> Answered<'a> {
+    Answered {
+        surface: &matched.surface,
+        exact,
+        rest_load,
+        metres_per_unit: 1e-3,
+        held_by: Some(&matched.held),
+    }
+}
+
 /// The phantom's sag as an observation without correspondence (its
 /// surface cut in four), the parameters that hold `model`'s chest wall
 /// where the sag leaves it, and the sag's size.
@@ -487,13 +498,7 @@ fn a_matched_answer_spreads_with_its_skin_paired_with_the_observation() {
         assert!(matched.converged, "{on}: {:?}", matched.last);
         let answer = solver.positions().to_vec();
         let exact = exact_vertices(&model.surface, &matched.surface);
-        let answered = Answered {
-            surface: &matched.surface,
-            exact: &exact,
-            rest_load: None,
-            metres_per_unit: 1e-3,
-            held_by: Some(&matched.held),
-        };
+        let answered = matched_answer(&matched, &exact, None);
         let mut spreads = Vec::new();
         for priors in [&everything, &surface_alone, &poisson_alone] {
             let spread = explore(&mut solver, &model, answered, priors).unwrap();
@@ -610,13 +615,7 @@ fn a_matched_answer_under_a_load_spreads_linearly_in_the_stiffness_ratio() {
     assert!(matched.converged, "{:?}", matched.last);
     let answer = solver.positions().to_vec();
     let exact = exact_vertices(&model.surface, &matched.surface);
-    let answered = Answered {
-        surface: &matched.surface,
-        exact: &exact,
-        rest_load: Some(-load),
-        metres_per_unit: 1e-3,
-        held_by: Some(&matched.held),
-    };
+    let answered = matched_answer(&matched, &exact, Some(-load));
     let priors = Priors::default().with(|p| {
         p.surface_noise = 0.0;
         p.load_spread = 0.0;
