@@ -83,6 +83,58 @@ fn the_poisson_ratio_alone_spreads_only_when_its_range_does() {
     );
 }
 
+/// The unmodelled posture is solved at every Poisson ratio and integrated
+/// over the range: nearly incompressible tissue answers a change of
+/// gravity with its skin held mostly with pressure, so the response grows
+/// as the ratio falls, and the spread over the range is wider than the
+/// answer's own ratio gives.
+#[test]
+fn the_unmodelled_posture_is_integrated_over_the_poisson_ratios() {
+    let model = common::phantom_model(1_000);
+    let nu = DeformParams::default().poisson;
+    let at_answer = Priors::default().with(|p| {
+        p.poisson = (nu, nu);
+        p.surface_noise = 0.0;
+    });
+    let over_range = at_answer.clone().with(|p| p.poisson = (0.45, 0.495));
+    let (one, _, _) = sagged_spread(&Device::Cpu, &model, &at_answer);
+    let (all, _, _) = sagged_spread(&Device::Cpu, &model, &over_range);
+    fn posture(s: &Spread) -> Vec<&tissue::uncertainty::Column> {
+        s.columns
+            .iter()
+            .filter(|c| c.unknown == Unknown::Posture)
+            .collect()
+    }
+    assert_eq!(posture(&one).len(), 3, "one column per axis");
+    assert_eq!(posture(&all).len(), 9, "per axis, one per quadrature node");
+    let weights: f64 = posture(&all).iter().map(|c| c.weight).sum();
+    assert!((weights - 3.0).abs() < 1e-9, "{weights}");
+    // Two other ratios, each with its three postures, and the answer's own.
+    assert_eq!(all.solves, 2 + 2 * 3 + 3);
+    // Each particle's variance owed to the posture.
+    let variance = |s: &Spread| -> Vec<f64> {
+        (0..model.len())
+            .map(|i| {
+                posture(s)
+                    .iter()
+                    .map(|c| c.weight * f64::from((c.positions[i] - s.answer[i]).length_squared()))
+                    .sum()
+            })
+            .collect()
+    };
+    let (one, all) = (variance(&one), variance(&all));
+    let mut ratios: Vec<f64> = (0..model.len())
+        .filter(|&i| !model.is_surface(i) && one[i] > 0.0)
+        .map(|i| all[i] / one[i])
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    eprintln!(
+        "the posture's variance over the range against at the answer's ratio: median {median:.2}"
+    );
+    assert!(median > 1.5, "{median}");
+}
+
 /// With every default unknown, the particles held on the chest wall
 /// (control points on triangles that did not move) have no spread at
 /// all; the free interior has.
@@ -326,8 +378,9 @@ fn an_explorer_refreshing_two_re_solves_an_answer_carries_the_others() {
     let model = common::phantom_model(1_000);
     let priors = Priors::default().with(|p| p.samples = 4);
     let spreads = refreshed_sag(&Device::Cpu, &model, &priors);
-    // Two other Poisson ratios, four samples, three unmodelled postures.
-    let all = 2 + 4 + 3;
+    // Two other Poisson ratios, four samples, three unmodelled postures at
+    // each of the three ratios.
+    let all = 2 + 4 + 3 * 3;
     assert_eq!((spreads[0].solves, spreads[0].carried), (all, 0));
     for spread in &spreads[1..] {
         assert!(spread.converged);

@@ -61,8 +61,9 @@ pub struct UncertaintyArgs {
     pub gravity_spread: f32,
     /// With --uncertainty and without the posture options: the RMS change
     /// of gravity between the scans that the solve did not model, in g,
-    /// acting on tissue of the library's stiffness (2 kPa); 0 where the
-    /// posture did not change.
+    /// acting on tissue of the library's stiffness (2 kPa), over the
+    /// Poisson ratio's range; default sqrt(2) (either scan's gravity in
+    /// any direction); 0 where the posture did not change.
     #[arg(long, value_name = "G", default_value_t = POSTURE_G, requires = "uncertainty")]
     pub posture_spread: f32,
 }

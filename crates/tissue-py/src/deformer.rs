@@ -313,7 +313,8 @@ impl Deformer {
     /// length in the model's units, `samples` samples from `seed`), and
     /// in a posture the load's relative spread (`load_spread`) and each
     /// posture's gravity direction (`gravity_spread`, degrees), without
-    /// one an unmodelled change of posture (`posture_spread`, g). Returns
+    /// one an unmodelled change of posture (`posture_spread`, RMS in g:
+    /// by default `sqrt(2)`, either posture's gravity in any direction). Returns
     /// a dict: `radius` (`(n,)`: each particle's 95 % radius),
     /// `covariance` (`(n, 6)`: xx, yy, zz, xy, xz, yz), `dominant` (each
     /// particle's unknown: `"poisson"`, `"surface"`, `"load"`,
@@ -332,7 +333,8 @@ impl Deformer {
     /// docs/METHOD.md, "Uncertainty", *Tracking*).
     #[pyo3(signature = (points = None, samples = 16, surface_noise = 0.5,
                         surface_correlation = 10.0, poisson_range = (0.45, 0.495),
-                        load_spread = 0.14, gravity_spread = 3.0, posture_spread = 1.0,
+                        load_spread = 0.14, gravity_spread = 3.0,
+                        posture_spread = tissue::uncertainty::POSTURE_G,
                         seed = tissue::uncertainty::SEED, refresh = None))]
     #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
     fn uncertainty(

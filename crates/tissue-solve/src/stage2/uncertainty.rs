@@ -24,7 +24,10 @@
 //!   linearised re-solve per column;
 //! - without one, **the unmodelled posture**: a change of gravity between
 //!   the scans that the answer left out, of an RMS size in g on tissue of
-//!   a given stiffness, one linearised re-solve along each axis.
+//!   a given stiffness, one linearised re-solve along each axis at each
+//!   Poisson ratio solved, integrated over the ratio's range as the
+//!   ratio's own columns are (with the skin held, the response to a body
+//!   force grows fast as the ratio falls).
 //!
 //! The Poisson ratio and the loads are the elastic force's: with another
 //! force only the surface's error is sampled.
@@ -63,7 +66,7 @@ use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::tracker::{SolveDevice, Tracker};
 
-use quadrature::{gauss_legendre, lagrange, ratio};
+use quadrature::{over_the_range, ratio};
 
 pub use noise::{NoiseSample, SurfaceNoise};
 pub use priors::{
@@ -415,21 +418,34 @@ impl<D: SolveDevice + Send> Explorer<D> {
                     }
                 }
             }
-        } else if elastic && load == Vec3::ZERO && priors.posture_g > 0.0 {
+        }
+        // The unmodelled posture's change of gravity along each axis, as a
+        // load at Poisson ratio `nu` (the load is scaled by the shear
+        // modulus, which the ratio sets).
+        let unmodelled = elastic && load == Vec3::ZERO && priors.posture_g > 0.0;
+        let posture_loads = |nu: f32| -> Result<[Vec3; 3], Error> {
             let unit = gravity_load(
                 Vec3::Z,
                 TISSUE_DENSITY_KG_M3,
                 priors.posture_kpa,
-                nu0,
+                nu,
                 answered.metres_per_unit,
-            )
-            .map_err(Error::from)?
+            )?
             .length();
             let each = priors.posture_g * unit / 3f32.sqrt();
-            for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
-                changes.push((Unknown::Posture, each * axis));
+            Ok([Vec3::X, Vec3::Y, Vec3::Z].map(|axis| each * axis))
+        };
+        if unmodelled && change.is_none() {
+            for each in posture_loads(nu0)? {
+                changes.push((Unknown::Posture, each));
             }
         }
+        // The response to a change of gravity with the skin held grows fast
+        // as the ratio falls (nearly incompressible tissue answers a
+        // uniform body force with pressure), so the unmodelled posture is
+        // solved at every ratio and its covariance integrated over the
+        // range as the ratio's is.
+        let posture_by_ratio = unmodelled && change.is_none() && poisson;
         let samples_count = if priors.surface_noise > 0.0 {
             priors.samples
         } else {
@@ -440,7 +456,11 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // loads' changes. Those of the last answer are carried where this
         // explorer refreshes only some.
         let base_solved = poisson && change.is_some() && !between_ends;
-        let count = usize::from(base_solved) + others.len() + samples_count + changes.len();
+        let per_ratio = if posture_by_ratio { 3 } else { 0 };
+        let count = usize::from(base_solved)
+            + others.len() * (1 + per_ratio)
+            + samples_count
+            + changes.len();
         let can_carry = last.len() == count && last.iter().all(|o| o.len() == answer.len());
         let plan = self.refresh.plan(count, can_carry);
         // Re-solve `i` made anew, or carried from the last answer: its
@@ -492,36 +512,55 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // by `other` where this explorer has none yet) beside the surface's
         // samples (on the answer's tracker and its copies): neither touches
         // the other's state. Re-solve `first + j` of the last answer's is
-        // the other ratio `j`'s, then come the samples'.
+        // the other ratio `j`'s, then come the samples', the loads'
+        // changes', and last, where the unmodelled posture is solved at
+        // every ratio, ratio `j`'s response to axis `a` at `late + 3 j + a`.
         let first = made.len();
+        let late = first + others.len() + samples_count + changes.len();
         let trackers = &mut self.others;
-        let mut ratios = |counted: &mut Spread| -> Result<Vec<(f32, Vec<Vec3>)>, E> {
+        let mut ratios = |counted: &mut Spread| -> Result<Vec<AtRatio>, E> {
             let mut solved = Vec::new();
             for (j, &nu) in others.iter().enumerate() {
-                if !fresh(first + j) {
-                    solved.push((nu, carry(first + j, counted)));
-                    continue;
-                }
                 let wanted = params.clone().with(|p| {
                     p.tolerance *= loose;
                     p.poisson = nu;
                     p.load = change.unwrap_or(load);
                 });
-                let kept = trackers
-                    .iter()
-                    .position(|(ratio, t)| *ratio == nu && *t.params() == wanted);
-                let k = match kept {
-                    Some(k) => k,
-                    None => {
-                        trackers.retain(|(ratio, _)| *ratio != nu);
-                        trackers.push((nu, other(wanted)?));
-                        trackers.len() - 1
-                    }
-                };
-                let start = start_of(first + j);
                 let held_here = (answered.surface, held);
-                let positions = resolve::<D, E>(&mut trackers[k].1, held_here, &start, counted)?;
-                solved.push((nu, positions));
+                let positions = if fresh(first + j) {
+                    let k = tracker_at(trackers, nu, &wanted, &mut *other)?;
+                    let start = start_of(first + j);
+                    resolve::<D, E>(&mut trackers[k].1, held_here, &start, counted)?
+                } else {
+                    carry(first + j, counted)
+                };
+                let mut postures = Vec::new();
+                if posture_by_ratio {
+                    for (a, each) in posture_loads(nu)?.into_iter().enumerate() {
+                        let i = late + 3 * j + a;
+                        if !fresh(i) {
+                            postures.push(carry(i, counted));
+                            continue;
+                        }
+                        let k = tracker_at(trackers, nu, &wanted, &mut *other)?;
+                        let t = &mut trackers[k].1;
+                        // From the ratio's answer where no earlier answer
+                        // moved it.
+                        let start = match last.get(i) {
+                            Some(o) if o.len() == answer.len() => start_of(i),
+                            _ => positions.clone(),
+                        };
+                        t.set_load::<E>(each)?;
+                        let moved = resolve::<D, E>(t, held_here, &start, counted);
+                        t.set_load::<E>(wanted.load)?;
+                        postures.push(moved?);
+                    }
+                }
+                solved.push(AtRatio {
+                    nu,
+                    positions,
+                    postures,
+                });
             }
             Ok(solved)
         };
@@ -553,43 +592,39 @@ impl<D: SolveDevice + Send> Explorer<D> {
 
         // The Poisson ratio's columns: quadratic in the stiffness ratio
         // through the answer and the other ratios, integrated over the range.
-        made.extend(solved.iter().map(|(_, positions)| offsets_from(positions)));
+        made.extend(solved.iter().map(|r| offsets_from(&r.positions)));
+        // Per other ratio, the base its responses are measured from.
+        let mut bases = Vec::new();
         if poisson {
             let base = match solved.as_slice() {
-                [(a, at_a), (b, at_b)] if between_ends => {
-                    let t = ((ratio(nu0) - ratio(*a)) / (ratio(*b) - ratio(*a))) as f32;
-                    at_a.iter()
-                        .zip(at_b)
+                [a, b] if between_ends => {
+                    let t = ((ratio(nu0) - ratio(a.nu)) / (ratio(b.nu) - ratio(a.nu))) as f32;
+                    a.positions
+                        .iter()
+                        .zip(&b.positions)
                         .map(|(x, y)| *x + t * (*y - *x))
                         .collect()
                 }
                 _ => base,
             };
             let mut points: Vec<(f32, Vec<Vec3>)> = vec![(nu0, vec![Vec3::ZERO; answer.len()])];
-            for (nu, positions) in solved {
-                let offsets = positions.iter().zip(&base).map(|(x, b)| *x - *b).collect();
-                points.push((nu, offsets));
-            }
-            let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
-            for (node, weight) in gauss_legendre(lo, hi) {
-                let basis = lagrange(&ratios, ratio(node));
-                let positions = answer
+            for r in &solved {
+                let offsets = r
+                    .positions
                     .iter()
-                    .enumerate()
-                    .map(|(i, &x0)| {
-                        x0 + points
-                            .iter()
-                            .zip(&basis)
-                            .map(|((_, offsets), &b)| b as f32 * offsets[i])
-                            .sum::<Vec3>()
-                    })
+                    .zip(&base)
+                    .map(|(x, b)| *x - *b)
                     .collect();
+                points.push((r.nu, offsets));
+            }
+            for (weight, positions) in over_the_range(&answer, &points, (lo, hi)) {
                 spread.columns.push(Column {
                     unknown: Unknown::Poisson,
                     weight,
                     positions,
                 });
             }
+            bases = solved.iter().map(|r| r.positions.clone()).collect();
         }
         for positions in sampled {
             made.push(offsets_from(&positions));
@@ -600,14 +635,38 @@ impl<D: SolveDevice + Send> Explorer<D> {
             });
         }
 
+        // The unmodelled posture at the answer's ratio, per axis, where it
+        // is integrated over the ratios.
+        let mut postures = Vec::new();
         for (unknown, change) in changes {
             tracker.set_load::<E>(load + change)?;
             let positions = solve(tracker, (answered.surface, held), &mut spread, made)?;
+            if posture_by_ratio && unknown == Unknown::Posture {
+                postures.push(positions);
+                continue;
+            }
             spread.columns.push(Column {
                 unknown,
                 weight: 1.0,
                 positions,
             });
+        }
+        for r in &solved {
+            made.extend(r.postures.iter().map(|p| offsets_from(p)));
+        }
+        for (a, at_answer) in postures.iter().enumerate() {
+            let mut points = vec![(nu0, offsets_from(at_answer))];
+            for (r, base) in solved.iter().zip(&bases) {
+                let offsets = r.postures[a].iter().zip(base).map(|(x, b)| *x - *b);
+                points.push((r.nu, offsets.collect()));
+            }
+            for (weight, positions) in over_the_range(&answer, &points, (lo, hi)) {
+                spread.columns.push(Column {
+                    unknown: Unknown::Posture,
+                    weight,
+                    positions,
+                });
+            }
         }
         if tracker.params().load != load {
             tracker.set_load::<E>(load)?;
@@ -627,6 +686,42 @@ impl<D: SolveDevice + Send> Explorer<D> {
 
 /// An observation's field and the pairing of the skin with it.
 type Held<'a> = (&'a SurfaceField, &'a Pairing);
+
+/// One other Poisson ratio's re-solves.
+struct AtRatio {
+    nu: f32,
+    /// Its re-solve of the answer.
+    positions: Vec<Vec3>,
+    /// Its re-solves under the unmodelled posture's change along each axis
+    /// (empty where the posture is not solved at every ratio).
+    postures: Vec<Vec<Vec3>>,
+}
+
+/// The index in `trackers` of the one prepared for `wanted` at ratio `nu`,
+/// prepared by `other` (replacing any other at that ratio) where there is
+/// none.
+fn tracker_at<D, E>(
+    trackers: &mut Vec<(f32, Tracker<D>)>,
+    nu: f32,
+    wanted: &DeformParams,
+    other: &mut (dyn FnMut(DeformParams) -> Result<Tracker<D>, E> + Send),
+) -> Result<usize, E>
+where
+    D: SolveDevice,
+{
+    let kept = trackers
+        .iter()
+        .position(|(ratio, t)| *ratio == nu && t.params() == wanted);
+    Ok(match kept {
+        Some(k) => k,
+        None => {
+            trackers.retain(|(ratio, _)| *ratio != nu);
+            trackers.push((nu, other(wanted.clone())?));
+            trackers.len() - 1
+        }
+    })
+}
+
 
 /// Solves `t` from `start` with its control points on `surface` and, with
 /// `held`, its skin paired with that observation from its springs at
@@ -665,6 +760,7 @@ where
 
 #[cfg(test)]
 mod tests {
+    use super::quadrature::{gauss_legendre, lagrange};
     use super::*;
 
     /// The quadrature integrates a quartic in the ratio's neighbourhood
@@ -704,7 +800,7 @@ mod tests {
         assert_eq!((p.surface_noise, p.surface_correlation), (0.5, 10.0));
         assert_eq!(p.samples, 16);
         assert_eq!((p.load_spread, p.gravity_degrees), (0.14, 3.0));
-        assert_eq!((p.posture_g, p.posture_kpa), (1.0, 2.0));
+        assert_eq!((p.posture_g, p.posture_kpa), (2f32.sqrt(), 2.0));
         assert_eq!(p.column_tolerance, 8.0);
     }
 

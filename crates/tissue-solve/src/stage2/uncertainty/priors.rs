@@ -22,8 +22,10 @@ pub const LOAD_SPREAD: f32 = 0.14;
 /// across it, degrees.
 pub const GRAVITY_DEGREES: f32 = 3.0;
 /// Without a posture's gravity: the RMS change of gravity between the
-/// scans the answer did not model, in g.
-pub const POSTURE_G: f32 = 1.0;
+/// scans the answer did not model, in g. `sqrt(2)`: nothing is known of
+/// either posture, so each scan's gravity is taken as any direction,
+/// independently, and `E |g2 - g1|^2 = 2 g^2`.
+pub const POSTURE_G: f32 = std::f32::consts::SQRT_2;
 /// The Young's modulus that unmodelled change acts on, kPa.
 pub const POSTURE_KPA: f32 = 2.0;
 /// The tissue density the unmodelled change acts on, kg/m^3.

@@ -2,6 +2,8 @@
 //! stiffness ratio through the solved ratios, integrated over the prior's
 //! range by three-point Gauss-Legendre.
 
+use glam::Vec3;
+
 /// The stiffness ratio `mu / lambda = (1 - 2 nu) / (2 nu)` the answer is
 /// taken as quadratic in.
 pub(super) fn ratio(nu: f32) -> f64 {
@@ -36,6 +38,37 @@ pub(super) fn lagrange(xs: &[f64], x: f64) -> Vec<f64> {
                 .filter(|&m| m != j)
                 .map(|m| (x - xs[m]) / (xs[j] - xs[m]))
                 .product()
+        })
+        .collect()
+}
+
+/// Columns integrating over the Poisson ratio's uniform range `(lo, hi)`
+/// the offsets from `answer` given at a few ratios (`points`: ratio,
+/// offset per particle): the offsets taken as polynomial in the stiffness
+/// ratio through them, at the three-point Gauss-Legendre nodes, each
+/// column its node's weight and the answer moved by the offset there.
+pub(super) fn over_the_range(
+    answer: &[Vec3],
+    points: &[(f32, Vec<Vec3>)],
+    (lo, hi): (f32, f32),
+) -> Vec<(f64, Vec<Vec3>)> {
+    let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
+    gauss_legendre(lo, hi)
+        .into_iter()
+        .map(|(node, weight)| {
+            let basis = lagrange(&ratios, ratio(node));
+            let positions = answer
+                .iter()
+                .enumerate()
+                .map(|(i, &x0)| {
+                    x0 + points
+                        .iter()
+                        .zip(&basis)
+                        .map(|((_, offsets), &b)| b as f32 * offsets[i])
+                        .sum::<Vec3>()
+                })
+                .collect();
+            (weight, positions)
         })
         .collect()
 }
