@@ -722,7 +722,6 @@ where
     })
 }
 
-
 /// Solves `t` from `start` with its control points on `surface` and, with
 /// `held`, its skin paired with that observation from its springs at
 /// `start` on, as the match's stages were ([`Pairing::for_solve_from`]: a
