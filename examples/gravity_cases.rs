@@ -1,5 +1,5 @@
 //! The shared breast cases with gravity and a stiffness given by hand
-//! (issue 16, items 2 and 6, docs/ACCURACY.md): the unloaded shape from
+//! (docs/ACCURACY.md): the unloaded shape from
 //! the rest posture (its gravity, the chest wall held, the rest of the skin
 //! free), then the deformed posture from it with the whole deformed skin
 //! imposed, with and without the deformed posture's gravity inside. The
@@ -10,8 +10,8 @@
 //! The model is `tissue sample CASE_DIR/rest.obj --particles 10000`. The
 //! stiffness is NOT something the program may use (each case's
 //! `truth.json` gives the true one under `source.material`, for checking):
-//! until it is fitted from the skin (issue 16, item 3) this example only
-//! measures what gravity and the unloaded shape give when it is known.
+//! this example measures what gravity and the unloaded shape give when
+//! it is known (`tissue deform` fits it from the skin).
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "an example")]
 
 use std::collections::HashMap;

@@ -1,5 +1,5 @@
-//! Stage 2 with part of the surface unobserved and a body force (issue 16,
-//! item 1): a column standing on its base under its own weight, against
+//! Stage 2 with part of the surface unobserved and a body force: a
+//! column standing on its base under its own weight, against
 //! the exact answer of linear elasticity.
 #![allow(clippy::unwrap_used, reason = "tests")]
 

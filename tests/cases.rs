@@ -103,7 +103,7 @@ fn the_elastic_force_beats_linear_fem_on_both_breast_phantoms() {
     }
 }
 
-/// Issue 16's targets with gravity: the stiffness fitted from the skin
+/// The targets with gravity: the stiffness fitted from the skin
 /// (from 3 kPa, with only what `program_may_use` gives), the unloaded shape
 /// from the rest posture, the deformed posture from it with its gravity and
 /// the whole skin imposed. Probe RMSE at most three quarters of the linear
@@ -145,7 +145,7 @@ fn gravity_with_the_stiffness_fitted_from_the_skin_meets_issue_16s_targets() {
     }
 }
 
-/// Issue 16's partial skin: the chest wall and half of the skin observed
+/// A partial skin: the chest wall and half of the skin observed
 /// (the skin vertices on one side of their median x, y or z; six halves
 /// a case), the stiffness fitted from that half, then the deformed posture
 /// with the other half free. Every half beats ARAP's probe RMSE with the

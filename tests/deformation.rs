@@ -154,7 +154,7 @@ fn an_affine_map_is_reproduced_in_the_interior() {
 /// The patch test: the elastic force's consistent gradients make an affine
 /// move of the surface an equilibrium, so the interior follows it to the
 /// solve's tolerance: every interior particle within 1e-4 of the model's
-/// size (issue 14; 1.7e-5 measured, 2.5e-3 with least-squares gradients).
+/// size (1.7e-5 measured, 2.5e-3 with least-squares gradients).
 #[test]
 fn the_elastic_force_reproduces_an_affine_map_in_the_interior() {
     let model = breast_model();
@@ -233,7 +233,7 @@ fn a_cylinder_twisted_by_30_degrees_matches_torsion_theory() {
         assert!(rms <= 0.02 * scale, "{force:?}: rms {rms} > 2% of {scale}");
         assert!(max <= 0.05 * scale, "{force:?}: max {max} > 5% of {scale}");
         if force == ForceModel::Elastic {
-            // Issue 14: RMS at most 0.2 % (0.030 % measured).
+            // RMS at most 0.2 % (0.030 % measured).
             assert!(rms <= 0.002 * scale, "elastic: rms {rms} > 0.2% of {scale}");
         }
     }

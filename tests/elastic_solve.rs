@@ -1,4 +1,4 @@
-//! The elastic phase's two-level solve (issue 14): the elastic operator,
+//! The elastic phase's two-level solve: the elastic operator,
 //! linearised where the phase starts, corrected over aggregates, smoothed
 //! with the volume term taken implicitly. It must reach the uncorrected
 //! elastic solve's answer in far fewer iterations, from rest and in
@@ -71,7 +71,7 @@ fn the_elastic_two_level_solve_reaches_the_same_answer_in_fewer_iterations() {
         "{counts:?} vs {plain_counts:?}"
     );
     // Tracking frames of 1.6 % of the size: fewer than uncorrected, at most
-    // two thirds of them in all, and at most the 10 a frame issue 14 asks
+    // two thirds of them in all, and at most the 10 a frame asked
     // (2-4 measured with the volume smoother, 11-13 with the plain step's
     // correction, 20-27 uncorrected).
     let (tracked, plain_tracked): (usize, usize) =

@@ -1,4 +1,4 @@
-//! The organ's unloaded shape (issue 16, item 2): a column standing on its
+//! The organ's unloaded shape: a column standing on its
 //! base, its side and top free, "imaged" hanging under gravity. Its
 //! unloaded shape, loaded again, must give the imaged shape back, on the
 //! CPU and on the GPU (lavapipe in CI) alike.

@@ -42,7 +42,7 @@ pub fn shared_case(name: &str) -> Option<PathBuf> {
     None
 }
 
-/// The acceptance numbers of stage 1 (issue 2), with the failing value named.
+/// The acceptance numbers of stage 1, with the failing value named.
 pub fn assert_quality(what: &str, r: &SamplingReport) {
     assert!(
         r.converged,

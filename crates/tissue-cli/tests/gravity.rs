@@ -1,6 +1,6 @@
-//! The posture options of `deform` and `track` (issue 16, item 4): gravity
-//! in both scans, the organ's unloaded shape, the stiffness given or
-//! fitted, the held region; the report's fields; refusals.
+//! The posture options of `deform` and `track`: gravity in both scans,
+//! the organ's unloaded shape, the stiffness given or fitted, the held
+//! region; the report's fields; refusals.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 

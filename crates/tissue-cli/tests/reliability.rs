@@ -1,4 +1,4 @@
-//! What issue 15 asks of every run: no output replaces an input, every
+//! What every run must do: no output replaces an input, every
 //! implausible result is flagged with its own exit code, output folders hold
 //! only this run's files, and quiet runs are quiet.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
@@ -29,7 +29,7 @@ fn poked(surface: &tissue::SurfaceMesh, depth: f32) -> tissue::SurfaceMesh {
     poked
 }
 
-/// No output may replace an input (issue 15): each run below names an
+/// No output may replace an input: each run below names an
 /// input as an output, is refused before any work with both named, and
 /// leaves every input byte for byte as it was.
 #[test]
@@ -122,7 +122,7 @@ fn outputs_never_overwrite_inputs() {
 
 /// A solve that does not converge writes its results, says so in
 /// `report.json` / `track.json` (`status`), warns, and exits 2, so that a
-/// script can tell (issue 15); a converged one says `converged` and exits 0.
+/// script can tell; a converged one says `converged` and exits 0.
 #[test]
 fn an_unconverged_solve_exits_2_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
@@ -170,7 +170,7 @@ fn an_unconverged_solve_exits_2_and_says_so() {
 
 /// A landmark far outside the organ (a wrong frame or units) is carried by
 /// extrapolation: the results are written, the report's `outside` counts it,
-/// `status` says `flagged`, and the run exits 4 with a warning (issue 15).
+/// `status` says `flagged`, and the run exits 4 with a warning.
 /// Points inside give none of that.
 #[test]
 fn a_landmark_outside_the_organ_is_flagged_and_exits_4() {
@@ -286,7 +286,7 @@ fn a_structure_vertex_outside_the_organ_is_flagged_in_deform_and_track() {
 
 /// A hand-edited model (a particle moved far outside, a surface particle
 /// moved off its attachment) is refused before any work, naming the
-/// particle, and exits 1; the model as sampled is accepted (issue 15).
+/// particle, and exits 1; the model as sampled is accepted.
 #[test]
 fn a_hand_edited_model_is_refused() {
     let dir = tempfile::tempdir().unwrap();
@@ -337,7 +337,7 @@ fn a_hand_edited_model_is_refused() {
 }
 
 /// A rerun of `track` with fewer frames into the same folder leaves no
-/// frame folder or summary of the earlier run (issue 15): only this run's
+/// frame folder or summary of the earlier run: only this run's
 /// frames and its own `track.json`; a folder the user put there stays.
 #[test]
 fn a_shorter_rerun_of_track_leaves_no_stale_frames() {
@@ -386,7 +386,7 @@ fn a_shorter_rerun_of_track_leaves_no_stale_frames() {
     assert_eq!(summary["frames"].as_array().unwrap().len(), 1, "{summary}");
 }
 
-/// A quiet run prints nothing (issue 15): on a headless machine Mesa's
+/// A quiet run prints nothing: on a headless machine Mesa's
 /// Vulkan device-selection layer says `XDG_RUNTIME_DIR is invalid` while
 /// the adapters are listed; that goes to the log (`RUST_LOG=info`), not to
 /// the terminal. Both stages run on the default `auto` backend and on the
@@ -658,7 +658,7 @@ fn ctrl_c_stops_track_between_frames_and_resume_finishes_the_run() {
 }
 
 /// SIGKILL while a file is being written leaves the previous good file,
-/// never a cut-off one (issue 15): `tissue sample` writes a model over an
+/// never a cut-off one: `tissue sample` writes a model over an
 /// earlier one and is killed as soon as its temporary file appears; the
 /// model file then still loads, and is the earlier one byte for byte unless
 /// the rename won the race (then it is the whole new one).
@@ -724,7 +724,7 @@ fn a_write_killed_midway_leaves_the_previous_file_whole() {
     );
 }
 
-/// Particles turned inside out by a solve are flagged (issue 15): a poke
+/// Particles turned inside out by a solve are flagged: a poke
 /// 40 mm deep and 15 mm wide into the phantom's tip folds the tissue under
 /// the symmetric force (the elastic force, the default, resists it and
 /// folds nothing); the report counts the inverted particles, `status` is
@@ -775,8 +775,8 @@ fn particles_turned_inside_out_are_flagged_and_exit_4() {
     }
 }
 
-/// A frame in which two vertices touch is still the rest mesh (issue 15:
-/// it was welded to one vertex fewer and refused); an STL frame, which
+/// A frame in which two vertices touch is still the rest mesh, not
+/// welded to one vertex fewer and refused; an STL frame, which
 /// stores every corner, is welded back to the rest mesh.
 #[test]
 fn frames_with_touching_vertices_and_stl_frames_are_read_as_the_rest_mesh() {
@@ -885,7 +885,7 @@ fn a_frame_with_a_name_that_is_not_utf8_is_refused_not_skipped() {
 }
 
 /// A deformed skin that passes through itself is refused, naming two
-/// triangles that cross (issue 15): the phantom's tip pushed 80 mm down,
+/// triangles that cross: the phantom's tip pushed 80 mm down,
 /// through its own base. A 40 mm poke stays inside and is solved.
 #[test]
 fn a_skin_pushed_through_itself_is_refused() {
@@ -913,7 +913,7 @@ fn a_skin_pushed_through_itself_is_refused() {
     assert!(!out_dir.join("particles.vtp").exists());
 }
 
-/// 300 frames of `track` at 3,000 particles (issue 15): the skin sags and
+/// 300 frames of `track` at 3,000 particles: the skin sags and
 /// recovers 13 times (a period of 23 frames), starting and ending at rest.
 /// No drift: the last frame's particles are back at rest within 1e-4 of
 /// the size. Flat effort: the last cycle's frames take no more iterations
@@ -1018,7 +1018,7 @@ fn write_box(path: &Path, size: Vec3) {
     tissue::save_surface(&mesh, path).unwrap();
 }
 
-/// Models stage 2 cannot use are not written (issue 15): a slab one
+/// Models stage 2 cannot use are not written: a slab one
 /// particle thick, ten particles for the phantom, a box scaled by 1e-30
 /// (refused at once for its size: it took a minute to fail); each exits 1
 /// saying why, and no model file appears. The elastic force on a poke 40
@@ -1091,7 +1091,7 @@ fn unusable_models_are_not_written_and_a_deep_poke_converges_stepping_back() {
 }
 
 /// A rerun into the same folder leaves none of the earlier run's files
-/// that it does not write again (issue 15): the report's `files` of the
+/// that it does not write again: the report's `files` of the
 /// earlier `deform`, and of each earlier `track` frame, name what to
 /// remove; a file the user put there stays.
 #[test]
@@ -1165,7 +1165,7 @@ fn a_rerun_leaves_no_files_of_the_earlier_run() {
     assert_eq!(report["files"].as_array().unwrap().len(), 2, "{report}");
 }
 
-/// Output paths are checked before any work (issue 15): an output under a
+/// Output paths are checked before any work: an output under a
 /// regular file is refused before the surface is even read (a broken
 /// surface is not what the error names) and before a solve.
 #[test]

@@ -632,7 +632,7 @@ fn an_elastic_coarse_matrix_too_large_for_one_factor_is_cycled_on_both_devices()
     );
 }
 
-/// Half the skin unobserved and a body force (issue 16): the GPU's free
+/// Half the skin unobserved and a body force: the GPU's free
 /// surface particles and loads against the CPU's, with both forces.
 #[test]
 fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
@@ -667,7 +667,7 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
         assert!(cpu_report.converged && gpu_report.converged, "{force:?}");
         // Over a free skin f32 rounding moves the stop by a few iterations
         // (36 / 37 measured with the volume smoother; 148 / 150 with the
-        // plain step), within the 10 % issue 17 allows.
+        // plain step), within the 10 % allowed.
         let slack = 1.max(cpu_report.iterations / 10);
         assert!(
             cpu_report.iterations.abs_diff(gpu_report.iterations) <= slack,
@@ -700,7 +700,7 @@ fn a_partly_observed_loaded_gpu_solve_matches_the_cpu_solve() {
     }
 }
 
-/// Issue 17's check at the sizes it names, with the default parameters
+/// The check at 10,000 and 100,000 particles, with the default parameters
 /// (symmetric force, warm polar rotations, the two-level solve): at 10,000
 /// and 100,000 particles the GPU takes the CPU's iterations from rest
 /// (within 10 %) to the CPU's positions, and a run of tracking frames, each
