@@ -285,6 +285,12 @@ impl<D: SolveDevice> Tracker<D> {
         Ok(())
     }
 
+    /// The model's rest surface, whose vertices [`Tracker::set_surface`]
+    /// takes moved.
+    pub fn rest_surface(&self) -> &SurfaceMesh {
+        &self.surface
+    }
+
     /// The parameters of the next solves.
     pub fn params(&self) -> &DeformParams {
         &self.params

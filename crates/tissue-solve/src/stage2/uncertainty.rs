@@ -498,13 +498,16 @@ impl<D: SolveDevice + Send> Explorer<D> {
         };
 
         // The surface's error: a Monte Carlo ensemble.
+        // Each sample's error belongs to the skin's points: read where they
+        // are at rest, it moves with them from one answer to the next.
         let mut noise = SurfaceNoise::new(
             answered.surface,
             answered.exact,
             priors.surface_noise,
             priors.surface_correlation,
             priors.seed,
-        );
+        )
+        .attached_to(tracker.rest_surface());
         let samples: Vec<NoiseSample> = (0..samples_count).map(|_| noise.next_sample()).collect();
         let noise = &noise;
 

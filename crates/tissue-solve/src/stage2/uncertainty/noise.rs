@@ -26,6 +26,9 @@ pub const FEATURES: usize = 64;
 /// from the nearest exact one. The same `seed` gives the same samples.
 pub struct SurfaceNoise<'a> {
     surface: &'a SurfaceMesh,
+    /// Where the field is read for each vertex: the vertex itself, or
+    /// where it was on a reference surface ([`SurfaceNoise::attached_to`]).
+    at: Vec<DVec3>,
     normals: Vec<DVec3>,
     strength: Vec<f64>,
     /// The exact vertices, for the strength anywhere else.
@@ -64,6 +67,7 @@ impl<'a> SurfaceNoise<'a> {
             .collect();
         let mut noise = Self {
             surface,
+            at: surface.vertices.iter().map(|v| v.as_dvec3()).collect(),
             normals,
             strength: Vec::new(),
             held: RTree::bulk_load(held),
@@ -77,6 +81,18 @@ impl<'a> SurfaceNoise<'a> {
             .map(|&v| noise.strength_at(v))
             .collect();
         noise
+    }
+
+    /// The field read where each vertex lies on `reference` (the same
+    /// vertices, elsewhere: the rest surface the surface is a deformation
+    /// of), so that a sample's error belongs to the surface's points and
+    /// moves with them from one deformation to the next. Unchanged where
+    /// `reference` has another vertex count.
+    pub fn attached_to(mut self, reference: &SurfaceMesh) -> Self {
+        if reference.vertices.len() == self.surface.vertices.len() {
+            self.at = reference.vertices.iter().map(|v| v.as_dvec3()).collect();
+        }
+        self
     }
 
     /// How much of the field acts at `x`: `min(1, d / length)` for `x` `d`
@@ -121,7 +137,8 @@ impl<'a> SurfaceNoise<'a> {
         self.value(sample, x.as_dvec3(), self.strength_at(x)) as f32
     }
 
-    /// The surface with its vertices moved along their normals by `sample`.
+    /// The surface with its vertices moved along their normals by `sample`
+    /// (read where [`SurfaceNoise::attached_to`] put them).
     pub fn moved(&self, sample: &NoiseSample) -> SurfaceMesh {
         let mut moved = self.surface.clone();
         // A cosine per vertex and feature: on every thread.
@@ -130,9 +147,8 @@ impl<'a> SurfaceNoise<'a> {
             .par_iter_mut()
             .enumerate()
             .for_each(|(i, v)| {
-                let x = v.as_dvec3();
-                let offset = self.normals[i] * self.value(sample, x, self.strength[i]);
-                *v = (x + offset).as_vec3();
+                let value = self.value(sample, self.at[i], self.strength[i]);
+                *v = (v.as_dvec3() + self.normals[i] * value).as_vec3();
             });
         moved
     }
@@ -190,6 +206,46 @@ mod tests {
         }
         let again = SurfaceNoise::new(&surface, &exact, 0.5, 10.0, 7).sample();
         assert_eq!(again.vertices, samples[0].vertices);
+    }
+
+    /// Attached to the rest surface, a sample moves each vertex of a
+    /// deformed surface by the field where the vertex was at rest, along
+    /// its deformed normal: a translated surface moves as the rest one
+    /// does; unattached, the field is read where the vertices are now.
+    #[test]
+    fn an_attached_sample_moves_each_vertex_by_the_field_at_its_rest_place() {
+        let rest = phantom::default_breast();
+        let exact = vec![false; rest.vertices.len()];
+        let mut shifted = rest.clone();
+        for v in &mut shifted.vertices {
+            *v += Vec3::new(7.0, -3.0, 2.0);
+        }
+        let mut at_rest = SurfaceNoise::new(&rest, &exact, 0.5, 10.0, 11);
+        let sample = at_rest.next_sample();
+        let attached = SurfaceNoise::new(&shifted, &exact, 0.5, 10.0, 11).attached_to(&rest);
+        let unattached = SurfaceNoise::new(&shifted, &exact, 0.5, 10.0, 11);
+        let offsets = |noise: &SurfaceNoise<'_>, surface: &SurfaceMesh| -> Vec<Vec3> {
+            noise
+                .moved(&sample)
+                .vertices
+                .iter()
+                .zip(&surface.vertices)
+                .map(|(m, v)| *m - *v)
+                .collect()
+        };
+        let expected = offsets(&at_rest, &rest);
+        let got = offsets(&attached, &shifted);
+        let largest = expected.iter().map(|o| o.length()).fold(0.0, f32::max);
+        assert!(largest > 0.1, "{largest}");
+        for (i, (a, b)) in expected.iter().zip(&got).enumerate() {
+            assert!((*a - *b).length() <= 1e-4, "vertex {i}: {a} against {b}");
+        }
+        let moved_off = offsets(&unattached, &shifted)
+            .iter()
+            .zip(&expected)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f32::max);
+        assert!(moved_off > 0.1 * largest, "{moved_off}");
     }
 
     /// The moved surface is made on every thread: the same on one thread
