@@ -46,8 +46,8 @@ mod setup;
 pub(crate) use crate::model::entries::Entries;
 use crate::model::entries::{Parts, own_entries};
 pub use setup::{
-    FREE_SKIN_SWEEPS, SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, elastic_aggregates, rest_rate,
-    volume_smoother,
+    FREE_SKIN_SWEEPS, SMOOTHER_MAX_CELL, SMOOTHER_MAX_RATE, SMOOTHER_MIN_LOWEST,
+    elastic_aggregates, rest_rate, rest_spectrum, volume_smoother,
 };
 
 /// Lanczos steps for the two-level iteration's contraction. On both breast
@@ -120,6 +120,9 @@ pub struct ElasticCoarse {
     /// The plain step's `c alpha` this correction was made for.
     contraction: f32,
     rho: f32,
+    /// The two-level iteration's most negative eigenvalue, where its
+    /// contraction was estimated here (NaN where it was given).
+    lowest: f32,
     seconds: f64,
 }
 
@@ -239,12 +242,17 @@ impl ElasticCoarse {
             smoother,
             contraction: made_for.contraction,
             rho: 0.0,
+            lowest: f32::NAN,
             seconds: 0.0,
         };
-        space.rho = match made_for.rho {
-            Some(rho) => rho,
-            None => space.spectral_radius(aggregates, connections, making.rate_steps),
-        };
+        match made_for.rho {
+            Some(rho) => space.rho = rho,
+            None => {
+                let (lo, hi) = space.spectrum_ends(aggregates, connections, making.rate_steps);
+                space.rho = radius_of(lo, hi);
+                space.lowest = lo as f32;
+            }
+        }
         // Estimated with the factor in `f64`; a device's iterations solve
         // in `f32` (`Cholesky::single`).
         if making.single {
@@ -583,19 +591,33 @@ impl ElasticCoarse {
     }
 
     /// The spectral radius of the two-level iteration by `steps` Lanczos
-    /// steps in the `K` inner product, in which `E` is self-adjoint on the
-    /// range of `I - Pi` (`Pi` is the `K`-orthogonal projection onto the
-    /// coarse space): the start is a fixed, irregular field with every mode
-    /// in it, after one step of `E`, which puts it in that range. The
-    /// largest Ritz value's magnitude approaches the radius from below, as
-    /// power iteration's estimate does, but in far fewer steps. Dot
-    /// products are taken in order (the same estimate for any thread count).
+    /// steps ([`ElasticCoarse::spectrum_ends`]).
+    #[cfg(test)]
     fn spectral_radius(
         &self,
         aggregates: &Aggregates,
         connections: &Connections,
         steps: usize,
     ) -> f32 {
+        let (lo, hi) = self.spectrum_ends(aggregates, connections, steps);
+        radius_of(lo, hi)
+    }
+
+    /// The most negative and the largest eigenvalue of the two-level
+    /// iteration (0.0 both where it has no spectrum to measure) by `steps`
+    /// Lanczos steps in the `K` inner product, in which `E` is self-adjoint on the
+    /// range of `I - Pi` (`Pi` is the `K`-orthogonal projection onto the
+    /// coarse space): the start is a fixed, irregular field with every mode
+    /// in it, after one step of `E`, which puts it in that range. The
+    /// extreme Ritz values approach the spectrum's ends from within, as
+    /// power iteration's estimate does, but in far fewer steps. Dot
+    /// products are taken in order (the same estimate for any thread count).
+    fn spectrum_ends(
+        &self,
+        aggregates: &Aggregates,
+        connections: &Connections,
+        steps: usize,
+    ) -> (f64, f64) {
         let inside = |i: usize| aggregates.aggregate[i] != OUTSIDE;
         let apply = |v: &[DVec3]| self.operator(aggregates, connections, v);
         let dot = |a: &[DVec3], b: &[DVec3]| a.iter().zip(b).map(|(x, y)| x.dot(*y)).sum::<f64>();
@@ -607,7 +629,7 @@ impl ElasticCoarse {
         let mut kv = apply(&v);
         let scale = dot(&v, &kv).sqrt();
         if scale.is_nan() || scale <= 0.0 {
-            return 0.0;
+            return (0.0, 0.0);
         }
         v.iter_mut().for_each(|x| *x /= scale);
         kv.iter_mut().for_each(|x| *x /= scale);
@@ -633,8 +655,14 @@ impl ElasticCoarse {
         betas.truncate(alphas.len().saturating_sub(1));
         let lo = crate::stage2::spectrum::tridiagonal_eigenvalue(&alphas, &betas, 0);
         let hi = crate::stage2::spectrum::tridiagonal_eigenvalue(&alphas, &betas, alphas.len() - 1);
-        (lo.abs().max(hi.abs()) as f32).clamp(0.0, 0.9999)
+        (lo, hi)
     }
+}
+
+/// The spectral radius of an iteration whose spectrum spans `lo..hi`,
+/// kept below one.
+fn radius_of(lo: f64, hi: f64) -> f32 {
+    (lo.abs().max(hi.abs()) as f32).clamp(0.0, 0.9999)
 }
 
 /// `P^T K P` (its block rows `blocks`) factored, or cycled above

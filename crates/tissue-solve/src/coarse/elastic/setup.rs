@@ -28,6 +28,27 @@ pub fn rest_rate(
     smoothing: Smoothing,
     direct_max_aggregates: usize,
 ) -> Option<f32> {
+    rest_spectrum(
+        aggregates,
+        rest,
+        connections,
+        elastic,
+        smoothing,
+        direct_max_aggregates,
+    )
+    .map(|(rho, _)| rho)
+}
+
+/// [`rest_rate`] and the iteration's most negative eigenvalue at rest, in
+/// the same Lanczos steps.
+pub fn rest_spectrum(
+    aggregates: &Aggregates,
+    rest: &[Vec3],
+    connections: &Connections,
+    elastic: &Elastic,
+    smoothing: Smoothing,
+    direct_max_aggregates: usize,
+) -> Option<(f32, f32)> {
     let made_for = CorrectionFor {
         contraction: 0.0,
         smoothing: Some(smoothing),
@@ -49,7 +70,7 @@ pub fn rest_rate(
     )
     .inspect_err(|e| log::warn!("the volume smoother's contraction could not be estimated: {e}"))
     .ok()
-    .map(|coarse| coarse.rho)
+    .map(|coarse| (coarse.rho, coarse.lowest))
 }
 
 /// The largest cells (in mean connection lengths) the elastic aggregates
@@ -75,6 +96,21 @@ pub const FREE_SKIN_SWEEPS: usize = 4;
 /// hardly faster than the plain step's.
 pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 
+/// The most negative eigenvalue the smoother's two-level iteration may
+/// have at rest; below it the sweeps are doubled. Too few sweeps
+/// under-correct the volume term's medium-frequency modes, which puts
+/// the iteration's negative end towards -1, and where an elastic phase
+/// starts (its operator linearised at a turned, stretched state) that end
+/// lies lower than at rest: at a Poisson ratio of 0.495 with two sweeps
+/// the shared breast cases' negative end at rest is -0.71 to -0.76, and
+/// breast_c's and breast_e's elastic phases diverged after 5-8
+/// iterations (each rescued by the conjugate gradient: 44 and 49
+/// iterations, against 31 and 36 with four sweeps, whose end is -0.15 to
+/// -0.17); at 0.49 it is -0.17 to -0.19 with two. The contraction itself,
+/// `max(|lowest|, largest)`, is 0.91-0.92 in every one of these: it does
+/// not tell them apart.
+pub const SMOOTHER_MIN_LOWEST: f32 = -0.5;
+
 /// How the volume smoother is made ([`Smoothing`]: `delta`,
 /// [`crate::coarse::volume_smoother::SHEAR_STEP`] times the plan's largest
 /// Laplacian eigenvalue, and its Jacobi sweeps) and its two-level
@@ -84,7 +120,8 @@ pub const SMOOTHER_MAX_RATE: f32 = 0.97;
 /// contraction is below [`SMOOTHER_MAX_RATE`] with at most
 /// [`MAX_SMOOTHER_SWEEPS`] sweeps: [`SMOOTHER_SWEEPS`] first
 /// ([`FREE_SKIN_SWEEPS`] where part of the skin is free), doubled while the
-/// contraction is not below it (a stiffer volume term needs more); `None`
+/// contraction is not below it or the most negative eigenvalue is below
+/// [`SMOOTHER_MIN_LOWEST`] (a stiffer volume term needs more); `None`
 /// otherwise, the plain step smoothing (said in the log where the
 /// smoother was asked for). `known`, a solver's of the same connections and
 /// parameters ([`crate::coarse::laplacian::SharedLaplacian::smoother_for`]),
@@ -134,7 +171,7 @@ pub fn volume_smoother(
         },
     };
     loop {
-        let rho = rest_rate(
+        let (rho, lowest) = rest_spectrum(
             aggregates,
             &model.positions,
             &model.connections,
@@ -142,9 +179,19 @@ pub fn volume_smoother(
             smoothing,
             direct_max_aggregates,
         )?;
-        if rho < SMOOTHER_MAX_RATE {
+        if rho < SMOOTHER_MAX_RATE && lowest >= SMOOTHER_MIN_LOWEST {
             log::info!(
-                "the volume smoother: {} Jacobi sweeps, contraction {rho:.3} at rest",
+                "the volume smoother: {} Jacobi sweeps, contraction {rho:.3} at rest (its most \
+                 negative eigenvalue {lowest:.2})",
+                smoothing.sweeps
+            );
+            return Some((smoothing, rho));
+        }
+        if rho < SMOOTHER_MAX_RATE && smoothing.sweeps * 2 > MAX_SMOOTHER_SWEEPS {
+            log::info!(
+                "the volume smoother: {} Jacobi sweeps, contraction {rho:.3} at rest (its most \
+                 negative eigenvalue {lowest:.2}, below {SMOOTHER_MIN_LOWEST}, at the most \
+                 sweeps)",
                 smoothing.sweeps
             );
             return Some((smoothing, rho));
@@ -159,7 +206,8 @@ pub fn volume_smoother(
             return None;
         }
         log::debug!(
-            "the volume smoother contracts at {rho:.3} with {} Jacobi sweeps; trying {}",
+            "the volume smoother contracts at {rho:.3} (most negative eigenvalue {lowest:.2}) \
+             with {} Jacobi sweeps; trying {}",
             smoothing.sweeps,
             smoothing.sweeps * 2
         );
