@@ -24,10 +24,11 @@
 //!   linearised re-solve per column;
 //! - without one, **the unmodelled posture**: a change of gravity between
 //!   the scans that the answer left out, of an RMS size in g on tissue of
-//!   a given stiffness, one linearised re-solve along each axis at each
-//!   Poisson ratio solved, integrated over the ratio's range as the
-//!   ratio's own columns are (with the skin held, the response to a body
-//!   force grows fast as the ratio falls).
+//!   a given stiffness, one linearised re-solve along each axis at the
+//!   answer's Poisson ratio and at the range's lower end, taken piecewise
+//!   linear in the stiffness ratio and integrated over the range by the
+//!   ratio's quadrature (with the skin held, the response to a body force
+//!   grows fast as the ratio falls).
 //!
 //! The Poisson ratio and the loads are the elastic force's: with another
 //! force only the surface's error is sampled.
@@ -66,7 +67,7 @@ use crate::stage2::pairing::Pairing;
 use crate::stage2::params::{DeformParams, ForceModel};
 use crate::stage2::tracker::{SolveDevice, Tracker};
 
-use quadrature::{over_the_range, ratio};
+use quadrature::{between_the_ratios, gauss_legendre, over_the_range, ratio};
 
 pub use noise::{NoiseSample, SurfaceNoise};
 pub use priors::{
@@ -446,6 +447,28 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // solved at every ratio and its covariance integrated over the
         // range as the ratio's is.
         let posture_by_ratio = unmodelled && change.is_none() && poisson;
+        // Its columns are taken piecewise linear in the stiffness ratio
+        // between the solved ratios ([`between_the_ratios`]), so it is
+        // solved only at the other ratios on whose side of the answer's a
+        // quadrature node lies (with the default range, the lower end):
+        // other ratio `j`'s three re-solves are the `k`-th such ratio's.
+        let nodes: Vec<f64> = gauss_legendre(lo, hi)
+            .iter()
+            .map(|&(node, _)| ratio(node) - ratio(nu0))
+            .collect();
+        let mut needed = 0;
+        let posture_at: Vec<Option<usize>> = others
+            .iter()
+            .map(|&nu| {
+                let side = ratio(nu) - ratio(nu0);
+                let wanted =
+                    posture_by_ratio && nodes.iter().any(|&n| n * side > 0.0 && n.abs() > 1e-9);
+                wanted.then(|| {
+                    needed += 1;
+                    needed - 1
+                })
+            })
+            .collect();
         let samples_count = if priors.surface_noise > 0.0 {
             priors.samples
         } else {
@@ -456,11 +479,8 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // loads' changes. Those of the last answer are carried where this
         // explorer refreshes only some.
         let base_solved = poisson && change.is_some() && !between_ends;
-        let per_ratio = if posture_by_ratio { 3 } else { 0 };
-        let count = usize::from(base_solved)
-            + others.len() * (1 + per_ratio)
-            + samples_count
-            + changes.len();
+        let count =
+            usize::from(base_solved) + others.len() + 3 * needed + samples_count + changes.len();
         let can_carry = last.len() == count && last.iter().all(|o| o.len() == answer.len());
         let plan = self.refresh.plan(count, can_carry);
         // Re-solve `i` made anew, or carried from the last answer: its
@@ -517,7 +537,8 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // the other's state. Re-solve `first + j` of the last answer's is
         // the other ratio `j`'s, then come the samples', the loads'
         // changes', and last, where the unmodelled posture is solved at
-        // every ratio, ratio `j`'s response to axis `a` at `late + 3 j + a`.
+        // other ratios, the `k`-th such ratio's response to axis `a` at
+        // `late + 3 k + a`.
         let first = made.len();
         let late = first + others.len() + samples_count + changes.len();
         let trackers = &mut self.others;
@@ -538,9 +559,9 @@ impl<D: SolveDevice + Send> Explorer<D> {
                     carry(first + j, counted)
                 };
                 let mut postures = Vec::new();
-                if posture_by_ratio {
+                if let Some(k) = posture_at[j] {
                     for (a, each) in posture_loads(nu)?.into_iter().enumerate() {
-                        let i = late + 3 * j + a;
+                        let i = late + 3 * k + a;
                         if !fresh(i) {
                             postures.push(carry(i, counted));
                             continue;
@@ -660,10 +681,12 @@ impl<D: SolveDevice + Send> Explorer<D> {
         for (a, at_answer) in postures.iter().enumerate() {
             let mut points = vec![(nu0, offsets_from(at_answer))];
             for (r, base) in solved.iter().zip(&bases) {
-                let offsets = r.postures[a].iter().zip(base).map(|(x, b)| *x - *b);
-                points.push((r.nu, offsets.collect()));
+                if let Some(moved) = r.postures.get(a) {
+                    let offsets = moved.iter().zip(base).map(|(x, b)| *x - *b);
+                    points.push((r.nu, offsets.collect()));
+                }
             }
-            for (weight, positions) in over_the_range(&answer, &points, (lo, hi)) {
+            for (weight, positions) in between_the_ratios(&answer, &points, (lo, hi)) {
                 spread.columns.push(Column {
                     unknown: Unknown::Posture,
                     weight,
@@ -696,7 +719,7 @@ struct AtRatio {
     /// Its re-solve of the answer.
     positions: Vec<Vec3>,
     /// Its re-solves under the unmodelled posture's change along each axis
-    /// (empty where the posture is not solved at every ratio).
+    /// (empty where the posture is not solved at this ratio).
     postures: Vec<Vec<Vec3>>,
 }
 
@@ -762,7 +785,7 @@ where
 
 #[cfg(test)]
 mod tests {
-    use super::quadrature::{gauss_legendre, lagrange};
+    use super::quadrature::lagrange;
     use super::*;
 
     /// The quadrature integrates a quartic in the ratio's neighbourhood
@@ -779,6 +802,33 @@ mod tests {
             .map(|&(x, w)| w * (f64::from(x) - 0.4725).powi(2))
             .sum();
         assert!((second - 0.045f64.powi(2) / 12.0).abs() < 1e-8, "{second}");
+    }
+
+    /// Between the solved ratios each node's offset is the linear
+    /// interpolation in the stiffness ratio of its two neighbours' (a convex
+    /// combination), held at the nearest one beyond them; the weights are
+    /// the quadrature's.
+    #[test]
+    fn between_the_ratios_interpolates_linearly_in_the_stiffness_ratio() {
+        use super::quadrature::between_the_ratios;
+        let answer = vec![Vec3::ZERO; 2];
+        let at = |x: f32| vec![Vec3::new(x, 0.0, 0.0), Vec3::new(0.0, 2.0 * x, 0.0)];
+        // The answer's 0.49 and the range's lower end.
+        let points = vec![(0.49, at(1.0)), (0.45, at(3.0))];
+        let columns = between_the_ratios(&answer, &points, (0.45, 0.495));
+        let nodes = gauss_legendre(0.45, 0.495);
+        assert_eq!(columns.len(), 3);
+        for ((weight, positions), (node, w)) in columns.iter().zip(&nodes) {
+            assert_eq!(weight, w);
+            let t = ((ratio(*node) - ratio(0.49)) / (ratio(0.45) - ratio(0.49))) as f32;
+            let expected = 1.0 + 2.0 * t.clamp(0.0, 1.0);
+            assert!(
+                (positions[0].x - expected).abs() < 1e-5,
+                "{node}: {positions:?}"
+            );
+            assert!((positions[1].y - 2.0 * expected).abs() < 1e-5);
+            assert!((1.0..=3.0).contains(&positions[0].x));
+        }
     }
 
     /// The Lagrange basis is one at its own point, zero at the others.
