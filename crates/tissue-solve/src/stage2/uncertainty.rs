@@ -444,8 +444,8 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // The response to a change of gravity with the skin held grows fast
         // as the ratio falls (nearly incompressible tissue answers a
         // uniform body force with pressure), so the unmodelled posture is
-        // solved at every ratio and its covariance integrated over the
-        // range as the ratio's is.
+        // solved at other ratios too and its covariance integrated over the
+        // range.
         let posture_by_ratio = unmodelled && change.is_none() && poisson;
         // Its columns are taken piecewise linear in the stiffness ratio
         // between the solved ratios ([`between_the_ratios`]), so it is
@@ -617,8 +617,6 @@ impl<D: SolveDevice + Send> Explorer<D> {
         // The Poisson ratio's columns: quadratic in the stiffness ratio
         // through the answer and the other ratios, integrated over the range.
         made.extend(solved.iter().map(|r| offsets_from(&r.positions)));
-        // Per other ratio, the base its responses are measured from.
-        let mut bases = Vec::new();
         if poisson {
             let base = match solved.as_slice() {
                 [a, b] if between_ends => {
@@ -648,7 +646,6 @@ impl<D: SolveDevice + Send> Explorer<D> {
                     positions,
                 });
             }
-            bases = solved.iter().map(|r| r.positions.clone()).collect();
         }
         for positions in sampled {
             made.push(offsets_from(&positions));
@@ -680,9 +677,10 @@ impl<D: SolveDevice + Send> Explorer<D> {
         }
         for (a, at_answer) in postures.iter().enumerate() {
             let mut points = vec![(nu0, offsets_from(at_answer))];
-            for (r, base) in solved.iter().zip(&bases) {
+            // Each other ratio's response from its own re-solve.
+            for r in &solved {
                 if let Some(moved) = r.postures.get(a) {
-                    let offsets = moved.iter().zip(base).map(|(x, b)| *x - *b);
+                    let offsets = moved.iter().zip(&r.positions).map(|(x, b)| *x - *b);
                     points.push((r.nu, offsets.collect()));
                 }
             }
