@@ -17,8 +17,7 @@ pub use aggregates::{Aggregates, OUTSIDE, members_of};
 pub use cholesky::Cholesky;
 pub use elastic::{
     CorrectionFor, ElasticCoarse, FREE_SKIN_SWEEPS, RATE_STEPS, REST_RATE_STEPS, SMOOTHER_MAX_CELL,
-    SMOOTHER_MAX_RATE, SMOOTHER_MIN_LOWEST, elastic_aggregates, rest_rate, rest_spectrum,
-    volume_smoother,
+    SMOOTHER_MAX_RATE, SMOOTHER_MIN_LOWEST, elastic_aggregates, rest_rate, volume_smoother,
 };
 pub use envelope::Envelope;
 pub use laplacian::{

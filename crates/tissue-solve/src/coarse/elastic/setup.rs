@@ -18,30 +18,10 @@ use crate::stage2::plan::Plan;
 /// phase starts, every neighbourhood is near its rest volume and turned by
 /// its rotation, and the estimate there agrees with this one to 0.004 on
 /// both breast phantoms; the estimate costs as much as 40 iterations, too
-/// much for every solve. `None` (with a warning) where the coarse matrix
-/// cannot be made.
+/// much for every solve. With it, from the same Lanczos steps, the
+/// iteration's most negative eigenvalue at rest ([`SMOOTHER_MIN_LOWEST`]).
+/// `None` (with a warning) where the coarse matrix cannot be made.
 pub fn rest_rate(
-    aggregates: &Aggregates,
-    rest: &[Vec3],
-    connections: &Connections,
-    elastic: &Elastic,
-    smoothing: Smoothing,
-    direct_max_aggregates: usize,
-) -> Option<f32> {
-    rest_spectrum(
-        aggregates,
-        rest,
-        connections,
-        elastic,
-        smoothing,
-        direct_max_aggregates,
-    )
-    .map(|(rho, _)| rho)
-}
-
-/// [`rest_rate`] and the iteration's most negative eigenvalue at rest, in
-/// the same Lanczos steps.
-pub fn rest_spectrum(
     aggregates: &Aggregates,
     rest: &[Vec3],
     connections: &Connections,
@@ -171,7 +151,7 @@ pub fn volume_smoother(
         },
     };
     loop {
-        let (rho, lowest) = rest_spectrum(
+        let (rho, lowest) = rest_rate(
             aggregates,
             &model.positions,
             &model.connections,
