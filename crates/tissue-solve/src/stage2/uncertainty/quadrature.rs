@@ -53,10 +53,52 @@ pub(super) fn over_the_range(
     (lo, hi): (f32, f32),
 ) -> Vec<(f64, Vec<Vec3>)> {
     let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
+    at_the_nodes(answer, points, (lo, hi), |x| lagrange(&ratios, x))
+}
+
+/// Columns integrating over the Poisson ratio's uniform range `(lo, hi)`
+/// the offsets from `answer` given at a few ratios (`points`), as
+/// [`over_the_range`] does but taken piecewise linear in the stiffness
+/// ratio between them (held at the nearest point beyond them): each
+/// node's offset a convex combination of solved ones, so a re-solve's
+/// error is not amplified.
+pub(super) fn between_the_ratios(
+    answer: &[Vec3],
+    points: &[(f32, Vec<Vec3>)],
+    (lo, hi): (f32, f32),
+) -> Vec<(f64, Vec<Vec3>)> {
+    let ratios: Vec<f64> = points.iter().map(|p| ratio(p.0)).collect();
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_by(|&a, &b| ratios[a].total_cmp(&ratios[b]));
+    at_the_nodes(answer, points, (lo, hi), |x| {
+        let mut basis = vec![0.0; points.len()];
+        match order.partition_point(|&k| ratios[k] <= x) {
+            0 => basis[order[0]] = 1.0,
+            n if n == order.len() => basis[order[n - 1]] = 1.0,
+            n => {
+                let (a, b) = (order[n - 1], order[n]);
+                let t = (x - ratios[a]) / (ratios[b] - ratios[a]);
+                basis[a] = 1.0 - t;
+                basis[b] = t;
+            }
+        }
+        basis
+    })
+}
+
+/// At each three-point Gauss-Legendre node of `(lo, hi)`, its weight and
+/// the answer moved by the points' offsets combined by `basis` of the
+/// node's stiffness ratio (one coefficient per point).
+fn at_the_nodes(
+    answer: &[Vec3],
+    points: &[(f32, Vec<Vec3>)],
+    (lo, hi): (f32, f32),
+    basis: impl Fn(f64) -> Vec<f64>,
+) -> Vec<(f64, Vec<Vec3>)> {
     gauss_legendre(lo, hi)
         .into_iter()
         .map(|(node, weight)| {
-            let basis = lagrange(&ratios, ratio(node));
+            let basis = basis(ratio(node));
             let positions = answer
                 .iter()
                 .enumerate()
@@ -67,44 +109,6 @@ pub(super) fn over_the_range(
                         .map(|((_, offsets), &b)| b as f32 * offsets[i])
                         .sum::<Vec3>()
                 })
-                .collect();
-            (weight, positions)
-        })
-        .collect()
-}
-
-/// Columns integrating over the Poisson ratio's uniform range `(lo, hi)`
-/// the offsets from `answer` given at a few ratios (`points`), as
-/// [`over_the_range`] does but taken piecewise linear in the stiffness
-/// ratio between them (held at the nearest point beyond them): each
-/// node's offset a convex combination of solved ones, so a re-solve's
-/// error is not amplified. (The quadratic through the answer's 0.49 and
-/// the range's 0.495, so close, multiplied each one's error by 2-3 at the
-/// middle node.)
-pub(super) fn between_the_ratios(
-    answer: &[Vec3],
-    points: &[(f32, Vec<Vec3>)],
-    (lo, hi): (f32, f32),
-) -> Vec<(f64, Vec<Vec3>)> {
-    let mut sorted: Vec<(f64, &Vec<Vec3>)> = points.iter().map(|(nu, o)| (ratio(*nu), o)).collect();
-    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
-    gauss_legendre(lo, hi)
-        .into_iter()
-        .map(|(node, weight)| {
-            let x = ratio(node);
-            let at = sorted.partition_point(|p| p.0 <= x);
-            let (a, b, t) = match at {
-                0 => (0, 0, 0.0),
-                n if n == sorted.len() => (n - 1, n - 1, 0.0),
-                n => {
-                    let (x0, x1) = (sorted[n - 1].0, sorted[n].0);
-                    (n - 1, n, ((x - x0) / (x1 - x0)) as f32)
-                }
-            };
-            let positions = answer
-                .iter()
-                .enumerate()
-                .map(|(i, &x0)| x0 + sorted[a].1[i] * (1.0 - t) + sorted[b].1[i] * t)
                 .collect();
             (weight, positions)
         })
